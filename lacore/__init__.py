@@ -1,0 +1,31 @@
+"""lacore: triangle meshes in edge lengths and dihedral angles.
+
+The headless core of the *Lengths & Angles* Blender extension, after the thesis
+"Discrete Gauss-Codazzi Equations for Efficient Triangle Mesh Processing".
+Lengths and angles ``z = (l, theta)`` (the discrete first and second fundamental
+forms) describe a mesh up to rigid motion; admissible ``z`` satisfy the discrete
+integrability conditions.
+
+Main entry points
+-----------------
+MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.topology`)
+lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.lengths_angles`)
+euler_integrability_map         admissibility conditions (:mod:`lacore.integrability`)
+integrability_violation         |tr I_v - 3| per vertex
+"""
+
+from .errors import LengthsAnglesError, MeshError
+from .integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
+                            integrability_violation, transition_rotations, triangle_inequality_map)
+from .lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
+                             split_z)
+from .topology import MeshTopology, check_vertices
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "MeshError", "LengthsAnglesError", "MeshTopology", "check_vertices",
+    "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
+    "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
+    "transition_rotations", "triangle_inequality_map",
+]
