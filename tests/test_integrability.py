@@ -1,0 +1,149 @@
+"""Discrete integrability conditions (thesis 3.2): identities at admissible z, derivatives, locality, rank."""
+
+import glob
+import os
+
+import numpy as np
+import pytest
+import trimesh
+from conftest import shared_mesh, shared_meshes_dir
+from fd import directional_fd, relative_error
+
+from lacore.errors import LengthsAnglesError
+from lacore.integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
+                                  integrability_violation, standard_frames, transition_rotations,
+                                  triangle_inequality_jacobian, triangle_inequality_map)
+from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from lacore.topology import MeshTopology
+
+
+def load(rel):
+    m = trimesh.load(shared_mesh(rel), process=False)
+    X = np.asarray(m.vertices, float)
+    return X, MeshTopology.from_faces(np.asarray(m.faces), n_vertices=len(X))
+
+
+def all_shared_meshes():
+    return sorted(os.path.relpath(p, shared_meshes_dir()) for p in glob.glob(str(shared_meshes_dir() / "*/*.ply")))
+
+
+@pytest.mark.parametrize("rel", all_shared_meshes())
+def test_admissible_z_satisfies_integrability(rel):
+    X, topo = load(rel)
+    z = lengths_and_angles(X, topo)
+    eu = euler_integrability_map(z, topo)
+    assert eu.shape == (3 * len(topo.interior_vertices),)
+    assert np.abs(eu).max(initial=0) < 1e-10
+    I = integrability_map(z, topo)
+    assert np.abs(I - np.eye(3)).max(initial=0) < 1e-10
+    assert integrability_violation(z, topo).max() < 1e-12
+    assert np.all(triangle_inequality_map(z, topo) > 0)
+
+
+@pytest.mark.parametrize("rel", ["finger/finger0.ply", "plate/plate121_rolledB.ply", "simple/SteffensPolyhedron.ply"])
+def test_transition_rotations_relate_standard_frames(rel):
+    X, topo = load(rel)
+    R = transition_rotations(lengths_and_angles(X, topo), topo)
+    F = standard_frames(X, topo.faces)
+    left, right = topo.dual_edges.T
+    assert np.abs(F[left] @ R - F[right]).max() < 1e-12
+    assert np.abs(R @ np.transpose(R, (0, 2, 1)) - np.eye(3)).max() < 1e-14
+    assert np.allclose(np.linalg.det(R), 1.0)
+
+
+def test_perturbing_one_angle_is_local():
+    X, topo = load("sphere/defSphere0.ply")
+    z = lengths_and_angles(X, topo)
+    E = topo.n_edges
+    e = topo.interior_edges[17]
+    z[E + e] += 1e-3
+    eu = np.abs(euler_integrability_map(z, topo).reshape(-1, 3)).max(1)
+    violated = set(topo.interior_vertices[eu > 1e-9].tolist())
+    assert violated == set(topo.edges[e].tolist())
+    assert np.all(eu[eu <= 1e-9] < 1e-13)
+    viol = integrability_violation(z, topo)
+    assert set(np.flatnonzero(viol > 1e-12).tolist()) == set(topo.edges[e].tolist())
+
+
+def test_perturbing_one_length_touches_its_two_faces_vertices():
+    X, topo = load("sphere/defSphere0.ply")
+    z = lengths_and_angles(X, topo)
+    e = topo.interior_edges[5]
+    z[e] *= 1.001
+    eu = np.abs(euler_integrability_map(z, topo).reshape(-1, 3)).max(1)
+    violated = set(topo.interior_vertices[eu > 1e-9].tolist())
+    assert violated == set(topo.faces[topo.edge_faces[e]].ravel().tolist())
+
+
+@pytest.mark.parametrize("rel", ["finger/finger0.ply", "plate/plate4SD_rolledA.ply", "sphere/defSphere7.ply",
+                                 "hyperbolic/monkey_saddle_1.ply"])
+def test_euler_jacobian_finite_differences(rel):
+    X, topo = load(rel)
+    X = X / np.abs(X).max()
+    z = lengths_and_angles(X, topo)
+    E = topo.n_edges
+    rng = np.random.default_rng(2)
+    # a non-admissible point: relative length noise and angle noise
+    z = z + np.r_[0.003 * z[:E] * rng.standard_normal(E), 0.003 * rng.standard_normal(E)]
+    J, val = euler_integrability_jacobian(z, topo, return_value=True)
+    np.testing.assert_array_equal(val, euler_integrability_map(z, topo))
+    for block in (slice(0, E), slice(E, 2 * E)):
+        d = np.zeros(2 * E)
+        d[block] = rng.standard_normal(E)
+        h = 1e-4 * z[:E].min()
+        fd = directional_fd(lambda w: euler_integrability_map(w, topo), z, d, h)
+        assert relative_error(J @ d, fd) < 1e-8
+
+
+@pytest.mark.parametrize("rel", ["sphere/defSphere5.ply", "plate/plate121_rolledA.ply"])
+def test_euler_jacobian_annihilates_tangent_of_image(rel):
+    """Ĩ(Z(X)) = 0 for all X, so DĨ(Z(X)) dZ/dX = 0 (tangent space 4.4 contains the image of dZ/dX)."""
+    X, topo = load(rel)
+    Jz, z = lengths_and_angles_jacobian(X, topo, return_z=True)
+    A = euler_integrability_jacobian(z, topo)
+    P = A @ Jz
+    assert np.abs(P.toarray()).max() < 1e-9 * np.abs(A.data).max() * np.abs(Jz.data).max()
+
+
+@pytest.mark.parametrize("rel", ["simple/SteffensPolyhedron.ply", "sphere/unitSphere1.ply", "sphere/defSphere0.ply"])
+def test_rank_conjecture_on_closed_meshes(rel):
+    """Conjecture 1 as a measured fact: rank D Ĩ = 3|V| - 6 at admissible z of a closed mesh."""
+    X, topo = load(rel)
+    assert topo.is_closed
+    A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo).toarray()
+    s = np.linalg.svd(A, compute_uv=False)
+    rank = int(np.sum(s > 1e-9 * s[0]))
+    assert rank == 3 * topo.n_vertices - 6
+    assert s[rank - 1] > 1e-6 * s[0]  # a clear gap, not a borderline count
+
+
+def test_rank_on_disk_is_full():
+    X, topo = load("plate/plate121_rolledB.ply")
+    A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo).toarray()
+    s = np.linalg.svd(A, compute_uv=False)
+    assert np.sum(s > 1e-9 * s[0]) == 3 * len(topo.interior_vertices)
+
+
+def test_triangle_inequality_map_and_violation():
+    X, topo = load("plate/plate121.ply")
+    z = lengths_and_angles(X, topo)
+    T = triangle_inequality_map(z, topo)
+    Jt = triangle_inequality_jacobian(topo)
+    d = np.random.default_rng(4).standard_normal(z.shape)
+    np.testing.assert_allclose((triangle_inequality_map(z + d, topo) - T).ravel(), Jt @ d, atol=1e-12)
+    e = topo.interior_edges[0]
+    z[e] = 10.0  # far longer than the other two edges of both its faces
+    T = triangle_inequality_map(z, topo)
+    bad_faces = np.flatnonzero((T <= 0).any(1))
+    assert set(bad_faces.tolist()) == set(topo.edge_faces[e].tolist())
+    viol = integrability_violation(z, topo)
+    inner_bad = set(topo.faces[bad_faces].ravel().tolist()) - set(topo.boundary_vertices.tolist())
+    assert set(np.flatnonzero(np.isinf(viol)).tolist()) == inner_bad
+    assert np.all(np.isfinite(euler_integrability_map(z, topo)))
+
+
+def test_bad_z_raises():
+    X, topo = load("simple/square4.ply")
+    z = lengths_and_angles(X, topo)
+    with pytest.raises(LengthsAnglesError, match=r"shape \(16,\)"):
+        euler_integrability_map(z[:-1], topo)
