@@ -55,9 +55,11 @@ def check_faces(faces, n_vertices=None):
     if degenerate.size:
         raise MeshError(f"degenerate faces (a vertex repeated): faces {format_indices(degenerate)}")
     key = np.sort(faces, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    if np.any(counts > 1):
-        dup = np.flatnonzero(counts[inverse.ravel()] > 1)
+    order = np.lexsort(key.T[::-1])
+    skey = key[order]
+    same = np.flatnonzero((skey[1:] == skey[:-1]).all(1))
+    if same.size:
+        dup = np.unique(np.r_[order[same], order[same + 1]])
         raise MeshError(f"repeated faces (same three vertices listed twice): faces {format_indices(dup)}")
     return faces
 
@@ -212,17 +214,14 @@ class MeshTopology:
         # corners: c = 3 f + i is vertex faces[f, i] in face f.  Next corner
         # counter-clockwise around the vertex: across half-edge (i+1) (which runs
         # from faces[f, i+2] to faces[f, i]).
-        c_face = np.repeat(np.arange(F), 3)
-        c_local = np.tile(np.arange(3), F)
-        c_vertex = faces.ravel()
-        across_h = 3 * c_face + (c_local + 1) % 3
-        e = h_edge[across_h]
-        other_face = np.where(edge_faces[e, 0] == c_face, edge_faces[e, 1], edge_faces[e, 0])
-        corner_next = np.full(3 * F, -1, np.int64)
-        ok = other_face >= 0
-        of = other_face[ok]
-        local = np.argmax(faces[of] == c_vertex[ok, None], axis=1)
-        corner_next[ok] = 3 * of + local
+        # The twin of that half-edge, in the other face g, runs from v; so it is
+        # half-edge j of g with faces[g, j+1] == v, and v's corner in g is 3 g + (j+1) % 3.
+        twin = np.full(3 * F, -1, np.int64)
+        has = right_h >= 0
+        twin[left_h[has]] = right_h[has]
+        twin[right_h[has]] = left_h[has]
+        across = twin[(np.arange(3 * F) // 3) * 3 + (np.arange(3 * F) + 1) % 3]
+        corner_next = np.where(across >= 0, across - across % 3 + (across % 3 + 1) % 3, -1)
 
         topo = cls(n_vertices=V, faces=faces, edges=edge_arr, edge_faces=edge_faces,
                    face_edges=face_edges, face_edge_is_left=face_edge_is_left, corner_next=corner_next)
@@ -237,10 +236,11 @@ class MeshTopology:
         F = self.n_faces
         src = np.flatnonzero(self.corner_next >= 0)
         g = sp.coo_matrix((np.ones(len(src)), (src, self.corner_next[src])), shape=(3 * F, 3 * F))
-        _, labels = connected_components(g, directed=False)
-        vert = self.faces.ravel()
-        pairs = np.unique(np.stack([vert, labels], 1), axis=0)
-        fans = np.bincount(pairs[:, 0], minlength=self.n_vertices)
+        n_fans, labels = connected_components(g, directed=False)
+        # corners are only linked to corners of the same vertex, so each fan has one vertex
+        fan_vertex = np.empty(n_fans, np.int64)
+        fan_vertex[labels] = self.faces.ravel()
+        fans = np.bincount(fan_vertex, minlength=self.n_vertices)
         bad = np.flatnonzero(fans > 1)
         if bad.size:
             raise MeshError("non-manifold vertices (their faces form several separate fans): "

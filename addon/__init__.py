@@ -1,0 +1,21 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Blender glue of Lengths & Angles: operators, panels, mesh access.
+
+All mathematics lives in the sibling package ``lacore`` (imported relatively).
+"""
+
+import bpy
+
+from . import operators, panels
+
+classes = (*operators.classes, *panels.classes)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

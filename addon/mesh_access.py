@@ -1,0 +1,188 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Fast, vectorized access to Blender mesh data (no mathematics here).
+
+* :func:`read_shape_keys` / :func:`write_shape_key` move shape-key coordinates
+  between Blender and ``(K, V, 3)`` float64 arrays with ``foreach_get``/``foreach_set``.
+* :func:`triangulate` builds a FIXED triangulation of the polygons: a fan from each
+  polygon's first loop vertex.  It depends only on connectivity (unlike
+  ``mesh.loop_triangles``, which follows vertex positions for quads), so all shape
+  keys share it.  The edge list is Blender's own ``mesh.edges`` (same indices)
+  followed by the fan diagonals.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "write_shape_key",
+           "key_names", "require_mesh_object"]
+
+
+class MeshAccessError(ValueError):
+    """The object cannot be processed (not a mesh, no shape keys, loose edges, ...)."""
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """A fixed triangulation of a Blender mesh.
+
+    Attributes
+    ----------
+    faces : (F, 3) int64
+        Triangles, polygon by polygon; polygon ``p`` with loop vertices
+        ``v0..v(n-1)`` gives ``(v0, vi, vi+1)`` for ``i = 1..n-2`` (same winding).
+    edges : (E, 2) int64
+        ``mesh.edges`` in Blender order, then the diagonals ``(v0, vi)``,
+        ``i = 2..n-2``, polygon by polygon.
+    face_polygon : (F,) int64
+        Polygon index of every triangle.
+    n_vertices, n_mesh_edges : int
+        ``len(mesh.vertices)``, ``len(mesh.edges)`` (the first ``n_mesh_edges``
+        rows of ``edges`` are Blender's edges).
+    """
+
+    faces: np.ndarray
+    edges: np.ndarray
+    face_polygon: np.ndarray
+    n_vertices: int
+    n_mesh_edges: int
+
+
+def require_mesh_object(obj):
+    """Return ``obj.data`` if ``obj`` is a mesh object, else raise :class:`MeshAccessError`."""
+    if obj is None:
+        raise MeshAccessError("No active object: select a mesh object")
+    if obj.type != 'MESH':
+        raise MeshAccessError(f"Object '{obj.name}' is not a mesh (its type is {obj.type})")
+    return obj.data
+
+
+def _get(collection, attr, dtype, count, width=1):
+    buf = np.empty(count * width, dtype=dtype)
+    if count:
+        collection.foreach_get(attr, buf)
+    return buf
+
+
+def triangulate(mesh):
+    """Fan-triangulate the polygons of ``mesh`` (vectorized per polygon size).
+
+    Raises
+    ------
+    MeshAccessError
+        If the mesh has no polygons, or edges/vertices used by no polygon.
+    """
+    n_vertices = len(mesh.vertices)
+    n_polys = len(mesh.polygons)
+    if n_polys == 0:
+        raise MeshAccessError(f"Mesh '{mesh.name}' has no faces")
+    loop_start = _get(mesh.polygons, "loop_start", np.int32, n_polys).astype(np.int64)
+    loop_total = _get(mesh.polygons, "loop_total", np.int32, n_polys).astype(np.int64)
+    corner_vert = _get(mesh.loops, "vertex_index", np.int32, len(mesh.loops)).astype(np.int64)
+    mesh_edges = _get(mesh.edges, "vertices", np.int32, len(mesh.edges), 2).astype(np.int64).reshape(-1, 2)
+
+    n_tris = loop_total - 2
+    n_diag = loop_total - 3
+    tri_offset = np.concatenate(([0], np.cumsum(n_tris)))
+    diag_offset = np.concatenate(([0], np.cumsum(n_diag)))
+    faces = np.empty((tri_offset[-1], 3), np.int64)
+    face_polygon = np.empty(tri_offset[-1], np.int64)
+    diagonals = np.empty((diag_offset[-1], 2), np.int64)
+    for n in np.unique(loop_total):
+        n = int(n)
+        polys = np.flatnonzero(loop_total == n)
+        verts = corner_vert[loop_start[polys, None] + np.arange(n)]  # (P, n)
+        i = np.arange(1, n - 1)
+        tri = np.stack([np.broadcast_to(verts[:, :1], (len(polys), n - 2)), verts[:, i], verts[:, i + 1]], axis=2)
+        rows = tri_offset[polys, None] + np.arange(n - 2)
+        faces[rows.ravel()] = tri.reshape(-1, 3)
+        face_polygon[rows.ravel()] = np.repeat(polys, n - 2)
+        if n > 3:
+            j = np.arange(2, n - 1)
+            diag = np.stack([np.broadcast_to(verts[:, :1], (len(polys), n - 3)), verts[:, j]], axis=2)
+            diagonals[(diag_offset[polys, None] + np.arange(n - 3)).ravel()] = diag.reshape(-1, 2)
+
+    # loose edges / vertices would make the edge list differ from the triangle edges
+    mesh_edge_keys = _edge_keys(mesh_edges, n_vertices)
+    poly_edge_keys = _edge_keys(np.stack([corner_vert, corner_vert[_next_corner(loop_start, loop_total)]], 1),
+                                n_vertices)
+    loose = np.flatnonzero(~np.isin(mesh_edge_keys, poly_edge_keys))
+    if loose.size:
+        raise MeshAccessError(f"Mesh '{mesh.name}' has {loose.size} loose edge(s) not used by any face "
+                              f"(e.g. edges {_fmt(loose)}); delete them (Mesh > Clean Up > Delete Loose)")
+    used = np.zeros(n_vertices, bool)
+    used[corner_vert] = True
+    if not used.all():
+        bad = np.flatnonzero(~used)
+        raise MeshAccessError(f"Mesh '{mesh.name}' has {bad.size} loose vertex(es) not used by any face "
+                              f"(e.g. vertices {_fmt(bad)}); delete them (Mesh > Clean Up > Delete Loose)")
+    clash = np.flatnonzero(np.isin(_edge_keys(diagonals, n_vertices), mesh_edge_keys))
+    if clash.size:
+        polys = np.searchsorted(diag_offset, clash, side="right") - 1
+        raise MeshAccessError(f"Mesh '{mesh.name}': the triangulation diagonal of face(s) {_fmt(np.unique(polys))} "
+                              "coincides with an existing edge; triangulate those faces (Ctrl+T)")
+    edges = np.concatenate([mesh_edges, diagonals], axis=0)
+    return Triangulation(faces=faces, edges=edges, face_polygon=face_polygon,
+                         n_vertices=n_vertices, n_mesh_edges=len(mesh_edges))
+
+
+def _next_corner(loop_start, loop_total):
+    """Index of the next corner (loop) within its polygon, for every loop."""
+    n_loops = int(loop_total.sum())
+    poly_of_loop = np.repeat(np.arange(len(loop_start)), loop_total)
+    corner = np.arange(n_loops)
+    local = corner - loop_start[poly_of_loop]
+    return loop_start[poly_of_loop] + (local + 1) % loop_total[poly_of_loop]
+
+
+def _edge_keys(pairs, n_vertices):
+    pairs = np.asarray(pairs, np.int64)
+    return np.minimum(pairs[:, 0], pairs[:, 1]) * n_vertices + np.maximum(pairs[:, 0], pairs[:, 1])
+
+
+def _fmt(indices, limit=8):
+    shown = ", ".join(str(int(i)) for i in indices[:limit])
+    return shown + (f" and {len(indices) - limit} more" if len(indices) > limit else "")
+
+
+def key_names(mesh):
+    """Names of the shape keys of ``mesh`` (empty list if it has none)."""
+    if mesh.shape_keys is None:
+        return []
+    return [kb.name for kb in mesh.shape_keys.key_blocks]
+
+
+def read_shape_keys(mesh):
+    """All shape keys as ``(names, coords)`` with ``coords`` of shape ``(K, V, 3)`` float64.
+
+    Raises
+    ------
+    MeshAccessError
+        If the mesh has no shape keys.
+    """
+    names = key_names(mesh)
+    if not names:
+        raise MeshAccessError(f"Mesh '{mesh.name}' has no shape keys: add at least a Basis key "
+                              "(Object Data > Shape Keys > +)")
+    V = len(mesh.vertices)
+    coords = np.empty((len(names), V, 3), np.float64)
+    buf = np.empty(3 * V, np.float32)
+    for k, kb in enumerate(mesh.shape_keys.key_blocks):
+        if len(kb.points) != V:
+            raise MeshAccessError(f"Shape key '{kb.name}' has {len(kb.points)} points but mesh '{mesh.name}' has "
+                                  f"{V} vertices")
+        kb.points.foreach_get("co", buf)
+        coords[k] = buf.reshape(V, 3)
+    return names, coords
+
+
+def write_shape_key(mesh, name, coords):
+    """Write ``(V, 3)`` coordinates into the existing shape key ``name`` and update the mesh."""
+    if mesh.shape_keys is None or name not in mesh.shape_keys.key_blocks:
+        raise MeshAccessError(f"Mesh '{mesh.name}' has no shape key '{name}'")
+    coords = np.asarray(coords, dtype=np.float64)
+    V = len(mesh.vertices)
+    if coords.shape != (V, 3):
+        raise MeshAccessError(f"Shape key '{name}': expected coordinates of shape ({V}, 3), got {coords.shape}")
+    mesh.shape_keys.key_blocks[name].points.foreach_set("co", coords.astype(np.float32).ravel())
+    mesh.update()
