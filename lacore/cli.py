@@ -18,10 +18,12 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
+
+from . import cli_reconstruct
 
 __all__ = ["main", "Subcommand", "SUBCOMMANDS", "register_subcommand", "CliError"]
 
@@ -113,7 +115,7 @@ def _run_encode(args):
         "edges": int(E),
         "faces": int(topology.n_faces),
         "boundary_edges": int(np.count_nonzero(topology.is_boundary_edge)),
-        "boundary_vertices": int(len(topology.boundary_vertices)),
+        "boundary_vertices": len(topology.boundary_vertices),
         "min_length": _json_float(lengths.min()),
         "max_length": _json_float(lengths.max()),
         "max_abs_angle": _json_float(np.abs(angles).max()),
@@ -135,6 +137,7 @@ def _run_encode(args):
 
 
 register_subcommand("encode", "encode a mesh as edge lengths and dihedral angles", _configure_encode, _run_encode)
+register_subcommand("reconstruct", cli_reconstruct.HELP, cli_reconstruct.configure, cli_reconstruct.run)
 
 
 # --------------------------------------------------------------------------- main

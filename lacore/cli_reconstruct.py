@@ -1,0 +1,220 @@
+"""``lacore reconstruct``: reconstruct a mesh from (combinations of) lengths and angles.
+
+Usage::
+
+    lacore reconstruct --ref REF.ply --target T1 [T2 ...] [--weights w1 w2 ...]
+                       [--method gn|bfs|mst|spt|lsq|hybrid] [--energy quadratic|shells]
+                       [--bending-weight B] -o OUT.ply [--json]
+
+Every target is a mesh in correspondence with the reference (same faces) or an
+``.npz`` written by ``lacore encode`` (keys ``faces, edges, lengths, angles``;
+its faces must be the reference's).  The target lengths and angles are the
+weighted sum ``z* = sum_i w_i z_i`` (default ``w_i = 1/n``; the weights need not
+sum to 1, which extrapolates).  The result is written in the reference's frame
+(``.ply``, ``.obj``, ``.off``, ``.stl``, or ``.npz`` with keys ``vertices,
+faces, z``).
+
+Defaults: Gauss-Newton with ``W_q``, weights (3.20) from the reference,
+``eta = 1e-3``.  ``--json`` prints one JSON object with at least ``method,
+iterations, seconds, energy, max_length_error, max_angle_error``.  Bad input
+(missing files, meshes not in correspondence, ...) exits with code 2.
+
+The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
+"""
+
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+from .errors import MeshError
+
+__all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
+
+HELP = "reconstruct a mesh from (weighted sums of) lengths and angles"
+
+
+def configure(parser):
+    """Declare the arguments of ``lacore reconstruct``."""
+    from .reconstruction import METHODS
+
+    parser.add_argument("--ref", required=True, metavar="REF",
+                        help="reference mesh: weights of the energy, start of Gauss-Newton, output frame")
+    parser.add_argument("--target", required=True, nargs="+", metavar="T",
+                        help="target meshes (same faces as REF) or .npz files written by 'lacore encode'")
+    parser.add_argument("--weights", nargs="+", type=float, metavar="W",
+                        help="weight of every target in z* = sum w_i z_i (default 1/n each; need not sum to 1)")
+    parser.add_argument("--method", choices=METHODS, default="gn",
+                        help="gn: Gauss-Newton (default); bfs/mst/spt: frame-based; lsq: least squares; "
+                             "hybrid: frame-based + Gauss-Newton smoothing")
+    parser.add_argument("--energy", choices=("quadratic", "shells"), default="quadratic",
+                        help="energy W[z*, Z(X)] minimized and reported (default quadratic W_q)")
+    parser.add_argument("--bending-weight", type=float, default=1e-3, metavar="ETA",
+                        help="bending weight eta (default 1e-3)")
+    parser.add_argument("--energy-weights", choices=("frohlich_botsch", "heeren", "uniform"),
+                        default="frohlich_botsch", help="weights of W_q: (3.20) (default), (3.21) or 1")
+    parser.add_argument("--hybrid-kind", choices=("mst", "spt", "bfs"), default="mst",
+                        help="spanning tree of the frame-based start of --method hybrid (default mst)")
+    parser.add_argument("--smoothing-iterations", type=int, default=3, metavar="K",
+                        help="Gauss-Newton iterations of --method hybrid (default 3)")
+    parser.add_argument("--max-iterations", type=int, default=100, metavar="N",
+                        help="Gauss-Newton iteration limit (default 100)")
+    parser.add_argument("--fixed-face", type=int, metavar="F",
+                        help="face fixing the rigid motion (default: a central, well-shaped face)")
+    parser.add_argument("--solver", choices=("cholmod", "scipy"),
+                        help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="output mesh (.ply, .obj, .off, .stl) or .npz (vertices, faces, z)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
+
+
+def _error(msg):
+    """Bad input about meshes or targets (reported by :func:`lacore.cli.main` with exit code 2).
+
+    A :class:`~lacore.errors.MeshError` rather than ``lacore.cli.CliError``, so
+    that it is caught also when the CLI runs as ``python -m lacore.cli`` (where
+    ``lacore.cli`` is imported twice).
+    """
+    return MeshError(msg)
+
+
+def load_target(path, reference_faces, topology):
+    """Lengths and angles ``(2E,)`` of one target (mesh or ``lacore encode`` .npz), in ``topology``'s edge order."""
+    from .lengths_angles import check_nondegenerate, lengths_and_angles
+    from .mesh_io import load_mesh
+
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.lower().endswith(".npz"):
+        try:
+            data = np.load(path, allow_pickle=False)
+            missing = [k for k in ("faces", "edges", "lengths", "angles") if k not in data.files]
+            if missing:
+                raise _error(f"{path}: not a 'lacore encode' file (missing keys {', '.join(missing)})")
+            faces, edges = np.asarray(data["faces"]), np.asarray(data["edges"])
+            lengths, angles = np.asarray(data["lengths"], float), np.asarray(data["angles"], float)
+        except (OSError, ValueError) as exc:
+            if isinstance(exc, MeshError):
+                raise
+            raise _error(f"{path}: cannot read .npz ({exc})") from exc
+        _check_faces(path, faces, reference_faces)
+        return _edge_order(path, edges, lengths, angles, topology)
+    vertices, faces = load_mesh(path)
+    if len(vertices) != topology.n_vertices:
+        raise _error(f"{path} has {len(vertices)} vertices but the reference has {topology.n_vertices}: "
+                     "the meshes are not in correspondence")
+    _check_faces(path, faces, reference_faces)
+    vertices = check_nondegenerate(vertices, topology)
+    return lengths_and_angles(vertices, topology)
+
+
+def _check_faces(path, faces, reference_faces):
+    if faces.shape != reference_faces.shape:
+        raise _error(f"{path} has {len(faces)} faces but the reference has {len(reference_faces)}: "
+                     "the meshes are not in correspondence")
+    if not np.array_equal(faces, reference_faces):
+        bad = np.flatnonzero(np.any(faces != reference_faces, axis=1))
+        raise _error(f"{path}: faces differ from the reference's (first at face {bad[0]}, {bad.size} in all): "
+                     "the meshes are not in correspondence")
+
+
+def _edge_order(path, edges, lengths, angles, topology):
+    E = topology.n_edges
+    if edges.shape != (E, 2) or lengths.shape != (E,) or angles.shape != (E,):
+        raise _error(f"{path}: expected {E} edges, lengths and angles, got shapes {edges.shape}, "
+                     f"{lengths.shape}, {angles.shape}")
+    if np.array_equal(edges, topology.edges):
+        return np.concatenate([lengths, angles])
+    V = topology.n_vertices
+    ours = np.sort(topology.edges, axis=1) @ [V, 1]
+    theirs = np.sort(edges.astype(np.int64), axis=1) @ [V, 1]
+    order = np.argsort(theirs)
+    pos = np.searchsorted(theirs[order], ours)
+    pos = np.minimum(pos, E - 1)
+    if not np.array_equal(theirs[order][pos], ours):
+        raise _error(f"{path}: its edges are not the edges of the reference mesh")
+    idx = order[pos]  # angles do not depend on the edge orientation
+    return np.concatenate([lengths[idx], angles[idx]])
+
+
+def combine_targets(zs, weights=None):
+    """``sum_i w_i z_i`` (default ``w_i = 1/n``)."""
+    zs = np.asarray(zs, float)
+    if weights is None:
+        weights = np.full(len(zs), 1.0 / len(zs))
+    weights = np.asarray(weights, float)
+    if weights.shape != (len(zs),):
+        raise ValueError(f"got {len(weights)} weights for {len(zs)} targets")
+    if not np.all(np.isfinite(weights)):
+        raise ValueError("the weights must be finite numbers")
+    return weights @ zs, weights
+
+
+def _save(path, vertices, faces, z):
+    from .mesh_io import save_mesh
+
+    if path.lower().endswith(".npz"):
+        np.savez(path, vertices=vertices, faces=faces, z=z)
+    else:
+        save_mesh(path, vertices, faces)
+
+
+def run(args):
+    """Run ``lacore reconstruct``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
+    from .lengths_angles import check_nondegenerate, lengths_and_angles
+    from .mesh_io import SUPPORTED_EXTENSIONS, load_mesh
+    from .reconstruction import reconstruct, reconstruction_errors
+    from .topology import MeshTopology
+
+    start = time.perf_counter()
+    out_ext = os.path.splitext(args.output)[1].lower()
+    if out_ext not in SUPPORTED_EXTENSIONS + (".npz",):
+        raise _error(f"{args.output}: unsupported output format {out_ext or '(none)'!r}; use one of "
+                     f"{', '.join(SUPPORTED_EXTENSIONS + ('.npz',))}")
+    ref_vertices, ref_faces = load_mesh(args.ref)
+    topology = MeshTopology.from_faces(ref_faces, n_vertices=len(ref_vertices))
+    ref_vertices = check_nondegenerate(ref_vertices, topology)
+    zs = [load_target(t, topology.faces, topology) for t in args.target]
+    z_target, weights = combine_targets(zs, args.weights)
+    t_load = time.perf_counter() - start
+
+    result = reconstruct(z_target, topology, ref_vertices, method=args.method, energy=args.energy,
+                         bending_weight=args.bending_weight, weights=args.energy_weights,
+                         fixed_face=args.fixed_face, hybrid_kind=args.hybrid_kind,
+                         smoothing_iterations=args.smoothing_iterations, max_iterations=args.max_iterations,
+                         solver=args.solver)
+    errors = reconstruction_errors(result.vertices, z_target, topology)
+    t = time.perf_counter()
+    _save(args.output, result.vertices, topology.faces, lengths_and_angles(result.vertices, topology))
+    t_save = time.perf_counter() - t
+    seconds = time.perf_counter() - start
+    if not result.success:
+        print(f"lacore reconstruct: warning: {result.message}", file=sys.stderr)
+    if args.json:
+        summary = {
+            "command": "reconstruct",
+            "reference": args.ref,
+            "targets": list(args.target),
+            "weights": [float(w) for w in weights],
+            "output": args.output,
+            "vertices": int(topology.n_vertices),
+            "faces": int(topology.n_faces),
+            **result.summary(),
+            **errors,
+            "seconds": seconds,
+            "reconstruction_seconds": result.timings.get("total"),
+            "load_seconds": t_load,
+            "save_seconds": t_save,
+        }
+        json.dump(summary, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"{args.output}: {result.method} reconstruction of {len(args.target)} target(s), "
+              f"{topology.n_vertices} vertices")
+        print(f"  {result.message}; {result.iterations} iterations, energy {result.energy:.6g} "
+              f"({result.energy_name})")
+        print(f"  max length error {errors['max_length_error']:.3g}, max angle error "
+              f"{errors['max_angle_error']:.3g} rad; {seconds:.3f} s")
+    return 0

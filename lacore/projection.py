@@ -1,0 +1,49 @@
+"""Projection of lengths and angles onto the admissible set (thesis 4.2, Definitions 4.3 and 4.4).
+
+Working in the ambient space ``R^{2E}`` (e.g. linear interpolation or
+extrapolation of lengths and angles, section 4.2) produces vectors ``z~`` that
+are in general not admissible.  A projection maps them back onto ``Z``:
+
+* energy-based projection (Def. 4.3, (4.7)), the default::
+
+      P_Z^W[z~] = Z[ argmin_X W[z~, Z[X]] ]
+
+  i.e. ``Z`` of the Gauss-Newton reconstruction (``method="gn"``);
+* projection by reconstruction (Def. 4.4, (4.8)) for any other reconstruction
+  method ``R``: ``P_Z^R[z~] = Z[R[z~]]``.
+
+For admissible ``z`` both return ``z`` up to round-off (``P_Z[z] = z``).
+"""
+
+from .lengths_angles import lengths_and_angles
+from .reconstruction import reconstruct
+
+__all__ = ["project"]
+
+
+def project(z, topology, reference_vertices, method="gn", **kwargs):
+    """Project lengths and angles onto the admissible set, ``P_Z[z~] = Z[R[z~]]`` (4.7), (4.8).
+
+    Parameters
+    ----------
+    z : (2E,) array_like
+        Lengths and angles ``z~`` to project.
+    topology : MeshTopology
+    reference_vertices : (V, 3) array_like
+        Reference mesh of the reconstruction (weights of ``W_q``, start).
+    method : str
+        Reconstruction method, see :func:`lacore.reconstruction.reconstruct`;
+        ``"gn"`` gives the energy-based projection (Def. 4.3).
+    **kwargs
+        Passed on to :func:`~lacore.reconstruction.reconstruct` (energy,
+        bending_weight, weights, initial_vertices, context, tolerances ...).
+
+    Returns
+    -------
+    z_projected : (2E,) ndarray
+        Admissible lengths and angles ``Z[R[z~]]``.
+    result : ReconstructionResult
+        The reconstruction (its ``vertices`` immerse ``z_projected``).
+    """
+    result = reconstruct(z, topology, reference_vertices, method=method, **kwargs)
+    return lengths_and_angles(result.vertices, topology), result

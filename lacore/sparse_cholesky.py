@@ -1,0 +1,331 @@
+"""Sparse Cholesky factorization with a fixed sparsity pattern.
+
+Gauss-Newton (thesis 3.4.1) solves one symmetric positive definite system
+``H d = -g`` per iteration, always with the same sparsity pattern.  This module
+separates the *symbolic* analysis (fill-reducing ordering, elimination tree,
+done once per pattern) from the *numeric* factorization (once per iteration),
+so the symbolic work is reused across iterations and across calls.
+
+Backends
+--------
+``"cholmod"``
+    CHOLMOD (SuiteSparse) through :mod:`cvxopt.cholmod` when cvxopt is
+    importable: supernodal Cholesky ``P A P^T = L L^T`` with a fill-reducing
+    ordering computed once in :class:`SparseCholesky` and reused by every
+    :meth:`SparseCholesky.factorize`.  This is the default: on the
+    Gauss-Newton systems of the 2k-vertex finger (6138 unknowns) and a
+    5.3k-vertex closed mesh (15876 unknowns) a numeric factorization takes
+    17-37 ms resp. 140-240 ms, about 5x less than the SciPy fallback
+    (``benchmarks/bench_gauss_newton.py``, 2-core Xeon 2.5 GHz, shared).
+``"scipy"``
+    SciPy's SuperLU (:func:`scipy.sparse.linalg.splu`) in symmetric mode with a
+    minimum-degree ordering of ``A + A^T`` and diagonal pivoting, i.e. an
+    ``L D L^T``-like factorization without row interchanges.  SuperLU has no
+    separate symbolic phase, so only the index bookkeeping is reused.
+
+Ordering
+--------
+CHOLMOD tries the caller's ``ordering`` (if any) and AMD and keeps the one with
+fewer nonzeros in the factor.  :func:`nested_dissection` computes a geometric
+nested-dissection ordering from coordinates (recursive bisection at the median
+along the principal axis, the smaller one-sided vertex separator numbered
+last); on closed surface meshes of a few thousand vertices it saves about a
+quarter of the flops of AMD (CHOLMOD is built without METIS in cvxopt).
+
+Positive definiteness
+---------------------
+If a numeric factorization fails because the matrix is not (numerically)
+positive definite, the factorization is retried with a diagonal shift
+``A + s I``, ``s = shift_start * max|diag A|``, increased tenfold until it
+succeeds (at most ``max_shift_tries`` times).  The shift used is reported in
+:attr:`SparseCholesky.shift` (0.0 when none was needed), so a caller can tell a
+regularized (damped) step from an exact one.
+"""
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["SparseCholesky", "available_backends", "default_backend", "NotPositiveDefiniteError",
+           "nested_dissection"]
+
+
+class NotPositiveDefiniteError(ArithmeticError):
+    """The matrix stayed indefinite even after the largest allowed diagonal shift."""
+
+
+def _cholmod():
+    try:
+        import cvxopt
+        import cvxopt.cholmod
+    except ImportError:  # pragma: no cover - depends on the environment
+        return None
+    return cvxopt
+
+
+def available_backends():
+    """Names of the backends usable in this environment, preferred first."""
+    return (["cholmod"] if _cholmod() is not None else []) + ["scipy"]
+
+
+def default_backend():
+    """The backend used when none is requested: ``"cholmod"`` if cvxopt is installed, else ``"scipy"``."""
+    return available_backends()[0]
+
+
+class SparseCholesky:
+    """Repeated Cholesky factorizations of SPD matrices sharing one sparsity pattern.
+
+    Parameters
+    ----------
+    pattern : scipy.sparse matrix, shape (n, n)
+        Symmetric sparsity pattern.  Only the structure of its lower triangle
+        (including the diagonal, which is always added) is used; values are
+        ignored.
+    backend : {"cholmod", "scipy"}, optional
+        Default :func:`default_backend`.
+    shift_start : float
+        First relative diagonal shift tried for a matrix that is not positive
+        definite (relative to ``max|diag A|``).
+    max_shift_tries : int
+        How many tenfold shift increases are tried before giving up.
+    ordering : (n,) array_like of int, optional
+        A fill-reducing permutation to try besides AMD (CHOLMOD backend only;
+        e.g. from :func:`nested_dissection`).
+
+    Attributes
+    ----------
+    n : int
+        Matrix size.
+    indptr, indices : ndarray
+        The lower-triangular CSC structure (sorted row indices per column).
+        :meth:`factorize` accepts a value array in exactly this order.
+    diagonal : (n,) ndarray
+        Positions of the diagonal entries in the value array.
+    backend : str
+    shift : float
+        Absolute diagonal shift added in the last :meth:`factorize` (0.0 if none).
+
+    Notes
+    -----
+    One instance holds one numeric factorization; it is not thread-safe.  Use
+    one instance per thread (the symbolic analysis is cheap compared to a
+    Gauss-Newton solve).
+    """
+
+    def __init__(self, pattern, backend=None, shift_start=1e-10, max_shift_tries=12, ordering=None):
+        backend = default_backend() if backend is None else backend
+        if backend not in ("cholmod", "scipy"):
+            raise ValueError(f"unknown sparse Cholesky backend {backend!r}; use 'cholmod' or 'scipy'")
+        if backend == "cholmod" and _cholmod() is None:
+            raise ValueError("backend 'cholmod' needs cvxopt (pip install cvxopt); use backend='scipy'")
+        P = sp.csc_matrix(pattern)
+        n = P.shape[0]
+        if P.shape != (n, n):
+            raise ValueError(f"the pattern must be square, got shape {P.shape}")
+        P = sp.tril(sp.csc_matrix((np.ones(P.nnz), P.indices, P.indptr), shape=P.shape), format="csc")
+        P = (P + sp.eye(n, format="csc")).tocsc()
+        P.sort_indices()
+        self.n = n
+        self.indptr = P.indptr.astype(np.int64)
+        self.indices = P.indices.astype(np.int64)
+        self.nnz = len(self.indices)
+        cols = np.repeat(np.arange(n), np.diff(self.indptr))
+        self._cols = cols
+        self.diagonal = np.flatnonzero(self.indices == cols)
+        self.backend = backend
+        self.shift_start = float(shift_start)
+        self.max_shift_tries = int(max_shift_tries)
+        self.shift = 0.0
+        self._factor = None
+        self._keys = None
+        if backend == "cholmod":
+            cvxopt = _cholmod()
+            self._cvxopt = cvxopt
+            self._A = cvxopt.spmatrix(np.ones(self.nnz), cvxopt.matrix(self.indices.astype(np.int64)),
+                                      cvxopt.matrix(cols.astype(np.int64)), (n, n))
+            self._A.V = cvxopt.matrix(np.arange(1.0, self.nnz + 1.0))
+            # the spmatrix must keep our (column-major, sorted) order so values can be assigned directly
+            if not np.array_equal(np.asarray(self._A.V).ravel(), np.arange(1.0, self.nnz + 1.0)):
+                raise RuntimeError("cvxopt reordered the pattern")  # pragma: no cover
+            if ordering is not None:
+                p = np.asarray(ordering, dtype=np.int64)
+                if p.shape != (n,) or not np.array_equal(np.sort(p), np.arange(n)):
+                    raise ValueError(f"ordering must be a permutation of 0..{n - 1}")
+                self._symbolic = cvxopt.cholmod.symbolic(self._A, uplo="L", p=cvxopt.matrix(p))
+            else:
+                self._symbolic = cvxopt.cholmod.symbolic(self._A, uplo="L")
+        else:
+            # full symmetric structure for SuperLU: the lower part and its mirror image
+            lower_rows, lower_cols = self.indices, cols
+            off = lower_rows != lower_cols
+            rows = np.r_[lower_rows, lower_cols[off]]
+            cols_full = np.r_[lower_cols, lower_rows[off]]
+            src = np.r_[np.arange(self.nnz), np.flatnonzero(off)]
+            order = np.lexsort((rows, cols_full))
+            self._full_src = src[order]
+            self._full_indices = rows[order].astype(np.int32)
+            self._full_indptr = np.r_[0, np.cumsum(np.bincount(cols_full, minlength=n))].astype(np.int32)
+
+    @property
+    def has_factor(self):
+        """Whether a numeric factorization is available for :meth:`solve`."""
+        return self._factor is not None
+
+    # ------------------------------------------------------------------ values
+    def values_from_matrix(self, A):
+        """Values of a sparse matrix in this pattern's lower-CSC order.
+
+        Entries of ``A``'s lower triangle outside the pattern raise ValueError;
+        pattern entries missing from ``A`` are 0.
+        """
+        A = sp.coo_matrix(A)
+        if A.shape != (self.n, self.n):
+            raise ValueError(f"matrix shape {A.shape} does not match the pattern ({self.n}, {self.n})")
+        low = A.row >= A.col
+        r, c, v = A.row[low].astype(np.int64), A.col[low].astype(np.int64), A.data[low]
+        if self._keys is None:
+            self._keys = self._cols * self.n + self.indices  # sorted (column-major, sorted rows)
+        k = c * self.n + r
+        pos = np.searchsorted(self._keys, k)
+        pos_c = np.minimum(pos, self.nnz - 1)
+        if np.any(self._keys[pos_c] != k):
+            raise ValueError("the matrix has nonzeros outside the factorization's sparsity pattern")
+        return np.bincount(pos_c, weights=v, minlength=self.nnz)
+
+    # ------------------------------------------------------------------ numeric
+    def factorize(self, values):
+        """Numeric factorization.
+
+        Parameters
+        ----------
+        values : (nnz,) array_like or scipy.sparse matrix
+            Lower-triangle values in the order of :attr:`indices` (fast path),
+            or a symmetric matrix whose nonzeros lie in the pattern.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        NotPositiveDefiniteError
+            If the matrix is not positive definite even with the largest shift.
+        """
+        if sp.issparse(values):
+            values = self.values_from_matrix(values)
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != (self.nnz,):
+            raise ValueError(f"expected {self.nnz} values in the pattern's order, got shape {values.shape}")
+        if not np.all(np.isfinite(values)):
+            raise ValueError("the matrix has NaN or infinite entries")
+        scale = float(np.max(np.abs(values[self.diagonal]))) if self.n else 1.0
+        scale = scale if scale > 0 else 1.0
+        shift = 0.0
+        for attempt in range(self.max_shift_tries + 1):
+            v = values
+            if shift:
+                v = values.copy()
+                v[self.diagonal] += shift
+            if self._numeric(v):
+                self.shift = shift
+                return self
+            shift = self.shift_start * scale if attempt == 0 else 10.0 * shift
+        self._factor = None
+        raise NotPositiveDefiniteError(
+            f"the {self.n}x{self.n} matrix is not positive definite even with diagonal shift {shift / 10:.3g}")
+
+    def _numeric(self, v):
+        if self.backend == "cholmod":
+            cvxopt = self._cvxopt
+            self._A.V = cvxopt.matrix(v)
+            try:
+                cvxopt.cholmod.numeric(self._A, self._symbolic)
+            except ArithmeticError:
+                self._factor = None
+                return False
+            self._factor = self._symbolic
+            return True
+        from scipy.sparse.linalg import splu
+
+        A = sp.csc_matrix((v[self._full_src], self._full_indices, self._full_indptr), shape=(self.n, self.n))
+        try:
+            lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+        except RuntimeError:  # exactly singular
+            self._factor = None
+            return False
+        d = lu.U.diagonal()
+        if not (np.all(d > 0) and np.array_equal(lu.perm_r, lu.perm_c)):
+            self._factor = None
+            return False
+        self._factor = lu
+        return True
+
+    def solve(self, b):
+        """Solve ``A x = b`` with the last factorization; ``b`` of shape (n,) or (n, k)."""
+        if self._factor is None:
+            raise RuntimeError("factorize() must succeed before solve()")
+        b = np.asarray(b, dtype=np.float64)
+        if b.shape[0] != self.n:
+            raise ValueError(f"right-hand side has {b.shape[0]} rows, the matrix {self.n}")
+        if self.backend == "cholmod":
+            cvxopt = self._cvxopt
+            B = cvxopt.matrix(b.reshape(self.n, -1))
+            cvxopt.cholmod.solve(self._factor, B)
+            return np.array(B).reshape(b.shape)
+        return self._factor.solve(b)
+
+
+def nested_dissection(graph, coordinates, leaf_size=32):
+    """Geometric nested-dissection ordering of a graph with vertex coordinates.
+
+    Recursively splits a vertex set at the median of its projection on the
+    principal axis of its coordinates; the vertices of the smaller side that
+    have a neighbour on the other side form the separator, numbered after both
+    halves.  Sets of at most ``leaf_size`` vertices keep their order.
+
+    Parameters
+    ----------
+    graph : scipy.sparse matrix, shape (m, m)
+        Symmetric adjacency (nonzeros = edges; the diagonal is ignored).
+    coordinates : (m, d) array_like
+    leaf_size : int
+
+    Returns
+    -------
+    (m,) int64 permutation: ``order[k]`` is the vertex eliminated k-th.
+    """
+    G = sp.csr_matrix(graph, dtype=np.float64)
+    G.data[:] = 1.0
+    X = np.asarray(coordinates, float)
+    m = G.shape[0]
+    out = []
+    mark = np.zeros(m)
+    # explicit stack of (vertex set, separator-to-append-after) frames: no deep recursion
+    stack = [("split", np.arange(m))]
+    while stack:
+        kind, verts = stack.pop()
+        if kind == "emit" or len(verts) <= leaf_size:
+            out.append(verts)
+            continue
+        c = X[verts] - X[verts].mean(0)
+        axis = np.linalg.svd(c, full_matrices=False)[2][0]
+        proj = c @ axis
+        left_mask = proj <= np.median(proj)
+        left, right = verts[left_mask], verts[~left_mask]
+        if len(left) == 0 or len(right) == 0:
+            out.append(verts)
+            continue
+        mark[:] = 0.0
+        mark[right] = 1.0
+        touch_l = (G[left] @ mark) > 0
+        mark[:] = 0.0
+        mark[left] = 1.0
+        touch_r = (G[right] @ mark) > 0
+        if touch_l.sum() <= touch_r.sum():
+            sep, left = left[touch_l], left[~touch_l]
+        else:
+            sep, right = right[touch_r], right[~touch_r]
+        # processed in reverse push order: left, right, then the separator
+        stack += [("emit", sep), ("split", right), ("split", left)]
+    return np.concatenate(out).astype(np.int64)
