@@ -20,7 +20,23 @@ near-flat angles accurate to machine precision (no ``acos``).
 
 The vertex vector is ``X.ravel()`` of a ``(V, 3)`` array, so the Jacobian's
 column ``3 v + c`` is coordinate ``c`` of vertex ``v``.
+
+Implementation
+--------------
+Every edge is evaluated on its *stencil* ``x0 = X_a, x1 = X_b`` (the edge),
+``x2`` (opposite vertex in the left face) and ``x3`` (opposite vertex in the
+right face; ``x2`` again on boundary edges, whose angle is then reset to 0).
+The index arrays are cached on the topology; a call gathers the coordinates
+once, component by component (1-d ``take`` is far cheaper than fancy indexing of
+``(N, 3)`` rows), and works on contiguous component arrays.  With
+``e = x1 - x0``, ``a = x2 - x0``, ``b = x3 - x0`` the unnormalized normals are
+``n0 = e x a`` and ``n1 = b x e``, and ``<n0 x n1, e> / l = -l <n0, b>`` (a vector
+identity), which saves a cross product.  The Jacobian's values are written into
+one ``(18, E)`` buffer that a cached permutation turns into the CSR data.
 """
+
+import math
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,35 +57,74 @@ __all__ = [
 ]
 
 
-def _cross(a, b):
-    """Row-wise cross product of two (N, 3) arrays (faster than np.cross for small N)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
-    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
-    out[:, 0] = a1 * b2 - a2 * b1
-    out[:, 1] = a2 * b0 - a0 * b2
-    out[:, 2] = a0 * b1 - a1 * b0
+# --------------------------------------------------------------------------- small helpers
+def _dot(a, b):
+    """Row-wise dot product of two (N, 3) arrays."""
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _cross_rows(u, v, out, tmp):
+    """Cross product of component-row arrays: ``out[i] = (u x v)[i]`` for ``u, v, out`` of shape (3, N).
+
+    ``tmp`` is an (N,) scratch array.  Returns ``out``.
+    """
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.multiply(u[j], v[k], out=out[i])
+        out[i] -= np.multiply(u[k], v[j], out=tmp)
     return out
 
 
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
+def _dot_rows(u, v, out):
+    """Dot product of component-row arrays (3, N) into ``out`` (N,).  Returns ``out``."""
+    np.multiply(u[0], v[0], out=out)
+    out += u[1] * v[1]
+    out += u[2] * v[2]
+    return out
+
+
+def _as_vertices(vertices, n_vertices):
+    """``check_vertices`` with a cheap fast path for valid input.
+
+    A finite sum proves that all coordinates are finite; anything else (wrong
+    shape, NaN/inf, or a sum that overflows) goes through :func:`check_vertices`,
+    which raises the detailed error or accepts the input.
+    """
+    X = np.asarray(vertices, dtype=np.float64)
+    if X.shape == (n_vertices, 3) and np.isfinite(np.add.reduce(X, axis=None)):
+        return X
+    return check_vertices(vertices, n_vertices)
+
+
+def _face_corner_coordinates(X, faces):
+    """Coordinates of the three corners of every face as ``(3 components, 3 corners, F)``."""
+    ft = np.asarray(faces).T
+    P = np.empty((3,) + ft.shape)
+    for c in range(3):
+        P[c] = X[:, c].take(ft)
+    return P
 
 
 def face_normals(vertices, faces, unit=True):
     """Face normals ``(X1 - X0) x (X2 - X0)`` (1.14), ``(F, 3)``; unnormalized (length ``2 a_f``) if ``unit=False``."""
     X = np.asarray(vertices, float)
-    p0 = X[faces[:, 0]]
-    n = _cross(X[faces[:, 1]] - p0, X[faces[:, 2]] - p0)
+    P = _face_corner_coordinates(X, faces)          # (3, 3, F)
+    D = P[:, 1:] - P[:, :1]                         # (3 components, 2 vectors, F)
+    F = D.shape[2]
+    n = np.empty((F, 3))
+    nt = n.T                                        # component rows (strided views)
+    _cross_rows(D[:, 0], D[:, 1], nt, np.empty(F))
     if unit:
-        n /= np.sqrt(_dot(n, n))[:, None]
+        n /= np.sqrt(_dot_rows(nt, nt, np.empty(F)))[:, None]
     return n
 
 
 def face_areas(vertices, faces):
     """Triangle areas ``(F,)``."""
-    n = face_normals(vertices, faces, unit=False)
-    return 0.5 * np.sqrt(_dot(n, n))
+    n = face_normals(vertices, faces, unit=False).T
+    out = _dot_rows(n, n, np.empty(n.shape[1]))
+    np.sqrt(out, out=out)
+    out *= 0.5
+    return out
 
 
 def check_nondegenerate(vertices, topology, rtol=1e-14):
@@ -77,8 +132,8 @@ def check_nondegenerate(vertices, topology, rtol=1e-14):
     from .errors import MeshError
 
     X = check_vertices(vertices, topology.n_vertices)
-    n = face_normals(X, topology.faces, unit=False)
-    area2 = np.sqrt(_dot(n, n))
+    n = face_normals(X, topology.faces, unit=False).T
+    area2 = np.sqrt(_dot_rows(n, n, np.empty(n.shape[1])))
     e = X[topology.edges[:, 1]] - X[topology.edges[:, 0]]
     scale = np.max(_dot(e, e)) if len(e) else 1.0
     bad = np.flatnonzero(~(area2 > rtol * scale))
@@ -87,31 +142,145 @@ def check_nondegenerate(vertices, topology, rtol=1e-14):
     return X
 
 
+# --------------------------------------------------------------------------- blocks and scratch memory
+#: Edges per block.  A block's temporaries (26 doubles per edge for the map, 46 for the
+#: Jacobian) stay in the CPU cache and come from one scratch buffer cached on the topology
+#: per thread, reused by every call (no fresh, page-faulting memory).
+BLOCK_SIZE = 8192
+
+
+def _block_ranges(n, size=None):
+    """Balanced blocks ``[(start, stop), ...]`` covering ``range(n)`` and their common width."""
+    size = BLOCK_SIZE if size is None else size
+    k = max(1, -(-n // size))
+    width = max(1, -(-n // k))
+    return [(s, min(s + width, n)) for s in range(0, n, width)], width
+
+
+def _scratch(topology, name, n):
+    """A float64 scratch buffer of ``n`` entries, cached on the topology per thread.
+
+    The buffers are reused across calls (no page faults for fresh memory) and
+    never returned to the caller: every result is copied out of them.  They are
+    bounded by the block size, so they stay small even for large meshes.
+    """
+    store = topology._cached("lacore.scratch", dict)
+    key = (threading.get_ident(), name)
+    buf = store.get(key)
+    if buf is None or buf.size < n:
+        buf = store[key] = np.empty(n)
+    return buf[:n]
+
+
+def _carve(buf, *shapes):
+    """Consecutive C-contiguous views of ``buf`` with the given shapes."""
+    views, pos = [], 0
+    for shape in shapes:
+        size = math.prod(shape)
+        views.append(buf[pos:pos + size].reshape(shape))
+        pos += size
+    return views
+
+
+# --------------------------------------------------------------------------- edge stencils
+def _edge_blocks(topology):
+    """Cached block layout of the edges and their stencils.
+
+    Returns a dict with ``ranges`` and ``width`` (see :func:`_block_ranges`),
+    ``stencil`` (``(4 E,)``: block ``[s0, s1)`` holds the ``(4, s1 - s0)``
+    vertex indices ``x0, x1, x2, x3`` of its edges at offset ``4 s0``; ``x3 = x2``
+    on boundary edges) and ``interior_before`` (number of interior edges before
+    each block's start).
+    """
+    def compute():
+        E = topology.n_edges
+        opp = topology.edge_opposite_vertices
+        x3 = np.where(opp[:, 1] >= 0, opp[:, 1], opp[:, 0])
+        quad = np.stack([topology.edges[:, 0], topology.edges[:, 1], opp[:, 0], x3])
+        ranges, width = _block_ranges(E)
+        stencil = np.concatenate([quad[:, s0:s1].ravel() for s0, s1 in ranges]) if E else np.zeros(0, np.int64)
+        interior_before = np.searchsorted(topology.interior_edges, [s0 for s0, _ in ranges])
+        stencil.setflags(write=False)
+        return {"ranges": ranges, "width": width, "stencil": stencil, "interior_before": interior_before}
+    return topology._cached("z_edge_blocks", compute)
+
+
+def _block_vectors(Xc, stencil, out_P, out_D):
+    """Stencil vectors of one block: ``out_D[c] = (e, a, b)`` components ``c`` (``(3, 3, n)``).
+
+    ``Xc`` are the three coordinate arrays of the vertices, ``stencil`` the block's
+    ``(4 n,)`` vertex indices, ``out_P`` a ``(4, n)`` scratch array.
+    """
+    flat = out_P.reshape(-1)
+    for c in range(3):
+        np.take(Xc[c], stencil, out=flat, mode="wrap")    # cached, valid indices: no bounds checks
+        np.subtract(out_P[1:], out_P[0], out=out_D[c])
+    return out_D
+
+
+def _block_geometry(Xc, stencil, buf):
+    """Stencil vectors, normals and lengths of one block of ``n`` edges, in the scratch ``buf`` (>= 26 n).
+
+    Returns ``e, a, b, n0, n1`` (``(3, n)`` component rows; ``n0 = e x a``,
+    ``n1 = b x e``), ``lengths`` (n,) and a free ``(n,)`` scratch row.
+    """
+    n = len(stencil) // 4
+    P, D, n0, n1, lengths, tmp = _carve(buf, (4, n), (3, 3, n), (3, n), (3, n), (n,), (n,))
+    _block_vectors(Xc, stencil, P, D)
+    e, a, b = D[:, 0], D[:, 1], D[:, 2]
+    _cross_rows(e, a, n0, tmp)
+    _cross_rows(b, e, n1, tmp)
+    np.sqrt(_dot_rows(e, e, lengths), out=lengths)
+    return e, a, b, n0, n1, lengths, tmp
+
+
+def _dihedral_rows(b, n0, n1, lengths, out, tmp):
+    """Signed dihedral angles into ``out``: ``atan2(-l <n0, b>, <n0, n1>)`` (boundary edges not yet zeroed)."""
+    y = _dot_rows(n0, b, tmp)
+    y *= lengths
+    np.negative(y, out=y)
+    return np.arctan2(y, _dot_rows(n0, n1, out), out=out)
+
+
+def _coordinates(X):
+    """The three coordinate arrays of ``(V, 3)`` vertices, as a contiguous ``(3, V)`` copy."""
+    return np.ascontiguousarray(X.T)
+
+
 def edge_lengths(vertices, topology):
     """Edge lengths ``(E,)``."""
     X = np.asarray(vertices, float)
-    e = X[topology.edges[:, 1]] - X[topology.edges[:, 0]]
-    return np.sqrt(_dot(e, e))
+    return _z_of_vertices(X, topology, angles=False)
 
 
 def dihedral_angles(vertices, topology):
     """Signed dihedral angles ``(E,)`` in radians (0 on boundary edges); see the module docstring."""
     X = np.asarray(vertices, float)
-    return _lengths_angles(X, topology)[1]
+    return _z_of_vertices(X, topology)[topology.n_edges:]
 
 
-def _lengths_angles(X, topology):
-    edges = topology.edges
-    e = X[edges[:, 1]] - X[edges[:, 0]]
-    lengths = np.sqrt(_dot(e, e))
-    n = face_normals(X, topology.faces, unit=False)
-    theta = np.zeros(len(edges))
-    ie = topology.interior_edges
-    d = topology.dual_edges
-    n0, n1 = n[d[:, 0]], n[d[:, 1]]
-    y = _dot(_cross(n0, n1), e[ie]) / lengths[ie]
-    theta[ie] = np.arctan2(y, _dot(n0, n1))
-    return lengths, theta
+def _z_of_vertices(X, topology, angles=True):
+    """``z = (lengths, theta)`` of float64 ``(V, 3)`` vertices, ``(2E,)``; just the lengths ``(E,)`` if not angles."""
+    E = topology.n_edges
+    z = np.empty(2 * E if angles else E)
+    blocks = _edge_blocks(topology)
+    buf = _scratch(topology, "z", 26 * blocks["width"])
+    Xc = _coordinates(X)
+    for s0, s1 in blocks["ranges"]:
+        stencil = blocks["stencil"][4 * s0:4 * s1]
+        if not angles:
+            n = s1 - s0
+            P, D = _carve(buf, (4, n), (3, 1, n))
+            e = _block_vectors(Xc, stencil[:2 * n], P[:2], D)[:, 0]
+            np.sqrt(_dot_rows(e, e, z[s0:s1]), out=z[s0:s1])
+            continue
+        e, a, b, n0, n1, lengths, tmp = _block_geometry(Xc, stencil, buf)
+        z[s0:s1] = lengths
+        _dihedral_rows(b, n0, n1, lengths, z[E + s0:E + s1], tmp)
+    bnd = topology.boundary_edges
+    if angles and bnd.size:
+        z[E + bnd] = 0.0
+    return z
 
 
 def lengths_and_angles(vertices, topology, check=True):
@@ -129,9 +298,8 @@ def lengths_and_angles(vertices, topology, check=True):
     z : (2E,) ndarray
         ``(l_1..l_E, theta_1..theta_E)``.
     """
-    X = check_vertices(vertices, topology.n_vertices) if check else np.asarray(vertices, float)
-    lengths, theta = _lengths_angles(X, topology)
-    return np.concatenate([lengths, theta])
+    X = _as_vertices(vertices, topology.n_vertices) if check else np.asarray(vertices, float)
+    return _z_of_vertices(X, topology)
 
 
 def split_z(z, topology):
@@ -162,8 +330,20 @@ def check_z(z, topology, name="z"):
     return z
 
 
+# --------------------------------------------------------------------------- Jacobian
 def _jacobian_pattern(topology):
-    """Fixed CSR sparsity pattern of dZ/dX, computed once per topology."""
+    """Fixed CSR sparsity pattern of dZ/dX, computed once per topology.
+
+    Keys: ``indices, indptr, shape`` (the CSR structure; rows sorted by column;
+    read-only, shared by all returned matrices); ``order`` (the CSR data is
+    ``concatenate([length gradients (E, 6), angle gradients (E_int, 12)]).ravel()[order]``,
+    the local gradients in stencil order ``x0, x1`` resp. ``x0, x1, x2, x3``);
+    ``quad`` (``(E_int, 4)`` stencil vertices of the interior edges);
+    ``gather`` (per edge block of :func:`_edge_blocks`: the block's CSR data as
+    positions in its ``(18, width)`` value buffer, see
+    :func:`lengths_and_angles_jacobian`) and ``slices`` (the block's two ranges
+    of the CSR data: length rows, angle rows).
+    """
     def compute():
         E = topology.n_edges
         edges = topology.edges
@@ -179,10 +359,63 @@ def _jacobian_pattern(topology):
         cols = np.r_[len_cols, ang_cols]
         order = np.lexsort((cols, rows))
         indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=2 * E))]
-        return {"order": order, "indices": cols[order].astype(np.int32),
-                "indptr": indptr.astype(np.int32), "quad": quad,
-                "shape": (2 * E, 3 * topology.n_vertices)}
+        # value buffer of a block: row s holds local value s (0..5 length gradient, 6..17
+        # angle gradient) of the block's edges, so value (s, e) sits at s * width + e - start
+        blocks = _edge_blocks(topology)
+        w = blocks["width"]
+        len_src = (np.arange(6)[None, :] * w + (np.arange(E) % w)[:, None]).ravel()
+        ang_src = ((6 + np.arange(12))[None, :] * w + (ie % w)[:, None]).ravel()
+        gather = np.r_[len_src, ang_src][order]
+        slices = []
+        for (s0, s1), k0 in zip(blocks["ranges"], blocks["interior_before"], strict=True):
+            k1 = k0 + np.count_nonzero(~topology.is_boundary_edge[s0:s1])
+            slices.append((slice(6 * s0, 6 * s1), slice(6 * E + 12 * k0, 6 * E + 12 * k1)))
+        out = {"order": order, "indices": cols[order].astype(np.int32), "indptr": indptr.astype(np.int32),
+               "quad": quad, "shape": (2 * E, 3 * topology.n_vertices), "gather": gather, "slices": slices}
+        for key in ("order", "indices", "indptr", "quad", "gather"):
+            out[key].setflags(write=False)
+        return out
     return topology._cached("z_jacobian_pattern", compute)
+
+
+def _csr(data, pattern):
+    """CSR matrix with ``data`` on a cached, canonical pattern (whose read-only index arrays it shares)."""
+    J = sp.csr_matrix((data, pattern["indices"], pattern["indptr"]), shape=pattern["shape"])
+    J.has_canonical_format = True
+    return J
+
+
+def _block_jacobian_values(e, a, b, n0, n1, lengths, B, s, t):
+    """Local gradients of one edge block into ``B`` (18, n): rows 0-5 length, 6-17 angle (x0, x1, x2, x3).
+
+    ``s, t`` are (n,) scratch rows.  See :func:`lengths_and_angles_jacobian` for the formulas.
+    """
+    # length rows: -u, u with u = e / l
+    inv_l = np.divide(1.0, lengths, out=t)
+    np.multiply(e, inv_l, out=B[3:6])
+    np.negative(B[3:6], out=B[0:3])
+    # angle rows: g2 = -l n0 / |n0|^2, g3 = -l n1 / |n1|^2
+    g2, g3 = B[12:15], B[15:18]
+    np.divide(lengths, _dot_rows(n0, n0, s), out=s)
+    np.negative(s, out=s)
+    np.multiply(n0, s, out=g2)
+    np.divide(lengths, _dot_rows(n1, n1, s), out=s)
+    np.negative(s, out=s)
+    np.multiply(n1, s, out=g3)
+    # t2 = <a, e> / l^2, t3 = <b, e> / l^2:  g1 = -t2 g2 - t3 g3,  g0 = (t2 - 1) g2 + (t3 - 1) g3
+    inv_l *= inv_l
+    np.multiply(_dot_rows(a, e, s), inv_l, out=s)
+    np.multiply(_dot_rows(b, e, lengths), inv_l, out=t)      # lengths no longer needed
+    g0, g1 = B[6:9], B[9:12]
+    np.multiply(g2, s, out=g1)
+    np.multiply(g3, t, out=g0)                                  # g0 used as scratch
+    g1 += g0
+    np.negative(g1, out=g1)
+    s -= 1.0
+    t -= 1.0
+    np.multiply(g2, s, out=g0)
+    g0 += np.multiply(g3, t, out=n0)                            # n0 no longer needed
+    return B
 
 
 def lengths_and_angles_jacobian(vertices, topology, return_z=False):
@@ -196,7 +429,8 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     ``d theta / d x0 = -(1 - t2) g2 - (1 - t3) g3``, ``d theta / d x1 = -t2 g2 - t3 g3``
     with ``t = <x - x0, e> / l_e^2`` the projection of the opposite vertices on the
     edge.  Boundary rows are empty.  The sparsity pattern is cached on the
-    topology, so repeated calls only fill values.
+    topology, so repeated calls only fill values; the returned matrices share
+    its (read-only) index arrays.
 
     Parameters
     ----------
@@ -212,33 +446,29 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     """
     X = np.asarray(vertices, float)
     pat = _jacobian_pattern(topology)
-    edges = topology.edges
-    e = X[edges[:, 1]] - X[edges[:, 0]]
-    lengths = np.sqrt(_dot(e, e))
-    u = e / lengths[:, None]
-    len_vals = np.concatenate([-u, u], axis=1)
-
-    ie = topology.interior_edges
-    quad = pat["quad"]
-    x0, x1, x2, x3 = X[quad[:, 0]], X[quad[:, 1]], X[quad[:, 2]], X[quad[:, 3]]
-    ei = e[ie]
-    le = lengths[ie]
-    n0 = _cross(x1 - x0, x2 - x0)
-    n1 = _cross(x0 - x1, x3 - x1)
-    n0sq, n1sq = _dot(n0, n0), _dot(n1, n1)
-    g2 = n0 * (-le / n0sq)[:, None]
-    g3 = n1 * (-le / n1sq)[:, None]
-    inv_le2 = 1.0 / (le * le)
-    t2 = (_dot(x2 - x0, ei) * inv_le2)[:, None]
-    t3 = (_dot(x3 - x0, ei) * inv_le2)[:, None]
-    g0 = -(1.0 - t2) * g2 - (1.0 - t3) * g3
-    g1 = -t2 * g2 - t3 * g3
-    ang_vals = np.concatenate([g0, g1, g2, g3], axis=1)
-
-    data = np.concatenate([len_vals.ravel(), ang_vals.ravel()])[pat["order"]]
-    J = sp.csr_matrix((data, pat["indices"], pat["indptr"]), shape=pat["shape"])
+    blocks = _edge_blocks(topology)
+    E, w = topology.n_edges, blocks["width"]
+    buf = _scratch(topology, "dz", 46 * w)
+    geometry_buf, values_buf = buf[:26 * w], buf[26 * w:]
+    data = np.empty(len(pat["indices"]))
+    z = np.empty(2 * E) if return_z else None
+    Xc = _coordinates(X)
+    gather = pat["gather"]
+    for (s0, s1), (len_slice, ang_slice) in zip(blocks["ranges"], pat["slices"], strict=True):
+        n = s1 - s0
+        e, a, b, n0, n1, lengths, tmp = _block_geometry(Xc, blocks["stencil"][4 * s0:4 * s1], geometry_buf)
+        if return_z:
+            z[s0:s1] = lengths
+            _dihedral_rows(b, n0, n1, lengths, z[E + s0:E + s1], tmp)
+        B, s = _carve(values_buf, (18, w), (w,))
+        _block_jacobian_values(e, a, b, n0, n1, lengths, B[:, :n], s[:n], tmp)
+        flat = B.reshape(-1)
+        np.take(flat, gather[len_slice], out=data[len_slice], mode="wrap")
+        np.take(flat, gather[ang_slice], out=data[ang_slice], mode="wrap")
+    J = _csr(data, pat)
     if not return_z:
         return J
-    theta = np.zeros(len(edges))
-    theta[ie] = np.arctan2(_dot(_cross(n0, n1), ei) / le, _dot(n0, n1))
-    return J, np.concatenate([lengths, theta])
+    bnd = topology.boundary_edges
+    if bnd.size:
+        z[E + bnd] = 0.0
+    return J, z

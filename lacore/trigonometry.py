@@ -9,6 +9,18 @@ accurate for needle-like triangles.  Triangles violating the strict triangle
 inequality (``T_f <= 0``, eq. 3.6) get area 0 and interior angles 0, the
 convention of the remark after Algorithm 2 ("interior angles 0, visited last");
 their derivatives are set to 0.
+
+Implementation
+--------------
+The functions work on the three length columns as contiguous rows
+(``L.T``), with elementwise ``minimum``/``maximum`` instead of sorting or
+branching; the results are bitwise those of the textbook formulas.
+Transcendental functions are only applied to C-contiguous arrays: with
+strided outputs numpy 1.26 can round differently (by an ulp) depending on
+memory alignment, which would make results irreproducible.  The
+private helpers :func:`_kahan_angle_factors` and :func:`_sort3` are shared with
+:mod:`lacore.integrability`, which evaluates the same formulas on its own
+(blocked) corner lists.
 """
 
 import numpy as np
@@ -25,13 +37,126 @@ __all__ = [
 
 def face_edge_lengths(lengths, topology):
     """Gather per-face edge lengths ``L (F, 3)`` from per-edge lengths ``(E,)``."""
-    return np.asarray(lengths, float)[topology.face_edges]
+    return np.asarray(lengths, float).take(topology.face_edges)
+
+
+def _rows(L):
+    """The three length columns of ``L (F, 3)`` as a contiguous ``(3, F)`` array."""
+    return np.ascontiguousarray(np.asarray(L, float).T)
+
+
+def _margin_rows(l0, l1, l2, out=None):
+    """``T = (l0 + l1) + l2 - 2 max(l0, l1, l2)`` (the summation order of ``L.sum(1)``)."""
+    out = np.add(l0, l1, out=out)
+    out += l2
+    m = np.maximum(l0, l1)
+    np.maximum(m, l2, out=m)
+    m *= 2.0
+    out -= m
+    return out
+
+
+def _sort3(l0, l1, l2):
+    """Elementwise descending sort of three arrays: ``(a, b, c)`` with ``a >= b >= c``."""
+    hi, lo = np.maximum(l0, l1), np.minimum(l0, l1)
+    a = np.maximum(hi, l2)
+    c = np.minimum(lo, l2)
+    np.minimum(hi, l2, out=hi)
+    b = np.maximum(lo, hi, out=lo)
+    return a, b, c
+
+
+def _kahan_area_rows(l0, l1, l2):
+    """Kahan's stable Heron formula (A.2) on length rows; 0 where the triangle inequality fails."""
+    a, b, c = _sort3(l0, l1, l2)
+    amb = a - b
+    prod = np.add(b, c)
+    prod += a                                   # a + (b + c)
+    prod *= np.subtract(c, amb)                 # c - (a - b)
+    prod *= np.add(c, amb, out=amb)             # c + (a - b)
+    np.subtract(b, c, out=c)
+    c += a                                      # a + (b - c)
+    prod *= c
+    np.maximum(prod, 0.0, out=prod)
+    np.sqrt(prod, out=prod)
+    prod *= 0.25
+    return prod
+
+
+def _kahan_angle_factors(c, p, q, out):
+    """Kahan's factors (A.6) of the angle opposite side ``c`` between sides ``p`` and ``q``.
+
+    With ``a = max(p, q)``, ``b = min(p, q)`` and
+    ``mu = c - (a - b)`` if ``b >= c`` else ``b - (a - c)`` (computed branch-free
+    as ``min(b, c) - (a - max(b, c))``, which is the same floating-point
+    expression in either case)::
+
+        num = ((a - b) + c) mu,   den = S D,   S = a + (b + c),   D = (a - c) + b
+
+    The angle is ``2 atan2(sqrt(num), sqrt(den))``, ``num + den = 4 p q`` and
+    ``num den = 16 A^2``.  For a valid triangle ``mu`` and ``D`` are accurate
+    approximations of the triangle-inequality margins ``b + c - a`` and
+    ``a + b - c``.  Not clipped: ``num`` or ``den`` is negative for a triangle
+    violating the triangle inequality.
+
+    Parameters
+    ----------
+    c, p, q : ndarray
+        Side lengths, all of one shape.
+    out : ndarray, shape ``(4,) + c.shape``
+        Scratch that receives the results (must not alias the inputs).
+
+    Returns
+    -------
+    num, den, S, D : views into ``out``
+    """
+    num, o1, o2, o3 = out
+    a, b = o2, o3
+    np.maximum(p, q, out=a)
+    np.minimum(p, q, out=b)
+    np.maximum(b, c, out=num)
+    np.subtract(a, num, out=num)                # a - max(b, c)
+    np.minimum(b, c, out=o1)
+    np.subtract(o1, num, out=num)               # mu
+    np.subtract(a, b, out=o1)
+    o1 += c                                     # (a - b) + c
+    num *= o1
+    np.add(b, c, out=o1)
+    o1 += a                                     # S = a + (b + c)
+    a -= c
+    a += b                                      # D = (a - c) + b   (in o2)
+    np.multiply(o1, a, out=o3)                  # den = S D         (in o3)
+    return num, o3, o1, o2
+
+
+def _angle_rows(num, den, out):
+    """``2 atan2(sqrt(max(num, 0)), sqrt(max(den, 0)))`` into ``out``; ``num, den`` are overwritten.
+
+    All three must be C-contiguous: numpy's vectorized transcendental functions
+    can round differently (by an ulp) when writing to strided outputs, depending
+    on the memory alignment, which would make results irreproducible.
+    """
+    np.maximum(num, 0.0, out=num)
+    np.sqrt(num, out=num)
+    np.maximum(den, 0.0, out=den)
+    np.sqrt(den, out=den)
+    np.arctan2(num, den, out=out)
+    out *= 2.0
+    return out
+
+
+def _rolled_rows(R):
+    """Rows ``[0, 1, 2, 0, 1]`` of a ``(3, F)`` array: ``R5[i:i + 3]`` is ``R`` rolled by ``i``."""
+    R5 = np.empty((5,) + R.shape[1:])
+    R5[:3] = R
+    R5[3:] = R[:2]
+    return R5
 
 
 def triangle_inequality_margin(L):
     """Scalar triangle-inequality map ``T_f = l_i + l_j + l_k - 2 max`` (3.6), shape ``(F,)``."""
-    L = np.asarray(L, float)
-    return L.sum(1) - 2.0 * L.max(1)
+    R = _rows(L)
+    return _margin_rows(R[0], R[1], R[2])
 
 
 def triangle_areas(L):
@@ -46,10 +171,8 @@ def triangle_areas(L):
     (F,) ndarray
         Areas; 0 where the triangle inequality is violated.
     """
-    s = -np.sort(-np.asarray(L, float), axis=1)  # a >= b >= c
-    a, b, c = s[:, 0], s[:, 1], s[:, 2]
-    prod = (a + (b + c)) * (c - (a - b)) * (c + (a - b)) * (a + (b - c))
-    return 0.25 * np.sqrt(np.maximum(prod, 0.0))
+    R = _rows(L)
+    return _kahan_area_rows(R[0], R[1], R[2])
 
 
 def triangle_area_gradient(L, areas=None):
@@ -57,12 +180,18 @@ def triangle_area_gradient(L, areas=None):
 
     ``dA/dl_i = l_i (l_j^2 + l_k^2 - l_i^2) / (8 A)`` (appendix A.1); 0 for invalid triangles.
     """
-    L = np.asarray(L, float)
-    A = triangle_areas(L) if areas is None else np.asarray(areas, float)
-    sq = L * L
-    tot = sq.sum(1, keepdims=True)
+    R = _rows(L)
+    A = _kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    sq = R * R
+    tot = sq[0] + sq[1]
+    tot += sq[2]
+    g = np.empty((R.shape[1], 3))
+    gt = g.T
+    np.multiply(sq, 2.0, out=gt)
+    np.subtract(tot, gt, out=gt)
+    gt *= R
     with np.errstate(divide="ignore", invalid="ignore"):
-        g = L * (tot - 2.0 * sq) / (8.0 * A[:, None])
+        gt /= 8.0 * A
     g[~(A > 0)] = 0.0
     return g
 
@@ -80,17 +209,11 @@ def interior_angles(L):
         ``gamma[f, i]``, the angle at local vertex ``i`` (opposite ``L[f, i]``);
         all three are 0 for a triangle with ``T_f <= 0``.
     """
-    L = np.asarray(L, float)
-    out = np.empty_like(L)
-    for i in range(3):
-        c = L[:, i]
-        p, q = L[:, (i + 1) % 3], L[:, (i + 2) % 3]
-        a, b = np.maximum(p, q), np.minimum(p, q)
-        mu = np.where(b >= c, c - (a - b), b - (a - c))
-        num = ((a - b) + c) * mu
-        den = (a + (b + c)) * ((a - c) + b)
-        out[:, i] = 2.0 * np.arctan2(np.sqrt(np.maximum(num, 0.0)), np.sqrt(np.maximum(den, 0.0)))
-    out[triangle_inequality_margin(L) <= 0] = 0.0
+    R5 = _rolled_rows(_rows(L))
+    F = R5.shape[1]
+    num, den, _, _ = _kahan_angle_factors(R5[0:3], R5[1:4], R5[2:5], np.empty((4, 3, F)))
+    out = _angle_rows(num, den, np.empty((3, F))).T.copy()
+    out[_margin_rows(R5[0], R5[1], R5[2]) <= 0] = 0.0
     return out
 
 
@@ -101,18 +224,24 @@ def interior_angle_jacobian(L, areas=None):
     ``-(l_i^2 + l_j^2 - l_k^2) / (4 l_j A)`` otherwise, ``k`` the third index
     (appendix A.1).  Zero for invalid triangles.
     """
-    L = np.asarray(L, float)
-    A = triangle_areas(L) if areas is None else np.asarray(areas, float)
-    sq = L * L
-    J = np.empty(L.shape + (3,))
+    R = _rows(L)
+    F = R.shape[1]
+    A = _kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    R5 = _rolled_rows(R)
+    S5 = R5 * R5
+    J = np.empty((F, 3, 3))
+    J9 = J.reshape(F, 9).T                       # (9, F) rows: entry (i, j) is row 3 i + j
+    t = np.empty((3, F))
     with np.errstate(divide="ignore", invalid="ignore"):
         inv2A = 1.0 / (2.0 * A)
-        for i in range(3):
-            for j in range(3):
-                if i == j:
-                    J[:, i, j] = L[:, i] * inv2A
-                else:
-                    k = 3 - i - j
-                    J[:, i, j] = -(sq[:, i] + sq[:, j] - sq[:, k]) * inv2A / (2.0 * L[:, j])
+        np.multiply(R, inv2A, out=t)
+        J9[[0, 4, 8]] = t
+        for shift, rows in ((1, [1, 5, 6]), (2, [2, 3, 7])):   # j = i + shift, k = the third index
+            np.add(S5[0:3], S5[shift:shift + 3], out=t)
+            t -= S5[3 - shift:6 - shift]
+            np.negative(t, out=t)
+            t *= inv2A
+            t /= 2.0 * R5[shift:shift + 3]
+            J9[rows] = t
     J[~(A > 0)] = 0.0
     return J
