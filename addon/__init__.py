@@ -6,9 +6,9 @@ All mathematics lives in the sibling package ``lacore`` (imported relatively).
 
 import bpy
 
-from . import operators, panels
+from . import operators, operators_interpolate, panels
 
-classes = (*operators.classes, *panels.classes)
+classes = (*operators.classes, *operators_interpolate.classes, *panels.classes)
 
 
 def register():

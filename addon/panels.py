@@ -5,6 +5,8 @@ import bpy
 
 from . import storage
 from .operators import LENGTHS_ANGLES_OT_encode
+from .operators_interpolate import (BAKE_PROP, LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
+                                    LENGTHS_ANGLES_OT_interpolate)
 
 __all__ = ["LENGTHS_ANGLES_PT_shape_keys", "classes"]
 
@@ -30,6 +32,7 @@ class LENGTHS_ANGLES_PT_shape_keys(bpy.types.Panel):
         if not rows:
             layout.label(text="No shape keys to encode", icon='INFO')
             return
+        draw_inbetweens(context, layout, mesh)
         col = layout.column(align=True)
         header = col.row()
         header.label(text="Shape key")
@@ -38,6 +41,29 @@ class LENGTHS_ANGLES_PT_shape_keys(bpy.types.Panel):
             row = col.row()
             row.label(text=name, icon='CHECKMARK' if encoded else 'X')
             row.label(text=f"{violation:.3g}" if encoded else "not encoded")
+
+
+def draw_inbetweens(context, layout, mesh):
+    """Interpolate from the reference key to the active key (options in the redo panel) and bake."""
+    key = mesh.shape_keys
+    obj = context.object
+    col = layout.column(align=True)
+    ref = key.reference_key.name if key.reference_key is not None else ""
+    active = obj.active_shape_key.name if obj.active_shape_key is not None else ""
+    row = col.row(align=True)
+    if active and active != ref:
+        op = row.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text=f"In-betweens {ref} > {active}",
+                          icon='IPO_EASE_IN_OUT')
+        op.key_from = ref
+        op.key_to = active
+    else:
+        row.enabled = False
+        row.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text="In-betweens: select a target key",
+                     icon='IPO_EASE_IN_OUT')
+    row = col.row(align=True)
+    row.operator(LENGTHS_ANGLES_OT_bake_keyframes.bl_idname, text="Bake Keyframes...", icon='KEYFRAME_HLT')
+    if BAKE_PROP in mesh:
+        row.operator(LENGTHS_ANGLES_OT_clear_bake.bl_idname, text="", icon='X')
 
 
 classes = (LENGTHS_ANGLES_PT_shape_keys,)

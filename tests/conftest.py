@@ -44,3 +44,34 @@ def shared_mesh(relative: str) -> Path:
 @pytest.fixture(scope="session")
 def meshes_dir() -> Path:
     return shared_meshes_dir()
+
+
+# ----------------------------------------------------------------------------- Blender subprocess checks
+def build_extension_zip(out_dir) -> str:
+    """Build the extension zip for the current platform into ``out_dir``; returns its path."""
+    import subprocess
+
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "build_extension.py"), "--platform", "current",
+                           "--output-dir", str(out_dir)], capture_output=True, text=True, cwd=REPO, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    zip_path = proc.stdout.strip().splitlines()[-1]
+    assert zip_path.endswith(".zip") and os.path.isfile(zip_path), proc.stdout
+    return zip_path
+
+
+def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
+    """Run a tests/blender/check_*.py script (installs ``zip_path`` into a throw-away
+    BLENDER_USER_RESOURCES under ``work``) in a subprocess; returns its JSON result."""
+    import json
+    import subprocess
+
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user_resources"))
+    result = work / "result.json"
+    proc = subprocess.run([sys.executable, str(script), "--zip", str(zip_path), "--workdir", str(work / "files"),
+                           "--result", str(result)], capture_output=True, text=True, env=env, cwd=work,
+                          timeout=timeout)
+    details = f"\n--- stdout (tail) ---\n{proc.stdout[-4000:]}\n--- stderr (tail) ---\n{proc.stderr[-6000:]}"
+    assert result.exists(), f"the Blender checks wrote no result (exit code {proc.returncode}){details}"
+    data = json.loads(result.read_text())
+    assert proc.returncode == 0 and data["ok"], data.get("error", "") + details
+    return data

@@ -1,0 +1,164 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Benchmark: 10 lengths-and-angles in-betweens of a ~50k-vertex mesh in Blender (bpy), end to end.
+
+The mesh is a box bar (quads, 400 x 30 x 30 cells on its sides: 49,802 vertices) with a
+straight ``Basis`` and ``Bend180`` = Blender's Simple Deform BEND (180 degrees) applied as a
+shape key.  Timed:
+
+* ``operator_seconds``: ``bpy.ops.lengths_angles.interpolate`` (count = 10) as a user runs it,
+  the first time on this connectivity (pays the one-time set-up: Gauss-Newton sparsity pattern,
+  fill-reducing ordering, symbolic factorization);
+* ``rerun_*``: the same work again (like a redo-panel re-run, set-up cached), split into stages
+  with the operator's own functions: ``read`` (shape keys via foreach_get, fixed triangulation,
+  lacore topology), ``compute`` (lacore interpolation + projection + placement) and ``write``
+  (10 shape keys via foreach_set), the compute stage under cProfile.
+
+Prints one JSON object: seconds per stage and method, machine info, and (with
+``--profile``, default on) the functions taking most of the compute time (cProfile,
+cumulative, lacore/scipy/numpy functions).
+
+usage: python benchmarks/bench_blender_interpolate.py [--segments 400 30 30] [--count 10]
+                                                      [--methods FAST [GAUSS_NEWTON]] [--no-profile]
+"""
+
+import argparse
+import cProfile
+import io
+import json
+import math
+import os
+import platform
+import pstats
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+
+
+def machine_info(bpy):
+    import numpy
+    import scipy
+
+    info = {"python": platform.python_version(), "platform": platform.platform(), "machine": platform.machine(),
+            "processor": platform.processor(), "cpu_count": os.cpu_count(), "numpy": numpy.__version__,
+            "scipy": scipy.__version__, "blender": bpy.app.version_string}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            model = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), None)
+        info["cpu_model"] = model
+    except OSError:
+        pass
+    try:
+        import cvxopt
+
+        info["cvxopt (CHOLMOD)"] = cvxopt.__version__
+    except ImportError:
+        info["cvxopt (CHOLMOD)"] = None
+    return info
+
+
+def profile_top(fn, n=18):
+    """Run ``fn`` under cProfile; the ``n`` functions with most cumulative time."""
+    prof = cProfile.Profile()
+    prof.enable()
+    out = fn()
+    prof.disable()
+    stream = io.StringIO()
+    stats = pstats.Stats(prof, stream=stream)
+    rows = []
+    for (file, line, name), (_cc, nc, tt, ct, _callers) in stats.stats.items():
+        short = file.split("site-packages/")[-1].split("/work/main/")[-1]
+        rows.append({"function": f"{short}:{line}({name})", "calls": nc, "cumulative_s": round(ct, 3),
+                     "own_s": round(tt, 3)})
+    rows.sort(key=lambda r: -r["cumulative_s"])
+    own = sorted(rows, key=lambda r: -r["own_s"])[:n]
+    return out, rows[:n], own
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--segments", type=int, nargs=3, default=(400, 30, 30))
+    parser.add_argument("--count", type=int, default=10)
+    parser.add_argument("--methods", nargs="+", default=["FAST"], choices=["FAST", "GAUSS_NEWTON"])
+    parser.add_argument("--no-profile", action="store_true")
+    parser.add_argument("--json", default=None, help="also write the result to this file")
+    args = parser.parse_args(argv)
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="lengths_angles_bench_"))
+    import bpy
+    import numpy as np
+
+    sys.path.insert(0, os.path.join(REPO, "scripts"))
+    import blend_sample_cases as cases
+    from addon_dev import load_addon
+
+    pkg = load_addon()
+    ops = pkg.addon.operators_interpolate
+    bpy.ops.wm.read_homefile(use_empty=True)
+    t = time.perf_counter()
+    obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
+    build = time.perf_counter() - t
+    V = len(obj.data.vertices)
+    factors = [i / (args.count + 1) for i in range(1, args.count + 1)]
+    result = {"mesh": {"vertices": V, "quads": len(obj.data.polygons), "triangles": 2 * len(obj.data.polygons),
+                       "segments": list(args.segments), "build_seconds": round(build, 3)},
+              "inbetweens": args.count, "machine": machine_info(bpy), "methods": {}}
+
+    for method in args.methods:
+        entry = {}
+        # 1. end to end, as a user runs it (the first run on this connectivity pays the set-up)
+        bpy.ops.wm.read_homefile(use_empty=True)
+        obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
+        t = time.perf_counter()
+        with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+            assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="",
+                                                      count=args.count, method=method) == {'FINISHED'}
+        entry["operator_seconds"] = round(time.perf_counter() - t, 3)
+        entry["operator_run"] = "first run on this connectivity" if not result["methods"] else "set-up cached"
+        # 2. the same work again, stage by stage with the operator's own functions (= a redo-panel re-run:
+        #    the topology and its reconstruction set-up are cached)
+        bpy.ops.wm.read_homefile(use_empty=True)
+        obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
+        t0 = time.perf_counter()
+        _mesh, names, coords, topology = ops.read_mesh(obj)
+        t1 = time.perf_counter()
+        A, B = coords[names.index("Basis")], coords[names.index("Bend180")]
+
+        def compute(A=A, B=B, topology=topology, method=method):
+            return ops.inbetween_shapes(topology, A, B, factors, method)
+
+        if args.no_profile:
+            shapes = compute()
+        else:
+            shapes, top, own = profile_top(compute)
+            entry["profile_cumulative"] = top
+            entry["profile_own_time"] = own
+        t2 = time.perf_counter()
+        for t_, X in zip(factors, shapes, strict=True):
+            ops.write_key(obj, ops.inbetween_key_name("Basis", "Bend180", t_), X)
+        obj.data.update()
+        t3 = time.perf_counter()
+        entry.update({"rerun_read_seconds": round(t1 - t0, 3), "rerun_compute_seconds": round(t2 - t1, 3),
+                      "rerun_write_seconds": round(t3 - t2, 3), "rerun_total_seconds": round(t3 - t0, 3),
+                      "rerun_compute_seconds_per_inbetween": round((t2 - t1) / args.count, 3),
+                      "profiled": not args.no_profile})
+        k = len(factors) // 2  # quality check: the k-th in-between vs Blender's bend by the same fraction
+        Rk = cases.simple_deform_coords(obj, "BEND", math.radians(180.0 * factors[k]))
+        entry["quality"] = {"t": round(factors[k], 4), "reference": f"Simple Deform BEND {180 * factors[k]:.2f} deg",
+                            **cases.blend_metrics(shapes[k], Rk, A, cases.mesh_edges(obj))}
+        assert all(np.all(np.isfinite(X)) for X in shapes)
+        result["methods"][method] = entry
+        print(f"[bench] {method}: {json.dumps({k: v for k, v in entry.items() if 'profile' not in k})}",
+              file=sys.stderr, flush=True)
+    text = json.dumps(result, indent=1)
+    if args.json:
+        with open(args.json, "w") as fh:
+            fh.write(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

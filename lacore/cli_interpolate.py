@@ -1,0 +1,202 @@
+"""``lacore interpolate``: in-betweens and extrapolations of shapes in lengths and angles.
+
+Usage::
+
+    lacore interpolate A.ply B.ply [C.ply ...] (--t T [T ...] | --frames N)
+                       [--keyframes K1 K2 ...] [--smooth-spline] [--method gn|hybrid|bfs|mst|spt|lsq]
+                       -o OUT_PREFIX [--format ply|obj|off|stl] [--json]
+
+The input meshes must be in dense correspondence (same vertex count and
+faces).  They sit at the keyframe times ``--keyframes`` (default ``0, 1, ...``).
+
+``--t T ...``
+    Frames at these times in keyframe-time units: for two shapes at 0 and 1,
+    ``0 <= t <= 1`` interpolates and ``t < 0`` or ``t > 1`` extrapolates.
+``--frames N``
+    ``N`` evenly spaced frames from the first to the last keyframe (inclusive).
+
+The lengths and angles are interpolated piecewise linearly (or, with
+``--smooth-spline``, by a natural cubic spline through the keyframes) and
+projected onto the admissible set by reconstruction, see
+:mod:`lacore.interpolation`.  Frames are written in the order given to
+``OUT_PREFIX_000.ply``, ``OUT_PREFIX_001.ply``, ... (at least three digits), all
+in the frame of the reference shape (``--reference``, default the first).
+
+``--json`` prints one JSON object: per output file its ``factor`` (and, with
+``--frames``, its ``frame``), ``seconds``, ``energy``, ``iterations``,
+``max_length_error``, ``max_angle_error``, plus ``totals``.  Bad input (missing
+files, meshes not in correspondence, a keyframe count different from the mesh
+count, keyframes not strictly increasing) exits with code 2 and a message.
+
+The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
+"""
+
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+from .errors import MeshError
+
+__all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
+
+HELP = "interpolate or extrapolate shapes in lengths and angles (in-betweens, keyframes)"
+
+_FORMATS = ("ply", "obj", "off", "stl")
+
+
+def configure(parser):
+    """Declare the arguments of ``lacore interpolate``."""
+    from .reconstruction import METHODS
+
+    parser.add_argument("meshes", nargs="+", metavar="MESH",
+                        help="two or more meshes in dense correspondence (same vertices and faces)")
+    when = parser.add_mutually_exclusive_group(required=True)
+    when.add_argument("--t", nargs="+", type=float, metavar="T",
+                      help="frame times in keyframe units (0 = first mesh, 1 = second, ...; outside extrapolates)")
+    when.add_argument("--frames", type=int, metavar="N",
+                      help="N evenly spaced frames from the first to the last keyframe (inclusive)")
+    parser.add_argument("--keyframes", nargs="+", type=float, metavar="K",
+                        help="strictly increasing keyframe times of the meshes (default 0 1 2 ...)")
+    parser.add_argument("--smooth-spline", action="store_true",
+                        help="natural cubic spline in lengths and angles through the keyframes (default: linear)")
+    parser.add_argument("--method", choices=METHODS, default="gn",
+                        help="projection by reconstruction: gn (Gauss-Newton, default, warm-started), hybrid, "
+                             "bfs/mst/spt (frame-based, one preassembled tree), lsq")
+    parser.add_argument("--reference", type=int, default=0, metavar="I",
+                        help="index of the mesh giving the energy weights and the output frame (default 0)")
+    parser.add_argument("--bending-weight", type=float, default=1e-3, metavar="ETA",
+                        help="bending weight eta of W_q (default 1e-3)")
+    parser.add_argument("--energy-weights", choices=("frohlich_botsch", "heeren", "uniform"),
+                        default="frohlich_botsch", help="weights of W_q: (3.20) (default), (3.21) or 1")
+    parser.add_argument("--max-iterations", type=int, default=100, metavar="N",
+                        help="Gauss-Newton iteration limit per frame (default 100)")
+    parser.add_argument("--no-warm-start", action="store_true",
+                        help="start every Gauss-Newton projection from the reference mesh")
+    parser.add_argument("--solver", choices=("cholmod", "scipy"),
+                        help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
+                        help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
+    parser.add_argument("--format", choices=_FORMATS, default="ply", help="output mesh format (default ply)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
+
+
+def output_paths(prefix, n, extension="ply"):
+    """``prefix_000.ext ... prefix_{n-1}.ext`` (at least three digits, more if ``n > 1000``)."""
+    width = max(3, len(str(max(n - 1, 0))))
+    return [f"{prefix}_{i:0{width}d}.{extension}" for i in range(n)]
+
+
+def frame_times(keyframes, n_frames):
+    """``n_frames`` evenly spaced times from the first to the last keyframe, inclusive."""
+    if n_frames < 1:
+        raise ValueError(f"--frames must be at least 1, got {n_frames}")
+    return np.linspace(float(keyframes[0]), float(keyframes[-1]), int(n_frames))
+
+
+def _load_shapes(paths):
+    """Vertices of all meshes, the faces and topology of the first; errors for meshes not in correspondence."""
+    from .lengths_angles import check_nondegenerate
+    from .mesh_io import load_mesh
+    from .topology import MeshTopology
+
+    if len(paths) < 2:
+        raise ValueError(f"interpolation needs at least 2 meshes, got {len(paths)}")
+    X0, faces = load_mesh(paths[0])
+    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
+    shapes = [check_nondegenerate(X0, topology)]
+    for path in paths[1:]:
+        X, F = load_mesh(path)
+        if len(X) != len(X0):
+            raise MeshError(f"{path} has {len(X)} vertices but {paths[0]} has {len(X0)}: the meshes are not in "
+                            "dense correspondence")
+        if F.shape != faces.shape or not np.array_equal(F, faces):
+            raise MeshError(f"{path} has other faces than {paths[0]}: the meshes are not in dense correspondence")
+        shapes.append(check_nondegenerate(X, topology))
+    return shapes, topology
+
+
+def _float(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def run(args):
+    """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
+    from .interpolation import check_keyframes, keyframe_inbetweens
+    from .mesh_io import save_mesh
+
+    start = time.perf_counter()
+    shapes, topology = _load_shapes(args.meshes)
+    keyframes = check_keyframes(args.keyframes, len(shapes))
+    if args.t is not None:
+        times, mode = np.asarray(args.t, float), "factor"
+    else:
+        times, mode = frame_times(keyframes, args.frames), "frame"
+    if not 0 <= args.reference < len(shapes):
+        raise ValueError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
+    out_dir = os.path.dirname(args.output)
+    if out_dir and not os.path.isdir(out_dir):
+        raise FileNotFoundError(f"output directory {out_dir} does not exist")
+    t_load = time.perf_counter() - start
+
+    result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
+                                 method=args.method, reference=args.reference, warm_start=not args.no_warm_start,
+                                 bending_weight=args.bending_weight, weights=args.energy_weights,
+                                 max_iterations=args.max_iterations, solver=args.solver)
+    paths = output_paths(args.output, len(times), args.format)
+    t = time.perf_counter()
+    for path, X in zip(paths, result.vertices, strict=True):
+        save_mesh(path, X, topology.faces)
+    t_save = time.perf_counter() - t
+    seconds = time.perf_counter() - start
+    if not result.success:
+        print(f"lacore interpolate: warning: {result.message}", file=sys.stderr)
+
+    outputs = []
+    for i, path in enumerate(paths):
+        item = {"file": path, "factor": float(times[i])}
+        if mode == "frame":
+            item["frame"] = float(times[i])
+        item.update({"seconds": float(result.seconds[i]), "energy": _float(result.energy[i]),
+                     "iterations": int(result.iterations[i]), "max_length_error": _float(result.max_length_error[i]),
+                     "max_angle_error": _float(result.max_angle_error[i]), "status": int(result.status[i]),
+                     "warm_start_from": _float(result.warm_start_times[i])})
+        outputs.append(item)
+    if args.json:
+        summary = {
+            "command": "interpolate",
+            "inputs": list(args.meshes),
+            "keyframes": [float(k) for k in keyframes],
+            "mode": mode,
+            "method": args.method,
+            "smooth_spline": bool(args.smooth_spline),
+            "warm_start": not args.no_warm_start,
+            "vertices": int(topology.n_vertices),
+            "faces": int(topology.n_faces),
+            "outputs": outputs,
+            "totals": {
+                "outputs": len(outputs),
+                "seconds": seconds,
+                "projection_seconds": float(np.sum(result.seconds)),
+                "iterations": int(result.total_iterations),
+                "max_length_error": _float(np.max(result.max_length_error)),
+                "max_angle_error": _float(np.max(result.max_angle_error)),
+                "load_seconds": t_load,
+                "save_seconds": t_save,
+            },
+            "success": bool(result.success),
+        }
+        json.dump(summary, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"{len(paths)} frames of {len(shapes)} meshes ({topology.n_vertices} vertices), method {args.method}"
+              f"{', cubic spline' if args.smooth_spline else ''}:")
+        for i, item in enumerate(outputs):
+            print(f"  {item['file']}: {mode} {times[i]:g}, {item['iterations']} iterations, energy "
+                  f"{result.energy[i]:.4g}, max length error {result.max_length_error[i]:.3g}, "
+                  f"max angle error {result.max_angle_error[i]:.3g} rad, {item['seconds']:.3f} s")
+        print(f"  total {seconds:.3f} s")
+    return 0

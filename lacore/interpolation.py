@@ -1,0 +1,527 @@
+"""Interpolation, extrapolation and keyframe in-betweens in lengths and angles (thesis 4.2, eqs. 4.9, 4.10).
+
+Shapes ``X_0, ..., X_{K-1}`` in dense correspondence (vertex arrays ``(V, 3)``)
+are encoded as lengths and angles ``z_k = Z[X_k]`` (``(2E,)``, layout of
+:mod:`lacore.lengths_angles`) and placed at increasing *keyframe times*
+``k_0 < k_1 < ... < k_{K-1}`` (default ``0, 1, ..., K-1``).  A frame at time
+``t`` gets the target
+
+* piecewise linear in ``z`` (:func:`piecewise_linear_z`)::
+
+      z~(t) = (1 - u) z_s + u z_{s+1},    u = (t - k_s) / (k_{s+1} - k_s)
+
+  on the segment ``s`` containing ``t``; the first and last segment are extended
+  linearly beyond the keyframes, so ``t < k_0`` or ``t > k_{K-1}`` extrapolates.
+  For two shapes at times 0 and 1 this is ``(1 - t) z_0 + t z_1``: the
+  equidistant linear path is the unconstrained discrete geodesic of ``W_q`` in
+  the ambient space (4.9);
+* or a cubic spline in ``z`` through the keyframes (:func:`spline_z`,
+  :class:`scipy.interpolate.CubicSpline` along the time axis) with *natural*
+  boundary conditions (zero second derivative at the first and last keyframe);
+  beyond the keyframes it continues linearly with the end slopes, which matches
+  the natural end condition (C2).  With two keyframes it is the linear
+  interpolation.
+
+Then every target is projected onto the admissible set by reconstruction
+(4.10), ``P_Z[z~] = Z[R[z~]]`` (:func:`lacore.reconstruction.reconstruct`; the
+default ``method="gn"`` is the energy-based projection of Definition 4.3).
+
+Sharing work between frames
+---------------------------
+* One :class:`~lacore.reconstruction.ReconstructionContext` (weights, fixed
+  face, Gauss-Newton sparsity pattern and symbolic Cholesky factorization) is
+  made for the reference shape and passed to every frame, so all frames share
+  one symbolic factorization (``result.context``).
+* Frames are processed in order of ``t``; with ``warm_start=True`` each
+  Gauss-Newton projection starts from its nearest already known neighbour in
+  time: an input shape given as vertices (at its keyframe time) or an already
+  computed frame (ties go to input shapes).
+* Frame-based methods (``"bfs"``, ``"mst"``, ``"spt"``, ``"hybrid"``) use one
+  spanning tree for all frames, preassembled from the keyframe samples ``z_k``
+  (remark after Algorithm 2, :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
+
+Output placement
+----------------
+All frames are returned in the frame of the reference shape (``reference``,
+default the first): the fixed triangle of the reconstruction sits exactly
+where the reference shape has it, so an animation made of the frames does not
+jump.
+"""
+
+import time
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import OptimizeResult
+
+from .errors import LengthsAnglesError, MeshError
+from .lengths_angles import check_z, lengths_and_angles
+from .topology import MeshTopology, check_vertices
+
+__all__ = [
+    "InterpolationResult",
+    "interpolate",
+    "keyframe_inbetweens",
+    "project_targets",
+    "shapes_to_z",
+    "check_keyframes",
+    "piecewise_linear_z",
+    "spline_z",
+]
+
+_CONTEXT_SETTINGS = ("energy", "weights", "bending_weight", "fixed_face", "fix_triangle_shape", "solver")
+_FRAME_TREES = {"bfs": "bfs", "mst": "mst", "spt": "spt"}
+
+
+class InterpolationResult(OptimizeResult):
+    """Frames of :func:`interpolate` / :func:`keyframe_inbetweens` (a :class:`scipy.optimize.OptimizeResult`).
+
+    Arrays have one entry per requested frame, in the order requested.
+
+    Attributes
+    ----------
+    vertices : (N, V, 3) ndarray
+        Projected frames, all in the frame of the reference shape.
+    times : (N,) ndarray
+        Frame times in keyframe-time units (the ``factors`` or ``frames``).
+    z_targets : (N, 2E) ndarray
+        The targets ``z~(t)`` before projection.
+    energy : (N,) ndarray
+        ``W[z~, Z(vertices)]`` of every frame (the projection's residual energy).
+    iterations : (N,) ndarray of int
+        Gauss-Newton iterations per frame (0 for direct frame-based methods).
+    seconds : (N,) ndarray
+        Wall time of every projection (the reconstruction call).
+    max_length_error, max_angle_error : (N,) ndarray
+        ``max |l - l~|`` (mesh units) and ``max |theta - theta~|`` (radians) of
+        every frame, see :func:`lacore.reconstruction.reconstruction_errors`.
+    status : (N,) ndarray of int
+        Reconstruction status codes (:data:`lacore.reconstruction.STATUS_MESSAGES`).
+    warm_start_times : (N,) ndarray
+        Time of the neighbour whose vertices started the Gauss-Newton projection
+        (NaN: started from the reference shape).
+    order : (N,) ndarray of int
+        Processing order (indices into the frames).
+    reconstructions : list of ReconstructionResult
+    context : ReconstructionContext
+        The set-up shared by all frames (one symbolic factorization).
+    tree : DualSpanningTree or None
+        The preassembled spanning tree of frame-based methods.
+    keyframes : (K,) ndarray
+        Keyframe times of the input shapes (:func:`interpolate`, :func:`keyframe_inbetweens`).
+    smooth : bool
+        Whether the targets come from the cubic spline (:func:`spline_z`).
+    method : str
+    success : bool
+        All reconstructions finished normally (``ReconstructionResult.success``).
+    message : str
+    total_seconds : float
+        Wall time of the whole call (including encoding and set-up).
+    total_iterations : int
+    """
+
+
+# --------------------------------------------------------------------------- inputs
+def shapes_to_z(shapes, topology):
+    """Lengths and angles of a sequence of shapes.
+
+    Parameters
+    ----------
+    shapes : sequence of (V, 3) vertex arrays and/or (2E,) lengths-and-angles vectors
+        Also a single array ``(K, V, 3)`` or ``(K, 2E)``.
+    topology : MeshTopology
+
+    Returns
+    -------
+    z : (K, 2E) ndarray
+    vertices : list of K (V, 3) ndarrays or None (for shapes given as ``z``)
+
+    Raises
+    ------
+    MeshError
+        A vertex array with the wrong vertex count (not in dense correspondence) or NaN coordinates.
+    LengthsAnglesError
+        A ``z`` of the wrong size, with NaN or non-positive lengths.
+    ValueError
+        Fewer than 2 shapes.
+    """
+    if not isinstance(topology, MeshTopology):
+        raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
+    if isinstance(shapes, np.ndarray) and shapes.ndim in (2, 3):
+        items = list(shapes)
+    else:
+        items = list(shapes)
+    if len(items) < 2:
+        raise ValueError(f"interpolation needs at least 2 shapes, got {len(items)}")
+    zs, Xs = [], []
+    V, E2 = topology.n_vertices, 2 * topology.n_edges
+    for k, s in enumerate(items):
+        a = np.asarray(s, dtype=float)
+        if a.ndim == 2:
+            if a.shape[0] != V:
+                raise MeshError(f"shape {k} has {a.shape[0]} vertices but shape 0 / the mesh has {V} "
+                                "(shapes must be in dense correspondence)")
+            X = check_vertices(a, V, name=f"shape {k}")
+            zs.append(lengths_and_angles(X, topology))
+            Xs.append(X)
+        elif a.ndim == 1:
+            if a.shape != (E2,):
+                raise LengthsAnglesError(f"shape {k} is a vector of length {a.size}; lengths and angles of this "
+                                         f"mesh have 2E = {E2} entries")
+            zs.append(check_z(a, topology, name=f"shape {k} (lengths and angles)"))
+            Xs.append(None)
+        else:
+            raise MeshError(f"shape {k} must be a (V, 3) vertex array or a (2E,) vector, got shape {a.shape}")
+    return np.array(zs), Xs
+
+
+def check_keyframes(keyframes, n_shapes):
+    """Validated keyframe times ``(K,)`` float; default ``0..K-1``.
+
+    Raises
+    ------
+    ValueError
+        A count different from the number of shapes, NaN/inf, or times that are not strictly increasing.
+    """
+    if keyframes is None:
+        return np.arange(n_shapes, dtype=float)
+    k = np.asarray(keyframes, dtype=float)
+    if k.ndim != 1:
+        raise ValueError(f"keyframes must be a 1-d sequence of times, got shape {k.shape}")
+    if len(k) != n_shapes:
+        raise ValueError(f"{len(k)} keyframes given for {n_shapes} shapes: give one keyframe time per shape")
+    if not np.all(np.isfinite(k)):
+        raise ValueError(f"keyframes must be finite numbers, got {k.tolist()}")
+    bad = np.flatnonzero(np.diff(k) <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"keyframes must be strictly increasing: keyframe {i + 1} ({k[i + 1]:g}) does not come "
+                         f"after keyframe {i} ({k[i]:g})")
+    return k
+
+
+def _check_times(times, name="factors"):
+    t = np.atleast_1d(np.asarray(times, dtype=float))
+    if t.ndim != 1 or t.size == 0:
+        raise ValueError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise ValueError(f"{name} must be finite; entries {bad.tolist()} are NaN or infinite")
+    return t
+
+
+# --------------------------------------------------------------------------- targets
+def piecewise_linear_z(z_keys, keyframes, times):
+    """Piecewise linear interpolation in ``z`` with linear extension of the end segments.
+
+    Parameters
+    ----------
+    z_keys : (K, 2E) array_like
+        Lengths and angles at the keyframes, K >= 2.
+    keyframes : (K,) array_like
+        Strictly increasing times.
+    times : (N,) array_like
+
+    Returns
+    -------
+    (N, 2E) ndarray
+        ``(1 - u) z_s + u z_{s+1}`` with ``u = (t - k_s) / (k_{s+1} - k_s)`` on the
+        segment ``s`` of ``t`` (``s = 0`` before the first and ``s = K-2`` after the
+        last keyframe, where ``u < 0`` resp. ``u > 1`` extrapolates).
+    """
+    Z = np.asarray(z_keys, float)
+    k = np.asarray(keyframes, float)
+    t = np.atleast_1d(np.asarray(times, float))
+    s = np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2)
+    u = (t - k[s]) / (k[s + 1] - k[s])
+    out = (1.0 - u)[:, None] * Z[s] + u[:, None] * Z[s + 1]
+    # exact keyframe values (no round-off from 1 - u)
+    hit = np.searchsorted(k, t)
+    exact = (hit < len(k)) & (k[np.minimum(hit, len(k) - 1)] == t)
+    out[exact] = Z[hit[exact]]
+    return out
+
+
+def spline_z(z_keys, keyframes, times, bc_type="natural"):
+    """Cubic spline in ``z`` through the keyframes, linear beyond them.
+
+    Parameters
+    ----------
+    z_keys : (K, 2E) array_like
+    keyframes : (K,) array_like
+        Strictly increasing times.
+    times : (N,) array_like
+    bc_type : str or tuple
+        Boundary condition of :class:`scipy.interpolate.CubicSpline`; default
+        ``"natural"`` (zero second derivative at the end keyframes).
+
+    Returns
+    -------
+    (N, 2E) ndarray
+        ``S(t)`` inside ``[k_0, k_{K-1}]``; outside, ``S(k_end) + S'(k_end) (t - k_end)``
+        (C1, and C2 for natural boundary conditions).  Passes exactly through
+        ``z_keys`` at the keyframes; with ``K = 2`` it is the linear interpolation.
+    """
+    Z = np.asarray(z_keys, float)
+    k = np.asarray(keyframes, float)
+    t = np.atleast_1d(np.asarray(times, float))
+    if len(k) == 2:
+        return piecewise_linear_z(Z, k, t)
+    S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
+    out = S(np.clip(t, k[0], k[-1]))
+    for end, mask in ((k[0], t < k[0]), (k[-1], t > k[-1])):
+        if np.any(mask):
+            out[mask] = S(end)[None] + (t[mask] - end)[:, None] * S(end, 1)[None]
+    hit = np.searchsorted(k, t)
+    exact = (hit < len(k)) & (k[np.minimum(hit, len(k) - 1)] == t)
+    out[exact] = Z[hit[exact]]
+    return out
+
+
+# --------------------------------------------------------------------------- projection of many frames
+def _split_settings(reconstruct_kw):
+    settings = {k: reconstruct_kw.pop(k) for k in _CONTEXT_SETTINGS if k in reconstruct_kw}
+    return settings, reconstruct_kw
+
+
+def _frame_tree(method, z_keys, topology, context, reconstruct_kw, tree):
+    """The shared spanning tree of frame-based methods (None for "gn" and "lsq")."""
+    if tree is not None or method in ("gn", "lsq"):
+        return tree
+    from .reconstruction.spanning_trees import bfs_tree, preassembled_tree
+
+    kind = reconstruct_kw.get("hybrid_kind", "mst") if method == "hybrid" else _FRAME_TREES[method]
+    if kind == "bfs":
+        return bfs_tree(topology, context.fixed_faces)
+    return preassembled_tree(z_keys, topology, root_face=context.fixed_faces, kind=kind)
+
+
+def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
+                    warm_start=True, tree=None, z_keys=None, **reconstruct_kw):
+    """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
+
+    Parameters
+    ----------
+    z_targets : (N, 2E) array_like
+        Targets ``z~`` (need not be admissible).
+    topology : MeshTopology
+    reference_vertices : (V, 3) array_like
+        Reference shape: weights of ``W_q``, fixed face, output frame, cold start.
+    times : (N,) array_like, optional
+        Time of every target (processing order and warm-start neighbours);
+        default ``0..N-1``.
+    anchors : sequence of (time, (V, 3) vertices), optional
+        Known shapes (e.g. the input keyframes) usable as warm starts.
+    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
+    warm_start : bool
+        Start every Gauss-Newton projection from the nearest known neighbour in
+        time (otherwise from the reference shape).
+    tree : DualSpanningTree, optional
+        Spanning tree for frame-based methods; default preassembled from ``z_keys``.
+    z_keys : (n_s, 2E) array_like, optional
+        Samples for the preassembled tree; default the targets themselves.
+    **reconstruct_kw
+        Further options of :func:`~lacore.reconstruction.reconstruct`
+        (``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
+        solver`` define the shared context; ``hybrid_kind, smoothing_iterations``
+        and Gauss-Newton options are passed on).
+
+    Returns
+    -------
+    InterpolationResult
+    """
+    from .reconstruction import METHODS, get_context, reconstruct, reconstruction_errors
+
+    t_start = time.perf_counter()
+    if method not in METHODS:
+        raise ValueError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
+    Zt = np.asarray(z_targets, float)
+    if Zt.ndim != 2 or Zt.shape[1] != 2 * topology.n_edges:
+        raise LengthsAnglesError(f"targets must have shape (N, {2 * topology.n_edges}), got {Zt.shape}")
+    N = len(Zt)
+    times = np.arange(N, dtype=float) if times is None else _check_times(times, "times")
+    if len(times) != N:
+        raise ValueError(f"{len(times)} times for {N} targets")
+    for i in np.argsort(times, kind="stable"):  # fail before any work, naming the frame
+        check_z(Zt[i], topology, name=f"target at t = {times[i]:g} (extrapolated too far?)")
+    X_ref = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
+    settings, gn_kw = _split_settings(dict(reconstruct_kw))
+    context = get_context(topology, X_ref, **settings)
+    tree = _frame_tree(method, Zt if z_keys is None else np.asarray(z_keys, float), topology, context, gn_kw, tree)
+    known_t = [float(t) for t, _ in (anchors or [])]
+    known_X = [np.asarray(X, float) for _, X in (anchors or [])]
+
+    order = np.argsort(times, kind="stable")
+    V = topology.n_vertices
+    vertices = np.empty((N, V, 3))
+    energy, seconds = np.empty(N), np.empty(N)
+    iterations, status = np.zeros(N, np.int64), np.zeros(N, np.int64)
+    max_len, max_ang = np.empty(N), np.empty(N)
+    warm_times = np.full(N, np.nan)
+    results = [None] * N
+    for i in order:
+        t = float(times[i])
+        initial = None
+        if warm_start and method == "gn" and known_t:
+            dist = np.abs(np.asarray(known_t) - t)
+            j = int(np.argmin(dist))  # first minimum: anchors (listed first) win ties
+            initial = known_X[j]
+            warm_times[i] = known_t[j]
+        t0 = time.perf_counter()
+        try:
+            res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
+                              tree=tree, **gn_kw)
+        except LengthsAnglesError as exc:
+            raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
+        seconds[i] = time.perf_counter() - t0
+        X = np.asarray(res.vertices, float)
+        vertices[i] = X
+        results[i] = res
+        energy[i] = res.energy
+        iterations[i] = res.iterations
+        status[i] = res.status
+        if np.all(np.isfinite(X)):
+            err = reconstruction_errors(X, Zt[i], topology)
+            max_len[i], max_ang[i] = err["max_length_error"], err["max_angle_error"]
+            known_t.append(t)  # usable as a warm start
+            known_X.append(X)
+        else:
+            max_len[i] = max_ang[i] = np.nan
+    success = all(r.success for r in results)
+    failed = [float(times[i]) for i in range(N) if not results[i].success]
+    message = "all frames projected" if success else f"projection did not finish normally at t = {failed}"
+    return InterpolationResult(
+        vertices=vertices, times=times, z_targets=Zt, energy=energy, iterations=iterations, seconds=seconds,
+        max_length_error=max_len, max_angle_error=max_ang, status=status, warm_start_times=warm_times,
+        order=order, reconstructions=results, context=context, tree=tree, method=method, success=bool(success),
+        message=message, total_seconds=time.perf_counter() - t_start, total_iterations=int(iterations.sum()))
+
+
+def _reference(Xs, reference, reference_vertices, topology):
+    if reference_vertices is not None:
+        return check_vertices(reference_vertices, topology.n_vertices, name="reference_vertices")
+    if int(reference) != reference or not 0 <= reference < len(Xs):
+        raise ValueError(f"reference must be the index of one of the {len(Xs)} shapes, got {reference!r}")
+    X = Xs[int(reference)]
+    if X is None:
+        raise ValueError(f"shape {reference} (the reference) is given as lengths and angles: pass "
+                         "reference_vertices, or give it as a vertex array")
+    return X
+
+
+def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference, reference_vertices, warm_start,
+         tree, reconstruct_kw):
+    t_start = time.perf_counter()
+    z_keys, Xs = shapes_to_z(shapes, topology)
+    k = check_keyframes(keyframes, len(z_keys))
+    if smooth:
+        targets = spline_z(z_keys, k, times, bc_type=bc_type)
+    else:
+        targets = piecewise_linear_z(z_keys, k, times)
+    X_ref = _reference(Xs, reference, reference_vertices, topology)
+    anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
+    res = project_targets(targets, topology, X_ref, times=times, anchors=anchors, method=method,
+                          warm_start=warm_start, tree=tree, z_keys=z_keys, **reconstruct_kw)
+    res.keyframes = k
+    res.smooth = bool(smooth)
+    res.total_seconds = time.perf_counter() - t_start
+    return res
+
+
+def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
+                warm_start=True, tree=None, **reconstruct_kw):
+    """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
+
+    Parameters
+    ----------
+    shapes : sequence of K >= 2 shapes
+        ``(V, 3)`` vertex arrays in dense correspondence and/or ``(2E,)``
+        lengths-and-angles vectors; or one array ``(K, V, 3)`` / ``(K, 2E)``.
+    topology : MeshTopology
+    factors : float or (N,) array_like
+        Frame times in keyframe-time units.  With the default keyframes
+        ``0..K-1`` and two shapes, ``t`` in ``[0, 1]`` interpolates and ``t < 0``
+        or ``t > 1`` extrapolates; with more shapes the path is piecewise
+        linear in ``z`` and extended linearly beyond the end keyframes.
+    keyframes : (K,) array_like, optional
+        Strictly increasing times of the shapes (default ``0..K-1``).
+    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Projection by reconstruction; ``"gn"`` (default) is the energy-based
+        projection (Def. 4.3) and benefits from warm starts, the frame-based
+        methods share one preassembled spanning tree.
+    reference : int
+        Index of the shape defining the weights of ``W_q``, the fixed triangle and
+        the output frame (default 0).
+    reference_vertices : (V, 3) array_like, optional
+        An explicit reference shape instead (needed if shape ``reference`` is given as ``z``).
+    warm_start : bool
+        Warm-start every Gauss-Newton projection from the nearest known
+        neighbour in time (see the module docstring); False starts every frame
+        from the reference shape.
+    tree : DualSpanningTree, optional
+        Spanning tree for the frame-based methods (default preassembled from the shapes).
+    **reconstruct_kw
+        ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
+        solver, hybrid_kind, smoothing_iterations`` and Gauss-Newton options of
+        :func:`lacore.reconstruction.reconstruct`.
+
+    Returns
+    -------
+    InterpolationResult
+        ``vertices (N, V, 3)`` in the reference's frame, ``z_targets (N, 2E)`` and
+        per-frame ``energy, iterations, seconds, max_length_error, max_angle_error``.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 shapes, keyframes not matching the shapes or not strictly
+        increasing, NaN factors, unknown method.
+    MeshError
+        Shapes with different vertex counts.
+    LengthsAnglesError
+        A target with non-positive lengths (extrapolated too far) or one that
+        violates the triangle inequality at most faces.
+    """
+    times = _check_times(factors, "factors")
+    return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
+                warm_start, tree, reconstruct_kw)
+
+
+def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
+                        reference=0, reference_vertices=None, warm_start=True, tree=None, **reconstruct_kw):
+    """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
+
+    Parameters
+    ----------
+    shapes : sequence of K >= 2 shapes
+        See :func:`interpolate`.
+    topology : MeshTopology
+    keyframes : (K,) array_like
+        Strictly increasing frame numbers of the shapes (need not be evenly spaced).
+    frames : (N,) array_like, optional
+        Frames to produce; default every integer frame from the first to the
+        last keyframe.  A frame equal to a keyframe reproduces that shape (up to
+        rigid motion; its ``z`` exactly up to the solver tolerance).
+    smooth : bool
+        False: piecewise linear in ``z`` (:func:`piecewise_linear_z`); True: cubic
+        spline in ``z`` through the keyframes (:func:`spline_z`).
+    bc_type : str
+        Spline boundary condition, default ``"natural"``.
+    method, reference, reference_vertices, warm_start, tree, **reconstruct_kw
+        As in :func:`interpolate`.
+
+    Returns
+    -------
+    InterpolationResult
+        ``times`` are the frame numbers.
+    """
+    if keyframes is None:
+        raise ValueError("keyframe_inbetweens needs the keyframe numbers of the shapes")
+    k = np.asarray(keyframes, dtype=float)
+    if frames is None:
+        kk = check_keyframes(k, len(k))
+        frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
+    times = _check_times(frames, "frames")
+    return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
+                warm_start, tree, reconstruct_kw)

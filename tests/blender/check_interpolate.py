@@ -1,0 +1,497 @@
+"""Blender-side checks of the Interpolate and Bake Keyframes operators of the INSTALLED extension
+(run in a SUBPROCESS by tests/test_blender_interpolate.py; bpy can be imported once per process).
+
+usage: BLENDER_USER_RESOURCES=<tmp> python check_interpolate.py --zip EXT.zip --workdir DIR --result OUT.json
+
+Every case returns the numbers it measured; pytest asserts on them (and every
+case also raises on a failed check: non-zero exit code, traceback on stderr).
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import traceback
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(os.path.dirname(HERE))
+MODULE = "bl_ext.user_default.lengths_angles"
+
+
+def parse_args():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--zip", required=True)
+    parser.add_argument("--workdir", required=True)
+    parser.add_argument("--result", required=True)
+    return parser.parse_args()
+
+
+ARGS = parse_args()
+if not os.environ.get("BLENDER_USER_RESOURCES"):
+    sys.exit("BLENDER_USER_RESOURCES must be set (to a throw-away directory) before bpy is imported")
+
+import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.join(REPO, "scripts"))
+import blend_sample_cases as cases  # noqa: E402
+import blender_samples as samples  # noqa: E402
+
+RESULTS = {}
+BAR_SEGMENTS = (64, 4, 4)  # 1058 vertices
+
+
+def case(fn):
+    t = time.perf_counter()
+    details = fn()
+    RESULTS[fn.__name__] = {"seconds": round(time.perf_counter() - t, 3), **(details or {})}
+    print(f"[check_interpolate] {fn.__name__}: ok ({RESULTS[fn.__name__]['seconds']} s)", flush=True)
+
+
+def reset():
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def ops_context(obj):
+    return bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj] if obj else [])
+
+
+def interpolate(obj, **kwargs):
+    with ops_context(obj):
+        return bpy.ops.lengths_angles.interpolate(**kwargs)
+
+
+def bake(obj, **kwargs):
+    with ops_context(obj):
+        return bpy.ops.lengths_angles.bake_keyframes(**kwargs)
+
+
+def key_names(obj):
+    return [kb.name for kb in obj.data.shape_keys.key_blocks] if obj.data.shape_keys else []
+
+
+def coords(obj, name):
+    return cases.key_coords(obj, name)
+
+
+def channelbag(obj):
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    key = obj.data.shape_keys
+    ad = key.animation_data if key is not None else None
+    if ad is None or ad.action is None:
+        return None
+    return action_get_channelbag_for_slot(ad.action, ad.action_slot)
+
+
+def value_path(name):
+    return f'key_blocks["{bpy.utils.escape_identifier(name)}"].value'
+
+
+def curve_values(obj, names, frames):
+    """``{name: [value at frame]}`` evaluated from the F-curves of the Key datablock (0 without a curve)."""
+    cb = channelbag(obj)
+    out = {}
+    for n in names:
+        fc = cb.fcurves.find(value_path(n)) if cb is not None else None
+        out[n] = [float(fc.evaluate(f)) if fc is not None else 0.0 for f in frames]
+    return out
+
+
+def _plain(value):
+    return value.to_dict() if hasattr(value, "to_dict") else (value.to_list() if hasattr(value, "to_list") else value)
+
+
+def snapshot(obj):
+    """Everything the operators could change: ID properties, key list, coordinates, key settings, F-curves."""
+    mesh = obj.data
+    keys = []
+    if mesh.shape_keys is not None:
+        for kb in mesh.shape_keys.key_blocks:
+            co = np.empty(3 * len(kb.points), np.float32)
+            kb.points.foreach_get("co", co)
+            keys.append((kb.name, kb.value, kb.relative_key.name, co.tolist()))
+    cb = channelbag(obj)
+    curves = [] if cb is None else [(fc.data_path, [tuple(k.co) for k in fc.keyframe_points],
+                                     [k.interpolation for k in fc.keyframe_points]) for fc in cb.fcurves]
+    return json.dumps({"mesh_props": {k: _plain(mesh[k]) for k in mesh.keys()},
+                       "object_props": {k: _plain(obj[k]) for k in obj.keys()},
+                       "keys": keys, "curves": curves, "mode": obj.mode,
+                       "n": [len(mesh.vertices), len(mesh.edges), len(mesh.polygons)],
+                       "actions": sorted(a.name for a in bpy.data.actions)}, sort_keys=True)
+
+
+def expect_error(run, obj, *fragments):
+    """Run ``run(obj)``: it must raise RuntimeError naming ``fragments`` and change nothing."""
+    before = snapshot(obj) if obj is not None and obj.type == 'MESH' else None
+    try:
+        run(obj)
+    except RuntimeError as exc:
+        msg = str(exc)
+        for frag in fragments:
+            assert frag.lower() in msg.lower(), f"expected {frag!r} in error message {msg!r}"
+        if before is not None:
+            assert snapshot(obj) == before, f"the failed operator changed the object ({msg})"
+        return msg.replace("Error: ", "").strip()
+    raise AssertionError("the operator did not report an error")
+
+
+def bar_with_keys():
+    """The box bar: Basis straight, Bend180 (Simple Deform BEND), SimpleDeform90 (reference)."""
+    return cases.bent_bar("Bar", 180.0, segments=BAR_SEGMENTS, reference_deg=90.0)
+
+
+# ----------------------------------------------------------------------------- cases
+def install_and_enable():
+    result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
+                                                      enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    assert MODULE in bpy.context.preferences.addons, list(bpy.context.preferences.addons.keys())
+    ids = {bpy.ops.lengths_angles.interpolate.idname(), bpy.ops.lengths_angles.bake_keyframes.idname(),
+           bpy.ops.lengths_angles.clear_bake.idname()}
+    assert ids == {"LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes",
+                   "LENGTHS_ANGLES_OT_clear_bake"}, ids
+    props = bpy.ops.lengths_angles.interpolate.get_rna_type().properties
+    assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
+    assert [i.identifier for i in props["method"].enum_items] == ["FAST", "GAUSS_NEWTON"]
+    assert props["method"].default == "FAST"
+    bake_props = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
+    assert {"keys", "frames", "smooth", "method"} <= set(bake_props.keys()), bake_props.keys()
+    assert bpy.ops.lengths_angles.interpolate.bl_options == {'REGISTER', 'UNDO'}
+    return {"operators": sorted(ids)}
+
+
+def interpolate_bar():
+    """Factors, end points, extrapolation, naming, key settings, quality vs Blender's 90-degree bend."""
+    reset()
+    obj = bar_with_keys()
+    V = len(obj.data.vertices)
+    A, B, R90 = coords(obj, "Basis"), coords(obj, "Bend180"), coords(obj, "SimpleDeform90")
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0 0.25, 0.5 1,1.5") == {"FINISHED"}
+    expected = [f"LA Basis>Bend180 {t}" for t in ("0.000", "0.250", "0.500", "1.000", "1.500")]
+    assert key_names(obj) == ["Basis", "Bend180", "SimpleDeform90", *expected], key_names(obj)
+    blocks = obj.data.shape_keys.key_blocks
+    for n in expected:
+        assert len(blocks[n].points) == V
+        assert blocks[n].relative_key.name == "Basis" and blocks[n].value == 0.0
+    X0, X1, X5, Xe = (coords(obj, n) for n in (expected[0], expected[3], expected[2], expected[4]))
+    diag = float(np.linalg.norm(A.max(0) - A.min(0)))
+    end_raw = max(np.abs(X0 - A).max(), np.abs(X1 - B).max())  # placed on the keys themselves
+    end_rigid = max(np.abs(cases.rigid_fit(X0, A) - A).max(), np.abs(cases.rigid_fit(X1, B) - B).max())
+    assert end_raw < 1e-5 and end_rigid < 1e-5, (end_raw, end_rigid)
+    assert np.all(np.isfinite(Xe))
+    edges = cases.mesh_edges(obj)
+    la = cases.blend_metrics(X5, R90, A, edges)
+    lin = cases.blend_metrics(0.5 * A + 0.5 * B, R90, A, edges)
+    ref = cases.blend_metrics(R90, R90, A, edges)
+    assert la["rms_error_per_diagonal"] < 0.01, la
+    # extrapolation to 1.5: lengths continue linearly (lengths of the 270-degree Simple Deform bend)
+    R270 = cases.simple_deform_coords(obj, "BEND", math.radians(270.0))
+    extra = cases.blend_metrics(Xe, R270, A, edges)
+    # placement: the 0.5 key sits on the linear blend (rigid fit), not around one fixed triangle
+    placement = float(np.sqrt(np.mean(np.sum((X5 - (0.5 * A + 0.5 * B)) ** 2, 1))) / diag)
+    centroid_shift = float(np.linalg.norm(X5.mean(0) - (0.5 * A + 0.5 * B).mean(0)))
+
+    # Count (factors empty): evenly spaced strictly inside (0, 1)
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="", count=3) == {"FINISHED"}
+    names = key_names(obj)
+    assert names.count("LA Basis>Bend180 0.250") == 1 and "LA Basis>Bend180 0.750" in names
+    assert len(names) == 3 + 5 + 1, names  # 0.250 and 0.500 replaced, 0.750 new
+
+    # Gauss-Newton method on the same pair
+    assert interpolate(obj, key_from="Bend180", key_to="Basis", factors="0.5", method='GAUSS_NEWTON') == {"FINISHED"}
+    gn = cases.blend_metrics(coords(obj, "LA Bend180>Basis 0.500"), R90, A, edges)
+    assert gn["rms_error_per_diagonal"] < 0.01, gn
+    return {"vertices": V, "keys": key_names(obj), "end_point_max_abs_error": float(end_raw),
+            "end_point_rigid_max_abs_error": float(end_rigid), "lengths_angles": la, "linear": lin,
+            "simple_deform_90": ref, "gauss_newton": gn, "extrapolated_1_5_vs_simple_deform_270": extra,
+            "placement_rms_vs_linear_blend_per_diagonal": placement, "centroid_shift": centroid_shift,
+            "diagonal": diag}
+
+
+def redo_replaces():
+    """Re-running with the same names overwrites those keys in place (no duplicates, order kept)."""
+    reset()
+    obj = bar_with_keys()
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5") == {"FINISHED"}
+    name = "LA Basis>Bend180 0.500"
+    good = coords(obj, name)
+    obj.data.shape_keys.key_blocks[name].points.foreach_set("co", np.zeros(3 * len(good), np.float32))
+    obj.data.shape_keys.key_blocks[name].value = 0.3  # the user dialled it in: kept
+    order = key_names(obj)
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5") == {"FINISHED"}
+    assert key_names(obj) == order, key_names(obj)
+    again = coords(obj, name)
+    diff = float(np.abs(again - good).max())
+    assert diff < 1e-5, diff
+    assert obj.data.shape_keys.key_blocks[name].value == np.float32(0.3)
+    # the operator's redo (REGISTER): last properties are remembered by the window manager
+    return {"keys": key_names(obj), "max_abs_difference_of_rerun": diff}
+
+
+def quads_ngons_and_edit_mode():
+    """A quad/n-gon mesh (the cube with a key) in Edit Mode: keys are written and survive leaving Edit Mode."""
+    reset()
+    obj = samples.make_cube("Cube")  # quads; keys Basis, Scaled, Rigid
+    # one n-gon: an extra pentagon-shaped prism would change topology; use the bar grid's quads plus a hexagon
+    hexagon = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.linspace(0, 2 * math.pi, 7)[:-1]])
+    top = hexagon + [0, 0, 1.0]
+    verts = np.concatenate([hexagon, top])
+    polys = [list(range(6))[::-1], list(range(6, 12))] + [[i, (i + 1) % 6, 6 + (i + 1) % 6, 6 + i] for i in range(6)]
+    prism = samples.make_object("Prism", verts, polys)
+    samples.add_shape_key(prism, "Basis")
+    samples.add_shape_key(prism, "Tall", verts * [1.0, 1.0, 3.0])
+    assert interpolate(prism, key_from="Basis", key_to="Tall", factors="0.5") == {"FINISHED"}
+    P = coords(prism, "LA Basis>Tall 0.500")
+    height = float(P[6:, 2].mean() - P[:6, 2].mean())
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+    assert interpolate(obj, key_from="Basis", key_to="Scaled", factors="0.5") == {"FINISHED"}
+    assert obj.mode == 'EDIT'
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    X = coords(obj, "LA Basis>Scaled 0.500")
+    edge = float(np.linalg.norm(X[0] - X[1]))  # cube edge 2 -> 3: the in-between has 2.5
+    assert abs(edge - 2.5) < 1e-4, edge
+    return {"prism_height_at_0.5": height, "cube_edge_at_0.5": edge}
+
+
+def errors_change_nothing():
+    messages = {}
+    reset()
+    messages["no_active_object"] = expect_error(lambda o: interpolate(o, key_from="A", key_to="B"), None,
+                                                "no active object")
+    obj = bar_with_keys()
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5") == {"FINISHED"}  # state to keep
+    run = {
+        "missing_key": (lambda o: interpolate(o, key_from="Basis", key_to="Nope"), ("Nope",)),
+        "same_key": (lambda o: interpolate(o, key_from="Bend180", key_to="Bend180"), ("same",)),
+        "unparsable_factors": (lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="0.5 abc"),
+                               ("abc",)),
+        "infinite_factor": (lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="inf"),
+                            ("finite",)),
+        "bake_count_mismatch": (lambda o: bake(o, keys="Basis, Bend180", frames="1 5 9"), ("2 keys", "3 frames")),
+        "bake_not_increasing": (lambda o: bake(o, keys="Basis, Bend180, Basis", frames="1 9 9"), ("increase",)),
+        "bake_unknown_key": (lambda o: bake(o, keys="Basis, Bent", frames="1 9"), ("Bent",)),
+        "bake_bad_frame": (lambda o: bake(o, keys="Basis, Bend180", frames="1 2.5"), ("2.5",)),
+        "bake_one_key": (lambda o: bake(o, keys="Basis", frames="1"), ("at least two",)),
+    }
+    for label, (fn, frags) in run.items():
+        messages[label] = expect_error(fn, obj, *frags)
+    # a keyframed key that already has the user's own animation
+    obj.data.shape_keys.key_blocks["Bend180"].value = 0.0
+    obj.data.shape_keys.keyframe_insert(value_path("Bend180"), frame=3)
+    messages["bake_foreign_animation"] = expect_error(lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), obj,
+                                                      "already has animation")
+
+    reset()
+    plain = samples.make_object("Plain", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)])
+    messages["no_shape_keys"] = expect_error(lambda o: interpolate(o, key_from="Basis", key_to="Key 1"), plain,
+                                             "no shape keys")
+    empty = bpy.data.objects.new("Empty", None)
+    bpy.context.scene.collection.objects.link(empty)
+    messages["not_a_mesh"] = expect_error(lambda o: interpolate(o, key_from="A", key_to="B"), empty, "not a mesh")
+
+    # non-manifold: a third quad at one cube edge (bmesh keeps the shape keys consistent)
+    import bmesh
+
+    reset()
+    obj = samples.make_cube("Cube")
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    v0, v1 = bm.verts[0], bm.verts[1]
+    extra = [bm.verts.new((x, -3.0, z)) for x, z in ((-1.0, -1.0), (-1.0, 1.0))]
+    bm.faces.new([v0, v1, extra[1], extra[0]])
+    bm.to_mesh(obj.data)
+    bm.free()
+    obj.data.update()
+    messages["non_manifold"] = expect_error(lambda o: interpolate(o, key_from="Basis", key_to="Scaled"), obj,
+                                            "non-manifold")
+    messages["bake_non_manifold"] = expect_error(lambda o: bake(o, keys="Basis, Scaled", frames="1 4"), obj,
+                                                 "non-manifold")
+    return {"messages": messages}
+
+
+def _one_hot(values, frames):
+    """Per frame: the names at 1 (and that all values are 0 or 1)."""
+    hot = []
+    for i, _f in enumerate(frames):
+        vals = {n: v[i] for n, v in values.items()}
+        assert all(v in (0.0, 1.0) for v in vals.values()), vals
+        hot.append([n for n, v in vals.items() if v == 1.0])
+    return hot
+
+
+def bake_and_rebake():
+    """Bake Basis@1 -> Bend180@6 -> Twist180@12, check keys, values per frame and shapes; re-bake replaces."""
+    reset()
+    obj = cases.bent_bar("Bar", 180.0, segments=BAR_SEGMENTS)
+    cases.add_simple_deform_key(obj, "Twist180", method="TWIST", angle=math.pi, axis="X")
+    samples.add_shape_key(obj, "Extra", coords(obj, "Basis") * 1.1)  # the user's unrelated key ...
+    key = obj.data.shape_keys
+    for f, v in ((1, 0.2), (12, 0.7)):  # ... with its own animation
+        key.key_blocks["Extra"].value = v
+        key.keyframe_insert(value_path("Extra"), frame=f)
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5") == {"FINISHED"}
+    user_before = {n: coords(obj, n).tolist() for n in ("Basis", "Bend180", "Twist180", "Extra",
+                                                        "LA Basis>Bend180 0.500")}
+    extra_curve = [tuple(k.co) for k in channelbag(obj).fcurves.find(value_path("Extra")).keyframe_points]
+
+    assert bake(obj, keys="Basis, Bend180, Twist180", frames="1, 6 12") == {"FINISHED"}
+    baked = [f"LA bake {f:03d}" for f in (2, 3, 4, 5, 7, 8, 9, 10, 11)]
+    names = key_names(obj)
+    assert [n for n in names if n.startswith("LA bake")] == baked, names
+    record = obj.data["lengths_angles_bake"].to_dict()
+    assert sorted(record["keys"]) == baked
+    frames = list(range(-1, 15))
+    managed = ["Basis", "Bend180", "Twist180", *baked]
+    hot = _one_hot(curve_values(obj, managed, frames), frames)
+    expect = {f: ("Basis" if f <= 1 else "Bend180" if f == 6 else "Twist180" if f >= 12 else f"LA bake {f:03d}")
+              for f in frames}
+    assert all(h == [expect[f]] for h, f in zip(hot, frames, strict=True)), list(zip(frames, hot, strict=True))
+    # scene playback: every baked key at 1 at its frame, through the real depsgraph
+    bpy.context.scene.frame_set(4)
+    at4 = {kb.name: kb.value for kb in key.key_blocks if kb.name in managed}
+    assert [n for n, v in at4.items() if v == 1.0] == ["LA bake 004"], at4
+    # shapes: the bend segment follows Blender's own Simple Deform bend at the same angle
+    A = coords(obj, "Basis")
+    edges = cases.mesh_edges(obj)
+    bend_quality = {}
+    for f in (2, 4, 5):
+        angle = 180.0 * (f - 1) / 5
+        R = cases.simple_deform_coords(obj, "BEND", math.radians(angle))
+        m = cases.blend_metrics(coords(obj, f"LA bake {f:03d}"), R, A, edges)
+        bend_quality[f] = m["rms_error_per_diagonal"]
+        assert m["rms_error_per_diagonal"] < 0.01, (f, m)
+    # twist segment: lengths between those of the two keys (within 2 %)
+    lb, lt = (np.linalg.norm(coords(obj, n)[edges[:, 0]] - coords(obj, n)[edges[:, 1]], axis=1)
+              for n in ("Bend180", "Twist180"))
+    X9 = coords(obj, "LA bake 009")
+    l9 = np.linalg.norm(X9[edges[:, 0]] - X9[edges[:, 1]], axis=1)
+    twist_len_err = float(np.max(np.abs(l9 - 0.5 * (lb + lt)) / (0.5 * (lb + lt))))
+    assert twist_len_err < 0.02, twist_len_err
+
+    # re-bake (smooth, other frames): the old bake is gone, the user's key, its animation and other keys stay
+    assert bake(obj, keys="Basis, Bend180, Twist180", frames="1 4 8", smooth=True) == {"FINISHED"}
+    names = key_names(obj)
+    rebaked = [f"LA bake {f:03d}" for f in (2, 3, 5, 6, 7)]
+    assert [n for n in names if n.startswith("LA bake")] == rebaked, names
+    for n, co in user_before.items():
+        assert n in names and coords(obj, n).tolist() == co, n
+    cb = channelbag(obj)
+    assert [tuple(k.co) for k in cb.fcurves.find(value_path("Extra")).keyframe_points] == extra_curve
+    paths = sorted(fc.data_path for fc in cb.fcurves)
+    assert paths == sorted(value_path(n) for n in ["Basis", "Bend180", "Twist180", "Extra", *rebaked]), paths
+    frames2 = list(range(0, 10))
+    hot2 = _one_hot(curve_values(obj, ["Basis", "Bend180", "Twist180", *rebaked], frames2), frames2)
+    assert all(len(h) == 1 for h in hot2), hot2
+    smooth_vs_linear = None
+    # smooth differs from piecewise linear in the middle of a segment
+    X6s = coords(obj, "LA bake 006")
+    assert bake(obj, keys="Basis, Bend180, Twist180", frames="1 4 8", smooth=False) == {"FINISHED"}
+    X6l = coords(obj, "LA bake 006")
+    smooth_vs_linear = float(np.abs(X6s - X6l).max())
+    assert smooth_vs_linear > 1e-3, smooth_vs_linear
+
+    # save + reload keeps keys, animation and the bake record
+    path = os.path.join(ARGS.workdir, "baked.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    saved = snapshot(obj)
+    reset()
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Bar"]
+    assert snapshot(obj) == saved
+    hot3 = _one_hot(curve_values(obj, ["Basis", "Bend180", "Twist180", *rebaked], frames2), frames2)
+    assert hot3 == hot2
+
+    # clear bake: only the user's keys and animation remain
+    with ops_context(obj):
+        assert bpy.ops.lengths_angles.clear_bake() == {"FINISHED"}
+    names = key_names(obj)
+    assert not any(n.startswith("LA bake") for n in names) and "lengths_angles_bake" not in obj.data
+    assert [fc.data_path for fc in channelbag(obj).fcurves] == [value_path("Extra")]
+    return {"baked_keys": baked, "rebaked_keys": rebaked, "hot_per_frame": dict(zip(map(str, frames), hot,
+                                                                                    strict=True)),
+            "bend_rms_per_diagonal": {str(k): v for k, v in bend_quality.items()},
+            "twist_max_relative_length_error": twist_len_err, "smooth_vs_linear_max_abs": smooth_vs_linear,
+            "blend": path}
+
+
+def shared_meshes_dir():
+    env = os.environ.get("LACORE_SHARED_DATA")
+    path = os.path.abspath(env if env else os.path.join(REPO, "..", "shared", "data"))
+    return path if os.path.basename(path) == "meshes" else os.path.join(path, "meshes")
+
+
+def finger_pair():
+    """Real data: the shared finger pair (2046 vertices) as Basis + key; the in-between's edge lengths."""
+    import importlib
+
+    reset()
+    load_mesh = importlib.import_module(MODULE + ".lacore.mesh_io").load_mesh
+    meshes = shared_meshes_dir()
+    obj = cases.shared_mesh_pair("Finger", os.path.join(meshes, "finger", "finger0.ply"),
+                                 os.path.join(meshes, "finger", "finger1.ply"), "Finger1", load_mesh)
+    assert interpolate(obj, key_from="Basis", key_to="Finger1", factors="0.5") == {"FINISHED"}
+    A, B, X = (coords(obj, n) for n in ("Basis", "Finger1", "LA Basis>Finger1 0.500"))
+    edges = cases.mesh_edges(obj)
+
+    def lengths(P):
+        return np.linalg.norm(P[edges[:, 0]] - P[edges[:, 1]], axis=1)
+
+    target = 0.5 * (lengths(A) + lengths(B))  # the interpolated lengths
+    out = {"vertices": len(A), "max_length_change_between_keys": float(np.max(np.abs(lengths(B) / lengths(A) - 1)))}
+    for label, P in (("lengths_angles", X), ("linear", 0.5 * A + 0.5 * B)):
+        r = lengths(P) / target - 1.0
+        out[label] = {"max_relative_length_error": float(np.abs(r).max()),
+                      "rms_relative_length_error": float(np.sqrt(np.mean(r ** 2)))}
+    assert out["lengths_angles"]["rms_relative_length_error"] < 0.01, out
+    return out
+
+
+def panel_buttons():
+    """The panel draws the Encode, Interpolate and Bake buttons (recording layout, no GUI headless)."""
+    from types import SimpleNamespace
+
+    reset()
+    obj = bar_with_keys()
+    obj.active_shape_key_index = 1
+    calls = []
+
+    class Layout:
+        def __getattr__(self, name):
+            def record(*args, **kwargs):
+                calls.append((name, args, kwargs))
+                return Layout()
+            return record
+
+    panel = bpy.types.LENGTHS_ANGLES_PT_shape_keys
+    ctx = SimpleNamespace(object=obj, active_object=obj, scene=bpy.context.scene)
+    panel.draw(SimpleNamespace(layout=Layout()), ctx)
+    ops = [args[0] for name, args, _ in calls if name == "operator"]
+    assert {"lengths_angles.encode", "lengths_angles.interpolate", "lengths_angles.bake_keyframes"} <= set(ops), ops
+    return {"operators": ops}
+
+
+def main():
+    t0 = time.perf_counter()
+    os.makedirs(ARGS.workdir, exist_ok=True)
+    try:
+        for fn in (install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
+                   errors_change_nothing, bake_and_rebake, finger_pair, panel_buttons):
+            case(fn)
+    except Exception:
+        traceback.print_exc()
+        with open(ARGS.result, "w") as fh:
+            json.dump({"ok": False, "cases": RESULTS, "error": traceback.format_exc()}, fh, indent=1)
+        sys.exit(1)
+    with open(ARGS.result, "w") as fh:
+        json.dump({"ok": True, "cases": RESULTS, "seconds": round(time.perf_counter() - t0, 3),
+                   "blender": bpy.app.version_string}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

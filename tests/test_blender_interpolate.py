@@ -1,0 +1,110 @@
+"""The Interpolate and Bake Keyframes operators of the INSTALLED extension, end to end in Blender
+(subprocess: tests/blender/check_interpolate.py), with real numbers from real computations:
+
+* a quad box bar (1058 vertices) bent 180 degrees by Blender's Simple Deform (applied as a shape
+  key): the lengths-and-angles in-between at t = 0.5 matches Blender's own 90-degree bend to
+  < 1 % of the bounding-box diagonal (RMS after a rigid fit), where the linear shape-key blend
+  is far off;
+* end points reproduce the keys, extrapolation is finite, redo replaces, errors change nothing;
+* the shared finger pair: the in-between keeps the interpolated edge lengths;
+* bake: one key at 1 per frame (CONSTANT F-curves through the Key's channelbag), re-bake
+  replaces only its own keys and curves, save/reload keeps everything.
+"""
+
+import pytest
+from conftest import REPO, build_extension_zip, run_blender_check
+
+pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
+
+CHECK_SCRIPT = REPO / "tests" / "blender" / "check_interpolate.py"
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    zip_path = build_extension_zip(tmp_path_factory.mktemp("ext"))
+    return run_blender_check(CHECK_SCRIPT, zip_path, tmp_path_factory.mktemp("blender_interpolate"))
+
+
+def test_operators_registered(run):
+    assert run["cases"]["install_and_enable"]["operators"] == [
+        "LENGTHS_ANGLES_OT_bake_keyframes", "LENGTHS_ANGLES_OT_clear_bake", "LENGTHS_ANGLES_OT_interpolate"]
+
+
+def test_interpolate_keys_and_end_points(run):
+    res = run["cases"]["interpolate_bar"]
+    assert res["vertices"] == 1058
+    assert res["keys"] == ["Basis", "Bend180", "SimpleDeform90", "LA Basis>Bend180 0.000", "LA Basis>Bend180 0.250",
+                           "LA Basis>Bend180 0.500", "LA Basis>Bend180 1.000", "LA Basis>Bend180 1.500",
+                           "LA Basis>Bend180 0.750", "LA Bend180>Basis 0.500"]
+    assert res["end_point_max_abs_error"] < 1e-5  # float32 storage; placed on the keys themselves
+    assert res["end_point_rigid_max_abs_error"] < 1e-5
+
+
+def test_bar_blend_quality_vs_simple_deform_90(run):
+    """The README figure's numbers: lengths and angles at 0.5 vs Blender's 90-degree bend."""
+    res = run["cases"]["interpolate_bar"]
+    la, lin, ref = res["lengths_angles"], res["linear"], res["simple_deform_90"]
+    assert la["rms_error_per_diagonal"] < 0.01
+    assert res["gauss_newton"]["rms_error_per_diagonal"] < 0.01
+    assert lin["rms_error_per_diagonal"] > 10 * la["rms_error_per_diagonal"]
+    # edge lengths: the in-between has (almost) the reference's, the linear blend shrinks edges a lot
+    assert la["max_edge_error_vs_reference"] < 0.02
+    assert lin["max_edge_change_vs_straight"] > 2 * ref["max_edge_change_vs_straight"]
+    # extrapolation to t = 1.5 is a 270-degree bend (lengths and angles continue linearly)
+    assert res["extrapolated_1_5_vs_simple_deform_270"]["rms_error_per_diagonal"] < 0.02
+    # placement: rigidly fitted to the linear blend, so the centroids coincide
+    assert res["centroid_shift"] < 1e-6 * res["diagonal"]
+
+
+def test_redo_replaces_keys(run):
+    res = run["cases"]["redo_replaces"]
+    assert res["keys"].count("LA Basis>Bend180 0.500") == 1
+    assert res["max_abs_difference_of_rerun"] < 1e-5
+
+
+def test_ngons_and_edit_mode(run):
+    res = run["cases"]["quads_ngons_and_edit_mode"]
+    assert abs(res["cube_edge_at_0.5"] - 2.5) < 1e-4  # lengths interpolate linearly (edge 2 -> 3)
+    assert abs(res["prism_height_at_0.5"] - 2.0) < 1e-3  # hexagonal prism height 1 -> 3
+
+
+def test_errors_leave_object_unchanged(run):
+    messages = run["cases"]["errors_change_nothing"]["messages"]
+    assert set(messages) == {"no_active_object", "missing_key", "same_key", "unparsable_factors", "infinite_factor",
+                             "bake_count_mismatch", "bake_not_increasing", "bake_unknown_key", "bake_bad_frame",
+                             "bake_one_key", "bake_foreign_animation", "no_shape_keys", "not_a_mesh",
+                             "non_manifold", "bake_non_manifold"}
+    assert "'Nope'" in messages["missing_key"]
+
+
+def test_bake_one_key_per_frame(run):
+    res = run["cases"]["bake_and_rebake"]
+    assert res["baked_keys"] == [f"LA bake {f:03d}" for f in (2, 3, 4, 5, 7, 8, 9, 10, 11)]
+    hot = res["hot_per_frame"]
+    assert hot["1"] == ["Basis"] and hot["6"] == ["Bend180"] and hot["12"] == ["Twist180"]
+    assert hot["4"] == ["LA bake 004"] and hot["-1"] == ["Basis"] and hot["14"] == ["Twist180"]
+    assert all(len(v) == 1 for v in hot.values())
+    # the baked bend follows Blender's own Simple Deform at the same angle
+    assert max(res["bend_rms_per_diagonal"].values()) < 0.01
+    assert res["twist_max_relative_length_error"] < 0.02
+
+
+def test_rebake_replaces_and_survives_reload(run):
+    res = run["cases"]["bake_and_rebake"]
+    assert res["rebaked_keys"] == [f"LA bake {f:03d}" for f in (2, 3, 5, 6, 7)]
+    assert res["smooth_vs_linear_max_abs"] > 1e-3
+
+
+def test_finger_pair_keeps_lengths(run):
+    """Shared finger0 -> finger1 (2046 vertices): the in-between has the interpolated edge lengths
+    (RMS 0.1 %), the linear blend misses them by about 10 % RMS (up to ~50 %)."""
+    res = run["cases"]["finger_pair"]
+    la, lin = res["lengths_angles"], res["linear"]
+    assert res["vertices"] == 2046
+    assert la["rms_relative_length_error"] < 0.01 and la["max_relative_length_error"] < 0.1
+    assert lin["rms_relative_length_error"] > 10 * la["rms_relative_length_error"]
+
+
+def test_panel_buttons(run):
+    ops = run["cases"]["panel_buttons"]["operators"]
+    assert ops[:3] == ["lengths_angles.encode", "lengths_angles.interpolate", "lengths_angles.bake_keyframes"]

@@ -1,0 +1,155 @@
+"""`lacore interpolate`: output files in order, --json summary, keyframes, spline, errors (exit code 2)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO, shared_mesh
+
+from lacore.cli import SUBCOMMANDS, main
+from lacore.cli_interpolate import frame_times, output_paths
+from lacore.lengths_angles import lengths_and_angles
+from lacore.mesh_io import load_mesh
+from lacore.topology import MeshTopology
+
+PLATES = [shared_mesh(f"plate/{n}.ply") for n in ("plate121", "plate121_rolledA", "plate121_rolledB")]
+FRAME_KEYS = {"file", "factor", "seconds", "energy", "iterations", "max_length_error", "max_angle_error"}
+
+
+def run_main(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _z(path, topo=None):
+    X, F = load_mesh(path)
+    topo = topo or MeshTopology.from_faces(F, n_vertices=len(X))
+    return lengths_and_angles(X, topo), topo
+
+
+def test_registered():
+    assert "interpolate" in SUBCOMMANDS
+    assert callable(SUBCOMMANDS["interpolate"].run)
+
+
+def test_helpers():
+    assert output_paths("out/a", 3) == ["out/a_000.ply", "out/a_001.ply", "out/a_002.ply"]
+    assert output_paths("a", 1001, "obj")[-1] == "a_1000.obj"
+    np.testing.assert_allclose(frame_times([0.0, 3.0, 10.0], 5), [0.0, 2.5, 5.0, 7.5, 10.0])
+    with pytest.raises(ValueError, match="at least 1"):
+        frame_times([0.0, 1.0], 0)
+
+
+def test_factors_json_and_files(tmp_path, capsys):
+    prefix = tmp_path / "inb"
+    code, out, err = run_main(capsys, "interpolate", PLATES[1], PLATES[2], "--t", 0, 0.5, 1, -0.25, "-o", prefix,
+                              "--json")
+    assert code == 0, err
+    s = json.loads(out)  # exactly one JSON object on stdout
+    assert s["command"] == "interpolate" and s["mode"] == "factor"
+    files = [o["file"] for o in s["outputs"]]
+    assert files == [f"{prefix}_{i:03d}.ply" for i in range(4)]
+    assert [o["factor"] for o in s["outputs"]] == [0.0, 0.5, 1.0, -0.25]
+    for o in s["outputs"]:
+        assert FRAME_KEYS <= set(o)
+        assert o["seconds"] >= 0 and o["energy"] >= 0
+    assert s["totals"]["outputs"] == 4 and s["totals"]["seconds"] > 0
+    assert s["totals"]["iterations"] == sum(o["iterations"] for o in s["outputs"])
+    # files are written in the order given: t = 0 and t = 1 reproduce the inputs
+    zA, topo = _z(PLATES[1])
+    zB, _ = _z(PLATES[2], topo)
+    z0, _ = _z(files[0], topo)
+    z1, _ = _z(files[2], topo)
+    assert np.abs(z0 - zA).max() < 1e-8 and np.abs(z1 - zB).max() < 1e-8
+    assert s["outputs"][0]["max_length_error"] < 1e-10
+    # the in-between is a different shape, with a positive residual energy (not admissible)
+    zm, _ = _z(files[1], topo)
+    assert np.abs(zm - zA).max() > 0.1 and s["outputs"][1]["energy"] > 1e-6
+    # all frames in the frame of the first mesh: its fixed triangle does not move
+    XA, _ = load_mesh(PLATES[1])
+    Xs = [load_mesh(f)[0] for f in files]
+    still = np.flatnonzero(np.all([np.abs(X - XA).max(1) < 1e-9 for X in Xs], axis=0))
+    assert still.size >= 1
+
+
+def test_frames_with_keyframes_and_spline(tmp_path, capsys):
+    lin, spl = tmp_path / "lin", tmp_path / "spl"
+    code, out, err = run_main(capsys, "interpolate", *PLATES, "--frames", 5, "--keyframes", 0, 3, 10, "-o", lin,
+                              "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["mode"] == "frame" and s["keyframes"] == [0.0, 3.0, 10.0]
+    assert [o["frame"] for o in s["outputs"]] == [0.0, 2.5, 5.0, 7.5, 10.0]
+    code, out, err = run_main(capsys, "interpolate", *PLATES, "--frames", 5, "--keyframes", 0, 3, 10,
+                              "--smooth-spline", "-o", spl, "--json")
+    assert code == 0, err
+    assert json.loads(out)["smooth_spline"] is True
+    z_first, topo = _z(PLATES[0])
+    z_last, _ = _z(PLATES[2], topo)
+    for prefix in (lin, spl):
+        assert np.abs(_z(f"{prefix}_000.ply", topo)[0] - z_first).max() < 1e-8   # frame 0 = keyframe 0
+        assert np.abs(_z(f"{prefix}_004.ply", topo)[0] - z_last).max() < 1e-8    # frame 10 = keyframe 10
+    # between the keys the spline differs from the piecewise linear path
+    d = np.abs(_z(f"{lin}_002.ply", topo)[0] - _z(f"{spl}_002.ply", topo)[0]).max()
+    assert d > 1e-2
+
+
+def test_text_output(tmp_path, capsys):
+    code, out, err = run_main(capsys, "interpolate", PLATES[0], PLATES[1], "--t", 0.5, "-o", tmp_path / "x",
+                              "--format", "obj")
+    assert code == 0, err
+    assert "x_000.obj" in out and (tmp_path / "x_000.obj").exists()
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["octa/octa_src_small.ply", "octa/octa_trg_small.ply", "--t", "0.5"], "601 vertices"),
+    (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--t", "0.5", "--keyframes", "0", "1", "2"],
+     "3 keyframes given for 2 shapes"),
+    (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--frames", "3", "--keyframes", "4", "4"],
+     "strictly increasing"),
+    (["plate/plate121.ply", "--t", "0.5"], "at least 2 meshes"),
+    (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--t", "0.5", "--reference", "5"], "--reference"),
+    (["plate/plate121.ply", "MISSING", "--t", "0.5"], "missing.ply"),
+    (["plate/plate121.ply", "simple/square4.ply", "--t", "0.5"], "dense correspondence"),
+])
+def test_bad_input_exit_code_2(argv, fragment, tmp_path, capsys):
+    def arg(a):
+        if a == "MISSING":
+            return str(tmp_path / "missing.ply")
+        return str(shared_mesh(a)) if a.endswith(".ply") else a
+
+    args = [arg(a) for a in argv]
+    code, out, err = run_main(capsys, "interpolate", *args, "-o", tmp_path / "o", "--json")
+    assert code == 2
+    assert out == ""
+    assert err.startswith("lacore interpolate: error:") and fragment in err, err
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob("o_*"))
+
+
+def test_usage_errors(tmp_path, capsys):
+    for argv in (["interpolate", str(PLATES[0]), str(PLATES[1]), "-o", str(tmp_path / "o")],  # no --t/--frames
+                 ["interpolate", str(PLATES[0]), str(PLATES[1]), "--t", "0.5", "--frames", "3", "-o", "x"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+    capsys.readouterr()
+
+
+def test_module_entry_point(tmp_path):
+    """`python -m lacore.cli interpolate` in a fresh process: files, one JSON object; errors without traceback."""
+    prefix = tmp_path / "m"
+    proc = subprocess.run([sys.executable, "-m", "lacore.cli", "interpolate", str(PLATES[0]), str(PLATES[1]),
+                           "--t", "0.25", "0.75", "-o", str(prefix), "--json"],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert len(json.loads(proc.stdout)["outputs"]) == 2
+    assert (tmp_path / "m_000.ply").exists() and (tmp_path / "m_001.ply").exists()
+    octa = [str(shared_mesh(f"octa/octa_{n}_small.ply")) for n in ("src", "trg")]
+    proc = subprocess.run([sys.executable, "-m", "lacore.cli", "interpolate", *octa, "--t", "0.5", "-o", str(prefix)],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 2
+    assert "not in dense correspondence" in proc.stderr and "Traceback" not in proc.stderr
