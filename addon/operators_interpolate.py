@@ -63,9 +63,9 @@ _LACORE_METHOD = {'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
 # FAST: at 50k vertices the least-squares start alone takes ~1.6 s per in-between with edge lengths within
 # ~1.4 % on a bend -> twist blend, while the former MST walk + 3 Gauss-Newton iterations took 8-14 s and
 # left 160 % errors there (benchmarks/bench_blender_interpolate.py); Gauss-Newton smoothing (exact or
-# PCG with a reused factorization) did not lower the maximal length error at that size; one smoothing step
+# PCG with a reused factorization) did not lower the maximal length error at that size; two smoothing steps
 # (PCG preconditioned by the factorization of an earlier frame) fixes non-admissible targets of small meshes
-_METHOD_OPTIONS = {'FAST': {"hybrid_start": "lsq", "smoothing_iterations": 1, "reuse_factorization": True},
+_METHOD_OPTIONS = {'FAST': {"hybrid_start": "lsq", "smoothing_iterations": 2, "reuse_factorization": True},
                   'GAUSS_NEWTON': {}}
 
 

@@ -288,6 +288,8 @@ def _frame_tree(method, z_keys, topology, context, reconstruct_kw, tree):
     """The shared spanning tree of frame-based methods (None for "gn" and "lsq")."""
     if tree is not None or method in ("gn", "lsq"):
         return tree
+    if method == "hybrid" and reconstruct_kw.get("hybrid_start", "tree") == "lsq":
+        return None  # the least-squares start uses no tree
     from .reconstruction.spanning_trees import bfs_tree, preassembled_tree
 
     kind = reconstruct_kw.get("hybrid_kind", "mst") if method == "hybrid" else _FRAME_TREES[method]

@@ -433,3 +433,91 @@ def test_run_gauss_newton_stops_at_the_iteration_cap():
     ctx = ReconstructionContext(topo, XA)
     out = run_gauss_newton(ctx.objective(0.5 * (zA + zB)), ctx.to_canonical(XA), ctx, max_iterations=2)
     assert out["status"] == 0 and out["iterations"] == 2 and len(out["history"]) == 3
+
+
+# --------------------------------------------------------------------------- reused factorization (PCG)
+def test_gauss_newton_matrix_product_matches_the_assembled_matrix():
+    """``matrix.dot`` (matrix-free for W_q, assembled for W_TS) = the symmetric matrix of the values."""
+    topo, X0, X1, z0, z1 = plate()
+    za = 0.5 * (z0 + z1)
+    v = np.random.default_rng(5).standard_normal(X0.size)
+    for energy in ("quadratic", "shells"):
+        ctx = ReconstructionContext(topo, X0, energy=energy)
+        matrix = ctx.objective(za).linearize(X1)[2]
+        Hs = sp.csc_matrix((matrix(), ctx.pattern["indices"], ctx.pattern["indptr"]), shape=(X0.size,) * 2)
+        full = Hs + sp.tril(Hs, -1).T
+        assert relative_error(matrix.dot(v), full @ v) < 1e-13, energy
+
+
+def test_preconditioned_cg_is_exact_with_the_exact_factor_and_converges_with_another():
+    from lacore.reconstruction.gauss_newton import preconditioned_cg
+
+    A = random_spd(60, 1).toarray()
+    b = np.random.default_rng(2).standard_normal(60)
+    fixed = np.array([3, 7])
+    free = np.setdiff1d(np.arange(60), fixed)
+    exact = np.zeros(60)
+    exact[free] = np.linalg.solve(A[np.ix_(free, free)], b[free])
+    Ared = A.copy()
+    Ared[fixed] = 0.0
+    Ared[:, fixed] = 0.0
+    Ared[fixed, fixed] = 1.0
+    # exact preconditioner: one iteration
+    x, k, rel = preconditioned_cg(lambda v: A @ v, b, lambda r: np.linalg.solve(Ared, r), fixed, 1e-10, 5)
+    assert k == 1 and rel < 1e-10 and np.allclose(x, exact, rtol=0, atol=1e-10 * np.abs(exact).max())
+    # a perturbed preconditioner: more iterations, same solution
+    P = Ared + 0.3 * np.diag(np.diag(Ared))
+    x, k, rel = preconditioned_cg(lambda v: A @ v, b, lambda r: np.linalg.solve(P, r), fixed, 1e-12, 60)
+    assert 1 < k < 60 and rel <= 1e-12 and np.allclose(x, exact, rtol=0, atol=1e-9 * np.abs(exact).max())
+    assert np.all(x[fixed] == 0.0)
+    # iteration cap: the residual is reported
+    x, k, rel = preconditioned_cg(lambda v: A @ v, b, lambda r: r, fixed, 1e-12, 2)
+    assert k == 2 and 0 < rel < 1
+
+
+def test_reused_factorization_reproduces_admissible_targets_exactly():
+    """PCG steps with a factorization from another pose converge to the exact reconstruction."""
+    topo, X0, X1, z0, z1 = finger()
+    ctx = ReconstructionContext(topo, X0)
+    first = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, max_iterations=2)
+    assert first.factorizations >= 1 and first.pcg_iterations[0] == 0  # nothing to reuse yet
+    zm = 0.5 * (z0 + z1)
+    res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=0.05, pcg_maxiter=20,
+                      initial_vertices=reconstruct(zm, topo, X0, method="lsq", context=ctx).vertices)
+    assert res.success and res.status in (1, 2), res.message
+    assert sum(k > 0 for k in res.pcg_iterations) >= 1  # some steps by PCG only
+    assert res.factorizations < res.iterations
+    err = reconstruction_errors(res.vertices, z1, topo)
+    assert err["max_length_error"] < 1e-8 * size(X1)
+    assert err["max_angle_error"] < 1e-7
+    assert np.all(np.isfinite(res.vertices))
+
+
+def test_reused_factorization_refactorizes_when_pcg_stalls():
+    topo, X0, X1, z0, z1 = finger()
+    ctx = ReconstructionContext(topo, X0)
+    reconstruct(z0, topo, X0, context=ctx, max_iterations=1)  # a factor at the reference
+    res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1e-6, pcg_maxiter=1,
+                      max_iterations=3)
+    # one PCG iteration from a far pose cannot reduce the residual 2x: every step refactorizes
+    assert res.factorizations == res.iterations == 3 and res.pcg_iterations == [0, 0, 0]
+    with pytest.raises(ValueError, match="pcg_rtol"):
+        reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1.5)
+    with pytest.raises(ValueError, match="pcg_maxiter"):
+        reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_maxiter=0)
+
+
+def test_hybrid_from_the_least_squares_start():
+    topo, X0, X1, z0, z1 = plate()
+    za = 0.5 * (z0 + z1)
+    lsq = reconstruct(za, topo, X0, method="lsq")
+    res = reconstruct(za, topo, X0, method="hybrid", hybrid_start="lsq", smoothing_iterations=0)
+    assert np.allclose(res.vertices, lsq.vertices, rtol=0, atol=1e-12 * size(X0))
+    assert res.energy == pytest.approx(lsq.energy, rel=1e-12) and "least_squares" in res.timings
+    smooth = reconstruct(za, topo, X0, method="hybrid", hybrid_start="lsq", smoothing_iterations=2,
+                         reuse_factorization=True)
+    assert smooth.energy < lsq.energy and np.all(np.isfinite(smooth.vertices))
+    exact = reconstruct(z1, topo, X0, method="hybrid", hybrid_start="lsq", smoothing_iterations=0)
+    assert reconstruction_errors(exact.vertices, z1, topo)["max_length_error"] < 1e-9 * size(X1)
+    with pytest.raises(ValueError, match="hybrid_start"):
+        reconstruct(za, topo, X0, method="hybrid", hybrid_start="bfs")

@@ -109,12 +109,17 @@ __all__ = [
     "gauss_newton_reconstruction",
     "run_gauss_newton",
     "gauss_newton_pattern",
+    "preconditioned_cg",
     "triangle_frame",
     "GN_OPTIONS",
 ]
 
 #: Default Gauss-Newton options (keyword arguments of :func:`run_gauss_newton`).
-GN_OPTIONS = {"max_iterations": 100, "ftol": 1e-9, "gtol": 1e-8, "xtol": 1e-12, "atol": None}
+GN_OPTIONS = {"max_iterations": 100, "ftol": 1e-9, "gtol": 1e-8, "xtol": 1e-12, "atol": None,
+              "reuse_factorization": False, "pcg_rtol": 0.1, "pcg_maxiter": 6}
+
+#: PCG has stalled (refactorize) when ``pcg_maxiter`` iterations reduced the relative residual less than this.
+_PCG_STALL = 0.5
 
 _I6, _J6 = np.triu_indices(6)
 _I12, _J12 = np.triu_indices(12)
@@ -295,17 +300,7 @@ class _QuadraticObjective:
         wr = self.w * r
         energy = float(np.dot(wr, r))
         grad = 2.0 * (J.T @ wr)
-
-        def matrix():
-            local = J.data[self.pattern["local_order"]]
-            gl = local[: self._n_len].reshape(6, -1)
-            ga = local[self._n_len:].reshape(12, -1)
-            vals = self._vals  # reused buffer: no page faults for a fresh multi-MB array per iteration
-            m = 21 * gl.shape[1]
-            _upper_outer(gl, gl * self._w2_len, vals[:m].reshape(21, -1))
-            _upper_outer(ga, ga * self._w2_ang, vals[m:].reshape(78, -1))
-            return np.bincount(self.pattern["slots"], weights=vals, minlength=self.pattern["nnz"])
-        return energy, grad, matrix
+        return energy, grad, _QuadraticGNMatrix(self, J)
 
     def noise_floor(self):
         """``W_q`` of a perturbation of 16 ulp of every entry of ``z*`` (angles: of pi)."""
@@ -314,12 +309,63 @@ class _QuadraticObjective:
         return float(np.sum(self.w * (16 * _EPS * scale) ** 2))
 
 
+class _QuadraticGNMatrix:
+    """The Gauss-Newton matrix ``2 J^T W J`` of ``W_q`` at one point.
+
+    Calling it returns the values in the pattern's order (for a factorization);
+    :meth:`dot` multiplies without assembling (two sparse products with ``J``).
+    """
+
+    def __init__(self, objective, J):
+        self.objective = objective
+        self.J = J
+        self._w2 = 2.0 * objective.w
+
+    def __call__(self):
+        obj, J = self.objective, self.J
+        local = J.data[obj.pattern["local_order"]]
+        gl = local[: obj._n_len].reshape(6, -1)
+        ga = local[obj._n_len:].reshape(12, -1)
+        vals = obj._vals  # reused buffer: no page faults for a fresh multi-MB array per iteration
+        m = 21 * gl.shape[1]
+        _upper_outer(gl, gl * obj._w2_len, vals[:m].reshape(21, -1))
+        _upper_outer(ga, ga * obj._w2_ang, vals[m:].reshape(78, -1))
+        return np.bincount(obj.pattern["slots"], weights=vals, minlength=obj.pattern["nnz"])
+
+    def dot(self, v):
+        """``2 J^T W J v`` for ``v`` of shape ``(3V,)``."""
+        return self.J.T @ (self._w2 * (self.J @ v))
+
+
+class _AssembledGNMatrix:
+    """A Gauss-Newton matrix given by a function returning its lower-triangle values (pattern order).
+
+    :meth:`dot` assembles once and multiplies with the symmetric matrix.
+    """
+
+    def __init__(self, values, pattern):
+        self._values = values
+        self._pattern = pattern
+        self._lower = None
+
+    def __call__(self):
+        return self._values()
+
+    def dot(self, v):
+        """Product of the symmetric matrix with ``v`` of shape ``(n,)``."""
+        if self._lower is None:
+            p = self._pattern
+            self._lower = sp.csc_matrix((self._values(), p["indices"], p["indptr"]), shape=(p["n"], p["n"]))
+        L = self._lower
+        return L @ v + L.T @ v - L.diagonal() * v
+
+
 class _ShellsObjective:
     """``W_TS[z*, Z(X)]`` through :class:`lacore.energies.EnergyInVertices`."""
 
     name = "shells"
 
-    def __init__(self, z_target, topology, bending_weight, solver):
+    def __init__(self, z_target, topology, bending_weight, solver, pattern):
         from ..energies import EnergyInVertices, ThinShellsEnergy
 
         self.shells = ThinShellsEnergy(topology, bending_weight=bending_weight)
@@ -327,6 +373,7 @@ class _ShellsObjective:
         self.z_target = z_target
         self.topology = topology
         self.solver = solver
+        self.pattern = pattern
 
     def value_z(self, z):
         return float(self.shells.value(self.z_target, z))
@@ -337,9 +384,9 @@ class _ShellsObjective:
     def linearize(self, X):
         value, grad = self.model.value_and_gradient(X)
 
-        def matrix():
+        def values():
             return self.solver.values_from_matrix(self.model.gauss_newton_hessian(X))
-        return float(value), np.asarray(grad, float).ravel(), matrix
+        return float(value), np.asarray(grad, float).ravel(), _AssembledGNMatrix(values, self.pattern)
 
     def noise_floor(self):
         """Round-off level of ``W_TS`` near ``z*``: ``16 eps (mu + lam) * total area``.
@@ -506,7 +553,7 @@ class ReconstructionContext:
             if self._buffer is None:  # outer-product values, reused by all targets of this context
                 self._buffer = np.empty(len(self.pattern["slots"]))
             return _QuadraticObjective(z_target, self.residual_weights, self.topology, self.pattern, self._buffer)
-        return _ShellsObjective(z_target, self.topology, self.bending_weight, self.solver)
+        return _ShellsObjective(z_target, self.topology, self.bending_weight, self.solver, self.pattern)
 
     def energy(self, z_target, vertices):
         """``W[z*, Z(vertices)]`` under this context's energy."""
@@ -582,8 +629,69 @@ def _line_search(objective, X, d, energy, slope, c1, max_backtracks, refine=8):
     return 0.0, X, energy, max_backtracks
 
 
+def preconditioned_cg(matvec, b, precondition, fixed, rtol, maxiter):
+    """Preconditioned conjugate gradients for ``A x = b`` on the free coordinates.
+
+    Parameters
+    ----------
+    matvec : callable
+        ``v -> A v`` for the symmetric positive (semi-)definite ``A``.
+    b : (n,) ndarray
+        Right-hand side; its ``fixed`` entries are ignored (treated as 0).
+    precondition : callable
+        ``r -> M^{-1} r`` for a symmetric positive definite ``M`` (e.g. a
+        Cholesky factorization of ``A`` at another point).
+    fixed : (k,) int array
+        Coordinates held at 0 (rows and columns of ``A`` removed).
+    rtol : float
+        Stop when ``sqrt(r^T M^{-1} r) <= rtol sqrt(b^T M^{-1} b)`` (relative
+        residual in the preconditioner's dual norm).
+    maxiter : int
+        At most this many iterations (each: one ``matvec``, one ``precondition``).
+
+    Returns
+    -------
+    x : (n,) ndarray
+        The last iterate (``x[fixed] = 0``).
+    iterations : int
+    relative_residual : float
+        ``sqrt(r^T M^{-1} r / b^T M^{-1} b)`` of the returned iterate; ``inf``
+        when a non-positive curvature ``p^T A p <= 0`` stopped the iteration.
+    """
+    b = np.array(b, dtype=float)
+    b[fixed] = 0.0
+    x = np.zeros_like(b)
+    r = b
+    zr = precondition(r)
+    zr[fixed] = 0.0
+    rz = float(np.dot(r, zr))
+    if not rz > 0:
+        return x, 0, 0.0 if rz == 0.0 else np.inf
+    rz0 = rz
+    target = rtol * rtol * rz
+    p = zr
+    for k in range(1, int(maxiter) + 1):
+        Ap = matvec(p)
+        Ap[fixed] = 0.0
+        curv = float(np.dot(p, Ap))
+        if not (curv > 0 and np.isfinite(curv)):
+            return x, k, np.inf
+        alpha = rz / curv
+        x = x + alpha * p
+        r = r - alpha * Ap
+        zr = precondition(r)
+        zr[fixed] = 0.0
+        rz_new = float(np.dot(r, zr))
+        if rz_new <= target:
+            return x, k, float(np.sqrt(rz_new / rz0))
+        p = zr + (rz_new / rz) * p
+        rz = rz_new
+    return x, int(maxiter), float(np.sqrt(max(rz, 0.0) / rz0))
+
+
 def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, gtol=1e-8, xtol=1e-12,
-                     atol=None, c1=1e-4, max_backtracks=40):
+                     atol=None, reuse_factorization=False, pcg_rtol=0.1, pcg_maxiter=6, c1=1e-4,
+                     max_backtracks=40):
     """Gauss-Newton iterations in canonical coordinates (see the module docstring for the rules).
 
     Parameters
@@ -600,6 +708,19 @@ def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, g
         Stopping tolerances (module docstring).
     atol : float, optional
         Absolute energy tolerance; default ``objective.noise_floor()``.
+    reuse_factorization : bool
+        Inexact steps: solve the Gauss-Newton system by :func:`preconditioned_cg`
+        with the factorization already held by ``context.solver`` (from an
+        earlier iteration or an earlier call with this context, i.e. another
+        pose) as the preconditioner, and refactorize at the current point only
+        when PCG stalls -- ``pcg_maxiter`` iterations reduce the relative
+        residual by less than a factor 2 -- or gives no descent direction (the new factor is then kept for the
+        following steps and calls).  Default ``False``: a fresh factorization
+        and an exact step every iteration.
+    pcg_rtol : float
+        Relative residual at which PCG stops (``0 < pcg_rtol < 1``).
+    pcg_maxiter : int
+        PCG iterations before refactorizing (``>= 1``).
     c1 : float
         Armijo constant.
     max_backtracks : int
@@ -609,8 +730,13 @@ def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, g
     -------
     dict
         ``X, status, iterations, energy, initial_energy, history, gradient_norm,
-        steps, shifts, evaluations, factorizations, timings``.
+        steps, shifts, evaluations, factorizations, pcg_iterations, timings``
+        (``pcg_iterations``: per step, the PCG iterations used; 0 for an exact step).
     """
+    if not 0 < pcg_rtol < 1:
+        raise ValueError(f"pcg_rtol must lie in (0, 1), got {pcg_rtol!r}")
+    if int(pcg_maxiter) != pcg_maxiter or pcg_maxiter < 1:
+        raise ValueError(f"pcg_maxiter must be a positive integer, got {pcg_maxiter!r}")
     solver = context.solver
     touch, diag = context.fixed_entries
     fixed = context.fixed_dofs
@@ -618,7 +744,7 @@ def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, g
     atol = objective.noise_floor() if atol is None else float(atol)
     timings = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0, "line_search": 0.0}
     X = np.array(Xc, dtype=float)
-    history, steps, shifts = [], [], []
+    history, steps, shifts, pcg_its = [], [], [], []
     factorizations = evaluations = it = 0
     status = 0
     prev_decrease = np.inf
@@ -643,28 +769,40 @@ def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, g
         if it >= max_iterations:
             status = 0
             break
-        # Gauss-Newton direction
-        t0 = time.perf_counter()
-        H = matrix()
-        H[touch] = 0.0
-        H[diag] = 1.0
-        t1 = time.perf_counter()
-        timings["assembly"] += t1 - t0
-        t0 = t1
-        try:
-            solver.factorize(H)
-        except NotPositiveDefiniteError:
-            timings["factorization"] += time.perf_counter() - t0
-            status = -2
-            break
-        factorizations += 1
-        shifts.append(solver.shift)
-        t1 = time.perf_counter()
-        timings["factorization"] += t1 - t0
-        d = solver.solve(-grad)
-        timings["solve"] += time.perf_counter() - t1
-        d[fixed] = 0.0
-        slope = float(np.dot(grad, d))
+        # Gauss-Newton direction: PCG with the held factorization, or an exact step with a fresh one
+        d = None
+        if reuse_factorization and solver.has_factor:
+            t0 = time.perf_counter()
+            d, n_cg, rel = preconditioned_cg(matrix.dot, -grad, solver.solve, fixed, pcg_rtol, pcg_maxiter)
+            timings["solve"] += time.perf_counter() - t0
+            slope = float(np.dot(grad, d))
+            if rel <= _PCG_STALL and slope < 0:
+                pcg_its.append(n_cg)
+            else:
+                d = None  # PCG stalled: refactorize at the current point
+        if d is None:
+            t0 = time.perf_counter()
+            H = matrix()
+            H[touch] = 0.0
+            H[diag] = 1.0
+            t1 = time.perf_counter()
+            timings["assembly"] += t1 - t0
+            t0 = t1
+            try:
+                solver.factorize(H)
+            except NotPositiveDefiniteError:
+                timings["factorization"] += time.perf_counter() - t0
+                status = -2
+                break
+            factorizations += 1
+            shifts.append(solver.shift)
+            pcg_its.append(0)
+            t1 = time.perf_counter()
+            timings["factorization"] += t1 - t0
+            d = solver.solve(-grad)
+            timings["solve"] += time.perf_counter() - t1
+            d[fixed] = 0.0
+            slope = float(np.dot(grad, d))
         if not slope < 0:
             status = -1
             break
@@ -707,7 +845,8 @@ def run_gauss_newton(objective, Xc, context, *, max_iterations=100, ftol=1e-9, g
         break
     return {"X": X, "status": status, "iterations": it, "energy": float(energy), "initial_energy": history[0],
             "history": history, "gradient_norm": gnorm, "steps": steps, "shifts": shifts,
-            "evaluations": evaluations, "factorizations": factorizations, "timings": timings}
+            "evaluations": evaluations, "factorizations": factorizations, "pcg_iterations": pcg_its,
+            "timings": timings}
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,
@@ -759,10 +898,12 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     timings["initialization"] = t_init
     timings["total"] = time.perf_counter() - t_start
     status = out["status"]
-    return ReconstructionResult(
+    result = ReconstructionResult(
         vertices=vertices, success=status > 0, status=status, message=STATUS_MESSAGES[status], method=method_name,
         iterations=out["iterations"], energy=out["energy"], energy_name=objective.name,
         initial_energy=out["initial_energy"], energy_history=out["history"], gradient_norm=out["gradient_norm"],
         step_sizes=out["steps"], regularization=out["shifts"], function_evaluations=out["evaluations"],
         factorizations=out["factorizations"], timings=timings,
         fixed_face=context.fixed_face, backend=context.backend)
+    result.pcg_iterations = out["pcg_iterations"]  # per step: PCG iterations (0: exact step, fresh factorization)
+    return result
