@@ -10,11 +10,12 @@ its dict goes into ``demo_output/summary.json`` and a line of
 Steps now:
 
 1. ``cli_encode``: ``lacore encode`` on a shared mesh (finger0) -> ``finger0_encoded.npz`` + JSON.
-2. ``blender_encode``: the add-on's Encode operator on a generated scene (cube, bar,
+2. ``cli_interpolate``: ``lacore interpolate`` finger0 -> finger1 (and beyond) -> ``finger_inbetween_*.ply``.
+3. ``blender_encode``: the add-on's Encode operator on a generated scene (cube, bar,
    grid with shape keys) -> ``demo_scene.blend`` (encodings stored in the meshes),
    ``demo_scene.json``, ``demo_scene.npz`` and a rendered picture of every key
    ``demo_scene_keys.png`` (runs in a subprocess: bpy can be imported once).
-3. ``blender_interpolate``: the Interpolate and Bake Keyframes operators on a box bar bent
+4. ``blender_interpolate``: the Interpolate and Bake Keyframes operators on a box bar bent
    180 degrees by Simple Deform -> ``bar_blend_comparison.png`` (linear shape-key blend vs
    lengths-and-angles in-between vs Blender's 90-degree bend), ``bar_blend_comparison.json``
    and ``bar_inbetweens.blend`` (in-between keys + a baked motion), via scripts/render_comparison.py.
@@ -109,7 +110,27 @@ def blender_interpolate(out_dir):
     }
 
 
-STEPS = [cli_encode, blender_encode, blender_interpolate]
+def cli_interpolate(out_dir):
+    """`lacore interpolate`: finger0 -> finger1 in lengths and angles, with extrapolation, as PLY files."""
+    meshes = [os.path.join(shared_meshes_dir(), "finger", f"finger{i}.ply") for i in (0, 1)]
+    prefix = os.path.join(out_dir, "finger_inbetween")
+    factors = ["-0.25", "0", "0.25", "0.5", "0.75", "1", "1.25"]
+    proc = run([sys.executable, "-m", "lacore.cli", "interpolate", *meshes, "--t", *factors, "-o", prefix, "--json"],
+               capture_output=True, text=True)
+    result = json.loads(proc.stdout)
+    with open(os.path.join(out_dir, "finger_inbetween.json"), "w") as fh:
+        json.dump(result, fh, indent=1)
+    outputs = sorted(f for f in os.listdir(out_dir) if f.startswith("finger_inbetween"))
+    return {
+        "outputs": outputs,
+        "text": (f"`lacore interpolate` finger0 -> finger1 at t = {', '.join(factors)} (outside [0, 1] "
+                 f"extrapolates; Gauss-Newton projection, warm-started): {len(factors)} PLY files; "
+                 "open them in any mesh viewer"),
+        "result": result,
+    }
+
+
+STEPS = [cli_encode, cli_interpolate, blender_encode, blender_interpolate]
 
 
 def main(argv=None):
