@@ -59,6 +59,13 @@ def build_extension_zip(out_dir) -> str:
     return zip_path
 
 
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory) -> str:
+    """The extension zip for this platform, built once per test session."""
+    pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
+    return build_extension_zip(tmp_path_factory.mktemp("ext"))
+
+
 def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
     """Run a tests/blender/check_*.py script (installs ``zip_path`` into a throw-away
     BLENDER_USER_RESOURCES under ``work``) in a subprocess; returns its JSON result."""

@@ -7,13 +7,12 @@ into ./wheels (cached; later runs do not download).
 """
 
 import json
-import os
 import subprocess
 import sys
 import tomllib
 
 import pytest
-from conftest import REPO, shared_mesh
+from conftest import REPO, run_blender_check, shared_mesh
 
 pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
 
@@ -21,30 +20,9 @@ CHECK_SCRIPT = REPO / "tests" / "blender" / "check_extension.py"
 
 
 @pytest.fixture(scope="module")
-def extension_zip(tmp_path_factory):
-    out_dir = tmp_path_factory.mktemp("ext")
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "build_extension.py"), "--platform", "current",
-                           "--output-dir", str(out_dir)], capture_output=True, text=True, cwd=REPO, timeout=900)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    zip_path = proc.stdout.strip().splitlines()[-1]
-    assert zip_path.endswith(".zip") and os.path.isfile(zip_path), proc.stdout
-    return zip_path
-
-
-@pytest.fixture(scope="module")
 def blender_run(extension_zip, tmp_path_factory):
     """Run all Blender checks once in a subprocess; returns its JSON result."""
-    work = tmp_path_factory.mktemp("blender")
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user_resources"))
-    result = work / "result.json"
-    proc = subprocess.run([sys.executable, str(CHECK_SCRIPT), "--zip", extension_zip, "--workdir", str(work / "files"),
-                           "--result", str(result)], capture_output=True, text=True, env=env, cwd=work,
-                          timeout=600)
-    details = f"\n--- stdout (tail) ---\n{proc.stdout[-4000:]}\n--- stderr (tail) ---\n{proc.stderr[-6000:]}"
-    assert result.exists(), f"the Blender checks wrote no result (exit code {proc.returncode}){details}"
-    data = json.loads(result.read_text())
-    assert proc.returncode == 0 and data["ok"], data.get("error", "") + details
-    return data
+    return run_blender_check(CHECK_SCRIPT, extension_zip, tmp_path_factory.mktemp("blender"))
 
 
 def test_zip_contents(extension_zip):
@@ -56,6 +34,7 @@ def test_zip_contents(extension_zip):
     assert not any(n.startswith(("tests/", "scripts/", ".venv/", ".ci/", "benchmarks/")) for n in names), names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert any(n.startswith("wheels/scipy-") for n in names) and any(n.startswith("wheels/trimesh-") for n in names)
+    assert any(n.startswith("wheels/cvxopt-") for n in names)
 
 
 def test_install_and_enable(blender_run):

@@ -12,7 +12,7 @@
 """
 
 import pytest
-from conftest import REPO, build_extension_zip, run_blender_check
+from conftest import REPO, run_blender_check
 
 pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
 
@@ -20,9 +20,8 @@ CHECK_SCRIPT = REPO / "tests" / "blender" / "check_interpolate.py"
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    zip_path = build_extension_zip(tmp_path_factory.mktemp("ext"))
-    return run_blender_check(CHECK_SCRIPT, zip_path, tmp_path_factory.mktemp("blender_interpolate"))
+def run(extension_zip, tmp_path_factory):
+    return run_blender_check(CHECK_SCRIPT, extension_zip, tmp_path_factory.mktemp("blender_interpolate"))
 
 
 def test_operators_registered(run):

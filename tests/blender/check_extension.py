@@ -10,47 +10,14 @@ cases below and writes ``{"ok": true, "cases": {...}}`` to OUT.json.  Any failed
 check raises (non-zero exit code, traceback on stderr).
 """
 
-import argparse
 import json
 import math
 import os
-import sys
-import time
-import traceback
 from types import SimpleNamespace
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(os.path.dirname(HERE))
-MODULE = "bl_ext.user_default.lengths_angles"
-
-
-def parse_args():
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--zip", required=True)
-    parser.add_argument("--workdir", required=True)
-    parser.add_argument("--result", required=True)
-    return parser.parse_args()
-
-
-ARGS = parse_args()
-if not os.environ.get("BLENDER_USER_RESOURCES"):
-    sys.exit("BLENDER_USER_RESOURCES must be set (to a throw-away directory) before bpy is imported")
-
-import bpy  # noqa: E402
-import numpy as np  # noqa: E402
-
-sys.path.insert(0, os.path.join(REPO, "scripts"))
-import blender_samples as samples  # noqa: E402
-
-RESULTS = {}
-
-
-def case(fn):
-    """Run one check, record its duration (and returned details)."""
-    t = time.perf_counter()
-    details = fn()
-    RESULTS[fn.__name__] = {"seconds": round(time.perf_counter() - t, 3), **(details or {})}
-    print(f"[check_extension] {fn.__name__}: ok ({RESULTS[fn.__name__]['seconds']} s)", flush=True)
+from harness import ARGS, MODULE, bpy, plain, reset, run_cases  # first: checks the environment, imports bpy
+import numpy as np
+import blender_samples as samples
 
 
 def ext():
@@ -67,10 +34,6 @@ def ext():
         lengths_angles=importlib.import_module(MODULE + ".lacore.lengths_angles"),
         integrability=importlib.import_module(MODULE + ".lacore.integrability"),
     )
-
-
-def reset():
-    bpy.ops.wm.read_homefile(use_empty=True)
 
 
 def encode(obj):
@@ -100,15 +63,11 @@ def snapshot(obj):
             kb.points.foreach_get("co", co)
             keys.append((kb.name, co.tolist()))
     return json.dumps({
-        "mesh_props": {k: _plain(mesh[k]) for k in mesh.keys()},
-        "object_props": {k: _plain(obj[k]) for k in obj.keys()},
+        "mesh_props": {k: plain(mesh[k]) for k in mesh.keys()},
+        "object_props": {k: plain(obj[k]) for k in obj.keys()},
         "keys": keys,
         "n": [len(mesh.vertices), len(mesh.edges), len(mesh.polygons)],
     }, sort_keys=True)
-
-
-def _plain(value):
-    return value.to_dict() if hasattr(value, "to_dict") else (value.to_list() if hasattr(value, "to_list") else value)
 
 
 def expect_error(obj, *fragments):
@@ -343,20 +302,8 @@ def errors_change_nothing():
 
 
 def main():
-    t0 = time.perf_counter()
-    os.makedirs(ARGS.workdir, exist_ok=True)
-    try:
-        for fn in (install_and_enable, cube_values, bar_and_grid_save_reload, panel_draw, edit_mode_and_key_io,
-                   errors_change_nothing):
-            case(fn)
-    except Exception:
-        traceback.print_exc()
-        with open(ARGS.result, "w") as fh:
-            json.dump({"ok": False, "cases": RESULTS, "error": traceback.format_exc()}, fh, indent=1)
-        sys.exit(1)
-    with open(ARGS.result, "w") as fh:
-        json.dump({"ok": True, "cases": RESULTS, "seconds": round(time.perf_counter() - t0, 3),
-                   "blender": bpy.app.version_string}, fh, indent=1)
+    run_cases((install_and_enable, cube_values, bar_and_grid_save_reload, panel_draw, edit_mode_and_key_io,
+               errors_change_nothing))
 
 
 if __name__ == "__main__":

@@ -7,51 +7,16 @@ Every case returns the numbers it measured; pytest asserts on them (and every
 case also raises on a failed check: non-zero exit code, traceback on stderr).
 """
 
-import argparse
 import json
 import math
 import os
-import sys
-import time
-import traceback
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(os.path.dirname(HERE))
-MODULE = "bl_ext.user_default.lengths_angles"
+from harness import ARGS, MODULE, REPO, bpy, plain, reset, run_cases  # first: checks the environment, imports bpy
+import numpy as np
+import blend_sample_cases as cases
+import blender_samples as samples
 
-
-def parse_args():
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--zip", required=True)
-    parser.add_argument("--workdir", required=True)
-    parser.add_argument("--result", required=True)
-    return parser.parse_args()
-
-
-ARGS = parse_args()
-if not os.environ.get("BLENDER_USER_RESOURCES"):
-    sys.exit("BLENDER_USER_RESOURCES must be set (to a throw-away directory) before bpy is imported")
-
-import bpy  # noqa: E402
-import numpy as np  # noqa: E402
-
-sys.path.insert(0, os.path.join(REPO, "scripts"))
-import blend_sample_cases as cases  # noqa: E402
-import blender_samples as samples  # noqa: E402
-
-RESULTS = {}
 BAR_SEGMENTS = (64, 4, 4)  # 1058 vertices
-
-
-def case(fn):
-    t = time.perf_counter()
-    details = fn()
-    RESULTS[fn.__name__] = {"seconds": round(time.perf_counter() - t, 3), **(details or {})}
-    print(f"[check_interpolate] {fn.__name__}: ok ({RESULTS[fn.__name__]['seconds']} s)", flush=True)
-
-
-def reset():
-    bpy.ops.wm.read_homefile(use_empty=True)
 
 
 def ops_context(obj):
@@ -100,10 +65,6 @@ def curve_values(obj, names, frames):
     return out
 
 
-def _plain(value):
-    return value.to_dict() if hasattr(value, "to_dict") else (value.to_list() if hasattr(value, "to_list") else value)
-
-
 def snapshot(obj):
     """Everything the operators could change: ID properties, key list, coordinates, key settings, F-curves."""
     mesh = obj.data
@@ -116,8 +77,8 @@ def snapshot(obj):
     cb = channelbag(obj)
     curves = [] if cb is None else [(fc.data_path, [tuple(k.co) for k in fc.keyframe_points],
                                      [k.interpolation for k in fc.keyframe_points]) for fc in cb.fcurves]
-    return json.dumps({"mesh_props": {k: _plain(mesh[k]) for k in mesh.keys()},
-                       "object_props": {k: _plain(obj[k]) for k in obj.keys()},
+    return json.dumps({"mesh_props": {k: plain(mesh[k]) for k in mesh.keys()},
+                       "object_props": {k: plain(obj[k]) for k in obj.keys()},
                        "keys": keys, "curves": curves, "mode": obj.mode,
                        "n": [len(mesh.vertices), len(mesh.edges), len(mesh.polygons)],
                        "actions": sorted(a.name for a in bpy.data.actions)}, sort_keys=True)
@@ -477,20 +438,8 @@ def panel_buttons():
 
 
 def main():
-    t0 = time.perf_counter()
-    os.makedirs(ARGS.workdir, exist_ok=True)
-    try:
-        for fn in (install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
-                   errors_change_nothing, bake_and_rebake, finger_pair, panel_buttons):
-            case(fn)
-    except Exception:
-        traceback.print_exc()
-        with open(ARGS.result, "w") as fh:
-            json.dump({"ok": False, "cases": RESULTS, "error": traceback.format_exc()}, fh, indent=1)
-        sys.exit(1)
-    with open(ARGS.result, "w") as fh:
-        json.dump({"ok": True, "cases": RESULTS, "seconds": round(time.perf_counter() - t0, 3),
-                   "blender": bpy.app.version_string}, fh, indent=1)
+    run_cases((install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
+               errors_change_nothing, bake_and_rebake, finger_pair, panel_buttons))
 
 
 if __name__ == "__main__":

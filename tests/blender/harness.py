@@ -1,0 +1,78 @@
+"""Shared harness of the Blender-side check scripts (tests/blender/check_*.py).
+
+Each check script runs in its own SUBPROCESS (bpy can be imported once per process,
+and BLENDER_USER_RESOURCES must be set before ``import bpy``)::
+
+    BLENDER_USER_RESOURCES=<tmp> python check_xxx.py --zip EXT.zip --workdir DIR --result OUT.json
+
+Importing this module parses those arguments, checks the environment and imports
+bpy.  :func:`run_cases` runs the script's cases in order and writes
+``{"ok": ..., "cases": {...}}`` to OUT.json; a failed check records the traceback and
+exits non-zero.  pytest asserts on the JSON (tests/conftest.py: ``run_blender_check``).
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+import traceback
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(os.path.dirname(HERE))
+MODULE = "bl_ext.user_default.lengths_angles"
+
+
+def _parse_args():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--zip", required=True)
+    parser.add_argument("--workdir", required=True)
+    parser.add_argument("--result", required=True)
+    return parser.parse_args()
+
+
+ARGS = _parse_args()
+if not os.environ.get("BLENDER_USER_RESOURCES"):
+    sys.exit("BLENDER_USER_RESOURCES must be set (to a throw-away directory) before bpy is imported")
+
+import bpy  # noqa: E402
+
+sys.path.insert(0, os.path.join(REPO, "scripts"))  # sample builders (blender_samples, blend_sample_cases)
+
+RESULTS = {}
+
+
+def case(fn):
+    """Run one check, record its duration and the details it returns."""
+    t = time.perf_counter()
+    details = fn()
+    RESULTS[fn.__name__] = {"seconds": round(time.perf_counter() - t, 3), **(details or {})}
+    script = os.path.splitext(os.path.basename(sys.argv[0]))[0]
+    print(f"[{script}] {fn.__name__}: ok ({RESULTS[fn.__name__]['seconds']} s)", flush=True)
+
+
+def reset():
+    """Empty scene for the next case."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def plain(value):
+    """An ID property as plain Python data (for snapshots)."""
+    return value.to_dict() if hasattr(value, "to_dict") else (value.to_list() if hasattr(value, "to_list") else value)
+
+
+def run_cases(cases):
+    """Run ``cases`` (functions) in order and write the JSON result; exit 1 on the first failure."""
+    t0 = time.perf_counter()
+    os.makedirs(ARGS.workdir, exist_ok=True)
+    try:
+        for fn in cases:
+            case(fn)
+    except Exception:
+        traceback.print_exc()
+        with open(ARGS.result, "w") as fh:
+            json.dump({"ok": False, "cases": RESULTS, "error": traceback.format_exc()}, fh, indent=1)
+        sys.exit(1)
+    with open(ARGS.result, "w") as fh:
+        json.dump({"ok": True, "cases": RESULTS, "seconds": round(time.perf_counter() - t0, 3),
+                   "blender": bpy.app.version_string}, fh, indent=1)
