@@ -48,17 +48,19 @@ def configure(parser):
                         help="weight of every target in z* = sum w_i z_i (default 1/n each; need not sum to 1)")
     parser.add_argument("--method", choices=METHODS, default="gn",
                         help="gn: Gauss-Newton (default); bfs/mst/spt: frame-based; lsq: least squares; "
-                             "hybrid: frame-based + Gauss-Newton smoothing")
+                             "hybrid: least-squares (or tree) start + Gauss-Newton smoothing")
     parser.add_argument("--energy", choices=("quadratic", "shells"), default="quadratic",
                         help="energy W[z*, Z(X)] minimized and reported (default quadratic W_q)")
     parser.add_argument("--bending-weight", type=float, default=1e-3, metavar="ETA",
                         help="bending weight eta (default 1e-3)")
     parser.add_argument("--energy-weights", choices=("frohlich_botsch", "heeren", "uniform"),
                         default="frohlich_botsch", help="weights of W_q: (3.20) (default), (3.21) or 1")
+    parser.add_argument("--hybrid-start", choices=("lsq", "tree"), default="lsq",
+                        help="start of --method hybrid: least-squares relaxation (default) or a tree walk")
     parser.add_argument("--hybrid-kind", choices=("mst", "spt", "bfs"), default="mst",
-                        help="spanning tree of the frame-based start of --method hybrid (default mst)")
-    parser.add_argument("--smoothing-iterations", type=int, default=3, metavar="K",
-                        help="Gauss-Newton iterations of --method hybrid (default 3)")
+                        help="spanning tree of the tree-walk start of --method hybrid (default mst)")
+    parser.add_argument("--smoothing-iterations", type=int, default=10, metavar="K",
+                        help="at most K Gauss-Newton iterations of --method hybrid (default 10)")
     parser.add_argument("--max-iterations", type=int, default=100, metavar="N",
                         help="Gauss-Newton iteration limit (default 100)")
     parser.add_argument("--fixed-face", type=int, metavar="F",
@@ -182,7 +184,7 @@ def run(args):
 
     result = reconstruct(z_target, topology, ref_vertices, method=args.method, energy=args.energy,
                          bending_weight=args.bending_weight, weights=args.energy_weights,
-                         fixed_face=args.fixed_face, hybrid_kind=args.hybrid_kind,
+                         fixed_face=args.fixed_face, hybrid_kind=args.hybrid_kind, hybrid_start=args.hybrid_start,
                          smoothing_iterations=args.smoothing_iterations, max_iterations=args.max_iterations,
                          solver=args.solver)
     errors = reconstruction_errors(result.vertices, z_target, topology)

@@ -87,7 +87,7 @@ def test_weights_extrapolate(finger, tmp_path, capsys):
                                     "--weights", "-0.25", "1.25", "--method", "hybrid", "-o", out, "--json")
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["weights"] == [-0.25, 1.25] and summary["method"] == "hybrid-mst"
+    assert summary["weights"] == [-0.25, 1.25] and summary["method"] == "hybrid-lsq"
     api = reconstruct(-0.25 * z0 + 1.25 * z1, topo, X0, method="hybrid")
     assert summary["energy"] == pytest.approx(api.energy, rel=1e-9)
     assert np.all(np.isfinite(load_mesh(out)[0]))

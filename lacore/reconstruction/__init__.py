@@ -14,10 +14,10 @@ dispatches to
     the linear least-squares relaxation of the frame-based method,
     :mod:`.least_squares`;
 ``"hybrid"``
-    a frame-based reconstruction (tree ``hybrid_kind``, default ``"mst"``) or,
-    with ``hybrid_start="lsq"``, the least-squares relaxation, smoothed by
-    ``smoothing_iterations`` Gauss-Newton iterations (section 3.4.3,
-    "smoothing").
+    the least-squares relaxation (default ``hybrid_start="lsq"``) or, with
+    ``hybrid_start="tree"``, a frame-based walk (tree ``hybrid_kind``, default
+    ``"mst"``), smoothed by at most ``smoothing_iterations`` Gauss-Newton
+    iterations (section 3.4.3, "smoothing").
 
 Fast smoothing
 --------------
@@ -88,7 +88,7 @@ def _check_target(z_target, topology, method, energy):
 
 def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="quadratic", bending_weight=1e-3,
                 weights="frohlich_botsch", fixed_face=None, fix_triangle_shape=False, initial_vertices=None,
-                tree=None, hybrid_kind="mst", hybrid_start="tree", smoothing_iterations=3, solver=None, context=None,
+                tree=None, hybrid_kind="mst", hybrid_start="lsq", smoothing_iterations=10, solver=None, context=None,
                 **gn_options):
     """Reconstruct vertex positions from lengths and angles (thesis 3.4).
 
@@ -123,11 +123,16 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="
         (e.g. :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
     hybrid_kind : {"mst", "spt", "bfs"}
         Tree of the frame-based start of ``"hybrid"``.
-    hybrid_start : {"tree", "lsq"}
-        Start of ``"hybrid"``: the frame-based walk along the tree (default) or
-        the least-squares relaxation (``tree`` and ``hybrid_kind`` are then unused).
+    hybrid_start : {"lsq", "tree"}
+        Start of ``"hybrid"``: the least-squares relaxation (default; ``tree`` and
+        ``hybrid_kind`` are then unused) or the frame-based walk along the tree.
+        Measured on the rolled-plate averages, 10 smoothing iterations from the
+        least-squares start end within 0.3 % of the full Gauss-Newton energy
+        (which needs 111 / 291 iterations from the reference), while from the
+        MST walk they stay 80x / 27000x above it.
     smoothing_iterations : int
-        Gauss-Newton iterations of ``"hybrid"``.
+        At most this many Gauss-Newton iterations of ``"hybrid"`` (default 10;
+        they stop earlier once converged).
     solver : {"cholmod", "scipy"}, optional
         Sparse Cholesky backend (default CHOLMOD if cvxopt is installed).
     context : ReconstructionContext, optional
