@@ -291,7 +291,7 @@ def test_hybrid_is_within_one_percent_of_full_gauss_newton(kind):
     topo, X0, X1, z0, z1 = finger()
     za = 0.5 * (z0 + z1)
     full = reconstruct(za, topo, X0)
-    hybrid = reconstruct(za, topo, X0, method="hybrid", hybrid_kind=kind, smoothing_iterations=3)
+    hybrid = reconstruct(za, topo, X0, method="hybrid", hybrid_start="tree", hybrid_kind=kind, smoothing_iterations=3)
     frame = reconstruct(za, topo, X0, method=kind)
     assert hybrid.method == f"hybrid-{kind}" and hybrid.iterations <= 3 and hybrid.success
     assert hybrid.energy <= 1.01 * full.energy
