@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 import pytest
+from scipy.sparse.linalg import eigsh
 import trimesh
 from conftest import shared_mesh, shared_meshes_dir
 from fd import directional_fd, relative_error
@@ -115,6 +116,21 @@ def test_rank_conjecture_on_closed_meshes(rel):
     rank = int(np.sum(s > 1e-9 * s[0]))
     assert rank == 3 * topo.n_vertices - 6
     assert s[rank - 1] > 1e-6 * s[0]  # a clear gap, not a borderline count
+
+
+@pytest.mark.parametrize("rel", ["finger/finger0.ply", "finger/finger1.ply", "octa/octa_src_small.ply",
+                                 "octa/octa_trg_small.ply", "sphere/defSphere4.ply", "sphere/defSphere9.ply"])
+def test_rank_conjecture_sparse(rel):
+    """Conjecture 1 on the larger closed meshes: A A^T (A = D Ĩ, 3|V| x 3|V|) has exactly 6 zero
+    eigenvalues (rigid motions), found by shift-invert Lanczos, so rank A = 3|V| - 6."""
+    X, topo = load(rel)
+    assert topo.is_closed and len(topo.interior_vertices) == topo.n_vertices
+    A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo)
+    G = (A @ A.T).tocsc()
+    largest = eigsh(G, k=1, which="LA", return_eigenvectors=False)[0]
+    smallest = np.sort(eigsh(G, k=10, sigma=-1e-6 * largest, which="LM", return_eigenvectors=False)) / largest
+    assert np.all(np.abs(smallest[:6]) < 1e-14)
+    assert smallest[6] > 1e-10  # measured >= 4e-9 (finger) -- ten orders of magnitude above the zeros
 
 
 def test_rank_on_disk_is_full():
