@@ -12,14 +12,34 @@ MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.top
 lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.lengths_angles`)
 euler_integrability_map         admissibility conditions (:mod:`lacore.integrability`)
 integrability_violation         |tr I_v - 3| per vertex
+QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
+reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
+interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`, imported on first use)
+discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
 """
 
+from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import LengthsAnglesError, MeshError
 from .integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
                             integrability_violation, transition_rotations, triangle_inequality_map)
 from .lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
                              split_z)
+from .projection import project
+from .reconstruction import reconstruct, reconstruction_errors
 from .topology import MeshTopology, check_vertices
+
+#: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
+_LAZY = {"interpolate": "interpolation", "keyframe_inbetweens": "interpolation",
+         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __version__ = "0.1.0"
 
@@ -28,4 +48,6 @@ __all__ = [
     "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",
+    "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
+    "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile",
 ]
