@@ -5,13 +5,14 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: help venv demo test extension extension-validate samples bench clean distclean lint
+.PHONY: help venv demo test extension extension-split extension-validate samples bench clean distclean lint
 
 help:
 	@echo "make venv       create $(VENV) (Python 3.11) and install lacore[test] in editable mode"
 	@echo "make demo       encode a shared mesh (CLI) and a generated Blender scene (add-on) into demo_output/"
 	@echo "make test       run the test suite (pytest)"
 	@echo "make extension  download the bundled wheels (4 platforms) and build dist/lengths_angles-*.zip"
+	@echo "make extension-split  one smaller zip per platform (each with only its wheels)"
 	@echo "make samples    generate the sample .blend files into blend_samples/"
 	@echo "make bench      run benchmarks/*.py"
 	@echo "make lint       ruff check"
@@ -42,6 +43,9 @@ lint: venv
 # blender_ext.py build --source-dir . --output-dir dist, then blender_ext.py validate.
 extension: venv
 	$(PY) scripts/build_extension.py --output-dir dist
+
+extension-split: venv
+	$(PY) scripts/build_extension.py --output-dir dist --split-platforms
 
 samples: venv
 	$(PY) scripts/make_samples.py --output blend_samples

@@ -149,6 +149,8 @@ def main(argv=None):
                         help="Blender platform to build for (repeatable; 'current' = this machine); default: all")
     parser.add_argument("--output-dir", default=os.path.join(REPO, "dist"))
     parser.add_argument("--download-only", action="store_true", help="only download the wheels")
+    parser.add_argument("--split-platforms", action="store_true",
+                        help="one zip per platform, each with only its own wheels (Blender's --split-platforms)")
     parser.add_argument("--python", default=sys.executable, help="Python whose pip downloads the wheels")
     args = parser.parse_args(argv)
 
@@ -169,6 +171,17 @@ def main(argv=None):
 
     blender_ext = find_blender_ext()
     os.makedirs(args.output_dir, exist_ok=True)
+    if args.split_platforms:
+        if subset:
+            sys.exit("build_extension: --split-platforms builds every platform of the manifest; drop --platform")
+        before = set(glob.glob(os.path.join(args.output_dir, "*.zip")))
+        subprocess.run([sys.executable, blender_ext, "build", "--source-dir", REPO, "--output-dir",
+                        os.path.abspath(args.output_dir), "--split-platforms"], check=True)
+        zips = sorted(set(glob.glob(os.path.join(args.output_dir, "*.zip"))) - before) or sorted(before)
+        for z in zips:
+            subprocess.run([sys.executable, blender_ext, "validate", z], check=True)
+        print("\n".join(os.path.abspath(z) for z in zips))
+        return 0
     name = f"{manifest['id']}-{manifest['version']}"
     if subset:
         name += "-" + "-".join(p.replace("-", "_") for p in platforms)
