@@ -42,7 +42,7 @@ for p in (str(ROOT), str(ROOT / "benchmarks")):
 
 import scipy  # noqa: E402
 import trimesh  # noqa: E402
-from meshes import benchmark_mesh  # noqa: E402
+from meshes import bent_tube, benchmark_mesh  # noqa: E402
 
 from lacore.lengths_angles import lengths_and_angles  # noqa: E402
 from lacore.reconstruction.frame_based import _walk_schedule, frame_based_reconstruction  # noqa: E402
@@ -137,6 +137,24 @@ def bench_mesh(faces, Xa, Xb, repeats, tree_repeats):
     return out
 
 
+def lsq_tube50k(repeats=3):
+    """Least-squares relaxation per call (ms) on a 50080-vertex bent tube (160 x 313), bend -> twist average.
+
+    The second pose twists the bent tube about the z axis (angle growing linearly to 1.2 rad with height);
+    the target is the average of both poses' lengths and angles.  ``first_ms``: first call (symbolic and
+    numeric factorizations); ``call_ms``: later calls (the frame system (3.31) is refactorized every call).
+    """
+    X, faces = bent_tube(160, 313)
+    s = (X[:, 2] - X[:, 2].min()) / np.ptp(X[:, 2])
+    c, sn = np.cos(1.2 * s), np.sin(1.2 * s)
+    Y = np.stack([c * X[:, 0] - sn * X[:, 1], sn * X[:, 0] + c * X[:, 1], X[:, 2]], 1)
+    topo = MeshTopology.from_faces(faces, n_vertices=len(X))
+    z = 0.5 * (lengths_and_angles(X, topo) + lengths_and_angles(Y, topo))
+    first = timed(lambda: least_squares_reconstruction(z, topo, reference_vertices=X), 1)
+    return {"vertices": topo.n_vertices, "faces": topo.n_faces, "first_ms": first,
+            "call_ms": timed(lambda: least_squares_reconstruction(z, topo, reference_vertices=X), repeats)}
+
+
 def speed_probe():
     """A fixed NumPy workload (ms; 100 complex products of 4096-vectors) to compare runs on a shared machine."""
     rng = np.random.default_rng(0)
@@ -170,6 +188,7 @@ def main():
     result["machine"]["speed_probe_ms"] = speed_probe()
     result["meshes"]["finger"] = bench_mesh(*finger_case(), repeats=200, tree_repeats=40)
     result["meshes"]["sphere5k"] = bench_mesh(*sphere_case(), repeats=60, tree_repeats=15)
+    result["meshes"]["tube50k_lsq"] = lsq_tube50k()
     result["machine"]["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     result["machine"]["speed_probe_end_ms"] = speed_probe()
     print(json.dumps(result, indent=1))

@@ -476,3 +476,25 @@ def test_bad_input():
         frame_based_reconstruction(z, topo, root_face=[1, 2])
     with pytest.raises(ValueError, match="edge_weights"):
         minimal_spanning_tree(topo, 0, -np.ones(E))
+
+
+def test_mst_single_root_fast_path_matches_generic_rooting():
+    """The undirected search over the one-directional MST gives the same rooted tree as a symmetric copy."""
+    from lacore.reconstruction.spanning_trees import _bfs_forest, _csr_from_pairs, _dual_csr, _interior_weights
+
+    topo, X0, _, z = finger_average()
+    roots = default_root_faces(topo, vertices=X0)
+    w = adaptive_edge_weights(z, topo)
+    tree = minimal_spanning_tree(topo, roots, w)
+    mst = csgraph.minimum_spanning_tree(_dual_csr(topo, _interior_weights(topo, w), "one"))
+    F = topo.n_faces
+    rows = np.repeat(np.arange(F), np.diff(mst.indptr))
+    cols = mst.indices.astype(np.int64)
+    order, pred = _bfs_forest(_csr_from_pairs(np.r_[rows, cols], np.r_[cols, rows], F), roots)
+    assert np.array_equal(tree.parent, pred)
+    assert np.array_equal(tree.order, order)
+    # parent edges join parent and child
+    child = np.flatnonzero(tree.parent >= 0)
+    ef = topo.edge_faces[tree.parent_edge[child]]
+    assert np.all(np.sort(ef, 1) == np.sort(np.c_[child, tree.parent[child]], 1))
+    assert np.all(tree.parent_edge[tree.parent < 0] == -1)

@@ -269,11 +269,15 @@ def _with_super_root(graph, roots):
     return sp.csr_matrix((data, indices, indptr), shape=(F + 1, F + 1))
 
 
-def _bfs_forest(graph, roots, what="faces"):
-    """Breadth-first order and predecessors (``-1`` at roots) from ``roots`` over a CSR graph."""
+def _bfs_forest(graph, roots, what="faces", directed=True):
+    """Breadth-first order and predecessors (``-1`` at roots) from ``roots`` over a CSR graph.
+
+    ``directed=False`` (one root only) follows the stored entries in both directions.
+    """
     F = graph.shape[0]
     if len(roots) == 1:
-        order, pred = csgraph.breadth_first_order(graph, int(roots[0]), directed=True, return_predecessors=True)
+        order, pred = csgraph.breadth_first_order(graph, int(roots[0]), directed=directed,
+                                                  return_predecessors=True)
     else:
         order, pred = csgraph.breadth_first_order(_with_super_root(graph, roots), F, directed=True,
                                                   return_predecessors=True)
@@ -491,11 +495,11 @@ def bfs_tree(topology, root_face=None):
 
 
 def _parent_edges(topology, parent):
-    child = np.flatnonzero(parent >= 0)
+    """Primal edge shared by every face and its parent (``-1`` at the roots), ``(F,)`` int64."""
     nbr = _face_neighbors(topology)
-    local = np.argmax(nbr[child] == parent[child, None], axis=1)
-    pe = np.full(len(parent), -1, np.int64)
-    pe[child] = topology.face_edges[child, local]
+    local = np.argmax(nbr == parent[:, None], axis=1)
+    pe = topology.face_edges.ravel().take(3 * np.arange(len(parent)) + local)
+    pe[parent < 0] = -1
     return pe
 
 
@@ -537,9 +541,13 @@ def minimal_spanning_tree(topology, root_face, edge_weights):
     wi = _interior_weights(topology, edge_weights)
     F = topology.n_faces
     mst = csgraph.minimum_spanning_tree(_dual_csr(topology, wi, "one"))
-    rows = np.repeat(np.arange(F, dtype=np.int64), np.diff(mst.indptr))
-    cols = mst.indices.astype(np.int64)
-    order, pred = _bfs_forest(_csr_from_pairs(np.r_[rows, cols], np.r_[cols, rows], F), roots)
+    if len(roots) == 1:
+        # one component: search the (one-directional) tree undirected, no symmetric copy needed
+        order, pred = _bfs_forest(mst, roots, directed=False)
+    else:
+        rows = np.repeat(np.arange(F, dtype=np.int64), np.diff(mst.indptr))
+        cols = mst.indices.astype(np.int64)
+        order, pred = _bfs_forest(_csr_from_pairs(np.r_[rows, cols], np.r_[cols, rows], F), roots)
     level_starts, depth = _levels_from_bfs(order, pred, len(roots))
     return DualSpanningTree._assemble("mst", pred, _parent_edges(topology, pred), depth, order, level_starts,
                                       len(roots))
