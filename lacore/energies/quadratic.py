@@ -1,0 +1,172 @@
+"""The quadratic energy W_q on lengths and angles (thesis Definition 3.11, weights (3.20), (3.21))."""
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import LengthsAnglesError, format_indices
+from ..lengths_angles import lengths_and_angles
+from ._common import _WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks, _interior_quads, _parse_argument, edge_areas
+
+__all__ = ["QuadraticEnergy", "quadratic_weights"]
+
+
+def quadratic_weights(reference_lengths, topology, scheme="frohlich_botsch"):
+    """Per-edge weights ``(w_s, w_b)`` of the quadratic energy (3.19).
+
+    Parameters
+    ----------
+    reference_lengths : (E,) array_like
+        Edge lengths ``lbar`` of the reference configuration.
+    topology : MeshTopology
+    scheme : {"frohlich_botsch", "heeren", "uniform"}
+        ``"frohlich_botsch"`` (3.20): ``w_s = 1 / lbar^2``, ``w_b = lbar^2 / dbar``;
+        ``"heeren"`` (3.21): ``w_s = dbar / lbar^2``, ``w_b = lbar^2 / dbar``;
+        ``"uniform"``: ``w_s = w_b = 1``.  ``dbar`` from :func:`edge_areas`.
+
+    Returns
+    -------
+    w_s, w_b : (E,) ndarray
+        ``w_b`` is 0 on boundary edges (their angle is 0 by convention).
+    """
+    if scheme not in _WEIGHT_SCHEMES:
+        raise ValueError(f"unknown weight scheme {scheme!r}; use one of {_WEIGHT_SCHEMES}")
+    E = topology.n_edges
+    if scheme == "uniform":
+        w_s, w_b = np.ones(E), np.ones(E)
+    else:
+        lbar = np.asarray(reference_lengths, float)
+        if lbar.shape != (E,):
+            raise LengthsAnglesError(f"reference lengths must have shape ({E},), got {lbar.shape}")
+        dbar = edge_areas(lbar, topology)
+        bad = np.flatnonzero(~(lbar > 0) | ~(dbar > 0))
+        if bad.size:
+            raise LengthsAnglesError("the reference configuration has zero lengths or degenerate triangles at "
+                                     f"edges {format_indices(bad)}")
+        w_b = lbar**2 / dbar
+        w_s = 1.0 / lbar**2 if scheme == "frohlich_botsch" else dbar / lbar**2
+    w_b = np.where(topology.is_boundary_edge, 0.0, w_b)
+    return w_s, w_b
+
+
+# --------------------------------------------------------------------------- quadratic energy
+class QuadraticEnergy(DeformationEnergy):
+    """Quadratic deformation energy on lengths and angles, Definition 3.11.
+
+    ``W_q[z_a, z_b] = sum_e w_s,e (l_a - l_b)_e^2 + eta sum_e w_b,e (theta_a - theta_b)_e^2``  (3.19)
+
+    Parameters
+    ----------
+    topology : MeshTopology
+    reference_vertices : (V, 3) array_like, optional
+        Reference configuration ``Xbar`` for the weights (3.20)/(3.21).
+    reference_z : (2E,) array_like, optional
+        Alternatively its lengths and angles (only the lengths are used).
+        Give at most one of the two; none is needed for ``weights="uniform"`` or
+        when both weight arrays are given.
+    weights : {"frohlich_botsch", "heeren", "uniform"}
+        Weight scheme, see :func:`quadratic_weights`.
+    membrane_weights, bending_weights : (E,) array_like, optional
+        Custom ``w_s`` / ``w_b`` overriding the scheme (non-negative, finite).
+        Bending weights of boundary edges are set to 0 (angle 0 by convention).
+    bending_weight : float
+        ``eta >= 0``.
+
+    Attributes
+    ----------
+    membrane_weights, bending_weights : (E,) ndarray
+        ``w_s`` and ``w_b`` (without ``eta``).
+    residual_weights : (2E,) ndarray
+        ``w = (w_s, eta w_b)`` so that ``W_q = sum_i w_i (z_a - z_b)_i^2``;
+        Gauss-Newton uses the residual ``sqrt(w) (z_a - z_b)``.
+    """
+
+    def __init__(self, topology, reference_vertices=None, reference_z=None, weights="frohlich_botsch",
+                 membrane_weights=None, bending_weights=None, bending_weight=1e-3):
+        super().__init__(topology)
+        if weights not in _WEIGHT_SCHEMES:
+            raise ValueError(f"unknown weight scheme {weights!r}; use one of {_WEIGHT_SCHEMES}")
+        if not (np.isfinite(bending_weight) and bending_weight >= 0):
+            raise ValueError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
+        if reference_vertices is not None and reference_z is not None:
+            raise ValueError("give reference_vertices or reference_z, not both")
+        E = topology.n_edges
+        self.bending_weight = float(bending_weight)
+        self.weight_scheme = weights
+        need_reference = weights != "uniform" and (membrane_weights is None or bending_weights is None)
+        lbar = None
+        if reference_vertices is not None:
+            lbar = lengths_and_angles(reference_vertices, topology)[:E]
+        elif reference_z is not None:
+            lbar = _as_z(reference_z, topology, "reference_z")[:E]
+        elif need_reference:
+            raise ValueError(f"weights={weights!r} need a reference configuration: pass reference_vertices or "
+                             "reference_z (or custom membrane_weights and bending_weights)")
+        if need_reference:
+            w_s, w_b = quadratic_weights(lbar, topology, weights)
+        else:
+            w_s = w_b = None
+        self.membrane_weights = self._custom(membrane_weights, "membrane_weights") if membrane_weights is not None \
+            else w_s
+        w_b = self._custom(bending_weights, "bending_weights") if bending_weights is not None else w_b
+        self.bending_weights = np.where(topology.is_boundary_edge, 0.0, w_b)
+        self.residual_weights = np.concatenate([self.membrane_weights, self.bending_weight * self.bending_weights])
+
+    def _custom(self, w, name):
+        w = np.asarray(w, float)
+        E = self.n_edges
+        if w.shape != (E,):
+            raise LengthsAnglesError(f"{name} must have shape ({E},) (one per edge), got {w.shape}")
+        bad = np.flatnonzero(~(np.isfinite(w) & (w >= 0)))
+        if bad.size:
+            raise LengthsAnglesError(f"{name} must be finite and >= 0; bad at edges {format_indices(bad)}")
+        return w.copy()
+
+    def value(self, z_a, z_b):
+        """``W_q[z_a, z_b]`` (3.19), a float."""
+        z_a, z_b = self._pair(z_a, z_b)
+        d = z_a - z_b
+        return float(np.dot(self.residual_weights, d * d))
+
+    def residual(self, z_a, z_b):
+        """``r = sqrt(w) (z_b - z_a)``, ``(2E,)``, with ``W_q = r . r``."""
+        z_a, z_b = self._pair(z_a, z_b)
+        return np.sqrt(self.residual_weights) * (z_b - z_a)
+
+    def gradient(self, z_a, z_b, argument=1):
+        """``dW_q/dz_b = -2 w (z_a - z_b)`` (``argument=1``) or ``dW_q/dz_a = 2 w (z_a - z_b)``, ``(2E,)``."""
+        z_a, z_b = self._pair(z_a, z_b)
+        arg = _parse_argument(argument)
+        if isinstance(arg, tuple):
+            raise ValueError("the gradient takes argument 0 or 1")
+        g = 2.0 * self.residual_weights * (z_a - z_b)
+        return g if arg == 0 else -g
+
+    def hessian(self, z_a, z_b, argument=1, project=False):
+        """``2 diag(w)`` for argument 0 or 1, ``-2 diag(w)`` for the mixed block, ``(2E, 2E)`` CSR.
+
+        ``project`` is accepted for interface compatibility (the Hessian is already PSD).
+        """
+        self._pair(z_a, z_b)
+        arg = _parse_argument(argument)
+        if project and isinstance(arg, tuple):
+            raise ValueError("project=True needs a symmetric Hessian block (argument 0 or 1)")
+        sign = -2.0 if isinstance(arg, tuple) else 2.0
+        return sp.diags(sign * self.residual_weights, format="csr")
+
+    def _hessian_blocks(self, z_a, z_b, arg, project):
+        """Per-edge blocks: ``(l_e, theta_e)`` on interior edges, ``l_e`` on boundary edges."""
+        if isinstance(arg, tuple):
+            raise ValueError("Gauss-Newton blocks are symmetric (argument 0 or 1)")
+        topo = self.topology
+        E = self.n_edges
+        ie, be = topo.interior_edges, topo.boundary_edges
+        w = self.residual_weights
+        Hi = np.zeros((len(ie), 2, 2))
+        Hi[:, 0, 0] = 2.0 * w[ie]
+        Hi[:, 1, 1] = 2.0 * w[E + ie]
+        zi = np.column_stack([ie, E + ie])
+        blocks = [_Blocks("q.int", zi, zi, Hi, _interior_quads(topo))]
+        if be.size:
+            zb = be[:, None]
+            blocks.append(_Blocks("q.bnd", zb, zb, (2.0 * w[be])[:, None, None], topo.edges[be]))
+        return blocks
