@@ -498,8 +498,9 @@ def test_reused_factorization_refactorizes_when_pcg_stalls():
     ctx = ReconstructionContext(topo, X0)
     reconstruct(z0, topo, X0, context=ctx, max_iterations=1)  # a factor at the reference
     res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1e-6, pcg_maxiter=1,
-                      max_iterations=3)
+                      max_iterations=3, geodesic_acceleration=False)
     # one PCG iteration from a far pose cannot reduce the residual 2x: every step refactorizes
+    # (plain steps: with the geodesic acceleration the third step starts close enough for one PCG iteration)
     assert res.factorizations == res.iterations == 3 and res.pcg_iterations == [0, 0, 0]
     with pytest.raises(ValueError, match="pcg_rtol"):
         reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1.5)
@@ -521,3 +522,88 @@ def test_hybrid_from_the_least_squares_start():
     assert reconstruction_errors(exact.vertices, z1, topo)["max_length_error"] < 1e-9 * size(X1)
     with pytest.raises(ValueError, match="hybrid_start"):
         reconstruct(za, topo, X0, method="hybrid", hybrid_start="bfs")
+
+
+def test_reuse_near_convergence_replaces_only_the_last_factorizations():
+    """Default Gauss-Newton: PCG with this call's factorization only in the final, fast phase; same results."""
+    topo, X0, X1, z0, z1 = finger()
+    za = 0.5 * (z0 + z1)
+    for z, exact_target in ((z1, True), (za, False)):
+        ctx = ReconstructionContext(topo, X0)
+        fresh = reconstruct(z, topo, X0, context=ctx, reuse_near_convergence=False)
+        assert fresh.factorizations == fresh.iterations and not any(fresh.pcg_iterations)
+        res = reconstruct(z, topo, X0, context=ctx)  # the context holds a factor from the run above: not reused
+        assert res.pcg_iterations[0] == 0 and res.factorizations >= 3
+        assert 1 <= res.iterations - res.factorizations <= 3  # measured: 2 (finger1), 1 (average)
+        k = res.factorizations
+        assert res.pcg_iterations[:k] == [0] * k and all(0 < n <= 8 for n in res.pcg_iterations[k:])
+        assert all(t == 1.0 for t in res.step_sizes[k - 2:])  # reuse only after full, model-conforming steps
+        assert np.all(np.diff(res.energy_history) < 0)
+        if exact_target:
+            assert res.status == 1 and res.energy < 1e-24
+            err = reconstruction_errors(res.vertices, z, topo)
+            assert err["max_length_error"] < 1e-10 * size(X1) and err["max_angle_error"] < 1e-9
+        else:
+            assert res.status in (2, 3, 4) and res.energy == pytest.approx(fresh.energy, rel=1e-9)
+            assert abs(res.energy / 2 - GOAST_AVERAGE_ENERGY) <= 0.5e-8
+
+
+def test_reuse_near_convergence_refactorizes_when_pcg_misses_its_tolerance(monkeypatch):
+    """A PCG solve that does not reach its tolerance is discarded: the step is exact with a fresh factor."""
+    import lacore.reconstruction.gauss_newton as gn
+
+    topo, X0, X1, z0, z1 = finger()
+    monkeypatch.setattr(gn, "_NEAR_MAXITER", 1)
+    monkeypatch.setattr(gn, "_NEAR_RTOL_MAX", 1e-14)
+    monkeypatch.setattr(gn, "_NEAR_RTOL_MIN", 1e-14)
+    ctx = ReconstructionContext(topo, X0)
+    res = reconstruct(z1, topo, X0, context=ctx)
+    assert res.factorizations == res.iterations and not any(res.pcg_iterations)
+    assert res.status == 1 and res.energy < 1e-24
+
+
+def test_geodesic_acceleration_saves_iterations_and_keeps_the_minimizers():
+    """The accelerated path (default) reaches the same energies as plain Gauss-Newton in fewer iterations."""
+    topo, X0, X1, z0, z1 = finger()
+    za = 0.5 * (z0 + z1)
+    ctx = ReconstructionContext(topo, X0)
+    for z in (z1, za):
+        plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False)
+        fast = reconstruct(z, topo, X0, context=ctx)
+        assert fast.success and fast.status == plain.status, fast.message
+        assert fast.iterations < plain.iterations and fast.factorizations < plain.factorizations  # 5/4 vs 8/6
+        assert fast.timings["acceleration"] > 0 and np.all(np.diff(fast.energy_history) < 0)
+        if z is z1:
+            assert fast.energy < 1e-24
+            err = reconstruction_errors(fast.vertices, z, topo)
+            assert err["max_length_error"] < 1e-10 * size(X1) and err["max_angle_error"] < 1e-9
+        else:
+            assert fast.energy == pytest.approx(plain.energy, rel=1e-8)
+
+
+def test_geodesic_acceleration_does_not_fold_extrapolated_targets():
+    """An extrapolated target (1.5): without the fold safeguard the parabola led into a folded local minimum."""
+    topo, X0, X1, z0, z1 = finger()
+    z = -0.5 * z0 + 1.5 * z1
+    E = topo.n_edges
+    ctx = ReconstructionContext(topo, X0)
+    plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False)
+    fast = reconstruct(z, topo, X0, context=ctx)
+    assert fast.success and fast.energy == pytest.approx(plain.energy, rel=1e-6)  # measured 6.66415e-2 both
+    folds = np.abs(lengths_and_angles(fast.vertices, topo)[E:] - z[E:]) > np.pi / 2
+    assert not folds.any()
+
+
+def test_acceleration_gradient_is_2_JtW_times_the_second_directional_derivative():
+    """Finite-difference ``r_vv`` of the objective against a central second difference of ``Z`` along ``d``."""
+    topo, X0, X1, z0, z1 = finger()
+    ctx = ReconstructionContext(topo, X0)
+    obj = ctx.objective(z1)
+    X = ctx.to_canonical(X1)
+    d = 1e-2 * float(np.mean(z1[: topo.n_edges])) * np.random.default_rng(3).standard_normal(X.size)
+    _, _, matrix = obj.linearize(X)
+    b = obj.acceleration_gradient(X, d, matrix, 1e-2)
+    h = 1e-3
+    zp, zm = (lengths_and_angles(X + s * h * d.reshape(-1, 3), topo) for s in (1.0, -1.0))
+    rvv = (zp - 2.0 * matrix.z + zm) / h**2
+    assert relative_error(b, 2.0 * (matrix.J.T @ (obj.w * rvv))) < 1e-2

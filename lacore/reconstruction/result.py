@@ -52,14 +52,20 @@ class ReconstructionResult:
     step_sizes : list of float
         Accepted line-search step sizes (1.0 = full Gauss-Newton step).
     regularization : list of float
-        Diagonal shift added to the Gauss-Newton matrix per iteration (0.0 = exact).
+        Diagonal shift added to the Gauss-Newton matrix per numeric
+        factorization (0.0 = exact).
     function_evaluations : int
         Number of evaluations of ``Z`` (energies), including line-search trials.
     factorizations : int
         Numeric Cholesky factorizations of the Gauss-Newton matrix.
+    pcg_iterations : list of int
+        Per Gauss-Newton step: conjugate-gradient iterations of a step solved
+        with an earlier factorization as preconditioner (0: a fresh
+        factorization and a direct solve).
     timings : dict
         Seconds spent in ``assembly`` (Jacobian, gradient, Gauss-Newton matrix),
-        ``factorization``, ``solve``, ``line_search``, ``initialization`` (frame
+        ``factorization``, ``solve``, ``line_search``, ``acceleration`` (geodesic
+        acceleration of Gauss-Newton steps), ``initialization`` (frame
         based start, set-up) and ``total``.
     fixed_face : int
         The face fixing the rigid motion (and the root face of frame-based methods).
@@ -82,6 +88,7 @@ class ReconstructionResult:
     regularization: list = field(default_factory=list)
     function_evaluations: int = 0
     factorizations: int = 0
+    pcg_iterations: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     fixed_face: int = -1
     backend: str = ""
@@ -117,4 +124,5 @@ class ReconstructionResult:
         out["fixed_face"] = int(self.fixed_face)
         out["function_evaluations"] = int(self.function_evaluations)
         out["factorizations"] = int(self.factorizations)
+        out["pcg_iterations"] = [int(k) for k in self.pcg_iterations]
         return out
