@@ -141,9 +141,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="
         match the context.
     **gn_options
         Gauss-Newton options, see :data:`~lacore.reconstruction.gauss_newton.GN_OPTIONS`
-        (``max_iterations, ftol, gtol, xtol, atol``, and ``reuse_factorization,
+        (``max_iterations, ftol, gtol, xtol, atol``; ``reuse_factorization,
         pcg_rtol, pcg_maxiter`` for inexact steps by conjugate gradients
-        preconditioned with the factorization the context already holds).
+        preconditioned with the factorization the context already holds;
+        ``reuse_near_convergence`` (default True: such steps only in the final,
+        fast-converging phase, to tolerances that vanish with the residual) and
+        ``geodesic_acceleration`` (default True, ``W_q``: a second-order
+        correction of each step along the residual's curvature, never folding
+        an edge that was not folded)).
 
     Returns
     -------
