@@ -46,6 +46,7 @@ for _p in (ROOT, ROOT / "benchmarks"):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 
+from bench_common import cpu_model  # noqa: E402
 from meshes import benchmark_mesh  # noqa: E402
 
 from lacore.integrability import (euler_integrability_jacobian, euler_integrability_map,  # noqa: E402
@@ -66,16 +67,6 @@ COMPARE_MESH = "sphere5k"
 
 FUNCTIONS = list(GOAST_MS)
 
-
-def cpu_model():
-    """CPU model name from /proc/cpuinfo (or the platform's processor string)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def load_finger():

@@ -14,17 +14,13 @@ import sys
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
+from bench_common import machine_info, shared_meshes_dir  # noqa: E402
+
 from lacore.cli import encode_mesh  # noqa: E402
 from lacore.mesh_io import load_mesh  # noqa: E402
 
 MESHES = ["sphere/unitSphere1.ply", "plate/plate121.ply", "sphere/defSphere0.ply", "plate/plate4SD.ply",
           "finger/finger0.ply"]
-
-
-def meshes_dir():
-    env = os.environ.get("LACORE_SHARED_DATA")
-    path = os.path.abspath(env if env else os.path.join(REPO, "..", "shared", "data"))
-    return path if os.path.basename(path) == "meshes" else os.path.join(path, "meshes")
 
 
 def main(argv=None):
@@ -33,17 +29,13 @@ def main(argv=None):
     args = parser.parse_args(argv)
     rows = []
     for rel in MESHES:
-        X, faces = load_mesh(os.path.join(meshes_dir(), rel))
+        X, faces = load_mesh(os.path.join(shared_meshes_dir(), rel))
         runs = [encode_mesh(X, faces)[3] for _ in range(args.repeat)]
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
         rows.append({"mesh": rel, "vertices": len(X), "faces": len(faces),
                      **{f"{k}_ms": 1e3 * v for k, v in med.items()}})
-    print(f"{'mesh':28s} {'V':>6s} {'F':>6s} {'topology ms':>12s} {'z ms':>8s} {'integr. ms':>11s}")
-    for r in rows:
-        print(f"{r['mesh']:28s} {r['vertices']:6d} {r['faces']:6d} {r['topology_ms']:12.2f} "
-              f"{r['lengths_angles_ms']:8.2f} {r['integrability_ms']:11.2f}")
-    for r in rows:
-        print(json.dumps(r))
+    print(json.dumps({"benchmark": "encode (topology + z + integrability, median ms)", "machine": machine_info(),
+                      "repeats": args.repeat, "meshes": rows}, indent=1))
     return 0
 
 

@@ -28,7 +28,6 @@ Run from the repository root: ``.venv/bin/python benchmarks/bench_frame_based.py
 
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -40,8 +39,8 @@ for p in (str(ROOT), str(ROOT / "benchmarks")):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-import scipy  # noqa: E402
 import trimesh  # noqa: E402
+from bench_common import machine_info  # noqa: E402
 from meshes import bent_tube, benchmark_mesh  # noqa: E402
 
 from lacore.lengths_angles import lengths_and_angles  # noqa: E402
@@ -167,23 +166,9 @@ def speed_probe():
     return timed(work, 20)
 
 
-def machine():
-    info = {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-            "platform": platform.platform(), "cpus": os.cpu_count()}
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu"] = line.split(":", 1)[1].strip()
-                    break
-        info["load_average"] = [round(x, 2) for x in os.getloadavg()]
-    except OSError:  # pragma: no cover - not Linux
-        pass
-    return info
-
 
 def main():
-    result = {"benchmark": "frame_based_reconstruction", "unit": "ms", "machine": machine(),
+    result = {"benchmark": "frame_based_reconstruction", "unit": "ms", "machine": machine_info(),
               "goast_finger_reference_ms": GOAST_FINGER_MS, "meshes": {}}
     result["machine"]["speed_probe_ms"] = speed_probe()
     result["meshes"]["finger"] = bench_mesh(*finger_case(), repeats=200, tree_repeats=40)

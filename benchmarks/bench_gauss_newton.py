@@ -30,12 +30,10 @@ Prints ONE JSON object.  usage: python benchmarks/bench_gauss_newton.py [--repea
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
 import numpy as np
-import scipy
 import scipy.sparse as sp
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -43,6 +41,7 @@ REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
 sys.path.insert(0, HERE)
 
+from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 from meshes import deformed_sphere  # noqa: E402
 
 from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian  # noqa: E402
@@ -59,31 +58,6 @@ GOAST = {
 }
 
 
-def meshes_dir():
-    env = os.environ.get("LACORE_SHARED_DATA")
-    path = os.path.abspath(env if env else os.path.join(REPO, "..", "shared", "data"))
-    return path if os.path.basename(path) == "meshes" else os.path.join(path, "meshes")
-
-
-def machine_info():
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    try:
-        import cvxopt
-        cvx = cvxopt.__version__
-    except ImportError:
-        cvx = None
-    return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-            "cvxopt": cvx, "load_average": list(os.getloadavg()),
-            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS")}
 
 
 def cactus_pair():
@@ -101,8 +75,8 @@ def cactus_pair():
 
 
 def cases(quick):
-    Xf0, F = load_mesh(os.path.join(meshes_dir(), "finger/finger0.ply"))
-    Xf1, _ = load_mesh(os.path.join(meshes_dir(), "finger/finger1.ply"))
+    Xf0, F = load_mesh(os.path.join(shared_meshes_dir(), "finger/finger0.ply"))
+    Xf1, _ = load_mesh(os.path.join(shared_meshes_dir(), "finger/finger1.ply"))
     tf = MeshTopology.from_faces(F, n_vertices=len(Xf0))
     z0, z1 = lengths_and_angles(Xf0, tf), lengths_and_angles(Xf1, tf)
     out = [("finger1", tf, Xf0, z1), ("finger_average", tf, Xf0, 0.5 * (z0 + z1))]

@@ -22,17 +22,17 @@ Prints ONE JSON object.  usage: python benchmarks/bench_interpolation.py [--quic
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
 import numpy as np
-import scipy
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 if REPO not in sys.path:  # lacore importable without installing it
     sys.path.insert(0, REPO)
+
+from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 
 __all__ = ["box_bar", "simple_deform_bend", "main"]
 
@@ -105,37 +105,13 @@ def simple_deform_bend(vertices, angle):
 
 
 # --------------------------------------------------------------------------- benchmark
-def meshes_dir():
-    env = os.environ.get("LACORE_SHARED_DATA")
-    path = os.path.abspath(env if env else os.path.join(REPO, "..", "shared", "data"))
-    return path if os.path.basename(path) == "meshes" else os.path.join(path, "meshes")
-
-
-def machine_info():
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    try:
-        import cvxopt
-        cvx = cvxopt.__version__
-    except ImportError:
-        cvx = None
-    return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-            "cvxopt": cvx, "load_average": list(os.getloadavg())}
 
 
 def cases(quick):
     from lacore.mesh_io import load_mesh
     from lacore.topology import MeshTopology
 
-    d = meshes_dir()
+    d = shared_meshes_dir()
     X0, F = load_mesh(os.path.join(d, "finger", "finger0.ply"))
     X1, _ = load_mesh(os.path.join(d, "finger", "finger1.ply"))
     out = {"finger": (MeshTopology.from_faces(F, n_vertices=len(X0)), X0, X1)}
