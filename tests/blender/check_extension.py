@@ -15,7 +15,8 @@ import math
 import os
 from types import SimpleNamespace
 
-from harness import ARGS, MODULE, bpy, plain, reset, run_cases  # first: checks the environment, imports bpy
+# harness first: it checks the environment and imports bpy
+from harness import ARGS, MODULE, bpy, draw_panel, plain, reset, run_cases
 import numpy as np
 import blender_samples as samples
 
@@ -181,25 +182,15 @@ def panel_draw():
     """Draw the panel into a recording layout (no GUI in background mode)."""
     reset()
     obj = samples.make_cube("Cube")
-    calls = []
-
-    class Layout:
-        def __getattr__(self, name):
-            def record(*args, **kwargs):
-                calls.append((name, args, kwargs))
-                return Layout()
-            return record
-
     panel = bpy.types.LENGTHS_ANGLES_PT_shape_keys
     ctx = SimpleNamespace(object=obj)
     assert panel.poll(ctx)
-    panel.draw(SimpleNamespace(layout=Layout()), ctx)
+    calls = draw_panel(panel, ctx)
     texts = [kw.get("text") for name, _, kw in calls if name == "label"]
     assert texts.count("not encoded") == 3, texts
     assert any(name == "operator" and args[0] == "lengths_angles.encode" for name, args, _ in calls), calls
     encode(obj)
-    calls.clear()
-    panel.draw(SimpleNamespace(layout=Layout()), ctx)
+    calls = draw_panel(panel, ctx)
     texts = [kw.get("text") for name, _, kw in calls if name == "label"]
     assert "not encoded" not in texts and "Scaled" in texts, texts
     return {"labels": texts}

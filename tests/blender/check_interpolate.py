@@ -11,7 +11,8 @@ import json
 import math
 import os
 
-from harness import ARGS, MODULE, REPO, bpy, plain, reset, run_cases  # first: checks the environment, imports bpy
+# harness first: it checks the environment and imports bpy
+from harness import ARGS, MODULE, REPO, bpy, draw_panel, plain, reset, run_cases
 import numpy as np
 import blend_sample_cases as cases
 import blender_samples as samples
@@ -420,18 +421,8 @@ def panel_buttons():
     reset()
     obj = bar_with_keys()
     obj.active_shape_key_index = 1
-    calls = []
-
-    class Layout:
-        def __getattr__(self, name):
-            def record(*args, **kwargs):
-                calls.append((name, args, kwargs))
-                return Layout()
-            return record
-
-    panel = bpy.types.LENGTHS_ANGLES_PT_shape_keys
     ctx = SimpleNamespace(object=obj, active_object=obj, scene=bpy.context.scene)
-    panel.draw(SimpleNamespace(layout=Layout()), ctx)
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_shape_keys, ctx)
     ops = [args[0] for name, args, _ in calls if name == "operator"]
     assert {"lengths_angles.encode", "lengths_angles.interpolate", "lengths_angles.bake_keyframes"} <= set(ops), ops
     return {"operators": ops}

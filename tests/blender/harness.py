@@ -61,6 +61,26 @@ def plain(value):
     return value.to_dict() if hasattr(value, "to_dict") else (value.to_list() if hasattr(value, "to_list") else value)
 
 
+def draw_panel(panel, context):
+    """Draw ``panel`` into a layout that records every call (there is no GUI in background mode).
+
+    Returns the list of ``(method name, args, kwargs)`` the panel called on its layouts.
+    """
+    from types import SimpleNamespace
+
+    calls = []
+
+    class Layout:
+        def __getattr__(self, name):
+            def record(*args, **kwargs):
+                calls.append((name, args, kwargs))
+                return Layout()
+            return record
+
+    panel.draw(SimpleNamespace(layout=Layout()), context)
+    return calls
+
+
 def run_cases(cases):
     """Run ``cases`` (functions) in order and write the JSON result; exit 1 on the first failure."""
     t0 = time.perf_counter()
