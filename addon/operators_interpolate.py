@@ -54,19 +54,22 @@ MAX_NEW_KEYS = 1000
 _NAME_BYTES = 63  # Blender's shape-key names hold 63 bytes
 
 METHOD_ITEMS = [
-    ('FAST', "Fast", "Least-squares relaxation of the frame-based reconstruction (one solve over the "
-                     "whole mesh, no error accumulating along a tree): interactive speed"),
-    ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slower, "
+    ('PREVIEW', "Preview", "Least-squares relaxation of the frame-based reconstruction only (one linear solve "
+                           "over the whole mesh): quickest, edge lengths within ~1.5 % on strong blends"),
+    ('FAST', "Fast", "Least-squares relaxation followed by two Gauss-Newton smoothing steps that reuse "
+                     "factorizations: near the exact projection at a fraction of its cost"),
+    ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
 ]
-_LACORE_METHOD = {'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
-# FAST: at 50k vertices the least-squares start alone takes ~1.6 s per in-between with edge lengths within
-# ~1.4 % on a bend -> twist blend, while the former MST walk + 3 Gauss-Newton iterations took 8-14 s and
-# left 160 % errors there (benchmarks/bench_blender_interpolate.py); Gauss-Newton smoothing (exact or
-# PCG with a reused factorization) did not lower the maximal length error at that size; two smoothing steps
-# (PCG preconditioned by the factorization of an earlier frame) fixes non-admissible targets of small meshes
-_METHOD_OPTIONS = {'FAST': {"hybrid_start": "lsq", "smoothing_iterations": 2, "reuse_factorization": True},
-                  'GAUSS_NEWTON': {}}
+_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
+# Measured on a 50k-vertex bar (benchmarks/bench_blender_interpolate.py, README): PREVIEW ~1.6 s per
+# in-between with edge lengths within ~1.4 % on a bend -> twist blend; FAST ~5.4 s per in-between (the
+# first version, an MST walk + 3 Gauss-Newton iterations, took ~20 s and left 160 % errors there, because a
+# tree walk accumulates the integrability error along the tree); the two smoothing steps are what small
+# meshes with non-admissible targets need (tests/test_blender_interpolate.py: n-gon prism).
+_METHOD_OPTIONS = {'PREVIEW': {},
+                   'FAST': {"hybrid_start": "lsq", "smoothing_iterations": 2, "reuse_factorization": True},
+                   'GAUSS_NEWTON': {}}
 
 
 class InterpolationInputError(ValueError):

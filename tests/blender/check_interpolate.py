@@ -117,7 +117,7 @@ def install_and_enable():
                    "LENGTHS_ANGLES_OT_clear_bake"}, ids
     props = bpy.ops.lengths_angles.interpolate.get_rna_type().properties
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
-    assert [i.identifier for i in props["method"].enum_items] == ["FAST", "GAUSS_NEWTON"]
+    assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON"]
     assert props["method"].default == "FAST"
     bake_props = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
     assert {"keys", "frames", "smooth", "method"} <= set(bake_props.keys()), bake_props.keys()
@@ -166,7 +166,11 @@ def interpolate_bar():
     assert interpolate(obj, key_from="Bend180", key_to="Basis", factors="0.5", method='GAUSS_NEWTON') == {"FINISHED"}
     gn = cases.blend_metrics(coords(obj, "LA Bend180>Basis 0.500"), R90, A, edges)
     assert gn["rms_error_per_diagonal"] < 0.01, gn
-    return {"vertices": V, "keys": key_names(obj), "end_point_max_abs_error": float(end_raw),
+    # Preview method (least-squares relaxation only): replaces the 0.5 key in place
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5", method='PREVIEW') == {"FINISHED"}
+    preview = cases.blend_metrics(coords(obj, "LA Basis>Bend180 0.500"), R90, A, edges)
+    assert preview["rms_error_per_diagonal"] < 0.01, preview
+    return {"preview": preview, "vertices": V, "keys": key_names(obj), "end_point_max_abs_error": float(end_raw),
             "end_point_rigid_max_abs_error": float(end_rigid), "lengths_angles": la, "linear": lin,
             "simple_deform_90": ref, "gauss_newton": gn, "extrapolated_1_5_vs_simple_deform_270": extra,
             "placement_rms_vs_linear_blend_per_diagonal": placement, "centroid_shift": centroid_shift,
