@@ -13,7 +13,8 @@ from lacore.errors import LengthsAnglesError, MeshError
 from lacore.integrability import (edge_frame_angles, integrability_violation, standard_frames,
                                   transition_rotations)
 from lacore.lengths_angles import face_areas, face_normals, lengths_and_angles
-from lacore.reconstruction.frame_based import _composition_schedule, frame_based_reconstruction, propagate_frames
+from lacore.reconstruction.frame_based import (_composition_schedule, _forest_depths, _jump_rounds,
+                                               frame_based_reconstruction, propagate_frames)
 from lacore.reconstruction.least_squares import least_squares_reconstruction, nearest_rotations
 from lacore.reconstruction.spanning_trees import (DualSpanningTree, _integrability_violation, adaptive_edge_weights,
                                                   bfs_tree, default_root_faces, dual_spanning_tree, forest_levels,
@@ -240,6 +241,35 @@ def test_two_level_pointer_jumping_composes_root_paths(block):
     assert np.abs(D - expected[nodes]).max() < 1e-9
     assert depth.max() > 100
     assert used_block == block if block <= 8 else used_block > depth[nodes].max() // 2
+
+
+def test_forest_depths_and_jump_rounds():
+    """Pointer-jumping depths equal the BFS depths; the jump rounds compose whole root paths."""
+    rng = np.random.default_rng(5)
+    n = 2000
+    parent = np.full(n, -1)
+    for v in range(2, n):
+        parent[v] = v - 1 if rng.random() < 0.95 else rng.integers(0, v)
+    perm = rng.permutation(n)                   # node labels in no particular order
+    inv = np.empty(n, np.int64)
+    inv[perm] = np.arange(n)
+    parent = np.where(parent[perm] >= 0, inv[np.maximum(parent[perm], 0)], -1)
+    order, _, depth = forest_levels(parent, np.flatnonzero(parent < 0))
+    assert np.array_equal(_forest_depths(parent), depth)
+    assert np.array_equal(_forest_depths(np.full(4, -1)), np.zeros(4, np.int64))
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n)
+    pr = np.where(parent[order] >= 0, rank[np.maximum(parent[order], 0)], -1)
+    value = rng.normal(size=n)
+    D = value[order].copy()
+    for s, tgt in _jump_rounds(pr, depth[order]):
+        D[s:] += D.take(tgt)
+    expected = value.copy()
+    for v in order:
+        if parent[v] >= 0:
+            expected[v] += expected[parent[v]]
+    assert np.abs(D - expected[order]).max() < 1e-9
+    assert _jump_rounds(np.full(3, -1), np.zeros(3, np.int64)) == []
 
 
 def test_bfs_tree_is_cached_and_walk_indices_are_reused():

@@ -57,8 +57,7 @@ from ..errors import MeshError, format_indices
 from ..integrability import standard_frames
 from ..lengths_angles import check_z
 from ..topology import check_vertices
-from .spanning_trees import (DualSpanningTree, _half_theta, _stable_order, default_root_faces, dual_spanning_tree,
-                             forest_levels)
+from .spanning_trees import DualSpanningTree, _half_theta, _stable_order, default_root_faces, dual_spanning_tree
 
 __all__ = ["frame_based_reconstruction", "propagate_frames", "rotation_to_quaternion"]
 
@@ -148,6 +147,11 @@ def _pair_to_matrix(alpha, beta):
 
 
 # --------------------------------------------------------------------------- schedule (z-independent)
+_NEXT = np.array([1, 2, 0])                                    # (i + 1) % 3
+_PREV = np.array([2, 0, 1])                                    # (i + 2) % 3
+_ROOT_J = np.array([1, 2, 1])                                  # root face: half-edge from local vertex 0
+
+
 def _jump_rounds(parent_rank, depth_sorted):
     """Pointer-jumping rounds for a forest numbered in level order.
 
@@ -157,19 +161,32 @@ def _jump_rounds(parent_rank, depth_sorted):
     its whole root path.
     """
     n = len(parent_rank)
-    anc = parent_rank.copy()
+    if n == 0 or depth_sorted[-1] < 1:
+        return []
+    starts = np.searchsorted(depth_sorted, 1 << np.arange(int(depth_sorted[-1]).bit_length())).tolist()
+    anc = parent_rank
     rounds = []
-    k = 0
-    while True:
-        s = int(np.searchsorted(depth_sorted, 1 << k))
-        if s >= n:
-            break
-        tgt = anc[s:].copy()
-        tgt.setflags(write=False)
+    for s in starts:
+        # nodes before ``s`` are never combined again, so their (possibly meaningless) ancestors are harmless
+        tgt = anc[s:]
         rounds.append((s, tgt))
-        anc[s:] = anc.take(tgt)
-        k += 1
+        anc = anc.take(anc)
     return rounds
+
+
+def _forest_depths(parent):
+    """Depths of the nodes of a forest (``parent`` ``-1`` at the roots) by pointer jumping, ``(n,)`` int64.
+
+    The forest must be acyclic (it is built internally, so this is not checked).
+    """
+    n = len(parent)
+    anc = np.where(parent < 0, n, parent)
+    anc = np.append(anc, n)                                    # node n: sentinel above every root
+    depth = np.append(parent >= 0, False).astype(np.int64)
+    while anc.min() < n:
+        depth += depth.take(anc)
+        anc = anc.take(anc)
+    return depth[:n]
 
 
 def _composition_schedule(parent, depth, level_order, need, keep, block=4):
@@ -211,25 +228,30 @@ def _composition_schedule(parent, depth, level_order, need, keep, block=4):
     n_children = np.bincount(parent[need & has_parent], minlength=n)
     leaf = need & (n_children == 0) & ~keep
     internal = need & ~leaf
-    max_depth = int(depth[internal].max()) if internal.any() else 0
+    max_depth = int(np.max(depth, where=internal, initial=0))
     if max_depth < 2 * block:
         block = max_depth + 1
-    rel = depth % block
-    portal = internal & ((rel == 0) | ~has_parent)
-    inner = internal & ~portal
-    o_portal = level_order[portal[level_order]]
-    o_inner = level_order[inner[level_order]]
-    o_inner = o_inner[_stable_order(rel[o_inner])]
-    o_leaf = level_order[leaf[level_order]]
-    nodes = np.r_[o_portal, o_inner, o_leaf]
+    pow2 = block & (block - 1) == 0
+    rel = depth & (block - 1) if pow2 else depth % block
+    # one stable sort of the level order by class: portals (0), inner nodes by relative depth (1 .. block - 1),
+    # leaves (block), nodes not needed (block + 1)
+    key = np.where(internal, np.where(has_parent, rel, 0), np.where(leaf, block, block + 1))
+    key = key.take(level_order)
+    perm = _stable_order(key)
+    counts = np.bincount(key, minlength=block + 2)
+    P, N = int(counts[0]), int(counts[1:block].sum())
+    m = P + N + int(counts[block])
+    nodes = level_order.take(perm[:m])
+    o_portal, o_inner, o_leaf = nodes[:P], nodes[P:P + N], nodes[P + N:]
+    rel_inner = key.take(perm[P:P + N])
     rank = np.full(n, -1, np.int64)
-    rank[nodes] = np.arange(len(nodes))
-    P, N, C = len(o_portal), len(o_inner), int(np.count_nonzero(~has_parent[o_portal]))
+    rank[nodes] = np.arange(m)
+    C = int(np.count_nonzero(~has_parent.take(o_portal)))
     steps = []
     # 1. inside the blocks
-    pin = parent[o_inner]
-    local_parent = np.where(rel[o_inner] >= 2, rank[pin] - P, -1)
-    rounds = _jump_rounds(local_parent, rel[o_inner] - 1)
+    pin = parent.take(o_inner)
+    local_parent = np.where(rel_inner >= 2, rank.take(pin) - P, -1)
+    rounds = _jump_rounds(local_parent, rel_inner - 1)
     for s, tgt in rounds:
         steps.append((P + s, P + N, tgt + P))
     # block top (nearest portal ancestor, in step numbering) of the inner nodes: the parent of the
@@ -239,12 +261,15 @@ def _composition_schedule(parent, depth, level_order, need, keep, block=4):
         first[s:] = first.take(tgt)
     top_rank = rank[pin.take(first)] if N else np.zeros(0, np.int64)
     # 2. portals below the roots take their parent's block composition
+    pr = rank.take(parent.take(o_portal[C:]))
     if P > C:
-        steps.append((C, P, rank[parent[o_portal[C:]]]))
+        steps.append((C, P, pr))
     # 3. the portal tree
-    pr = rank[parent[o_portal[C:]]]
-    portal_parent = np.r_[np.full(C, -1, np.int64), np.where(pr >= P, top_rank.take(np.maximum(pr - P, 0)), pr)]
-    for s, tgt in _jump_rounds(portal_parent, depth[o_portal] // block):
+    pr = np.where(pr >= P, top_rank.take(np.maximum(pr - P, 0)), pr)
+    portal_parent = np.concatenate((np.full(C, -1, np.int64), pr))
+    pdepth = depth[o_portal]
+    pdepth = pdepth >> (block.bit_length() - 1) if pow2 else pdepth // block
+    for s, tgt in _jump_rounds(portal_parent, pdepth):
         steps.append((s, P, tgt))
     # 4. inner nodes take their portal's value;  5. leaves their parent's
     if N:
@@ -254,6 +279,21 @@ def _composition_schedule(parent, depth, level_order, need, keep, block=4):
     for _, _, t in steps:
         t.setflags(write=False)
     return nodes, steps, block
+
+
+def _slot_tables(topology):
+    """Per face slot ``3 f + i`` (cached on the topology): the face across edge ``i`` of ``f``, that edge's
+    local index in it, and whether ``f`` is the edge's left face (``(3F,)`` each)."""
+    def compute():
+        e = topology.face_edges.ravel()
+        left = topology.face_edge_is_left.ravel()
+        ef = topology.edge_faces.take(e, axis=0)
+        eli = topology.edge_local_index.take(e, axis=0)
+        out = (np.where(left, ef[:, 1], ef[:, 0]), np.where(left, eli[:, 1], eli[:, 0]), left.copy())
+        for a in out:
+            a.setflags(write=False)
+        return out
+    return topology._cached("frame_based.slot_tables", compute)
 
 
 def _walk_schedule(tree, topology, prune=True):
@@ -274,56 +314,54 @@ def _walk_schedule(tree, topology, prune=True):
     order, C = tree.order, len(tree.roots)
     parent, depth = tree.parent, tree.depth
     child = order[C:]
-    e = tree.parent_edge[child]
-    ef = np.take(topology.edge_faces, e, axis=0)
-    p = parent[child]
-    parent_is_left = ef[:, 0] == p
-    if not np.all(np.where(parent_is_left, ef[:, 1], ef[:, 0]) == child):
+    e = tree.parent_edge.take(child)
+    fc = fe.take(child, axis=0)
+    li = np.where(fc[:, 0] == e, 0, np.where(fc[:, 1] == e, 1, 2))   # local index of the parent edge in the child
+    slot = 3 * child + li
+    across, twin, is_left = _slot_tables(topology)
+    if not (np.array_equal(fe.ravel().take(slot), e) and np.array_equal(across.take(slot), parent.take(child))):
         raise MeshError("the spanning tree does not belong to this mesh (tree edges do not join parent and child)")
-    eli = np.take(topology.edge_local_index, e, axis=0)
     li_child = np.empty(F, np.int64)
-    li_child[child] = np.where(parent_is_left, eli[:, 1], eli[:, 0])
-    li_parent = np.empty(F, np.int64)
-    li_parent[child] = np.where(parent_is_left, eli[:, 0], eli[:, 1])
-    sign = np.zeros(F)
-    sign[child] = np.where(parent_is_left, 1.0, -1.0)
+    li_child[child] = li
+    child_slot = np.empty(F, np.int64)
+    child_slot[child] = slot
 
     # vertices: the first face in level order containing a vertex places it
     first = np.full(V, 3 * F, np.int64)
-    np.minimum.at(first, faces[order].ravel(), np.arange(3 * F))
+    np.minimum.at(first, faces.take(order, axis=0).ravel(), np.arange(3 * F))
     verts = np.flatnonzero(first < 3 * F)
     unreferenced = np.flatnonzero(first == 3 * F)
     first = first[verts]
-    f = order[first // 3]
-    i = first % 3
-    is_root = first // 3 < C
-    if not np.all(is_root | (i == li_child[f])):
+    pos, i = np.divmod(first, 3)
+    f = order.take(pos)
+    is_root = pos < C
+    if not np.all(is_root | (i == li_child.take(f))):
         raise MeshError("internal error: a vertex is not opposite the parent edge of its first face")
-    j = np.where(is_root, np.where(i == 1, 2, 1), (i + 2) % 3)   # half-edge giving X_v - X_src
-    src = np.where(is_root, 0, (i + 1) % 3)
+    j = np.where(is_root, _ROOT_J.take(i), _PREV.take(i))      # half-edge giving X_v - X_src
+    src = np.where(is_root, 0, _NEXT.take(i))
     placed = ~(is_root & (i == 0))
     vpar = np.full(V, -1, np.int64)
-    vpar[verts[placed]] = faces[f[placed], src[placed]]
+    vpar[verts[placed]] = faces.ravel().take(3 * f[placed] + src[placed])
     vface = np.full(V, -1, np.int64)
     vface[verts] = f
-    vflat = np.zeros(V, np.int64)
-    vflat[verts] = 3 * f + j
+    vj = np.zeros(V, np.int64)
+    vj[verts] = j
     vsign = np.zeros(V)
     vsign[verts] = np.where(is_root & (i == 1), 1.0, -1.0)
     vroot = np.full(V, -1, np.int64)
-    vroot[verts[~placed]] = first[~placed] // 3                # component (root rank) of the root vertices
+    vroot[verts[~placed]] = pos[~placed]                      # component (root rank) of the root vertices
 
     # frames: needed faces = placing faces and their ancestors (pruned iteratively), leaves raked
     is_root_face = parent < 0
     if prune:
-        placing = np.zeros(F, bool)
-        placing[vface[verts[placed]]] = True
-        need = np.ones(F, bool)
-        for _ in range(2):
-            n_children = np.bincount(parent[need & ~is_root_face], minlength=F)
-            drop = need & (n_children == 0) & ~placing & ~is_root_face
-            if not drop.any():
-                break
+        droppable = ~is_root_face                              # neither a root nor placing a vertex
+        droppable[vface[verts[placed]]] = False
+        n_children = np.bincount(parent.take(child), minlength=F)
+        drop = droppable & (n_children == 0)
+        need = ~drop
+        if drop.any():                                         # second pass: children counts without the dropped
+            n_children -= np.bincount(parent[drop], minlength=F)
+            drop = need & droppable & (n_children == 0)
             need &= ~drop
     else:
         need = np.ones(F, bool)
@@ -331,9 +369,12 @@ def _walk_schedule(tree, topology, prune=True):
     frank = np.full(F, -1, np.int64)
     frank[fnodes] = np.arange(len(fnodes))
     nc = fnodes[C:]                                            # needed non-root faces, in walk order
+    nslot = child_slot.take(nc)
 
     # vertex tree, leaves raked
-    vorder, _, vdepth = forest_levels(vpar, np.r_[verts[~placed], unreferenced])
+    vdepth = _forest_depths(vpar)
+    vorder = np.concatenate((verts[~placed], unreferenced, verts[placed]))
+    vorder = vorder[_stable_order(vdepth.take(vorder))]        # by depth, the roots first
     vnodes, v_steps, v_block = _composition_schedule(vpar, vdepth, vorder, vface >= 0, vpar < 0)
     vrank = np.full(V, len(vnodes), np.int64)                  # unreferenced vertices -> an extra zero row
     vrank[vnodes] = np.arange(len(vnodes))
@@ -342,17 +383,17 @@ def _walk_schedule(tree, topology, prune=True):
     sched = {
         "C": C,
         "n_faces_walk": len(fnodes),
-        "len6": np.ascontiguousarray(fe[:, [0, 1, 2, 0, 1, 2]].T),
-        "tp": li_parent[nc] * F + parent[nc],
-        "tc": li_child[nc] * F + nc,
-        "edge": tree.parent_edge[nc],
-        "sign": sign[nc],
+        "len6": topology._cached("frame_based.len6", lambda: np.ascontiguousarray(fe[:, [0, 1, 2, 0, 1, 2]].T)),
+        "tp": twin.take(nslot) * F + parent.take(nc),
+        "tc": li_child.take(nc) * F + nc,
+        "edge": tree.parent_edge.take(nc),
+        "sign": np.where(is_left.take(nslot), -1.0, 1.0),             # +1: the parent is the edge's left face
         "frame_steps": f_steps,
         "frame_block": f_block,
         "face_nodes": fnodes,
         "vface": frank[vface[pv]],
-        "vflat": (vflat[pv] % 3) * F + vflat[pv] // 3,
-        "vedge": fe.ravel()[vflat[pv]],
+        "vflat": vj[pv] * F + vface[pv],
+        "vedge": fe.ravel().take(3 * vface[pv] + vj[pv]),
         "vsign": vsign[pv],
         "vroot_comp": vroot[vnodes[:C]],
         "vertex_steps": v_steps,
