@@ -16,7 +16,7 @@ from lacore.lengths_angles import face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction.frame_based import (_composition_schedule, _forest_depths, _jump_rounds,
                                                frame_based_reconstruction, propagate_frames)
 from lacore.reconstruction.least_squares import least_squares_reconstruction, nearest_rotations
-from lacore.reconstruction.spanning_trees import (DualSpanningTree, _integrability_violation, adaptive_edge_weights,
+from lacore.reconstruction.spanning_trees import (DualSpanningTree, adaptive_edge_weights,
                                                   bfs_tree, default_root_faces, dual_spanning_tree, forest_levels,
                                                   minimal_spanning_tree, preassembled_tree, shortest_path_tree)
 from lacore.topology import MeshTopology
@@ -309,10 +309,9 @@ def test_tree_from_parents_and_errors():
 
 
 # --------------------------------------------------------------------------- weights (3.30)
-def test_fast_violation_matches_core_and_weights():
+def test_adaptive_weights_average_the_vertex_violation():
     topo, X0, _, z = finger_average()
     v = integrability_violation(z, topo)
-    assert np.abs(_integrability_violation(z, topo) - v).max() < 1e-13
     assert v.max() > 1e-3                                        # really non-admissible
     w = adaptive_edge_weights(z, topo)
     e = topo.edges
@@ -324,10 +323,7 @@ def test_fast_violation_matches_core_and_weights():
     zb = z.copy()
     zb[:topo.n_edges] *= rng.uniform(0.1, 3.0, topo.n_edges)
     vb = integrability_violation(zb, topo)
-    vf = _integrability_violation(zb, topo)
-    assert np.array_equal(np.isinf(vb), np.isinf(vf)) and np.isinf(vb).sum() > 100
-    fin = np.isfinite(vb)
-    assert np.abs(vb[fin] - vf[fin]).max() < 1e-12
+    assert np.isinf(vb).sum() > 100
     wb = adaptive_edge_weights(zb, topo)
     assert np.all(np.isfinite(wb))
     big = wb.max()

@@ -32,10 +32,8 @@ best shape quality ``4 sqrt(3) a / (l0^2 + l1^2 + l2^2)`` (1 for equilateral).
 A central root keeps trees shallow (fewer reconstruction steps, less error
 accumulation); a well-shaped root gives a well-conditioned first frame.
 
-The violation ``|tr I_v(z) - 3|`` behind the weights (3.30) is evaluated here
-with unit quaternions (:func:`_integrability_violation`; equal to
-:func:`lacore.integrability.integrability_violation` up to rounding, several
-times faster), since it dominates the cost of building an adaptive tree.
+The violation ``|tr I_v(z) - 3|`` behind the weights (3.30) is
+:func:`lacore.integrability.integrability_violation`.
 
 Weights and ties
 ----------------
@@ -54,7 +52,9 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from ..errors import LengthsAnglesError, MeshError, format_indices
+from ..integrability import integrability_violation
 from ..lengths_angles import check_z
+from ..trigonometry import triangle_inequality_margin
 
 __all__ = [
     "DualSpanningTree",
@@ -70,7 +70,6 @@ __all__ = [
 ]
 
 TREE_KINDS = ("bfs", "mst", "spt")
-_TINY = float(np.finfo(float).tiny)
 
 
 # --------------------------------------------------------------------------- the tree
@@ -586,137 +585,12 @@ def shortest_path_tree(topology, root_face, edge_weights):
 
 
 # --------------------------------------------------------------------------- adaptive weights (3.30)
-def _kahan_factors(c, p, q):
-    """Kahan's factors of ``tan^2(gamma / 2) = num / den`` for the angle opposite ``c`` (sides ``c, p, q``).
-
-    With ``a = max(p, q)``, ``b = min(p, q)`` (A.6):
-    ``num = ((a - b) + c) (b + c - a)`` and ``den = (a + (b + c)) ((a - c) + b)``, where
-    ``b + c - a`` is evaluated as ``c - (a - b)`` if ``b >= c`` else ``b - (a - c)``
-    (written as ``(max(b, c) - a) + min(b, c)``), so only exact differences cancel.
-    Then ``cos(gamma / 2) = sqrt(den / (num + den))`` and ``sin(gamma / 2) = sqrt(num / (num + den))``, the
-    values of :func:`lacore.trigonometry.interior_angles` up to rounding.  Both factors are positive iff the
-    triangle satisfies the strict triangle inequality; they are clamped at 0.
-    """
-    a = np.maximum(p, q)
-    b = np.minimum(p, q)
-    mu = np.maximum(b, c)
-    mu -= a
-    mu += np.minimum(b, c)
-    num = a - b
-    num += c
-    num *= mu
-    den = a - c
-    den += b
-    den *= a + (b + c)
-    np.maximum(num, 0.0, out=num)
-    np.maximum(den, 0.0, out=den)
-    return num, den
-
-
-def _half_angle_phasors(lengths, topology):
-    """``exp(i gamma / 2)`` of all interior angles, flat ``(3F + 1,)`` complex, entry ``i F + f`` for the
-    angle at local vertex ``i`` of face ``f`` (last entry 1: padding); ``1`` (angle 0) for triangles
-    violating the triangle inequality, which are flagged in the returned ``(F,)`` mask."""
-    F = topology.n_faces
-    idx = topology._cached("spanning_trees.len5",
-                           lambda: np.ascontiguousarray(topology.face_edges[:, [0, 1, 2, 0, 1]].T))
-    G = lengths.take(idx)                                       # rows l0, l1, l2, l0, l1
-    num, den = _kahan_factors(G[0:3], G[1:4], G[2:5])
-    bad = ~(np.minimum(num[0], den[0]) > 0)
-    r = num + den
-    r += _TINY                                  # 0 only for triangles violating the triangle inequality
-    np.sqrt(r, out=r)
-    np.divide(1.0, r, out=r)
-    h = np.empty(3 * F + 1, complex)
-    hv = h[:3 * F].view(float).reshape(3, F, 2)
-    np.sqrt(den, out=den)
-    np.sqrt(num, out=num)
-    np.multiply(den, r, out=hv[..., 0])
-    np.multiply(num, r, out=hv[..., 1])
-    h[3 * F] = 1.0
-    if bad.any():
-        h[:3 * F].reshape(3, F)[:, bad] = 1.0
-    return h, bad
-
-
 def _half_theta(theta):
     """``(cos(theta / 2), sin(theta / 2))`` via ``t = tan(theta / 4)`` (vectorized tangent is fast)."""
     t = np.tan(0.25 * theta)
     t2 = t * t
     inv = 1.0 / (1.0 + t2)
     return (1.0 - t2) * inv, 2.0 * t * inv
-
-
-def _ring_schedule(topology):
-    """Interior vertices sorted by decreasing valence, with padded ring corners/edges (z-independent)."""
-    def compute():
-        verts, corners, edges = [], [], []
-        groups = sorted(topology.vertex_rings().items(), reverse=True)
-        nmax = groups[0][0] if groups else 0
-        F = topology.n_faces
-        for n, (v, c) in groups:
-            f, i = c // 3, c % 3
-            e_next = topology.face_edges[f, (i + 1) % 3]
-            pad = nmax - n
-            verts.append(v)
-            corners.append(np.pad(i * F + f, ((0, 0), (0, pad)), constant_values=3 * F))
-            edges.append(np.pad(e_next, ((0, 0), (0, pad)), constant_values=topology.n_edges))
-        if not groups:
-            return None
-        verts = np.concatenate(verts)
-        corners = np.ascontiguousarray(np.concatenate(corners).T)    # (nmax, V_int)
-        edges = np.ascontiguousarray(np.concatenate(edges).T)
-        valence = topology.vertex_valence[verts]
-        active = np.array([np.count_nonzero(valence > k) for k in range(nmax)])
-        return {"vertices": verts, "corners": corners, "edges": edges, "active": active}
-    return topology._cached("spanning_trees.ring_schedule", compute)
-
-
-def _integrability_violation(z, topology):
-    """``|tr I_v(z) - 3|`` per vertex (V,), as :func:`lacore.integrability.integrability_violation`.
-
-    Same values (to rounding) but about ten times faster: the holonomy
-    ``I_v = prod_k Rz(gamma_k) Rx(-theta_k)`` (3.11) is accumulated as unit
-    quaternions ``(alpha, beta) = (w + i z, x + i y)``, all interior vertices at
-    once (sorted by valence, so ring position ``k`` is a prefix), and
-    ``|tr I - 3| = 4 (1 - w^2) = 4 (|beta|^2 + Im(alpha)^2)``.  Boundary vertices
-    get 0, vertices next to triangles violating the triangle inequality ``inf``.
-    """
-    return _violation(check_z(z, topology), topology)[0]
-
-
-def _violation(z, topology):
-    """``(violation (V,), bad (F,))``: see :func:`_integrability_violation`; ``bad`` flags violated (T)."""
-    E = topology.n_edges
-    lengths, theta = z[:E], z[E:]
-    hc, bad = _half_angle_phasors(lengths, topology)
-    out = np.zeros(topology.n_vertices)
-    ring = _ring_schedule(topology)
-    if ring is not None:
-        ct, st = _half_theta(np.r_[theta, 0.0])
-        np.negative(st, out=st)
-        corners, edges, active = ring["corners"], ring["edges"], ring["active"]
-        # factor Rz(gamma) Rx(-theta):  alpha = cos(theta/2) e^{i gamma/2},  beta = -sin(theta/2) e^{i gamma/2}
-        g = hc.take(corners[0])
-        a = g * ct.take(edges[0])
-        b = g * st.take(edges[0])
-        for k in range(1, corners.shape[0]):
-            m = active[k]
-            g = hc.take(corners[k, :m])
-            a2 = g * ct.take(edges[k, :m])
-            g *= st.take(edges[k, :m])
-            a1, b1 = a[:m], b[:m]
-            na = a1 * a2
-            na -= b1 * np.conj(g)
-            b1 *= np.conj(a2)
-            b1 += a1 * g
-            a1[...] = na
-        out[ring["vertices"]] = 4.0 * (b.real ** 2 + b.imag ** 2 + a.imag ** 2)
-    if bad.any():
-        touched = np.zeros(topology.n_vertices, bool)
-        touched[topology.faces[bad].ravel()] = True
-        out[touched & ~topology.is_boundary_vertex] = np.inf
-    return out, bad
 
 
 def adaptive_edge_weights(z, topology):
@@ -739,7 +613,8 @@ def adaptive_edge_weights(z, topology):
         For a ``z`` of the wrong size, with NaN/inf or non-positive lengths.
     """
     z = check_z(z, topology)
-    viol, bad = _violation(z, topology)
+    viol = integrability_violation(z, topology)
+    bad = triangle_inequality_margin(z[:topology.n_edges].take(topology.face_edges)) <= 0
     ed = topology.edges
     w = viol.take(ed[:, 0])
     w += viol.take(ed[:, 1])
