@@ -19,13 +19,15 @@ discrete_geodesic               geodesics on the admissible set (:mod:`lacore.ge
 """
 
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
-from .errors import LengthsAnglesError, MeshError
+from .errors import InputError, LengthsAnglesError, MeshError
 from .integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
                             integrability_violation, transition_rotations, triangle_inequality_map)
 from .lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
                              split_z)
+from .progress import Cancelled
 from .projection import project
 from .reconstruction import reconstruct, reconstruction_errors
+from .rigid import rigid_align, rigid_fit
 from .topology import MeshTopology, check_vertices
 
 #: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
@@ -44,7 +46,8 @@ def __getattr__(name):
 __version__ = "0.1.0"
 
 __all__ = [
-    "MeshError", "LengthsAnglesError", "MeshTopology", "check_vertices",
+    "InputError", "MeshError", "LengthsAnglesError", "Cancelled", "rigid_fit", "rigid_align",
+    "MeshTopology", "check_vertices",
     "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",

@@ -1,20 +1,25 @@
 """Exceptions raised by lacore.
 
-All errors caused by bad input derive from :class:`ValueError`, so callers that
-do not care about the precise reason can catch ``ValueError``.
+Every error caused by bad input derives from :class:`InputError` (itself a
+:class:`ValueError`).  The CLI and the Blender add-on catch ``InputError`` and
+show its message; any other exception is a bug and shows as one (traceback).
 """
 
-__all__ = ["MeshError", "LengthsAnglesError", "format_indices"]
+__all__ = ["InputError", "MeshError", "LengthsAnglesError", "format_indices"]
 
 
-class MeshError(ValueError):
+class InputError(ValueError):
+    """Bad input from the user: a file, an array, an option.  The message says what and where."""
+
+
+class MeshError(InputError):
     """The mesh (connectivity or coordinates) is not valid for lacore.
 
     The message names the offending elements (edges, vertices or faces).
     """
 
 
-class LengthsAnglesError(ValueError):
+class LengthsAnglesError(InputError):
     """A lengths-and-angles vector ``z`` does not fit the mesh or is not finite."""
 
 
