@@ -14,11 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..lacore.errors import InputError
+
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "write_shape_key",
            "key_names", "require_mesh_object"]
 
 
-class MeshAccessError(ValueError):
+class MeshAccessError(InputError):
     """The object cannot be processed (not a mesh, no shape keys, loose edges, ...)."""
 
 

@@ -6,7 +6,7 @@ import time
 import bpy
 import numpy as np
 
-from ..lacore.errors import MeshError
+from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import integrability_violation
 from ..lacore.lengths_angles import check_nondegenerate, lengths_and_angles
 from ..lacore.topology import MeshTopology, check_vertices
@@ -20,7 +20,7 @@ def encode_object(obj):
 
     Returns a dict with the arguments of :func:`storage.write_encoding` plus
     ``topology``.  Raises :class:`mesh_access.MeshAccessError` or
-    :class:`lacore.errors.MeshError` (both ``ValueError``) for unusable input.
+    :class:`lacore.errors.MeshError` (both :class:`lacore.errors.InputError`) for unusable input.
     """
     mesh = mesh_access.require_mesh_object(obj)
     names, coords = mesh_access.read_shape_keys(mesh)
@@ -72,7 +72,7 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
             if obj is not None and obj.type == 'MESH' and obj.mode == 'EDIT':
                 obj.update_from_editmode()  # make edit-mode changes visible in the mesh data
             result = encode_object(obj)  # computes everything; nothing is written yet
-        except ValueError as exc:  # MeshAccessError, MeshError, LengthsAnglesError
+        except InputError as exc:  # MeshAccessError, MeshError, LengthsAnglesError; anything else is a bug
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
         mesh = obj.data

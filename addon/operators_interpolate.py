@@ -38,8 +38,10 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from ..lacore import interpolation
-from ..lacore.errors import MeshError
+from ..lacore.errors import InputError, MeshError
+from ..lacore.interpolation import keyframe_inbetweens, piecewise_linear_z
+from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
+from ..lacore.rigid import rigid_align
 from ..lacore.topology import MeshTopology
 from . import mesh_access
 
@@ -68,11 +70,12 @@ _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
 # tree walk accumulates the integrability error along the tree); the two smoothing steps are what small
 # meshes with non-admissible targets need (tests/test_blender_interpolate.py: n-gon prism).
 _METHOD_OPTIONS = {'PREVIEW': {},
-                   'FAST': {"hybrid_start": "lsq", "smoothing_iterations": 2, "reuse_factorization": True},
+                   'FAST': {"hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
+                            "options": GaussNewtonOptions(reuse_factorization=True)},
                    'GAUSS_NEWTON': {}}
 
 
-class InterpolationInputError(ValueError):
+class InterpolationInputError(InputError):
     """Unusable operator input (unknown key, bad factor list ...)."""
 
 
@@ -185,23 +188,12 @@ def _require_keys(names, wanted, what):
         raise InterpolationInputError(f"{what}: no shape key {shown} (the mesh has {have})")
 
 
-def rigid_fit(X, target):
-    """``X`` moved by the rigid motion (rotation + translation, no reflection) that best fits ``target``
-    in the least-squares sense (Kabsch); used only to place results (see module docstring)."""
-    cx, ct = X.mean(0), target.mean(0)
-    H = (X - cx).T @ (target - ct)
-    U, _S, Vt = np.linalg.svd(H)
-    d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0 else -1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return (X - cx) @ R.T + ct
-
-
 def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None):
     """Compute in-betweens of two shape keys WITHOUT touching Blender data.
 
     Returns a list of ``(key name, (V, 3) float64 coordinates)``, one per factor,
-    placed as described in the module docstring.  Raises ``ValueError``
-    subclasses for unusable input.
+    placed as described in the module docstring.  Raises
+    :class:`lacore.errors.InputError` subclasses for unusable input.
     """
     if not key_from or not key_to:
         raise InterpolationInputError("Choose the two shape keys to interpolate between (From and To)")
@@ -230,7 +222,7 @@ def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=N
 def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None):
     """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``."""
     results = _inbetweens(topology, A, B, factors, method, progress)
-    return [rigid_fit(X, (1.0 - t) * A + t * B) for t, X in zip(factors, results, strict=True)]
+    return [rigid_align(X, (1.0 - t) * A + t * B) for t, X in zip(factors, results, strict=True)]
 
 
 def _inbetweens(topology, A, B, factors, method, progress):
@@ -244,29 +236,13 @@ def _keyframe_shapes(topology, shapes, keyframes, frames, smooth, method, progre
 
 
 def _project(topology, shapes, keyframes, times, smooth, method, progress):
-    """:func:`lacore.interpolation.keyframe_inbetweens`, one frame at a time for the progress bar.
+    """:func:`lacore.interpolation.keyframe_inbetweens` of the shapes at ``times`` (list of ``(V, 3)``).
 
-    Same work as one call: targets piecewise linear (or spline) in z, frames in time order
-    sharing the reconstruction context and the preassembled spanning tree, every Gauss-Newton
-    projection warm-started from the nearest known shape (a key or a finished frame).
+    ``progress(done, total, message)`` is called after every frame (:mod:`lacore.progress`).
     """
-    z_keys, Xs = interpolation.shapes_to_z(shapes, topology)
-    k = interpolation.check_keyframes(keyframes, len(z_keys))
-    times = np.asarray(times, float)
-    targets = (interpolation.spline_z if smooth else interpolation.piecewise_linear_z)(z_keys, k, times)
-    anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True)]
-    out = [None] * len(times)
-    tree = None
-    for n, i in enumerate(np.argsort(times, kind="stable")):
-        res = interpolation.project_targets(targets[i:i + 1], topology, Xs[0], times=times[i:i + 1], anchors=anchors,
-                                            method=_LACORE_METHOD[method], tree=tree, z_keys=z_keys,
-                                            **_METHOD_OPTIONS[method])
-        tree = res.tree
-        out[i] = res.vertices[0]
-        anchors.append((float(times[i]), out[i]))
-        if progress is not None:
-            progress(n + 1)
-    return out
+    res = keyframe_inbetweens(shapes, topology, keyframes, frames=np.asarray(times, float), smooth=smooth,
+                              method=_LACORE_METHOD[method], progress=progress, **_METHOD_OPTIONS[method])
+    return list(res.vertices)
 
 
 def _check_finite(results, what):
@@ -351,8 +327,8 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
                                               "keyframes it, so remove that animation first (or duplicate the key)")
     shapes = np.stack([coords[names.index(k)] for k in keys])
     baked = _keyframe_shapes(topology, shapes, frames, inbetween, smooth, method, progress) if inbetween else []
-    targets = _piecewise_linear(shapes, frames, inbetween)
-    results = [(n, rigid_fit(X, T)) for n, X, T in zip(out_names, baked, targets, strict=True)]
+    targets = _piecewise_linear(shapes, frames, inbetween) if inbetween else []
+    results = [(n, rigid_align(X, T)) for n, X, T in zip(out_names, baked, targets, strict=True)]
     _check_finite(results, "Bake")
     first, last = frames[0], frames[-1]
     active = {}
@@ -366,14 +342,10 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
 
 
 def _piecewise_linear(shapes, keyframes, frames):
-    """Piecewise-linear blend of the key coordinates at ``frames`` (the placement targets)."""
-    out = []
-    for f in frames:
-        i = int(np.searchsorted(keyframes, f, side="right")) - 1
-        i = min(max(i, 0), len(keyframes) - 2)
-        s = (f - keyframes[i]) / (keyframes[i + 1] - keyframes[i])
-        out.append((1.0 - s) * shapes[i] + s * shapes[i + 1])
-    return out
+    """Piecewise-linear blend of the key coordinates at ``frames`` (the placement targets), list of ``(V, 3)``."""
+    V = len(shapes[0])
+    flat = np.asarray(shapes, float).reshape(len(shapes), 3 * V)
+    return list(piecewise_linear_z(flat, keyframes, frames).reshape(-1, V, 3))
 
 
 # ----------------------------------------------------------------------------- writing
@@ -499,9 +471,9 @@ def write_bake(obj, plan, source):
 
 # ----------------------------------------------------------------------------- operators
 def _error_text(exc):
-    """The message of an expected input error (``ValueError``: MeshAccessError, MeshError,
-    LengthsAnglesError, InterpolationInputError); type and traceback (console) for anything else."""
-    if isinstance(exc, ValueError):
+    """The message of an expected input error (:class:`lacore.errors.InputError`: MeshAccessError, MeshError,
+    LengthsAnglesError, InterpolationInputError); type and traceback (console) for anything else (a bug)."""
+    if isinstance(exc, InputError):
         return str(exc)
     import traceback
 
@@ -510,9 +482,13 @@ def _error_text(exc):
 
 
 def _progress(wm, n):
-    """``(begin, update(i), end)`` on the window manager's progress indicator (no-op in background mode)."""
+    """Begin the window manager's progress indicator (no-op in background mode) and return a
+    :mod:`lacore.progress` callback ``(done, total, message)`` that updates it."""
     wm.progress_begin(0, max(n, 1))
-    return lambda i, _n=None: wm.progress_update(min(int(i), n))
+
+    def update(done, total, message=""):
+        wm.progress_update(min(int(done), n))
+    return update
 
 
 class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):

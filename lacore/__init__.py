@@ -14,6 +14,8 @@ euler_integrability_map         admissibility conditions (:mod:`lacore.integrabi
 integrability_violation         |tr I_v - 3| per vertex
 QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
 reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
+ReconstructionSettings, GaussNewtonOptions, HybridOptions  its settings (:mod:`lacore.reconstruction.settings`)
+SolverResult                    base of every solver's result (:mod:`lacore.result`)
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
 """
@@ -26,7 +28,9 @@ from .lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, 
                              split_z)
 from .progress import Cancelled
 from .projection import project
-from .reconstruction import reconstruct, reconstruction_errors
+from .reconstruction import (GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
+                             reconstruction_errors)
+from .result import SolverResult
 from .rigid import rigid_align, rigid_fit
 from .topology import MeshTopology, check_vertices
 
@@ -52,5 +56,6 @@ __all__ = [
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
+    "ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "SolverResult",
     "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile",
 ]

@@ -88,14 +88,15 @@ Gauss-Newton matrix only neighbouring ones, so ``"vertices"`` scales better in
 """
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import OptimizeResult
 
 from .errors import LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
+from .result import SolverResult
 from .topology import check_vertices
 
 __all__ = [
@@ -109,8 +110,9 @@ __all__ = [
 ]
 
 
-class GeodesicResult(OptimizeResult):
-    """Result of :func:`discrete_geodesic` (a :class:`scipy.optimize.OptimizeResult`).
+@dataclass(kw_only=True, repr=False)
+class GeodesicResult(SolverResult):
+    """Result of :func:`discrete_geodesic` (a :class:`lacore.result.SolverResult`).
 
     Attributes
     ----------
@@ -135,8 +137,14 @@ class GeodesicResult(OptimizeResult):
     multipliers : (K-1, 3 V_int) ndarray or None
         Lagrange multipliers of the integrability constraints (``"sqp"`` only).
     success : bool
+    status : int
+        0 converged, 1 iteration limit, 2 line search failed.
     message : str
     iterations : int
+    nit : int
+        Same as ``iterations`` (``OptimizeResult`` name).
+    timings : dict
+        ``total``: wall time (as ``seconds``).
     history : dict of lists
         Per iteration ``path_energy``, ``constraint_violation``, ``stationarity``
         (``"sqp"``: KKT residual ``|g + A^T lambda|_inf``; ``"vertices"``: gradient
@@ -146,6 +154,23 @@ class GeodesicResult(OptimizeResult):
     method : str
     n_steps : int
     """
+
+    z: np.ndarray
+    vertices: np.ndarray | None = None
+    path_energy: float = float("nan")
+    step_energies: np.ndarray | None = None
+    initial_path_energy: float = float("nan")
+    constraint_violation: float = float("nan")
+    min_triangle_margin: float = float("nan")
+    multipliers: np.ndarray | None = None
+    nit: int = 0
+    history: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    method: str = ""
+    n_steps: int = 0
+
+    _summary_exclude = ("z", "vertices", "multipliers")
+
 
 
 # --------------------------------------------------------------------------- energies
@@ -794,4 +819,4 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         initial_path_energy=initial_energy, constraint_violation=violation, min_triangle_margin=margin,
         multipliers=out["multipliers"], success=bool(success), status=out["status"], message=message,
         iterations=out["iterations"], nit=out["iterations"], history=out["history"],
-        seconds=time.perf_counter() - t0, method=method, n_steps=K)
+        seconds=time.perf_counter() - t0, timings={"total": time.perf_counter() - t0}, method=method, n_steps=K)

@@ -49,13 +49,18 @@ jump.
 """
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.optimize import OptimizeResult
 
-from .errors import LengthsAnglesError, MeshError
+from .errors import InputError, LengthsAnglesError, MeshError
 from .lengths_angles import check_z, lengths_and_angles
+from .progress import report
+from .reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
+from .reconstruction.settings import split_options
+from .reconstruction.spanning_trees import bfs_tree, preassembled_tree
+from .result import SolverResult
 from .topology import MeshTopology, check_vertices
 
 __all__ = [
@@ -69,12 +74,13 @@ __all__ = [
     "spline_z",
 ]
 
-_CONTEXT_SETTINGS = ("energy", "weights", "bending_weight", "fixed_face", "fix_triangle_shape", "solver")
-_FRAME_TREES = {"bfs": "bfs", "mst": "mst", "spt": "spt"}
 
+@dataclass(kw_only=True, repr=False)
+class InterpolationResult(SolverResult):
+    """Frames of :func:`interpolate` / :func:`keyframe_inbetweens` / :func:`project_targets`.
 
-class InterpolationResult(OptimizeResult):
-    """Frames of :func:`interpolate` / :func:`keyframe_inbetweens` (a :class:`scipy.optimize.OptimizeResult`).
+    A :class:`lacore.result.SolverResult` whose ``status`` and ``iterations``
+    hold one entry per frame.
 
     Arrays have one entry per requested frame, in the order requested.
 
@@ -107,18 +113,42 @@ class InterpolationResult(OptimizeResult):
         The set-up shared by all frames (one symbolic factorization).
     tree : DualSpanningTree or None
         The preassembled spanning tree of frame-based methods.
-    keyframes : (K,) ndarray
-        Keyframe times of the input shapes (:func:`interpolate`, :func:`keyframe_inbetweens`).
+    keyframes : (K,) ndarray or None
+        Keyframe times of the input shapes (:func:`interpolate`, :func:`keyframe_inbetweens`;
+        None from :func:`project_targets`).
     smooth : bool
         Whether the targets come from the cubic spline (:func:`spline_z`).
     method : str
     success : bool
         All reconstructions finished normally (``ReconstructionResult.success``).
     message : str
+    timings : dict
+        ``total``: wall time of the whole call (as ``total_seconds``).
     total_seconds : float
         Wall time of the whole call (including encoding and set-up).
     total_iterations : int
     """
+
+    vertices: np.ndarray
+    times: np.ndarray
+    z_targets: np.ndarray
+    energy: np.ndarray
+    seconds: np.ndarray
+    max_length_error: np.ndarray
+    max_angle_error: np.ndarray
+    warm_start_times: np.ndarray
+    order: np.ndarray
+    reconstructions: list = field(default_factory=list)
+    context: object = None
+    tree: object = None
+    keyframes: np.ndarray | None = None
+    smooth: bool = False
+    method: str = "gn"
+    total_seconds: float = 0.0
+    total_iterations: int = 0
+
+    _summary_exclude = ("vertices", "z_targets", "reconstructions", "context", "tree")
+
 
 
 # --------------------------------------------------------------------------- inputs
@@ -152,7 +182,7 @@ def shapes_to_z(shapes, topology):
     else:
         items = list(shapes)
     if len(items) < 2:
-        raise ValueError(f"interpolation needs at least 2 shapes, got {len(items)}")
+        raise InputError(f"interpolation needs at least 2 shapes, got {len(items)}")
     zs, Xs = [], []
     V, E2 = topology.n_vertices, 2 * topology.n_edges
     for k, s in enumerate(items):
@@ -187,15 +217,15 @@ def check_keyframes(keyframes, n_shapes):
         return np.arange(n_shapes, dtype=float)
     k = np.asarray(keyframes, dtype=float)
     if k.ndim != 1:
-        raise ValueError(f"keyframes must be a 1-d sequence of times, got shape {k.shape}")
+        raise InputError(f"keyframes must be a 1-d sequence of times, got shape {k.shape}")
     if len(k) != n_shapes:
-        raise ValueError(f"{len(k)} keyframes given for {n_shapes} shapes: give one keyframe time per shape")
+        raise InputError(f"{len(k)} keyframes given for {n_shapes} shapes: give one keyframe time per shape")
     if not np.all(np.isfinite(k)):
-        raise ValueError(f"keyframes must be finite numbers, got {k.tolist()}")
+        raise InputError(f"keyframes must be finite numbers, got {k.tolist()}")
     bad = np.flatnonzero(np.diff(k) <= 0)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"keyframes must be strictly increasing: keyframe {i + 1} ({k[i + 1]:g}) does not come "
+        raise InputError(f"keyframes must be strictly increasing: keyframe {i + 1} ({k[i + 1]:g}) does not come "
                          f"after keyframe {i} ({k[i]:g})")
     return k
 
@@ -203,10 +233,10 @@ def check_keyframes(keyframes, n_shapes):
 def _check_times(times, name="factors"):
     t = np.atleast_1d(np.asarray(times, dtype=float))
     if t.ndim != 1 or t.size == 0:
-        raise ValueError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
+        raise InputError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise ValueError(f"{name} must be finite; entries {bad.tolist()} are NaN or infinite")
+        raise InputError(f"{name} must be finite; entries {bad.tolist()} are NaN or infinite")
     return t
 
 
@@ -279,27 +309,23 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
 
 
 # --------------------------------------------------------------------------- projection of many frames
-def _split_settings(reconstruct_kw):
-    settings = {k: reconstruct_kw.pop(k) for k in _CONTEXT_SETTINGS if k in reconstruct_kw}
-    return settings, reconstruct_kw
+def _frame_tree(method, hybrid, z_keys, topology, context, tree):
+    """The shared spanning tree of the frame-based methods; None for methods that walk no tree.
 
-
-def _frame_tree(method, z_keys, topology, context, reconstruct_kw, tree):
-    """The shared spanning tree of frame-based methods (None for "gn" and "lsq")."""
-    if tree is not None or method in ("gn", "lsq"):
-        return tree
-    if method == "hybrid" and reconstruct_kw.get("hybrid_start", "tree") == "lsq":
-        return None  # the least-squares start uses no tree
-    from .reconstruction.spanning_trees import bfs_tree, preassembled_tree
-
-    kind = reconstruct_kw.get("hybrid_kind", "mst") if method == "hybrid" else _FRAME_TREES[method]
+    ``"gn"``, ``"lsq"`` and the (default) least-squares start of ``"hybrid"`` use no tree
+    (:func:`lacore.reconstruction.tree_kind`), so none is built for them.
+    """
+    kind = tree_kind(method, hybrid)
+    if tree is not None or kind is None:
+        return tree if kind is not None else None
     if kind == "bfs":
         return bfs_tree(topology, context.fixed_faces)
     return preassembled_tree(z_keys, topology, root_face=context.fixed_faces, kind=kind)
 
 
 def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
-                    warm_start=True, tree=None, z_keys=None, **reconstruct_kw):
+                    warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
+                    progress=None, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
 
     Parameters
@@ -323,34 +349,49 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         Spanning tree for frame-based methods; default preassembled from ``z_keys``.
     z_keys : (n_s, 2E) array_like, optional
         Samples for the preassembled tree; default the targets themselves.
+    settings, options, hybrid : optional
+        :class:`~lacore.reconstruction.ReconstructionSettings` (defines the shared
+        context), :class:`~lacore.reconstruction.GaussNewtonOptions`,
+        :class:`~lacore.reconstruction.HybridOptions`.
+    progress : callable, optional
+        ``progress(done, total, message)`` after every frame (:mod:`lacore.progress`);
+        returning True stops with :class:`lacore.progress.Cancelled`.
     **reconstruct_kw
-        Further options of :func:`~lacore.reconstruction.reconstruct`
+        The fields of these objects as keywords of :func:`~lacore.reconstruction.reconstruct`
         (``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
-        solver`` define the shared context; ``hybrid_kind, smoothing_iterations``
-        and Gauss-Newton options are passed on).
+        solver, hybrid_start, hybrid_kind, smoothing_iterations`` and Gauss-Newton options).
 
     Returns
     -------
     InterpolationResult
-    """
-    from .reconstruction import METHODS, get_context, reconstruct, reconstruction_errors
 
-    t_start = time.perf_counter()
+    Raises
+    ------
+    Cancelled
+        The progress callback asked to stop; ``partial`` is None.
+    """
+    return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
+                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
+                    progress, keyframes=None, smooth=False, t_start=time.perf_counter())
+
+
+def _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
+             setup, progress, keyframes, smooth, t_start):
+    settings, options, hybrid = setup
     if method not in METHODS:
-        raise ValueError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
+        raise InputError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
     Zt = np.asarray(z_targets, float)
     if Zt.ndim != 2 or Zt.shape[1] != 2 * topology.n_edges:
         raise LengthsAnglesError(f"targets must have shape (N, {2 * topology.n_edges}), got {Zt.shape}")
     N = len(Zt)
     times = np.arange(N, dtype=float) if times is None else _check_times(times, "times")
     if len(times) != N:
-        raise ValueError(f"{len(times)} times for {N} targets")
+        raise InputError(f"{len(times)} times for {N} targets")
     for i in np.argsort(times, kind="stable"):  # fail before any work, naming the frame
         check_z(Zt[i], topology, name=f"target at t = {times[i]:g} (extrapolated too far?)")
     X_ref = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    settings, gn_kw = _split_settings(dict(reconstruct_kw))
-    context = get_context(topology, X_ref, **settings)
-    tree = _frame_tree(method, Zt if z_keys is None else np.asarray(z_keys, float), topology, context, gn_kw, tree)
+    context = get_context(topology, X_ref, settings)
+    tree = _frame_tree(method, hybrid, Zt if z_keys is None else np.asarray(z_keys, float), topology, context, tree)
     known_t = [float(t) for t, _ in (anchors or [])]
     known_X = [np.asarray(X, float) for _, X in (anchors or [])]
 
@@ -362,7 +403,8 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     max_len, max_ang = np.empty(N), np.empty(N)
     warm_times = np.full(N, np.nan)
     results = [None] * N
-    for i in order:
+    report(progress, 0, N, "projecting frames")
+    for n, i in enumerate(order):
         t = float(times[i])
         initial = None
         if warm_start and method == "gn" and known_t:
@@ -373,7 +415,7 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         t0 = time.perf_counter()
         try:
             res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
-                              tree=tree, **gn_kw)
+                              tree=tree, options=options, hybrid=hybrid)
         except LengthsAnglesError as exc:
             raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
         seconds[i] = time.perf_counter() - t0
@@ -390,30 +432,33 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
             known_X.append(X)
         else:
             max_len[i] = max_ang[i] = np.nan
+        report(progress, n + 1, N, f"frame {n + 1} of {N} (t = {t:g})")
     success = all(r.success for r in results)
     failed = [float(times[i]) for i in range(N) if not results[i].success]
     message = "all frames projected" if success else f"projection did not finish normally at t = {failed}"
+    total = time.perf_counter() - t_start
     return InterpolationResult(
         vertices=vertices, times=times, z_targets=Zt, energy=energy, iterations=iterations, seconds=seconds,
         max_length_error=max_len, max_angle_error=max_ang, status=status, warm_start_times=warm_times,
         order=order, reconstructions=results, context=context, tree=tree, method=method, success=bool(success),
-        message=message, total_seconds=time.perf_counter() - t_start, total_iterations=int(iterations.sum()))
+        message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total}, total_seconds=total,
+        total_iterations=int(iterations.sum()))
 
 
 def _reference(Xs, reference, reference_vertices, topology):
     if reference_vertices is not None:
         return check_vertices(reference_vertices, topology.n_vertices, name="reference_vertices")
     if int(reference) != reference or not 0 <= reference < len(Xs):
-        raise ValueError(f"reference must be the index of one of the {len(Xs)} shapes, got {reference!r}")
+        raise InputError(f"reference must be the index of one of the {len(Xs)} shapes, got {reference!r}")
     X = Xs[int(reference)]
     if X is None:
-        raise ValueError(f"shape {reference} (the reference) is given as lengths and angles: pass "
+        raise InputError(f"shape {reference} (the reference) is given as lengths and angles: pass "
                          "reference_vertices, or give it as a vertex array")
     return X
 
 
 def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference, reference_vertices, warm_start,
-         tree, reconstruct_kw):
+         tree, setup, progress):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
@@ -423,16 +468,13 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference,
         targets = piecewise_linear_z(z_keys, k, times)
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
-    res = project_targets(targets, topology, X_ref, times=times, anchors=anchors, method=method,
-                          warm_start=warm_start, tree=tree, z_keys=z_keys, **reconstruct_kw)
-    res.keyframes = k
-    res.smooth = bool(smooth)
-    res.total_seconds = time.perf_counter() - t_start
-    return res
+    return _project(targets, topology, X_ref, times, anchors, method, warm_start, tree, z_keys, setup, progress,
+                    keyframes=k, smooth=smooth, t_start=t_start)
 
 
 def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
-                warm_start=True, tree=None, **reconstruct_kw):
+                warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
+                **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
 
     Parameters
@@ -463,10 +505,18 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         from the reference shape.
     tree : DualSpanningTree, optional
         Spanning tree for the frame-based methods (default preassembled from the shapes).
+    settings, options, hybrid : optional
+        :class:`~lacore.reconstruction.ReconstructionSettings`,
+        :class:`~lacore.reconstruction.GaussNewtonOptions`,
+        :class:`~lacore.reconstruction.HybridOptions` of the projection.
+    progress : callable, optional
+        ``progress(done, total, message)`` after every frame (:mod:`lacore.progress`);
+        returning True stops with :class:`lacore.progress.Cancelled`.
     **reconstruct_kw
-        ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
-        solver, hybrid_kind, smoothing_iterations`` and Gauss-Newton options of
-        :func:`lacore.reconstruction.reconstruct`.
+        The fields of these objects as keywords (``energy, weights,
+        bending_weight, fixed_face, fix_triangle_shape, solver, hybrid_start,
+        hybrid_kind, smoothing_iterations`` and Gauss-Newton options of
+        :func:`lacore.reconstruction.reconstruct`).
 
     Returns
     -------
@@ -486,12 +536,14 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         violates the triangle inequality at most faces.
     """
     times = _check_times(factors, "factors")
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
-                warm_start, tree, reconstruct_kw)
+                warm_start, tree, setup, progress)
 
 
 def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
-                        reference=0, reference_vertices=None, warm_start=True, tree=None, **reconstruct_kw):
+                        reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
+                        options=None, hybrid=None, progress=None, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
 
     Parameters
@@ -510,7 +562,7 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         spline in ``z`` through the keyframes (:func:`spline_z`).
     bc_type : str
         Spline boundary condition, default ``"natural"``.
-    method, reference, reference_vertices, warm_start, tree, **reconstruct_kw
+    method, reference, reference_vertices, warm_start, tree, settings, options, hybrid, progress, **reconstruct_kw
         As in :func:`interpolate`.
 
     Returns
@@ -519,11 +571,12 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         ``times`` are the frame numbers.
     """
     if keyframes is None:
-        raise ValueError("keyframe_inbetweens needs the keyframe numbers of the shapes")
+        raise InputError("keyframe_inbetweens needs the keyframe numbers of the shapes")
     k = np.asarray(keyframes, dtype=float)
     if frames is None:
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
     times = _check_times(frames, "frames")
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
-                warm_start, tree, reconstruct_kw)
+                warm_start, tree, setup, progress)

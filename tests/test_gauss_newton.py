@@ -432,7 +432,7 @@ def test_run_gauss_newton_stops_at_the_iteration_cap():
     topo, XA, XB, zA, zB = plate()
     ctx = ReconstructionContext(topo, XA)
     out = run_gauss_newton(ctx.objective(0.5 * (zA + zB)), ctx.to_canonical(XA), ctx, max_iterations=2)
-    assert out["status"] == 0 and out["iterations"] == 2 and len(out["history"]) == 3
+    assert out.status == 0 and not out.success and out.iterations == 2 and len(out.energy_history) == 3
 
 
 # --------------------------------------------------------------------------- reused factorization (PCG)

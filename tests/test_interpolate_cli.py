@@ -9,7 +9,7 @@ import pytest
 from conftest import REPO, shared_mesh
 
 from lacore.cli import SUBCOMMANDS, main
-from lacore.cli_interpolate import frame_times, output_paths
+from lacore.cli.interpolate import frame_times, output_paths
 from lacore.lengths_angles import lengths_and_angles
 from lacore.mesh_io import load_mesh
 from lacore.topology import MeshTopology

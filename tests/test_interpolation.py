@@ -8,8 +8,8 @@ import trimesh
 from conftest import REPO, shared_mesh
 from scipy.interpolate import CubicSpline
 
-import lacore.reconstruction.gauss_newton as gauss_newton
-import lacore.reconstruction.spanning_trees as spanning_trees
+import lacore.interpolation
+import lacore.reconstruction.context as reconstruction_context
 from lacore.errors import LengthsAnglesError, MeshError
 from lacore.interpolation import (check_keyframes, interpolate, keyframe_inbetweens, piecewise_linear_z,
                                   shapes_to_z, spline_z)
@@ -239,12 +239,12 @@ def test_all_frames_share_one_symbolic_factorization(plates, monkeypatch):
     topo = _topology(_load("plate/plate121.ply")[1], len(Xf))   # fresh per-topology caches
     made = []
 
-    class Counting(gauss_newton.SparseCholesky):
+    class Counting(reconstruction_context.SparseCholesky):
         def __init__(self, *args, **kwargs):
             made.append(1)
             super().__init__(*args, **kwargs)
 
-    monkeypatch.setattr(gauss_newton, "SparseCholesky", Counting)
+    monkeypatch.setattr(reconstruction_context, "SparseCholesky", Counting)
     res = interpolate([XA, XB], topo, [0.2, 0.4, 0.6, 0.8])
     again = interpolate([XA, XB], topo, [0.5])
     numeric = sum(r.factorizations for r in res.reconstructions) + again.reconstructions[0].factorizations
@@ -319,18 +319,23 @@ def test_spline_differs_from_linear_between_keys(plates, plate_keys):
 def test_frame_based_methods_share_one_preassembled_tree(plates, monkeypatch):
     topo, (Xf, XA, _) = plates
     calls = []
-    original = spanning_trees.preassembled_tree
+    original = lacore.interpolation.preassembled_tree
 
     def counting(*args, **kwargs):
         calls.append(kwargs.get("kind"))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(spanning_trees, "preassembled_tree", counting)
+    monkeypatch.setattr(lacore.interpolation, "preassembled_tree", counting)
     res = interpolate([Xf, XA], topo, [0.0, 0.3, 0.7, 1.0], method="mst")
     assert calls == ["mst"]
     assert res.tree is not None and res.tree.kind == "mst"
     assert res.max_length_error[0] < 1e-9 and res.max_length_error[-1] < 1e-9   # admissible ends: exact
+    # the default hybrid starts from the least-squares relaxation: no tree is built (nor used)
     hybrid = interpolate([Xf, XA], topo, [0.3, 0.7], method="hybrid")
-    assert calls == ["mst", "mst"]
+    assert calls == ["mst"] and hybrid.tree is None
     assert np.all(np.isfinite(hybrid.vertices))
     assert np.all(hybrid.energy <= res.energy[1:3] * (1 + 1e-9))     # smoothing lowers the frame-based energy
+    # the tree start builds one tree for all frames
+    walk = interpolate([Xf, XA], topo, [0.3, 0.7], method="hybrid", hybrid_start="tree", hybrid_kind="spt")
+    assert calls == ["mst", "spt"] and walk.tree.kind == "spt"
+    assert all(r.method == "hybrid-spt" for r in walk.reconstructions)

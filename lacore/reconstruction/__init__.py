@@ -33,7 +33,7 @@ pays about one numeric factorization instead of one per iteration and frame.
 
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
-see :mod:`.gauss_newton`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
+see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
 the chosen energy, so all methods are comparable.
 
 Reuse
@@ -47,28 +47,52 @@ pass the previous result's vertices as ``initial_vertices``.
 """
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from ..errors import LengthsAnglesError, MeshError, format_indices
+from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
 from ..lengths_angles import check_z, lengths_and_angles
 from ..topology import MeshTopology, check_vertices
 from ..trigonometry import triangle_inequality_margin
-from .gauss_newton import GN_OPTIONS, ReconstructionContext, gauss_newton_reconstruction, get_context
-from .result import STATUS_MESSAGES, ReconstructionResult
+from .context import ReconstructionContext, get_context
+from .frame_based import frame_based_reconstruction
+from .gauss_newton import gauss_newton_reconstruction
+from .least_squares import least_squares_reconstruction
+from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
+from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
 
 __all__ = [
     "reconstruct",
     "reconstruction_errors",
     "ReconstructionResult",
+    "GaussNewtonResult",
     "ReconstructionContext",
+    "ReconstructionSettings",
+    "GaussNewtonOptions",
+    "HybridOptions",
     "get_context",
     "METHODS",
     "STATUS_MESSAGES",
+    "tree_kind",
 ]
 
 METHODS = ("gn", "bfs", "mst", "spt", "lsq", "hybrid")
 _FRAME_KINDS = ("bfs", "mst", "spt")
+
+
+def tree_kind(method, hybrid=None):
+    """The spanning tree kind ``method`` walks (``"bfs"``, ``"mst"``, ``"spt"``), or None if it uses no tree.
+
+    ``"gn"`` and ``"lsq"`` use none, nor does ``"hybrid"`` with the (default)
+    least-squares start; ``hybrid`` is its :class:`HybridOptions`.
+    """
+    if method in _FRAME_KINDS:
+        return method
+    if method == "hybrid":
+        hybrid = hybrid if hybrid is not None else HybridOptions()
+        return hybrid.kind if hybrid.uses_tree else None
+    return None
 
 
 def _check_target(z_target, topology, method, energy):
@@ -86,10 +110,8 @@ def _check_target(z_target, topology, method, energy):
     return z
 
 
-def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="quadratic", bending_weight=1e-3,
-                weights="frohlich_botsch", fixed_face=None, fix_triangle_shape=False, initial_vertices=None,
-                tree=None, hybrid_kind="mst", hybrid_start="lsq", smoothing_iterations=10, solver=None, context=None,
-                **gn_options):
+def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings=None, options=None, hybrid=None,
+                initial_vertices=None, tree=None, context=None, **kwargs):
     """Reconstruct vertex positions from lengths and angles (thesis 3.4).
 
     Parameters
@@ -99,56 +121,34 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="
     topology : MeshTopology
     reference_vertices : (V, 3) array_like
         Reference mesh: weights (3.20)/(3.21) of ``W_q``, start of Gauss-Newton,
-        output frame.
+        output frame.  May be None when ``context`` is given.
     method : {"gn", "bfs", "mst", "spt", "lsq", "hybrid"}
         See the module docstring.
-    energy : {"quadratic", "shells"}
-        ``W_q`` (3.19) or ``W_TS`` (3.25): minimized by ``"gn"``/``"hybrid"``,
-        reported by all methods.
-    bending_weight : float
-        ``eta``, default ``1e-3``.
-    weights : {"frohlich_botsch", "heeren", "uniform"}
-        Weights of ``W_q``: (3.20) (default), (3.21) or 1.
-    fixed_face : int or sequence of int, optional
-        Face fixing the rigid motion (one per connected component); also the
-        root of the frame-based methods.  Default: a central, well-shaped face
-        of the reference mesh.
-    fix_triangle_shape : bool
-        Gauss-Newton holds all nine coordinates of the fixed face instead of
-        only the six rigid motions (see :mod:`.gauss_newton`).
+    settings : ReconstructionSettings, optional
+        Energy (``W_q`` (3.19) or ``W_TS`` (3.25), minimized by ``"gn"``/``"hybrid"``,
+        reported by all methods), weights, bending weight, fixed face (also the
+        root of the frame-based methods), ``fix_triangle_shape``, solver backend.
+        When ``context`` is given, the settings must match it (fields left at
+        their defaults are taken from the context).
+    options : GaussNewtonOptions, optional
+        Iteration and stopping options of ``"gn"`` and of the smoothing of ``"hybrid"``.
+    hybrid : HybridOptions, optional
+        Start (``"lsq"``, default, or ``"tree"``), tree kind and smoothing
+        iterations of ``"hybrid"``.
     initial_vertices : (V, 3) array_like, optional
         Start of ``"gn"`` (default: the reference); ignored by the other methods.
     tree : DualSpanningTree, optional
-        A precomputed tree for ``"bfs"``/``"mst"``/``"spt"``/``"hybrid"``
+        A precomputed tree for ``"bfs"``/``"mst"``/``"spt"`` and the tree start of ``"hybrid"``
         (e.g. :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
-    hybrid_kind : {"mst", "spt", "bfs"}
-        Tree of the frame-based start of ``"hybrid"``.
-    hybrid_start : {"lsq", "tree"}
-        Start of ``"hybrid"``: the least-squares relaxation (default; ``tree`` and
-        ``hybrid_kind`` are then unused) or the frame-based walk along the tree.
-        Measured on the rolled-plate averages, 10 smoothing iterations from the
-        least-squares start end within 0.3 % of the full Gauss-Newton energy
-        (which needs 111 / 291 iterations from the reference), while from the
-        MST walk they stay 80x / 27000x above it.
-    smoothing_iterations : int
-        At most this many Gauss-Newton iterations of ``"hybrid"`` (default 10;
-        they stop earlier once converged).
-    solver : {"cholmod", "scipy"}, optional
-        Sparse Cholesky backend (default CHOLMOD if cvxopt is installed).
     context : ReconstructionContext, optional
-        Shared set-up; when given, the settings above (``energy`` ...
-        ``fix_triangle_shape``, ``solver``) must be left at their defaults or
-        match the context.
-    **gn_options
-        Gauss-Newton options, see :data:`~lacore.reconstruction.gauss_newton.GN_OPTIONS`
-        (``max_iterations, ftol, gtol, xtol, atol``; ``reuse_factorization,
-        pcg_rtol, pcg_maxiter`` for inexact steps by conjugate gradients
-        preconditioned with the factorization the context already holds;
-        ``reuse_near_convergence`` (default True: such steps only in the final,
-        fast-converging phase, to tolerances that vanish with the residual) and
-        ``geodesic_acceleration`` (default True, ``W_q``: a second-order
-        correction of each step along the residual's curvature, never folding
-        an edge that was not folded)).
+        Shared set-up (weights, fixed face, pattern, symbolic factorization).
+    **kwargs
+        The fields of the three objects as keywords, overriding them (the
+        historical signature): ``energy, weights, bending_weight, fixed_face,
+        fix_triangle_shape, solver``; ``max_iterations, ftol, gtol, xtol, atol,
+        reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
+        geodesic_acceleration``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
+        See :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
     -------
@@ -163,8 +163,11 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="
     MeshError
         Reference (or initial) vertices that do not match the topology, a bad
         fixed face.
-    ValueError
-        Unknown method, energy, weights or option.
+    InputError
+        Unknown method, energy, weights, an invalid option value, settings that
+        differ from the given context.
+    TypeError
+        Unknown keyword.
 
     Notes
     -----
@@ -177,94 +180,64 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, energy="
     if not isinstance(topology, MeshTopology):
         raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
     if method not in METHODS:
-        raise ValueError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
-    if hybrid_kind not in _FRAME_KINDS:
-        raise ValueError(f"unknown hybrid_kind {hybrid_kind!r}; use one of {', '.join(_FRAME_KINDS)}")
-    unknown = sorted(set(gn_options) - set(GN_OPTIONS))
-    if unknown:
-        raise TypeError(f"reconstruct() got unknown options {unknown}; Gauss-Newton options are {sorted(GN_OPTIONS)}")
-    if hybrid_start not in ("tree", "lsq"):
-        raise ValueError(f"unknown hybrid_start {hybrid_start!r}; use 'tree' or 'lsq'")
-    if int(smoothing_iterations) != smoothing_iterations or smoothing_iterations < 0:
-        raise ValueError(f"smoothing_iterations must be a non-negative integer, got {smoothing_iterations!r}")
-    settings = {"energy": energy, "weights": weights, "bending_weight": bending_weight, "fixed_face": fixed_face,
-                "fix_triangle_shape": fix_triangle_shape, "solver": solver}
+        raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
+    settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
     if context is None:
-        context = get_context(topology, reference_vertices, **settings)
+        context = get_context(topology, reference_vertices, settings)
     else:
-        _check_context(context, topology, reference_vertices, settings)
+        _check_context(context, topology, reference_vertices, settings, given)
     z = _check_target(z_target, topology, method, context.energy_name)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
         return gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                           **gn_options)
+                                           options=options, started=t_start)
 
-    kind = hybrid_kind if method == "hybrid" else method
+    kind = tree_kind(method, hybrid)
     t0 = time.perf_counter()
-    if method == "lsq" or (method == "hybrid" and hybrid_start == "lsq"):
-        kind = "lsq"
-        X = _least_squares(z, topology, context)
+    if kind is None:
+        X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
+                                         reference_vertices=context.reference_vertices)
     else:
-        X = _frame_based(z, topology, context, kind, tree)
+        X = frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
+                                       reference_vertices=context.reference_vertices)
     try:
         X = context.align(X)  # the fixed face placed exactly as for Gauss-Newton
     except MeshError:
         pass  # a degenerate fixed face (target violates the triangle inequality there): keep the method's placement
-    t_direct = time.perf_counter() - t0
+    direct = {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
     if method == "hybrid":
-        opts = dict(gn_options, max_iterations=int(smoothing_iterations))
-        res = gauss_newton_reconstruction(z, topology, initial_vertices=X, context=context,
-                                          method_name=f"hybrid-{kind}", **opts)
-        if res.status == 0:
-            res.success = True
-            res.message = f"{smoothing_iterations} smoothing iterations done"
-        res.timings["frame_based" if kind != "lsq" else "least_squares"] = t_direct
-        res.timings["total"] = time.perf_counter() - t_start
-        return res
+        n = hybrid.smoothing_iterations
+        return gauss_newton_reconstruction(
+            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
+            method_name=f"hybrid-{kind or 'lsq'}", extra_timings=direct, started=t_start,
+            success_status=(6, f"{n} smoothing iterations done"))
     energy_value = context.energy(z, X)
-    t_total = time.perf_counter() - t_start
     return ReconstructionResult(vertices=X, success=bool(np.all(np.isfinite(X))), status=5,
                                 message=STATUS_MESSAGES[5], method=method, energy=energy_value,
                                 energy_name=context.energy_name, energy_history=[energy_value],
-                                timings={"frame_based" if method != "lsq" else "least_squares": t_direct,
-                                         "total": t_total},
+                                timings={**direct, "total": time.perf_counter() - t_start},
                                 fixed_face=context.fixed_face)
 
 
-def _check_context(context, topology, reference_vertices, settings):
+def _check_context(context, topology, reference_vertices, settings, given):
+    """InputError unless the explicitly given settings (names in ``given``) match the context's."""
     if context.topology is not topology:
-        raise ValueError("the context was made for another topology")
+        raise InputError("the context was made for another topology")
     if reference_vertices is not None:
         X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
         if not np.array_equal(X, context.reference_vertices):
-            raise ValueError("the context was made for other reference vertices")
-    theirs = {"energy": context.energy_name, "weights": context.weights_kind,
-              "bending_weight": context.bending_weight, "fix_triangle_shape": context.fix_triangle_shape,
-              "solver": context.backend}
-    defaults = {"energy": "quadratic", "weights": "frohlich_botsch", "bending_weight": 1e-3,
-                "fix_triangle_shape": False, "solver": None}
-    for k, v in theirs.items():
-        if settings[k] != defaults[k] and settings[k] != v:
-            raise ValueError(f"{k}={settings[k]!r} differs from the context's {v!r}")
-    ff = settings["fixed_face"]
-    if ff is not None and not np.all(np.isin(np.atleast_1d(ff), context.fixed_faces)):
-        raise ValueError(f"fixed_face {ff!r} differs from the context's {context.fixed_faces.tolist()}")
-
-
-def _frame_based(z, topology, context, kind, tree):
-    from .frame_based import frame_based_reconstruction
-
-    return frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
-                                      reference_vertices=context.reference_vertices)
-
-
-def _least_squares(z, topology, context):
-    from .least_squares import least_squares_reconstruction
-
-    return least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
-                                        reference_vertices=context.reference_vertices)
+            raise InputError("the context was made for other reference vertices")
+    theirs = context.settings
+    for k in sorted(given - {"fixed_face", "solver"}):
+        if getattr(settings, k) != getattr(theirs, k):
+            raise InputError(f"{k}={getattr(settings, k)!r} differs from the context's {getattr(theirs, k)!r}")
+    if "solver" in given and settings.solver is not None and settings.solver != context.backend:
+        raise InputError(f"solver={settings.solver!r} differs from the context's {context.backend!r}")
+    ff = settings.fixed_face
+    if "fixed_face" in given and ff is not None and not np.all(np.isin(ff, context.fixed_faces)):
+        raise InputError(f"fixed_face {list(ff)!r} differs from the context's {context.fixed_faces.tolist()}")
 
 
 def reconstruction_errors(vertices, z_target, topology):

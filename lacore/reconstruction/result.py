@@ -1,12 +1,14 @@
-"""The result object of every reconstruction method (like :class:`scipy.optimize.OptimizeResult`)."""
+"""Results of the reconstruction solvers (subclasses of :class:`lacore.result.SolverResult`)."""
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ReconstructionResult", "STATUS_MESSAGES"]
+from ..result import SolverResult
 
-#: Meaning of :attr:`ReconstructionResult.status`.
+__all__ = ["ReconstructionResult", "GaussNewtonResult", "STATUS_MESSAGES"]
+
+#: Meaning of :attr:`ReconstructionResult.status` (and :attr:`GaussNewtonResult.status`).
 STATUS_MESSAGES = {
     -2: "the linear system could not be solved (not positive definite even after regularization)",
     -1: "the line search found no step that decreases the energy",
@@ -16,20 +18,63 @@ STATUS_MESSAGES = {
     3: "the gradient norm fell below gtol",
     4: "the step size fell below xtol",
     5: "direct (non-iterative) reconstruction",
+    6: "the smoothing iterations of the hybrid method are done",
 }
 
 
-@dataclass
-class ReconstructionResult:
-    """Outcome of a reconstruction ``z* -> X``.
+@dataclass(kw_only=True, repr=False)
+class GaussNewtonResult(SolverResult):
+    """Outcome of :func:`lacore.reconstruction.gauss_newton.run_gauss_newton` (canonical coordinates).
+
+    Attributes
+    ----------
+    x : (V, 3) ndarray
+        The final iterate, in the canonical coordinates of the context.
+    success, status, message, iterations, timings
+        See :class:`lacore.result.SolverResult`; ``status`` codes in
+        :data:`STATUS_MESSAGES` (``success`` is ``status > 0``).  Timings:
+        ``assembly, factorization, solve, line_search, acceleration``.
+    energy, initial_energy : float
+        Energy at the final and at the starting point.
+    energy_history : list of float
+        Energy after every iteration, starting with the initial energy.
+    gradient_norm : float
+        Max-norm of the gradient in the free coordinates at the final point.
+    step_sizes : list of float
+        Accepted line-search step sizes (1.0 = full step).
+    regularization : list of float
+        Diagonal shift per numeric factorization (0.0 = exact).
+    function_evaluations, factorizations : int
+    pcg_iterations : list of int
+        Per step, the PCG iterations used (0 for an exact step with a fresh factorization).
+    """
+
+    x: np.ndarray
+    energy: float = float("nan")
+    initial_energy: float = float("nan")
+    energy_history: list = field(default_factory=list)
+    gradient_norm: float = float("nan")
+    step_sizes: list = field(default_factory=list)
+    regularization: list = field(default_factory=list)
+    function_evaluations: int = 0
+    factorizations: int = 0
+    pcg_iterations: list = field(default_factory=list)
+
+    _summary_exclude = ("x",)
+
+
+@dataclass(kw_only=True, repr=False)
+class ReconstructionResult(SolverResult):
+    """Outcome of a reconstruction ``z* -> X`` (:func:`lacore.reconstruction.reconstruct`).
 
     Attributes
     ----------
     vertices : (V, 3) ndarray
         The reconstructed immersion, in the frame of the reference mesh (see
-        :mod:`lacore.reconstruction.gauss_newton`, "Rigid motions").
+        :mod:`lacore.reconstruction.context`, "Rigid motions").
     success : bool
-        Whether the method finished normally (converged, or a direct method ran).
+        Whether the method finished normally (converged, a direct method ran,
+        or the hybrid method did its smoothing iterations): ``status > 0``.
     status : int
         Reason code, see :data:`STATUS_MESSAGES`.
     message : str
@@ -65,8 +110,9 @@ class ReconstructionResult:
     timings : dict
         Seconds spent in ``assembly`` (Jacobian, gradient, Gauss-Newton matrix),
         ``factorization``, ``solve``, ``line_search``, ``acceleration`` (geodesic
-        acceleration of Gauss-Newton steps), ``initialization`` (frame
-        based start, set-up) and ``total``.
+        acceleration of Gauss-Newton steps), ``initialization`` (set-up),
+        ``frame_based`` / ``least_squares`` (a direct method or the hybrid
+        start) and ``total``.
     fixed_face : int
         The face fixing the rigid motion (and the root face of frame-based methods).
     backend : str
@@ -74,11 +120,7 @@ class ReconstructionResult:
     """
 
     vertices: np.ndarray
-    success: bool
-    status: int
-    message: str
     method: str
-    iterations: int = 0
     energy: float = float("nan")
     energy_name: str = "quadratic"
     initial_energy: float = float("nan")
@@ -89,40 +131,7 @@ class ReconstructionResult:
     function_evaluations: int = 0
     factorizations: int = 0
     pcg_iterations: list = field(default_factory=list)
-    timings: dict = field(default_factory=dict)
     fixed_face: int = -1
     backend: str = ""
 
-    def __repr__(self):
-        lines = [f"{type(self).__name__}("]
-        for k, v in asdict(self).items():
-            if isinstance(v, np.ndarray):
-                v = f"<array {v.shape} {v.dtype}>"
-            elif isinstance(v, list) and len(v) > 6:
-                v = f"[{', '.join(f'{x:.6g}' for x in v[:3])}, ..., {v[-1]:.6g}] ({len(v)} entries)"
-            elif isinstance(v, dict):
-                v = "{" + ", ".join(f"{a!r}: {b:.4g}" for a, b in v.items()) + "}"
-            lines.append(f"    {k}={v},")
-        return "\n".join(lines) + "\n)"
-
-    def summary(self):
-        """A JSON-serializable dict of the scalar fields (no vertex array)."""
-        def clean(x):
-            if isinstance(x, float) and not np.isfinite(x):
-                return None
-            return x
-        out = {k: v for k, v in asdict(self).items() if k != "vertices"}
-        out["energy_history"] = [clean(float(x)) for x in self.energy_history]
-        out["step_sizes"] = [float(x) for x in self.step_sizes]
-        out["regularization"] = [float(x) for x in self.regularization]
-        out["timings"] = {k: float(v) for k, v in self.timings.items()}
-        for k in ("energy", "initial_energy", "gradient_norm"):
-            out[k] = clean(float(out[k]))
-        out["success"] = bool(self.success)
-        out["status"] = int(self.status)
-        out["iterations"] = int(self.iterations)
-        out["fixed_face"] = int(self.fixed_face)
-        out["function_evaluations"] = int(self.function_evaluations)
-        out["factorizations"] = int(self.factorizations)
-        out["pcg_iterations"] = [int(k) for k in self.pcg_iterations]
-        return out
+    _summary_exclude = ("vertices",)

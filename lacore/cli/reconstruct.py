@@ -22,14 +22,20 @@ iterations, seconds, energy, max_length_error, max_angle_error``.  Bad input
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
-import json
 import os
 import sys
 import time
 
 import numpy as np
 
-from .errors import MeshError
+from ..errors import MeshError
+from ..lengths_angles import check_nondegenerate, lengths_and_angles
+from ..mesh_io import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
+from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
+                              reconstruction_errors)
+from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
+from ..topology import MeshTopology
+from .common import EXIT_OK, CliError, print_json
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -37,8 +43,8 @@ HELP = "reconstruct a mesh from (weighted sums of) lengths and angles"
 
 
 def configure(parser):
-    """Declare the arguments of ``lacore reconstruct``."""
-    from .reconstruction import METHODS
+    """Declare the arguments of ``lacore reconstruct`` (defaults from the settings dataclasses)."""
+    settings, gn, hybrid = ReconstructionSettings(), GaussNewtonOptions(), HybridOptions()
 
     parser.add_argument("--ref", required=True, metavar="REF",
                         help="reference mesh: weights of the energy, start of Gauss-Newton, output frame")
@@ -49,23 +55,24 @@ def configure(parser):
     parser.add_argument("--method", choices=METHODS, default="gn",
                         help="gn: Gauss-Newton (default); bfs/mst/spt: frame-based; lsq: least squares; "
                              "hybrid: least-squares (or tree) start + Gauss-Newton smoothing")
-    parser.add_argument("--energy", choices=("quadratic", "shells"), default="quadratic",
-                        help="energy W[z*, Z(X)] minimized and reported (default quadratic W_q)")
-    parser.add_argument("--bending-weight", type=float, default=1e-3, metavar="ETA",
-                        help="bending weight eta (default 1e-3)")
-    parser.add_argument("--energy-weights", choices=("frohlich_botsch", "heeren", "uniform"),
-                        default="frohlich_botsch", help="weights of W_q: (3.20) (default), (3.21) or 1")
-    parser.add_argument("--hybrid-start", choices=("lsq", "tree"), default="lsq",
+    parser.add_argument("--energy", choices=ENERGIES, default=settings.energy,
+                        help=f"energy W[z*, Z(X)] minimized and reported (default {settings.energy} W_q)")
+    parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
+                        help=f"bending weight eta (default {settings.bending_weight:g})")
+    parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
+                        help="weights of W_q: (3.20) (default), (3.21) or 1")
+    parser.add_argument("--hybrid-start", choices=HYBRID_STARTS, default=hybrid.start,
                         help="start of --method hybrid: least-squares relaxation (default) or a tree walk")
-    parser.add_argument("--hybrid-kind", choices=("mst", "spt", "bfs"), default="mst",
-                        help="spanning tree of the tree-walk start of --method hybrid (default mst)")
-    parser.add_argument("--smoothing-iterations", type=int, default=10, metavar="K",
-                        help="at most K Gauss-Newton iterations of --method hybrid (default 10)")
-    parser.add_argument("--max-iterations", type=int, default=100, metavar="N",
-                        help="Gauss-Newton iteration limit (default 100)")
+    parser.add_argument("--hybrid-kind", choices=FRAME_KINDS, default=hybrid.kind,
+                        help=f"spanning tree of the tree-walk start of --method hybrid (default {hybrid.kind})")
+    parser.add_argument("--smoothing-iterations", type=int, default=hybrid.smoothing_iterations, metavar="K",
+                        help=f"at most K Gauss-Newton iterations of --method hybrid "
+                             f"(default {hybrid.smoothing_iterations})")
+    parser.add_argument("--max-iterations", type=int, default=gn.max_iterations, metavar="N",
+                        help=f"Gauss-Newton iteration limit (default {gn.max_iterations})")
     parser.add_argument("--fixed-face", type=int, metavar="F",
                         help="face fixing the rigid motion (default: a central, well-shaped face)")
-    parser.add_argument("--solver", choices=("cholmod", "scipy"),
+    parser.add_argument("--solver", choices=SOLVERS,
                         help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output mesh (.ply, .obj, .off, .stl) or .npz (vertices, faces, z)")
@@ -73,20 +80,12 @@ def configure(parser):
 
 
 def _error(msg):
-    """Bad input about meshes or targets (reported by :func:`lacore.cli.main` with exit code 2).
-
-    A :class:`~lacore.errors.MeshError` rather than ``lacore.cli.CliError``, so
-    that it is caught also when the CLI runs as ``python -m lacore.cli`` (where
-    ``lacore.cli`` is imported twice).
-    """
+    """Bad input about meshes or targets (reported by :func:`lacore.cli.main` with exit code 2)."""
     return MeshError(msg)
 
 
 def load_target(path, reference_faces, topology):
     """Lengths and angles ``(2E,)`` of one target (mesh or ``lacore encode`` .npz), in ``topology``'s edge order."""
-    from .lengths_angles import check_nondegenerate, lengths_and_angles
-    from .mesh_io import load_mesh
-
     if not os.path.exists(path):
         raise FileNotFoundError(f"{path}: no such file")
     if path.lower().endswith(".npz"):
@@ -148,15 +147,13 @@ def combine_targets(zs, weights=None):
         weights = np.full(len(zs), 1.0 / len(zs))
     weights = np.asarray(weights, float)
     if weights.shape != (len(zs),):
-        raise ValueError(f"got {len(weights)} weights for {len(zs)} targets")
+        raise CliError(f"got {len(weights)} weights for {len(zs)} targets")
     if not np.all(np.isfinite(weights)):
-        raise ValueError("the weights must be finite numbers")
+        raise CliError("the weights must be finite numbers")
     return weights @ zs, weights
 
 
 def _save(path, vertices, faces, z):
-    from .mesh_io import save_mesh
-
     if path.lower().endswith(".npz"):
         np.savez(path, vertices=vertices, faces=faces, z=z)
     else:
@@ -165,11 +162,6 @@ def _save(path, vertices, faces, z):
 
 def run(args):
     """Run ``lacore reconstruct``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
-    from .lengths_angles import check_nondegenerate, lengths_and_angles
-    from .mesh_io import SUPPORTED_EXTENSIONS, load_mesh
-    from .reconstruction import reconstruct, reconstruction_errors
-    from .topology import MeshTopology
-
     start = time.perf_counter()
     out_ext = os.path.splitext(args.output)[1].lower()
     if out_ext not in SUPPORTED_EXTENSIONS + (".npz",):
@@ -182,11 +174,13 @@ def run(args):
     z_target, weights = combine_targets(zs, args.weights)
     t_load = time.perf_counter() - start
 
-    result = reconstruct(z_target, topology, ref_vertices, method=args.method, energy=args.energy,
-                         bending_weight=args.bending_weight, weights=args.energy_weights,
-                         fixed_face=args.fixed_face, hybrid_kind=args.hybrid_kind, hybrid_start=args.hybrid_start,
-                         smoothing_iterations=args.smoothing_iterations, max_iterations=args.max_iterations,
-                         solver=args.solver)
+    settings = ReconstructionSettings(energy=args.energy, weights=args.energy_weights,
+                                      bending_weight=args.bending_weight, fixed_face=args.fixed_face,
+                                      solver=args.solver)
+    hybrid = HybridOptions(start=args.hybrid_start, kind=args.hybrid_kind,
+                           smoothing_iterations=args.smoothing_iterations)
+    result = reconstruct(z_target, topology, ref_vertices, method=args.method, settings=settings,
+                         options=GaussNewtonOptions(max_iterations=args.max_iterations), hybrid=hybrid)
     errors = reconstruction_errors(result.vertices, z_target, topology)
     t = time.perf_counter()
     _save(args.output, result.vertices, topology.faces, lengths_and_angles(result.vertices, topology))
@@ -210,8 +204,7 @@ def run(args):
             "load_seconds": t_load,
             "save_seconds": t_save,
         }
-        json.dump(summary, sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        print_json(summary)
     else:
         print(f"{args.output}: {result.method} reconstruction of {len(args.target)} target(s), "
               f"{topology.n_vertices} vertices")
@@ -219,4 +212,4 @@ def run(args):
               f"({result.energy_name})")
         print(f"  max length error {errors['max_length_error']:.3g}, max angle error "
               f"{errors['max_angle_error']:.3g} rad; {seconds:.3f} s")
-    return 0
+    return EXIT_OK

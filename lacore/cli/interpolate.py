@@ -31,14 +31,19 @@ count, keyframes not strictly increasing) exits with code 2 and a message.
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
-import json
 import os
 import sys
 import time
 
 import numpy as np
 
-from .errors import MeshError
+from ..errors import MeshError
+from ..lengths_angles import check_nondegenerate
+from ..mesh_io import load_mesh, save_mesh
+from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
+from ..reconstruction.settings import SOLVERS, WEIGHTS
+from ..topology import MeshTopology
+from .common import EXIT_OK, CliError, json_float, print_json
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -48,8 +53,8 @@ _FORMATS = ("ply", "obj", "off", "stl")
 
 
 def configure(parser):
-    """Declare the arguments of ``lacore interpolate``."""
-    from .reconstruction import METHODS
+    """Declare the arguments of ``lacore interpolate`` (defaults from the settings dataclasses)."""
+    settings, gn = ReconstructionSettings(), GaussNewtonOptions()
 
     parser.add_argument("meshes", nargs="+", metavar="MESH",
                         help="two or more meshes in dense correspondence (same vertices and faces)")
@@ -67,15 +72,15 @@ def configure(parser):
                              "bfs/mst/spt (frame-based, one preassembled tree), lsq")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
                         help="index of the mesh giving the energy weights and the output frame (default 0)")
-    parser.add_argument("--bending-weight", type=float, default=1e-3, metavar="ETA",
-                        help="bending weight eta of W_q (default 1e-3)")
-    parser.add_argument("--energy-weights", choices=("frohlich_botsch", "heeren", "uniform"),
-                        default="frohlich_botsch", help="weights of W_q: (3.20) (default), (3.21) or 1")
-    parser.add_argument("--max-iterations", type=int, default=100, metavar="N",
-                        help="Gauss-Newton iteration limit per frame (default 100)")
+    parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
+                        help=f"bending weight eta of W_q (default {settings.bending_weight:g})")
+    parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
+                        help="weights of W_q: (3.20) (default), (3.21) or 1")
+    parser.add_argument("--max-iterations", type=int, default=gn.max_iterations, metavar="N",
+                        help=f"Gauss-Newton iteration limit per frame (default {gn.max_iterations})")
     parser.add_argument("--no-warm-start", action="store_true",
                         help="start every Gauss-Newton projection from the reference mesh")
-    parser.add_argument("--solver", choices=("cholmod", "scipy"),
+    parser.add_argument("--solver", choices=SOLVERS,
                         help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
                         help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
@@ -92,18 +97,14 @@ def output_paths(prefix, n, extension="ply"):
 def frame_times(keyframes, n_frames):
     """``n_frames`` evenly spaced times from the first to the last keyframe, inclusive."""
     if n_frames < 1:
-        raise ValueError(f"--frames must be at least 1, got {n_frames}")
+        raise CliError(f"--frames must be at least 1, got {n_frames}")
     return np.linspace(float(keyframes[0]), float(keyframes[-1]), int(n_frames))
 
 
 def _load_shapes(paths):
     """Vertices of all meshes, the faces and topology of the first; errors for meshes not in correspondence."""
-    from .lengths_angles import check_nondegenerate
-    from .mesh_io import load_mesh
-    from .topology import MeshTopology
-
     if len(paths) < 2:
-        raise ValueError(f"interpolation needs at least 2 meshes, got {len(paths)}")
+        raise CliError(f"interpolation needs at least 2 meshes, got {len(paths)}")
     X0, faces = load_mesh(paths[0])
     topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
     shapes = [check_nondegenerate(X0, topology)]
@@ -118,15 +119,11 @@ def _load_shapes(paths):
     return shapes, topology
 
 
-def _float(x):
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
 def run(args):
     """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
-    from .interpolation import check_keyframes, keyframe_inbetweens
-    from .mesh_io import save_mesh
+    # imported here on purpose: lacore.interpolation pulls in scipy.interpolate (~0.4 s), which the other
+    # subcommands do not need
+    from ..interpolation import check_keyframes, keyframe_inbetweens
 
     start = time.perf_counter()
     shapes, topology = _load_shapes(args.meshes)
@@ -136,7 +133,7 @@ def run(args):
     else:
         times, mode = frame_times(keyframes, args.frames), "frame"
     if not 0 <= args.reference < len(shapes):
-        raise ValueError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
+        raise CliError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
     out_dir = os.path.dirname(args.output)
     if out_dir and not os.path.isdir(out_dir):
         raise FileNotFoundError(f"output directory {out_dir} does not exist")
@@ -144,8 +141,9 @@ def run(args):
 
     result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
                                  method=args.method, reference=args.reference, warm_start=not args.no_warm_start,
-                                 bending_weight=args.bending_weight, weights=args.energy_weights,
-                                 max_iterations=args.max_iterations, solver=args.solver)
+                                 settings=ReconstructionSettings(bending_weight=args.bending_weight,
+                                                                 weights=args.energy_weights, solver=args.solver),
+                                 options=GaussNewtonOptions(max_iterations=args.max_iterations))
     paths = output_paths(args.output, len(times), args.format)
     t = time.perf_counter()
     for path, X in zip(paths, result.vertices, strict=True):
@@ -160,10 +158,11 @@ def run(args):
         item = {"file": path, "factor": float(times[i])}
         if mode == "frame":
             item["frame"] = float(times[i])
-        item.update({"seconds": float(result.seconds[i]), "energy": _float(result.energy[i]),
-                     "iterations": int(result.iterations[i]), "max_length_error": _float(result.max_length_error[i]),
-                     "max_angle_error": _float(result.max_angle_error[i]), "status": int(result.status[i]),
-                     "warm_start_from": _float(result.warm_start_times[i])})
+        item.update({"seconds": float(result.seconds[i]), "energy": json_float(result.energy[i]),
+                     "iterations": int(result.iterations[i]),
+                     "max_length_error": json_float(result.max_length_error[i]),
+                     "max_angle_error": json_float(result.max_angle_error[i]), "status": int(result.status[i]),
+                     "warm_start_from": json_float(result.warm_start_times[i])})
         outputs.append(item)
     if args.json:
         summary = {
@@ -182,15 +181,14 @@ def run(args):
                 "seconds": seconds,
                 "projection_seconds": float(np.sum(result.seconds)),
                 "iterations": int(result.total_iterations),
-                "max_length_error": _float(np.max(result.max_length_error)),
-                "max_angle_error": _float(np.max(result.max_angle_error)),
+                "max_length_error": json_float(np.max(result.max_length_error)),
+                "max_angle_error": json_float(np.max(result.max_angle_error)),
                 "load_seconds": t_load,
                 "save_seconds": t_save,
             },
             "success": bool(result.success),
         }
-        json.dump(summary, sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        print_json(summary)
     else:
         print(f"{len(paths)} frames of {len(shapes)} meshes ({topology.n_vertices} vertices), method {args.method}"
               f"{', cubic spline' if args.smooth_spline else ''}:")
@@ -199,4 +197,4 @@ def run(args):
                   f"{result.energy[i]:.4g}, max length error {result.max_length_error[i]:.3g}, "
                   f"max angle error {result.max_angle_error[i]:.3g} rad, {item['seconds']:.3f} s")
         print(f"  total {seconds:.3f} s")
-    return 0
+    return EXIT_OK

@@ -1,0 +1,76 @@
+"""Command line interface: ``lacore <subcommand> ...`` (also ``python -m lacore.cli``).
+
+One module per subcommand (:mod:`.encode`, :mod:`.reconstruct`,
+:mod:`.interpolate`), each with ``HELP``, ``configure(parser)`` (declares its
+arguments) and ``run(args) -> int``; they are registered in :data:`SUBCOMMANDS`
+(name -> :class:`Subcommand`) by :func:`register_subcommand` below.  To add one,
+write such a module and register it here.
+
+Conventions shared by all subcommands:
+
+* ``--json`` prints exactly ONE JSON object on stdout (nothing else on stdout);
+* bad input -- a :class:`lacore.errors.InputError` (invalid mesh, target,
+  option; :class:`CliError` is one) or an ``OSError`` (missing, unreadable or
+  unwritable file) -- prints ``lacore <cmd>: error: ...`` on stderr and exits
+  with code 2, without a traceback; any other exception is a bug and shows its
+  traceback;
+* results go to ``.npz`` files (``numpy.load``) with documented keys.
+"""
+
+import argparse
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from ..errors import InputError
+from . import encode, interpolate, reconstruct
+from .common import EXIT_OK, EXIT_USAGE, CliError
+from .encode import encode_mesh
+
+__all__ = ["main", "Subcommand", "SUBCOMMANDS", "register_subcommand", "CliError", "encode_mesh", "EXIT_OK",
+           "EXIT_USAGE"]
+
+
+@dataclass(frozen=True)
+class Subcommand:
+    name: str
+    help: str
+    configure: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+
+
+SUBCOMMANDS: dict[str, Subcommand] = {}
+
+
+def register_subcommand(name, help, configure, run):
+    """Register (or replace) a subcommand; see the module docstring."""
+    SUBCOMMANDS[name] = Subcommand(name, help, configure, run)
+
+
+register_subcommand("encode", encode.HELP, encode.configure, encode.run)
+register_subcommand("reconstruct", reconstruct.HELP, reconstruct.configure, reconstruct.run)
+register_subcommand("interpolate", interpolate.HELP, interpolate.configure, interpolate.run)
+
+
+# --------------------------------------------------------------------------- main
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="lacore", description="Lengths & Angles: shape processing in lengths and dihedral angles.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for cmd in SUBCOMMANDS.values():
+        p = sub.add_parser(cmd.name, help=cmd.help, description=cmd.help)
+        cmd.configure(p)
+        p.set_defaults(_subcommand=cmd)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of the ``lacore`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    cmd = args._subcommand
+    try:
+        return int(cmd.run(args) or 0)
+    except (InputError, OSError) as exc:
+        print(f"lacore {cmd.name}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE

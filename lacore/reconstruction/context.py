@@ -1,0 +1,309 @@
+"""The shared set-up of reconstructions: :class:`ReconstructionContext` and :func:`get_context` (thesis 3.4.1).
+
+Rigid motions
+-------------
+``Z`` is invariant under rigid motions, so ``J^T W J`` has a 6-dimensional
+kernel per connected component.  The motion is fixed by the 3-2-1 rule on one
+triangle per component (``fixed_face``, vertices ``a, b, c``): in the
+triangle's frame (origin ``X_a``, x axis along ``X_b - X_a``, z axis along its
+normal) the coordinates ``a.xyz``, ``b.yz`` and ``c.z`` are held at 0.  These
+six constraints only remove the rigid motions, so the minimizer is exactly the
+one of (3.26); the triangle itself may change shape.  With
+``fix_triangle_shape=True`` all nine coordinates of the triangle are held (the
+practice of the thesis' experiments, section 3.4.3): its shape then stays that
+of the starting mesh, which biases the result when the target changes that
+triangle.
+
+The output is expressed in the frame the *reference* mesh gives the fixed
+triangle: ``X_a`` is exactly the reference position, ``X_b`` lies on the
+reference ray ``a -> b`` and ``X_c`` in the reference plane of the triangle, on
+the same side (an undeformed triangle sits exactly where the reference has it,
+up to round-off).  The starting mesh may be placed anywhere.
+
+The default fixed face of a component is its central, well-shaped face on the
+reference mesh (:func:`lacore.reconstruction.spanning_trees.default_root_faces`),
+the same face that roots the frame-based reconstructions; choosing it on the
+reference (not on ``z*``) keeps all frames of an animation in one placement.
+
+Factorization
+-------------
+The symbolic Cholesky factorization of the Gauss-Newton pattern
+(:class:`lacore.sparse_cholesky.SparseCholesky`, CHOLMOD when available) is made
+once per context.  Its fill-reducing ordering is the better (fewer nonzeros) of
+CHOLMOD's AMD and a geometric nested dissection of the reference mesh
+(:func:`lacore.sparse_cholesky.nested_dissection`).
+"""
+
+from collections import OrderedDict
+
+import numpy as np
+
+from ..errors import MeshError, format_indices
+from ..lengths_angles import lengths_and_angles
+from ..sparse_cholesky import SparseCholesky, default_backend
+from ..topology import check_vertices
+from .assembly import dof_ordering, gauss_newton_pattern
+from .objectives import QuadraticObjective, ShellsObjective, reference_weights
+from .settings import make_settings
+from .spanning_trees import default_root_faces
+
+__all__ = ["ReconstructionContext", "get_context", "triangle_frame", "CONTEXTS_PER_TOPOLOGY"]
+
+def triangle_frame(vertices, face):
+    """3-2-1 frame of a triangle: origin ``X_a`` and rotation ``Q`` (rows: x, y, z axes).
+
+    Parameters
+    ----------
+    vertices : (V, 3) ndarray
+    face : (3,) int
+        Vertex indices ``a, b, c`` (counter-clockwise).
+
+    Returns
+    -------
+    origin : (3,) ndarray
+    Q : (3, 3) ndarray
+        Orthonormal rows ``e1 = (X_b - X_a) / |X_b - X_a|``, ``e2 = n x e1`` and
+        the unit normal ``n``.  Canonical coordinates are ``(X - origin) @ Q.T``.
+
+    Raises
+    ------
+    MeshError
+        If the triangle is degenerate.
+    """
+    a, b, c = vertices[face[0]], vertices[face[1]], vertices[face[2]]
+    e1 = b - a
+    n = np.cross(e1, c - a)
+    ln, l1 = np.linalg.norm(n), np.linalg.norm(e1)
+    if not (ln > 0 and l1 > 0 and np.isfinite(ln)):
+        raise MeshError(f"the fixed face {tuple(int(v) for v in face)} is degenerate (zero area)")
+    e1 = e1 / l1
+    n = n / ln
+    return a.copy(), np.stack([e1, np.cross(n, e1), n])
+
+
+def _fixed_faces(topology, reference_vertices, fixed_face):
+    """One fixed face per connected component: ``fixed_face`` (int or sequence) completed by the defaults."""
+
+    n_comp, labels = topology.face_components()
+    faces = np.asarray(default_root_faces(topology, vertices=reference_vertices), np.int64)
+    if fixed_face is None:
+        return faces
+    given = np.atleast_1d(np.asarray(fixed_face))
+    if given.ndim != 1 or not np.issubdtype(given.dtype, np.integer):
+        raise MeshError(f"fixed_face must be a face index (or one per component), got {fixed_face!r}")
+    bad = given[(given < 0) | (given >= topology.n_faces)]
+    if bad.size:
+        raise MeshError(f"fixed_face {format_indices(bad)} out of range: the mesh has {topology.n_faces} faces")
+    comp = labels[given]
+    if len(np.unique(comp)) != len(comp):
+        raise MeshError(f"fixed faces {format_indices(given)} include two faces of the same component")
+    faces[comp] = given
+    return faces
+
+
+def _gauge_dofs(faces, fix_triangle_shape):
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    a, b, c = f[:, 0], f[:, 1], f[:, 2]
+    dofs = [3 * a, 3 * a + 1, 3 * a + 2, 3 * b + 1, 3 * b + 2, 3 * c + 2]
+    if fix_triangle_shape:
+        dofs += [3 * b, 3 * c, 3 * c + 1]
+    return np.unique(np.concatenate(dofs))
+
+
+class ReconstructionContext:
+    """Everything about a reconstruction set-up that does not depend on the target.
+
+    Holds the residual weights (from the reference mesh), the fixed faces and
+    their reference frames, the Gauss-Newton sparsity pattern and the sparse
+    Cholesky object with its symbolic (and last numeric) factorization.
+    (Spanning trees are cached on the topology (BFS) or passed as ``tree=`` to
+    :func:`lacore.reconstruction.reconstruct`, e.g. a preassembled tree.)  Pass one context to
+    many :func:`lacore.reconstruction.reconstruct` calls (e.g. the frames of an
+    interpolation, each warm-started from the previous one) to share all of it.
+    :func:`get_context` keeps the last few contexts per topology, so repeated
+    calls with identical settings share them without passing one explicitly.
+
+    A context holds one numeric factorization and is not thread-safe: use one
+    context per thread.
+
+    Parameters
+    ----------
+    topology : MeshTopology
+    reference_vertices : (V, 3) array_like
+        Reference mesh: source of the weights (3.20)/(3.21), the default
+        starting point and the output frame.
+    settings : ReconstructionSettings, optional
+        Energy, weights, bending weight, fixed face, ``fix_triangle_shape``,
+        solver backend (default: the defaults of :class:`ReconstructionSettings`).
+    **kwargs
+        Fields of :class:`ReconstructionSettings` as keywords (override ``settings``).
+
+    Raises
+    ------
+    MeshError
+        For reference vertices that do not fit the topology, a bad or degenerate
+        fixed face.
+    InputError
+        Invalid settings (unknown energy, weights or solver, negative bending weight).
+    """
+
+    def __init__(self, topology, reference_vertices, settings=None, **kwargs):
+        settings = make_settings(settings, caller="ReconstructionContext", **kwargs)
+        self.settings = settings
+        backend = default_backend() if settings.solver is None else settings.solver
+        self.topology = topology
+        X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices").copy()
+        X.setflags(write=False)
+        self.reference_vertices = X
+        self.backend = backend
+        self.fixed_faces = _fixed_faces(topology, X, settings.fixed_face)
+        self.fixed_face = int(self.fixed_faces[0])
+        self._face_vertices = topology.faces[self.fixed_faces]  # (C, 3)
+        frames = [triangle_frame(X, f) for f in self._face_vertices]
+        self._origins = np.array([o for o, _ in frames])
+        self._Qs = np.array([Q for _, Q in frames])
+        labels = topology.face_components()[1]
+        self._vertex_component = np.zeros(topology.n_vertices, np.int64)
+        self._vertex_component[topology.faces.ravel()] = np.repeat(labels, 3)
+        self.fixed_dofs = _gauge_dofs(self._face_vertices, self.fix_triangle_shape)
+        self.size = float(np.linalg.norm(X.max(0) - X.min(0))) or 1.0
+        self._residual_weights = None
+        self._solver = None
+        self._buffer = None
+        self._fixed_entries = None
+
+    # the settings, under the names used throughout lacore
+    @property
+    def energy_name(self):
+        """``"quadratic"`` or ``"shells"`` (:attr:`ReconstructionSettings.energy`)."""
+        return self.settings.energy
+
+    @property
+    def weights_kind(self):
+        """Weights of ``W_q`` (:attr:`ReconstructionSettings.weights`)."""
+        return self.settings.weights
+
+    @property
+    def bending_weight(self):
+        """``eta`` (:attr:`ReconstructionSettings.bending_weight`)."""
+        return self.settings.bending_weight
+
+    @property
+    def fix_triangle_shape(self):
+        """:attr:`ReconstructionSettings.fix_triangle_shape`."""
+        return self.settings.fix_triangle_shape
+
+    @property
+    def pattern(self):
+        """:func:`gauss_newton_pattern` of the topology."""
+        return gauss_newton_pattern(self.topology)
+
+    @property
+    def residual_weights(self):
+        """``(2E,)`` weights of ``W_q`` (lengths: ``w_s``, angles: ``eta w_b``)."""
+        if self._residual_weights is None:
+            w = reference_weights(self.reference_vertices, self.topology, self.weights_kind, self.bending_weight)
+            w.setflags(write=False)
+            self._residual_weights = w
+        return self._residual_weights
+
+    @property
+    def solver(self):
+        """The :class:`~lacore.sparse_cholesky.SparseCholesky` (symbolic analysis on first use)."""
+        if self._solver is None:
+            pat = self.pattern
+            ordering = None
+            if self.backend == "cholmod":
+                ordering = dof_ordering(self.topology, pat, self.reference_vertices)
+            s = SparseCholesky(pat["matrix"], backend=self.backend, ordering=ordering)
+            if not (np.array_equal(s.indptr, pat["indptr"]) and np.array_equal(s.indices, pat["indices"])):
+                raise RuntimeError("sparse Cholesky pattern mismatch")  # pragma: no cover
+            self._solver = s
+        return self._solver
+
+    @property
+    def fixed_entries(self):
+        """Value positions touching fixed coordinates (zeroed) and their diagonal positions (set to 1)."""
+        if self._fixed_entries is None:
+            pat = self.pattern
+            is_fixed = np.zeros(pat["n"], bool)
+            is_fixed[self.fixed_dofs] = True
+            touch = np.flatnonzero(is_fixed[pat["indices"]] | is_fixed[pat["cols"]])
+            diag = touch[pat["indices"][touch] == pat["cols"][touch]]
+            self._fixed_entries = (touch, diag)
+        return self._fixed_entries
+
+    # coordinates
+    def to_canonical(self, vertices):
+        """Rigidly move every component so that its fixed face sits in the 3-2-1 position.
+
+        Returns ``(V, 3)`` coordinates whose fixed coordinates are exactly 0.
+        """
+        X = np.asarray(vertices, float)
+        frames = [triangle_frame(X, f) for f in self._face_vertices]
+        origins = np.array([o for o, _ in frames])
+        Qs = np.array([Q for _, Q in frames])
+        comp = self._vertex_component
+        Xc = np.einsum("vij,vj->vi", Qs[comp], X - origins[comp])
+        a, b, c = self._face_vertices.T
+        Xc[a] = 0.0
+        Xc[b, 1:] = 0.0
+        Xc[c, 2] = 0.0
+        return Xc
+
+    def from_canonical(self, Xc):
+        """Canonical coordinates -> the reference mesh's frame (see module docstring)."""
+        comp = self._vertex_component
+        return np.einsum("vji,vj->vi", self._Qs[comp], Xc) + self._origins[comp]
+
+    def align(self, vertices):
+        """Rigidly move ``vertices`` (per component) into the output frame of this context."""
+        return self.from_canonical(self.to_canonical(vertices))
+
+    def objective(self, z_target):
+        """The energy ``X -> W[z*, Z(X)]`` for a target (``z*`` already validated)."""
+        if self.energy_name == "quadratic":
+            if self._buffer is None:  # outer-product values, reused by all targets of this context
+                self._buffer = np.empty(len(self.pattern["slots"]))
+            return QuadraticObjective(z_target, self.residual_weights, self.topology, self.pattern, self._buffer)
+        return ShellsObjective(z_target, self.topology, self.bending_weight, self.solver, self.pattern)
+
+    def energy(self, z_target, vertices):
+        """``W[z*, Z(vertices)]`` under this context's energy."""
+        z = lengths_and_angles(vertices, self.topology)
+        return self.objective(np.asarray(z_target, float)).value_z(z)
+
+
+#: How many contexts :func:`get_context` keeps per topology (least recently used first out).
+CONTEXTS_PER_TOPOLOGY = 4
+
+
+def get_context(topology, reference_vertices, settings=None, **kwargs):
+    """A cached :class:`ReconstructionContext` for these reference vertices and settings.
+
+    The last :data:`CONTEXTS_PER_TOPOLOGY` contexts are kept on the topology,
+    keyed by the reference coordinates' bytes and the (frozen, hashable)
+    :class:`ReconstructionSettings`, so repeated reconstructions with the same
+    set-up reuse weights and the symbolic factorization.
+
+    Parameters
+    ----------
+    topology : MeshTopology
+    reference_vertices : (V, 3) array_like
+    settings : ReconstructionSettings, optional
+    **kwargs
+        Fields of :class:`ReconstructionSettings` (override ``settings``).
+    """
+    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
+    settings = make_settings(settings, caller="get_context", **kwargs)
+    cache = topology._cached("lacore.reconstruction.contexts", OrderedDict)
+    key = (X.tobytes(), settings)
+    ctx = cache.get(key)
+    if ctx is None:
+        ctx = ReconstructionContext(topology, X, settings)
+        cache[key] = ctx
+        while len(cache) > CONTEXTS_PER_TOPOLOGY:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
+    return ctx

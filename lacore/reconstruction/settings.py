@@ -1,0 +1,259 @@
+"""Settings of a reconstruction: one frozen dataclass per concern, the one place of every default.
+
+:class:`ReconstructionSettings`
+    What defines the problem and the shared set-up (a
+    :class:`~lacore.reconstruction.context.ReconstructionContext`): energy,
+    weights, bending weight, fixed face, solver backend.
+:class:`GaussNewtonOptions`
+    How Gauss-Newton iterates and stops
+    (:func:`~lacore.reconstruction.gauss_newton.run_gauss_newton`).
+:class:`HybridOptions`
+    The start and the smoothing budget of ``method="hybrid"``.
+
+:func:`reconstruct`, :func:`~lacore.interpolation.interpolate`, the CLI and
+the Blender add-on take these objects, or the same names as keyword arguments
+(``reconstruct(z, topo, X, energy="shells", max_iterations=20,
+smoothing_iterations=3)``); :func:`split_options` maps such keywords to the
+three objects.  The keyword names of the hybrid options keep their historical
+prefix: ``hybrid_start``, ``hybrid_kind`` (fields ``start``, ``kind``).
+"""
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from ..errors import InputError, MeshError
+
+__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
+           "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS"]
+
+ENERGIES = ("quadratic", "shells")
+WEIGHTS = ("frohlich_botsch", "heeren", "uniform")
+SOLVERS = ("cholmod", "scipy")
+HYBRID_STARTS = ("lsq", "tree")
+FRAME_KINDS = ("bfs", "mst", "spt")
+
+
+def _fixed_face_key(fixed_face):
+    """``None``, or the fixed face(s) as a tuple of ints (hashable)."""
+    if fixed_face is None:
+        return None
+    a = np.atleast_1d(np.asarray(fixed_face))
+    if a.ndim != 1 or not np.issubdtype(a.dtype, np.integer):
+        raise MeshError(f"fixed_face must be a face index (or one per component), got {fixed_face!r}")
+    return tuple(int(v) for v in a)
+
+
+@dataclass(frozen=True)
+class ReconstructionSettings:
+    """The target-independent definition of a reconstruction (thesis 3.4).
+
+    Attributes
+    ----------
+    energy : {"quadratic", "shells"}
+        ``W_q`` (3.19) or ``W_TS`` (3.25): minimized by Gauss-Newton, reported by all methods.
+    weights : {"frohlich_botsch", "heeren", "uniform"}
+        Weights of ``W_q``: (3.20), (3.21) or 1.
+    bending_weight : float
+        ``eta`` in (3.19)/(3.25).
+    fixed_face : None or tuple of int
+        Face fixing the rigid motion (one per connected component, components
+        not given get a central, well-shaped face of the reference mesh); also
+        the root face of the frame-based methods.  An int is stored as a 1-tuple.
+    fix_triangle_shape : bool
+        Gauss-Newton holds all nine coordinates of the fixed face instead of
+        only the six rigid motions.
+    solver : {None, "cholmod", "scipy"}
+        Sparse Cholesky backend; ``None``: CHOLMOD if cvxopt is installed.
+
+    Raises
+    ------
+    InputError
+        An unknown energy, weights or solver, a negative or non-finite bending weight.
+    """
+
+    energy: str = "quadratic"
+    weights: str = "frohlich_botsch"
+    bending_weight: float = 1e-3
+    fixed_face: tuple | None = None
+    fix_triangle_shape: bool = False
+    solver: str | None = None
+
+    def __post_init__(self):
+        if self.energy not in ENERGIES:
+            raise InputError(f"unknown energy {self.energy!r}; use 'quadratic' or 'shells'")
+        if self.weights not in WEIGHTS:
+            raise InputError(f"unknown weights {self.weights!r}; use 'frohlich_botsch', 'heeren' or 'uniform'")
+        try:
+            eta = float(self.bending_weight)
+        except (TypeError, ValueError):
+            eta = np.nan
+        if not (np.isfinite(eta) and eta >= 0):
+            raise InputError(f"bending_weight must be a finite number >= 0, got {self.bending_weight!r}")
+        if self.solver is not None and self.solver not in SOLVERS:
+            raise InputError(f"unknown solver {self.solver!r}; use 'cholmod' or 'scipy'")
+        object.__setattr__(self, "bending_weight", eta)
+        object.__setattr__(self, "fixed_face", _fixed_face_key(self.fixed_face))
+        object.__setattr__(self, "fix_triangle_shape", bool(self.fix_triangle_shape))
+
+
+@dataclass(frozen=True)
+class GaussNewtonOptions:
+    """Iteration and stopping options of Gauss-Newton (see :mod:`lacore.reconstruction.gauss_newton`).
+
+    Attributes
+    ----------
+    max_iterations : int
+        Iteration cap (status 0).
+    ftol, gtol, xtol : float
+        Relative energy decrease, scale-free gradient and step tolerances.
+    atol : float or None
+        Absolute energy tolerance; ``None``: the objective's floating-point noise floor.
+    reuse_factorization : bool
+        Inexact steps by PCG with the factorization the context already holds
+        (also from earlier calls), refactorizing when PCG stalls.
+    pcg_rtol : float
+        Relative residual of those PCG solves, in ``(0, 1)``.
+    pcg_maxiter : int
+        PCG iterations before refactorizing, ``>= 1``.
+    reuse_near_convergence : bool
+        PCG with this call's factorization in the final, fast-converging phase.
+    geodesic_acceleration : bool
+        Second-order correction of each exact step (``W_q`` only) and the fold safeguard.
+    c1 : float
+        Armijo constant of the line search.
+    max_backtracks : int
+        Line-search trials before giving up.
+
+    Raises
+    ------
+    InputError
+        ``pcg_rtol`` outside ``(0, 1)``, ``pcg_maxiter`` or ``max_iterations`` not a
+        positive (non-negative) integer.
+    """
+
+    max_iterations: int = 100
+    ftol: float = 1e-9
+    gtol: float = 1e-8
+    xtol: float = 1e-12
+    atol: float | None = None
+    reuse_factorization: bool = False
+    pcg_rtol: float = 0.1
+    pcg_maxiter: int = 6
+    reuse_near_convergence: bool = True
+    geodesic_acceleration: bool = True
+    c1: float = 1e-4
+    max_backtracks: int = 40
+
+    def __post_init__(self):
+        if not 0 < self.pcg_rtol < 1:
+            raise InputError(f"pcg_rtol must lie in (0, 1), got {self.pcg_rtol!r}")
+        if int(self.pcg_maxiter) != self.pcg_maxiter or self.pcg_maxiter < 1:
+            raise InputError(f"pcg_maxiter must be a positive integer, got {self.pcg_maxiter!r}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 0:
+            raise InputError(f"max_iterations must be a non-negative integer, got {self.max_iterations!r}")
+
+
+@dataclass(frozen=True)
+class HybridOptions:
+    """Options of ``method="hybrid"``: a direct start smoothed by a few Gauss-Newton iterations (section 3.4.3).
+
+    Attributes
+    ----------
+    start : {"lsq", "tree"}
+        The least-squares relaxation (default; no spanning tree is built) or the
+        frame-based walk along a tree of kind ``kind``.  Measured on the
+        rolled-plate averages, 10 smoothing iterations from the least-squares
+        start end within 0.3 % of the full Gauss-Newton energy, from the MST
+        walk 80x / 27000x above it (``tests/test_hybrid.py``).
+    kind : {"mst", "spt", "bfs"}
+        Tree of the ``"tree"`` start.
+    smoothing_iterations : int
+        At most this many Gauss-Newton iterations (they stop earlier once converged).
+
+    Raises
+    ------
+    InputError
+        An unknown start or kind, a negative or non-integer iteration count.
+    """
+
+    start: str = "lsq"
+    kind: str = "mst"
+    smoothing_iterations: int = 10
+
+    def __post_init__(self):
+        if self.start not in HYBRID_STARTS:
+            raise InputError(f"unknown hybrid_start {self.start!r}; use 'tree' or 'lsq'")
+        if self.kind not in FRAME_KINDS:
+            raise InputError(f"unknown hybrid_kind {self.kind!r}; use one of {', '.join(FRAME_KINDS)}")
+        n = self.smoothing_iterations
+        if int(n) != n or n < 0:
+            raise InputError(f"smoothing_iterations must be a non-negative integer, got {n!r}")
+        object.__setattr__(self, "smoothing_iterations", int(n))
+
+    @property
+    def uses_tree(self):
+        """Whether the start walks a spanning tree (only ``start="tree"``)."""
+        return self.start == "tree"
+
+
+_SETTINGS_KEYS = frozenset(f.name for f in fields(ReconstructionSettings))
+_GN_KEYS = frozenset(f.name for f in fields(GaussNewtonOptions))
+#: keyword name -> field of HybridOptions
+_HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations"}
+
+
+def split_options(kwargs, settings=None, options=None, hybrid=None, *, caller="reconstruct"):
+    """Map keyword arguments to the three settings objects.
+
+    Parameters
+    ----------
+    kwargs : dict
+        Keyword arguments: fields of :class:`ReconstructionSettings` and
+        :class:`GaussNewtonOptions`, ``hybrid_start``, ``hybrid_kind``,
+        ``smoothing_iterations``.  Keywords override the objects' fields.
+    settings, options, hybrid : optional
+        Objects to start from (default: the defaults).
+    caller : str
+        Named in the error for unknown keywords.
+
+    Returns
+    -------
+    settings : ReconstructionSettings
+    options : GaussNewtonOptions
+    hybrid : HybridOptions
+    given : frozenset of str
+        Names of the :class:`ReconstructionSettings` fields set explicitly (keywords,
+        or fields of ``settings`` differing from the defaults).
+
+    Raises
+    ------
+    TypeError
+        Unknown keywords.
+    InputError
+        Invalid values.
+    """
+    unknown = sorted(set(kwargs) - _SETTINGS_KEYS - _GN_KEYS - set(_HYBRID_KEYS))
+    if unknown:
+        raise TypeError(f"{caller}() got unknown options {unknown}; Gauss-Newton options are "
+                        f"{sorted(_GN_KEYS)}, settings {sorted(_SETTINGS_KEYS)}, hybrid {sorted(_HYBRID_KEYS)}")
+    base = settings if settings is not None else ReconstructionSettings()
+    s_kw = {k: v for k, v in kwargs.items() if k in _SETTINGS_KEYS}
+    settings = replace(base, **s_kw) if s_kw else base
+    given = {k for k in _SETTINGS_KEYS if getattr(base, k) != getattr(ReconstructionSettings(), k)} | set(s_kw)
+    g_kw = {k: v for k, v in kwargs.items() if k in _GN_KEYS}
+    options = options if options is not None else GaussNewtonOptions()
+    options = replace(options, **g_kw) if g_kw else options
+    h_kw = {_HYBRID_KEYS[k]: v for k, v in kwargs.items() if k in _HYBRID_KEYS}
+    hybrid = hybrid if hybrid is not None else HybridOptions()
+    hybrid = replace(hybrid, **h_kw) if h_kw else hybrid
+    return settings, options, hybrid, frozenset(given)
+
+
+def make_settings(settings=None, caller="ReconstructionSettings", **kwargs):
+    """``settings`` (default: the defaults) with the fields in ``kwargs`` replaced; TypeError for other names."""
+    unknown = sorted(set(kwargs) - _SETTINGS_KEYS)
+    if unknown:
+        raise TypeError(f"{caller}() got unknown settings {unknown}; settings are {sorted(_SETTINGS_KEYS)}")
+    base = settings if settings is not None else ReconstructionSettings()
+    return replace(base, **kwargs) if kwargs else base

@@ -1,0 +1,109 @@
+"""Settings dataclasses (one place for every default) and the common result base type."""
+
+import json
+from dataclasses import FrozenInstanceError
+
+import numpy as np
+import pytest
+import trimesh
+from conftest import shared_mesh
+
+from lacore.errors import InputError, MeshError
+from lacore.lengths_angles import lengths_and_angles
+from lacore.reconstruction import (GaussNewtonOptions, HybridOptions, ReconstructionResult, ReconstructionSettings,
+                                   get_context, reconstruct, tree_kind)
+from lacore.reconstruction.gauss_newton import run_gauss_newton
+from lacore.reconstruction.result import GaussNewtonResult
+from lacore.reconstruction.settings import split_options
+from lacore.result import SolverResult
+from lacore.topology import MeshTopology
+
+
+@pytest.fixture(scope="module")
+def plates():
+    meshes = [trimesh.load(shared_mesh(f"plate/plate121_rolled{s}.ply"), process=False) for s in "AB"]
+    topo = MeshTopology.from_faces(np.asarray(meshes[0].faces), n_vertices=len(meshes[0].vertices))
+    XA, XB = (np.asarray(m.vertices, float) for m in meshes)
+    return topo, XA, XB
+
+
+def test_settings_are_frozen_validated_and_hashable():
+    s = ReconstructionSettings(fixed_face=[3, 7], bending_weight=1)
+    assert s.fixed_face == (3, 7) and s.bending_weight == 1.0 and isinstance(s.bending_weight, float)
+    assert hash(s) == hash(ReconstructionSettings(fixed_face=(3, 7), bending_weight=1e0))
+    with pytest.raises(FrozenInstanceError):
+        s.energy = "shells"
+    for bad, match in [({"energy": "elastic"}, "unknown energy 'elastic'"), ({"weights": "x"}, "unknown weights"),
+                       ({"bending_weight": -1.0}, "bending_weight"), ({"solver": "umfpack"}, "unknown solver")]:
+        with pytest.raises(InputError, match=match):
+            ReconstructionSettings(**bad)
+    with pytest.raises(MeshError, match="fixed_face must be a face index"):
+        ReconstructionSettings(fixed_face=[0.5])
+    with pytest.raises(InputError, match="pcg_rtol"):
+        GaussNewtonOptions(pcg_rtol=1.0)
+    with pytest.raises(InputError, match="hybrid_start"):
+        HybridOptions(start="bfs")
+    with pytest.raises(InputError, match="smoothing_iterations"):
+        HybridOptions(smoothing_iterations=-1)
+
+
+def test_split_options_maps_the_historical_keywords():
+    s, o, h, given = split_options({"energy": "shells", "max_iterations": 7, "hybrid_start": "tree",
+                                    "hybrid_kind": "spt", "smoothing_iterations": 3})
+    assert s == ReconstructionSettings(energy="shells") and given == {"energy"}
+    assert o == GaussNewtonOptions(max_iterations=7)
+    assert h == HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
+    # keywords override the objects' fields; non-default fields of a settings object count as given
+    s, o, h, given = split_options({"ftol": 1e-3}, ReconstructionSettings(bending_weight=0.1),
+                                   GaussNewtonOptions(max_iterations=5))
+    assert o == GaussNewtonOptions(max_iterations=5, ftol=1e-3) and given == {"bending_weight"}
+    with pytest.raises(TypeError, match=r"unknown options \['tolerance'\]"):
+        split_options({"tolerance": 1})
+
+
+def test_tree_kind_builds_no_tree_for_the_least_squares_hybrid():
+    assert tree_kind("gn") is None and tree_kind("lsq") is None
+    assert tree_kind("hybrid") is None                      # default start: the least-squares relaxation
+    assert tree_kind("hybrid", HybridOptions(start="tree", kind="bfs")) == "bfs"
+    assert [tree_kind(k) for k in ("bfs", "mst", "spt")] == ["bfs", "mst", "spt"]
+
+
+def test_settings_objects_and_keywords_give_the_same_reconstruction(plates):
+    topo, XA, XB = plates
+    z = 0.5 * (lengths_and_angles(XA, topo) + lengths_and_angles(XB, topo))
+    a = reconstruct(z, topo, XA, settings=ReconstructionSettings(bending_weight=1e-2),
+                    options=GaussNewtonOptions(max_iterations=4))
+    b = reconstruct(z, topo, XA, bending_weight=1e-2, max_iterations=4)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    assert a.iterations == b.iterations == 4 and a.status == 0 and not a.success
+    # a context carries its settings; explicit settings that differ are refused
+    ctx = get_context(topo, XA, ReconstructionSettings(bending_weight=1e-2))
+    assert ctx is get_context(topo, XA, bending_weight=1e-2) and ctx.bending_weight == 1e-2
+    with pytest.raises(InputError, match="bending_weight=0.1 differs from the context's 0.01"):
+        reconstruct(z, topo, XA, context=ctx, bending_weight=0.1)
+
+
+def test_hybrid_result_is_complete_and_consistent(plates):
+    """The smoothing budget is not a failure: status 6 (not 0 'iteration limit') with success=True."""
+    topo, XA, XB = plates
+    z = 0.5 * (lengths_and_angles(XA, topo) + lengths_and_angles(XB, topo))
+    res = reconstruct(z, topo, XA, method="hybrid", hybrid=HybridOptions(smoothing_iterations=2))
+    assert isinstance(res, ReconstructionResult) and isinstance(res, SolverResult)
+    assert res.iterations == 2 and res.status == 6 and res.success and res.message == "2 smoothing iterations done"
+    assert res.method == "hybrid-lsq" and {"least_squares", "total", "initialization"} <= set(res.timings)
+    assert res.timings["total"] >= res.timings["least_squares"] + res.timings["factorization"]
+    summary = res.summary()
+    json.dumps(summary, allow_nan=False)
+    assert "vertices" not in summary and summary["status"] == 6 and summary["iterations"] == 2
+    assert res["energy"] == res.energy and "energy_history" in res.keys()
+
+
+def test_run_gauss_newton_returns_a_result_object(plates):
+    topo, XA, XB = plates
+    ctx = get_context(topo, XA)
+    out = run_gauss_newton(ctx.objective(lengths_and_angles(XB, topo)), ctx.to_canonical(XA), ctx,
+                           GaussNewtonOptions(max_iterations=3))
+    assert isinstance(out, GaussNewtonResult) and out.x.shape == XA.shape
+    assert out.iterations == len(out.step_sizes) == len(out.energy_history) - 1 <= 3
+    assert out.energy < out.initial_energy and out.success == (out.status > 0)
+    assert "x" not in out.summary()
