@@ -31,6 +31,7 @@ Marking
 import hashlib
 import math
 import re
+import traceback
 from collections import OrderedDict
 from contextlib import contextmanager
 
@@ -475,8 +476,6 @@ def _error_text(exc):
     LengthsAnglesError, InterpolationInputError); type and traceback (console) for anything else (a bug)."""
     if isinstance(exc, InputError):
         return str(exc)
-    import traceback
-
     traceback.print_exc()
     return f"Lengths & Angles failed ({type(exc).__name__}: {exc}); nothing was changed (details in the console)"
 

@@ -94,11 +94,11 @@ def bench_mesh(faces, Xa, Xb, repeats, tree_repeats):
     za, zb = lengths_and_angles(Xa, topo), lengths_and_angles(Xb, topo)
     z = 0.5 * (za + zb)
     roots = default_root_faces(topo, vertices=Xa)
-    key = "spanning_trees.bfs." + ",".join(map(str, roots.tolist()))
+    key = ("lacore.reconstruction.spanning_trees", "bfs_tree", tuple(roots.tolist()))
     out = {"vertices": topo.n_vertices, "edges": topo.n_edges, "faces": topo.n_faces}
 
     def build_bfs():
-        topo._cache.pop(key, None)
+        topo.cache.discard(key)
         _walk_schedule(bfs_tree(topo, roots), topo)
 
     def build_adaptive(fn):
@@ -128,7 +128,7 @@ def bench_mesh(faces, Xa, Xb, repeats, tree_repeats):
     out["weights_ms"] = timed(lambda: adaptive_edge_weights(z, topo), tree_repeats)
 
     def lsq_first():
-        topo._cache.pop("least_squares.factors", None)
+        topo.cache.discard(("lacore.reconstruction.least_squares", "factors"))
         least_squares_reconstruction(z, topo, reference_vertices=Xa)
 
     out["lsq"] = {"tree_ms": timed(lsq_first, 3),

@@ -93,10 +93,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from .energies import QuadraticEnergy
 from .errors import LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
+from .interpolation import interpolate
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
+from .reconstruction import get_context
 from .result import SolverResult
+from .sparse_cholesky import SparseCholesky
 from .topology import check_vertices
 
 __all__ = [
@@ -190,8 +194,6 @@ def default_energy(topology, reference, bending_weight=1e-3, weights="frohlich_b
     -------
     lacore.energies.QuadraticEnergy
     """
-    from .energies import QuadraticEnergy
-
     reference = np.asarray(reference, float)
     if reference.ndim == 2:
         return QuadraticEnergy(topology, reference_vertices=reference, weights=weights,
@@ -286,8 +288,6 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     vertices : (K+1, V, 3) ndarray
         The projected immersions, in the frame of the reference.
     """
-    from .interpolation import interpolate
-
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
         raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
@@ -366,8 +366,6 @@ class _SchurKKT:
 
     def factorize(self, blocks, damping=0.0):
         """Assemble and factorize ``A H^-1 A^T + delta I``; Jacobian blocks ``A_i``, ``H = kron(T + mu I, D)``."""
-        from .sparse_cholesky import SparseCholesky
-
         m = len(blocks)
         self.damping = float(damping)
         Ti = self.model.time_inverse(self.damping)
@@ -595,8 +593,6 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
 
     ``Xc (K-1, V, 3)`` are canonical coordinates of ``context`` (fixed coordinates 0).
     """
-    from .sparse_cholesky import SparseCholesky
-
     K, m = model.K, model.m
     n3 = 3 * topology.n_vertices
     cols = np.setdiff1d(np.arange(n3), context.fixed_dofs)
@@ -774,8 +770,6 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     context = None
     if method == "vertices" and K >= 2:
         need_reference("method='vertices'")
-        from .reconstruction import get_context
-
         settings = {k: projection_kw[k] for k in ("weights", "bending_weight", "fixed_face") if k in projection_kw}
         context = get_context(topology, reference_vertices, **settings)
 
@@ -801,8 +795,6 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
             vertices = np.concatenate([ends[0][None], Xs, ends[1][None]])
     elif method == "sqp" and reconstruct_vertices:
         need_reference("reconstruct_vertices")
-        from .interpolation import interpolate
-
         proj = interpolate(zs, topology, np.arange(K + 1, dtype=float), reference_vertices=reference_vertices,
                            **projection_kw)
         vertices = np.array(proj.vertices)

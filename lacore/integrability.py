@@ -68,8 +68,9 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-from .lengths_angles import _carve, _scratch, split_z
-from .trigonometry import _kahan_angle_factors, _kahan_area_rows, _margin_rows, interior_angles
+from .cache import carve, scratch
+from .lengths_angles import split_z
+from .trigonometry import kahan_angle_factors, kahan_area_rows, margin_rows, interior_angles
 
 __all__ = [
     "rotation_x",
@@ -184,7 +185,7 @@ def _cached_transition_corners(topology):
         ef = topology.edge_faces[ie]
         li = topology.edge_local_index[ie]
         return np.stack([3 * ef[:, 0] + li[:, 0], 3 * ef[:, 1] + li[:, 1]])
-    return topology._cached("integrability_transition_corners", compute)
+    return topology.cache.get((__name__, "transition_corners"), compute)
 
 
 # --------------------------------------------------------------------------- triangle inequality
@@ -271,7 +272,7 @@ def _ring_blocks(topology):
                 blk[key].setflags(write=False)
             blocks.append(blk)
         return blocks
-    return topology._cached("integrability_ring_blocks", compute)
+    return topology.cache.get((__name__, "ring_blocks"), compute)
 
 
 def _block_sizes(blocks):
@@ -306,7 +307,7 @@ def _cos_sin(x, c, s):
 def _half_angle_table(theta, topology):
     """``[cos(theta / 2) | sin(theta / 2)]`` of all edges as one ``(2E,)`` scratch array (see :func:`_cos_sin`)."""
     E = len(theta)
-    cs = _scratch(topology, "half_angles", 2 * E)
+    cs = scratch(topology, "half_angles", 2 * E)
     c, s = cs[:E], cs[E:]
     np.multiply(theta, 0.5, out=s)
     _cos_sin(s, c, s)
@@ -327,8 +328,8 @@ def _doubtful_corners(lengths, topology, faces, num, den, S):
     num[doubt] = np.maximum(num[doubt], 0.0)
     den[doubt] = np.maximum(den[doubt], 0.0)
     L = lengths.take(topology.face_edges[faces[doubt]]).T
-    zero_angle = doubt[_margin_rows(L[0], L[1], L[2]) <= 0]
-    zero_derivative = doubt[~(_kahan_area_rows(L[0], L[1], L[2]) > 0)]
+    zero_angle = doubt[margin_rows(L[0], L[1], L[2]) <= 0]
+    zero_derivative = doubt[~(kahan_area_rows(L[0], L[1], L[2]) > 0)]
     return zero_angle, zero_derivative
 
 
@@ -355,13 +356,13 @@ def _corner_half_angles(lengths, topology, blk, buf, gamma=None):
         ``zero_derivative`` (entry indices, possibly empty); None if ``gamma`` is given.
     """
     n = blk["n"]
-    cz, sz, lens, K = _carve(buf, (n,), (n,), (3, n), (4, n))
+    cz, sz, lens, K = carve(buf, (n,), (n,), (3, n), (4, n))
     if gamma is not None:
         np.multiply(gamma.take(blk["corners"]), 0.5, out=sz)
         _cos_sin(sz, cz, sz)
         return cz, sz, None
     np.take(lengths, blk["edges"][:3], out=lens, mode="wrap")
-    num, den, S, _ = _kahan_angle_factors(lens[0], lens[1], lens[2], K)
+    num, den, S, _ = kahan_angle_factors(lens[0], lens[1], lens[2], K)
     zero_angle = zero_derivative = _NO_ENTRIES
     if n and not min(num.min(), den.min()) > 1e-14 * S.max() ** 2:
         zero_angle, zero_derivative = _doubtful_corners(lengths, topology, blk["faces"], num, den, S)
@@ -458,8 +459,8 @@ def _map_workspace(topology, blocks):
     """Scratch views for :func:`_block_holonomies`."""
     N, m = _block_sizes(blocks)
     shapes = {"ring": (9 * N,), "angles": (2, N), "state": (4, m), "tmp": (5, m)}
-    buf = _scratch(topology, "ring_map", sum(math.prod(v) for v in shapes.values()))
-    return dict(zip(shapes, _carve(buf, *shapes.values()), strict=True))
+    buf = scratch(topology, "ring_map", sum(math.prod(v) for v in shapes.values()))
+    return dict(zip(shapes, carve(buf, *shapes.values()), strict=True))
 
 
 def _holonomies(z, topology, gamma=None):
@@ -614,7 +615,7 @@ def _euler_jacobian_pattern(topology):
         for a in [out["indices"], out["indptr"], *gathers]:
             a.setflags(write=False)
         return out
-    return topology._cached("euler_jacobian_pattern_blocks", compute)
+    return topology.cache.get((__name__, "euler_jacobian_pattern_blocks"), compute)
 
 
 def _angle_derivatives(factors, out, tmp, scale=1.0):
@@ -714,8 +715,8 @@ def _jacobian_workspace(topology, blocks):
               "h0": (3, N), "h2": (3, N), "Cb": (3, N), "Ca_next": (3, N), "t": (N,), "coef_e": (6, N),
               "tmp": (5, m), "coef": (6, m), "euler": (3, m)}
     size = sum(math.prod(v) for v in shapes.values())
-    buf = _scratch(topology, "ring_jacobian", size)
-    ws = dict(zip(shapes, _carve(buf, *shapes.values()), strict=True))
+    buf = scratch(topology, "ring_jacobian", size)
+    ws = dict(zip(shapes, carve(buf, *shapes.values()), strict=True))
     ws["V"] = buf[9 * N:18 * N]
     return ws
 

@@ -35,13 +35,12 @@ identity), which saves a cross product.  The Jacobian's values are written into
 one ``(18, E)`` buffer that a cached permutation turns into the CSR data.
 """
 
-import math
-import threading
 
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import LengthsAnglesError, format_indices
+from .cache import carve, scratch
+from .errors import LengthsAnglesError, MeshError, format_indices
 from .topology import check_vertices
 
 __all__ = [
@@ -54,6 +53,7 @@ __all__ = [
     "split_z",
     "check_z",
     "check_nondegenerate",
+    "jacobian_pattern",
 ]
 
 
@@ -129,8 +129,6 @@ def face_areas(vertices, faces):
 
 def check_nondegenerate(vertices, topology, rtol=1e-14):
     """Raise :class:`~lacore.errors.MeshError` naming triangles with (numerically) zero area."""
-    from .errors import MeshError
-
     X = check_vertices(vertices, topology.n_vertices)
     n = face_normals(X, topology.faces, unit=False).T
     area2 = np.sqrt(_dot_rows(n, n, np.empty(n.shape[1])))
@@ -157,31 +155,6 @@ def _block_ranges(n, size=None):
     return [(s, min(s + width, n)) for s in range(0, n, width)], width
 
 
-def _scratch(topology, name, n):
-    """A float64 scratch buffer of ``n`` entries, cached on the topology per thread.
-
-    The buffers are reused across calls (no page faults for fresh memory) and
-    never returned to the caller: every result is copied out of them.  They are
-    bounded by the block size, so they stay small even for large meshes.
-    """
-    store = topology._cached("lacore.scratch", dict)
-    key = (threading.get_ident(), name)
-    buf = store.get(key)
-    if buf is None or buf.size < n:
-        buf = store[key] = np.empty(n)
-    return buf[:n]
-
-
-def _carve(buf, *shapes):
-    """Consecutive C-contiguous views of ``buf`` with the given shapes."""
-    views, pos = [], 0
-    for shape in shapes:
-        size = math.prod(shape)
-        views.append(buf[pos:pos + size].reshape(shape))
-        pos += size
-    return views
-
-
 # --------------------------------------------------------------------------- edge stencils
 def _edge_blocks(topology):
     """Cached block layout of the edges and their stencils.
@@ -202,7 +175,7 @@ def _edge_blocks(topology):
         interior_before = np.searchsorted(topology.interior_edges, [s0 for s0, _ in ranges])
         stencil.setflags(write=False)
         return {"ranges": ranges, "width": width, "stencil": stencil, "interior_before": interior_before}
-    return topology._cached("z_edge_blocks", compute)
+    return topology.cache.get((__name__, "edge_blocks"), compute)
 
 
 def _block_vectors(Xc, stencil, out_P, out_D):
@@ -225,7 +198,7 @@ def _block_geometry(Xc, stencil, buf):
     ``n1 = b x e``), ``lengths`` (n,) and a free ``(n,)`` scratch row.
     """
     n = len(stencil) // 4
-    P, D, n0, n1, lengths, tmp = _carve(buf, (4, n), (3, 3, n), (3, n), (3, n), (n,), (n,))
+    P, D, n0, n1, lengths, tmp = carve(buf, (4, n), (3, 3, n), (3, n), (3, n), (n,), (n,))
     _block_vectors(Xc, stencil, P, D)
     e, a, b = D[:, 0], D[:, 1], D[:, 2]
     _cross_rows(e, a, n0, tmp)
@@ -264,13 +237,13 @@ def _z_of_vertices(X, topology, angles=True):
     E = topology.n_edges
     z = np.empty(2 * E if angles else E)
     blocks = _edge_blocks(topology)
-    buf = _scratch(topology, "z", 26 * blocks["width"])
+    buf = scratch(topology, "z", 26 * blocks["width"])
     Xc = _coordinates(X)
     for s0, s1 in blocks["ranges"]:
         stencil = blocks["stencil"][4 * s0:4 * s1]
         if not angles:
             n = s1 - s0
-            P, D = _carve(buf, (4, n), (3, 1, n))
+            P, D = carve(buf, (4, n), (3, 1, n))
             e = _block_vectors(Xc, stencil[:2 * n], P[:2], D)[:, 0]
             np.sqrt(_dot_rows(e, e, z[s0:s1]), out=z[s0:s1])
             continue
@@ -331,7 +304,7 @@ def check_z(z, topology, name="z"):
 
 
 # --------------------------------------------------------------------------- Jacobian
-def _jacobian_pattern(topology):
+def jacobian_pattern(topology):
     """Fixed CSR sparsity pattern of dZ/dX, computed once per topology.
 
     Keys: ``indices, indptr, shape`` (the CSR structure; rows sorted by column;
@@ -375,7 +348,7 @@ def _jacobian_pattern(topology):
         for key in ("order", "indices", "indptr", "quad", "gather"):
             out[key].setflags(write=False)
         return out
-    return topology._cached("z_jacobian_pattern", compute)
+    return topology.cache.get((__name__, "jacobian_pattern"), compute)
 
 
 def _csr(data, pattern):
@@ -445,10 +418,10 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     z : (2E,) ndarray, only if ``return_z``
     """
     X = np.asarray(vertices, float)
-    pat = _jacobian_pattern(topology)
+    pat = jacobian_pattern(topology)
     blocks = _edge_blocks(topology)
     E, w = topology.n_edges, blocks["width"]
-    buf = _scratch(topology, "dz", 46 * w)
+    buf = scratch(topology, "dz", 46 * w)
     geometry_buf, values_buf = buf[:26 * w], buf[26 * w:]
     data = np.empty(len(pat["indices"]))
     z = np.empty(2 * E) if return_z else None
@@ -460,7 +433,7 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
         if return_z:
             z[s0:s1] = lengths
             _dihedral_rows(b, n0, n1, lengths, z[E + s0:E + s1], tmp)
-        B, s = _carve(values_buf, (18, w), (w,))
+        B, s = carve(values_buf, (18, w), (w,))
         _block_jacobian_values(e, a, b, n0, n1, lengths, B[:, :n], s[:n], tmp)
         flat = B.reshape(-1)
         np.take(flat, gather[len_slice], out=data[len_slice], mode="wrap")

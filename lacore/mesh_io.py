@@ -17,6 +17,7 @@ neither merge, drop nor reorder vertices or faces:
 import os
 
 import numpy as np
+import trimesh
 
 from .errors import MeshError
 
@@ -159,8 +160,6 @@ def _ply_header_counts(path):
 
 
 def _load_ply(path):
-    import trimesh
-
     counts = _ply_header_counts(path)
     mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
     vertices = np.asarray(mesh.vertices)
@@ -175,8 +174,6 @@ def _load_ply(path):
 
 
 def _load_stl(path):
-    import trimesh
-
     mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
     soup = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].reshape(-1, 3)
     if len(soup) == 0:
@@ -224,8 +221,6 @@ def save_mesh(path, vertices, faces):
     if ext == ".ply":
         _save_ply(path, vertices, faces)
         return
-    import trimesh
-
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
     mesh.export(path)
 

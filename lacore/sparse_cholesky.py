@@ -44,6 +44,7 @@ regularized (damped) step from an exact one.
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 __all__ = ["SparseCholesky", "available_backends", "default_backend", "NotPositiveDefiniteError",
            "nested_dissection"]
@@ -245,8 +246,6 @@ class SparseCholesky:
                 return False
             self._factor = self._symbolic
             return True
-        from scipy.sparse.linalg import splu
-
         A = sp.csc_matrix((v[self._full_src], self._full_indices, self._full_indptr), shape=(self.n, self.n))
         try:
             lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,

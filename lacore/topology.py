@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from .cache import DerivedCache
 from .errors import MeshError, format_indices
 
 __all__ = ["MeshTopology", "check_vertices", "check_faces"]
@@ -112,6 +113,9 @@ class MeshTopology:
     boundary_edges : (E_b,) int64
     is_boundary_vertex : (V,) bool
     interior_vertices, boundary_vertices : int64 arrays
+    cache : lacore.cache.DerivedCache
+        Data derived from the connectivity by lacore's modules (patterns,
+        stencils, trees, contexts), keyed ``(owner module, name, *params)``.
     """
 
     n_vertices: int
@@ -121,7 +125,7 @@ class MeshTopology:
     face_edges: np.ndarray
     face_edge_is_left: np.ndarray
     corner_next: np.ndarray = field(repr=False)
-    _cache: dict = field(default_factory=dict, repr=False)
+    cache: DerivedCache = field(default_factory=DerivedCache, repr=False, compare=False)
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -256,25 +260,21 @@ class MeshTopology:
         return len(self.edges)
 
     def _cached(self, name, fn):
-        if name not in self._cache:
-            value = fn()
-            if isinstance(value, np.ndarray):
-                value.setflags(write=False)
-            self._cache[name] = value
-        return self._cache[name]
+        """Deprecated: ``self.cache.get((owner, name), fn)`` (:class:`lacore.cache.DerivedCache`)."""
+        return self.cache.get(("<unnamed>", name), fn)
 
     # ------------------------------------------------------------- edges
     @property
     def is_boundary_edge(self):
-        return self._cached("is_boundary_edge", lambda: self.edge_faces[:, 1] < 0)
+        return self.cache.get((__name__, "is_boundary_edge"), lambda: self.edge_faces[:, 1] < 0)
 
     @property
     def interior_edges(self):
-        return self._cached("interior_edges", lambda: np.flatnonzero(~self.is_boundary_edge))
+        return self.cache.get((__name__, "interior_edges"), lambda: np.flatnonzero(~self.is_boundary_edge))
 
     @property
     def boundary_edges(self):
-        return self._cached("boundary_edges", lambda: np.flatnonzero(self.is_boundary_edge))
+        return self.cache.get((__name__, "boundary_edges"), lambda: np.flatnonzero(self.is_boundary_edge))
 
     @property
     def edge_opposite_vertices(self):
@@ -285,7 +285,7 @@ class MeshTopology:
             side = np.where(self.face_edge_is_left.ravel(), 0, 1)
             out[e, side] = self.faces.ravel()
             return out
-        return self._cached("edge_opposite_vertices", compute)
+        return self.cache.get((__name__, "edge_opposite_vertices"), compute)
 
     @property
     def edge_local_index(self):
@@ -296,7 +296,7 @@ class MeshTopology:
             side = np.where(self.face_edge_is_left.ravel(), 0, 1)
             out[e, side] = np.tile(np.arange(3), self.n_faces)
             return out
-        return self._cached("edge_local_index", compute)
+        return self.cache.get((__name__, "edge_local_index"), compute)
 
     # ------------------------------------------------------------- vertices
     @property
@@ -305,20 +305,21 @@ class MeshTopology:
             m = np.zeros(self.n_vertices, bool)
             m[self.edges[self.boundary_edges].ravel()] = True
             return m
-        return self._cached("is_boundary_vertex", compute)
+        return self.cache.get((__name__, "is_boundary_vertex"), compute)
 
     @property
     def boundary_vertices(self):
-        return self._cached("boundary_vertices", lambda: np.flatnonzero(self.is_boundary_vertex))
+        return self.cache.get((__name__, "boundary_vertices"), lambda: np.flatnonzero(self.is_boundary_vertex))
 
     @property
     def interior_vertices(self):
-        return self._cached("interior_vertices", lambda: np.flatnonzero(~self.is_boundary_vertex))
+        return self.cache.get((__name__, "interior_vertices"), lambda: np.flatnonzero(~self.is_boundary_vertex))
 
     @property
     def vertex_valence(self):
         """Number of faces around each vertex, (V,)."""
-        return self._cached("vertex_valence", lambda: np.bincount(self.faces.ravel(), minlength=self.n_vertices))
+        return self.cache.get((__name__, "vertex_valence"),
+                              lambda: np.bincount(self.faces.ravel(), minlength=self.n_vertices))
 
     @property
     def euler_characteristic(self):
@@ -361,7 +362,7 @@ class MeshTopology:
                 corners.setflags(write=False)
                 groups[int(n)] = (inner[sel], corners)
             return groups
-        return self._cached("vertex_rings", compute)
+        return self.cache.get((__name__, "vertex_rings"), compute)
 
     def face_loops(self):
         """Ordered face loops around interior vertices, ``{n: (vertices (m,), faces (m, n))}``."""
@@ -371,7 +372,7 @@ class MeshTopology:
     @property
     def dual_edges(self):
         """(E_int, 2) face pairs (left, right) of the interior edges; row ``k`` is edge ``interior_edges[k]``."""
-        return self._cached("dual_edges", lambda: self.edge_faces[self.interior_edges])
+        return self.cache.get((__name__, "dual_edges"), lambda: self.edge_faces[self.interior_edges])
 
     def dual_graph(self, weights=None):
         """Face adjacency as a symmetric ``(F, F)`` CSR matrix.
@@ -392,7 +393,7 @@ class MeshTopology:
         def compute():
             n, labels = connected_components(self.dual_graph(), directed=False)
             return n, labels
-        return self._cached("face_components", compute)
+        return self.cache.get((__name__, "face_components"), compute)
 
     @property
     def n_components(self):
@@ -429,7 +430,7 @@ class MeshTopology:
             order = np.lexsort((-rank, labels))
             bounds = np.searchsorted(labels[order], np.arange(ncomp + 1))
             return [start_v[order[bounds[i]:bounds[i + 1]]] for i in range(ncomp)]
-        return self._cached("boundary_loops", compute)
+        return self.cache.get((__name__, "boundary_loops"), compute)
 
     def genus(self):
         """Genus per face component, ``(n_components,)``, from ``chi = 2 - 2g - b``."""

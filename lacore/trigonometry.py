@@ -18,9 +18,9 @@ branching; the results are bitwise those of the textbook formulas.
 Transcendental functions are only applied to C-contiguous arrays: with
 strided outputs numpy 1.26 can round differently (by an ulp) depending on
 memory alignment, which would make results irreproducible.  The
-private helpers :func:`_kahan_angle_factors` and :func:`_sort3` are shared with
-:mod:`lacore.integrability`, which evaluates the same formulas on its own
-(blocked) corner lists.
+row-level building blocks :func:`kahan_angle_factors`, :func:`kahan_area_rows`
+and :func:`margin_rows` are public: :mod:`lacore.integrability` evaluates the
+same formulas on its own (blocked) corner lists.
 """
 
 import numpy as np
@@ -32,6 +32,9 @@ __all__ = [
     "triangle_area_gradient",
     "interior_angles",
     "interior_angle_jacobian",
+    "kahan_angle_factors",
+    "kahan_area_rows",
+    "margin_rows",
 ]
 
 
@@ -45,7 +48,7 @@ def _rows(L):
     return np.ascontiguousarray(np.asarray(L, float).T)
 
 
-def _margin_rows(l0, l1, l2, out=None):
+def margin_rows(l0, l1, l2, out=None):
     """``T = (l0 + l1) + l2 - 2 max(l0, l1, l2)`` (the summation order of ``L.sum(1)``)."""
     out = np.add(l0, l1, out=out)
     out += l2
@@ -66,7 +69,7 @@ def _sort3(l0, l1, l2):
     return a, b, c
 
 
-def _kahan_area_rows(l0, l1, l2):
+def kahan_area_rows(l0, l1, l2):
     """Kahan's stable Heron formula (A.2) on length rows; 0 where the triangle inequality fails."""
     a, b, c = _sort3(l0, l1, l2)
     amb = a - b
@@ -83,7 +86,7 @@ def _kahan_area_rows(l0, l1, l2):
     return prod
 
 
-def _kahan_angle_factors(c, p, q, out):
+def kahan_angle_factors(c, p, q, out):
     """Kahan's factors (A.6) of the angle opposite side ``c`` between sides ``p`` and ``q``.
 
     With ``a = max(p, q)``, ``b = min(p, q)`` and
@@ -156,7 +159,7 @@ def _rolled_rows(R):
 def triangle_inequality_margin(L):
     """Scalar triangle-inequality map ``T_f = l_i + l_j + l_k - 2 max`` (3.6), shape ``(F,)``."""
     R = _rows(L)
-    return _margin_rows(R[0], R[1], R[2])
+    return margin_rows(R[0], R[1], R[2])
 
 
 def triangle_areas(L):
@@ -172,7 +175,7 @@ def triangle_areas(L):
         Areas; 0 where the triangle inequality is violated.
     """
     R = _rows(L)
-    return _kahan_area_rows(R[0], R[1], R[2])
+    return kahan_area_rows(R[0], R[1], R[2])
 
 
 def triangle_area_gradient(L, areas=None):
@@ -181,7 +184,7 @@ def triangle_area_gradient(L, areas=None):
     ``dA/dl_i = l_i (l_j^2 + l_k^2 - l_i^2) / (8 A)`` (appendix A.1); 0 for invalid triangles.
     """
     R = _rows(L)
-    A = _kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    A = kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
     sq = R * R
     tot = sq[0] + sq[1]
     tot += sq[2]
@@ -211,9 +214,9 @@ def interior_angles(L):
     """
     R5 = _rolled_rows(_rows(L))
     F = R5.shape[1]
-    num, den, _, _ = _kahan_angle_factors(R5[0:3], R5[1:4], R5[2:5], np.empty((4, 3, F)))
+    num, den, _, _ = kahan_angle_factors(R5[0:3], R5[1:4], R5[2:5], np.empty((4, 3, F)))
     out = _angle_rows(num, den, np.empty((3, F))).T.copy()
-    out[_margin_rows(R5[0], R5[1], R5[2]) <= 0] = 0.0
+    out[margin_rows(R5[0], R5[1], R5[2]) <= 0] = 0.0
     return out
 
 
@@ -226,7 +229,7 @@ def interior_angle_jacobian(L, areas=None):
     """
     R = _rows(L)
     F = R.shape[1]
-    A = _kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    A = kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
     R5 = _rolled_rows(R)
     S5 = R5 * R5
     J = np.empty((F, 3, 3))

@@ -277,9 +277,9 @@ def test_bfs_tree_is_cached_and_walk_indices_are_reused():
     t1 = bfs_tree(topo, 5)
     assert bfs_tree(topo, 5) is t1
     frame_based_reconstruction(z, topo, tree=t1)
-    sched = t1._cache["frame_based.walk"][1]
+    sched = t1.cache.peek(("lacore.reconstruction.frame_based", "walk_schedule", True))[1]
     frame_based_reconstruction(0.5 * z, topo, tree=t1)
-    assert t1._cache["frame_based.walk"][1] is sched
+    assert t1.cache.peek(("lacore.reconstruction.frame_based", "walk_schedule", True))[1] is sched
 
 
 def test_tree_from_parents_and_errors():
@@ -441,7 +441,7 @@ def test_least_squares_caches_the_position_factorization():
     topo, X, z = mesh("sphere/defSphere3.ply")
     w = np.linspace(1.0, 2.0, topo.n_edges)
     least_squares_reconstruction(z, topo, reference_vertices=X, edge_weights=w)
-    cache = topo._cache["least_squares.factors"]
+    cache = topo.cache.peek(("lacore.reconstruction.least_squares", "factors"))
     entries = {k: v for k, v in cache.items() if k[0] == "positions"}
     Y = least_squares_reconstruction(0.5 * z + 0.5 * lengths_and_angles(X * 1.1, topo), topo, reference_vertices=X,
                                      edge_weights=w)

@@ -88,7 +88,7 @@ def _assemble(topology, key, index_fn, vals, shape):
         indptr = np.r_[0, np.cumsum(np.bincount(r, minlength=shape[0]))]
         return {"inverse": inverse.ravel(), "indices": (uniq % shape[1]).astype(np.int32),
                 "indptr": indptr.astype(np.int32), "nnz": len(uniq)}
-    pat = topology._cached("energies:" + key, compute)
+    pat = topology.cache.get((__name__, "assembly_pattern", key), compute)
     data = np.bincount(pat["inverse"], weights=np.ravel(vals), minlength=pat["nnz"])
     return sp.csr_matrix((data, pat["indices"].copy(), pat["indptr"].copy()), shape=shape)
 
@@ -110,7 +110,7 @@ def _interior_quads(topology):
     def compute():
         ie = topology.interior_edges
         return np.column_stack([topology.edges[ie], topology.edge_opposite_vertices[ie]])
-    return topology._cached("energies:interior_quads", compute)
+    return topology.cache.get((__name__, "interior_quads"), compute)
 
 
 def edge_areas(lengths, topology):

@@ -29,7 +29,7 @@ def _z_support(topology):
         mask[:E, :2] = True
         mask[E + ie] = True
         return np.concatenate([ab, ang]), mask
-    return topology._cached("energies:z_support", compute)
+    return topology.cache.get((__name__, "z_support"), compute)
 
 
 def _z_local_gradients(J, topology):
@@ -69,7 +69,7 @@ def _element_gather(topology, block):
         dst = (np.arange(n * k).reshape(n, k, 1) * m + pos)[msk]
         src = (block.rows[..., None] * 4 + np.arange(4))[msk]
         return src, dst
-    return topology._cached("energies:gn_gather:" + block.key, compute)
+    return topology.cache.get((__name__, "gn_gather", block.key), compute)
 
 
 class EnergyInVertices:

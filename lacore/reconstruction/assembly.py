@@ -17,7 +17,7 @@ factorization do not depend on the fixed face.
 import numpy as np
 import scipy.sparse as sp
 
-from ..lengths_angles import _jacobian_pattern
+from ..lengths_angles import jacobian_pattern
 from ..sparse_cholesky import nested_dissection
 
 __all__ = ["gauss_newton_pattern", "upper_outer", "dof_ordering"]
@@ -46,7 +46,7 @@ def gauss_newton_pattern(topology):
     def compute():
         n = 3 * topology.n_vertices
         E, Ei = topology.n_edges, len(topology.interior_edges)
-        jp = _jacobian_pattern(topology)
+        jp = jacobian_pattern(topology)
         inv = np.empty_like(jp["order"])
         inv[jp["order"]] = np.arange(len(jp["order"]))  # CSR position of local value k (edge-major)
         local_order = np.concatenate([inv[: 6 * E].reshape(E, 6).T.ravel(), inv[6 * E:].reshape(Ei, 12).T.ravel()])
@@ -67,7 +67,7 @@ def gauss_newton_pattern(topology):
         matrix = sp.csc_matrix((np.ones(len(ukeys)), indices, indptr), shape=(n, n))
         return {"indptr": indptr, "indices": indices, "cols": ucols, "matrix": matrix, "slots": slots,
                 "local_order": local_order, "nnz": len(ukeys), "n": n}
-    return topology._cached("lacore.reconstruction.gauss_newton_pattern", compute)
+    return topology.cache.get((__name__, "gauss_newton_pattern"), compute)
 
 
 def upper_outer(g, gw, out):

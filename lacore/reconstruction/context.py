@@ -296,7 +296,7 @@ def get_context(topology, reference_vertices, settings=None, **kwargs):
     """
     X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
     settings = make_settings(settings, caller="get_context", **kwargs)
-    cache = topology._cached("lacore.reconstruction.contexts", OrderedDict)
+    cache = topology.cache.get((__name__, "contexts"), OrderedDict)
     key = (X.tobytes(), settings)
     ctx = cache.get(key)
     if ctx is None:

@@ -57,7 +57,7 @@ from ..errors import MeshError, format_indices
 from ..integrability import standard_frames
 from ..lengths_angles import check_z
 from ..topology import check_vertices
-from .spanning_trees import DualSpanningTree, _half_theta, _stable_order, default_root_faces, dual_spanning_tree
+from .spanning_trees import DualSpanningTree, half_theta, stable_order, default_root_faces, dual_spanning_tree
 
 __all__ = ["frame_based_reconstruction", "propagate_frames", "rotation_to_quaternion"]
 
@@ -237,7 +237,7 @@ def _composition_schedule(parent, depth, level_order, need, keep, block=4):
     # leaves (block), nodes not needed (block + 1)
     key = np.where(internal, np.where(has_parent, rel, 0), np.where(leaf, block, block + 1))
     key = key.take(level_order)
-    perm = _stable_order(key)
+    perm = stable_order(key)
     counts = np.bincount(key, minlength=block + 2)
     P, N = int(counts[0]), int(counts[1:block].sum())
     m = P + N + int(counts[block])
@@ -293,7 +293,7 @@ def _slot_tables(topology):
         for a in out:
             a.setflags(write=False)
         return out
-    return topology._cached("frame_based.slot_tables", compute)
+    return topology.cache.get((__name__, "slot_tables"), compute)
 
 
 def _walk_schedule(tree, topology, prune=True):
@@ -303,8 +303,8 @@ def _walk_schedule(tree, topology, prune=True):
     faces without a vertex to place and without needed descendants are dropped
     (two pruning passes), see :func:`_composition_schedule` for the rest.
     """
-    key = "frame_based.walk" if prune else "frame_based.walk_all"
-    entry = tree._cache.get(key)
+    key = (__name__, "walk_schedule", bool(prune))
+    entry = tree.cache.peek(key)
     if entry is not None and entry[0]() is topology:
         return entry[1]
     F, V = topology.n_faces, topology.n_vertices
@@ -374,7 +374,7 @@ def _walk_schedule(tree, topology, prune=True):
     # vertex tree, leaves raked
     vdepth = _forest_depths(vpar)
     vorder = np.concatenate((verts[~placed], unreferenced, verts[placed]))
-    vorder = vorder[_stable_order(vdepth.take(vorder))]        # by depth, the roots first
+    vorder = vorder[stable_order(vdepth.take(vorder))]        # by depth, the roots first
     vnodes, v_steps, v_block = _composition_schedule(vpar, vdepth, vorder, vface >= 0, vpar < 0)
     vrank = np.full(V, len(vnodes), np.int64)                  # unreferenced vertices -> an extra zero row
     vrank[vnodes] = np.arange(len(vnodes))
@@ -383,7 +383,7 @@ def _walk_schedule(tree, topology, prune=True):
     sched = {
         "C": C,
         "n_faces_walk": len(fnodes),
-        "len6": topology._cached("frame_based.len6", lambda: np.ascontiguousarray(fe[:, [0, 1, 2, 0, 1, 2]].T)),
+        "len6": topology.cache.get((__name__, "len6"), lambda: np.ascontiguousarray(fe[:, [0, 1, 2, 0, 1, 2]].T)),
         "tp": twin.take(nslot) * F + parent.take(nc),
         "tc": li_child.take(nc) * F + nc,
         "edge": tree.parent_edge.take(nc),
@@ -404,7 +404,7 @@ def _walk_schedule(tree, topology, prune=True):
     for value in sched.values():
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
-    tree._cache[key] = (weakref.ref(topology), sched)
+    tree.cache.put(key, (weakref.ref(topology), sched))
     return sched
 
 
@@ -461,7 +461,7 @@ def _compose_frames(z, topology, sched, root_q):
     sign = sched["sign"]
     P = T.take(sched["tp"]) * -1j
     Q = T.take(sched["tc"])
-    ch, sh = _half_theta(theta.take(sched["edge"]) * sign)    # cos(theta/2), s sin(theta/2)
+    ch, sh = half_theta(theta.take(sched["edge"]) * sign)    # cos(theta/2), s sin(theta/2)
     ch *= sign
     n = sched["n_faces_walk"]
     alpha = np.empty(n, complex)

@@ -53,7 +53,7 @@ from ..lengths_angles import check_z
 from ..sparse_cholesky import SparseCholesky
 from ..topology import check_vertices
 from ..trigonometry import interior_angles
-from .spanning_trees import _check_roots_per_component, default_root_faces
+from .spanning_trees import check_roots_per_component, default_root_faces
 
 __all__ = ["least_squares_reconstruction", "least_squares_frames", "nearest_rotations"]
 
@@ -77,7 +77,7 @@ def _roots_and_placement(z, topology, root_face, reference_vertices):
         roots = default_root_faces(topology, z=z, vertices=reference_vertices)
     else:
         roots = np.atleast_1d(np.asarray(root_face)).astype(np.int64)
-        _check_roots_per_component(topology, roots)
+        check_roots_per_component(topology, roots)
     C = len(roots)
     if reference_vertices is not None:
         frames = standard_frames(reference_vertices, topology.faces[roots])
@@ -106,11 +106,11 @@ def _incidence(topology):
         cols = np.stack([fr, to], 1).ravel()
         vals = np.tile([-1.0, 1.0], 3 * F)
         return sp.csr_matrix((vals, (rows, cols)), shape=(3 * F, V))
-    return topology._cached("least_squares.incidence", compute)
+    return topology.cache.get((__name__, "incidence"), compute)
 
 
 def _factor_cache(topology):
-    return topology._cached("least_squares.factors", dict)
+    return topology.cache.get((__name__, "factors"), dict)
 
 
 def _remember(cache, key, value):

@@ -51,6 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from ..cache import DerivedCache
 from ..errors import LengthsAnglesError, MeshError, format_indices
 from ..integrability import integrability_violation
 from ..lengths_angles import check_z
@@ -67,6 +68,9 @@ __all__ = [
     "default_root_faces",
     "forest_levels",
     "TREE_KINDS",
+    "half_theta",
+    "stable_order",
+    "check_roots_per_component",
 ]
 
 TREE_KINDS = ("bfs", "mst", "spt")
@@ -107,7 +111,7 @@ class DualSpanningTree:
     depth: np.ndarray
     order: np.ndarray
     level_starts: np.ndarray
-    _cache: dict = field(default_factory=dict)
+    cache: DerivedCache = field(default_factory=DerivedCache, repr=False, compare=False)
 
     def __repr__(self):
         return (f"DualSpanningTree(kind={self.kind!r}, n_faces={self.n_faces}, roots={self.roots.tolist()[:4]}"
@@ -147,7 +151,7 @@ class DualSpanningTree:
                                 f"root faces {format_indices(roots)}")
         else:
             roots = found_roots
-        _check_roots_per_component(topology, roots)
+        check_roots_per_component(topology, roots)
         child = np.flatnonzero(parent >= 0)
         nbr = _face_neighbors(topology)
         hit = nbr[child] == parent[child, None]
@@ -199,12 +203,6 @@ class DualSpanningTree:
         """Sum of ``edge_weights`` (per primal edge, ``(E,)``) over the tree edges."""
         return float(np.asarray(edge_weights, float)[self.edges].sum())
 
-    def _cached(self, name, fn):
-        if name not in self._cache:
-            self._cache[name] = fn()
-        return self._cache[name]
-
-
 # --------------------------------------------------------------------------- dual graph structures
 def _face_neighbors(topology):
     """(F, 3) face across the edge opposite local vertex ``i`` (``-1`` on the boundary)."""
@@ -212,7 +210,7 @@ def _face_neighbors(topology):
         ef = topology.edge_faces[topology.face_edges]                     # (F, 3, 2)
         me = np.arange(topology.n_faces)[:, None]
         return np.where(ef[..., 0] == me, ef[..., 1], ef[..., 0])
-    return topology._cached("spanning_trees.face_neighbors", compute)
+    return topology.cache.get((__name__, "face_neighbors"), compute)
 
 
 def _dual_patterns(topology):
@@ -240,7 +238,7 @@ def _dual_patterns(topology):
         sym = pattern(np.r_[d[:, 0], d[:, 1]], np.r_[d[:, 1], d[:, 0]], np.r_[ids, ids + k])
         one = pattern(d[:, 0], d[:, 1], ids)
         return {"sym": sym, "one": one}
-    return topology._cached("spanning_trees.dual_patterns", compute)
+    return topology.cache.get((__name__, "dual_patterns"), compute)
 
 
 def _dual_csr(topology, w_int=None, which="sym"):
@@ -253,7 +251,7 @@ def _dual_csr(topology, w_int=None, which="sym"):
 
 def _csr_from_pairs(rows, cols, n):
     """Unit-weight ``(n, n)`` CSR from index pairs (stable sort by row; columns keep their order)."""
-    perm = _stable_order(rows)
+    perm = stable_order(rows)
     indptr = np.zeros(n + 1, np.int32)
     np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
     return sp.csr_matrix((np.ones(len(rows)), cols[perm].astype(np.int32), indptr), shape=(n, n))
@@ -341,14 +339,15 @@ def forest_levels(parent, roots):
     return order, level_starts, depth
 
 
-def _stable_order(keys):
+def stable_order(keys):
     """``argsort(keys, kind="stable")``, by radix sort for small nonnegative integer keys."""
     if keys.size and keys.min() >= 0 and keys.max() < 65536:
         return np.argsort(keys.astype(np.uint16), kind="stable")
     return np.argsort(keys, kind="stable")
 
 
-def _check_roots_per_component(topology, roots):
+def check_roots_per_component(topology, roots):
+    """Check that ``roots`` are face indices, exactly one per connected component; MeshError otherwise."""
     n, labels = topology.face_components()
     roots = np.asarray(roots, np.int64)
     if roots.ndim != 1 or np.any(roots < 0) or np.any(roots >= topology.n_faces):
@@ -369,7 +368,7 @@ def _normalize_roots(topology, root_face, z=None, vertices=None):
     if not np.issubdtype(roots.dtype, np.integer):
         raise MeshError(f"root_face must be an integer face index (or one per component), got {root_face!r}")
     roots = roots.astype(np.int64)
-    _check_roots_per_component(topology, roots)
+    check_roots_per_component(topology, roots)
     return roots
 
 
@@ -398,7 +397,7 @@ def _center_scores(topology):
         b = farthest(da)
         db = dist_from(b)
         return np.maximum(da, db)
-    return topology._cached("spanning_trees.center_scores", compute)
+    return topology.cache.get((__name__, "center_scores"), compute)
 
 
 def _face_quality_from_lengths(L):
@@ -427,7 +426,7 @@ def _central_candidates(topology):
         for x in out:
             x.setflags(write=False)
         return out
-    return topology._cached("spanning_trees.central_candidates", compute)
+    return topology.cache.get((__name__, "central_candidates"), compute)
 
 
 def default_root_faces(topology, z=None, vertices=None):
@@ -483,14 +482,14 @@ def bfs_tree(topology, root_face=None):
     DualSpanningTree
     """
     roots = _normalize_roots(topology, root_face)
-    key = "spanning_trees.bfs." + ",".join(map(str, roots.tolist()))
+    key = (__name__, "bfs_tree", tuple(roots.tolist()))
 
     def compute():
         order, pred = _bfs_forest(_dual_csr(topology), roots)
         level_starts, depth = _levels_from_bfs(order, pred, len(roots))
         return DualSpanningTree._assemble("bfs", pred, _parent_edges(topology, pred), depth, order, level_starts,
                                           len(roots))
-    return topology._cached(key, compute)
+    return topology.cache.get(key, compute)
 
 
 def _parent_edges(topology, parent):
@@ -585,7 +584,7 @@ def shortest_path_tree(topology, root_face, edge_weights):
 
 
 # --------------------------------------------------------------------------- adaptive weights (3.30)
-def _half_theta(theta):
+def half_theta(theta):
     """``(cos(theta / 2), sin(theta / 2))`` via ``t = tan(theta / 4)`` (vectorized tangent is fast)."""
     t = np.tan(0.25 * theta)
     t2 = t * t
