@@ -18,11 +18,17 @@ current scene, made active and returned.
 
 import math
 import os
+import sys
 
 import bpy
 import numpy as np
 
 from blender_samples import add_shape_key, make_object
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if REPO not in sys.path:  # the repository's lacore (the installed extension has its own copy)
+    sys.path.insert(0, REPO)
+from lacore.rigid import rigid_align  # noqa: E402
 
 __all__ = ["make_box_bar", "add_simple_deform_key", "simple_deform_coords", "bent_bar", "twisted_bar",
            "shared_mesh_pair", "key_coords", "build_sample_files", "SAMPLE_FILES"]
@@ -242,14 +248,6 @@ def mesh_edges(obj):
     return e.reshape(-1, 2).astype(np.int64)
 
 
-def rigid_fit(X, target):
-    """``X`` rigidly moved (Kabsch, no reflection) to best fit ``target``."""
-    cx, ct = X.mean(0), target.mean(0)
-    U, _S, Vt = np.linalg.svd((X - cx).T @ (target - ct))
-    d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0 else -1.0
-    return (X - cx) @ (Vt.T @ np.diag([1.0, 1.0, d]) @ U.T).T + ct
-
-
 def blend_metrics(X, reference, straight, edges):
     """How well ``X`` reproduces ``reference`` (up to a rigid motion) and how it changes edge lengths.
 
@@ -258,7 +256,7 @@ def blend_metrics(X, reference, straight, edges):
     ``max |l / l_straight - 1|``; ``max_edge_error_vs_reference``: ``max |l / l_reference - 1|``.
     """
     diag = float(np.linalg.norm(reference.max(0) - reference.min(0)))
-    Y = rigid_fit(X, reference)
+    Y = rigid_align(X, reference)
     rms = float(np.sqrt(np.mean(np.sum((Y - reference) ** 2, axis=1))))
 
     def lengths(P):

@@ -104,7 +104,7 @@ def build_picture_scene(bpy, cases, bar, coords, numbers):
     objects = []
     for i, (key, title, color, detail) in enumerate(columns):
         offset = np.array([(i - 1) * spacing, 0.0, 0.0])
-        X = cases.rigid_fit(coords[key], R) - center + offset
+        X = cases.rigid_align(coords[key], R) - center + offset
         obj = cases.make_object(f"Cmp_{key}", X, polys)
         obj.color = color
         objects.append(obj)

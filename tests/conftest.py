@@ -9,6 +9,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -44,6 +45,22 @@ def shared_mesh(relative: str) -> Path:
 @pytest.fixture(scope="session")
 def meshes_dir() -> Path:
     return shared_meshes_dir()
+
+
+def load_mesh(relative: str):
+    """Vertices ``(V, 3)`` float64 and faces ``(F, 3)`` int64 of a shared mesh (file order kept)."""
+    import trimesh
+
+    m = trimesh.load(shared_mesh(relative), process=False)
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+def load_topology(relative: str):
+    """Vertices ``(V, 3)`` and the :class:`~lacore.topology.MeshTopology` of a shared mesh."""
+    from lacore.topology import MeshTopology
+
+    X, faces = load_mesh(relative)
+    return X, MeshTopology.from_faces(faces, n_vertices=len(X))
 
 
 # ----------------------------------------------------------------------------- Blender subprocess checks

@@ -3,8 +3,8 @@
 
 * a quad box bar (1058 vertices) bent 180 degrees by Blender's Simple Deform (applied as a shape
   key): the lengths-and-angles in-between at t = 0.5 matches Blender's own 90-degree bend to
-  < 1 % of the bounding-box diagonal (RMS after a rigid fit), where the linear shape-key blend
-  is far off;
+  0.04 % of the bounding-box diagonal (RMS after a rigid fit), where the linear shape-key blend
+  is 2 % off;
 * end points reproduce the keys, extrapolation is finite, redo replaces, errors change nothing;
 * the shared finger pair: the in-between keeps the interpolated edge lengths;
 * bake: one key at 1 per frame (CONSTANT F-curves through the Key's channelbag), re-bake
@@ -40,18 +40,25 @@ def test_interpolate_keys_and_end_points(run):
 
 
 def test_bar_blend_quality_vs_simple_deform_90(run):
-    """The README figure's numbers: lengths and angles at 0.5 vs Blender's 90-degree bend."""
+    """The README figure's numbers: lengths and angles at 0.5 vs Blender's 90-degree bend.
+
+    Measured (2026-11-23): RMS distance per diagonal 3.99e-4 (README: 0.040 %), Gauss-Newton 3.98e-4,
+    Preview 3.20e-4; edge lengths vs the 90-degree bend 3.19e-5 (README: 0.003 %), Preview 1.49e-3; the
+    linear blend 2.00 % RMS and 29.3 % edge error; extrapolation to 1.5 vs the 270-degree bend 2.46e-3.
+    Bounds: 2-3x these values."""
     res = run["cases"]["interpolate_bar"]
     la, lin, ref = res["lengths_angles"], res["linear"], res["simple_deform_90"]
-    assert la["rms_error_per_diagonal"] < 0.01
-    assert res["gauss_newton"]["rms_error_per_diagonal"] < 0.01
-    assert res["preview"]["rms_error_per_diagonal"] < 0.01  # least-squares relaxation alone
-    assert lin["rms_error_per_diagonal"] > 10 * la["rms_error_per_diagonal"]
+    assert la["rms_error_per_diagonal"] < 1.0e-3
+    assert res["gauss_newton"]["rms_error_per_diagonal"] < 1.0e-3
+    assert res["preview"]["rms_error_per_diagonal"] < 8e-4  # least-squares relaxation alone
+    assert res["preview"]["max_edge_error_vs_reference"] < 4e-3
+    assert 0.019 < lin["rms_error_per_diagonal"] < 0.021
     # edge lengths: the in-between has (almost) the reference's, the linear blend shrinks edges a lot
-    assert la["max_edge_error_vs_reference"] < 0.02
+    assert la["max_edge_error_vs_reference"] < 1e-4
+    assert 0.28 < lin["max_edge_error_vs_reference"] < 0.30
     assert lin["max_edge_change_vs_straight"] > 2 * ref["max_edge_change_vs_straight"]
     # extrapolation to t = 1.5 is a 270-degree bend (lengths and angles continue linearly)
-    assert res["extrapolated_1_5_vs_simple_deform_270"]["rms_error_per_diagonal"] < 0.02
+    assert res["extrapolated_1_5_vs_simple_deform_270"]["rms_error_per_diagonal"] < 6e-3
     # placement: rigidly fitted to the linear blend, so the centroids coincide
     assert res["centroid_shift"] < 1e-6 * res["diagonal"]
 
@@ -65,7 +72,7 @@ def test_redo_replaces_keys(run):
 def test_ngons_and_edit_mode(run):
     res = run["cases"]["quads_ngons_and_edit_mode"]
     assert abs(res["cube_edge_at_0.5"] - 2.5) < 1e-4  # lengths interpolate linearly (edge 2 -> 3)
-    assert abs(res["prism_height_at_0.5"] - 2.0) < 1e-3  # hexagonal prism height 1 -> 3
+    assert abs(res["prism_height_at_0.5"] - 2.0) < 2e-4  # hexagonal prism height 1 -> 3 (measured 4.8e-5 off)
 
 
 def test_errors_leave_object_unchanged(run):
@@ -84,9 +91,10 @@ def test_bake_one_key_per_frame(run):
     assert hot["1"] == ["Basis"] and hot["6"] == ["Bend180"] and hot["12"] == ["Twist180"]
     assert hot["4"] == ["LA bake 004"] and hot["-1"] == ["Basis"] and hot["14"] == ["Twist180"]
     assert all(len(v) == 1 for v in hot.values())
-    # the baked bend follows Blender's own Simple Deform at the same angle
-    assert max(res["bend_rms_per_diagonal"].values()) < 0.01
-    assert res["twist_max_relative_length_error"] < 0.02
+    # the baked bend follows Blender's own Simple Deform at the same angle (measured: at most 4.0e-4 RMS per
+    # diagonal; the twist keeps its edge lengths to 1.26e-2)
+    assert max(res["bend_rms_per_diagonal"].values()) < 1e-3
+    assert res["twist_max_relative_length_error"] < 0.03
 
 
 def test_rebake_replaces_and_survives_reload(run):
@@ -97,11 +105,12 @@ def test_rebake_replaces_and_survives_reload(run):
 
 def test_finger_pair_keeps_lengths(run):
     """Shared finger0 -> finger1 (2046 vertices): the in-between has the interpolated edge lengths
-    (RMS 0.1 %), the linear blend misses them by about 10 % RMS (up to ~50 %)."""
+    (measured RMS 0.035 %, max 0.58 %), the linear blend misses them by about 10 % RMS (up to ~48 %)."""
     res = run["cases"]["finger_pair"]
     la, lin = res["lengths_angles"], res["linear"]
     assert res["vertices"] == 2046
-    assert la["rms_relative_length_error"] < 0.01 and la["max_relative_length_error"] < 0.1
+    assert la["rms_relative_length_error"] < 1e-3 and la["max_relative_length_error"] < 0.015
+    assert 0.09 < lin["rms_relative_length_error"] < 0.11
     assert lin["rms_relative_length_error"] > 10 * la["rms_relative_length_error"]
 
 

@@ -31,14 +31,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-REPO = Path(__file__).resolve().parent.parent
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-from lacore import integrability as integ  # noqa: E402
-from lacore import lengths_angles as la  # noqa: E402
-from lacore import trigonometry as trig  # noqa: E402
-from lacore.topology import MeshTopology  # noqa: E402
+from lacore import integrability as integ
+from lacore import lengths_angles as la
+from lacore import trigonometry as trig
+from lacore.topology import MeshTopology
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -125,7 +121,6 @@ def _load_sparse(store, prefix):
 def _regenerate():  # pragma: no cover - run by hand with the reference implementation only
     import trimesh
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from conftest import shared_mesh
 
     DATA.mkdir(exist_ok=True)

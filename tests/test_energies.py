@@ -2,8 +2,7 @@
 
 import numpy as np
 import pytest
-import trimesh
-from conftest import shared_mesh
+from conftest import load_topology
 from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
@@ -19,20 +18,14 @@ PAIRS = [("plate/plate121.ply", "plate/plate121_rolledA.ply"),
 ACOS02 = np.arccos(0.2)  # dihedral angle of the spokes of square4_bent (a pyramid of height 1)
 
 
-def load(rel):
-    m = trimesh.load(shared_mesh(rel), process=False)
-    X = np.asarray(m.vertices, float)
-    return X, MeshTopology.from_faces(np.asarray(m.faces), n_vertices=len(X))
-
-
 _CACHE = {}
 
 
 def pair(rels):
     """Vertices and lengths-and-angles of a shared pair in dense correspondence (cached per module)."""
     if rels not in _CACHE:
-        Xa, topo = load(rels[0])
-        Xb, _ = load(rels[1])
+        Xa, topo = load_topology(rels[0])
+        Xb, _ = load_topology(rels[1])
         _CACHE[rels] = (topo, Xa, Xb, lengths_and_angles(Xa, topo), lengths_and_angles(Xb, topo))
     return _CACHE[rels]
 
@@ -61,7 +54,7 @@ def shifted(z_a, z_b, argument, t, v):
 def test_quadratic_weights_square4_by_hand():
     # four right isosceles triangles of area 1/4 around the centre vertex 0: spokes of length sqrt(1/2)
     # (interior, dbar = (1/4 + 1/4) / 3 = 1/6), rim edges of length 1 (boundary, dbar = (1/4) / 3 = 1/12)
-    X, topo = load("simple/square4.ply")
+    X, topo = load_topology("simple/square4.ply")
     spoke = (topo.edges == 0).any(1)
     assert spoke.sum() == 4 and np.array_equal(spoke, ~topo.is_boundary_edge)
     lbar = lengths_and_angles(X, topo)[:topo.n_edges]
@@ -83,8 +76,8 @@ def test_quadratic_weights_square4_by_hand():
 def test_square4_to_pyramid_by_hand():
     # square4 -> square4_bent lifts the centre to height 1: spokes sqrt(1/2) -> sqrt(3/2), rims unchanged,
     # spoke dihedral angles 0 -> arccos(1/5) (normals (0, 1, 1/2) and (-1, 0, 1/2) of neighbouring faces)
-    Xa, topo = load("simple/square4.ply")
-    Xb, _ = load("simple/square4_bent.ply")
+    Xa, topo = load_topology("simple/square4.ply")
+    Xb, _ = load_topology("simple/square4_bent.ply")
     za, zb = lengths_and_angles(Xa, topo), lengths_and_angles(Xb, topo)
     eta = 0.3
     dl2 = (np.sqrt(1.5) - np.sqrt(0.5)) ** 2
@@ -392,8 +385,8 @@ def test_errors_for_mismatched_or_bad_input():
 
 def test_errors_for_meshes_not_in_correspondence():
     # octa_src_small (600 vertices) and octa_trg_small (601 vertices) do not share connectivity
-    Xs, ts = load("octa/octa_src_small.ply")
-    Xt, tt = load("octa/octa_trg_small.ply")
+    Xs, ts = load_topology("octa/octa_src_small.ply")
+    Xt, tt = load_topology("octa/octa_trg_small.ply")
     zs, zt = lengths_and_angles(Xs, ts), lengths_and_angles(Xt, tt)
     en = ThinShellsEnergy(ts)
     with pytest.raises(LengthsAnglesError, match=f"z_b must have shape \\({2 * ts.n_edges},\\)"):

@@ -19,6 +19,7 @@ from lacore.reconstruction.least_squares import least_squares_reconstruction, ne
 from lacore.reconstruction.spanning_trees import (DualSpanningTree, adaptive_edge_weights,
                                                   bfs_tree, default_root_faces, dual_spanning_tree, forest_levels,
                                                   minimal_spanning_tree, preassembled_tree, shortest_path_tree)
+from lacore.rigid import rigid_align
 from lacore.topology import MeshTopology
 from lacore.trigonometry import interior_angles
 
@@ -62,11 +63,7 @@ def z_errors(Y, z, topo):
 
 def rigid_residual(Y, X):
     """Max distance after the best rigid alignment (Kabsch) of ``Y`` onto ``X``."""
-    cy, cx = Y.mean(0), X.mean(0)
-    u, _, vt = np.linalg.svd((Y - cy).T @ (X - cx))
-    d = np.sign(np.linalg.det(u @ vt))
-    Q = u @ np.diag([1.0, 1.0, d]) @ vt
-    return np.abs((Y - cy) @ Q - (X - cx)).max()
+    return np.abs(rigid_align(Y, X) - X).max()
 
 
 def quadratic_residual(z, z_target, topo, X_ref, eta=1e-3):

@@ -4,8 +4,7 @@ and the sparse Cholesky wrapper."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
-import trimesh
-from conftest import shared_mesh
+from conftest import load_mesh
 from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
@@ -27,16 +26,11 @@ GOAST_ITERATIONS = {"finger1": 14, "average": 12}
 _CACHE = {}
 
 
-def load(rel):
-    m = trimesh.load(shared_mesh(rel), process=False)
-    return np.asarray(m.vertices, float), np.asarray(m.faces)
-
-
 def mesh_pair(a, b):
     """Topology, both vertex arrays and both z of a pair of shared meshes (cached per module)."""
     if (a, b) not in _CACHE:
-        Xa, faces = load(a)
-        Xb, _ = load(b)
+        Xa, faces = load_mesh(a)
+        Xb, _ = load_mesh(b)
         topo = MeshTopology.from_faces(faces, n_vertices=len(Xa))
         _CACHE[a, b] = (topo, Xa, Xb, lengths_and_angles(Xa, topo), lengths_and_angles(Xb, topo))
     return _CACHE[a, b]
@@ -254,11 +248,11 @@ def test_identity_target_returns_the_reference():
 
 
 def test_two_components_get_one_fixed_face_each():
-    X, faces = load("simple/square4_bent.ply")
+    X, faces = load_mesh("simple/square4_bent.ply")
     X2 = np.vstack([X, X + [3.0, 0.0, 0.0]])
     F2 = np.vstack([faces, faces + len(X)])
     topo = MeshTopology.from_faces(F2, n_vertices=len(X2))
-    ref = np.vstack([load("simple/square4.ply")[0], load("simple/square4.ply")[0] + [3.0, 0, 0]])
+    ref = np.vstack([load_mesh("simple/square4.ply")[0], load_mesh("simple/square4.ply")[0] + [3.0, 0, 0]])
     z = lengths_and_angles(X2, topo)
     ctx = ReconstructionContext(topo, ref, fixed_face=5)
     assert ctx.fixed_faces.tolist() == [ctx.fixed_faces[0], 5] and ctx.fixed_faces[0] < 4
@@ -273,8 +267,6 @@ def test_two_components_get_one_fixed_face_each():
 @pytest.mark.parametrize("method", ["gn", "bfs", "mst", "spt", "lsq", "hybrid"])
 @pytest.mark.parametrize("which", ["finger", "plate"])
 def test_every_method_returns_a_finite_mesh(method, which):
-    if method == "lsq":
-        pytest.importorskip("lacore.reconstruction.least_squares", reason="least-squares module not present")
     topo, Xa, Xb, za, zb = finger() if which == "finger" else plate()
     zt = 0.5 * (za + zb)
     res = reconstruct(zt, topo, Xa, method=method, max_iterations=20)
@@ -361,7 +353,7 @@ def test_projection_is_idempotent_and_fixes_admissible_z():
 def test_plate_rolled_the_other_way_is_reached_from_the_flat_plate():
     """A large deformation: the quadratic energy needs many damped steps, but reaches the admissible target."""
     topo, XA, XB, zA, zB = plate()
-    Xflat = load("plate/plate121.ply")[0]
+    Xflat = load_mesh("plate/plate121.ply")[0]
     res = reconstruct(zB, topo, Xflat, max_iterations=200)
     assert res.success and res.status == 1, res.message
     err = reconstruction_errors(res.vertices, zB, topo)
@@ -421,8 +413,8 @@ def test_bad_inputs_raise_clear_errors():
 
 
 def test_octa_meshes_are_not_in_correspondence():
-    Xs, fs = load("octa/octa_src_small.ply")
-    Xt, ft = load("octa/octa_trg_small.ply")
+    Xs, fs = load_mesh("octa/octa_src_small.ply")
+    Xt, ft = load_mesh("octa/octa_trg_small.ply")
     topo = MeshTopology.from_faces(fs, n_vertices=len(Xs))
     with pytest.raises(MeshError, match="has 601 vertices but the mesh has 600"):
         reconstruct(lengths_and_angles(Xs, topo), topo, Xt)

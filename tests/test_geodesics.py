@@ -10,8 +10,7 @@ qualitative claim on the 121-vertex rolled plates: the constrained geodesic is
 import numpy as np
 import pytest
 import scipy.sparse as sp
-import trimesh
-from conftest import shared_mesh
+from conftest import load_mesh
 from fd import directional_fd, relative_error
 
 from lacore.energies import QuadraticEnergy, ThinShellsEnergy
@@ -26,15 +25,10 @@ from lacore.topology import MeshTopology
 N_STEPS = 8
 
 
-def _load(relative):
-    m = trimesh.load(shared_mesh(relative), process=False)
-    return np.asarray(m.vertices, float), np.asarray(m.faces)
-
-
 @pytest.fixture(scope="module")
 def plates():
-    XA, F = _load("plate/plate121_rolledA.ply")
-    XB, _ = _load("plate/plate121_rolledB.ply")
+    XA, F = load_mesh("plate/plate121_rolledA.ply")
+    XB, _ = load_mesh("plate/plate121_rolledB.ply")
     topo = MeshTopology.from_faces(F, n_vertices=len(XA))
     return topo, XA, XB
 
@@ -296,8 +290,8 @@ def test_sqp_reconstructs_vertices(plates):
 
 def test_closed_mesh_with_rank_deficient_constraints():
     """Closed surface: the Euler Jacobian has rank 3V - 6 (Conjecture 1); the regularized KKT system copes."""
-    X0, F = _load("sphere/defSphere0.ply")
-    X1, _ = _load("sphere/defSphere1.ply")
+    X0, F = load_mesh("sphere/defSphere0.ply")
+    X1, _ = load_mesh("sphere/defSphere1.ply")
     topo = MeshTopology.from_faces(F, n_vertices=len(X0))
     assert topo.is_closed
     sqp = discrete_geodesic(X0, X1, topo, 2, method="sqp")

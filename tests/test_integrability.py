@@ -6,8 +6,7 @@ import os
 import numpy as np
 import pytest
 from scipy.sparse.linalg import eigsh
-import trimesh
-from conftest import shared_mesh, shared_meshes_dir
+from conftest import load_topology, shared_meshes_dir
 from fd import directional_fd, relative_error
 
 from lacore.errors import LengthsAnglesError
@@ -15,13 +14,6 @@ from lacore.integrability import (euler_integrability_jacobian, euler_integrabil
                                   integrability_violation, standard_frames, transition_rotations,
                                   triangle_inequality_jacobian, triangle_inequality_map)
 from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from lacore.topology import MeshTopology
-
-
-def load(rel):
-    m = trimesh.load(shared_mesh(rel), process=False)
-    X = np.asarray(m.vertices, float)
-    return X, MeshTopology.from_faces(np.asarray(m.faces), n_vertices=len(X))
 
 
 def all_shared_meshes():
@@ -30,7 +22,7 @@ def all_shared_meshes():
 
 @pytest.mark.parametrize("rel", all_shared_meshes())
 def test_admissible_z_satisfies_integrability(rel):
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     z = lengths_and_angles(X, topo)
     eu = euler_integrability_map(z, topo)
     assert eu.shape == (3 * len(topo.interior_vertices),)
@@ -43,7 +35,7 @@ def test_admissible_z_satisfies_integrability(rel):
 
 @pytest.mark.parametrize("rel", ["finger/finger0.ply", "plate/plate121_rolledB.ply", "simple/SteffensPolyhedron.ply"])
 def test_transition_rotations_relate_standard_frames(rel):
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     R = transition_rotations(lengths_and_angles(X, topo), topo)
     F = standard_frames(X, topo.faces)
     left, right = topo.dual_edges.T
@@ -53,7 +45,7 @@ def test_transition_rotations_relate_standard_frames(rel):
 
 
 def test_perturbing_one_angle_is_local():
-    X, topo = load("sphere/defSphere0.ply")
+    X, topo = load_topology("sphere/defSphere0.ply")
     z = lengths_and_angles(X, topo)
     E = topo.n_edges
     e = topo.interior_edges[17]
@@ -67,7 +59,7 @@ def test_perturbing_one_angle_is_local():
 
 
 def test_perturbing_one_length_touches_its_two_faces_vertices():
-    X, topo = load("sphere/defSphere0.ply")
+    X, topo = load_topology("sphere/defSphere0.ply")
     z = lengths_and_angles(X, topo)
     e = topo.interior_edges[5]
     z[e] *= 1.001
@@ -79,7 +71,7 @@ def test_perturbing_one_length_touches_its_two_faces_vertices():
 @pytest.mark.parametrize("rel", ["finger/finger0.ply", "plate/plate4SD_rolledA.ply", "sphere/defSphere7.ply",
                                  "hyperbolic/monkey_saddle_1.ply"])
 def test_euler_jacobian_finite_differences(rel):
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     X = X / np.abs(X).max()
     z = lengths_and_angles(X, topo)
     E = topo.n_edges
@@ -99,7 +91,7 @@ def test_euler_jacobian_finite_differences(rel):
 @pytest.mark.parametrize("rel", ["sphere/defSphere5.ply", "plate/plate121_rolledA.ply"])
 def test_euler_jacobian_annihilates_tangent_of_image(rel):
     """Ĩ(Z(X)) = 0 for all X, so DĨ(Z(X)) dZ/dX = 0 (tangent space 4.4 contains the image of dZ/dX)."""
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     Jz, z = lengths_and_angles_jacobian(X, topo, return_z=True)
     A = euler_integrability_jacobian(z, topo)
     P = A @ Jz
@@ -109,7 +101,7 @@ def test_euler_jacobian_annihilates_tangent_of_image(rel):
 @pytest.mark.parametrize("rel", ["simple/SteffensPolyhedron.ply", "sphere/unitSphere1.ply", "sphere/defSphere0.ply"])
 def test_rank_conjecture_on_closed_meshes(rel):
     """Conjecture 1 as a measured fact: rank D Ĩ = 3|V| - 6 at admissible z of a closed mesh."""
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     assert topo.is_closed
     A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo).toarray()
     s = np.linalg.svd(A, compute_uv=False)
@@ -123,7 +115,7 @@ def test_rank_conjecture_on_closed_meshes(rel):
 def test_rank_conjecture_sparse(rel):
     """Conjecture 1 on the larger closed meshes: A A^T (A = D Ĩ, 3|V| x 3|V|) has exactly 6 zero
     eigenvalues (rigid motions), found by shift-invert Lanczos, so rank A = 3|V| - 6."""
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     assert topo.is_closed and len(topo.interior_vertices) == topo.n_vertices
     A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo)
     G = (A @ A.T).tocsc()
@@ -134,14 +126,14 @@ def test_rank_conjecture_sparse(rel):
 
 
 def test_rank_on_disk_is_full():
-    X, topo = load("plate/plate121_rolledB.ply")
+    X, topo = load_topology("plate/plate121_rolledB.ply")
     A = euler_integrability_jacobian(lengths_and_angles(X, topo), topo).toarray()
     s = np.linalg.svd(A, compute_uv=False)
     assert np.sum(s > 1e-9 * s[0]) == 3 * len(topo.interior_vertices)
 
 
 def test_triangle_inequality_map_and_violation():
-    X, topo = load("plate/plate121.ply")
+    X, topo = load_topology("plate/plate121.ply")
     z = lengths_and_angles(X, topo)
     T = triangle_inequality_map(z, topo)
     Jt = triangle_inequality_jacobian(topo)
@@ -159,7 +151,7 @@ def test_triangle_inequality_map_and_violation():
 
 
 def test_bad_z_raises():
-    X, topo = load("simple/square4.ply")
+    X, topo = load_topology("simple/square4.ply")
     z = lengths_and_angles(X, topo)
     with pytest.raises(LengthsAnglesError, match=r"shape \(16,\)"):
         euler_integrability_map(z[:-1], topo)

@@ -1,11 +1,8 @@
 """Interpolation, extrapolation and keyframe in-betweens in lengths and angles (thesis 4.2, eqs. 4.9, 4.10)."""
 
-import sys
-
 import numpy as np
 import pytest
-import trimesh
-from conftest import REPO, shared_mesh
+from conftest import load_mesh
 from scipy.interpolate import CubicSpline
 
 import lacore.interpolation
@@ -15,17 +12,12 @@ from lacore.interpolation import (check_keyframes, interpolate, keyframe_inbetwe
                                   shapes_to_z, spline_z)
 from lacore.lengths_angles import edge_lengths, face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction import get_context, reconstruct
+from lacore.rigid import rigid_rms
+from lacore.sample_shapes import box_bar, simple_deform_bend
 from lacore.topology import MeshTopology
 
-sys.path.insert(0, str(REPO / "benchmarks"))
-from bench_interpolation import box_bar, simple_deform_bend
 
 FINGER_T = np.array([-0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.5])
-
-
-def _load(relative):
-    m = trimesh.load(shared_mesh(relative), process=False)
-    return np.asarray(m.vertices, float), np.asarray(m.faces)
 
 
 def _topology(faces, n):
@@ -34,8 +26,8 @@ def _topology(faces, n):
 
 @pytest.fixture(scope="module")
 def finger():
-    X0, F = _load("finger/finger0.ply")
-    X1, _ = _load("finger/finger1.ply")
+    X0, F = load_mesh("finger/finger0.ply")
+    X1, _ = load_mesh("finger/finger1.ply")
     return _topology(F, len(X0)), X0, X1
 
 
@@ -49,18 +41,10 @@ def finger_runs(finger):
 
 @pytest.fixture(scope="module")
 def plates():
-    Xf, F = _load("plate/plate121.ply")
-    XA, _ = _load("plate/plate121_rolledA.ply")
-    XB, _ = _load("plate/plate121_rolledB.ply")
+    Xf, F = load_mesh("plate/plate121.ply")
+    XA, _ = load_mesh("plate/plate121_rolledA.ply")
+    XB, _ = load_mesh("plate/plate121_rolledB.ply")
     return _topology(F, len(Xf)), [Xf, XA, XB]
-
-
-def kabsch_rms(X, Y):
-    """RMS distance of ``X`` to ``Y`` after the optimal rigid motion of ``X`` (Kabsch)."""
-    a, b = X - X.mean(0), Y - Y.mean(0)
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    return float(np.sqrt(np.mean(np.sum((a @ R - b) ** 2, axis=1))))
 
 
 def signed_volume(X, faces):
@@ -137,8 +121,8 @@ def test_input_validation(plates):
 
 
 def test_mismatched_vertex_counts_are_rejected():
-    Xs, F = _load("octa/octa_src_small.ply")
-    Xt, _ = _load("octa/octa_trg_small.ply")
+    Xs, F = load_mesh("octa/octa_src_small.ply")
+    Xt, _ = load_mesh("octa/octa_trg_small.ply")
     topo = _topology(F, len(Xs))
     with pytest.raises(MeshError, match="shape 1 has 601 vertices.*dense correspondence"):
         interpolate([Xs, Xt], topo, [0.5])
@@ -173,7 +157,7 @@ def test_average_is_a_valid_mesh_with_the_energy_of_a_direct_reconstruction(fing
           f"{warm.warm_start_times[i]}), direct reconstruct {direct.energy:.10g} ({direct.iterations} it)")
     assert warm.energy[i] > 1e-4                               # not admissible
     assert warm.energy[i] == pytest.approx(direct.energy, rel=1e-6)
-    assert kabsch_rms(warm.vertices[i], direct.vertices) < 1e-4
+    assert rigid_rms(warm.vertices[i], direct.vertices) < 1e-4
     X = warm.vertices[i]
     assert np.all(np.isfinite(X))
     assert face_areas(X, topo.faces).min() > 0.5 * face_areas(X0, topo.faces).min()
@@ -236,7 +220,7 @@ def test_warm_start_saves_iterations(finger_runs):
 def test_all_frames_share_one_symbolic_factorization(plates, monkeypatch):
     """Counts the symbolic analyses (SparseCholesky constructions) on a fresh topology."""
     _, (Xf, XA, XB) = plates
-    topo = _topology(_load("plate/plate121.ply")[1], len(Xf))   # fresh per-topology caches
+    topo = _topology(load_mesh("plate/plate121.ply")[1], len(Xf))   # fresh per-topology caches
     made = []
 
     class Counting(reconstruction_context.SparseCholesky):
@@ -267,7 +251,7 @@ def test_bent_bar_inbetween_matches_the_analytic_bend():
     Y = res.vertices[0]
     diag = float(np.linalg.norm(X45.max(0) - X45.min(0)))
     blend = 0.5 * (X + X90)
-    rms_la, rms_lin = kabsch_rms(Y, X45), kabsch_rms(blend, X45)
+    rms_la, rms_lin = rigid_rms(Y, X45), rigid_rms(blend, X45)
     l45 = edge_lengths(X45, topo)
     dist_la = float(np.abs(edge_lengths(Y, topo) / l45 - 1).max())
     dist_lin = float(np.abs(edge_lengths(blend, topo) / l45 - 1).max())
@@ -310,7 +294,7 @@ def test_spline_differs_from_linear_between_keys(plates, plate_keys):
     print(f"\nplates [0, 3, 10]: max |z_spline - z_linear| per frame {np.array2string(dz, precision=3)}")
     assert np.all(dz[[0, 3, 10]] == 0.0)
     assert np.all(dz[[1, 2, 4, 5, 6, 7, 8, 9]] > 1e-3)
-    rms = [kabsch_rms(smooth.vertices[f], lin.vertices[f]) for f in (1, 5, 8)]
+    rms = [rigid_rms(smooth.vertices[f], lin.vertices[f]) for f in (1, 5, 8)]
     assert min(rms) > 1e-3
     # the spline's projected frames are as good projections as the linear ones (same solver)
     assert np.all(smooth.status > 0) and np.all(lin.status > 0)

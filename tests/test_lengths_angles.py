@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import trimesh
-from conftest import shared_mesh
+from conftest import load_topology
 from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
@@ -15,12 +15,6 @@ from lacore.trigonometry import (interior_angle_jacobian, interior_angles, trian
 
 MESHES = ["finger/finger1.ply", "plate/plate4SD_rolledA.ply", "sphere/defSphere3.ply",
           "hyperbolic/monkey_saddle_2.ply", "simple/SteffensPolyhedron.ply", "plate/paperCrissCross.ply"]
-
-
-def load(rel):
-    m = trimesh.load(shared_mesh(rel), process=False)
-    X = np.asarray(m.vertices, float)
-    return X, MeshTopology.from_faces(np.asarray(m.faces), n_vertices=len(X))
 
 
 def test_cube_sign_convention():
@@ -47,7 +41,7 @@ def test_dihedral_angle_accuracy_near_flat(alpha):
 
 
 def test_lengths_match_coordinates():
-    X, topo = load("finger/finger0.ply")
+    X, topo = load_topology("finger/finger0.ply")
     l, theta = split_z(lengths_and_angles(X, topo), topo)
     a, b = topo.edges.T
     np.testing.assert_allclose(l, np.linalg.norm(X[b] - X[a], axis=1), rtol=1e-15)
@@ -59,7 +53,7 @@ def test_lengths_match_coordinates():
 
 @pytest.mark.parametrize("rel", MESHES)
 def test_rigid_motion_invariance(rel):
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     z = lengths_and_angles(X, topo)
     R = Rotation.from_rotvec([0.3, -1.1, 2.0]).as_matrix()
     z2 = lengths_and_angles(X @ R.T + np.array([10.0, -3.0, 7.0]), topo)
@@ -71,7 +65,7 @@ def test_rigid_motion_invariance(rel):
 
 @pytest.mark.parametrize("rel", MESHES)
 def test_jacobian_finite_differences(rel):
-    X, topo = load(rel)
+    X, topo = load_topology(rel)
     X = X / np.abs(X).max()
     J, z = lengths_and_angles_jacobian(X, topo, return_z=True)
     assert J.shape == (2 * topo.n_edges, 3 * topo.n_vertices)
@@ -87,7 +81,7 @@ def test_jacobian_finite_differences(rel):
 
 
 def test_jacobian_kernel_contains_rigid_motions():
-    X, topo = load("sphere/defSphere3.ply")
+    X, topo = load_topology("sphere/defSphere3.ply")
     J = lengths_and_angles_jacobian(X, topo)
     V = topo.n_vertices
     translations = [np.tile(np.eye(3)[c], V) for c in range(3)]
@@ -113,7 +107,7 @@ def test_kahan_needle_triangle():
 
 
 def test_angles_and_areas_match_coordinates():
-    X, topo = load("finger/finger1.ply")
+    X, topo = load_topology("finger/finger1.ply")
     L = edge_lengths(X, topo)[topo.face_edges]
     F = topo.faces
     gamma = interior_angles(L)

@@ -2,17 +2,11 @@
 
 import numpy as np
 import pytest
-import trimesh
-from conftest import shared_mesh
+from conftest import load_mesh
 
 from lacore.errors import MeshError
 from lacore.lengths_angles import check_nondegenerate, lengths_and_angles
 from lacore.topology import MeshTopology, check_vertices
-
-
-def load(rel):
-    m = trimesh.load(shared_mesh(rel), process=False)
-    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
 
 
 def half_edges(faces):
@@ -20,7 +14,7 @@ def half_edges(faces):
 
 
 def test_square4_counts_and_ring():
-    X, F = load("simple/square4.ply")
+    X, F = load_mesh("simple/square4.ply")
     topo = MeshTopology.from_faces(F)
     assert (topo.n_vertices, topo.n_edges, topo.n_faces) == (5, 8, 4)
     assert topo.euler_characteristic == 1
@@ -44,7 +38,7 @@ def test_square4_counts_and_ring():
 @pytest.mark.parametrize("rel", ["finger/finger0.ply", "plate/plate121.ply", "sphere/defSphere0.ply",
                                  "hyperbolic/monkey_saddle_1.ply", "simple/SteffensPolyhedron.ply"])
 def test_edge_orientation_and_incidence(rel):
-    X, F = load(rel)
+    X, F = load_mesh(rel)
     topo = MeshTopology.from_faces(F)
     he = half_edges(F)
     a, b = topo.edges[:, 0], topo.edges[:, 1]
@@ -71,12 +65,12 @@ def test_edge_orientation_and_incidence(rel):
 
 
 def test_closed_and_disk_invariants():
-    _, F = load("finger/finger0.ply")
+    _, F = load_mesh("finger/finger0.ply")
     finger = MeshTopology.from_faces(F)
     assert finger.is_closed and finger.euler_characteristic == 2
     assert list(finger.genus()) == [0] and finger.n_components == 1
     assert finger.boundary_loops() == []
-    X, F = load("plate/plate121.ply")
+    X, F = load_mesh("plate/plate121.ply")
     plate = MeshTopology.from_faces(F)
     loops = plate.boundary_loops()
     assert len(loops) == 1 and len(loops[0]) == len(plate.boundary_vertices) == 40
@@ -93,7 +87,7 @@ def test_closed_and_disk_invariants():
 
 
 def test_vertex_rings_cover_all_interior_corners():
-    _, F = load("sphere/defSphere0.ply")
+    _, F = load_mesh("sphere/defSphere0.ply")
     topo = MeshTopology.from_faces(F)
     seen = []
     for n, (verts, corners) in topo.vertex_rings().items():
@@ -105,7 +99,7 @@ def test_vertex_rings_cover_all_interior_corners():
 
 
 def test_caller_edge_order_is_kept():
-    X, F = load("plate/plate121.ply")
+    X, F = load_mesh("plate/plate121.ply")
     ref = MeshTopology.from_faces(F)
     rng = np.random.default_rng(3)
     perm = rng.permutation(ref.n_edges)
@@ -121,7 +115,7 @@ def test_caller_edge_order_is_kept():
 
 
 def test_two_components():
-    _, F = load("simple/square4.ply")
+    _, F = load_mesh("simple/square4.ply")
     topo = MeshTopology.from_faces(np.vstack([F, F + 5]))
     n, labels = topo.face_components()
     assert n == 2 and np.array_equal(labels, np.repeat([labels[0], labels[4]], 4))
@@ -129,7 +123,7 @@ def test_two_components():
 
 
 def test_dual_graph_symmetric():
-    _, F = load("finger/finger0.ply")
+    _, F = load_mesh("finger/finger0.ply")
     topo = MeshTopology.from_faces(F)
     G = topo.dual_graph()
     assert (G - G.T).nnz == 0
@@ -173,7 +167,7 @@ def test_edge_list_mismatch():
 
 
 def test_bad_coordinates():
-    X, F = load("simple/square4.ply")
+    X, F = load_mesh("simple/square4.ply")
     topo = MeshTopology.from_faces(F)
     bad = X.copy()
     bad[3, 1] = np.nan
@@ -188,8 +182,8 @@ def test_bad_coordinates():
 
 
 def test_octa_meshes_not_in_correspondence():
-    X_src, F_src = load("octa/octa_src_small.ply")
-    X_trg, _ = load("octa/octa_trg_small.ply")
+    X_src, F_src = load_mesh("octa/octa_src_small.ply")
+    X_trg, _ = load_mesh("octa/octa_trg_small.ply")
     topo = MeshTopology.from_faces(F_src, n_vertices=len(X_src))
     with pytest.raises(MeshError, match="601 vertices but the mesh has 600"):
         lengths_and_angles(X_trg, topo)

@@ -162,10 +162,10 @@ class HybridOptions:
     ----------
     start : {"lsq", "tree"}
         The least-squares relaxation (default; no spanning tree is built) or the
-        frame-based walk along a tree of kind ``kind``.  Measured on the
-        rolled-plate averages, 10 smoothing iterations from the least-squares
-        start end within 0.3 % of the full Gauss-Newton energy, from the MST
-        walk 80x / 27000x above it (``tests/test_hybrid.py``).
+        frame-based walk along a tree of kind ``kind``; on long meshes the walk
+        accumulates the integrability error along the tree, which a few
+        smoothing iterations do not remove (README "Reconstruction",
+        ``tests/test_hybrid.py``).
     kind : {"mst", "spt", "bfs"}
         Tree of the ``"tree"`` start.
     smoothing_iterations : int

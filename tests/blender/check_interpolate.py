@@ -141,7 +141,7 @@ def interpolate_bar():
     X0, X1, X5, Xe = (coords(obj, n) for n in (expected[0], expected[3], expected[2], expected[4]))
     diag = float(np.linalg.norm(A.max(0) - A.min(0)))
     end_raw = max(np.abs(X0 - A).max(), np.abs(X1 - B).max())  # placed on the keys themselves
-    end_rigid = max(np.abs(cases.rigid_fit(X0, A) - A).max(), np.abs(cases.rigid_fit(X1, B) - B).max())
+    end_rigid = max(np.abs(cases.rigid_align(X0, A) - A).max(), np.abs(cases.rigid_align(X1, B) - B).max())
     assert end_raw < 1e-5 and end_rigid < 1e-5, (end_raw, end_rigid)
     assert np.all(np.isfinite(Xe))
     edges = cases.mesh_edges(obj)
