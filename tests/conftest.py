@@ -55,8 +55,22 @@ def meshes_dir() -> Path:
 # ("4.2=/path/bin/python:5.2=/path/bin/python") with LACORE_REQUIRE_BLENDERS=1 (a missing one FAILS).
 # By hand, the default locations <repo>/.venv-blender42 and .venv-blender52 are used and a missing
 # one is SKIPPED with the reason.
-BLENDERS = ("4.2", "5.2")  # oldest supported LTS, newest
-BLENDER_VENVS = {"4.2": ".venv-blender42", "5.2": ".venv-blender52"}
+BLENDER_VENVS = {"4.2": ".venv-blender42", "5.2": ".venv-blender52"}  # oldest supported LTS, newest
+
+
+def _configured_labels():
+    env = os.environ.get("LACORE_BLENDER_PYTHONS", "").strip()
+    labels = [item.split("=", 1)[0].strip() for item in env.split(":") if item.strip()] if env else []
+    return tuple(labels) or tuple(BLENDER_VENVS)
+
+
+# Blender version labels the add-on checks run in (more by hand: LACORE_BLENDER_PYTHONS="4.5=...:...").
+BLENDERS = _configured_labels()
+
+
+def blender_python_version(label: str) -> tuple:
+    """The Python a Blender version embeds: 3.11 for 4.2 .. 5.0, 3.13 for 5.1 and later."""
+    return (3, 11) if tuple(int(x) for x in label.split(".")[:2]) < (5, 1) else (3, 13)
 
 
 def blender_pythons() -> dict:
@@ -104,8 +118,9 @@ def build_extension_zip(out_dir, python=None) -> str:
     import subprocess
 
     if python is None:
-        python = next((p for label in reversed(BLENDERS) if os.path.isfile(p := blender_pythons().get(label, ""))),
-                      sys.executable)
+        configured = blender_pythons()
+        newest = sorted(configured, key=lambda label: tuple(int(x) for x in label.split(".")[:2]), reverse=True)
+        python = next((p for label in newest if os.path.isfile(p := configured[label])), sys.executable)
     proc = subprocess.run([python, str(REPO / "scripts" / "build_extension.py"), "--platform", "current",
                            "--output-dir", str(out_dir)], capture_output=True, text=True, cwd=REPO, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -136,7 +151,7 @@ def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
     import json
     import subprocess
 
-    python = getattr(zip_path, "python", None) or blender_python(BLENDERS[-1])
+    python = getattr(zip_path, "python", None) or blender_python(BLENDERS[-1])  # a plain path: the newest
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user_resources"))
     env.pop("PYTHONPATH", None)  # the bpy venv alone: the extension's bundled wheels must be the ones used
     result = work / "result.json"

@@ -12,7 +12,7 @@ import subprocess
 import tomllib
 
 import pytest
-from conftest import REPO, run_blender_check, shared_mesh
+from conftest import REPO, blender_python_version, run_blender_check, shared_mesh
 
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_extension.py"
 
@@ -81,9 +81,9 @@ def test_installed_for_this_blender(blender_run, extension_zip):
     """Blender installed the wheels of ITS Python from the same zip: cp311 on 4.2 (NumPy 1.26), cp313 on 5.2
     (NumPy 2.5); CHOLMOD (cvxopt) is the sparse Cholesky on Linux for both."""
     install = blender_run["cases"]["install_and_enable"]
-    python = {"4.2": "python3.11", "5.2": "python3.13"}[extension_zip.label]
-    assert install["python"] == python
-    assert install["numpy"].startswith({"4.2": "1.26.", "5.2": "2.5."}[extension_zip.label])
+    major, minor = blender_python_version(extension_zip.label)
+    assert install["python"] == f"python{major}.{minor}"
+    assert install["numpy"].startswith("1.26." if minor == 11 else "2.")  # what Blender ships (5.2: 2.5)
     assert sorted(install["bundled"]) == ["c3d-0.6.0.dist-info", "cvxopt-1.3.2.dist-info", "scipy-1.16.3.dist-info",
                                           "trimesh-5.2.0.dist-info"]
     assert install["scipy"] == "1.16.3" and install["sparse_cholesky"] == "cholmod"
