@@ -4,6 +4,7 @@
 This file only forwards to :mod:`.addon`; the mathematics lives in :mod:`.lacore`.
 """
 
-from .addon import register, unregister
+if __package__:  # pytest imports this file standalone when the checkout's folder name is no identifier
+    from .addon import register, unregister
 
 __all__ = ["register", "unregister"]

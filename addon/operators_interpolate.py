@@ -44,7 +44,7 @@ from ..lacore.interpolation import keyframe_inbetweens, piecewise_linear_z
 from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
 from ..lacore.rigid import rigid_align
 from ..lacore.topology import MeshTopology
-from . import mesh_access
+from . import compat, mesh_access
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "classes", "parse_factors",
            "parse_key_list", "parse_frames", "inbetween_key_name", "bake_key_name", "interpolate_object",
@@ -256,12 +256,7 @@ def _check_finite(results, what):
 # ----------------------------------------------------------------------------- bake planning (no writes)
 def _channelbag(key):
     """The F-curve container of the action assigned to the Key datablock ``key`` (or None)."""
-    from bpy_extras.anim_utils import action_get_channelbag_for_slot
-
-    ad = key.animation_data
-    if ad is None or ad.action is None:
-        return None
-    return action_get_channelbag_for_slot(ad.action, ad.action_slot)
+    return compat.animation_channels(key)
 
 
 def read_bake_record(mesh):
@@ -419,21 +414,7 @@ def _ensure_channelbag(key):
 
     Returns ``(channelbag, name of the created action or "")``.
     """
-    from bpy_extras.anim_utils import action_ensure_channelbag_for_slot
-
-    ad = key.animation_data or key.animation_data_create()
-    created = ""
-    if ad.action is None:
-        action = bpy.data.actions.new(f"{key.user.name} LA bake" if key.user else "LA bake")
-        ad.action = action
-        created = action.name
-    action = ad.action
-    if ad.action_slot is None:
-        slot = next((s for s in action.slots if s.target_id_type in ('KEY', 'UNSPECIFIED')), None)
-        if slot is None:
-            slot = action.slots.new(id_type='KEY', name=key.name)
-        ad.action_slot = slot
-    return action_ensure_channelbag_for_slot(action, ad.action_slot), created
+    return compat.ensure_animation_channels(key, f"{key.user.name} LA bake" if key.user else "LA bake")
 
 
 def write_bake(obj, plan, source):

@@ -2,11 +2,13 @@
 """Build the Blender extension zip (``make extension``).
 
 1. Download the wheels listed in ``blender_manifest.toml`` into ``./wheels``
-   (``pip download --only-binary=:all: --no-deps --python-version 3.11 --platform ...``);
+   (``pip download --only-binary=:all: --no-deps --python-version 3.11|3.13 --platform ...``);
    wheels already present are not downloaded again.
 2. Build with Blender's own ``blender_ext.py build`` (shipped inside the ``bpy``
    wheel: ``<site-packages>/bpy/<ver>/scripts/addons_core/bl_pkg/cli/blender_ext.py``).
-3. Check the zip with ``blender_ext.py validate``.
+3. Check the zip with ``blender_ext.py validate`` and the wheel tags of every bundled
+   wheel against the zip manifest's platforms and Pythons 3.11 / 3.13
+   (``scripts/check_wheel_tags.py``; ``validate`` ignores Python tags).
 
 Without ``--platform`` one zip for all platforms of the manifest is built from the
 repository itself.  With ``--platform linux-x64`` (repeatable, or ``--platform current``)
@@ -100,10 +102,12 @@ def download_wheel(rel_path, python):
     dest = os.path.join(REPO, rel_path)
     if os.path.isfile(dest):
         return dest
-    name, version, _py_tag, abi_tag, plat_tags = parse_wheel_name(dest)
+    name, version, py_tag, abi_tag, plat_tags = parse_wheel_name(dest)
     os.makedirs(os.path.dirname(dest), exist_ok=True)
+    # cp311 -> 3.11, cp313 -> 3.13; pure-Python py3 wheels: any supported Python
+    py_version = f"3.{py_tag.split('.')[0][3:]}" if py_tag.startswith("cp3") else "3.11"
     cmd = [python, "-m", "pip", "download", "--disable-pip-version-check", "--only-binary=:all:", "--no-deps",
-           "--python-version", "3.11", "-d", os.path.dirname(dest), f"{name}=={version}"]
+           "--python-version", py_version, "-d", os.path.dirname(dest), f"{name}=={version}"]
     if plat_tags != ["any"]:
         cmd += ["--implementation", "cp", "--abi", abi_tag]
         for tag in plat_tags:
@@ -114,6 +118,16 @@ def download_wheel(rel_path, python):
         got = sorted(os.listdir(os.path.dirname(dest)))
         sys.exit(f"build_extension: pip did not produce {os.path.basename(dest)} (wheels/ holds {got})")
     return dest
+
+
+def check_zip_tags(zip_path):
+    """Exit with the problems if the zip's wheels do not fit its platforms and Pythons 3.11/3.13."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from check_wheel_tags import check_zip
+
+    problems = check_zip(zip_path)
+    if problems:
+        sys.exit("build_extension: wheel tag check failed:\n" + "\n".join(problems))
 
 
 def _replace_list(text, key, items):
@@ -180,6 +194,7 @@ def main(argv=None):
         zips = sorted(set(glob.glob(os.path.join(args.output_dir, "*.zip"))) - before) or sorted(before)
         for z in zips:
             subprocess.run([sys.executable, blender_ext, "validate", z], check=True)
+            check_zip_tags(z)
         print("\n".join(os.path.abspath(z) for z in zips))
         return 0
     name = f"{manifest['id']}-{manifest['version']}"
@@ -194,6 +209,7 @@ def main(argv=None):
         subprocess.run([sys.executable, blender_ext, "build", "--source-dir", source, "--output-filepath", out],
                        check=True)
     subprocess.run([sys.executable, blender_ext, "validate", out], check=True)
+    check_zip_tags(out)
     print(out)
     return 0
 

@@ -62,10 +62,21 @@ def cli_encode(out_dir):
     }
 
 
+# The Blender steps run in this interpreter (must have bpy; `make demo`: the newest Blender's venv, bpy 5.2)
+# with LACORE_DEMO_BLENDER_PYTHONPATH (where that Python finds scipy & co.) as its PYTHONPATH.
+BLENDER_PYTHON = os.environ.get("LACORE_DEMO_BLENDER_PYTHON") or sys.executable
+
+
+def blender_env(user_dir):
+    env = dict(os.environ, BLENDER_USER_RESOURCES=user_dir)  # do not touch the user's Blender config
+    if os.environ.get("LACORE_DEMO_BLENDER_PYTHONPATH"):
+        env["PYTHONPATH"] = os.environ["LACORE_DEMO_BLENDER_PYTHONPATH"]
+    return env
+
+
 def blender_encode(out_dir):
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        env = dict(os.environ, BLENDER_USER_RESOURCES=user_dir)  # do not touch the user's Blender config
-        run([sys.executable, os.path.join(HERE, "demo_blender.py"), out_dir], env=env)
+        run([BLENDER_PYTHON, os.path.join(HERE, "demo_blender.py"), out_dir], env=blender_env(user_dir))
     with open(os.path.join(out_dir, "demo_scene.json")) as fh:
         result = json.load(fh)
     parts = []
@@ -89,9 +100,8 @@ def blender_interpolate(out_dir):
     blend = os.path.join(out_dir, "bar_inbetweens.blend")
     numbers = os.path.join(out_dir, "bar_blend_comparison.json")
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        env = dict(os.environ, BLENDER_USER_RESOURCES=user_dir)
-        run([sys.executable, os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
-             "--json", numbers, "--bake"], env=env, stdout=subprocess.DEVNULL)
+        run([BLENDER_PYTHON, os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
+             "--json", numbers, "--bake"], env=blender_env(user_dir), stdout=subprocess.DEVNULL)
     with open(numbers) as fh:
         result = json.load(fh)
     la, lin = result["lengths_and_angles"], result["linear_blend"]

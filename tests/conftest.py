@@ -64,11 +64,81 @@ def load_topology(relative: str):
 
 
 # ----------------------------------------------------------------------------- Blender subprocess checks
-def build_extension_zip(out_dir) -> str:
-    """Build the extension zip for the current platform into ``out_dir``; returns its path."""
+# The Blender checks (tests/blender/check_*.py) run in SUBPROCESSES, in venvs holding only bpy (a venv
+# with SciPy installed would hide the extension's bundled wheels).  One venv per tested Blender:
+#   4.2: bpy 4.2.x, Python 3.11, NumPy 1.26 (the oldest supported LTS)
+#   5.2: bpy 5.2.x, Python 3.13, NumPy 2.5 (the newest)
+# `make test` creates them and passes their interpreters in LACORE_BLENDER_PYTHONS
+# ("4.2=/path/bin/python:5.2=/path/bin/python") with LACORE_REQUIRE_BLENDERS=1 (a missing one FAILS).
+# By hand, the default locations <repo>/.venv-blender42 and .venv-blender52 are used and a missing
+# one is SKIPPED with the reason.
+BLENDER_VENVS = {"4.2": ".venv-blender42", "5.2": ".venv-blender52"}  # oldest supported LTS, newest
+
+
+def _configured_labels():
+    env = os.environ.get("LACORE_BLENDER_PYTHONS", "").strip()
+    labels = [item.split("=", 1)[0].strip() for item in env.split(":") if item.strip()] if env else []
+    return tuple(labels) or tuple(BLENDER_VENVS)
+
+
+# Blender version labels the add-on checks run in (more by hand: LACORE_BLENDER_PYTHONS="4.5=...:...").
+BLENDERS = _configured_labels()
+
+
+def blender_python_version(label: str) -> tuple:
+    """The Python a Blender version embeds: 3.11 for 4.2 .. 5.0, 3.13 for 5.1 and later."""
+    return (3, 11) if tuple(int(x) for x in label.split(".")[:2]) < (5, 1) else (3, 13)
+
+
+def blender_pythons() -> dict:
+    """``{Blender version label: interpreter path}`` of the configured bpy venvs (existing or not)."""
+    env = os.environ.get("LACORE_BLENDER_PYTHONS", "").strip()
+    if env:
+        pairs = (item.split("=", 1) for item in env.split(":") if item.strip())
+        return {label.strip(): path.strip() for label, path in pairs}
+    return {label: str(REPO / venv / "bin" / "python") for label, venv in BLENDER_VENVS.items()}
+
+
+def blender_python(label: str) -> str:
+    """The interpreter of Blender ``label``; skips (fails under LACORE_REQUIRE_BLENDERS=1) if missing."""
+    path = blender_pythons().get(label)
+    problem = None
+    if path is None:
+        problem = f"Blender {label} is not configured in LACORE_BLENDER_PYTHONS"
+    elif not os.path.isfile(path):
+        problem = f"no bpy venv for Blender {label}: {path} is missing (`make venv-blender` creates it)"
+    if problem:
+        if os.environ.get("LACORE_REQUIRE_BLENDERS") == "1":
+            pytest.fail(problem, pytrace=False)
+        pytest.skip(problem)
+    return path
+
+
+class ExtensionZip(str):
+    """Path of the extension zip, carrying the Blender (``label``, ``python``) it is to be tested in.
+
+    ``run_blender_check(script, zip_path, work)`` runs the check in that Blender's interpreter, so every
+    test using the ``extension_zip`` fixture runs once per tested Blender.
+    """
+
+    def __new__(cls, path, label, python):
+        obj = super().__new__(cls, path)
+        obj.label, obj.python = label, python
+        return obj
+
+
+def build_extension_zip(out_dir, python=None) -> str:
+    """Build the extension zip for the current platform into ``out_dir``; returns its path.
+
+    ``python`` must have bpy (Blender's blender_ext.py builds the zip); default: the newest Blender's.
+    """
     import subprocess
 
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "build_extension.py"), "--platform", "current",
+    if python is None:
+        configured = blender_pythons()
+        newest = sorted(configured, key=lambda label: tuple(int(x) for x in label.split(".")[:2]), reverse=True)
+        python = next((p for label in newest if os.path.isfile(p := configured[label])), sys.executable)
+    proc = subprocess.run([python, str(REPO / "scripts" / "build_extension.py"), "--platform", "current",
                            "--output-dir", str(out_dir)], capture_output=True, text=True, cwd=REPO, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     zip_path = proc.stdout.strip().splitlines()[-1]
@@ -77,25 +147,39 @@ def build_extension_zip(out_dir) -> str:
 
 
 @pytest.fixture(scope="session")
-def extension_zip(tmp_path_factory) -> str:
-    """The extension zip for this platform, built once per test session."""
-    pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
+def _extension_zip_file(tmp_path_factory) -> str:
+    """The extension zip for this platform (wheels for Python 3.11 and 3.13), built once per session."""
     return build_extension_zip(tmp_path_factory.mktemp("ext"))
+
+
+@pytest.fixture(scope="session", params=BLENDERS, ids=[f"blender{b}" for b in BLENDERS])
+def extension_zip(request) -> ExtensionZip:
+    """The SAME extension zip, once per tested Blender (parametrizes every test that uses it)."""
+    python = blender_python(request.param)
+    return ExtensionZip(request.getfixturevalue("_extension_zip_file"), request.param, python)
 
 
 def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
     """Run a tests/blender/check_*.py script (installs ``zip_path`` into a throw-away
-    BLENDER_USER_RESOURCES under ``work``) in a subprocess; returns its JSON result."""
+    BLENDER_USER_RESOURCES under ``work``) in a subprocess; returns its JSON result.
+
+    The subprocess is the bpy interpreter of the Blender ``zip_path`` (an :class:`ExtensionZip`) is for.
+    """
     import json
     import subprocess
 
+    python = getattr(zip_path, "python", None) or blender_python(BLENDERS[-1])  # a plain path: the newest
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user_resources"))
+    env.pop("PYTHONPATH", None)  # the bpy venv alone: the extension's bundled wheels must be the ones used
     result = work / "result.json"
-    proc = subprocess.run([sys.executable, str(script), "--zip", str(zip_path), "--workdir", str(work / "files"),
+    proc = subprocess.run([python, str(script), "--zip", str(zip_path), "--workdir", str(work / "files"),
                            "--result", str(result)], capture_output=True, text=True, env=env, cwd=work,
                           timeout=timeout)
     details = f"\n--- stdout (tail) ---\n{proc.stdout[-4000:]}\n--- stderr (tail) ---\n{proc.stderr[-6000:]}"
     assert result.exists(), f"the Blender checks wrote no result (exit code {proc.returncode}){details}"
     data = json.loads(result.read_text())
     assert proc.returncode == 0 and data["ok"], data.get("error", "") + details
+    label = getattr(zip_path, "label", None)
+    if label is not None:  # the check really ran in the Blender it was meant for
+        assert data.get("blender", "").startswith(label + "."), (label, data.get("blender"))
     return data

@@ -1,6 +1,7 @@
 """The Blender extension end to end: build the zip, install it into a throw-away
 Blender user directory, enable it and run the operator (in a subprocess, see
-tests/blender/check_extension.py), then use the bundled wheels without bpy.
+tests/blender/check_extension.py), then use the bundled wheels without bpy.  Every test runs once per tested Blender
+(bpy 4.2.x / Python 3.11 and bpy 5.2.x / Python 3.13, see tests/conftest.py), on the same zip.
 
 The zip is built for the current platform only; its wheels are downloaded once
 into ./wheels (cached; later runs do not download).
@@ -8,13 +9,10 @@ into ./wheels (cached; later runs do not download).
 
 import json
 import subprocess
-import sys
 import tomllib
 
 import pytest
-from conftest import REPO, run_blender_check, shared_mesh
-
-pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
+from conftest import REPO, blender_python_version, run_blender_check, shared_mesh
 
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_extension.py"
 
@@ -69,11 +67,34 @@ def test_blender_time_is_modest(blender_run):
     assert blender_run["seconds"] < 120, blender_run["cases"]
 
 
-def test_bundled_wheels_run_lacore(blender_run, tmp_path):
-    """The wheels Blender installed (pinned scipy, trimesh) run lacore, with numpy 1.26 and without bpy."""
+def test_zip_wheel_tags(extension_zip):
+    """The built zip holds exactly its manifest's wheels, one usable per distribution for Python 3.11 and 3.13."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("check_wheel_tags", REPO / "scripts" / "check_wheel_tags.py")
+    tags = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tags)
+    assert tags.check_zip(extension_zip) == []
+
+
+def test_installed_for_this_blender(blender_run, extension_zip):
+    """Blender installed the wheels of ITS Python from the same zip: cp311 on 4.2 (NumPy 1.26), cp313 on 5.2
+    (NumPy 2.5); CHOLMOD (cvxopt) is the sparse Cholesky on Linux for both."""
     install = blender_run["cases"]["install_and_enable"]
+    major, minor = blender_python_version(extension_zip.label)
+    assert install["python"] == f"python{major}.{minor}"
+    assert install["numpy"].startswith("1.26." if minor == 11 else "2.")  # what Blender ships (5.2: 2.5)
+    assert sorted(install["bundled"]) == ["c3d-0.6.0.dist-info", "cvxopt-1.3.2.dist-info", "scipy-1.16.3.dist-info",
+                                          "trimesh-5.2.0.dist-info"]
+    assert install["scipy"] == "1.16.3" and install["sparse_cholesky"] == "cholmod"
+
+
+def test_bundled_wheels_run_lacore(blender_run, extension_zip, tmp_path):
+    """The wheels Blender installed (pinned scipy, trimesh) run lacore in that Blender's Python, without bpy."""
+    install = blender_run["cases"]["install_and_enable"]
+    cp = "cp" + install["python"][len("python"):].replace(".", "")
     with open(REPO / "blender_manifest.toml", "rb") as fh:
-        pinned = next(w for w in tomllib.load(fh)["wheels"] if "scipy-" in w).split("-")[1]
+        pinned = next(w for w in tomllib.load(fh)["wheels"] if "scipy-" in w and f"-{cp}-" in w).split("-")[1]
     out = tmp_path / "z.npz"
     code = (
         "import sys, json\n"
@@ -85,7 +106,8 @@ def test_bundled_wheels_run_lacore(blender_run, tmp_path):
         "                  'trimesh_file': trimesh.__file__, 'numpy': numpy.__version__,\n"
         "                  'bpy_loaded': 'bpy' in sys.modules}))\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    proc = subprocess.run([extension_zip.python, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     info = json.loads(proc.stdout.strip().splitlines()[-1])
     assert info["rc"] == 0 and not info["bpy_loaded"]

@@ -14,8 +14,6 @@
 import pytest
 from conftest import REPO, run_blender_check
 
-pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
-
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_interpolate.py"
 
 

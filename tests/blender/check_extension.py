@@ -13,6 +13,7 @@ check raises (non-zero exit code, traceback on stderr).
 import json
 import math
 import os
+import sys
 from types import SimpleNamespace
 
 # harness first: it checks the environment and imports bpy
@@ -34,6 +35,7 @@ def ext():
         topology=importlib.import_module(MODULE + ".lacore.topology"),
         lengths_angles=importlib.import_module(MODULE + ".lacore.lengths_angles"),
         integrability=importlib.import_module(MODULE + ".lacore.integrability"),
+        sparse_cholesky=importlib.import_module(MODULE + ".lacore.sparse_cholesky"),
     )
 
 
@@ -97,10 +99,18 @@ def install_and_enable():
     panel = bpy.types.LENGTHS_ANGLES_PT_shape_keys
     assert panel.bl_parent_id == "DATA_PT_shape_keys" and panel.bl_context == "data"
     root = os.path.join(os.environ["BLENDER_USER_RESOURCES"], "extensions")
-    site = os.path.join(root, ".local", "lib", "python3.11", "site-packages")
+    python = f"python{sys.version_info[0]}.{sys.version_info[1]}"
+    site = os.path.join(root, ".local", "lib", python, "site-packages")
     bundled = sorted(os.listdir(site)) if os.path.isdir(site) else []
     assert any(n.startswith("scipy") for n in bundled) and any(n.startswith("trimesh") for n in bundled), bundled
-    return {"bundled_site_packages": site, "extension_dir": os.path.join(root, "user_default", "lengths_angles")}
+    import numpy
+    import scipy
+
+    assert scipy.__file__.startswith(site), (scipy.__file__, site)  # the bundled SciPy, not another one
+    return {"bundled_site_packages": site, "extension_dir": os.path.join(root, "user_default", "lengths_angles"),
+            "bundled": [n for n in bundled if n.endswith(".dist-info")], "python": python,
+            "blender": bpy.app.version_string, "numpy": numpy.__version__, "scipy": scipy.__version__,
+            "sparse_cholesky": ext().sparse_cholesky.default_backend()}
 
 
 def cube_values():

@@ -43,13 +43,11 @@ def coords(obj, name):
 
 
 def channelbag(obj):
-    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+    """The F-curve owner of the object's shape keys, via the installed add-on's version shim (addon/compat.py)."""
+    import importlib
 
     key = obj.data.shape_keys
-    ad = key.animation_data if key is not None else None
-    if ad is None or ad.action is None:
-        return None
-    return action_get_channelbag_for_slot(ad.action, ad.action_slot)
+    return None if key is None else importlib.import_module(MODULE + ".addon.compat").animation_channels(key)
 
 
 def value_path(name):

@@ -1,0 +1,90 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Blender API differences between the supported versions (4.2 LTS .. 5.2), in one place.
+
+Animation data
+--------------
+Blender 4.4 introduced *slotted* actions: the F-curves of an ID live in the
+*channelbag* of the action slot assigned to the ID (``AnimData.action_slot``),
+reached through :func:`bpy_extras.anim_utils.action_get_channelbag_for_slot`.
+Blender 5.0 removed the legacy ``Action.fcurves``.  Blender 4.2 (and 4.3) have
+only ``Action.fcurves``.  The functions here return the *owner* of the F-curve
+collection: the channelbag where slotted actions exist, else the Action itself;
+both have the same ``.fcurves`` collection API (``find``, ``new``, ``remove``,
+iteration, ``len``).
+
+Tested headless with bpy 4.2.x and 5.2.x (``make test``); 4.4 .. 5.0 take the
+channelbag path, which bpy 5.0.1 also exercises.
+"""
+
+import bpy
+
+__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves"]
+
+
+def _slotted_action_api():
+    """``(action_get_channelbag_for_slot, action_ensure_channelbag_for_slot)`` or None before Blender 4.4."""
+    if bpy.app.version < (4, 4, 0):
+        return None
+    try:
+        from bpy_extras.anim_utils import action_ensure_channelbag_for_slot, action_get_channelbag_for_slot
+    except ImportError:  # pragma: no cover - 4.4 builds without the helpers fall back to Action.fcurves
+        return None
+    return action_get_channelbag_for_slot, action_ensure_channelbag_for_slot
+
+
+HAS_SLOTTED_ACTIONS = _slotted_action_api() is not None
+
+
+def animation_channels(id_data):
+    """The owner of the F-curves animating ``id_data`` (an ID with animation data), or None.
+
+    Returns the channelbag of the assigned action slot (Blender 4.4+) or the assigned
+    Action (4.2, 4.3); None when there is no action (or, 4.4+, no slot or channelbag).
+    Never creates anything.
+    """
+    ad = getattr(id_data, "animation_data", None)
+    if ad is None or ad.action is None:
+        return None
+    api = _slotted_action_api()
+    if api is None:
+        return ad.action
+    if ad.action_slot is None:
+        return None
+    return api[0](ad.action, ad.action_slot)
+
+
+def ensure_animation_channels(id_data, action_name):
+    """The owner of ``id_data``'s F-curves, creating the action (named ``action_name``) and slot if needed.
+
+    Returns ``(owner, created)``: ``owner.fcurves`` is the F-curve collection, ``created`` the
+    name of the action created here ("" when ``id_data`` already had one).
+    """
+    ad = id_data.animation_data or id_data.animation_data_create()
+    created = ""
+    if ad.action is None:
+        action = bpy.data.actions.new(action_name)
+        ad.action = action
+        created = action.name
+    action = ad.action
+    api = _slotted_action_api()
+    if api is None:
+        return action, created
+    if ad.action_slot is None:
+        slot = next((s for s in action.slots if s.target_id_type in (id_data.id_type, 'UNSPECIFIED')), None)
+        if slot is None:
+            slot = action.slots.new(id_type=id_data.id_type, name=id_data.name)
+        ad.action_slot = slot
+    return api[1](action, ad.action_slot), created
+
+
+def id_fcurves(id_data, create=False, action_name=None):
+    """The F-curve collection animating ``id_data`` (None if there is none and ``create`` is False).
+
+    With ``create=True`` the action (``action_name``, default ``"<ID name> Action"``) and its
+    slot are created when missing.  Use ``.find(data_path, index=...)`` / ``.new(data_path, index=...)``.
+    """
+    if create:
+        owner, _created = ensure_animation_channels(id_data, action_name or f"{id_data.name} Action")
+        return owner.fcurves
+    owner = animation_channels(id_data)
+    return None if owner is None else owner.fcurves
