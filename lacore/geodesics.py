@@ -94,7 +94,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .energies import QuadraticEnergy
-from .errors import LengthsAnglesError
+from .errors import InputError, LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .interpolation import interpolate
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
@@ -211,7 +211,7 @@ def _quadratic_weights(energy, dim):
     if w.shape != (dim,):
         raise LengthsAnglesError(f"energy.residual_weights has shape {w.shape}, expected ({dim},)")
     if np.any(w < 0) or not np.all(np.isfinite(w)):
-        raise ValueError("energy.residual_weights must be finite and non-negative")
+        raise InputError("energy.residual_weights must be finite and non-negative")
     return w
 
 
@@ -289,7 +289,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
         The projected immersions, in the frame of the reference.
     """
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
+        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
     res = interpolate([start, end], topology, np.arange(K + 1) / K, reference_vertices=reference_vertices,
                       **projection_kw)
@@ -714,9 +714,9 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     """
     t0 = time.perf_counter()
     if method not in ("sqp", "vertices"):
-        raise ValueError(f"unknown geodesic method {method!r}; use 'sqp' or 'vertices'")
+        raise InputError(f"unknown geodesic method {method!r}; use 'sqp' or 'vertices'")
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
+        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
     z0, X0 = _as_z(start, topology, "start")
     zK, XK = _as_z(end, topology, "end")
@@ -731,7 +731,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     w = _quadratic_weights(energy, 2 * E)
     free = np.r_[np.arange(E), E + topology.interior_edges]
     if np.any(w[free] <= 0):
-        raise ValueError("the geodesic solvers need positive energy weights on all lengths and interior angles "
+        raise InputError("the geodesic solvers need positive energy weights on all lengths and interior angles "
                          "(bending_weight > 0)")
     model = _QuadraticPathModel(w, K)
     projection_kw = dict(projection_kw or {})
@@ -742,7 +742,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
 
     def need_reference(what):
         if reference_vertices is None:
-            raise ValueError(f"{what} needs vertex positions: pass start/end as (V, 3) vertex arrays or give "
+            raise InputError(f"{what} needs vertex positions: pass start/end as (V, 3) vertex arrays or give "
                              "reference_vertices")
 
     zs = np.empty((K + 1, 2 * E))
@@ -757,14 +757,14 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
             zs[1:-1], Xs = z_lin[1:-1], X_lin[1:-1]
         elif isinstance(initial, str):
             if initial != "linear":
-                raise ValueError(f"unknown initial path {initial!r}; use None, 'linear' or an array")
+                raise InputError(f"unknown initial path {initial!r}; use None, 'linear' or an array")
             if method == "vertices":
-                raise ValueError("method='vertices' cannot start from the (non-admissible) linear path in z")
+                raise InputError("method='vertices' cannot start from the (non-admissible) linear path in z")
             zs[1:-1] = linear_path(z0, zK, K)[1:-1]
         else:
             zs[1:-1], Xs = _initial_path(initial, K, topology)
             if method == "vertices" and Xs is None:
-                raise ValueError("method='vertices' needs initial vertex positions of shape (K-1, V, 3) (or None)")
+                raise InputError("method='vertices' needs initial vertex positions of shape (K-1, V, 3) (or None)")
     initial_energy = model.value(zs)
 
     context = None

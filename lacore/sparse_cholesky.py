@@ -46,6 +46,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from .errors import InputError
+
 __all__ = ["SparseCholesky", "available_backends", "default_backend", "NotPositiveDefiniteError",
            "nested_dissection"]
 
@@ -116,9 +118,9 @@ class SparseCholesky:
     def __init__(self, pattern, backend=None, shift_start=1e-10, max_shift_tries=12, ordering=None):
         backend = default_backend() if backend is None else backend
         if backend not in ("cholmod", "scipy"):
-            raise ValueError(f"unknown sparse Cholesky backend {backend!r}; use 'cholmod' or 'scipy'")
+            raise InputError(f"unknown sparse Cholesky backend {backend!r}; use 'cholmod' or 'scipy'")
         if backend == "cholmod" and _cholmod() is None:
-            raise ValueError("backend 'cholmod' needs cvxopt (pip install cvxopt); use backend='scipy'")
+            raise InputError("backend 'cholmod' needs cvxopt (pip install cvxopt); use backend='scipy'")
         P = sp.csc_matrix(pattern)
         n = P.shape[0]
         if P.shape != (n, n):
