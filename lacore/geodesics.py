@@ -98,7 +98,7 @@ from .errors import InputError, LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .interpolation import interpolate
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
-from .reconstruction import get_context
+from .reconstruction import ReconstructionSettings, get_context
 from .result import SolverResult
 from .sparse_cholesky import SparseCholesky
 from .topology import check_vertices
@@ -770,8 +770,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     context = None
     if method == "vertices" and K >= 2:
         need_reference("method='vertices'")
-        settings = {k: projection_kw[k] for k in ("weights", "bending_weight", "fixed_face") if k in projection_kw}
-        context = get_context(topology, reference_vertices, **settings)
+        settings = ReconstructionSettings(weights=projection_kw["weights"],
+                                          bending_weight=projection_kw["bending_weight"],
+                                          fixed_face=projection_kw.get("fixed_face"))
+        context = get_context(topology, reference_vertices, settings)
 
     if K < 2:
         out = {"status": 0, "message": "no interior points (n_steps = 1)", "iterations": 0,

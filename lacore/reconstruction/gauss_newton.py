@@ -95,7 +95,7 @@ from .assembly import gauss_newton_pattern
 from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
-from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
+from .result import STATUS_MESSAGES, GaussNewtonResult, IterativeResult, ReconstructionResult
 from .settings import GaussNewtonOptions, make_settings
 
 __all__ = [
@@ -425,10 +425,7 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     if status == 0 and success_status is not None:
         status, message = success_status
     timings["total"] = time.perf_counter() - started
-    return ReconstructionResult(
-        vertices=vertices, success=status > 0, status=status, message=message, method=method_name,
-        iterations=out.iterations, energy=out.energy, energy_name=objective.name,
-        initial_energy=out.initial_energy, energy_history=out.energy_history, gradient_norm=out.gradient_norm,
-        step_sizes=out.step_sizes, regularization=out.regularization, function_evaluations=out.function_evaluations,
-        factorizations=out.factorizations, pcg_iterations=out.pcg_iterations, timings=timings,
-        fixed_face=context.fixed_face, backend=context.backend)
+    counters = {f.name: getattr(out, f.name) for f in fields(IterativeResult)}
+    counters.update(success=status > 0, status=status, message=message, timings=timings)
+    return ReconstructionResult(vertices=vertices, method=method_name, energy_name=objective.name,
+                                fixed_face=context.fixed_face, backend=context.backend, **counters)
