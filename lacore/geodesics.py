@@ -98,6 +98,7 @@ from .errors import InputError, LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .interpolation import interpolate
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
+from .progress import report
 from .reconstruction import ReconstructionSettings, get_context
 from .result import SolverResult
 from .sparse_cholesky import SparseCholesky
@@ -446,7 +447,7 @@ def _euler_max(zs, topology):
     return max(float(np.abs(euler_integrability_map(z, topology)).max()) for z in zs)
 
 
-def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization):
+def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress=None):
     """SQP iterations on the interior points of ``zs`` (modified in place); returns a dict of results."""
     m = model.m
     E = topology.n_edges
@@ -471,6 +472,7 @@ def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regular
     g_noise = 2.0 * model.K * float(np.max(model.w * 16 * np.finfo(float).eps * scale))
     status, message, iterations = 1, "maximum number of iterations reached", 0
     for it in range(1, max_iterations + 1):
+        report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         inner = zs[1:-1]
         lin = [euler_integrability_jacobian(z, topology, return_value=True) for z in inner]
@@ -588,7 +590,7 @@ def _vertex_path_linearization(Xc, zs, topology, model, cols):
     return model.value(zs), grad, _assemble_normal_matrix(Js, model.K, model.w), Js
 
 
-def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
+def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress=None):
     """Gauss-Newton in the free vertex coordinates of the interior points; ``zs``/``Xc`` updated in place.
 
     ``Xc (K-1, V, 3)`` are canonical coordinates of ``context`` (fixed coordinates 0).
@@ -604,6 +606,7 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
     chol = None
     status, message, iterations = 1, "maximum number of iterations reached", 0
     for it in range(1, max_iterations + 1):
+        report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         history["path_energy"].append(f)
         history["constraint_violation"].append(0.0)
@@ -648,7 +651,7 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
 def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", initial=None,
                       reference_vertices=None, bending_weight=1e-3, weights="frohlich_botsch",
                       max_iterations=200, tol=1e-8, constraint_tol=1e-10, regularization=1e-12,
-                      fixed_face=None, reconstruct_vertices=False, projection_kw=None):
+                      fixed_face=None, reconstruct_vertices=False, projection_kw=None, progress=None):
     """Discrete geodesic in the space of lengths and angles: solve (4.6).
 
     Minimize ``K sum_{i=0}^{K-1} W[z_i, z_{i+1}]`` over ``z_1..z_{K-1}`` subject to
@@ -699,6 +702,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         ``result.vertices`` (Gauss-Newton projections, warm-started along the path).
     projection_kw : dict, optional
         Extra keyword arguments of the projections (:func:`lacore.interpolation.interpolate`).
+    progress : callable, optional
+        ``progress(done, total, message)`` before every iteration (``total`` =
+        ``max_iterations``, :mod:`lacore.progress`); returning True stops with
+        :class:`lacore.progress.Cancelled`.
 
     Returns
     -------
@@ -784,10 +791,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         for i, z in enumerate(zs[1:-1]):
             if _min_margin(z, topology) <= 0:
                 raise LengthsAnglesError(f"initial path point {i + 1} violates the triangle inequality")
-        out = _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization)
+        out = _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress)
     else:
         Xc = np.array([context.to_canonical(x) for x in Xs])
-        out = _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol)
+        out = _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress)
         Xs = np.array([context.from_canonical(x) for x in Xc])
 
     vertices = None
