@@ -13,10 +13,8 @@ Backends
     importable: supernodal Cholesky ``P A P^T = L L^T`` with a fill-reducing
     ordering computed once in :class:`SparseCholesky` and reused by every
     :meth:`SparseCholesky.factorize`.  This is the default: on the
-    Gauss-Newton systems of the 2k-vertex finger (6138 unknowns) and a
-    5.3k-vertex closed mesh (15876 unknowns) a numeric factorization takes
-    17-37 ms resp. 140-240 ms, about 5x less than the SciPy fallback
-    (``benchmarks/bench_gauss_newton.py``, 2-core Xeon 2.5 GHz, shared).
+    Gauss-Newton systems it is several times faster than the SciPy fallback
+    (figures: ``benchmarks/bench_gauss_newton.py``, README "Benchmarks").
 ``"scipy"``
     SciPy's SuperLU (:func:`scipy.sparse.linalg.splu`) in symmetric mode with a
     minimum-degree ordering of ``A + A^T`` and diagonal pivoting, i.e. an
@@ -57,7 +55,7 @@ class NotPositiveDefiniteError(ArithmeticError):
 
 
 def _cholmod():
-    try:
+    try:  # imported on demand on purpose: cvxopt is an optional dependency (SciPy fallback without it)
         import cvxopt
         import cvxopt.cholmod
     except ImportError:  # pragma: no cover - depends on the environment
