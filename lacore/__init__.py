@@ -20,6 +20,8 @@ interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`,
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
 """
 
+import importlib
+
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import InputError, LengthsAnglesError, MeshError
 from .integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
@@ -41,8 +43,6 @@ _LAZY = {"interpolate": "interpolation", "keyframe_inbetweens": "interpolation",
 
 def __getattr__(name):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

@@ -94,11 +94,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from .energies import QuadraticEnergy
-from .errors import LengthsAnglesError
+from .errors import InputError, LengthsAnglesError
 from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .interpolation import interpolate
 from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
-from .reconstruction import get_context
+from .progress import report
+from .reconstruction import ReconstructionSettings, get_context
 from .result import SolverResult
 from .sparse_cholesky import SparseCholesky
 from .topology import check_vertices
@@ -211,7 +212,7 @@ def _quadratic_weights(energy, dim):
     if w.shape != (dim,):
         raise LengthsAnglesError(f"energy.residual_weights has shape {w.shape}, expected ({dim},)")
     if np.any(w < 0) or not np.all(np.isfinite(w)):
-        raise ValueError("energy.residual_weights must be finite and non-negative")
+        raise InputError("energy.residual_weights must be finite and non-negative")
     return w
 
 
@@ -289,7 +290,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
         The projected immersions, in the frame of the reference.
     """
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
+        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
     res = interpolate([start, end], topology, np.arange(K + 1) / K, reference_vertices=reference_vertices,
                       **projection_kw)
@@ -446,7 +447,7 @@ def _euler_max(zs, topology):
     return max(float(np.abs(euler_integrability_map(z, topology)).max()) for z in zs)
 
 
-def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization):
+def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress=None):
     """SQP iterations on the interior points of ``zs`` (modified in place); returns a dict of results."""
     m = model.m
     E = topology.n_edges
@@ -471,6 +472,7 @@ def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regular
     g_noise = 2.0 * model.K * float(np.max(model.w * 16 * np.finfo(float).eps * scale))
     status, message, iterations = 1, "maximum number of iterations reached", 0
     for it in range(1, max_iterations + 1):
+        report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         inner = zs[1:-1]
         lin = [euler_integrability_jacobian(z, topology, return_value=True) for z in inner]
@@ -588,7 +590,7 @@ def _vertex_path_linearization(Xc, zs, topology, model, cols):
     return model.value(zs), grad, _assemble_normal_matrix(Js, model.K, model.w), Js
 
 
-def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
+def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress=None):
     """Gauss-Newton in the free vertex coordinates of the interior points; ``zs``/``Xc`` updated in place.
 
     ``Xc (K-1, V, 3)`` are canonical coordinates of ``context`` (fixed coordinates 0).
@@ -604,6 +606,7 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
     chol = None
     status, message, iterations = 1, "maximum number of iterations reached", 0
     for it in range(1, max_iterations + 1):
+        report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         history["path_energy"].append(f)
         history["constraint_violation"].append(0.0)
@@ -648,7 +651,7 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol):
 def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", initial=None,
                       reference_vertices=None, bending_weight=1e-3, weights="frohlich_botsch",
                       max_iterations=200, tol=1e-8, constraint_tol=1e-10, regularization=1e-12,
-                      fixed_face=None, reconstruct_vertices=False, projection_kw=None):
+                      fixed_face=None, reconstruct_vertices=False, projection_kw=None, progress=None):
     """Discrete geodesic in the space of lengths and angles: solve (4.6).
 
     Minimize ``K sum_{i=0}^{K-1} W[z_i, z_{i+1}]`` over ``z_1..z_{K-1}`` subject to
@@ -699,6 +702,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         ``result.vertices`` (Gauss-Newton projections, warm-started along the path).
     projection_kw : dict, optional
         Extra keyword arguments of the projections (:func:`lacore.interpolation.interpolate`).
+    progress : callable, optional
+        ``progress(done, total, message)`` before every iteration (``total`` =
+        ``max_iterations``, :mod:`lacore.progress`); returning True stops with
+        :class:`lacore.progress.Cancelled`.
 
     Returns
     -------
@@ -714,9 +721,9 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     """
     t0 = time.perf_counter()
     if method not in ("sqp", "vertices"):
-        raise ValueError(f"unknown geodesic method {method!r}; use 'sqp' or 'vertices'")
+        raise InputError(f"unknown geodesic method {method!r}; use 'sqp' or 'vertices'")
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
+        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
     z0, X0 = _as_z(start, topology, "start")
     zK, XK = _as_z(end, topology, "end")
@@ -731,7 +738,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     w = _quadratic_weights(energy, 2 * E)
     free = np.r_[np.arange(E), E + topology.interior_edges]
     if np.any(w[free] <= 0):
-        raise ValueError("the geodesic solvers need positive energy weights on all lengths and interior angles "
+        raise InputError("the geodesic solvers need positive energy weights on all lengths and interior angles "
                          "(bending_weight > 0)")
     model = _QuadraticPathModel(w, K)
     projection_kw = dict(projection_kw or {})
@@ -742,7 +749,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
 
     def need_reference(what):
         if reference_vertices is None:
-            raise ValueError(f"{what} needs vertex positions: pass start/end as (V, 3) vertex arrays or give "
+            raise InputError(f"{what} needs vertex positions: pass start/end as (V, 3) vertex arrays or give "
                              "reference_vertices")
 
     zs = np.empty((K + 1, 2 * E))
@@ -757,21 +764,23 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
             zs[1:-1], Xs = z_lin[1:-1], X_lin[1:-1]
         elif isinstance(initial, str):
             if initial != "linear":
-                raise ValueError(f"unknown initial path {initial!r}; use None, 'linear' or an array")
+                raise InputError(f"unknown initial path {initial!r}; use None, 'linear' or an array")
             if method == "vertices":
-                raise ValueError("method='vertices' cannot start from the (non-admissible) linear path in z")
+                raise InputError("method='vertices' cannot start from the (non-admissible) linear path in z")
             zs[1:-1] = linear_path(z0, zK, K)[1:-1]
         else:
             zs[1:-1], Xs = _initial_path(initial, K, topology)
             if method == "vertices" and Xs is None:
-                raise ValueError("method='vertices' needs initial vertex positions of shape (K-1, V, 3) (or None)")
+                raise InputError("method='vertices' needs initial vertex positions of shape (K-1, V, 3) (or None)")
     initial_energy = model.value(zs)
 
     context = None
     if method == "vertices" and K >= 2:
         need_reference("method='vertices'")
-        settings = {k: projection_kw[k] for k in ("weights", "bending_weight", "fixed_face") if k in projection_kw}
-        context = get_context(topology, reference_vertices, **settings)
+        settings = ReconstructionSettings(weights=projection_kw["weights"],
+                                          bending_weight=projection_kw["bending_weight"],
+                                          fixed_face=projection_kw.get("fixed_face"))
+        context = get_context(topology, reference_vertices, settings)
 
     if K < 2:
         out = {"status": 0, "message": "no interior points (n_steps = 1)", "iterations": 0,
@@ -782,10 +791,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         for i, z in enumerate(zs[1:-1]):
             if _min_margin(z, topology) <= 0:
                 raise LengthsAnglesError(f"initial path point {i + 1} violates the triangle inequality")
-        out = _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization)
+        out = _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress)
     else:
         Xc = np.array([context.to_canonical(x) for x in Xs])
-        out = _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol)
+        out = _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress)
         Xs = np.array([context.from_canonical(x) for x in Xc])
 
     vertices = None

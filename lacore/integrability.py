@@ -68,6 +68,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
+from .errors import InputError
 from .cache import carve, scratch
 from .lengths_angles import split_z
 from .trigonometry import kahan_angle_factors, kahan_area_rows, margin_rows, interior_angles
@@ -477,7 +478,7 @@ def _holonomies(z, topology, gamma=None):
     if gamma is not None:
         gamma = np.asarray(gamma, float)
         if gamma.shape != (topology.n_faces, 3):
-            raise ValueError(f"gamma must have shape ({topology.n_faces}, 3), got {gamma.shape}")
+            raise InputError(f"gamma must have shape ({topology.n_faces}, 3), got {gamma.shape}")
     blocks = _ring_blocks(topology)
     q = np.empty((4, len(topology.interior_vertices)))
     invalid = []

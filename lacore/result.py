@@ -70,6 +70,10 @@ class SolverResult:
         except AttributeError:
             raise KeyError(name) from None
 
+    def get(self, name, default=None):
+        """``res[name]`` or ``default`` (``OptimizeResult`` compatibility)."""
+        return getattr(self, name, default)
+
     def keys(self):
         """Field names (``OptimizeResult`` compatibility)."""
         return [f.name for f in fields(self)]

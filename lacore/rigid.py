@@ -5,6 +5,8 @@ A rigid motion is ``x -> x @ R.T + t`` with ``R`` a rotation (det +1, no reflect
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["rigid_fit", "rigid_align", "apply_rigid", "rigid_rms"]
 
 
@@ -28,7 +30,7 @@ def rigid_fit(source, target, weights=None):
 
     Raises
     ------
-    ValueError
+    InputError
         Shapes differ, or fewer than one usable point.  With one or two usable
         points the rotation is not unique; the minimal-norm rotation given by
         the SVD is returned (exact fit of the points themselves).
@@ -36,13 +38,13 @@ def rigid_fit(source, target, weights=None):
     P = np.asarray(source, dtype=float)
     Q = np.asarray(target, dtype=float)
     if P.ndim != 2 or P.shape[1] != 3 or P.shape != Q.shape:
-        raise ValueError(f"rigid_fit needs two (N, 3) arrays of equal shape, got {P.shape} and {Q.shape}")
+        raise InputError(f"rigid_fit needs two (N, 3) arrays of equal shape, got {P.shape} and {Q.shape}")
     w = np.ones(len(P)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape != (len(P),):
-        raise ValueError(f"weights must have shape ({len(P)},), got {w.shape}")
+        raise InputError(f"weights must have shape ({len(P)},), got {w.shape}")
     use = np.isfinite(P).all(1) & np.isfinite(Q).all(1) & (w > 0)
     if not use.any():
-        raise ValueError("rigid_fit: no point with finite coordinates and positive weight")
+        raise InputError("rigid_fit: no point with finite coordinates and positive weight")
     P, Q, w = P[use], Q[use], w[use]
     w = w / w.sum()
     cp, cq = w @ P, w @ Q

@@ -13,10 +13,8 @@ Backends
     importable: supernodal Cholesky ``P A P^T = L L^T`` with a fill-reducing
     ordering computed once in :class:`SparseCholesky` and reused by every
     :meth:`SparseCholesky.factorize`.  This is the default: on the
-    Gauss-Newton systems of the 2k-vertex finger (6138 unknowns) and a
-    5.3k-vertex closed mesh (15876 unknowns) a numeric factorization takes
-    17-37 ms resp. 140-240 ms, about 5x less than the SciPy fallback
-    (``benchmarks/bench_gauss_newton.py``, 2-core Xeon 2.5 GHz, shared).
+    Gauss-Newton systems it is several times faster than the SciPy fallback
+    (figures: ``benchmarks/bench_gauss_newton.py``, README "Benchmarks").
 ``"scipy"``
     SciPy's SuperLU (:func:`scipy.sparse.linalg.splu`) in symmetric mode with a
     minimum-degree ordering of ``A + A^T`` and diagonal pivoting, i.e. an
@@ -46,6 +44,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from .errors import InputError
+
 __all__ = ["SparseCholesky", "available_backends", "default_backend", "NotPositiveDefiniteError",
            "nested_dissection"]
 
@@ -55,7 +55,7 @@ class NotPositiveDefiniteError(ArithmeticError):
 
 
 def _cholmod():
-    try:
+    try:  # imported on demand on purpose: cvxopt is an optional dependency (SciPy fallback without it)
         import cvxopt
         import cvxopt.cholmod
     except ImportError:  # pragma: no cover - depends on the environment
@@ -116,9 +116,9 @@ class SparseCholesky:
     def __init__(self, pattern, backend=None, shift_start=1e-10, max_shift_tries=12, ordering=None):
         backend = default_backend() if backend is None else backend
         if backend not in ("cholmod", "scipy"):
-            raise ValueError(f"unknown sparse Cholesky backend {backend!r}; use 'cholmod' or 'scipy'")
+            raise InputError(f"unknown sparse Cholesky backend {backend!r}; use 'cholmod' or 'scipy'")
         if backend == "cholmod" and _cholmod() is None:
-            raise ValueError("backend 'cholmod' needs cvxopt (pip install cvxopt); use backend='scipy'")
+            raise InputError("backend 'cholmod' needs cvxopt (pip install cvxopt); use backend='scipy'")
         P = sp.csc_matrix(pattern)
         n = P.shape[0]
         if P.shape != (n, n):

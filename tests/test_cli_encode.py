@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from conftest import REPO, shared_mesh
 
-from lacore.cli import SUBCOMMANDS, main
+from lacore.cli import SUBCOMMANDS, Subcommand, main
+from lacore.errors import MeshError
 from lacore.mesh_io import load_mesh, save_mesh
 
 JSON_KEYS = {"vertices", "edges", "faces", "max_integrability_violation", "seconds"}
@@ -200,3 +201,23 @@ def test_mesh_io_keeps_unreferenced_vertices(tmp_path):
     X2, faces2 = load_mesh(ply)
     np.testing.assert_array_equal(faces2, faces)
     np.testing.assert_array_equal(X2, X)
+
+
+def test_only_input_errors_are_reported_as_bad_input(monkeypatch, tmp_path, capsys):
+    """An InputError exits 2 with one line; any other exception is a bug and propagates (traceback)."""
+    from lacore.cli import encode
+
+    def buggy(args):
+        raise ValueError("a bug deep in NumPy code")
+
+    def bad_input(args):
+        raise MeshError("the mesh is not manifold at vertex 3")
+
+    for run, outcome in ((buggy, ValueError), (bad_input, 2)):
+        monkeypatch.setitem(SUBCOMMANDS, "encode", Subcommand("encode", encode.HELP, encode.configure, run))
+        if outcome == 2:
+            assert main(["encode", str(tmp_path / "x.ply")]) == 2
+            assert capsys.readouterr().err == "lacore encode: error: the mesh is not manifold at vertex 3\n"
+        else:
+            with pytest.raises(ValueError, match="a bug deep in NumPy code"):
+                main(["encode", str(tmp_path / "x.ply")])

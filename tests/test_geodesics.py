@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from conftest import load_mesh
 from fd import directional_fd, relative_error
 
+from lacore.progress import Cancelled
 from lacore.energies import QuadraticEnergy, ThinShellsEnergy
 from lacore.errors import LengthsAnglesError, MeshError
 from lacore.geodesics import (_QuadraticPathModel, _SchurKKT, _time_laplacian_inverse, _vertex_path_linearization,
@@ -353,3 +354,14 @@ def test_geodesic_errors(plates):
         discrete_geodesic(XA, XB, topo, 3, method="vertices", initial="linear")
     with pytest.raises(LengthsAnglesError, match="initial path"):
         discrete_geodesic(XA, XB, topo, 3, initial=np.zeros((5, 7)))
+
+
+def test_progress_is_reported_per_iteration_and_can_cancel(plates):
+    topo, XA, XB = plates
+    seen = []
+    res = discrete_geodesic(XA, XB, topo, 2, method="vertices", max_iterations=50,
+                            progress=lambda d, t, m: seen.append((d, t, m)))
+    assert [d for d, _, _ in seen] == list(range(res.iterations)) and all(t == 50 for _, t, _ in seen)
+    assert seen[0][2] == "iteration 1 (at most 50)"
+    with pytest.raises(Cancelled, match="cancelled after 1 of 50"):
+        discrete_geodesic(XA, XB, topo, 2, method="sqp", max_iterations=50, progress=lambda d, t, m: d >= 1)

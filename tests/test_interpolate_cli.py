@@ -153,3 +153,23 @@ def test_module_entry_point(tmp_path):
                           capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 2
     assert "not in dense correspondence" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_outputs_are_written_all_or_nothing(tmp_path, monkeypatch):
+    """A failure while writing frame 2 of 3 leaves no output file (and no temporary file) behind."""
+    import lacore.cli.interpolate as cli_interpolate
+
+    calls = []
+    original = cli_interpolate.save_mesh
+
+    def failing(path, vertices, faces):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("disk full")
+        original(path, vertices, faces)
+
+    monkeypatch.setattr(cli_interpolate, "save_mesh", failing)
+    prefix = tmp_path / "frame"
+    code = main(["interpolate", str(PLATES[0]), str(PLATES[1]), "--t", "0.25", "0.5", "0.75", "-o", str(prefix)])
+    assert code == 2 and len(calls) == 2
+    assert list(tmp_path.iterdir()) == []

@@ -10,6 +10,7 @@ import lacore.reconstruction.context as reconstruction_context
 from lacore.errors import LengthsAnglesError, MeshError
 from lacore.interpolation import (check_keyframes, interpolate, keyframe_inbetweens, piecewise_linear_z,
                                   shapes_to_z, spline_z)
+from lacore.progress import Cancelled
 from lacore.lengths_angles import edge_lengths, face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction import get_context, reconstruct
 from lacore.rigid import rigid_rms
@@ -323,3 +324,22 @@ def test_frame_based_methods_share_one_preassembled_tree(plates, monkeypatch):
     walk = interpolate([Xf, XA], topo, [0.3, 0.7], method="hybrid", hybrid_start="tree", hybrid_kind="spt")
     assert calls == ["mst", "spt"] and walk.tree.kind == "spt"
     assert all(r.method == "hybrid-spt" for r in walk.reconstructions)
+
+
+# --------------------------------------------------------------------------- progress and cancellation
+def test_progress_reports_every_frame_and_cancels(plates):
+    topo, (Xf, XA, XB) = plates
+    calls = []
+    res = keyframe_inbetweens([XA, XB], topo, [0, 4], progress=lambda *a: calls.append(a))
+    assert [c[:2] for c in calls] == [(k, 5) for k in range(6)]          # 0 (start) .. 5 frames, in time order
+    assert calls[3][2] == "frame 3 of 5 (t = 2)"
+    assert res.keyframes.tolist() == [0.0, 4.0] and not res.smooth and res.timings["total"] == res.total_seconds
+    seen = []
+
+    def stop_after_two(done, total, message):
+        seen.append(done)
+        return done >= 2
+
+    with pytest.raises(Cancelled, match="cancelled after 2 of 3"):
+        interpolate([XA, XB], topo, [0.25, 0.5, 0.75], progress=stop_after_two)
+    assert seen == [0, 1, 2]

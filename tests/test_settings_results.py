@@ -95,7 +95,9 @@ def test_hybrid_result_is_complete_and_consistent(plates):
     summary = res.summary()
     json.dumps(summary, allow_nan=False)
     assert "vertices" not in summary and summary["status"] == 6 and summary["iterations"] == 2
-    assert res["energy"] == res.energy and "energy_history" in res.keys()
+    assert res["energy"] == res.energy and "energy_history" in res.keys() and res.get("nope", 7) == 7
+    with pytest.raises(KeyError, match="nope"):
+        res["nope"]
 
 
 def test_run_gauss_newton_returns_a_result_object(plates):

@@ -14,7 +14,8 @@ Conventions shared by all subcommands:
   unwritable file) -- prints ``lacore <cmd>: error: ...`` on stderr and exits
   with code 2, without a traceback; any other exception is a bug and shows its
   traceback;
-* results go to ``.npz`` files (``numpy.load``) with documented keys.
+* results go to mesh or ``.npz`` files (``numpy.load``) with documented keys,
+  written all or nothing (:func:`lacore.cli.common.atomic_outputs`).
 """
 
 import argparse

@@ -13,7 +13,7 @@ from ..integrability import integrability_violation
 from ..lengths_angles import check_nondegenerate, lengths_and_angles
 from ..mesh_io import load_mesh
 from ..topology import MeshTopology
-from .common import EXIT_OK, json_float, print_json
+from .common import EXIT_OK, atomic_outputs, json_float, print_json
 
 __all__ = ["HELP", "configure", "run", "encode_mesh"]
 
@@ -54,8 +54,9 @@ def run(args):
     if args.output:
         t = time.perf_counter()
         out = args.output if args.output.endswith(".npz") else args.output + ".npz"
-        np.savez(out, vertices=vertices, faces=topology.faces, edges=topology.edges,
-                 lengths=lengths, angles=angles, z=z, integrability_violation=violation)
+        with atomic_outputs([out]) as (tmp,):
+            np.savez(tmp, vertices=vertices, faces=topology.faces, edges=topology.edges,
+                     lengths=lengths, angles=angles, z=z, integrability_violation=violation)
         t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     max_violation = float(violation.max()) if violation.size else 0.0

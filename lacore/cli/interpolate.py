@@ -43,7 +43,7 @@ from ..mesh_io import load_mesh, save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import SOLVERS, WEIGHTS
 from ..topology import MeshTopology
-from .common import EXIT_OK, CliError, json_float, print_json
+from .common import EXIT_OK, CliError, atomic_outputs, json_float, print_json
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -146,8 +146,9 @@ def run(args):
                                  options=GaussNewtonOptions(max_iterations=args.max_iterations))
     paths = output_paths(args.output, len(times), args.format)
     t = time.perf_counter()
-    for path, X in zip(paths, result.vertices, strict=True):
-        save_mesh(path, X, topology.faces)
+    with atomic_outputs(paths) as temps:  # all frames or none
+        for tmp, X in zip(temps, result.vertices, strict=True):
+            save_mesh(tmp, X, topology.faces)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     if not result.success:

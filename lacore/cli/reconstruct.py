@@ -35,7 +35,7 @@ from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, Recons
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
 from ..topology import MeshTopology
-from .common import EXIT_OK, CliError, print_json
+from .common import EXIT_OK, CliError, atomic_outputs, print_json
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -154,10 +154,12 @@ def combine_targets(zs, weights=None):
 
 
 def _save(path, vertices, faces, z):
-    if path.lower().endswith(".npz"):
-        np.savez(path, vertices=vertices, faces=faces, z=z)
-    else:
-        save_mesh(path, vertices, faces)
+    """Write the result (all or nothing: a temporary file moved onto ``path``)."""
+    with atomic_outputs([path]) as (tmp,):
+        if path.lower().endswith(".npz"):
+            np.savez(tmp, vertices=vertices, faces=faces, z=z)
+        else:
+            save_mesh(tmp, vertices, faces)
 
 
 def run(args):

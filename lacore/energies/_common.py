@@ -5,7 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError
 from ..trigonometry import triangle_areas
 
 
@@ -33,7 +33,7 @@ def _parse_argument(argument):
         return int(argument)
     if isinstance(argument, (tuple, list)) and tuple(argument) in ((0, 1), (1, 0)):
         return tuple(int(a) for a in argument)
-    raise ValueError(f"argument must be 0, 1, (0, 1) or (1, 0), got {argument!r}")
+    raise InputError(f"argument must be 0, 1, (0, 1) or (1, 0), got {argument!r}")
 
 
 def _scatter(index, values, n):
@@ -165,7 +165,7 @@ class DeformationEnergy:
         z_a, z_b = self._pair(z_a, z_b)
         arg = _parse_argument(argument)
         if project and isinstance(arg, tuple):
-            raise ValueError("project=True needs a symmetric Hessian block (argument 0 or 1)")
+            raise InputError("project=True needs a symmetric Hessian block (argument 0 or 1)")
         if arg == (1, 0):
             return self.hessian(z_a, z_b, (0, 1)).T.tocsr()
         blocks = self._hessian_blocks(z_a, z_b, arg, project)

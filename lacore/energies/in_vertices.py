@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..errors import MeshError
+from ..errors import InputError, MeshError
 from ..lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ..topology import check_vertices
 from ._common import DeformationEnergy, _as_z, _assemble_blocks, _Blocks, _interior_quads
@@ -113,7 +113,7 @@ class EnergyInVertices:
                     or not np.array_equal(topology.faces, energy.topology.faces)):
                 raise MeshError("the topology differs from the energy's topology")
         if argument not in (0, 1) or isinstance(argument, bool):
-            raise ValueError(f"argument must be 0 or 1, got {argument!r}")
+            raise InputError(f"argument must be 0 or 1, got {argument!r}")
         self.energy = energy
         self.topology = energy.topology
         self.argument = int(argument)

@@ -3,7 +3,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import LengthsAnglesError, format_indices
+from ..errors import InputError, LengthsAnglesError, format_indices
 from ..lengths_angles import lengths_and_angles
 from ._common import _WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks, _interior_quads, _parse_argument, edge_areas
 
@@ -29,7 +29,7 @@ def quadratic_weights(reference_lengths, topology, scheme="frohlich_botsch"):
         ``w_b`` is 0 on boundary edges (their angle is 0 by convention).
     """
     if scheme not in _WEIGHT_SCHEMES:
-        raise ValueError(f"unknown weight scheme {scheme!r}; use one of {_WEIGHT_SCHEMES}")
+        raise InputError(f"unknown weight scheme {scheme!r}; use one of {_WEIGHT_SCHEMES}")
     E = topology.n_edges
     if scheme == "uniform":
         w_s, w_b = np.ones(E), np.ones(E)
@@ -84,11 +84,11 @@ class QuadraticEnergy(DeformationEnergy):
                  membrane_weights=None, bending_weights=None, bending_weight=1e-3):
         super().__init__(topology)
         if weights not in _WEIGHT_SCHEMES:
-            raise ValueError(f"unknown weight scheme {weights!r}; use one of {_WEIGHT_SCHEMES}")
+            raise InputError(f"unknown weight scheme {weights!r}; use one of {_WEIGHT_SCHEMES}")
         if not (np.isfinite(bending_weight) and bending_weight >= 0):
-            raise ValueError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
+            raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         if reference_vertices is not None and reference_z is not None:
-            raise ValueError("give reference_vertices or reference_z, not both")
+            raise InputError("give reference_vertices or reference_z, not both")
         E = topology.n_edges
         self.bending_weight = float(bending_weight)
         self.weight_scheme = weights
@@ -99,7 +99,7 @@ class QuadraticEnergy(DeformationEnergy):
         elif reference_z is not None:
             lbar = _as_z(reference_z, topology, "reference_z")[:E]
         elif need_reference:
-            raise ValueError(f"weights={weights!r} need a reference configuration: pass reference_vertices or "
+            raise InputError(f"weights={weights!r} need a reference configuration: pass reference_vertices or "
                              "reference_z (or custom membrane_weights and bending_weights)")
         if need_reference:
             w_s, w_b = quadratic_weights(lbar, topology, weights)
@@ -137,7 +137,7 @@ class QuadraticEnergy(DeformationEnergy):
         z_a, z_b = self._pair(z_a, z_b)
         arg = _parse_argument(argument)
         if isinstance(arg, tuple):
-            raise ValueError("the gradient takes argument 0 or 1")
+            raise InputError("the gradient takes argument 0 or 1")
         g = 2.0 * self.residual_weights * (z_a - z_b)
         return g if arg == 0 else -g
 
@@ -149,14 +149,14 @@ class QuadraticEnergy(DeformationEnergy):
         self._pair(z_a, z_b)
         arg = _parse_argument(argument)
         if project and isinstance(arg, tuple):
-            raise ValueError("project=True needs a symmetric Hessian block (argument 0 or 1)")
+            raise InputError("project=True needs a symmetric Hessian block (argument 0 or 1)")
         sign = -2.0 if isinstance(arg, tuple) else 2.0
         return sp.diags(sign * self.residual_weights, format="csr")
 
     def _hessian_blocks(self, z_a, z_b, arg, project):
         """Per-edge blocks: ``(l_e, theta_e)`` on interior edges, ``l_e`` on boundary edges."""
         if isinstance(arg, tuple):
-            raise ValueError("Gauss-Newton blocks are symmetric (argument 0 or 1)")
+            raise InputError("Gauss-Newton blocks are symmetric (argument 0 or 1)")
         topo = self.topology
         E = self.n_edges
         ie, be = topo.interior_edges, topo.boundary_edges

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..errors import LengthsAnglesError, format_indices
+from ..errors import InputError, LengthsAnglesError, format_indices
 from ..trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
 from ._common import DeformationEnergy, _Blocks, _interior_quads, _parse_argument, _project_psd, _scatter, edge_areas
 
@@ -170,9 +170,9 @@ class ThinShellsEnergy(DeformationEnergy):
         super().__init__(topology)
         for name, v in (("mu", mu), ("lam", lam)):
             if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive material constant, got {v!r}")
+                raise InputError(f"{name} must be a positive material constant, got {v!r}")
         if not (np.isfinite(bending_weight) and bending_weight >= 0):
-            raise ValueError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
+            raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         self.bending_weight = float(bending_weight)
         self.mu, self.lam = float(mu), float(lam)
 
@@ -267,7 +267,7 @@ class ThinShellsEnergy(DeformationEnergy):
         z_a, z_b = self._pair(z_a, z_b)
         arg = _parse_argument(argument)
         if isinstance(arg, tuple):
-            raise ValueError("the gradient takes argument 0 or 1")
+            raise InputError("the gradient takes argument 0 or 1")
         topo = self.topology
         E = self.n_edges
         ie = topo.interior_edges

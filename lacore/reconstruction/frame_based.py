@@ -53,7 +53,7 @@ import weakref
 
 import numpy as np
 
-from ..errors import MeshError, format_indices
+from ..errors import InputError, MeshError, format_indices
 from ..integrability import standard_frames
 from ..lengths_angles import check_z
 from ..topology import check_vertices
@@ -97,13 +97,13 @@ def rotation_to_quaternion(R, check=True):
     """
     R = np.asarray(R, float)
     if R.shape[-2:] != (3, 3):
-        raise ValueError(f"rotation matrices must have shape (..., 3, 3), got {R.shape}")
+        raise InputError(f"rotation matrices must have shape (..., 3, 3), got {R.shape}")
     if check:
         if not np.all(np.isfinite(R)):
-            raise ValueError("root_frame has NaN or infinite entries")
+            raise InputError("root_frame has NaN or infinite entries")
         dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
         if np.any(dev > 1e-6) or np.any(np.linalg.det(R) <= 0):
-            raise ValueError("root_frame must be a rotation matrix (orthonormal columns b1, b2, N with det +1)")
+            raise InputError("root_frame must be a rotation matrix (orthonormal columns b1, b2, N with det +1)")
         if np.any(dev > 1e-13):
             u, _, vt = np.linalg.svd(R)
             R = u @ vt
@@ -527,7 +527,7 @@ def _root_placement(topology, roots, root_frame, root_position, reference_vertic
     if root_position.shape == (3,):
         root_position = np.broadcast_to(root_position, (C, 3))
     if root_position.shape != (C, 3) or not np.all(np.isfinite(root_position)):
-        raise ValueError(f"root_position must be finite with shape (3,) or ({C}, 3), got {root_position.shape}")
+        raise InputError(f"root_position must be finite with shape (3,) or ({C}, 3), got {root_position.shape}")
     return root_q, root_position
 
 
@@ -536,7 +536,7 @@ def _root_quaternions(root_frame, C):
     if root_frame.shape == (3, 3):
         root_frame = np.broadcast_to(root_frame, (C, 3, 3))
     if root_frame.shape != (C, 3, 3):
-        raise ValueError(f"root_frame must have shape (3, 3) or ({C}, 3, 3) (one per root), got {root_frame.shape}")
+        raise InputError(f"root_frame must have shape (3, 3) or ({C}, 3, 3) (one per root), got {root_frame.shape}")
     return rotation_to_quaternion(root_frame)
 
 

@@ -83,11 +83,11 @@ angle near ``+-pi`` whose reconstruction crosses the branch cut is penalized by
 """
 
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 
-from ..errors import LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError
 from ..lengths_angles import check_z
 from ..sparse_cholesky import NotPositiveDefiniteError
 from ..topology import check_vertices
@@ -95,7 +95,7 @@ from .assembly import gauss_newton_pattern
 from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
-from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
+from .result import STATUS_MESSAGES, GaussNewtonResult, IterativeResult, ReconstructionResult
 from .settings import GaussNewtonOptions, make_settings
 
 __all__ = [
@@ -108,7 +108,11 @@ __all__ = [
     "triangle_frame",
     "GaussNewtonOptions",
     "GaussNewtonResult",
+    "GN_OPTIONS",
 ]
+
+#: The defaults of :class:`GaussNewtonOptions` as a dict (derived from the dataclass, for code that wants a dict).
+GN_OPTIONS = {f.name: f.default for f in fields(GaussNewtonOptions)}
 
 #: PCG has stalled (refactorize) when ``pcg_maxiter`` iterations reduced the relative residual less than this.
 _PCG_STALL = 0.5
@@ -401,11 +405,11 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
         options = replace(options, **gn_kw)
     if context is None:
         if reference_vertices is None:
-            raise ValueError("give reference_vertices or a context")
+            raise InputError("give reference_vertices or a context")
         context = get_context(topology, reference_vertices, make_settings(caller="gauss_newton_reconstruction",
                                                                           **kwargs))
     elif kwargs:
-        raise ValueError(f"settings {sorted(kwargs)} are fixed by the given context")
+        raise InputError(f"settings {sorted(kwargs)} are fixed by the given context")
     z_target = check_z(z_target, topology, name="target z")
     X0 = context.reference_vertices if initial_vertices is None else check_vertices(
         initial_vertices, topology.n_vertices, name="initial vertices")
@@ -421,10 +425,7 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     if status == 0 and success_status is not None:
         status, message = success_status
     timings["total"] = time.perf_counter() - started
-    return ReconstructionResult(
-        vertices=vertices, success=status > 0, status=status, message=message, method=method_name,
-        iterations=out.iterations, energy=out.energy, energy_name=objective.name,
-        initial_energy=out.initial_energy, energy_history=out.energy_history, gradient_norm=out.gradient_norm,
-        step_sizes=out.step_sizes, regularization=out.regularization, function_evaluations=out.function_evaluations,
-        factorizations=out.factorizations, pcg_iterations=out.pcg_iterations, timings=timings,
-        fixed_face=context.fixed_face, backend=context.backend)
+    counters = {f.name: getattr(out, f.name) for f in fields(IterativeResult)}
+    counters.update(success=status > 0, status=status, message=message, timings=timings)
+    return ReconstructionResult(vertices=vertices, method=method_name, energy_name=objective.name,
+                                fixed_face=context.fixed_face, backend=context.backend, **counters)

@@ -47,7 +47,7 @@ import hashlib
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import MeshError
+from ..errors import InputError, MeshError
 from ..integrability import edge_frame_angles, standard_frames, transition_rotations
 from ..lengths_angles import check_z
 from ..sparse_cholesky import SparseCholesky
@@ -66,9 +66,9 @@ def _check_weights(topology, edge_weights):
         return None, "uniform"
     w = np.asarray(edge_weights, float)
     if w.shape != (topology.n_edges,):
-        raise ValueError(f"edge_weights must have shape ({topology.n_edges},) (one per edge), got {w.shape}")
+        raise InputError(f"edge_weights must have shape ({topology.n_edges},) (one per edge), got {w.shape}")
     if not np.all(np.isfinite(w)) or np.any(w <= 0):
-        raise ValueError("edge_weights must be finite and positive")
+        raise InputError("edge_weights must be finite and positive")
     return w, hashlib.sha1(w.tobytes()).hexdigest()
 
 
@@ -311,9 +311,9 @@ def least_squares_reconstruction(z, topology, frame_weight=1.0, edge_weights=Non
     if reference_vertices is not None:
         reference_vertices = check_vertices(reference_vertices, topology.n_vertices, "reference_vertices")
     if method not in ("two_step", "composite"):
-        raise ValueError(f"method must be 'two_step' or 'composite', got {method!r}")
+        raise InputError(f"method must be 'two_step' or 'composite', got {method!r}")
     if not (np.isfinite(frame_weight) and frame_weight > 0):
-        raise ValueError(f"frame_weight must be positive, got {frame_weight}")
+        raise InputError(f"frame_weight must be positive, got {frame_weight}")
     w, wkey = _check_weights(topology, edge_weights)
     roots, root_frames, root_pos = _roots_and_placement(z, topology, root_face, reference_vertices)
     fixed = topology.faces[roots, 0]

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..result import SolverResult
 
-__all__ = ["ReconstructionResult", "GaussNewtonResult", "STATUS_MESSAGES"]
+__all__ = ["ReconstructionResult", "GaussNewtonResult", "IterativeResult", "STATUS_MESSAGES"]
 
 #: Meaning of :attr:`ReconstructionResult.status` (and :attr:`GaussNewtonResult.status`).
 STATUS_MESSAGES = {
@@ -23,33 +23,30 @@ STATUS_MESSAGES = {
 
 
 @dataclass(kw_only=True, repr=False)
-class GaussNewtonResult(SolverResult):
-    """Outcome of :func:`lacore.reconstruction.gauss_newton.run_gauss_newton` (canonical coordinates).
+class IterativeResult(SolverResult):
+    """A :class:`~lacore.result.SolverResult` with the counters of an energy-minimizing iteration.
 
     Attributes
     ----------
-    x : (V, 3) ndarray
-        The final iterate, in the canonical coordinates of the context.
-    success, status, message, iterations, timings
-        See :class:`lacore.result.SolverResult`; ``status`` codes in
-        :data:`STATUS_MESSAGES` (``success`` is ``status > 0``).  Timings:
-        ``assembly, factorization, solve, line_search, acceleration``.
     energy, initial_energy : float
-        Energy at the final and at the starting point.
+        Energy at the final and at the starting point (``nan`` if not computed).
     energy_history : list of float
         Energy after every iteration, starting with the initial energy.
     gradient_norm : float
-        Max-norm of the gradient in the free coordinates at the final point.
+        Max-norm of the gradient in the free coordinates at the final point (``nan`` if not computed).
     step_sizes : list of float
         Accepted line-search step sizes (1.0 = full step).
     regularization : list of float
-        Diagonal shift per numeric factorization (0.0 = exact).
-    function_evaluations, factorizations : int
+        Diagonal shift added to the Gauss-Newton matrix per numeric factorization (0.0 = exact).
+    function_evaluations : int
+        Evaluations of ``Z`` (energies), including line-search trials.
+    factorizations : int
+        Numeric Cholesky factorizations of the Gauss-Newton matrix.
     pcg_iterations : list of int
-        Per step, the PCG iterations used (0 for an exact step with a fresh factorization).
+        Per step, the conjugate-gradient iterations of a step solved with an earlier factorization as
+        preconditioner (0: a fresh factorization and a direct solve).
     """
 
-    x: np.ndarray
     energy: float = float("nan")
     initial_energy: float = float("nan")
     energy_history: list = field(default_factory=list)
@@ -60,11 +57,30 @@ class GaussNewtonResult(SolverResult):
     factorizations: int = 0
     pcg_iterations: list = field(default_factory=list)
 
+
+@dataclass(kw_only=True, repr=False)
+class GaussNewtonResult(IterativeResult):
+    """Outcome of :func:`lacore.reconstruction.gauss_newton.run_gauss_newton` (canonical coordinates).
+
+    Attributes
+    ----------
+    x : (V, 3) ndarray
+        The final iterate, in the canonical coordinates of the context.
+    success, status, message, iterations, timings
+        See :class:`lacore.result.SolverResult`; ``status`` codes in
+        :data:`STATUS_MESSAGES` (``success`` is ``status > 0``).  Timings:
+        ``assembly, factorization, solve, line_search, acceleration``.
+    energy, energy_history, step_sizes, factorizations, ...
+        The counters of :class:`IterativeResult`.
+    """
+
+    x: np.ndarray
+
     _summary_exclude = ("x",)
 
 
 @dataclass(kw_only=True, repr=False)
-class ReconstructionResult(SolverResult):
+class ReconstructionResult(IterativeResult):
     """Outcome of a reconstruction ``z* -> X`` (:func:`lacore.reconstruction.reconstruct`).
 
     Attributes
@@ -121,16 +137,7 @@ class ReconstructionResult(SolverResult):
 
     vertices: np.ndarray
     method: str
-    energy: float = float("nan")
     energy_name: str = "quadratic"
-    initial_energy: float = float("nan")
-    energy_history: list = field(default_factory=list)
-    gradient_norm: float = float("nan")
-    step_sizes: list = field(default_factory=list)
-    regularization: list = field(default_factory=list)
-    function_evaluations: int = 0
-    factorizations: int = 0
-    pcg_iterations: list = field(default_factory=list)
     fixed_face: int = -1
     backend: str = ""
 

@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from ..cache import DerivedCache
-from ..errors import LengthsAnglesError, MeshError, format_indices
+from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
 from ..integrability import integrability_violation
 from ..lengths_angles import check_z
 from ..trigonometry import triangle_inequality_margin
@@ -505,11 +505,11 @@ def _interior_weights(topology, edge_weights):
     """Validated weights of the interior edges plus the tie-breaking ``delta`` (see module docstring)."""
     w = np.asarray(edge_weights, float)
     if w.shape != (topology.n_edges,):
-        raise ValueError(f"edge_weights must have shape ({topology.n_edges},) (one per edge), got {w.shape}")
+        raise InputError(f"edge_weights must have shape ({topology.n_edges},) (one per edge), got {w.shape}")
     wi = w[topology.interior_edges]
     bad = np.flatnonzero(~np.isfinite(wi) | (wi < 0))
     if bad.size:
-        raise ValueError("edge_weights must be finite and nonnegative; bad at edges "
+        raise InputError("edge_weights must be finite and nonnegative; bad at edges "
                          f"{format_indices(topology.interior_edges[bad])}")
     top = float(wi.max()) if wi.size else 0.0
     return wi + max(1e-9 * top, 1e-300)
@@ -657,7 +657,7 @@ def preassembled_tree(z_samples, topology, root_face=None, kind="mst"):
         return minimal_spanning_tree(topology, root_face, w)
     if kind == "spt":
         return shortest_path_tree(topology, root_face, w)
-    raise ValueError(f"kind must be 'mst' or 'spt' for a preassembled tree, got {kind!r}")
+    raise InputError(f"kind must be 'mst' or 'spt' for a preassembled tree, got {kind!r}")
 
 
 def dual_spanning_tree(topology, root_face=None, kind="bfs", z=None, edge_weights=None):
@@ -680,14 +680,14 @@ def dual_spanning_tree(topology, root_face=None, kind="bfs", z=None, edge_weight
     DualSpanningTree
     """
     if kind not in TREE_KINDS:
-        raise ValueError(f"kind must be one of {TREE_KINDS}, got {kind!r}")
+        raise InputError(f"kind must be one of {TREE_KINDS}, got {kind!r}")
     if root_face is None:
         root_face = default_root_faces(topology, z=z)
     if kind == "bfs":
         return bfs_tree(topology, root_face)
     if edge_weights is None:
         if z is None:
-            raise ValueError(f"a {kind!r} tree needs the target z (for the adaptive weights 3.30) or edge_weights")
+            raise InputError(f"a {kind!r} tree needs the target z (for the adaptive weights 3.30) or edge_weights")
         edge_weights = adaptive_edge_weights(z, topology)
     if kind == "mst":
         return minimal_spanning_tree(topology, root_face, edge_weights)
