@@ -164,5 +164,6 @@ def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
     assert proc.returncode == 0 and data["ok"], data.get("error", "") + details
     label = getattr(zip_path, "label", None)
     if label is not None:  # the check really ran in the Blender it was meant for
-        assert data.get("blender", "").startswith(label + "."), (label, data.get("blender"))
+        version = data.get("blender", "")  # e.g. "4.2.23 LTS" for label 4.2 (or 4.2.23)
+        assert version == label or version.startswith((label + ".", label + " ")), (label, version)
     return data
