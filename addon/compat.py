@@ -4,16 +4,16 @@
 Animation data
 --------------
 Blender 4.4 introduced *slotted* actions: the F-curves of an ID live in the
-*channelbag* of the action slot assigned to the ID (``AnimData.action_slot``),
-reached through :func:`bpy_extras.anim_utils.action_get_channelbag_for_slot`.
-Blender 5.0 removed the legacy ``Action.fcurves``.  Blender 4.2 (and 4.3) have
+*channelbag* of the action slot assigned to the ID (``AnimData.action_slot``) in a
+keyframe strip of the action's layer.  The legacy ``Action.fcurves`` of 4.4/4.5 sees only
+single-slot actions, and Blender 5.0 removed it.  Blender 4.2 (and 4.3) have
 only ``Action.fcurves``.  The functions here return the *owner* of the F-curve
 collection: the channelbag where slotted actions exist, else the Action itself;
 both have the same ``.fcurves`` collection API (``find``, ``new``, ``remove``,
 iteration, ``len``).
 
-Tested headless with bpy 4.2.x and 5.2.x (``make test``); 4.4 .. 5.0 take the
-channelbag path, which bpy 5.0.1 also exercises.
+Tested headless with bpy 4.2.23 and 5.2.3 (``make test``: tests/blender/check_compat.py and
+the bake checks), and by hand with bpy 4.2.0, 4.5.15 and 5.0.1.
 """
 
 import bpy
@@ -21,18 +21,25 @@ import bpy
 __all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves"]
 
 
-def _slotted_action_api():
-    """``(action_get_channelbag_for_slot, action_ensure_channelbag_for_slot)`` or None before Blender 4.4."""
-    if bpy.app.version < (4, 4, 0):
-        return None
-    try:
-        from bpy_extras.anim_utils import action_ensure_channelbag_for_slot, action_get_channelbag_for_slot
-    except ImportError:  # pragma: no cover - 4.4 builds without the helpers fall back to Action.fcurves
-        return None
-    return action_get_channelbag_for_slot, action_ensure_channelbag_for_slot
+HAS_SLOTTED_ACTIONS = bpy.app.version >= (4, 4, 0)
 
 
-HAS_SLOTTED_ACTIONS = _slotted_action_api() is not None
+def _channelbag(action, slot, ensure=False):
+    """The channelbag of ``slot`` in ``action``'s first keyframe strip holding one (Blender 4.4+).
+
+    Same as ``bpy_extras.anim_utils.action_get_channelbag_for_slot`` / ``action_ensure_channelbag_for_slot``
+    (the latter exists only from 5.0 on); with ``ensure`` the layer, strip and channelbag are created.
+    """
+    for layer in action.layers:
+        for strip in layer.strips:
+            bag = strip.channelbag(slot)
+            if bag:
+                return bag
+    if not ensure:
+        return None
+    layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
+    strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type='KEYFRAME')
+    return strip.channelbag(slot, ensure=True)
 
 
 def animation_channels(id_data):
@@ -45,12 +52,11 @@ def animation_channels(id_data):
     ad = getattr(id_data, "animation_data", None)
     if ad is None or ad.action is None:
         return None
-    api = _slotted_action_api()
-    if api is None:
+    if not HAS_SLOTTED_ACTIONS:
         return ad.action
     if ad.action_slot is None:
         return None
-    return api[0](ad.action, ad.action_slot)
+    return _channelbag(ad.action, ad.action_slot)
 
 
 def ensure_animation_channels(id_data, action_name):
@@ -66,15 +72,14 @@ def ensure_animation_channels(id_data, action_name):
         ad.action = action
         created = action.name
     action = ad.action
-    api = _slotted_action_api()
-    if api is None:
+    if not HAS_SLOTTED_ACTIONS:
         return action, created
     if ad.action_slot is None:
         slot = next((s for s in action.slots if s.target_id_type in (id_data.id_type, 'UNSPECIFIED')), None)
         if slot is None:
             slot = action.slots.new(id_type=id_data.id_type, name=id_data.name)
         ad.action_slot = slot
-    return api[1](action, ad.action_slot), created
+    return _channelbag(action, ad.action_slot, ensure=True), created
 
 
 def id_fcurves(id_data, create=False, action_name=None):

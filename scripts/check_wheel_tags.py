@@ -11,7 +11,11 @@ for every manifest platform x supported Python:
 * every bundled distribution has EXACTLY ONE wheel usable there (Blender's installer
   keeps the wheels of its platform and Python, then one per distribution), except the
   known gaps of optional accelerators (:data:`KNOWN_GAPS`: lacore falls back);
-* no wheel is unusable everywhere (wrong Python, wrong platform, too new a glibc / macOS).
+* no wheel is unusable everywhere (wrong Python, wrong platform, too new a glibc / macOS);
+* early Blender 4.2.x (4.2.0; 4.2.13 matches Python tags) ignore Python tags: per distribution
+  they keep the highest version among the platform's wheels, ties broken by the greater file
+  name.  What they keep must be a
+  wheel Python 3.11 can use, except for the optional distributions (:data:`LEGACY_OPTIONAL`).
 
 usage: check_wheel_tags.py [blender_manifest.toml | extension.zip ...]   (default: the repository's manifest)
 Exit code 0 when every check passes, 1 otherwise (one line per problem on stderr).
@@ -46,6 +50,10 @@ KNOWN_GAPS = frozenset({
     ("cvxopt", "macos-arm64", (3, 13)),
     ("cvxopt", "macos-x64", (3, 13)),
 })
+
+# Distributions lacore can do without: on early Blender 4.2.x (4.2.0; fixed by 4.2.13) their cp313 wheel may win
+# (it cannot be imported by Python 3.11, so lacore uses SciPy's factorization instead of CHOLMOD).
+LEGACY_OPTIONAL = frozenset({"cvxopt"})
 
 _LEGACY_MANYLINUX = {"manylinux1": (2, 5), "manylinux2010": (2, 12), "manylinux2014": (2, 17)}
 
@@ -95,9 +103,12 @@ def _python_ok(wheel, python):
     return False
 
 
-def _platform_ok(wheel, platform):
-    """Whether the platform tags of ``wheel`` run on Blender platform ``platform``."""
+def _platform_ok(wheel, platform, check_baseline=True):
+    """Whether the platform tags of ``wheel`` run on Blender platform ``platform`` (any OS version if not
+    ``check_baseline``)."""
     family, arches, baseline = PLATFORMS[platform]
+    if not check_baseline and baseline is not None:
+        baseline = (999, 999)
     for tag in wheel.platform_tags:
         if tag == "any":
             return True
@@ -128,6 +139,34 @@ def wheel_supports(wheel, platform, python):
     if isinstance(wheel, str):
         wheel = parse_wheel_filename(wheel)
     return _python_ok(wheel, python) and _platform_ok(wheel, platform)
+
+
+def _version_key(version):
+    """Blender's wheel version comparison: the first three numbers, then the rest as text."""
+    m = re.match(r"(\d+)?(?:\.(\d+))?(?:\.(\d+))", version)
+    if m is None:
+        return (0, 0, 0, "")
+    return (*(int(g) if g is not None else 0 for g in m.groups()), version[m.end():])
+
+
+def legacy_installer_picks(wheel_names, platform):
+    """``{distribution: wheel file name}`` that early Blender 4.2.x (4.2.0; not 4.2.13) install on ``platform``.
+
+    Those installers match only the platform tag (any glibc / macOS version), not the Python or
+    ABI tag, then keep per distribution the highest version, ties broken by the greater file name
+    (``bl_pkg``: ``_extensions_wheel_filter_for_platform``, ``wheel_list_deduplicate_as_skip_set``).
+    """
+    picks = {}
+    for name in wheel_names:
+        wheel = parse_wheel_filename(name)
+        if not _platform_ok(wheel, platform, check_baseline=False):
+            continue
+        base = wheel.filename.partition("-")[0]
+        best = picks.get(base)
+        key = (_version_key(wheel.version), wheel.filename)
+        if best is None or (_version_key(parse_wheel_filename(best).version), best) < key:
+            picks[base] = wheel.filename
+    return picks
 
 
 def wheel_matrix(wheel_names, platforms, pythons=SUPPORTED_PYTHONS):
@@ -163,6 +202,14 @@ def check_wheels(wheel_names, platforms, pythons=SUPPORTED_PYTHONS, known_gaps=K
                 problems.append(f"{where}: no usable wheel of {dist}")
             elif usable and (dist, platform, python) in known_gaps:
                 problems.append(f"{where}: {dist} now has a wheel ({usable[0]}): drop it from KNOWN_GAPS")
+    if (3, 11) in pythons:
+        for platform in platforms:
+            for base, pick in sorted(legacy_installer_picks(wheel_names, platform).items()):
+                dist = parse_wheel_filename(pick).distribution
+                if not wheel_supports(pick, platform, (3, 11)) and dist not in LEGACY_OPTIONAL:
+                    problems.append(f"{platform} / early Blender 4.2.x (no Python tag matching): the installer "
+                                    f"keeps {pick}, which Python 3.11 cannot use (give the cp311 wheel of {base} "
+                                    "the higher version)")
     for name in wheel_names:
         base = os.path.basename(name)
         if base not in used:
@@ -185,7 +232,15 @@ def check_manifest(path):
 
 
 def check_zip(path):
-    """Problems of a built extension zip: its manifest's wheels must be exactly the wheels it holds."""
+    """Problems of a built extension zip.
+
+    A zip built with ``--split-platforms`` keeps the full manifest but holds only its platform's
+    wheels (Blender's installer skips listed wheels that are absent).  So the platforms the zip
+    serves are those whose listed wheels it holds ALL of; a platform with only some of its own
+    (not pure-Python) wheels, a
+    zip serving no platform, or a held wheel its manifest does not list is a problem.  The held
+    wheels are then checked (:func:`check_wheels`) for the platforms served.
+    """
     with zipfile.ZipFile(path) as zf:
         names = zf.namelist()
         manifest = next((n for n in names if n.rsplit("/", 1)[-1] == "blender_manifest.toml"), None)
@@ -193,11 +248,25 @@ def check_zip(path):
             return [f"{path}: no blender_manifest.toml inside"]
         platforms, wheels = manifest_wheels(zf.read(manifest).decode("utf-8"))
     prefix = manifest[: -len("blender_manifest.toml")]
-    inside = {n[len(prefix):] for n in names if n.endswith(".whl")}
+    held = {n[len(prefix):] for n in names if n.endswith(".whl")}
     listed = {os.path.normpath(w) for w in wheels}
-    problems = [f"{path}: manifest lists {w} but the zip does not hold it" for w in sorted(listed - inside)]
-    problems += [f"{path}: the zip holds {w} which its manifest does not list" for w in sorted(inside - listed)]
-    return problems + [f"{path}: {p}" for p in check_wheels(wheels, platforms)]
+    problems = [f"{path}: the zip holds {w} which its manifest does not list" for w in sorted(held - listed)]
+    served = []
+    for platform in platforms:
+        if platform not in PLATFORMS:
+            problems.append(f"{path}: platform '{platform}' is not one this check knows ({sorted(PLATFORMS)})")
+            continue
+        usable = {w for w in listed if any(wheel_supports(os.path.basename(w), platform, py)
+                                           for py in SUPPORTED_PYTHONS)}
+        missing = sorted(usable - held)
+        specific = {w for w in usable if "any" not in parse_wheel_filename(w).platform_tags}
+        if not missing:
+            served.append(platform)
+        elif specific & held:  # some but not all of this platform's own wheels
+            problems += [f"{path}: {platform}: manifest lists {w} but the zip does not hold it" for w in missing]
+    if not served:
+        return problems + [f"{path}: holds the wheels of none of its platforms {platforms}"]
+    return problems + [f"{path}: {p}" for p in check_wheels(sorted(held & listed), served)]
 
 
 def main(argv=None):

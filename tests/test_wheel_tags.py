@@ -39,11 +39,29 @@ def test_manifest_matrix_picks_one_wheel_each():
         assert set(dists) == {"scipy", "trimesh", "cvxopt", "c3d"}
         cp = f"cp{python[0]}{python[1]}"
         assert [w.split("-")[2] for w in dists["scipy"]] == [cp], (platform, python, dists["scipy"])
+        assert dists["scipy"][0].split("-")[1] == {(3, 11): "1.16.3", (3, 13): "1.16.2"}[python]
         assert dists["trimesh"] == ["trimesh-5.2.0-py3-none-any.whl"]
         assert dists["c3d"] == ["c3d-0.6.0-py3-none-any.whl"]
         missing_cvxopt = platform.startswith("macos") and python == (3, 13)
         assert len(dists["cvxopt"]) == (0 if missing_cvxopt else 1), (platform, python, dists["cvxopt"])
     assert {(d, p, py) for (p, py), ds in matrix.items() for d, w in ds.items() if not w} == tags.KNOWN_GAPS
+
+
+def test_early_blender_42_installer_picks_cp311_scipy():
+    """Blender 4.2.0 ignores Python tags and keeps the highest version per distribution (ties: the
+    greater file name, cp313 > cp311): the cp311 SciPy (1.16.3) outranks the cp313 one (1.16.2);
+    cvxopt's cp313 wheel wins on Linux/Windows (lacore falls back to SciPy there)."""
+    platforms, wheels = manifest()
+    for platform in platforms:
+        picks = tags.legacy_installer_picks(wheels, platform)
+        assert set(picks) == {"scipy", "trimesh", "cvxopt", "c3d"}
+        assert picks["scipy"].startswith("scipy-1.16.3-cp311-"), picks
+        cvxopt_tag = "cp311" if platform.startswith("macos") else "cp313"
+        assert picks["cvxopt"].startswith(f"cvxopt-1.3.2-{cvxopt_tag}-"), picks
+    same_version = [w.replace("scipy-1.16.2-", "scipy-1.16.3-") for w in wheels]
+    problems = tags.check_wheels(same_version, platforms)
+    assert len(problems) == 4 and all("early Blender 4.2.x" in p and "scipy-1.16.3-cp313" in p for p in problems)
+    assert tags._version_key("1.16.10") > tags._version_key("1.16.9") > tags._version_key("1.16")
 
 
 def test_cp311_only_bundle_is_refused_for_python_313():
@@ -90,17 +108,36 @@ def test_ambiguous_and_unusable_wheels_are_reported():
     assert "not a wheel" in tags.check_wheels(["a-1.0.tar.gz"], ["linux-x64"])[0]
 
 
+def _zip(path, manifest_text, wheels):
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("blender_manifest.toml", manifest_text)
+        for w in wheels:
+            zf.writestr(w.removeprefix("./"), b"")
+    return str(path)
+
+
 def test_zip_check(tmp_path):
-    """A zip must hold exactly the wheels its manifest lists."""
+    """A zip must hold exactly the wheels its manifest lists (for the platforms it serves)."""
     text = MANIFEST.read_text(encoding="utf-8")
     _platforms, wheels = manifest()
-    good, bad = tmp_path / "good.zip", tmp_path / "bad.zip"
-    for path, held in ((good, wheels), (bad, wheels[1:] + ["./wheels/extra-1.0-py3-none-any.whl"])):
-        with zipfile.ZipFile(path, "w") as zf:
-            zf.writestr("blender_manifest.toml", text)
-            for w in held:
-                zf.writestr(w[2:], b"")
-    assert tags.check_zip(str(good)) == []
-    problems = tags.check_zip(str(bad))
-    assert any("does not hold" in p and wheels[0][2:] in p for p in problems)
+    assert tags.check_zip(_zip(tmp_path / "good.zip", text, wheels)) == []
+    problems = tags.check_zip(_zip(tmp_path / "bad.zip", text, wheels[1:] + ["./wheels/extra-1.0-py3-none-any.whl"]))
+    assert any("linux-x64: manifest lists" in p and wheels[0][2:] in p for p in problems), problems
     assert any("does not list" in p and "extra-1.0" in p for p in problems)
+
+
+def test_split_platform_zip_check(tmp_path):
+    """`--split-platforms` zips keep the whole manifest but hold one platform's wheels (what
+    `make extension-split` builds): fine if that platform has all of its wheels, for both Pythons."""
+    text = MANIFEST.read_text(encoding="utf-8")
+    _platforms, wheels = manifest()
+    mac = [w for w in wheels if "x86_64.whl" in w and "macosx" in w or w.endswith("-none-any.whl")]
+    assert len(mac) == 5  # scipy cp311 + cp313, cvxopt cp311, trimesh, c3d
+    assert tags.check_zip(_zip(tmp_path / "mac.zip", text, mac)) == []
+    no313 = [w for w in mac if "-cp313-" not in w]
+    problems = tags.check_zip(_zip(tmp_path / "mac311.zip", text, no313))
+    assert problems[0] == (f"{tmp_path / 'mac311.zip'}: macos-x64: manifest lists "
+                           "wheels/scipy-1.16.2-cp313-cp313-macosx_10_14_x86_64.whl but the zip does not hold it")
+    assert len(problems) == 2 and "holds the wheels of none" in problems[1]
+    pure = [w for w in wheels if w.endswith("-none-any.whl")]
+    assert "holds the wheels of none" in tags.check_zip(_zip(tmp_path / "pure.zip", text, pure))[-1]

@@ -110,7 +110,21 @@ def install_and_enable():
     return {"bundled_site_packages": site, "extension_dir": os.path.join(root, "user_default", "lengths_angles"),
             "bundled": [n for n in bundled if n.endswith(".dist-info")], "python": python,
             "blender": bpy.app.version_string, "numpy": numpy.__version__, "scipy": scipy.__version__,
-            "sparse_cholesky": ext().sparse_cholesky.default_backend()}
+            "sparse_cholesky": ext().sparse_cholesky.default_backend(),
+            "installer_matches_python_tags": installer_matches_python_tags()}
+
+
+def installer_matches_python_tags():
+    """Whether this Blender's extension installer skips wheels of other Pythons (4.2.13+; not 4.2.0)."""
+    import importlib
+
+    for name in ("bl_pkg", "addons_core.bl_pkg", "bl_ext.system.bl_pkg"):
+        try:
+            ops = importlib.import_module(name + ".bl_extension_ops")
+        except ImportError:
+            continue
+        return hasattr(ops, "_extensions_wheel_filter_for_this_system")
+    raise AssertionError("Blender's bl_pkg add-on was not found")
 
 
 def cube_values():

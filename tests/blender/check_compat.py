@@ -1,0 +1,83 @@
+"""Blender-side checks of addon/compat.py (the 4.2 .. 5.2 API shims) in the INSTALLED extension
+(run in a SUBPROCESS by tests/test_blender_compat.py, once per tested Blender).
+
+usage: BLENDER_USER_RESOURCES=<tmp> python check_compat.py --zip EXT.zip --workdir DIR --result OUT.json
+"""
+
+import importlib
+import os
+
+# harness first: it checks the environment and imports bpy
+from harness import ARGS, MODULE, bpy, reset, run_cases
+import blender_samples as samples
+
+
+def compat():
+    return importlib.import_module(MODULE + ".addon.compat")
+
+
+def install_and_enable():
+    result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
+                                                      enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    c = compat()
+    # the slotted-action path from 4.4 on, Action.fcurves before
+    assert c.HAS_SLOTTED_ACTIONS == (bpy.app.version >= (4, 4, 0)), (c.HAS_SLOTTED_ACTIONS, bpy.app.version)
+    return {"version": list(bpy.app.version), "slotted": c.HAS_SLOTTED_ACTIONS}
+
+
+def object_fcurves():
+    """id_fcurves on an Object: none before, created on demand (action named), keys evaluate, reused."""
+    reset()
+    c = compat()
+    obj = samples.make_cube("Cube", size=2.0)
+    assert c.id_fcurves(obj) is None and c.animation_channels(obj) is None
+    fcurves = c.id_fcurves(obj, create=True, action_name="LA markers")
+    assert obj.animation_data.action.name == "LA markers"
+    for axis in range(3):
+        fc = fcurves.new("location", index=axis)
+        fc.keyframe_points.add(2)
+        fc.keyframe_points.foreach_set("co", [1.0, 0.0, 11.0, 10.0 * (axis + 1)])
+        fc.update()
+    again = c.id_fcurves(obj, create=True)  # the existing action: no new one
+    assert len(bpy.data.actions) == 1 and len(again) == 3
+    values = [again.find("location", index=a).evaluate(6.0) for a in range(3)]
+    assert all(abs(v - 5.0 * (a + 1)) < 1e-6 for a, v in enumerate(values)), values
+    bpy.context.scene.frame_set(6)
+    assert abs(obj.location.z - 15.0) < 1e-5, tuple(obj.location)  # the animation drives the object
+    owner, created = c.ensure_animation_channels(obj, "unused")
+    assert created == "" and len(owner.fcurves) == 3
+    return {"values_at_6": values, "location_at_6": list(obj.location)}
+
+
+def shape_key_fcurves_survive_reload():
+    """On a Key datablock (what Bake uses): created action, curves found again after save/reload."""
+    reset()
+    c = compat()
+    obj = samples.make_cube("Cube", size=2.0)  # keys Basis, Scaled, Rigid
+    key = obj.data.shape_keys
+    owner, created = c.ensure_animation_channels(key, "Cube LA bake")
+    assert created == "Cube LA bake" and c.animation_channels(key) is not None
+    fc = owner.fcurves.new('key_blocks["Scaled"].value')
+    fc.keyframe_points.add(2)
+    fc.keyframe_points.foreach_set("co", [1.0, 0.0, 5.0, 1.0])
+    fc.update()
+    path = os.path.join(ARGS.workdir, "compat.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    key = bpy.data.objects["Cube"].data.shape_keys
+    fcurves = c.id_fcurves(key)
+    assert [f.data_path for f in fcurves] == ['key_blocks["Scaled"].value']
+    value = fcurves.find('key_blocks["Scaled"].value').evaluate(3.0)
+    assert abs(value - 0.5) < 1e-6, value
+    fcurves.remove(fcurves[0])
+    assert len(c.id_fcurves(key)) == 0
+    return {"value_at_3": value}
+
+
+def main():
+    run_cases((install_and_enable, object_fcurves, shape_key_fcurves_survive_reload))
+
+
+if __name__ == "__main__":
+    main()
