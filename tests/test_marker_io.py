@@ -1,0 +1,273 @@
+"""lacore.marker_io on every real C3D file in shared/data/mocap, checked against the files' own
+headers and parameters read independently here with the ``c3d`` package (its per-frame
+``Reader.read_frames``), plus writer round trips, TRC, and clear errors for bad files.
+
+The real files are test-only (no licence): they are read in place, never copied into the repository.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from conftest import shared_data_dir
+
+from lacore.errors import InputError
+from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
+                              read_trc, write_c3d, write_trc)
+
+c3d = pytest.importorskip("c3d")
+pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
+
+MOCAP = shared_data_dir() / "mocap"
+FILES = sorted(p.name for p in MOCAP.glob("*.c3d")) if MOCAP.is_dir() else []
+METRES = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}  # independent of lacore's table
+
+
+def reference(name):
+    """What the c3d package says about a file: header/parameters and per-frame points (x, y, z, residual)."""
+    with open(MOCAP / name, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(fh)
+        frames = np.array([p for _, p, _ in r.read_frames()])
+        all_labels = list(r.point_labels)
+        used = r.point_used
+        model = set()
+        for g in MODEL_OUTPUT_GROUPS:
+            p = r.get(f"POINT:{g}")
+            if p is not None:
+                model.update(s.strip() for s in np.ravel(p.string_array))
+        return {"labels": [s.strip() for s in all_labels[:used]], "n_labels": len(all_labels), "used": used,
+                "frames": frames, "rate": r.point_rate, "first": r.header.first_frame, "last": r.header.last_frame,
+                "units": r.get("POINT:UNITS").string_value.strip(), "scale": r.point_scale,
+                "model": model, "proc": r.proc_type}
+
+
+def test_all_files_present():
+    """The README of shared/data/mocap lists six files; all must be tested."""
+    assert FILES == ["Eb015pr.c3d", "Eb015si.c3d", "Eb015vi.c3d", "Static_Pose.c3d", "Walk1.c3d",
+                     "pyCGM2_lower_limb_CGM24_Walking01.c3d"]
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_real_c3d_against_its_own_header(name):
+    ref = reference(name)
+    take = read_markers(MOCAP / name)
+    keep = [s not in ref["model"] for s in ref["labels"]]
+    labels = [s for s, k in zip(ref["labels"], keep, strict=True) if k]
+    frames = ref["frames"][:, keep]
+    assert take.n_frames == ref["last"] - ref["first"] + 1 == len(ref["frames"])
+    assert take.first_frame == ref["first"]
+    assert take.rate == pytest.approx(ref["rate"])
+    assert take.units == ref["units"]
+    # labels: the file's, in order, made unique (repeats get '#k')
+    assert [s.split("#")[0] for s in take.labels] == labels
+    assert len(set(take.labels)) == take.n_markers == len(labels)
+    # occlusion: NaN exactly where the package flags the sample invalid (residual -1)
+    invalid = frames[:, :, 3] < 0
+    assert np.array_equal(~take.visible, invalid)
+    assert np.isnan(take.positions[invalid]).all() and np.isfinite(take.positions[~invalid]).all()
+    # positions in metres: the package's float32 values times the unit
+    m = METRES[ref["units"]]
+    err = np.abs(take.positions[~invalid] - frames[:, :, :3][~invalid] * m).max()
+    assert err <= 1e-6 * max(1.0, np.abs(frames[:, :, :3][~invalid]).max() * m)
+    res = take.residuals[~invalid]
+    assert np.allclose(res, frames[:, :, 3][~invalid] * m, rtol=1e-6, atol=1e-9)
+
+
+def test_readme_facts():
+    """The figures of shared/data/mocap/README.md (frames, labels, rates, units, invalid fractions)."""
+    facts = {"Eb015pr.c3d": (450, 48, 50.0, "mm", 0.02), "Eb015vi.c3d": (450, 48, 50.0, "mm", 0.02),
+             "Eb015si.c3d": (450, 48, 50.0, "mm", 0.02), "Walk1.c3d": (151, 49, 60.0, "mm", 0.16),
+             "Static_Pose.c3d": (120, 30, 60.0, "m", 0.0),
+             "pyCGM2_lower_limb_CGM24_Walking01.c3d": (493, 171, 100.0, "mm", 0.12)}
+    for name, (n_frames, n_labels, rate, units, invalid) in facts.items():
+        ref = reference(name)
+        take = read_c3d(MOCAP / name)
+        assert (take.n_frames, ref["n_labels"], take.rate, take.units) == (n_frames, n_labels, rate, units), name
+        all_invalid = (ref["frames"][:, :, 3] < 0).mean()
+        assert abs(all_invalid - invalid) < 0.01, (name, all_invalid)
+    # Eb015: 48 labels in the parameter, 26 points stored (POINT:USED)
+    assert read_c3d(MOCAP / "Eb015pr.c3d").n_markers == 26
+
+
+def test_processor_formats_agree():
+    """Eb015: Intel float, DEC integer, SGI/MIPS integer storage of one trial give the same positions
+    within the integer quantization (POINT:SCALE = 1/12 mm)."""
+    takes = {n: read_c3d(MOCAP / n) for n in ("Eb015pr.c3d", "Eb015vi.c3d", "Eb015si.c3d")}
+    procs = {n: reference(n)["proc"] for n in takes}
+    assert procs == {"Eb015pr.c3d": "INTEL", "Eb015vi.c3d": "DEC", "Eb015si.c3d": "MIPS"}
+    scales = {n: reference(n)["scale"] for n in takes}
+    assert scales["Eb015pr.c3d"] < 0 < scales["Eb015vi.c3d"] == scales["Eb015si.c3d"]  # float vs integer
+    pr, vi, si = takes["Eb015pr.c3d"], takes["Eb015vi.c3d"], takes["Eb015si.c3d"]
+    assert pr.labels == vi.labels == si.labels
+    assert np.array_equal(pr.visible, vi.visible) and np.array_equal(pr.visible, si.visible)
+    v = pr.visible
+    # the two integer files are bit-identical after decoding
+    assert np.array_equal(vi.positions[v], si.positions[v])
+    quantum = scales["Eb015vi.c3d"] * 1e-3  # metres
+    # the integer files hold whole multiples of the quantum (integer decoding times POINT:SCALE)
+    steps = vi.positions[v] / quantum
+    assert np.abs(steps - np.round(steps)).max() < 1e-6
+    # the float file holds the same grid values: agreement to float32 round-off (measured 1.0e-7 m)
+    diff = np.abs(pr.positions[v] - vi.positions[v]).max()
+    assert diff < 5e-7 < 0.01 * quantum, diff
+
+
+def test_model_outputs_skipped():
+    ref = reference("pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    take = read_c3d(MOCAP / "pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    assert ref["used"] == 171 and len(ref["model"]) == 24 + 14 + 13 + 12
+    assert take.n_markers == 171 - 63
+    assert not set(take.labels) & ref["model"]
+    assert {"LASI", "RASI", "LHEE", "RTOE", "LHJC_CGM_2.4"} <= set(take.labels)
+    assert "LHipAngles" not in take.labels and "LGroundReactionForce" not in take.labels
+    assert take.first_frame == 63
+
+
+def test_duplicate_labels_made_unique():
+    take = read_c3d(MOCAP / "Walk1.c3d")
+    assert take.labels.count("RKNE") == 1 and "RKNE#2" in take.labels
+    assert "VMID#3" in take.labels
+
+
+# ----------------------------------------------------------------------------- errors
+@pytest.fixture
+def eb015_bytes():
+    return (MOCAP / "Eb015pr.c3d").read_bytes()
+
+
+@pytest.mark.parametrize("cut, words", [(100, "truncated"), (600, "truncated"), (200_000, "truncated C3D file"),
+                                        (-1000, "truncated C3D file")])
+def test_truncated_files(tmp_path, eb015_bytes, cut, words):
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(eb015_bytes[:cut])
+    with pytest.raises(MarkerFileError, match=words) as info:
+        read_markers(path)
+    assert str(path) in str(info.value)
+    assert isinstance(info.value, InputError)
+
+
+def test_truncated_message_counts_frames(tmp_path, eb015_bytes):
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(eb015_bytes[:200_000])
+    message = r"450 frames of 26 points need \d+ bytes, the file has 200000 \(only 290 complete frames\)"
+    with pytest.raises(MarkerFileError, match=message):
+        read_c3d(path)
+
+
+def test_not_c3d(tmp_path, eb015_bytes):
+    text = tmp_path / "notes.c3d"
+    text.write_text("ply\nformat ascii 1.0\n" * 50)
+    with pytest.raises(MarkerFileError, match="neither a C3D file .* nor a TRC file"):
+        read_markers(text)
+    with pytest.raises(MarkerFileError, match="not a C3D file"):
+        read_c3d(text)
+    bad_proc = bytearray(eb015_bytes)
+    bad_proc[(bad_proc[0] - 1) * 512 + 3] = 99
+    path = tmp_path / "proc.c3d"
+    path.write_bytes(bytes(bad_proc))
+    with pytest.raises(MarkerFileError, match="unknown processor type 99"):
+        read_markers(path)
+    with pytest.raises(MarkerFileError, match="cannot read the file"):
+        read_markers(tmp_path / "missing.c3d")
+    empty = tmp_path / "empty.c3d"
+    empty.write_bytes(b"")
+    with pytest.raises(MarkerFileError, match="neither"):
+        read_markers(empty)
+
+
+def test_units_override_and_unknown_units(tmp_path):
+    take = read_c3d(MOCAP / "Static_Pose.c3d")
+    as_mm = read_c3d(MOCAP / "Static_Pose.c3d", units="mm")
+    assert np.allclose(as_mm.positions * 1000, take.positions, equal_nan=True)
+    assert as_mm.units == "mm"
+    with pytest.raises(MarkerFileError, match="unknown length unit 'furlong'"):
+        read_c3d(MOCAP / "Static_Pose.c3d", units="furlong")
+
+
+# ----------------------------------------------------------------------------- writer and TRC
+def synthetic_take(T=40, M=5, rate=120.0, seed=0, first_frame=1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / rate
+    pos = rng.uniform(-1, 1, (1, M, 3)) + 0.3 * np.sin(2 * np.pi * t * rng.uniform(0.5, 2, (1, M, 3)))
+    pos[rng.random((T, M)) < 0.1] = np.nan
+    return MarkerTake(labels=[f"M{i}" for i in range(M)], positions=pos, rate=rate, first_frame=first_frame,
+                      source="synthetic")
+
+
+@pytest.mark.parametrize("units", ["mm", "m", "cm"])
+def test_write_c3d_float_round_trip(tmp_path, units):
+    take = synthetic_take(first_frame=7)
+    path = tmp_path / "take.c3d"
+    write_c3d(path, take, units=units)
+    back = read_markers(path)
+    assert back.labels == take.labels and back.rate == take.rate and back.units == units
+    assert back.first_frame == 7
+    assert np.array_equal(back.visible, take.visible)
+    v = take.visible
+    assert np.abs(back.positions[v] - take.positions[v]).max() < 2e-7  # float32 storage of ~1 m values
+    # and the c3d package itself reads the same file
+    ref_frames = np.array([p for _, p, _ in c3d.Reader(open(path, "rb")).read_frames()])
+    assert np.array_equal(ref_frames[:, :, 3] < 0, ~v)
+
+
+def test_write_c3d_integer_round_trip(tmp_path):
+    take = synthetic_take()
+    path = tmp_path / "int.c3d"
+    write_c3d(path, take, units="mm", integer=True)
+    with open(path, "rb") as fh:
+        scale = c3d.Reader(fh).point_scale
+    assert scale > 0
+    back = read_c3d(path)
+    v = take.visible
+    assert np.array_equal(back.visible, v)
+    quantum = scale * 1e-3
+    assert np.abs(back.positions[v] - take.positions[v]).max() <= 0.5 * quantum * 1.01
+
+
+def test_trc_round_trip_and_fixture(tmp_path):
+    take = synthetic_take(T=12, M=3, rate=60.0, first_frame=3)
+    path = tmp_path / "take.trc"
+    write_trc(path, take, units="mm")
+    back = read_markers(path)
+    assert back.labels == take.labels and back.rate == 60.0 and back.first_frame == 3 and back.units == "mm"
+    assert np.array_equal(back.visible, take.visible)
+    assert np.allclose(back.positions, take.positions, equal_nan=True, atol=1e-12)
+    # a hand-written TRC (trailing empty fields dropped, as some exporters do), in metres
+    text = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+            "100\t100\t3\t2\tm\t100\t1\t3\n"
+            "Frame#\tTime\tA\t\t\tB\t\t\n"
+            "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+            "\n"
+            "1\t0.00\t1\t2\t3\t4\t5\t6\n"
+            "2\t0.01\t\t\t\t4.5\t5\t6\n"
+            "3\t0.02\t1.5\t2\t3\n")
+    hand = tmp_path / "hand.trc"
+    hand.write_text(text)
+    t = read_trc(hand)
+    assert t.labels == ("A", "B") and t.rate == 100.0 and t.units == "m" and t.residuals is None
+    assert t.visible.tolist() == [[True, True], [False, True], [True, False]]
+    assert t.positions[1, 1].tolist() == [4.5, 5.0, 6.0]
+    bad = tmp_path / "bad.trc"
+    bad.write_text(text.replace("\t2\tm\t", "\t3\tm\t"))
+    with pytest.raises(MarkerFileError, match="NumMarkers 3 but line 4 names 2"):
+        read_markers(bad)
+    bad.write_text(text.replace("4.5", "x4.5"))
+    with pytest.raises(MarkerFileError, match="non-numeric"):
+        read_markers(bad)
+
+
+def test_take_validation():
+    with pytest.raises(MarkerError, match="shape"):
+        MarkerTake(labels=["a"], positions=np.zeros((3, 1, 2)), rate=10)
+    with pytest.raises(MarkerError, match="2 labels for 1 markers"):
+        MarkerTake(labels=["a", "b"], positions=np.zeros((3, 1, 3)), rate=10)
+    with pytest.raises(MarkerError, match="unique"):
+        MarkerTake(labels=["a", "a"], positions=np.zeros((3, 2, 3)), rate=10)
+    with pytest.raises(MarkerError, match="frame rate"):
+        MarkerTake(labels=["a"], positions=np.zeros((3, 1, 3)), rate=0)
+    partial = np.zeros((2, 1, 3))
+    partial[0, 0, 1] = np.nan  # one NaN coordinate makes the whole sample missing
+    t = MarkerTake(labels=["a"], positions=partial, rate=10)
+    assert t.visible.tolist() == [[False], [True]] and np.isnan(t.positions[0, 0]).all()
