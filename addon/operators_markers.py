@@ -24,7 +24,11 @@ Timing: by default the scene's frame rate is set to the take's (``fps`` /
 ``fps_base``, e.g. 60 / 1.001 for 59.94 Hz), one sample per frame starting at
 ``frame_start``.  With ``rate_mode='RETIME'`` the scene keeps its rate and
 sample ``i`` is keyed at ``frame_start + i * scene_fps / take_rate`` (fractional
-frames): every sample is kept, none merged or dropped.
+frames): every sample is kept, none merged or dropped.  With ``'RESAMPLE'`` the take
+is resampled to the scene's rate (:func:`..lacore.marker_io.resample`: linear in
+time; a frame between an occluded and a visible sample is occluded), one key
+per frame; the take empty records both the file's rate and frame count and
+the keyed ones (``keyed_rate``, ``keyed_samples``).
 
 Keys are written in bulk (``keyframe_points.add`` + ``foreach_set``), never per
 frame.  Any error is reported as ERROR with nothing created (objects made before
@@ -40,7 +44,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
-from ..lacore.marker_io import read_markers, sample_frames, visibility_keys
+from ..lacore.marker_io import read_markers, resample, sample_frames, visibility_keys
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "classes", "import_take", "menu_func_import", "register_menu",
            "unregister_menu", "TAKE_PROP", "MARKER_PROP", "VISIBLE_PROP"]
@@ -128,15 +132,19 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
     """
     scene = context.scene
     collection = context.collection or scene.collection
+    file_rate, file_frames = take.rate, take.n_frames
     if rate_mode == 'SCENE':
         fps = max(1, int(round(take.rate)))
         fps_base = fps / take.rate
         step_rate = None
-    elif rate_mode == 'RETIME':
+    elif rate_mode in ('RETIME', 'RESAMPLE'):
         fps, fps_base = scene.render.fps, scene.render.fps_base
         step_rate = fps / fps_base
+        if rate_mode == 'RESAMPLE':
+            take = resample(take, step_rate)
+            step_rate = None
     else:
-        raise InputError(f"unknown rate mode {rate_mode!r} (SCENE or RETIME)")
+        raise InputError(f"unknown rate mode {rate_mode!r} (SCENE, RETIME or RESAMPLE)")
     frames = sample_frames(take.n_frames, take.rate, frame_start, step_rate)
     matrix = conversion_matrix(axis_forward, axis_up, scale)
     positions = take.positions @ matrix.T  # (T, M, 3); NaN stays NaN
@@ -150,8 +158,9 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
         take_obj.empty_display_type = 'PLAIN_AXES'
         take_obj.empty_display_size = max(10 * marker_size, 1e-3)
         take_obj[TAKE_PROP] = {
-            "rate": float(take.rate), "units": take.units, "source": take.source,
-            "first_frame": int(take.first_frame), "frame_count": int(take.n_frames), "labels": list(take.labels),
+            "rate": float(file_rate), "units": take.units, "source": take.source,
+            "first_frame": int(take.first_frame), "frame_count": int(file_frames), "labels": list(take.labels),
+            "keyed_rate": float(take.rate), "keyed_samples": int(take.n_frames),
             "frame_start": float(frame_start), "frame_step": float(frames[1] - frames[0]) if take.n_frames > 1 else 1.0,
             "rate_mode": rate_mode, "scale": float(scale), "axis_forward": axis_forward, "axis_up": axis_up,
             "visible_samples": int(visible.sum()),
@@ -216,7 +225,9 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         name="Frame Rate",
         items=[('SCENE', "Set Scene Rate", "Set the scene's frame rate to the take's: one sample per frame"),
                ('RETIME', "Map by Time", "Keep the scene's frame rate; key every sample at its time "
-                                         "(fractional frames, no sample dropped)")],
+                                         "(fractional frames, no sample dropped)"),
+               ('RESAMPLE', "Resample", "Keep the scene's frame rate; resample the take to it (linear in time, "
+                                        "one key per frame; a frame next to an occluded sample stays occluded)")],
         default='SCENE')
     set_frame_range: BoolProperty(name="Set Frame Range", description="Set the scene's start and end frames "
                                   "to the take's", default=True)
@@ -243,8 +254,11 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         take_obj.select_set(True)
         context.view_layer.objects.active = take_obj
         occluded = take.n_frames * take.n_markers - int(take.visible.sum())
+        meta = take_obj[TAKE_PROP]
+        resampled = (f", resampled to {meta['keyed_samples']} frames at {meta['keyed_rate']:g} fps"
+                     if self.rate_mode == 'RESAMPLE' else "")
         self.report({'INFO'}, f"Imported {len(markers)} markers x {take.n_frames} frames at {take.rate:g} Hz from "
-                              f"'{os.path.basename(path)}' ({occluded} occluded samples, "
+                              f"'{os.path.basename(path)}' ({occluded} occluded samples{resampled}, "
                               f"{time.perf_counter() - start:.2f} s)")
         return {'FINISHED'}
 

@@ -40,7 +40,8 @@ import numpy as np
 from .errors import InputError
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
-           "write_trc", "unit_scale", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS", "UNIT_SCALES"]
+           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS",
+           "UNIT_SCALES"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
@@ -142,6 +143,49 @@ class MarkerTake:
     def times(self):
         """(T,) float64: time of each frame in seconds, 0 at the first frame."""
         return np.arange(self.n_frames) / self.rate
+
+
+# ----------------------------------------------------------------------------- resampling
+def resample(take, rate):
+    """The take resampled to ``rate`` Hz by linear interpolation in time, NaN-aware.
+
+    New sample ``j`` is at time ``j / rate`` (the first sample stays at time 0),
+    ``j = 0 .. floor((T - 1) * rate / take.rate)``: the new take never extends
+    past the last original sample.  A new sample that falls exactly on an
+    original one (to 1e-9 of a sample) copies it; one strictly between two
+    originals is their linear interpolation if BOTH are valid and NaN otherwise
+    (an occluded sample is never filled in).  Residuals are not resampled
+    (``None``).
+
+    Parameters
+    ----------
+    take : MarkerTake
+    rate : float
+        New rate (Hz), positive.
+
+    Returns
+    -------
+    MarkerTake
+        Same labels, units, source and first frame; positions (T', M, 3).
+    """
+    rate = float(rate)
+    if not (np.isfinite(rate) and rate > 0):
+        raise MarkerError(f"resample: the new rate must be positive and finite, got {rate!r}")
+    T = take.n_frames
+    ratio = take.rate / rate  # original samples per new sample
+    n_new = int(np.floor((T - 1) / ratio + 1e-9)) + 1
+    s = np.arange(n_new) * ratio  # positions in original samples
+    i0 = np.floor(s + 1e-9).astype(np.int64)
+    frac = s - i0
+    exact = np.abs(frac) <= 1e-9
+    i0 = np.minimum(i0, T - 1)
+    i1 = np.minimum(i0 + 1, T - 1)
+    frac = np.where(exact, 0.0, frac)[:, None, None]
+    p0, p1 = take.positions[i0], take.positions[i1]
+    blended = (1.0 - frac) * p0 + frac * p1  # NaN if either neighbour is NaN
+    positions = np.where(exact[:, None, None], p0, blended)
+    return MarkerTake(labels=take.labels, positions=positions, rate=rate, first_frame=take.first_frame,
+                      units=take.units, source=take.source)
 
 
 # ----------------------------------------------------------------------------- keys for animation systems

@@ -6,7 +6,8 @@
   every frame, the scene rate set to the take's, positions to float32 round-off; all compared with
   lacore.marker_io's reading of the same file (tests/test_marker_io.py checks that reading against
   the files' own headers);
-* options: scale and axis conversion, start frame, mapping by time to the scene's rate;
+* options: scale and axis conversion, start frame, mapping by time to the scene's rate, resampling
+  to it; the same take as TRC;
 * truncated / non-C3D / missing files and a failure in the middle: ERROR report, nothing created;
 * save/reload keeps the animation and metadata; a generated 5,000 x 50 take imports completely
   (its timing is recorded in the JSON; benchmarks/bench_blender_markers.py gives the README figure).
@@ -33,7 +34,7 @@ def test_operator_and_menu(run):
     assert res["in_file_import_menu"]
     assert res["properties"] == ["axis_forward", "axis_up", "filepath", "filter_glob", "frame_start", "marker_size",
                                  "rate_mode", "scale", "set_frame_range"]
-    assert res["rate_modes"] == ["SCENE", "RETIME"]
+    assert res["rate_modes"] == ["SCENE", "RETIME", "RESAMPLE"]
     assert res["defaults"] == {"axis_forward": "Y", "axis_up": "Z", "rate_mode": "SCENE", "scale": 1.0,
                                "frame_start": 1}
 
@@ -71,6 +72,16 @@ def test_options(run):
     assert ret["fps_unchanged"] and ret["scene_fps"] == 24.0
     assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0
     assert ret["frame_range"] == [1, 61]  # 150 samples * 24/60 = frame 61
+    # resampled to 24 fps: one key per scene frame, values = lacore.marker_io.resample
+    res_ = res["resampled"]
+    assert res["resampled_frames"] == 61 and res_["frames"] == 61 and res_["fps_unchanged"]
+    assert res_["location_keys"] == 3 * res["resampled_visible"] and res_["visible_mismatches"] == 0
+    assert res_["max_abs_key_error"] < FLOAT32_METRES and res_["frame_range"] == [1, 61]
+    # the same take as TRC
+    trc = res["trc"]
+    assert trc["labels_equal"] and trc["same_visibility"] and trc["max_abs_vs_c3d_take"] < 1e-12
+    assert trc["location_keys"] == 3 * res["walk1_visible"] and trc["visible_mismatches"] == 0
+    assert trc["max_abs_key_error"] < FLOAT32_METRES and trc["scene_fps"] == 60.0
 
 
 def test_errors_create_nothing(run):

@@ -13,7 +13,7 @@ from conftest import shared_data_dir
 
 from lacore.errors import InputError
 from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
-                              read_trc, sample_frames, visibility_keys, write_c3d, write_trc)
+                              read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
 
 c3d = pytest.importorskip("c3d")
 pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
@@ -287,3 +287,47 @@ def test_sample_frames_and_visibility_keys():
     for m, (idx, val) in enumerate(keys):
         step = val[np.searchsorted(idx, np.arange(len(vis)), side="right") - 1]
         assert np.array_equal(step.astype(bool), vis[:, m])
+
+
+def test_resample_linear_nan_aware():
+    rng = np.random.default_rng(3)
+    T, M, rate = 101, 4, 100.0
+    t = np.arange(T) / rate
+    a, b = rng.normal(size=(M, 3)), rng.normal(size=(M, 3))
+    take = MarkerTake(labels=list("abcd"), positions=a + b * t[:, None, None], rate=rate, first_frame=5)
+    # same rate: identical
+    same = resample(take, rate)
+    assert np.array_equal(same.positions, take.positions) and same.first_frame == 5
+    # linear trajectories are reproduced exactly at any rate (up to round-off)
+    for new in (24.0, 30.0, 250.0, 59.94):
+        r = resample(take, new)
+        tn = np.arange(r.n_frames) / new
+        assert r.rate == new and tn[-1] <= t[-1] + 1e-12 and tn[-1] + 1 / new > t[-1]
+        assert np.abs(r.positions - (a + b * tn[:, None, None])).max() < 1e-12
+    # NaN-aware: a new sample between an occluded and a visible one is occluded; on a visible one it is kept
+    pos = take.positions.copy()
+    pos[10, 0] = np.nan
+    holed = MarkerTake(labels=take.labels, positions=pos, rate=rate)
+    up = resample(holed, 2 * rate)  # new samples 19, 20, 21 are around original 10
+    assert np.isnan(up.positions[[19, 20, 21], 0]).all()
+    assert np.isfinite(up.positions[[18, 22], 0]).all() and np.isfinite(up.positions[19:22, 1:]).all()
+    down = resample(holed, 25.0)  # every 4th original sample: 10 is skipped, nothing occluded
+    assert down.visible.all() and np.array_equal(down.positions, pos[::4])
+    # against np.interp on a real file (Walk1, 60 Hz -> 24 fps) where the neighbours are visible
+    walk = read_c3d(MOCAP / "Walk1.c3d")
+    r = resample(walk, 24.0)
+    tn, to = np.arange(r.n_frames) / 24.0, walk.times
+    for m in range(walk.n_markers):
+        ok = walk.visible[:, m]
+        left = np.clip(np.searchsorted(to, tn - 1e-12, side="right") - 1, 0, walk.n_frames - 1)
+        right = np.clip(left + 1, 0, walk.n_frames - 1)
+        both = ok[left] & ok[right]
+        if not ok.any():  # Walk1 has markers never seen
+            assert not r.visible[:, m].any()
+            continue
+        assert np.array_equal(r.visible[both, m], np.ones(both.sum(), bool))
+        for axis in range(3):
+            ref = np.interp(tn[both], to[ok], walk.positions[ok, m, axis])
+            assert np.allclose(r.positions[both, m, axis], ref, atol=1e-12)
+    with pytest.raises(MarkerError, match="positive"):
+        resample(take, -1)

@@ -55,14 +55,17 @@ def counts():
     return len(bpy.data.objects), len(bpy.data.actions)
 
 
-def check_take(path, take, frame_start=1.0, step=1.0, matrix=None, verify_depsgraph=True):
-    """Compare the imported objects with ``take`` (a lacore MarkerTake); returns measured figures."""
+def check_take(path, take, frame_start=1.0, step=1.0, matrix=None, verify_depsgraph=True, file_take=None):
+    """Compare the imported objects with ``take`` (a lacore MarkerTake; ``file_take`` the file's own
+    take if ``take`` was resampled); returns measured figures."""
     matrix = np.eye(3) if matrix is None else matrix
+    file_take = take if file_take is None else file_take
     name = os.path.splitext(os.path.basename(path))[0]
     take_obj = bpy.data.objects[name]
     meta = take_obj["lengths_angles_take"]
-    assert math.isclose(meta["rate"], take.rate) and meta["units"] == take.units, meta.to_dict()
-    assert meta["frame_count"] == take.n_frames and meta["first_frame"] == take.first_frame
+    assert math.isclose(meta["rate"], file_take.rate) and meta["units"] == take.units, meta.to_dict()
+    assert meta["frame_count"] == file_take.n_frames and meta["first_frame"] == take.first_frame
+    assert math.isclose(meta["keyed_rate"], take.rate) and meta["keyed_samples"] == take.n_frames
     assert list(meta["labels"]) == list(take.labels) and meta["source"] == take.source
     children = sorted(take_obj.children, key=lambda o: list(take.labels).index(o["lengths_angles_marker"]))
     assert [c["lengths_angles_marker"] for c in children] == list(take.labels)
@@ -166,7 +169,25 @@ def options():
     retimed = check_take(path, take, frame_start=1, step=24 / 60, verify_depsgraph=False)
     # the time of every key is the sample's time (frame 1 = time 0)
     retimed["fps_unchanged"] = scene_fps() == 24
-    return {"converted": converted, "retimed": retimed, "walk1_visible": int(take.visible.sum())}
+    reset()
+    bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
+    assert import_markers(path, rate_mode='RESAMPLE') == {"FINISHED"}
+    resampled_take = ext("lacore.marker_io").resample(take, 24.0)
+    resampled = check_take(path, resampled_take, file_take=take)
+    resampled["fps_unchanged"] = scene_fps() == 24
+    # TRC: the same take written as TRC (mm) imports to the same keys
+    reset()
+    trc = os.path.join(ARGS.workdir, "Walk1.trc")
+    ext("lacore.marker_io").write_trc(trc, take)
+    assert import_markers(trc) == {"FINISHED"}
+    trc_take = ext("lacore.marker_io").read_markers(trc)
+    trc_res = check_take(trc, trc_take)
+    trc_res["labels_equal"] = trc_take.labels == take.labels
+    trc_res["max_abs_vs_c3d_take"] = float(np.nanmax(np.abs(trc_take.positions - take.positions)))
+    trc_res["same_visibility"] = bool(np.array_equal(trc_take.visible, take.visible))
+    return {"converted": converted, "retimed": retimed, "resampled": resampled, "trc": trc_res,
+            "walk1_visible": int(take.visible.sum()), "resampled_frames": resampled_take.n_frames,
+            "resampled_visible": int(resampled_take.visible.sum())}
 
 
 def errors_create_nothing():
