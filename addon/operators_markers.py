@@ -31,8 +31,11 @@ per frame; the take empty records both the file's rate and frame count and
 the keyed ones (``keyed_rate``, ``keyed_samples``).
 
 Keys are written in bulk (``keyframe_points.add`` + ``foreach_set``), never per
-frame.  Any error is reported as ERROR with nothing created (objects made before
-a failure are removed again).
+frame.  :func:`read_take` reads a take back from the empties' F-curves in bulk (for
+fitting: no ``frame_set`` per frame), NaN where ``["visible"]`` is 0.
+
+Any error is reported as ERROR with nothing created (objects made before a
+failure are removed again).
 """
 
 import os
@@ -44,9 +47,10 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
-from ..lacore.marker_io import read_markers, resample, sample_frames, visibility_keys
+from ..lacore.marker_io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
 
-__all__ = ["LENGTHS_ANGLES_OT_import_markers", "classes", "import_take", "menu_func_import", "register_menu",
+__all__ = ["LENGTHS_ANGLES_OT_import_markers", "classes", "import_take", "read_take", "marker_objects",
+           "menu_func_import", "register_menu",
            "unregister_menu", "TAKE_PROP", "MARKER_PROP", "VISIBLE_PROP"]
 
 TAKE_PROP = "lengths_angles_take"
@@ -204,6 +208,110 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
         scene.frame_start = int(np.floor(frames[0]))
         scene.frame_end = max(int(np.ceil(frames[-1])), scene.frame_start)
     return take_obj, markers
+
+
+def marker_objects(take_obj):
+    """``[(label, marker empty)]`` of a take empty, in the order of its ``labels``.
+
+    Raises InputError if ``take_obj`` is not a take empty or a marker's empty is gone.
+    """
+    meta = take_obj.get(TAKE_PROP) if take_obj is not None else None
+    if meta is None:
+        name = take_obj.name if take_obj is not None else "None"
+        raise InputError(f"'{name}' is not a marker take (no '{TAKE_PROP}' property): import markers first")
+    by_label = {c[MARKER_PROP]: c for c in take_obj.children if MARKER_PROP in c}
+    labels = list(meta["labels"])
+    missing = [lb for lb in labels if lb not in by_label]
+    if missing:
+        shown = ", ".join(repr(m) for m in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        what = f"the empties of markers {shown} are" if len(missing) > 1 else f"the empty of marker {shown} is"
+        raise InputError(f"take '{take_obj.name}': {what} missing (deleted or unparented): re-import the take")
+    return [(lb, by_label[lb]) for lb in labels]
+
+
+def _curve_keys(fc):
+    n = len(fc.keyframe_points)
+    co = np.empty(2 * n, np.float32)
+    fc.keyframe_points.foreach_get("co", co)
+    return co[0::2], co[1::2]
+
+
+def _only(fc, interpolation):
+    """True if every key of ``fc`` has ``interpolation`` and nothing else shapes the curve."""
+    n = len(fc.keyframe_points)
+    if n == 0 or len(fc.modifiers) or fc.extrapolation != 'CONSTANT':
+        return False
+    got = np.empty(n, np.int32)
+    fc.keyframe_points.foreach_get("interpolation", got)
+    return bool((got == _interpolation_value(interpolation)).all())
+
+
+def _evaluate_linear(fc, frames):
+    """Values of ``fc`` at ``frames``: np.interp on the keys when the curve is plain LINEAR, else evaluate()."""
+    if _only(fc, 'LINEAR'):
+        kf, kv = _curve_keys(fc)
+        return np.interp(frames.astype(np.float32), kf, kv).astype(np.float64)
+    return np.array([fc.evaluate(f) for f in frames], np.float64)
+
+
+def _evaluate_step(fc, frames):
+    """Values of a CONSTANT-interpolated ``fc`` at ``frames`` (keys compared in float32, as stored)."""
+    if _only(fc, 'CONSTANT'):
+        kf, kv = _curve_keys(fc)
+        idx = np.searchsorted(kf, frames.astype(np.float32), side="right") - 1
+        return kv[np.maximum(idx, 0)].astype(np.float64)
+    return np.array([fc.evaluate(f) for f in frames], np.float64)
+
+
+def read_take(take_obj, frames=None, rate=None, space='WORLD'):
+    """The marker positions of an imported take, read from the empties' F-curves (no ``frame_set``).
+
+    Parameters
+    ----------
+    take_obj : bpy.types.Object
+        A take empty made by :func:`import_take`.
+    frames : (F,) array_like of float, optional
+        Scene frames to sample; default: the keyed samples (``frame_start + i * frame_step``).
+    rate : float, optional
+        Rate of the returned take; default: the keyed rate (default frames) or the scene's fps.
+    space : {'WORLD', 'LOCAL'}
+        World positions (through the take empty's current ``matrix_world``) or the
+        empties' own locations in the take empty's space.
+
+    Returns
+    -------
+    MarkerTake
+        positions (F, M, 3) (Blender units), NaN where the keyed ``["visible"]`` is 0.
+        Plain LINEAR / CONSTANT curves (as imported) are read in bulk; edited curves
+        (other interpolation, modifiers) are evaluated key by key, so edits count.
+    """
+    markers = marker_objects(take_obj)
+    meta = take_obj[TAKE_PROP]
+    if frames is None:
+        frames = meta["frame_start"] + np.arange(int(meta["keyed_samples"])) * meta["frame_step"]
+        rate = meta["keyed_rate"] if rate is None else rate
+    elif rate is None:
+        render = bpy.context.scene.render
+        rate = render.fps / render.fps_base
+    frames = np.asarray(frames, np.float64).ravel()
+    F, M = len(frames), len(markers)
+    local = np.full((F, M, 3), np.nan)
+    for m, (_label, obj) in enumerate(markers):
+        ad = obj.animation_data
+        fcurves = _fcurves_for(obj) if ad is not None and ad.action is not None else None
+        vis_fc = fcurves.find(f'["{VISIBLE_PROP}"]') if fcurves is not None else None
+        seen = (_evaluate_step(vis_fc, frames) >= 0.5) if vis_fc is not None else np.full(F, True)
+        for axis in range(3):
+            fc = fcurves.find("location", index=axis) if fcurves is not None else None
+            values = _evaluate_linear(fc, frames) if fc is not None else np.full(F, obj.location[axis])
+            local[seen, m, axis] = values[seen]
+        if space == 'WORLD':  # the marker's origin: take matrix_world @ matrix_parent_inverse @ location
+            mat = np.array(take_obj.matrix_world, np.float64) @ np.array(obj.matrix_parent_inverse, np.float64)
+            local[:, m] = local[:, m] @ mat[:3, :3].T + mat[:3, 3]
+        elif space != 'LOCAL':
+            raise InputError(f"space must be 'WORLD' or 'LOCAL', got {space!r}")
+    return MarkerTake(labels=[lb for lb, _ in markers], positions=local, rate=float(rate),
+                      first_frame=int(meta["first_frame"]), units=str(meta["units"]), source=str(meta["source"]))
 
 
 @orientation_helper(axis_forward='Y', axis_up='Z')

@@ -49,6 +49,9 @@ def test_real_file_imports(run, name):
     assert res["scene_fps"] == pytest.approx(res["rate"])
     assert res["frame_range"] == [1, res["frames"]]
     assert res["max_abs_key_error"] < FLOAT32_METRES and res["max_abs_world_error"] < FLOAT32_METRES
+    # read back from the F-curves in bulk: the same take
+    assert res["read_back_same_mask"] and res["read_back_labels_equal"] and res["read_back_rate"] == res["rate"]
+    assert res["read_back_max_abs"] < FLOAT32_METRES
 
 
 def test_real_file_figures(run):
@@ -72,6 +75,7 @@ def test_options(run):
     assert ret["fps_unchanged"] and ret["scene_fps"] == 24.0
     assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0
     assert ret["frame_range"] == [1, 61]  # 150 samples * 24/60 = frame 61
+    assert ret["read_back_same_mask"] and ret["read_back_max_abs"] < FLOAT32_METRES and ret["read_back_rate"] == 60
     # resampled to 24 fps: one key per scene frame, values = lacore.marker_io.resample
     res_ = res["resampled"]
     assert res["resampled_frames"] == 61 and res_["frames"] == 61 and res_["fps_unchanged"]
@@ -82,6 +86,20 @@ def test_options(run):
     assert trc["labels_equal"] and trc["same_visibility"] and trc["max_abs_vs_c3d_take"] < 1e-12
     assert trc["location_keys"] == 3 * res["walk1_visible"] and trc["visible_mismatches"] == 0
     assert trc["max_abs_key_error"] < FLOAT32_METRES and trc["scene_fps"] == 60.0
+
+
+def test_read_take(run):
+    """read_take: world positions through a moved/rotated/scaled take empty, the depsgraph agrees,
+    edited (BEZIER) curves are evaluated, sampling between frames interpolates linearly; clear errors."""
+    res = run["cases"]["read_take_cases"]
+    assert res["world_max_abs"] < 5 * FLOAT32_METRES  # positions x2 x1.5 + offsets
+    assert res["depsgraph_max_abs"] < 5 * FLOAT32_METRES
+    assert res["edited_max_abs"] < 2 * FLOAT32_METRES
+    assert res["half_frame_max_abs"] < 2 * FLOAT32_METRES and res["half_frame_rate"] == 60.0
+    messages = res["messages"]
+    assert "is not a marker take" in messages["not_a_take"]
+    assert messages["deleted_marker"] == (f"take 'Walk1': the empty of marker '{res['deleted_label']}' is missing "
+                                          "(deleted or unparented): re-import the take")
 
 
 def test_errors_create_nothing(run):
@@ -108,3 +126,4 @@ def test_large_take_imports_completely(run):
     assert check["keys_on_occluded_samples"] == 0 and check["visible_mismatches"] == 0
     assert check["max_abs_key_error"] < FLOAT32_METRES
     assert 0.01 < res["occluded_fraction"] < 0.1
+    assert check["read_back_same_mask"] and check["read_back_max_abs"] < FLOAT32_METRES

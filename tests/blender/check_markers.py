@@ -112,6 +112,19 @@ def check_take(path, take, frame_start=1.0, step=1.0, matrix=None, verify_depsgr
     return result
 
 
+def read_back(path, take, space='LOCAL'):
+    """read_take (bulk F-curve reading) against the take that was imported."""
+    take_obj = bpy.data.objects[os.path.splitext(os.path.basename(path))[0]]
+    t0 = time.perf_counter()
+    back = ext("addon.operators_markers").read_take(take_obj, space=space)
+    seconds = time.perf_counter() - t0
+    same_mask = bool(np.array_equal(back.visible, take.visible))
+    v = take.visible
+    err = float(np.abs(back.positions[v] - take.positions[v]).max()) if v.any() else 0.0
+    return {"read_back_same_mask": same_mask, "read_back_max_abs": err, "read_back_seconds": round(seconds, 4),
+            "read_back_labels_equal": back.labels == take.labels, "read_back_rate": back.rate}
+
+
 def install_and_enable():
     result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
                                                       enable_on_install=True)
@@ -144,6 +157,7 @@ def real_files():
         assert import_markers(path) == {"FINISHED"}
         seconds = time.perf_counter() - t0
         res = check_take(path, take)
+        res.update(read_back(path, take))
         res["seconds"] = round(seconds, 4)
         res["expected_occluded"] = int((~take.visible).sum())
         res["expected_markers"] = take.n_markers
@@ -167,6 +181,7 @@ def options():
     bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
     assert import_markers(path, rate_mode='RETIME', frame_start=1, set_frame_range=True) == {"FINISHED"}
     retimed = check_take(path, take, frame_start=1, step=24 / 60, verify_depsgraph=False)
+    retimed.update(read_back(path, take))  # keys on fractional frames, read back at the same frames
     # the time of every key is the sample's time (frame 1 = time 0)
     retimed["fps_unchanged"] = scene_fps() == 24
     reset()
@@ -244,6 +259,64 @@ def errors_create_nothing():
     return {"messages": messages, "objects_and_actions": list(before)}
 
 
+def read_take_cases():
+    """read_take: world space through a moved take empty, edited curves, missing empties, wrong object."""
+    mod = ext("addon.operators_markers")
+    mio = ext("lacore.marker_io")
+    path = os.path.join(MOCAP, "Walk1.c3d")
+    take = mio.read_markers(path)
+    reset()
+    assert import_markers(path, scale=2.0) == {"FINISHED"}
+    take_obj = bpy.data.objects["Walk1"]
+    take_obj.location = (1.0, -2.0, 0.5)
+    take_obj.rotation_euler = (0.3, -0.2, 1.1)
+    take_obj.scale = (1.5, 1.5, 1.5)
+    bpy.context.view_layer.update()
+    mw = np.array(take_obj.matrix_world)
+    expected = (2.0 * take.positions) @ mw[:3, :3].T + mw[:3, 3]
+    world = mod.read_take(take_obj)
+    v = take.visible
+    world_err = float(np.abs(world.positions[v] - expected[v]).max())
+    assert np.array_equal(world.visible, v)
+    # a few frames through the depsgraph agree with read_take
+    dg_err = 0.0
+    markers = dict(mod.marker_objects(take_obj))
+    for t in (3, 77, 150):
+        bpy.context.scene.frame_set(1 + t)
+        dg = bpy.context.evaluated_depsgraph_get()
+        for m, label in enumerate(world.labels):
+            if v[t, m]:
+                pos = np.array(markers[label].evaluated_get(dg).matrix_world.translation)
+                dg_err = max(dg_err, float(np.abs(pos - world.positions[t, m]).max()))
+    # an edited curve (BEZIER keys) is evaluated key by key: values at the keys are unchanged
+    label = world.labels[0]
+    fc = fcurves(markers[label]).find("location", index=0)
+    for k in fc.keyframe_points:
+        k.interpolation = 'BEZIER'
+    fc.update()
+    edited = mod.read_take(take_obj, space='LOCAL')
+    edited_err = float(np.abs(edited.positions[v] - 2.0 * take.positions[v]).max())
+    # sampled between keys (half frames): linear between two visible samples
+    half = mod.read_take(take_obj, frames=np.arange(1, 151) + 0.5, space='LOCAL')
+    both = v[:-1] & v[1:]
+    mid = 0.5 * 2.0 * (take.positions[:-1] + take.positions[1:])
+    sel = both.copy()
+    sel[:, 0] = False  # the BEZIER-edited marker
+    half_err = float(np.abs(half.positions[sel] - mid[sel]).max())
+    half_rate = half.rate
+    messages = {}
+    for name, fn in {"not_a_take": lambda: mod.read_take(markers[world.labels[1]]),
+                     "deleted_marker": lambda: (bpy.data.objects.remove(markers[world.labels[2]]),
+                                                mod.read_take(take_obj))}.items():
+        try:
+            fn()
+        except ext("lacore.errors").InputError as exc:
+            messages[name] = str(exc)
+    return {"world_max_abs": world_err, "depsgraph_max_abs": dg_err, "edited_max_abs": edited_err,
+            "half_frame_max_abs": half_err, "half_frame_rate": half_rate, "messages": messages,
+            "deleted_label": world.labels[2]}
+
+
 def save_and_reload():
     path = os.path.join(MOCAP, "Static_Pose.c3d")
     reset()
@@ -280,10 +353,12 @@ def speed():
         assert import_markers(path) == {"FINISHED"}
         times.append(time.perf_counter() - t0)
     res = check_take(path, back, verify_depsgraph=False)
+    res.update(read_back(path, back))
     return {"frames": T, "markers": M, "import_seconds": [round(x, 3) for x in times],
             "best_import_seconds": round(min(times), 3), "read_seconds": round(min(read_times), 4),
             "occluded_fraction": round(float((~back.visible).mean()), 4), "check": res}
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, real_files, options, errors_create_nothing, save_and_reload, speed])
+    run_cases([install_and_enable, real_files, options, read_take_cases, errors_create_nothing, save_and_reload,
+               speed])
