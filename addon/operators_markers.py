@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Import motion-capture markers (C3D, TRC) as animated empties, without an armature.
 
-``lengths_angles.import_markers`` (also File > Import > Motion Capture Markers)
+``lengths_angles.import_markers`` (also File > Import > Motion Capture Markers, and
+drag and drop of .c3d/.trc files onto the 3D viewport)
 reads a take with :mod:`..lacore.marker_io` (positions in metres, NaN where a
 marker is occluded) and only then creates, in the active collection:
 
@@ -49,9 +50,9 @@ from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helpe
 from ..lacore.errors import InputError
 from ..lacore.marker_io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
 
-__all__ = ["LENGTHS_ANGLES_OT_import_markers", "classes", "import_take", "read_take", "marker_objects",
-           "menu_func_import", "register_menu",
-           "unregister_menu", "TAKE_PROP", "MARKER_PROP", "VISIBLE_PROP"]
+__all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "read_take",
+           "marker_objects", "menu_func_import", "register_menu", "unregister_menu", "TAKE_PROP", "MARKER_PROP",
+           "VISIBLE_PROP"]
 
 TAKE_PROP = "lengths_angles_take"
 MARKER_PROP = "lengths_angles_marker"
@@ -342,6 +343,11 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
     marker_size: FloatProperty(name="Marker Size", description="Display size of the marker empties",
                                default=0.02, min=1e-5, soft_max=1.0, subtype='DISTANCE')
 
+    def invoke(self, context, event):
+        # a file dropped on the viewport (LENGTHS_ANGLES_FH_markers) comes with its path: show the options;
+        # otherwise the file browser
+        return self.invoke_popup(context)
+
     def execute(self, context):
         start = time.perf_counter()
         path = bpy.path.abspath(self.filepath)
@@ -371,6 +377,19 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         return {'FINISHED'}
 
 
+class LENGTHS_ANGLES_FH_markers(bpy.types.FileHandler):
+    """Drag and drop of .c3d / .trc files onto the 3D viewport or the outliner imports markers."""
+
+    bl_idname = "LENGTHS_ANGLES_FH_markers"
+    bl_label = "Motion Capture Markers (Lengths & Angles)"
+    bl_import_operator = "lengths_angles.import_markers"
+    bl_file_extensions = ".c3d;.trc"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return context.area is not None and context.area.type in {'VIEW_3D', 'OUTLINER'}
+
+
 def menu_func_import(self, context):
     self.layout.operator(LENGTHS_ANGLES_OT_import_markers.bl_idname,
                          text="Motion Capture Markers (.c3d, .trc) [Lengths & Angles]")
@@ -384,4 +403,4 @@ def unregister_menu():
     bpy.types.TOPBAR_MT_file_import.remove(menu_func_import)
 
 
-classes = (LENGTHS_ANGLES_OT_import_markers,)
+classes = (LENGTHS_ANGLES_OT_import_markers, LENGTHS_ANGLES_FH_markers)

@@ -9,7 +9,8 @@ A seeded synthetic take (100 Hz, occlusion gaps of 5-40 frames) is written as C3
 * ``c3d_read_frames``: the ``c3d`` package's per-frame ``Reader.read_frames`` stacked into an
   array (the reference the tests compare against).
 
-Also checks that both give the same positions.  Prints one JSON object.
+Also checks that both give the same positions, and times the same take as TRC text
+(``write_trc`` / ``read_markers``).  Prints one JSON object.
 
 usage: python benchmarks/bench_markers.py [--frames 5000] [--markers 50] [--repeat 5]
 """
@@ -28,7 +29,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 import numpy as np  # noqa: E402
 from bench_common import machine_info  # noqa: E402
 
-from lacore.marker_io import MarkerTake, read_markers, write_c3d  # noqa: E402
+from lacore.marker_io import MarkerTake, read_markers, write_c3d, write_trc  # noqa: E402
 
 
 def synthetic_take(frames, markers, seed=7, rate=100.0):
@@ -84,6 +85,15 @@ def main(argv=None):
                                           "c3d_read_frames_seconds": round(package_s, 4),
                                           "speed_up": round(package_s / lacore_s, 1),
                                           "same_occlusion": same_mask, "max_abs_difference_m": diff}
+        path = os.path.join(tmp, "take.trc")
+        t = time.perf_counter()
+        write_trc(path, take, units="mm")
+        write_s = time.perf_counter() - t
+        trc_s, trc = best(lambda path=path: read_markers(path), args.repeat)
+        result["trc"] = {"file_bytes": os.path.getsize(path), "write_seconds": round(write_s, 3),
+                         "read_seconds": round(trc_s, 3), "same_occlusion": bool(np.array_equal(trc.visible,
+                                                                                              take.visible)),
+                         "max_abs_difference_m": float(np.nanmax(np.abs(trc.positions - take.positions)))}
     result["machine"] = machine_info()
     print(json.dumps(result, indent=1))
 

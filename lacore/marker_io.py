@@ -542,26 +542,29 @@ def _read_trc_text(data, path, units):
     if len(labels) != n_markers:
         raise MarkerFileError(f"{path}: header says NumMarkers {n_markers} but line 4 names {len(labels)} markers")
     width = 2 + 3 * n_markers
-    rows = [ln.rstrip("\r\n").split("\t") for ln in lines[5:] if ln.strip()]
-    if not rows:
+    fields, n_rows = [], 0
+    for ln in lines[5:]:
+        if not ln.strip():
+            continue
+        row = ln.split("\t")
+        if len(row) < width:  # trailing empty fields may be left out
+            row += [""] * (width - len(row))
+        elif len(row) > width:
+            if any(f.strip() for f in row[width:]):
+                raise MarkerFileError(f"{path}: data row {n_rows + 1} has more than {width} fields")
+            row = row[:width]
+        fields += row
+        n_rows += 1
+    if not n_rows:
         raise MarkerFileError(f"{path}: TRC file without data rows")
-    bad = [i for i, r in enumerate(rows) if len(r) > width and any(s.strip() for s in r[width:])]
-    if bad:
-        raise MarkerFileError(f"{path}: data row {bad[0] + 1} has more than {width} fields")
-    table = np.full((len(rows), width), "", dtype=object)
-    for i, r in enumerate(rows):
-        r = r[:width]
-        table[i, :len(r)] = r
-    strings = np.char.strip(table.astype(str))
-    strings[strings == ""] = "nan"
     try:
-        numbers = strings.astype(np.float64)
+        numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
     except ValueError as exc:
         raise MarkerFileError(f"{path}: non-numeric TRC data ({exc})") from None
     frames = numbers[:, 0]
     if np.isnan(frames).any():
         raise MarkerFileError(f"{path}: data row {int(np.flatnonzero(np.isnan(frames))[0]) + 1} has no frame number")
-    positions = numbers[:, 2:].reshape(len(rows), n_markers, 3) * to_metres
+    positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
     return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
 
@@ -572,13 +575,13 @@ def write_trc(path, take, units="mm"):
     T, M = take.n_frames, take.n_markers
     lines = ["PathFileType\t4\t(X/Y/Z)\t" + os.path.basename(str(path)),
              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
-             f"{take.rate:g}\t{take.rate:g}\t{T}\t{M}\t{units}\t{take.rate:g}\t{take.first_frame}\t{T}",
+             f"{take.rate:.12g}\t{take.rate:.12g}\t{T}\t{M}\t{units}\t{take.rate:.12g}\t{take.first_frame}\t{T}",
              "Frame#\tTime\t" + "\t".join(f"{s}\t\t" for s in take.labels),
              "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(M)), ""]
-    pos = take.positions * factor
-    for t in range(T):
-        fields = ["" if not np.isfinite(v) else repr(float(v)) for v in pos[t].ravel()]
-        lines.append(f"{take.first_frame + t}\t{t / take.rate:.6f}\t" + "\t".join(fields))
-    body = ("\n".join(lines) + "\n").encode()
+    table = np.column_stack([take.first_frame + np.arange(T), take.times, (take.positions * factor).reshape(T, 3 * M)])
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=["%d", "%.6f"] + ["%.17g"] * (3 * M), delimiter="\t")  # %.17g: exact float64
+    data = buf.getvalue().replace("\tnan", "\t")  # occluded: empty fields (no number starts with "nan")
+    body = ("\n".join(lines) + "\n" + data).encode()
     _atomic_write(str(path), lambda fh: fh.write(body))
 

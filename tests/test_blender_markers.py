@@ -32,6 +32,7 @@ def run(extension_zip, tmp_path_factory):
 def test_operator_and_menu(run):
     res = run["cases"]["install_and_enable"]
     assert res["in_file_import_menu"]
+    assert res["file_handler"] == ["lengths_angles.import_markers", ".c3d;.trc"]  # drag and drop
     assert res["properties"] == ["axis_forward", "axis_up", "filepath", "filter_glob", "frame_start", "marker_size",
                                  "rate_mode", "scale", "set_frame_range"]
     assert res["rate_modes"] == ["SCENE", "RETIME", "RESAMPLE"]

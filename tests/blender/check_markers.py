@@ -137,8 +137,10 @@ def install_and_enable():
     menu = ext("addon.operators_markers").menu_func_import
     in_menu = menu in bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()
     assert in_menu
-    return {"properties": names, "in_file_import_menu": in_menu, "rate_modes": [i.identifier for i in
-                                                                                 props["rate_mode"].enum_items],
+    handler = getattr(bpy.types, "LENGTHS_ANGLES_FH_markers", None)
+    drop = None if handler is None else [handler.bl_import_operator, handler.bl_file_extensions]
+    modes = [i.identifier for i in props["rate_mode"].enum_items]
+    return {"properties": names, "in_file_import_menu": in_menu, "file_handler": drop, "rate_modes": modes,
             "defaults": {"axis_forward": props["axis_forward"].default, "axis_up": props["axis_up"].default,
                          "rate_mode": props["rate_mode"].default, "scale": props["scale"].default,
                          "frame_start": props["frame_start"].default}}
