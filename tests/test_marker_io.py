@@ -331,3 +331,59 @@ def test_resample_linear_nan_aware():
             assert np.allclose(r.positions[both, m, axis], ref, atol=1e-12)
     with pytest.raises(MarkerError, match="positive"):
         resample(take, -1)
+
+
+# ----------------------------------------------------------------------------- every processor format x storage
+@pytest.fixture(scope="module")
+def synthetic_formats(tmp_path_factory):
+    """The same take written by tests/c3d_synthetic.py (an independent writer) in all 6 combinations."""
+    from c3d_synthetic import write_c3d_file
+
+    rng = np.random.default_rng(1)
+    T, M = 30, 4
+    pos = rng.uniform(-1500, 1500, (T, M, 3))
+    pos[rng.random((T, M)) < 0.15] = np.nan
+    folder = tmp_path_factory.mktemp("c3d_formats")
+    files = {}
+    for proc in ("intel", "dec", "mips"):
+        for storage in ("float", "int"):
+            path = folder / f"{proc}_{storage}.c3d"
+            quantum = write_c3d_file(path, pos, ["A", "B", "LHipAngles", "C"], 120.0, proc=proc, storage=storage,
+                                     first_frame=5, model_outputs=["LHipAngles"])
+            files[proc, storage] = (path, quantum)
+    return pos, files
+
+
+@pytest.mark.parametrize("proc", ["intel", "dec", "mips"])
+@pytest.mark.parametrize("storage", ["float", "int"])
+def test_every_processor_format_and_storage(synthetic_formats, proc, storage):
+    truth_mm, files = synthetic_formats
+    path, quantum = files[proc, storage]
+    take = read_c3d(path)
+    keep = [0, 1, 3]  # "LHipAngles" is listed in POINT:ANGLES
+    truth = truth_mm[:, keep] * 1e-3
+    v = np.isfinite(truth).all(axis=2)
+    assert take.labels == ("A", "B", "C") and take.first_frame == 5 and take.rate == 120.0 and take.units == "mm"
+    assert np.array_equal(take.visible, v)
+    err = np.abs(take.positions[v] - truth[v]).max()
+    if storage == "float":
+        assert err < 2e-7  # float32 of values up to 1.5 m (measured 6.1e-8 m)
+    else:
+        assert err <= 0.5 * quantum * 1e-3 * 1.001  # rounding to the int16 grid (measured 0.499 quantum)
+    assert np.allclose(take.residuals[v], 3 * quantum * 1e-3)
+    # the c3d package's per-frame reading of the same file agrees
+    with open(path, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = c3d.Reader(fh)
+        assert reader.proc_type == {"intel": "INTEL", "dec": "DEC", "mips": "MIPS"}[proc]
+        ref = np.array([p for _, p, _ in reader.read_frames()])[:, keep]
+    assert np.array_equal(ref[:, :, 3] < 0, ~v)
+    assert np.abs(take.positions[v] - ref[:, :, :3][v] * 1e-3).max() < 2e-7  # the package sums in float32
+
+
+def test_processor_formats_decode_identically(synthetic_formats):
+    _, files = synthetic_formats
+    for storage in ("float", "int"):
+        takes = [read_c3d(files[proc, storage][0]) for proc in ("intel", "dec", "mips")]
+        for other in takes[1:]:
+            assert np.array_equal(other.positions, takes[0].positions, equal_nan=True), storage
