@@ -180,6 +180,8 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
             obj.parent = take_obj
             obj[MARKER_PROP] = label
             obj[VISIBLE_PROP] = 1.0
+            obj.id_properties_ui(VISIBLE_PROP).update(
+                min=0.0, max=1.0, description="1 on frames where the marker was measured, 0 where it was occluded")
             collection.objects.link(obj)
             action = _new_action_for(obj, _clip_name(f"{obj.name} markers"))
             created_actions.append(action)

@@ -269,6 +269,21 @@ def _unique_labels(labels):
     return out
 
 
+def _dec_to_ieee(raw):
+    """DEC F-floats (uint8 bytes, 4 per value) -> IEEE float32, as the ``c3d`` package decodes them.
+
+    A DEC F-float has the IEEE layout with its two 16-bit words swapped and a value
+    a quarter of the IEEE reading (exponent bias 128, hidden bit before the point):
+    swap the words, lower the exponent by 2 (leaving exponent 0, DEC's zero, alone).
+    """
+    b = np.asarray(raw, dtype=np.uint8).reshape(-1, 4)
+    out = np.empty_like(b)
+    out[:, 0], out[:, 1], out[:, 2] = b[:, 2], b[:, 3], b[:, 0]
+    high = b[:, 1]
+    out[:, 3] = high + ((high & 0x7F) == 0) - 1  # sign + top exponent bits; -1 here is -2 on the exponent
+    return out.reshape(-1).view("<f4")
+
+
 def _read_bytes(path):
     try:
         with open(path, "rb") as fh:
@@ -408,9 +423,8 @@ def _read_c3d_bytes(data, path, units):
     block = np.frombuffer(data, dtype=np.uint8, count=n_frames * frame_bytes, offset=start)
     raw_bytes = np.ascontiguousarray(block.reshape(n_frames, frame_bytes)[:, :point_bytes])
     if is_float:
-        if proc == 85:  # DEC floats: same conversion as the c3d package, vectorized over the whole section
-            c3d = _import_c3d()
-            words = c3d.c3d.DEC_to_IEEE_BYTES(raw_bytes.tobytes())
+        if proc == 85:
+            words = _dec_to_ieee(raw_bytes)
         else:
             words = raw_bytes.view(">f4" if proc == 86 else "<f4")
         words = words.reshape(n_frames, used, 4)

@@ -90,6 +90,8 @@ def check_take(path, take, frame_start=1.0, step=1.0, matrix=None, verify_depsgr
             assert np.allclose(kf, frames[seen], atol=1e-4), obj.name
             occluded_keys += int(np.isin(np.round(kf, 4), np.round(frames[~seen], 4)).sum())
             max_err = max(max_err, float(np.abs(kv - pos[seen, m, axis]).max()))
+        ui = obj.id_properties_ui("visible").as_dict()
+        assert (ui["min"], ui["max"]) == (0.0, 1.0), ui
         vis = curves.find('["visible"]')
         assert interpolations(vis) == ["CONSTANT"]
         evaluated = np.array([vis.evaluate(f) for f in frames])
