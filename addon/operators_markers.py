@@ -35,6 +35,10 @@ Keys are written in bulk (``keyframe_points.add`` + ``foreach_set``), never per
 frame.  :func:`read_take` reads a take back from the empties' F-curves in bulk (for
 fitting: no ``frame_set`` per frame), NaN where ``["visible"]`` is 0.
 
+Several files (``directory`` + ``files``: multi-select in the file browser, or a
+drop of several files) are read first and imported together, all or nothing
+(:func:`import_takes`); with ``rate_mode='SCENE'`` they must share one rate.
+
 Any error is reported as ERROR with nothing created (objects made before a
 failure are removed again).
 """
@@ -44,13 +48,14 @@ import time
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
 from ..lacore.marker_io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
 
-__all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "read_take",
+__all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",
+           "remove_take", "read_take",
            "marker_objects", "menu_func_import", "register_menu", "unregister_menu", "TAKE_PROP", "MARKER_PROP",
            "VISIBLE_PROP"]
 
@@ -317,6 +322,41 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD'):
                       first_frame=int(meta["first_frame"]), units=str(meta["units"]), source=str(meta["source"]))
 
 
+def remove_take(take_obj):
+    """Delete a take empty, its marker empties and their actions."""
+    for obj in list(take_obj.children):
+        action = obj.animation_data.action if obj.animation_data is not None else None
+        bpy.data.objects.remove(obj, do_unlink=True)
+        if action is not None and action.users == 0:
+            bpy.data.actions.remove(action)
+    bpy.data.objects.remove(take_obj, do_unlink=True)
+
+
+def import_takes(context, takes, names, set_frame_range=True, **options):
+    """:func:`import_take` for several takes; all or nothing.  The frame range covers them all.
+
+    Returns ``[(take_object, marker_objects)]``.
+    """
+    made = []
+    try:
+        for take, name in zip(takes, names, strict=True):
+            made.append(import_take(context, take, name, set_frame_range=False, **options))
+    except BaseException:
+        for take_obj, _ in reversed(made):
+            remove_take(take_obj)
+        raise
+    if set_frame_range:
+        scene = context.scene
+        firsts, lasts = [], []
+        for take_obj, _ in made:
+            meta = take_obj[TAKE_PROP]
+            firsts.append(meta["frame_start"])
+            lasts.append(meta["frame_start"] + (meta["keyed_samples"] - 1) * meta["frame_step"])
+        scene.frame_start = int(np.floor(min(firsts)))
+        scene.frame_end = max(int(np.ceil(max(lasts))), scene.frame_start)
+    return made
+
+
 @orientation_helper(axis_forward='Y', axis_up='Z')
 class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
     """Import motion-capture markers (C3D or TRC) as animated empties parented to one take empty;
@@ -328,6 +368,8 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".c3d"
     filter_glob: StringProperty(default="*.c3d;*.trc", options={'HIDDEN'})
+    files: CollectionProperty(type=bpy.types.OperatorFileListElement, options={'HIDDEN', 'SKIP_SAVE'})
+    directory: StringProperty(subtype='DIR_PATH', options={'HIDDEN', 'SKIP_SAVE'})
 
     scale: FloatProperty(name="Scale", description="Multiply the positions (in metres) by this factor",
                          default=1.0, min=1e-6, max=1e6, soft_min=1e-3, soft_max=1e3)
@@ -350,32 +392,49 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         # otherwise the file browser
         return self.invoke_popup(context)
 
+    def paths(self):
+        """The selected files (several from the file browser or a drop), else ``filepath``."""
+        names = [f.name for f in self.files if f.name]
+        if names and self.directory:
+            return [os.path.join(bpy.path.abspath(self.directory), n) for n in names]
+        return [bpy.path.abspath(self.filepath)]
+
     def execute(self, context):
         start = time.perf_counter()
-        path = bpy.path.abspath(self.filepath)
+        paths = self.paths()
         try:
             if self.axis_forward[-1] == self.axis_up[-1]:
                 raise InputError(f"Forward ({self.axis_forward}) and Up ({self.axis_up}) must be different axes")
-            take = read_markers(path)
-            name = os.path.splitext(os.path.basename(path))[0] or "Take"
-            take_obj, markers = import_take(context, take, name, scale=self.scale, axis_forward=self.axis_forward,
-                                            axis_up=self.axis_up, frame_start=self.frame_start,
-                                            rate_mode=self.rate_mode, set_frame_range=self.set_frame_range,
-                                            marker_size=self.marker_size)
+            takes = [read_markers(p) for p in paths]  # every file read before anything is created
+            rates = sorted({t.rate for t in takes})
+            if self.rate_mode == 'SCENE' and len(rates) > 1:
+                raise InputError(f"The takes have different rates ({', '.join(f'{r:g}' for r in rates)} Hz) and the "
+                                 "scene has one: import them one by one, or choose Map by Time or Resample")
+            made = import_takes(context, takes, [os.path.splitext(os.path.basename(p))[0] or "Take" for p in paths],
+                                scale=self.scale, axis_forward=self.axis_forward, axis_up=self.axis_up,
+                                frame_start=self.frame_start, rate_mode=self.rate_mode,
+                                set_frame_range=self.set_frame_range, marker_size=self.marker_size)
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
         for obj in context.view_layer.objects.selected:
             obj.select_set(False)
-        take_obj.select_set(True)
-        context.view_layer.objects.active = take_obj
+        for take_obj, _markers in made:
+            take_obj.select_set(True)
+        context.view_layer.objects.active = made[0][0]
+        seconds = time.perf_counter() - start
+        if len(takes) > 1:
+            self.report({'INFO'}, f"Imported {len(takes)} takes ({sum(len(m) for _, m in made)} markers) "
+                                  f"in {seconds:.2f} s")
+            return {'FINISHED'}
+        take, (take_obj, markers) = takes[0], made[0]
         occluded = take.n_frames * take.n_markers - int(take.visible.sum())
         meta = take_obj[TAKE_PROP]
         resampled = (f", resampled to {meta['keyed_samples']} frames at {meta['keyed_rate']:g} fps"
                      if self.rate_mode == 'RESAMPLE' else "")
         self.report({'INFO'}, f"Imported {len(markers)} markers x {take.n_frames} frames at {take.rate:g} Hz from "
-                              f"'{os.path.basename(path)}' ({occluded} occluded samples{resampled}, "
-                              f"{time.perf_counter() - start:.2f} s)")
+                              f"'{os.path.basename(paths[0])}' ({occluded} occluded samples{resampled}, "
+                              f"{seconds:.2f} s)")
         return {'FINISHED'}
 
 

@@ -114,6 +114,20 @@ def test_errors_create_nothing(run):
     assert "simulated failure" in messages["mid_way"]
 
 
+def test_several_files(run):
+    res = run["cases"]["several_files"]
+    two = res["two_takes"]
+    assert two["takes"] == ["Eb015pr", "Eb015vi"] and two["children"] == [26, 26]
+    assert two["frame_range"] == [1, 450] and two["selected"] == ["Eb015pr", "Eb015vi"]
+    assert "different rates (50, 60 Hz)" in res["different_rates_message"] and res["different_rates_unchanged"]
+    # 60 Hz: 151 samples -> frame 61; 50 Hz: 450 samples -> 1 + 449 * 24/50 = 216.5 -> 217
+    assert res["retime_takes"] == ["Eb015pr", "Walk1"] and res["retime_frame_range"] == [1, 217]
+    assert "bad_second.c3d" in res["bad_file_message"] and "bad_second.c3d" in res["good_then_bad_message"]
+    assert res["bad_file_unchanged"]
+    assert "simulated failure in the second take" in res["mid_way_message"] and res["mid_way_calls"] == 114
+    assert res["mid_way_unchanged"]
+
+
 def test_save_and_reload(run):
     res = run["cases"]["save_and_reload"]
     assert res["markers"] == 30 and res["max_abs_key_error"] < FLOAT32_METRES

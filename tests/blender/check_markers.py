@@ -321,6 +321,73 @@ def read_take_cases():
             "deleted_label": world.labels[2]}
 
 
+def several_files():
+    """Several files at once (file browser multi-select, or a drop): all or nothing."""
+    mod = ext("addon.operators_markers")
+    out = {}
+
+    def run(names, **kwargs):
+        return bpy.ops.lengths_angles.import_markers(directory=MOCAP, files=[{"name": n} for n in names], **kwargs)
+
+    reset()
+    assert run(["Eb015pr.c3d", "Eb015vi.c3d"]) == {"FINISHED"}
+    takes = sorted(o.name for o in bpy.data.objects if "lengths_angles_take" in o)
+    out["two_takes"] = {"takes": takes, "children": [len(bpy.data.objects[t].children) for t in takes],
+                        "frame_range": [bpy.context.scene.frame_start, bpy.context.scene.frame_end],
+                        "selected": sorted(o.name for o in bpy.context.selected_objects)}
+    # different rates and one scene rate: refused, nothing created
+    reset()
+    before = counts()
+    try:
+        run(["Walk1.c3d", "Eb015pr.c3d"])
+    except RuntimeError as exc:
+        out["different_rates_message"] = str(exc)
+    out["different_rates_unchanged"] = counts() == before
+    # mapped by time onto 24 fps: both, frame range covering both
+    bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
+    assert run(["Walk1.c3d", "Eb015pr.c3d"], rate_mode='RETIME') == {"FINISHED"}
+    out["retime_frame_range"] = [bpy.context.scene.frame_start, bpy.context.scene.frame_end]
+    out["retime_takes"] = sorted(o.name for o in bpy.data.objects if "lengths_angles_take" in o)
+    # a bad second file: nothing created
+    reset()
+    before = counts()
+    bad = os.path.join(ARGS.workdir, "bad_second.c3d")
+    with open(bad, "wb") as fh:
+        fh.write(b"not a c3d file at all" * 30)
+    try:
+        bpy.ops.lengths_angles.import_markers(directory=ARGS.workdir, files=[{"name": "bad_second.c3d"}])
+    except RuntimeError as exc:
+        out["bad_file_message"] = str(exc)
+    import shutil
+
+    shutil.copy(os.path.join(MOCAP, "Static_Pose.c3d"), os.path.join(ARGS.workdir, "Static_Pose.c3d"))
+    try:
+        bpy.ops.lengths_angles.import_markers(directory=ARGS.workdir,
+                                              files=[{"name": "Static_Pose.c3d"}, {"name": "bad_second.c3d"}])
+    except RuntimeError as exc:
+        out["good_then_bad_message"] = str(exc)
+    out["bad_file_unchanged"] = counts() == before
+    # a failure while creating the second take removes the first one too
+    original, calls = mod._write_curve, {"n": 0}
+
+    def failing(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 26 * 4 + 10:  # inside the second take (26 markers x 4 curves each)
+            raise ext("lacore.errors").InputError("simulated failure in the second take")
+        return original(*args, **kwargs)
+
+    mod._write_curve = failing
+    try:
+        run(["Eb015pr.c3d", "Eb015si.c3d"])
+    except RuntimeError as exc:
+        out["mid_way_message"] = str(exc)
+    finally:
+        mod._write_curve = original
+    out["mid_way_unchanged"] = counts() == before
+    out["mid_way_calls"] = calls["n"]
+    return out
+
+
 def save_and_reload():
     path = os.path.join(MOCAP, "Static_Pose.c3d")
     reset()
@@ -364,5 +431,5 @@ def speed():
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, real_files, options, read_take_cases, errors_create_nothing, save_and_reload,
-               speed])
+    run_cases([install_and_enable, real_files, options, read_take_cases, errors_create_nothing, several_files,
+               save_and_reload, speed])
