@@ -66,14 +66,19 @@ _NAME_BYTES = 63
 
 
 # ============================================================================ F-curve compatibility shim
-# (to be unified with addon/compat.py at merge.)  Blender 5.0+ keeps an object's F-curves in the
-# channelbag of its action slot (layered actions); 4.2 .. 4.x in Action.fcurves.
+# (to be unified with addon/compat.py at merge.)  Layered actions (4.4+; the only kind in 5.0+) keep
+# an object's F-curves in the channelbag of its action slot.  On 4.4/4.5 Action.fcurves is a legacy
+# proxy that may create a slot the object does not use, so the slot is made and assigned explicitly
+# from 4.4 on; 4.2/4.3 use Action.fcurves.
+_LAYERED_ACTIONS = bpy.app.version >= (4, 4, 0)
+
+
 def _new_action_for(obj, name):
-    """A new action assigned to ``obj`` (with a slot for it on 5.0+)."""
+    """A new action assigned to ``obj`` (with a slot for it on layered actions)."""
     action = bpy.data.actions.new(name)
     ad = obj.animation_data or obj.animation_data_create()
     ad.action = action
-    if bpy.app.version >= (5, 0, 0) and ad.action_slot is None:
+    if _LAYERED_ACTIONS and ad.action_slot is None:
         ad.action_slot = action.slots.new(id_type='OBJECT', name=obj.name)
     return action
 
@@ -82,7 +87,7 @@ def _fcurves_for(obj):
     """The F-curve collection of ``obj``'s assigned action (``.new``, ``.find``, ``.remove``)."""
     ad = obj.animation_data
     action = ad.action
-    if bpy.app.version >= (5, 0, 0):
+    if _LAYERED_ACTIONS:
         slot = ad.action_slot
         layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
         strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type='KEYFRAME')
