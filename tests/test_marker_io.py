@@ -69,7 +69,8 @@ def test_real_c3d_against_its_own_header(name):
     # positions in metres: the package's float32 values times the unit
     m = METRES[ref["units"]]
     err = np.abs(take.positions[~invalid] - frames[:, :, :3][~invalid] * m).max()
-    assert err <= 1e-6 * max(1.0, np.abs(frames[:, :, :3][~invalid]).max() * m)
+    # the package works in float32: relative round-off (measured <= 1.3e-7 of the largest coordinate)
+    assert err <= 4e-7 * max(1.0, np.abs(frames[:, :, :3][~invalid]).max() * m)
     res = take.residuals[~invalid]
     assert np.allclose(res, frames[:, :, 3][~invalid] * m, rtol=1e-6, atol=1e-9)
 
