@@ -18,6 +18,7 @@ current scene, made active and returned.
 
 import math
 import os
+import sys
 
 import bpy
 import numpy as np
@@ -27,18 +28,22 @@ from blender_samples import add_shape_key, make_object
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _load_rigid():
-    """The repository's lacore/rigid.py (NumPy only), loaded by path: importing the ``lacore`` package would
-    import SciPy, which the bpy-only test interpreters do not have (the installed extension has its own copy)."""
-    import importlib.util
+def _rigid_module():
+    """lacore.rigid: the installed extension's copy inside the Blender checks (whose bpy-only interpreters have no
+    SciPy for the repository's ``lacore`` package), else the repository's."""
+    import importlib
 
-    spec = importlib.util.spec_from_file_location("_lacore_rigid", os.path.join(REPO, "lacore", "rigid.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    try:
+        return importlib.import_module("bl_ext.user_default.lengths_angles.lacore.rigid")
+    except ImportError:
+        if REPO not in sys.path:
+            sys.path.insert(0, REPO)
+        return importlib.import_module("lacore.rigid")
 
 
-rigid_align = _load_rigid().rigid_align
+def rigid_align(source, target):
+    """``source`` moved rigidly onto ``target`` (:func:`lacore.rigid.rigid_align`)."""
+    return _rigid_module().rigid_align(source, target)
 
 __all__ = ["make_box_bar", "add_simple_deform_key", "simple_deform_coords", "bent_bar", "twisted_bar",
            "shared_mesh_pair", "key_coords", "build_sample_files", "SAMPLE_FILES"]
