@@ -16,8 +16,6 @@
 import pytest
 from conftest import REPO, run_blender_check, shared_data_dir
 
-pytest.importorskip("bpy", reason="the bpy module (pip install bpy==5.0.1) is needed for the add-on tests")
-pytest.importorskip("c3d", reason="the c3d package is needed to read C3D files")
 
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_markers.py"
 FILES = sorted(p.name for p in (shared_data_dir() / "mocap").glob("*.c3d"))
