@@ -59,6 +59,7 @@ from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
 from .gauss_newton import gauss_newton_reconstruction
 from .least_squares import least_squares_reconstruction
+from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
 from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
 
@@ -75,10 +76,15 @@ __all__ = [
     "METHODS",
     "STATUS_MESSAGES",
     "tree_kind",
+    "check_reconstruction",
+    "LENGTH_RTOL",
+    "ANGLE_ATOL",
 ]
 
 METHODS = ("gn", "bfs", "mst", "spt", "lsq", "hybrid")
 _FRAME_KINDS = ("bfs", "mst", "spt")
+#: Gauss-Newton statuses after which ``"gn"`` restarts from the least-squares relaxation.
+_STALLED = (-3, -1)
 
 
 def tree_kind(method, hybrid=None):
@@ -96,7 +102,13 @@ def tree_kind(method, hybrid=None):
 
 
 def _check_target(z_target, topology, method, energy):
-    """Validated ``z*``; LengthsAnglesError for targets no method can use."""
+    """Validated ``z*`` and notes; LengthsAnglesError for targets no method can use.
+
+    Faces whose target lengths violate the triangle inequality (fewer than half
+    of them) are accepted and named in the returned notes: the frame-based
+    methods treat them as in the remark after Algorithm 2, Gauss-Newton with
+    ``W_q`` minimizes the energy (no immersion reproduces such a target).
+    """
     z = check_z(z_target, topology, name="target z")
     margin = triangle_inequality_margin(z[: topology.n_edges][topology.face_edges])
     bad = np.flatnonzero(~(margin > 0))
@@ -107,7 +119,11 @@ def _check_target(z_target, topology, method, energy):
         raise LengthsAnglesError(f"the target lengths violate the triangle inequality at {bad.size} of "
                                  f"{topology.n_faces} faces ({format_indices(bad)}): they do not describe "
                                  "this mesh (wrong edge order?)")
-    return z
+    notes = []
+    if bad.size:
+        notes.append(f"the target lengths violate the triangle inequality at {bad.size} faces "
+                     f"({format_indices(bad)}): the target is not admissible")
+    return z, notes
 
 
 def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings=None, options=None, hybrid=None,
@@ -186,15 +202,36 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         context = get_context(topology, reference_vertices, settings)
     else:
         _check_context(context, topology, reference_vertices, settings, given)
-    z = _check_target(z_target, topology, method, context.energy_name)
+    z, notes = _check_target(z_target, topology, method, context.energy_name)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
-        return gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                           options=options, started=t_start)
+        res = apply_checks(gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices,
+                                                       context=context, options=options, started=t_start),
+                           z, topology, minimizer=True)
+        if res.status in _STALLED:
+            res = _restart_from_least_squares(res, z, topology, context, options, t_start)
+        return replace(res, notes=notes + res.notes)
 
-    kind = tree_kind(method, hybrid)
+    X, direct = _direct(z, topology, context, kind=tree_kind(method, hybrid), tree=tree)
+    if method == "hybrid":
+        n = hybrid.smoothing_iterations
+        res = gauss_newton_reconstruction(
+            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
+            method_name=f"hybrid-{tree_kind(method, hybrid) or 'lsq'}", extra_timings=direct, started=t_start,
+            success_status=(6, f"{n} smoothing iterations done"))
+        return replace(apply_checks(res, z, topology, minimizer=True), notes=notes)
+    energy_value = context.energy(z, X)
+    res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
+                               energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
+                               timings={**direct, "total": time.perf_counter() - t_start},
+                               fixed_face=context.fixed_face, notes=notes)
+    return apply_checks(res, z, topology, minimizer=False)
+
+
+def _direct(z, topology, context, kind, tree=None):
+    """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
     if kind is None:
         X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
@@ -206,19 +243,34 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         X = context.align(X)  # the fixed face placed exactly as for Gauss-Newton
     except MeshError:
         pass  # a degenerate fixed face (target violates the triangle inequality there): keep the method's placement
-    direct = {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
-    if method == "hybrid":
-        n = hybrid.smoothing_iterations
-        return gauss_newton_reconstruction(
-            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{kind or 'lsq'}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"))
-    energy_value = context.energy(z, X)
-    return ReconstructionResult(vertices=X, success=bool(np.all(np.isfinite(X))), status=5,
-                                message=STATUS_MESSAGES[5], method=method, energy=energy_value,
-                                energy_name=context.energy_name, energy_history=[energy_value],
-                                timings={**direct, "total": time.perf_counter() - t_start},
-                                fixed_face=context.fixed_face)
+    return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
+
+
+def _restart_from_least_squares(first, z, topology, context, options, t_start):
+    """Gauss-Newton again from the least-squares relaxation after ``first`` stalled (status -1 or -3).
+
+    On very thin triangles (aspect ~1e4) the Gauss-Newton matrix at a flat
+    start is too ill-conditioned for progress (condition ~ aspect^4 with the
+    weights (3.20)), and a warm start can stall in a poor basin; the
+    least-squares relaxation of the frame-based method starts in the right
+    shape.  Returns the result that passed its checks, else the one with the
+    lower energy, with a note saying what happened.
+    """
+    try:
+        X, direct = _direct(z, topology, context, kind=None)
+    except (InputError, np.linalg.LinAlgError):
+        return first
+    if not np.all(np.isfinite(X)):
+        return first
+    second = apply_checks(gauss_newton_reconstruction(z, topology, initial_vertices=X, context=context,
+                                                      options=options, extra_timings=direct, started=t_start),
+                          z, topology, minimizer=True)
+    note = (f"Gauss-Newton from the given start failed ({first.failure}: energy {first.energy:.6g} after "
+            f"{first.iterations} iterations); restarted from the least-squares relaxation")
+    best = second if (second.success or not second.energy >= first.energy) else first
+    timings = dict(best.timings, total=time.perf_counter() - t_start)
+    return replace(best, iterations=first.iterations + second.iterations, timings=timings,
+                   notes=best.notes + [note + ("" if best is second else ", which was worse")])
 
 
 def _check_context(context, topology, reference_vertices, settings, given):
