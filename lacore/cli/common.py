@@ -1,5 +1,6 @@
 """What every ``lacore`` subcommand shares: the input-error type, exit codes, JSON output."""
 
+import argparse
 import json
 import sys
 
@@ -7,10 +8,45 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "print_json", "json_float"]
+__all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "print_json", "json_float",
+           "nonnegative_int", "positive_int", "add_allow_failure", "exit_code"]
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input or usage, same code argparse uses
+#: The command ran and wrote its output, but the result failed its checks
+#: (:mod:`lacore.reconstruction.checks`); ``--allow-failure`` turns this into 0.
+EXIT_FAILED_CHECKS = 3
+
+
+def _int_at_least(low, what):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
+        return value
+    parse.__name__ = "integer"
+    return parse
+
+
+#: argparse type of counts that may be 0 (``--max-iterations``, ``--smoothing-iterations``).
+nonnegative_int = _int_at_least(0, "a non-negative integer")
+#: argparse type of counts that must be at least 1 (``--frames``).
+positive_int = _int_at_least(1, "a positive integer")
+
+
+def add_allow_failure(parser):
+    """Declare ``--allow-failure`` (exit 0 instead of :data:`EXIT_FAILED_CHECKS`)."""
+    parser.add_argument("--allow-failure", action="store_true",
+                        help=f"exit 0 even when the result fails its checks (default: exit {EXIT_FAILED_CHECKS}; "
+                             "the output is written either way)")
+
+
+def exit_code(success, args):
+    """:data:`EXIT_OK`, or :data:`EXIT_FAILED_CHECKS` for a failed result without ``--allow-failure``."""
+    return EXIT_OK if success or getattr(args, "allow_failure", False) else EXIT_FAILED_CHECKS
 
 
 class CliError(InputError):
