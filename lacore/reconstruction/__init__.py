@@ -52,7 +52,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
-from ..lengths_angles import check_z, lengths_and_angles
+from ..lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
 from ..topology import MeshTopology, check_vertices
 from ..trigonometry import triangle_inequality_margin
 from .context import ReconstructionContext, get_context
@@ -105,7 +105,8 @@ def _check_target(z_target, topology, method, energy):
     """Validated ``z*`` and notes; LengthsAnglesError for targets no method can use.
 
     Faces whose target lengths violate the triangle inequality (fewer than half
-    of them) are accepted and named in the returned notes: the frame-based
+    of them), or satisfy it only within rounding (relative margin at most
+    :data:`~lacore.lengths_angles.DEGENERACY_RTOL`), are accepted and named in the returned notes: the frame-based
     methods treat them as in the remark after Algorithm 2, Gauss-Newton with
     ``W_q`` minimizes the energy (no immersion reproduces such a target).
     """
@@ -120,9 +121,12 @@ def _check_target(z_target, topology, method, energy):
                                  f"{topology.n_faces} faces ({format_indices(bad)}): they do not describe "
                                  "this mesh (wrong edge order?)")
     notes = []
-    if bad.size:
-        notes.append(f"the target lengths violate the triangle inequality at {bad.size} faces "
-                     f"({format_indices(bad)}): the target is not admissible")
+    L = z[: topology.n_edges][topology.face_edges]
+    near = np.flatnonzero(~(margin > DEGENERACY_RTOL * L.sum(axis=1)))  # scale-free, as check_nondegenerate
+    if near.size:
+        notes.append(f"the target lengths violate the triangle inequality at {near.size} faces "
+                     f"({format_indices(near)}) (relative margin <= {DEGENERACY_RTOL:g}): the target is not "
+                     "admissible")
     return z, notes
 
 
@@ -187,6 +191,10 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     Notes
     -----
+    Reference coordinates of magnitude outside ``2^-200 .. 2^200`` (about
+    1e-60 .. 1e60) are scaled internally by an exact power of two and the
+    output scaled back (a note says so).
+
     Frame-based methods need the triangle inequality only where they walk;
     they treat violating faces as in Algorithm 2 (see
     :mod:`.frame_based`).  ``"gn"`` with ``W_q`` accepts any positive lengths
@@ -198,6 +206,15 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
     settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
+    scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
+    if scaled is not None:
+        k, z_s, X_s, X0_s = scaled
+        res = reconstruct(z_s, topology, X_s, method, settings=settings, options=options, hybrid=hybrid,
+                          initial_vertices=X0_s, tree=tree)
+        return replace(res, vertices=np.ldexp(res.vertices, k),
+                       notes=res.notes + [f"coordinates of magnitude 2^{k} are outside the safe range "
+                                          f"2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: reconstructed scaled by 2^{-k} "
+                                          "(exact), the output scaled back; energies are the scaled problem's"])
     if context is None:
         context = get_context(topology, reference_vertices, settings)
     else:
@@ -271,6 +288,26 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
     timings = dict(best.timings, total=time.perf_counter() - t_start)
     return replace(best, iterations=first.iterations + second.iterations, timings=timings,
                    notes=best.notes + [note + ("" if best is second else ", which was worse")])
+
+
+def _rescaled(z_target, topology, reference_vertices, initial_vertices):
+    """``(k, z, X_ref, X_init)`` scaled by ``2^-k`` into the safe range, or None when already inside it.
+
+    Products of three coordinates (normals times edges, triangle frames) overflow
+    or become subnormal far outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``; a
+    power-of-two scaling is exact, angles are invariant and lengths scale.
+    """
+    if reference_vertices is None:
+        return None
+    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
+    k = safe_scale_exponent(X)
+    if not k:
+        return None
+    z = np.array(z_target, dtype=float)
+    if z.shape == (2 * topology.n_edges,):
+        z[: topology.n_edges] = np.ldexp(z[: topology.n_edges], -k)
+    X0 = None if initial_vertices is None else np.ldexp(np.asarray(initial_vertices, float), -k)
+    return k, z, np.ldexp(X, -k), X0
 
 
 def _check_context(context, topology, reference_vertices, settings, given):
