@@ -224,9 +224,8 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
-        res = apply_checks(gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices,
-                                                       context=context, options=options, started=t_start),
-                           z, topology, minimizer=True)
+        res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
+                                          options=options, started=t_start)  # checked there
         if res.status in _STALLED:
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
@@ -238,7 +237,7 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
             z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
             method_name=f"hybrid-{tree_kind(method, hybrid) or 'lsq'}", extra_timings=direct, started=t_start,
             success_status=(6, f"{n} smoothing iterations done"))
-        return replace(apply_checks(res, z, topology, minimizer=True), notes=notes)
+        return replace(res, notes=notes)
     energy_value = context.energy(z, X)
     res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
                                energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
@@ -279,9 +278,8 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
         return first
     if not np.all(np.isfinite(X)):
         return first
-    second = apply_checks(gauss_newton_reconstruction(z, topology, initial_vertices=X, context=context,
-                                                      options=options, extra_timings=direct, started=t_start),
-                          z, topology, minimizer=True)
+    second = gauss_newton_reconstruction(z, topology, initial_vertices=X, context=context, options=options,
+                                         extra_timings=direct, started=t_start)
     note = (f"Gauss-Newton from the given start failed ({first.failure}: energy {first.energy:.6g} after "
             f"{first.iterations} iterations); restarted from the least-squares relaxation")
     best = second if (second.success or not second.energy >= first.energy) else first

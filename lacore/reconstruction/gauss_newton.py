@@ -100,6 +100,7 @@ from ..lengths_angles import check_z
 from ..sparse_cholesky import NotPositiveDefiniteError
 from ..topology import check_vertices
 from .assembly import gauss_newton_pattern
+from .checks import apply_checks
 from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
@@ -411,6 +412,8 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     Returns
     -------
     ReconstructionResult
+        ``success`` decided by :func:`lacore.reconstruction.checks.apply_checks`
+        (a converged minimizer without folds, or the target reproduced).
     """
     t_start = time.perf_counter()
     started = t_start if started is None else started
@@ -440,10 +443,11 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     if status == 0 and success_status is not None:
         status, message = success_status
     timings["total"] = time.perf_counter() - started
-    return ReconstructionResult(
+    result = ReconstructionResult(
         vertices=vertices, success=status > 0, status=status, message=message, method=method_name,
         iterations=out.iterations, energy=out.energy, energy_name=objective.name,
         initial_energy=out.initial_energy, energy_history=out.energy_history, gradient_norm=out.gradient_norm,
         step_sizes=out.step_sizes, regularization=out.regularization, function_evaluations=out.function_evaluations,
         factorizations=out.factorizations, pcg_iterations=out.pcg_iterations, timings=timings,
         fixed_face=context.fixed_face, backend=context.backend)
+    return apply_checks(result, z_target, topology, minimizer=True)

@@ -33,7 +33,9 @@ class GaussNewtonResult(SolverResult):
         The final iterate, in the canonical coordinates of the context.
     success, status, message, iterations, timings
         See :class:`lacore.result.SolverResult`; ``status`` codes in
-        :data:`STATUS_MESSAGES` (``success`` is ``status > 0``).  Timings:
+        :data:`STATUS_MESSAGES` (here ``success`` is ``status > 0``: the loop stopped by a
+        convergence rule; the checks of :mod:`lacore.reconstruction.checks` are applied by
+        :func:`~lacore.reconstruction.gauss_newton.gauss_newton_reconstruction`).  Timings:
         ``assembly, factorization, solve, line_search, acceleration``.
     energy, initial_energy : float
         Energy at the final and at the starting point.
