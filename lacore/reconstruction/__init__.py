@@ -34,7 +34,11 @@ pays about one numeric factorization instead of one per iteration and frame.
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
 see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
-the chosen energy, so all methods are comparable.
+the chosen energy, so all methods are comparable.  Its ``success`` is decided
+the same way for every method by :mod:`.checks` (finite, no folded edge, and
+the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
+minimizer); ``failure`` names a failed check.  A ``"gn"`` run that stalls
+(status -1 or -3) is restarted once from the least-squares relaxation.
 
 Reuse
 -----
@@ -55,11 +59,11 @@ from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
 from ..lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
 from ..topology import MeshTopology, check_vertices
 from ..trigonometry import triangle_inequality_margin
+from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
 from .gauss_newton import gauss_newton_reconstruction
 from .least_squares import least_squares_reconstruction
-from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
 from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
 
@@ -226,7 +230,7 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method == "gn":
         res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
                                           options=options, started=t_start)  # checked there
-        if res.status in _STALLED:
+        if res.status in _STALLED and not res.success:
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
@@ -270,7 +274,8 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
     weights (3.20)), and a warm start can stall in a poor basin; the
     least-squares relaxation of the frame-based method starts in the right
     shape.  Returns the result that passed its checks, else the one with the
-    lower energy, with a note saying what happened.
+    lower energy, with a note saying what happened; ``iterations`` counts both
+    runs, the history and counters are the returned run's.
     """
     try:
         X, direct = _direct(z, topology, context, kind=None)
