@@ -7,6 +7,18 @@ in lengths and angles, then projection onto admissible lengths and angles by
 reconstruction), and only then write to Blender.  Any error is reported as
 ERROR and returns CANCELLED with the object unchanged.
 
+Results that fail their checks
+------------------------------
+A reconstruction whose result fails the checks of
+:mod:`lacore.reconstruction.checks` (``success=False``: folded faces, or a
+minimizer that did not converge) is still written -- it is the best shape the
+method found, Blender's undo removes it, and hiding it would leave the user
+with nothing to inspect -- and the operator reports a WARNING naming how many
+frames failed and the first failure (:func:`failure_warning`) instead of the
+INFO line.  For 'PREVIEW' (the least-squares relaxation, which minimizes
+nothing) a non-admissible target that is merely not reproduced is expected and
+not reported; folds are.
+
 Output placement
 ----------------
 A reconstruction is determined up to a rigid motion.  Every result is placed by
@@ -48,7 +60,8 @@ from . import compat, mesh_access
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "classes", "parse_factors",
            "parse_key_list", "parse_frames", "inbetween_key_name", "bake_key_name", "interpolate_object",
-           "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX", "INBETWEEN_PREFIX"]
+           "failure_warning", "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX",
+           "INBETWEEN_PREFIX"]
 
 INBETWEEN_PREFIX = "LA "
 BAKE_PREFIX = "LA bake "
@@ -189,7 +202,7 @@ def _require_keys(names, wanted, what):
         raise InterpolationInputError(f"{what}: no shape key {shown} (the mesh has {have})")
 
 
-def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None):
+def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None, failures=None):
     """Compute in-betweens of two shape keys WITHOUT touching Blender data.
 
     Returns a list of ``(key name, (V, 3) float64 coordinates)``, one per factor,
@@ -217,33 +230,53 @@ def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=N
     if len(unique) > MAX_NEW_KEYS:
         raise InterpolationInputError(f"{len(unique)} in-betweens requested; at most {MAX_NEW_KEYS}")
     A, B = coords[names.index(key_from)], coords[names.index(key_to)]
-    return list(zip(unique, inbetween_shapes(topology, A, B, factors, method, progress), strict=True))
+    return list(zip(unique, inbetween_shapes(topology, A, B, factors, method, progress, failures), strict=True))
 
 
-def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None):
-    """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``."""
-    results = _inbetweens(topology, A, B, factors, method, progress)
+def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None, failures=None):
+    """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``.
+
+    ``failures`` (a list, optional) collects the frames failing their checks, see :func:`_project`.
+    """
+    results = _inbetweens(topology, A, B, factors, method, progress, failures)
     return [rigid_align(X, (1.0 - t) * A + t * B) for t, X in zip(factors, results, strict=True)]
 
 
-def _inbetweens(topology, A, B, factors, method, progress):
+def _inbetweens(topology, A, B, factors, method, progress, failures=None):
     """Projected linear interpolation/extrapolation of the lengths and angles of ``A`` (t = 0) and ``B`` (t = 1)."""
-    return _project(topology, [A, B], [0.0, 1.0], factors, False, method, progress)
+    return _project(topology, [A, B], [0.0, 1.0], factors, False, method, progress, failures)
 
 
-def _keyframe_shapes(topology, shapes, keyframes, frames, smooth, method, progress):
+def _keyframe_shapes(topology, shapes, keyframes, frames, smooth, method, progress, failures=None):
     """Projected piecewise-linear (or cubic spline) lengths and angles of the keyed shapes at ``frames``."""
-    return _project(topology, shapes, keyframes, frames, smooth, method, progress)
+    return _project(topology, shapes, keyframes, frames, smooth, method, progress, failures)
 
 
-def _project(topology, shapes, keyframes, times, smooth, method, progress):
+def _project(topology, shapes, keyframes, times, smooth, method, progress, failures=None):
     """:func:`lacore.interpolation.keyframe_inbetweens` of the shapes at ``times`` (list of ``(V, 3)``).
 
     ``progress(done, total, message)`` is called after every frame (:mod:`lacore.progress`).
+    Frames whose reconstruction failed its checks (:mod:`lacore.reconstruction.checks`) are
+    appended to ``failures`` as ``"t = ...: <failure>: <message>"``; for 'PREVIEW' (the
+    least-squares relaxation, which minimizes nothing) a target that is merely not reproduced
+    is expected and not listed, folds are.
     """
     res = keyframe_inbetweens(shapes, topology, keyframes, frames=np.asarray(times, float), smooth=smooth,
                               method=_LACORE_METHOD[method], progress=progress, **_METHOD_OPTIONS[method])
+    if failures is not None:
+        for t, r in zip(res.times, res.reconstructions, strict=True):
+            if not r.success and not (method == 'PREVIEW' and r.failure == "not_reproduced"):
+                failures.append(f"t = {float(t):g}: {r.failure}: {r.message}")
     return list(res.vertices)
+
+
+def failure_warning(failures, what="in-between"):
+    """The operator's WARNING text for frames that failed their checks (written anyway), or None."""
+    if not failures:
+        return None
+    n = len(failures)
+    return (f"{n} {what}{'s' if n != 1 else ''} failed the reconstruction checks and {'were' if n != 1 else 'was'} "
+            f"written anyway (inspect, undo, or use the Gauss-Newton method): {failures[0]}")
 
 
 def _check_finite(results, what):
@@ -280,7 +313,7 @@ def activity_keyframes(active_frames, first, last):
     return [(f, 1.0 if f in active else 0.0) for f in sorted(points) if first <= f <= last]
 
 
-def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
+def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, failures=None):
     """Compute a bake WITHOUT touching Blender data.
 
     Returns a dict with ``keys`` (list of ``(name, (V, 3) coordinates)`` of the
@@ -322,7 +355,8 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
                 raise InterpolationInputError(f"Shape key '{k}' already has animation of its value: the bake "
                                               "keyframes it, so remove that animation first (or duplicate the key)")
     shapes = np.stack([coords[names.index(k)] for k in keys])
-    baked = _keyframe_shapes(topology, shapes, frames, inbetween, smooth, method, progress) if inbetween else []
+    baked = _keyframe_shapes(topology, shapes, frames, inbetween, smooth, method, progress,
+                             failures) if inbetween else []
     targets = _piecewise_linear(shapes, frames, inbetween) if inbetween else []
     results = [(n, rigid_align(X, T)) for n, X, T in zip(out_names, baked, targets, strict=True)]
     _check_finite(results, "Bake")
@@ -521,6 +555,7 @@ class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
         obj = context.active_object
         wm = context.window_manager
         self._fill_defaults(obj)
+        failures = []
         try:
             if self.factors.strip():
                 factors = parse_factors(self.factors)
@@ -528,7 +563,8 @@ class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
                 factors = [i / (self.count + 1) for i in range(1, self.count + 1)]
             update = _progress(wm, len(factors))
             try:
-                results = interpolate_object(obj, self.key_from, self.key_to, factors, self.method, progress=update)
+                results = interpolate_object(obj, self.key_from, self.key_to, factors, self.method, progress=update,
+                                             failures=failures)
                 _check_finite(results, "Interpolate")
             finally:
                 wm.progress_end()
@@ -541,6 +577,10 @@ class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
                 write_key(obj, name, X)
             obj.data.update()
         replaced = sum(name in existing for name, _ in results)
+        warning = failure_warning(failures)
+        if warning:
+            self.report({'WARNING'}, warning)
+            return {'FINISHED'}
         self.report({'INFO'}, f"{len(results)} in-between key{'s' if len(results) != 1 else ''} "
                               f"'{self.key_from}' > '{self.key_to}'" + (f" ({replaced} replaced)" if replaced else ""))
         return {'FINISHED'}
@@ -580,13 +620,15 @@ class LENGTHS_ANGLES_OT_bake_keyframes(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         wm = context.window_manager
+        failures = []
         try:
             keys = parse_key_list(self.keys)
             frames = parse_frames(self.frames)
             n = max(frames[-1] - frames[0] - len(frames) + 1, 1)
             update = _progress(wm, n)
             try:
-                plan = bake_object(obj, keys, frames, smooth=self.smooth, method=self.method, progress=update)
+                plan = bake_object(obj, keys, frames, smooth=self.smooth, method=self.method, progress=update,
+                                   failures=failures)
             finally:
                 wm.progress_end()
         except Exception as exc:  # nothing has been written yet
@@ -595,6 +637,10 @@ class LENGTHS_ANGLES_OT_bake_keyframes(bpy.types.Operator):
         with _object_mode(obj):
             write_bake(obj, plan, {"keys": keys, "frames": frames, "smooth": bool(self.smooth),
                                    "method": self.method})
+        warning = failure_warning(failures, what="baked frame")
+        if warning:
+            self.report({'WARNING'}, warning)
+            return {'FINISHED'}
         self.report({'INFO'}, f"Baked {len(plan['keys'])} in-between keys for frames {frames[0]}..{frames[-1]} "
                               f"({'cubic spline' if self.smooth else 'piecewise linear'} in lengths and angles)")
         return {'FINISHED'}

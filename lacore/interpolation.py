@@ -120,7 +120,8 @@ class InterpolationResult(SolverResult):
         Whether the targets come from the cubic spline (:func:`spline_z`).
     method : str
     success : bool
-        All reconstructions finished normally (``ReconstructionResult.success``).
+        Every frame's reconstruction passed its checks (``ReconstructionResult.success``,
+        :mod:`lacore.reconstruction.checks`).
     message : str
     timings : dict
         ``total``: wall time of the whole call (as ``total_seconds``).
@@ -325,7 +326,7 @@ def _frame_tree(method, hybrid, z_keys, topology, context, tree):
 
 def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
                     warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
-                    progress=None, **reconstruct_kw):
+                    progress=None, on_frame=None, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
 
     Parameters
@@ -356,6 +357,11 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     progress : callable, optional
         ``progress(done, total, message)`` after every frame (:mod:`lacore.progress`);
         returning True stops with :class:`lacore.progress.Cancelled`.
+    on_frame : callable, optional
+        ``on_frame(index, result)`` as soon as the frame ``index`` (position in
+        the given times) is projected, with its
+        :class:`~lacore.reconstruction.ReconstructionResult` (frames finish in
+        time order): stream results to disk as they finish.
     **reconstruct_kw
         The fields of these objects as keywords of :func:`~lacore.reconstruction.reconstruct`
         (``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
@@ -372,11 +378,11 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     """
     return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
                     split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
-                    progress, keyframes=None, smooth=False, t_start=time.perf_counter())
+                    progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame)
 
 
 def _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-             setup, progress, keyframes, smooth, t_start):
+             setup, progress, keyframes, smooth, t_start, on_frame=None):
     settings, options, hybrid = setup
     if method not in METHODS:
         raise InputError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
@@ -432,10 +438,14 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
             known_X.append(X)
         else:
             max_len[i] = max_ang[i] = np.nan
+        if on_frame is not None:
+            on_frame(int(i), res)
         report(progress, n + 1, N, f"frame {n + 1} of {N} (t = {t:g})")
     success = all(r.success for r in results)
     failed = [float(times[i]) for i in range(N) if not results[i].success]
-    message = "all frames projected" if success else f"projection did not finish normally at t = {failed}"
+    first = next((r for r in results if not r.success), None)
+    message = "all frames projected" if success else (f"projection failed its checks at t = {failed} "
+                                                      f"(first: {first.failure}: {first.message})")
     total = time.perf_counter() - t_start
     return InterpolationResult(
         vertices=vertices, times=times, z_targets=Zt, energy=energy, iterations=iterations, seconds=seconds,
@@ -458,7 +468,7 @@ def _reference(Xs, reference, reference_vertices, topology):
 
 
 def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference, reference_vertices, warm_start,
-         tree, setup, progress):
+         tree, setup, progress, on_frame=None):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
@@ -469,12 +479,12 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference,
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
     return _project(targets, topology, X_ref, times, anchors, method, warm_start, tree, z_keys, setup, progress,
-                    keyframes=k, smooth=smooth, t_start=t_start)
+                    keyframes=k, smooth=smooth, t_start=t_start, on_frame=on_frame)
 
 
 def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
-                **reconstruct_kw):
+                on_frame=None, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
 
     Parameters
@@ -512,6 +522,11 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     progress : callable, optional
         ``progress(done, total, message)`` after every frame (:mod:`lacore.progress`);
         returning True stops with :class:`lacore.progress.Cancelled`.
+    on_frame : callable, optional
+        ``on_frame(index, result)`` as soon as the frame ``index`` (position in
+        the given times) is projected, with its
+        :class:`~lacore.reconstruction.ReconstructionResult` (frames finish in
+        time order): stream results to disk as they finish.
     **reconstruct_kw
         The fields of these objects as keywords (``energy, weights,
         bending_weight, fixed_face, fix_triangle_shape, solver, hybrid_start,
@@ -538,12 +553,12 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     times = _check_times(factors, "factors")
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
-                warm_start, tree, setup, progress)
+                warm_start, tree, setup, progress, on_frame)
 
 
 def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
-                        options=None, hybrid=None, progress=None, **reconstruct_kw):
+                        options=None, hybrid=None, progress=None, on_frame=None, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
 
     Parameters
@@ -579,4 +594,4 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     times = _check_times(frames, "frames")
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
-                warm_start, tree, setup, progress)
+                warm_start, tree, setup, progress, on_frame)

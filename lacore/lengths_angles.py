@@ -53,6 +53,9 @@ __all__ = [
     "split_z",
     "check_z",
     "check_nondegenerate",
+    "degenerate_faces",
+    "DEGENERACY_RTOL",
+    "safe_scale_exponent",
     "jacobian_pattern",
 ]
 
@@ -127,16 +130,51 @@ def face_areas(vertices, faces):
     return out
 
 
-def check_nondegenerate(vertices, topology, rtol=1e-14):
-    """Raise :class:`~lacore.errors.MeshError` naming triangles with (numerically) zero area."""
+#: A triangle is numerically degenerate when its edge lengths (as computed, rounded to float64) satisfy the
+#: triangle inequality with a relative margin ``(l_i + l_j + l_k - 2 max) / (l_i + l_j + l_k)`` of at most this:
+#: its height is then determined by the lengths to no better than ``eps / margin`` (1e-4), and the angles of
+#: the lengths-and-angles representation are meaningless.  A needle of height ``h`` over its longest edge
+#: ``l`` has margin ``~ (h / l)^2``: the bound rejects ``h < 1e-6 l``; a thin right triangle of aspect 1e4
+#: has margin 5e-5.
+DEGENERACY_RTOL = 1e-12
+
+
+def degenerate_faces(vertices, topology, rtol=DEGENERACY_RTOL):
+    """Faces whose computed edge lengths (nearly) violate the triangle inequality; scale-free.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64 array
+    topology : MeshTopology
+    rtol : float
+        Relative margin (see :data:`DEGENERACY_RTOL`).
+
+    Returns
+    -------
+    (k,) ndarray of int
+        Face indices, ascending.
+    """
+    lengths = _z_of_vertices(np.asarray(vertices, float), topology, angles=False)
+    L = lengths[topology.face_edges]
+    perimeter = L.sum(axis=1)
+    margin = perimeter - 2.0 * L.max(axis=1)
+    return np.flatnonzero(~(margin > rtol * perimeter))
+
+
+def check_nondegenerate(vertices, topology, rtol=DEGENERACY_RTOL):
+    """Validated vertices; :class:`~lacore.errors.MeshError` naming (numerically) degenerate triangles.
+
+    Scale-free: a triangle is degenerate when its edge lengths, as float64
+    numbers, satisfy the triangle inequality with a relative margin of at most
+    ``rtol`` (zero-area triangles, and needles so thin that rounding the
+    lengths breaks the inequality), see :func:`degenerate_faces`.  The result
+    is the same for the mesh scaled by any factor.
+    """
     X = check_vertices(vertices, topology.n_vertices)
-    n = face_normals(X, topology.faces, unit=False).T
-    area2 = np.sqrt(_dot_rows(n, n, np.empty(n.shape[1])))
-    e = X[topology.edges[:, 1]] - X[topology.edges[:, 0]]
-    scale = np.max(_dot(e, e)) if len(e) else 1.0
-    bad = np.flatnonzero(~(area2 > rtol * scale))
+    bad = degenerate_faces(X, topology, rtol)
     if bad.size:
-        raise MeshError(f"degenerate triangles (zero area): faces {format_indices(bad)}")
+        raise MeshError(f"degenerate triangles (zero area, or edge lengths violating the triangle inequality "
+                        f"after rounding, relative margin <= {rtol:g}): faces {format_indices(bad)}")
     return X
 
 
@@ -232,8 +270,31 @@ def dihedral_angles(vertices, topology):
     return _z_of_vertices(X, topology)[topology.n_edges:]
 
 
+#: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-60 .. 1e60) are scaled by a
+#: power of two (exact) into that range before the lengths-and-angles map and its Jacobian: products of
+#: three coordinates (unnormalized normals times edges) then neither overflow nor become subnormal.
+SAFE_EXPONENT = 200
+
+
+def safe_scale_exponent(X):
+    """``k`` with ``X * 2^-k`` in the safe range (0 when ``X`` already is); see :data:`SAFE_EXPONENT`.
+
+    Angles are invariant under the scaling and lengths scale by exactly ``2^k``,
+    so results inside the safe range are bit-identical to unscaled ones.
+    """
+    m = float(np.max(np.abs(X))) if X.size else 0.0
+    if m == 0.0 or not np.isfinite(m) or 2.0**-SAFE_EXPONENT <= m <= 2.0**SAFE_EXPONENT:
+        return 0
+    return int(np.frexp(m)[1])
+
+
 def _z_of_vertices(X, topology, angles=True):
     """``z = (lengths, theta)`` of float64 ``(V, 3)`` vertices, ``(2E,)``; just the lengths ``(E,)`` if not angles."""
+    k = safe_scale_exponent(X)
+    if k:
+        z = _z_of_vertices(np.ldexp(X, -k), topology, angles)
+        z[:topology.n_edges] = np.ldexp(z[:topology.n_edges], k)
+        return z
     E = topology.n_edges
     z = np.empty(2 * E if angles else E)
     blocks = _edge_blocks(topology)
@@ -418,6 +479,16 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     z : (2E,) ndarray, only if ``return_z``
     """
     X = np.asarray(vertices, float)
+    k = safe_scale_exponent(X)
+    if k:  # exact power-of-two scaling into the safe range: length rows invariant, angle rows scale by 2^-k
+        out = lengths_and_angles_jacobian(np.ldexp(X, -k), topology, return_z)
+        J = out[0] if return_z else out
+        J.data[J.indptr[topology.n_edges]:] = np.ldexp(J.data[J.indptr[topology.n_edges]:], -k)
+        if not return_z:
+            return J
+        z = out[1]
+        z[:topology.n_edges] = np.ldexp(z[:topology.n_edges], k)
+        return J, z
     pat = jacobian_pattern(topology)
     blocks = _edge_blocks(topology)
     E, w = topology.n_edges, blocks["width"]

@@ -19,6 +19,7 @@ import os
 import numpy as np
 import trimesh
 
+from .atomic_io import atomic_write
 from .errors import MeshError
 
 __all__ = ["load_mesh", "save_mesh", "SUPPORTED_EXTENSIONS"]
@@ -193,6 +194,9 @@ def save_mesh(path, vertices, faces):
     text with full float64 precision (``repr`` round-trip): all three reload
     bit-identically.  ``.stl`` (written with trimesh) is lossy: float32, and it
     stores no shared vertices, so reading it back renumbers the vertices.
+
+    The file is written atomically (:func:`lacore.atomic_io.atomic_write`): on
+    an error an existing file at ``path`` is left unchanged.
     """
     path = os.fspath(path)
     ext = _extension(path)
@@ -208,7 +212,7 @@ def save_mesh(path, vertices, faces):
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise MeshError(f"face indices outside 0..{len(vertices) - 1}")
     if ext in (".obj", ".off"):
-        with open(path, "w", encoding="utf-8") as fh:
+        with atomic_write(path, "w") as fh:
             if ext == ".off":
                 fh.write(f"OFF\n{len(vertices)} {len(faces)} 0\n")
                 fh.writelines(f"{x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
@@ -222,7 +226,8 @@ def save_mesh(path, vertices, faces):
         _save_ply(path, vertices, faces)
         return
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
-    mesh.export(path)
+    with atomic_write(path, "wb") as fh:
+        mesh.export(fh, file_type=ext.lstrip("."))
 
 
 def _save_ply(path, vertices, faces):
@@ -235,7 +240,7 @@ def _save_ply(path, vertices, faces):
     face_rec = np.empty(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face_rec["n"] = 3
     face_rec["v"] = faces
-    with open(path, "wb") as fh:
+    with atomic_write(path, "wb") as fh:
         fh.write(header.encode("ascii"))
         fh.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
         fh.write(face_rec.tobytes())

@@ -115,3 +115,12 @@ def test_finger_pair_keeps_lengths(run):
 def test_panel_buttons(run):
     ops = run["cases"]["panel_buttons"]["operators"]
     assert ops[:3] == ["lengths_angles.encode", "lengths_angles.interpolate", "lengths_angles.bake_keyframes"]
+
+
+def test_failed_checks_are_written_with_a_warning(run):
+    """success=False in the add-on: the in-between is written and a WARNING names the failure (issue 12)."""
+    res = run["cases"]["failed_checks_warn"]
+    assert len(res["fast_failures"]) == 1 and res["fast_failures"][0].startswith("t = 1.25: folded")
+    assert res["preview_failures"] == []
+    assert res["warning"].startswith("1 in-between failed the reconstruction checks and was written anyway")
+    assert res["status"] == ["FINISHED"] and res["written"]

@@ -155,21 +155,24 @@ def test_module_entry_point(tmp_path):
     assert "not in dense correspondence" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_outputs_are_written_all_or_nothing(tmp_path, monkeypatch):
-    """A failure while writing frame 2 of 3 leaves no output file (and no temporary file) behind."""
-    import lacore.cli.interpolate as cli_interpolate
+def test_a_failed_frame_write_keeps_finished_frames_whole(tmp_path, monkeypatch):
+    """Frames are streamed as they finish (each written atomically): a write failure at frame 2 of 3 exits 2,
+    keeps frame 0 complete, leaves no frame 1 and no temporary file, and writes nothing after it."""
+    import lacore.mesh_io as mesh_io
 
     calls = []
-    original = cli_interpolate.save_mesh
+    original = mesh_io.atomic_write
 
-    def failing(path, vertices, faces):
-        calls.append(path)
+    def failing(path, *args, **kwargs):
+        calls.append(str(path))
         if len(calls) == 2:
             raise OSError("disk full")
-        original(path, vertices, faces)
+        return original(path, *args, **kwargs)
 
-    monkeypatch.setattr(cli_interpolate, "save_mesh", failing)
+    monkeypatch.setattr(mesh_io, "atomic_write", failing)
     prefix = tmp_path / "frame"
     code = main(["interpolate", str(PLATES[0]), str(PLATES[1]), "--t", "0.25", "0.5", "0.75", "-o", str(prefix)])
     assert code == 2 and len(calls) == 2
-    assert list(tmp_path.iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000.ply"]
+    X, _ = mesh_io.load_mesh(tmp_path / "frame_000.ply")
+    assert X.shape == (121, 3) and np.isfinite(X).all()

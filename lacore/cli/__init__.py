@@ -14,8 +14,14 @@ Conventions shared by all subcommands:
   unwritable file) -- prints ``lacore <cmd>: error: ...`` on stderr and exits
   with code 2, without a traceback; any other exception is a bug and shows its
   traceback;
-* results go to mesh or ``.npz`` files (``numpy.load``) with documented keys,
-  written all or nothing (:func:`lacore.cli.common.atomic_outputs`).
+* a command that ran but whose result failed its checks
+  (:mod:`lacore.reconstruction.checks`) writes its output, prints
+  ``lacore <cmd>: failed: ...`` on stderr and exits with code 3
+  (:data:`EXIT_FAILED_CHECKS`), or 0 with ``--allow-failure``; the JSON has
+  ``success`` and ``failure``;
+* results go to ``.npz`` files (``numpy.load``) with documented keys, and every
+  output is written atomically (:mod:`lacore.atomic_io`): a failed write leaves
+  an existing file unchanged and no temporary file.
 """
 
 import argparse
@@ -25,11 +31,11 @@ from dataclasses import dataclass
 
 from ..errors import InputError
 from . import encode, interpolate, reconstruct
-from .common import EXIT_OK, EXIT_USAGE, CliError
+from .common import EXIT_FAILED_CHECKS, EXIT_OK, EXIT_USAGE, CliError
 from .encode import encode_mesh
 
 __all__ = ["main", "Subcommand", "SUBCOMMANDS", "register_subcommand", "CliError", "encode_mesh", "EXIT_OK",
-           "EXIT_USAGE"]
+           "EXIT_USAGE", "EXIT_FAILED_CHECKS"]
 
 
 @dataclass(frozen=True)

@@ -1,19 +1,52 @@
 """What every ``lacore`` subcommand shares: the input-error type, exit codes, JSON output."""
 
+import argparse
 import json
-import os
 import sys
-import tempfile
-from contextlib import contextmanager
 
 import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "print_json", "json_float", "atomic_outputs"]
+__all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "print_json", "json_float",
+           "nonnegative_int", "positive_int", "add_allow_failure", "exit_code"]
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input or usage, same code argparse uses
+#: The command ran and wrote its output, but the result failed its checks
+#: (:mod:`lacore.reconstruction.checks`); ``--allow-failure`` turns this into 0.
+EXIT_FAILED_CHECKS = 3
+
+
+def _int_at_least(low, what):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
+        return value
+    parse.__name__ = "integer"
+    return parse
+
+
+#: argparse type of counts that may be 0 (``--max-iterations``, ``--smoothing-iterations``).
+nonnegative_int = _int_at_least(0, "a non-negative integer")
+#: argparse type of counts that must be at least 1 (``--frames``).
+positive_int = _int_at_least(1, "a positive integer")
+
+
+def add_allow_failure(parser):
+    """Declare ``--allow-failure`` (exit 0 instead of :data:`EXIT_FAILED_CHECKS`)."""
+    parser.add_argument("--allow-failure", action="store_true",
+                        help=f"exit 0 even when the result fails its checks (default: exit {EXIT_FAILED_CHECKS}; "
+                             "the output is written either way)")
+
+
+def exit_code(success, args):
+    """:data:`EXIT_OK`, or :data:`EXIT_FAILED_CHECKS` for a failed result without ``--allow-failure``."""
+    return EXIT_OK if success or getattr(args, "allow_failure", False) else EXIT_FAILED_CHECKS
 
 
 class CliError(InputError):
@@ -31,31 +64,3 @@ def json_float(x):
     """A float for JSON (NaN/inf are not valid JSON: they become None)."""
     x = float(x)
     return x if np.isfinite(x) else None
-
-
-@contextmanager
-def atomic_outputs(paths):
-    """Write several output files all or nothing.
-
-    Yields one temporary path per entry of ``paths`` (in the same directory,
-    with the same extension, so writers that pick the format from it work).
-    When the block finishes, every temporary file is moved onto its target
-    with :func:`os.replace`; when it raises, the temporary files are removed and
-    no target is touched.
-    """
-    temps = []
-    try:
-        for path in paths:
-            directory = os.path.dirname(os.path.abspath(path))
-            base = os.path.basename(path)
-            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{base}.", suffix=os.path.splitext(base)[1])
-            os.close(fd)
-            temps.append(tmp)
-        yield list(temps)
-        for tmp, path in zip(temps, paths, strict=True):
-            os.replace(tmp, path)
-        temps = []
-    finally:
-        for tmp in temps:
-            if os.path.exists(tmp):
-                os.remove(tmp)

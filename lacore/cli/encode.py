@@ -1,19 +1,23 @@
 """``lacore encode MESH [-o OUT.npz] [--json]``: a mesh as edge lengths and dihedral angles.
 
 Writes (with ``-o``) an ``.npz`` with keys ``vertices, faces, edges, lengths,
-angles, z, integrability_violation``; ``--json`` prints one JSON object with
-counts, ranges and timings.
+angles, z, integrability_violation`` (``.npz`` is appended to a name without
+it; the name reported is the file written; written atomically); ``--json``
+prints one JSON object with counts, ranges and timings.  Numerically degenerate
+triangles (:func:`lacore.lengths_angles.check_nondegenerate`) exit with code 2.
 """
 
 import time
 
 import numpy as np
 
+from ..atomic_io import save_npz_atomic
+from ..errors import MeshError, format_indices
 from ..integrability import integrability_violation
 from ..lengths_angles import check_nondegenerate, lengths_and_angles
 from ..mesh_io import load_mesh
 from ..topology import MeshTopology
-from .common import EXIT_OK, atomic_outputs, json_float, print_json
+from .common import EXIT_OK, json_float, print_json
 
 __all__ = ["HELP", "configure", "run", "encode_mesh"]
 
@@ -38,6 +42,13 @@ def encode_mesh(vertices, faces):
     t2 = time.perf_counter()
     violation = np.asarray(integrability_violation(z, topology), dtype=np.float64)
     t3 = time.perf_counter()
+    bad = np.flatnonzero(~np.isfinite(z))
+    if bad.size:  # cannot happen after check_nondegenerate; never write or report NaN with exit 0
+        raise MeshError(f"lengths or angles are not finite at edges {format_indices(bad % topology.n_edges)}")
+    bad = np.flatnonzero(~np.isfinite(violation))
+    if bad.size:
+        raise MeshError(f"the integrability violation is not finite at {format_indices(bad)}: "
+                        "numerically degenerate triangles")
     timings = {"topology": t1 - t0, "lengths_angles": t2 - t1, "integrability": t3 - t2}
     return topology, z, violation, timings
 
@@ -50,20 +61,18 @@ def run(args):
     topology, z, violation, timings = encode_mesh(vertices, faces)
     E = topology.n_edges
     lengths, angles = z[:E], z[E:]
-    t_save = 0.0
+    t_save, written = 0.0, None
     if args.output:
         t = time.perf_counter()
-        out = args.output if args.output.endswith(".npz") else args.output + ".npz"
-        with atomic_outputs([out]) as (tmp,):
-            np.savez(tmp, vertices=vertices, faces=topology.faces, edges=topology.edges,
-                     lengths=lengths, angles=angles, z=z, integrability_violation=violation)
+        written = save_npz_atomic(args.output, vertices=vertices, faces=topology.faces, edges=topology.edges,
+                                  lengths=lengths, angles=angles, z=z, integrability_violation=violation)
         t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     max_violation = float(violation.max()) if violation.size else 0.0
     summary = {
         "command": "encode",
         "mesh": args.mesh,
-        "output": args.output,
+        "output": written,
         "vertices": int(topology.n_vertices),
         "edges": int(E),
         "faces": int(topology.n_faces),
@@ -84,6 +93,6 @@ def run(args):
         print(f"  lengths in [{lengths.min():.6g}, {lengths.max():.6g}], max |angle| {np.abs(angles).max():.6g} rad, "
               f"max integrability violation {max_violation:.3g}")
         if args.output:
-            print(f"  wrote {args.output}")
+            print(f"  wrote {written}")
         print(f"  {seconds:.3f} s")
     return EXIT_OK

@@ -24,9 +24,13 @@ in the frame of the reference shape (``--reference``, default the first).
 
 ``--json`` prints one JSON object: per output file its ``factor`` (and, with
 ``--frames``, its ``frame``), ``seconds``, ``energy``, ``iterations``,
-``max_length_error``, ``max_angle_error``, plus ``totals``.  Bad input (missing
-files, meshes not in correspondence, a keyframe count different from the mesh
-count, keyframes not strictly increasing) exits with code 2 and a message.
+``max_length_error``, ``max_angle_error``, ``success``, ``failure``, plus
+``totals``.  Bad input (missing files, meshes not in correspondence, a keyframe
+count different from the mesh count, keyframes not strictly increasing,
+negative counts) exits with code 2 and a message.  Every frame is written
+(atomically) as soon as it is projected, so a run that is stopped keeps the
+frames done.  Frames that fail their checks (:mod:`lacore.reconstruction.checks`)
+are written too, and the exit code is 3 unless ``--allow-failure`` is given.
 
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
@@ -43,7 +47,7 @@ from ..mesh_io import load_mesh, save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import SOLVERS, WEIGHTS
 from ..topology import MeshTopology
-from .common import EXIT_OK, CliError, atomic_outputs, json_float, print_json
+from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, positive_int, print_json
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -61,7 +65,7 @@ def configure(parser):
     when = parser.add_mutually_exclusive_group(required=True)
     when.add_argument("--t", nargs="+", type=float, metavar="T",
                       help="frame times in keyframe units (0 = first mesh, 1 = second, ...; outside extrapolates)")
-    when.add_argument("--frames", type=int, metavar="N",
+    when.add_argument("--frames", type=positive_int, metavar="N",
                       help="N evenly spaced frames from the first to the last keyframe (inclusive)")
     parser.add_argument("--keyframes", nargs="+", type=float, metavar="K",
                         help="strictly increasing keyframe times of the meshes (default 0 1 2 ...)")
@@ -76,7 +80,7 @@ def configure(parser):
                         help=f"bending weight eta of W_q (default {settings.bending_weight:g})")
     parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
                         help="weights of W_q: (3.20) (default), (3.21) or 1")
-    parser.add_argument("--max-iterations", type=int, default=gn.max_iterations, metavar="N",
+    parser.add_argument("--max-iterations", type=nonnegative_int, default=gn.max_iterations, metavar="N",
                         help=f"Gauss-Newton iteration limit per frame (default {gn.max_iterations})")
     parser.add_argument("--no-warm-start", action="store_true",
                         help="start every Gauss-Newton projection from the reference mesh")
@@ -85,6 +89,7 @@ def configure(parser):
     parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
                         help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
     parser.add_argument("--format", choices=_FORMATS, default="ply", help="output mesh format (default ply)")
+    add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
 
 
@@ -139,20 +144,25 @@ def run(args):
         raise FileNotFoundError(f"output directory {out_dir} does not exist")
     t_load = time.perf_counter() - start
 
+    paths = output_paths(args.output, len(times), args.format)
+    t_save = 0.0
+
+    def write_frame(i, res):  # stream: every frame is on disk as soon as it is projected
+        nonlocal t_save
+        t = time.perf_counter()
+        save_mesh(paths[i], res.vertices, topology.faces)
+        t_save += time.perf_counter() - t
+
     result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
                                  method=args.method, reference=args.reference, warm_start=not args.no_warm_start,
                                  settings=ReconstructionSettings(bending_weight=args.bending_weight,
                                                                  weights=args.energy_weights, solver=args.solver),
-                                 options=GaussNewtonOptions(max_iterations=args.max_iterations))
-    paths = output_paths(args.output, len(times), args.format)
-    t = time.perf_counter()
-    with atomic_outputs(paths) as temps:  # all frames or none
-        for tmp, X in zip(temps, result.vertices, strict=True):
-            save_mesh(tmp, X, topology.faces)
-    t_save = time.perf_counter() - t
+                                 options=GaussNewtonOptions(max_iterations=args.max_iterations),
+                                 on_frame=write_frame)
     seconds = time.perf_counter() - start
     if not result.success:
-        print(f"lacore interpolate: warning: {result.message}", file=sys.stderr)
+        print(f"lacore interpolate: {'warning' if args.allow_failure else 'failed'}: {result.message}",
+              file=sys.stderr)
 
     outputs = []
     for i, path in enumerate(paths):
@@ -163,6 +173,8 @@ def run(args):
                      "iterations": int(result.iterations[i]),
                      "max_length_error": json_float(result.max_length_error[i]),
                      "max_angle_error": json_float(result.max_angle_error[i]), "status": int(result.status[i]),
+                     "success": bool(result.reconstructions[i].success),
+                     "failure": result.reconstructions[i].failure,
                      "warm_start_from": json_float(result.warm_start_times[i])})
         outputs.append(item)
     if args.json:
@@ -188,6 +200,7 @@ def run(args):
                 "save_seconds": t_save,
             },
             "success": bool(result.success),
+            "message": result.message,
         }
         print_json(summary)
     else:
@@ -198,4 +211,4 @@ def run(args):
                   f"{result.energy[i]:.4g}, max length error {result.max_length_error[i]:.3g}, "
                   f"max angle error {result.max_angle_error[i]:.3g} rad, {item['seconds']:.3f} s")
         print(f"  total {seconds:.3f} s")
-    return EXIT_OK
+    return exit_code(result.success, args)

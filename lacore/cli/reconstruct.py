@@ -16,8 +16,13 @@ faces, z``).
 
 Defaults: Gauss-Newton with ``W_q``, weights (3.20) from the reference,
 ``eta = 1e-3``.  ``--json`` prints one JSON object with at least ``method,
-iterations, seconds, energy, max_length_error, max_angle_error``.  Bad input
-(missing files, meshes not in correspondence, ...) exits with code 2.
+iterations, seconds, energy, max_length_error, max_angle_error, success,
+failure, checks``.  Bad input (missing files, meshes not in correspondence,
+negative counts, ...) exits with code 2 and writes nothing.  A result that
+fails its checks (:mod:`lacore.reconstruction.checks`: ``success`` false,
+``failure`` names the check) is still written, but the exit code is 3 unless
+``--allow-failure`` is given.  Output is written atomically (an existing file
+is replaced only by a complete one).
 
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
@@ -30,12 +35,13 @@ import numpy as np
 
 from ..errors import MeshError
 from ..lengths_angles import check_nondegenerate, lengths_and_angles
+from ..atomic_io import save_npz_atomic
 from ..mesh_io import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
 from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
 from ..topology import MeshTopology
-from .common import EXIT_OK, CliError, atomic_outputs, print_json
+from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, print_json
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -65,10 +71,11 @@ def configure(parser):
                         help="start of --method hybrid: least-squares relaxation (default) or a tree walk")
     parser.add_argument("--hybrid-kind", choices=FRAME_KINDS, default=hybrid.kind,
                         help=f"spanning tree of the tree-walk start of --method hybrid (default {hybrid.kind})")
-    parser.add_argument("--smoothing-iterations", type=int, default=hybrid.smoothing_iterations, metavar="K",
+    parser.add_argument("--smoothing-iterations", type=nonnegative_int, default=hybrid.smoothing_iterations,
+                        metavar="K",
                         help=f"at most K Gauss-Newton iterations of --method hybrid "
                              f"(default {hybrid.smoothing_iterations})")
-    parser.add_argument("--max-iterations", type=int, default=gn.max_iterations, metavar="N",
+    parser.add_argument("--max-iterations", type=nonnegative_int, default=gn.max_iterations, metavar="N",
                         help=f"Gauss-Newton iteration limit (default {gn.max_iterations})")
     parser.add_argument("--fixed-face", type=int, metavar="F",
                         help="face fixing the rigid motion (default: a central, well-shaped face)")
@@ -76,6 +83,7 @@ def configure(parser):
                         help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output mesh (.ply, .obj, .off, .stl) or .npz (vertices, faces, z)")
+    add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
 
 
@@ -154,12 +162,11 @@ def combine_targets(zs, weights=None):
 
 
 def _save(path, vertices, faces, z):
-    """Write the result (all or nothing: a temporary file moved onto ``path``)."""
-    with atomic_outputs([path]) as (tmp,):
-        if path.lower().endswith(".npz"):
-            np.savez(tmp, vertices=vertices, faces=faces, z=z)
-        else:
-            save_mesh(tmp, vertices, faces)
+    """Write the result atomically; returns the path written."""
+    if path.lower().endswith(".npz"):
+        return save_npz_atomic(path, vertices=vertices, faces=faces, z=z)
+    save_mesh(path, vertices, faces)
+    return path
 
 
 def run(args):
@@ -183,24 +190,31 @@ def run(args):
                            smoothing_iterations=args.smoothing_iterations)
     result = reconstruct(z_target, topology, ref_vertices, method=args.method, settings=settings,
                          options=GaussNewtonOptions(max_iterations=args.max_iterations), hybrid=hybrid)
-    errors = reconstruction_errors(result.vertices, z_target, topology)
+    if np.all(np.isfinite(result.vertices)):
+        errors = reconstruction_errors(result.vertices, z_target, topology)
+    else:
+        errors = dict.fromkeys(("max_length_error", "max_relative_length_error", "length_error_per_size",
+                                "max_angle_error", "rms_length_error", "rms_angle_error"), float("nan"))
     t = time.perf_counter()
-    _save(args.output, result.vertices, topology.faces, lengths_and_angles(result.vertices, topology))
+    z_out = lengths_and_angles(result.vertices, topology) if np.all(np.isfinite(result.vertices)) else \
+        np.full(2 * topology.n_edges, np.nan)
+    written = _save(args.output, result.vertices, topology.faces, z_out)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     if not result.success:
-        print(f"lacore reconstruct: warning: {result.message}", file=sys.stderr)
+        print(f"lacore reconstruct: {'warning' if args.allow_failure else 'failed'}: {result.message}",
+              file=sys.stderr)
     if args.json:
         summary = {
             "command": "reconstruct",
             "reference": args.ref,
             "targets": list(args.target),
             "weights": [float(w) for w in weights],
-            "output": args.output,
+            "output": written,
             "vertices": int(topology.n_vertices),
             "faces": int(topology.n_faces),
             **result.summary(),
-            **errors,
+            **{k: json_float(v) for k, v in errors.items()},
             "seconds": seconds,
             "reconstruction_seconds": result.timings.get("total"),
             "load_seconds": t_load,
@@ -208,10 +222,10 @@ def run(args):
         }
         print_json(summary)
     else:
-        print(f"{args.output}: {result.method} reconstruction of {len(args.target)} target(s), "
+        print(f"{written}: {result.method} reconstruction of {len(args.target)} target(s), "
               f"{topology.n_vertices} vertices")
         print(f"  {result.message}; {result.iterations} iterations, energy {result.energy:.6g} "
               f"({result.energy_name})")
         print(f"  max length error {errors['max_length_error']:.3g}, max angle error "
               f"{errors['max_angle_error']:.3g} rad; {seconds:.3f} s")
-    return EXIT_OK
+    return exit_code(result.success, args)

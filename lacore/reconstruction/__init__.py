@@ -34,7 +34,11 @@ pays about one numeric factorization instead of one per iteration and frame.
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
 see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
-the chosen energy, so all methods are comparable.
+the chosen energy, so all methods are comparable.  Its ``success`` is decided
+the same way for every method by :mod:`.checks` (finite, no folded edge, and
+the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
+minimizer); ``failure`` names a failed check.  A ``"gn"`` run that stalls
+(status -1 or -3) is restarted once from the least-squares relaxation.
 
 Reuse
 -----
@@ -52,9 +56,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
-from ..lengths_angles import check_z, lengths_and_angles
+from ..lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
 from ..topology import MeshTopology, check_vertices
 from ..trigonometry import triangle_inequality_margin
+from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
 from .gauss_newton import gauss_newton_reconstruction
@@ -75,10 +80,15 @@ __all__ = [
     "METHODS",
     "STATUS_MESSAGES",
     "tree_kind",
+    "check_reconstruction",
+    "LENGTH_RTOL",
+    "ANGLE_ATOL",
 ]
 
 METHODS = ("gn", "bfs", "mst", "spt", "lsq", "hybrid")
 _FRAME_KINDS = ("bfs", "mst", "spt")
+#: Gauss-Newton statuses after which ``"gn"`` restarts from the least-squares relaxation.
+_STALLED = (-3, -1)
 
 
 def tree_kind(method, hybrid=None):
@@ -96,7 +106,14 @@ def tree_kind(method, hybrid=None):
 
 
 def _check_target(z_target, topology, method, energy):
-    """Validated ``z*``; LengthsAnglesError for targets no method can use."""
+    """Validated ``z*`` and notes; LengthsAnglesError for targets no method can use.
+
+    Faces whose target lengths violate the triangle inequality (fewer than half
+    of them), or satisfy it only within rounding (relative margin at most
+    :data:`~lacore.lengths_angles.DEGENERACY_RTOL`), are accepted and named in the returned notes: the frame-based
+    methods treat them as in the remark after Algorithm 2, Gauss-Newton with
+    ``W_q`` minimizes the energy (no immersion reproduces such a target).
+    """
     z = check_z(z_target, topology, name="target z")
     margin = triangle_inequality_margin(z[: topology.n_edges][topology.face_edges])
     bad = np.flatnonzero(~(margin > 0))
@@ -107,7 +124,14 @@ def _check_target(z_target, topology, method, energy):
         raise LengthsAnglesError(f"the target lengths violate the triangle inequality at {bad.size} of "
                                  f"{topology.n_faces} faces ({format_indices(bad)}): they do not describe "
                                  "this mesh (wrong edge order?)")
-    return z
+    notes = []
+    L = z[: topology.n_edges][topology.face_edges]
+    near = np.flatnonzero(~(margin > DEGENERACY_RTOL * L.sum(axis=1)))  # scale-free, as check_nondegenerate
+    if near.size:
+        notes.append(f"the target lengths violate the triangle inequality at {near.size} faces "
+                     f"({format_indices(near)}) (relative margin <= {DEGENERACY_RTOL:g}): the target is not "
+                     "admissible")
+    return z, notes
 
 
 def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings=None, options=None, hybrid=None,
@@ -171,6 +195,10 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     Notes
     -----
+    Reference coordinates of magnitude outside ``2^-200 .. 2^200`` (about
+    1e-60 .. 1e60) are scaled internally by an exact power of two and the
+    output scaled back (a note says so).
+
     Frame-based methods need the triangle inequality only where they walk;
     they treat violating faces as in Algorithm 2 (see
     :mod:`.frame_based`).  ``"gn"`` with ``W_q`` accepts any positive lengths
@@ -182,19 +210,48 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
     settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
+    scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
+    if scaled is not None:
+        k, z_s, X_s, X0_s = scaled
+        res = reconstruct(z_s, topology, X_s, method, settings=settings, options=options, hybrid=hybrid,
+                          initial_vertices=X0_s, tree=tree)
+        return replace(res, vertices=np.ldexp(res.vertices, k),
+                       notes=res.notes + [f"coordinates of magnitude 2^{k} are outside the safe range "
+                                          f"2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: reconstructed scaled by 2^{-k} "
+                                          "(exact), the output scaled back; energies are the scaled problem's"])
     if context is None:
         context = get_context(topology, reference_vertices, settings)
     else:
         _check_context(context, topology, reference_vertices, settings, given)
-    z = _check_target(z_target, topology, method, context.energy_name)
+    z, notes = _check_target(z_target, topology, method, context.energy_name)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
-        return gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                           options=options, started=t_start)
+        res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
+                                          options=options, started=t_start)  # checked there
+        if res.status in _STALLED and not res.success:
+            res = _restart_from_least_squares(res, z, topology, context, options, t_start)
+        return replace(res, notes=notes + res.notes)
 
-    kind = tree_kind(method, hybrid)
+    X, direct = _direct(z, topology, context, kind=tree_kind(method, hybrid), tree=tree)
+    if method == "hybrid":
+        n = hybrid.smoothing_iterations
+        res = gauss_newton_reconstruction(
+            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
+            method_name=f"hybrid-{tree_kind(method, hybrid) or 'lsq'}", extra_timings=direct, started=t_start,
+            success_status=(6, f"{n} smoothing iterations done"))
+        return replace(res, notes=notes)
+    energy_value = context.energy(z, X)
+    res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
+                               energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
+                               timings={**direct, "total": time.perf_counter() - t_start},
+                               fixed_face=context.fixed_face, notes=notes)
+    return apply_checks(res, z, topology, minimizer=False)
+
+
+def _direct(z, topology, context, kind, tree=None):
+    """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
     if kind is None:
         X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
@@ -206,19 +263,54 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         X = context.align(X)  # the fixed face placed exactly as for Gauss-Newton
     except MeshError:
         pass  # a degenerate fixed face (target violates the triangle inequality there): keep the method's placement
-    direct = {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
-    if method == "hybrid":
-        n = hybrid.smoothing_iterations
-        return gauss_newton_reconstruction(
-            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{kind or 'lsq'}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"))
-    energy_value = context.energy(z, X)
-    return ReconstructionResult(vertices=X, success=bool(np.all(np.isfinite(X))), status=5,
-                                message=STATUS_MESSAGES[5], method=method, energy=energy_value,
-                                energy_name=context.energy_name, energy_history=[energy_value],
-                                timings={**direct, "total": time.perf_counter() - t_start},
-                                fixed_face=context.fixed_face)
+    return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
+
+
+def _restart_from_least_squares(first, z, topology, context, options, t_start):
+    """Gauss-Newton again from the least-squares relaxation after ``first`` stalled (status -1 or -3).
+
+    On very thin triangles (aspect ~1e4) the Gauss-Newton matrix at a flat
+    start is too ill-conditioned for progress (condition ~ aspect^4 with the
+    weights (3.20)), and a warm start can stall in a poor basin; the
+    least-squares relaxation of the frame-based method starts in the right
+    shape.  Returns the result that passed its checks, else the one with the
+    lower energy, with a note saying what happened; ``iterations`` counts both
+    runs, the history and counters are the returned run's.
+    """
+    try:
+        X, direct = _direct(z, topology, context, kind=None)
+    except (InputError, np.linalg.LinAlgError):
+        return first
+    if not np.all(np.isfinite(X)):
+        return first
+    second = gauss_newton_reconstruction(z, topology, initial_vertices=X, context=context, options=options,
+                                         extra_timings=direct, started=t_start)
+    note = (f"Gauss-Newton from the given start failed ({first.failure}: energy {first.energy:.6g} after "
+            f"{first.iterations} iterations); restarted from the least-squares relaxation")
+    best = second if (second.success or not second.energy >= first.energy) else first
+    timings = dict(best.timings, total=time.perf_counter() - t_start)
+    return replace(best, iterations=first.iterations + second.iterations, timings=timings,
+                   notes=best.notes + [note + ("" if best is second else ", which was worse")])
+
+
+def _rescaled(z_target, topology, reference_vertices, initial_vertices):
+    """``(k, z, X_ref, X_init)`` scaled by ``2^-k`` into the safe range, or None when already inside it.
+
+    Products of three coordinates (normals times edges, triangle frames) overflow
+    or become subnormal far outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``; a
+    power-of-two scaling is exact, angles are invariant and lengths scale.
+    """
+    if reference_vertices is None:
+        return None
+    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
+    k = safe_scale_exponent(X)
+    if not k:
+        return None
+    z = np.array(z_target, dtype=float)
+    if z.shape == (2 * topology.n_edges,):
+        z[: topology.n_edges] = np.ldexp(z[: topology.n_edges], -k)
+    X0 = None if initial_vertices is None else np.ldexp(np.asarray(initial_vertices, float), -k)
+    return k, z, np.ldexp(X, -k), X0
 
 
 def _check_context(context, topology, reference_vertices, settings, given):

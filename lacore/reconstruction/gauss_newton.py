@@ -67,7 +67,7 @@ Iteration
   step look for a lower energy.
 * Stopping (first rule that holds, see :data:`~lacore.reconstruction.result.STATUS_MESSAGES`):
   energy at the floating-point noise level of ``W`` around ``z*`` (status 1);
-  relative energy decrease ``W_k - W_{k+1} <= ftol W_k``, predicted
+  relative energy decrease of a full step ``W_k - W_{k+1} <= ftol W_k``, predicted
   Gauss-Newton decrease ``-g.d / 2 <= ftol W_k``, or -- in the linear
   convergence phase of a non-zero residual, two full steps in a row with
   decrease ratio ``r = dW_k / dW_{k-1} < 1/2`` -- estimated remaining decrease
@@ -75,7 +75,15 @@ Iteration
   factorization that would only confirm convergence; scale-free gradient
   ``|g|_inf * size <= gtol * W`` (3); step ``|t d|_inf <= xtol * size`` (4);
   ``size`` = bounding-box diagonal of the reference mesh.  The iteration cap
-  gives status 0, a line search without decrease status -1.
+  gives status 0, a line search without decrease status -1, ten iterations
+  with partial steps (``t < 1``) that together decreased the energy by less
+  than 1 % status -3 (a stall: on
+  a flat strip of triangles of aspect 1e4 the Gauss-Newton matrix needs a
+  diagonal shift far above its bending block, and each step moves almost
+  nothing).  Only a full step (``t = 1``) may stop by rule 2's decrease or
+  rule 4: a line search that only finds tiny steps is stalling, not converged.
+  Statuses 1-4 are "converged"; whether the result is a success is decided by
+  :mod:`lacore.reconstruction.checks`.
 
 Angle residuals are not wrapped: ``theta`` lies in ``(-pi, pi]`` and a target
 angle near ``+-pi`` whose reconstruction crosses the branch cut is penalized by
@@ -92,6 +100,7 @@ from ..lengths_angles import check_z
 from ..sparse_cholesky import NotPositiveDefiniteError
 from ..topology import check_vertices
 from .assembly import gauss_newton_pattern
+from .checks import apply_checks
 from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
@@ -126,6 +135,11 @@ _NEAR_DRIFT = 0.05
 _NEAR_RTOL_MAX = 1e-2
 _NEAR_RTOL_MIN = 1e-12
 _NEAR_MAXITER = 8
+
+#: Stall: ``_STALL_WINDOW`` iterations, all with partial steps (``t < 1``), decreased the energy by less than
+#: ``_STALL_DECREASE`` of it (status -3).
+_STALL_WINDOW = 10
+_STALL_DECREASE = 0.01
 
 #: Geodesic acceleration (``geodesic_acceleration``): finite-difference step (fraction of the step ``d``), ...
 _ACCEL_FD_STEP = 0.1
@@ -341,11 +355,17 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         steps = state.steps
         rate = decrease / state.prev_decrease if len(steps) > 1 and t == 1.0 and steps[-2] == 1.0 else 1.0
         state.prev_decrease = decrease
-        if decrease <= options.ftol * energy or (rate < 0.5 and
-                                                 10.0 * decrease * rate / (1.0 - rate) <= options.ftol * E_new):
+        # a partial step (t < 1) that decreases little is a stalling line search, not convergence: only full
+        # steps may stop by the decrease or the step size; a stall is detected by the next iteration's
+        # predicted decrease (scale-free stationarity) or by _STALL_WINDOW iterations without progress
+        if t == 1.0 and (decrease <= options.ftol * energy or (
+                rate < 0.5 and 10.0 * decrease * rate / (1.0 - rate) <= options.ftol * E_new)):
             status = 2
-        elif step_norm <= options.xtol * size:
+        elif t == 1.0 and step_norm <= options.xtol * size:
             status = 4
+        elif (len(steps) >= _STALL_WINDOW and max(steps[-_STALL_WINDOW:]) < 1.0
+              and state.history[-1 - _STALL_WINDOW] - E_new < _STALL_DECREASE * E_new):
+            status = -3
         else:
             continue
         # converged after a step: report energy and gradient at the final point (the matrix is not needed)
@@ -396,6 +416,8 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     Returns
     -------
     ReconstructionResult
+        ``success`` decided by :func:`lacore.reconstruction.checks.apply_checks`
+        (a converged minimizer without folds, or the target reproduced).
     """
     t_start = time.perf_counter()
     started = t_start if started is None else started
@@ -427,5 +449,6 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     timings["total"] = time.perf_counter() - started
     counters = {f.name: getattr(out, f.name) for f in fields(IterativeResult)}
     counters.update(success=status > 0, status=status, message=message, timings=timings)
-    return ReconstructionResult(vertices=vertices, method=method_name, energy_name=objective.name,
-                                fixed_face=context.fixed_face, backend=context.backend, **counters)
+    result = ReconstructionResult(vertices=vertices, method=method_name, energy_name=objective.name,
+                                  fixed_face=context.fixed_face, backend=context.backend, **counters)
+    return apply_checks(result, z_target, topology, minimizer=True)

@@ -10,6 +10,7 @@ __all__ = ["ReconstructionResult", "GaussNewtonResult", "IterativeResult", "STAT
 
 #: Meaning of :attr:`ReconstructionResult.status` (and :attr:`GaussNewtonResult.status`).
 STATUS_MESSAGES = {
+    -3: "the iteration stalled (10 partial steps decreased the energy by less than 1 %)",
     -2: "the linear system could not be solved (not positive definite even after regularization)",
     -1: "the line search found no step that decreases the energy",
     0: "the iteration limit was reached",
@@ -89,12 +90,24 @@ class ReconstructionResult(IterativeResult):
         The reconstructed immersion, in the frame of the reference mesh (see
         :mod:`lacore.reconstruction.context`, "Rigid motions").
     success : bool
-        Whether the method finished normally (converged, a direct method ran,
-        or the hybrid method did its smoothing iterations): ``status > 0``.
+        Whether the result is what was asked for, decided the same way for every
+        method by :mod:`lacore.reconstruction.checks`: finite, no folded edge, and
+        the target reproduced within the stated tolerances or (``"gn"``,
+        ``"hybrid"``) a converged minimizer.
     status : int
-        Reason code, see :data:`STATUS_MESSAGES`.
+        Why the solver stopped, see :data:`STATUS_MESSAGES` (independent of the checks).
     message : str
-        Why the method stopped, in words.
+        Why the method stopped, in words, followed by ``"; check failed: ..."`` when a check failed.
+    failure : str
+        ``""`` on success, else the failed check (``"non_finite"``, ``"folded"``,
+        ``"not_converged"``, ``"not_reproduced"``), see
+        :class:`~lacore.reconstruction.checks.ReconstructionCheck`.
+    checks : dict
+        :meth:`ReconstructionCheck.summary() <lacore.reconstruction.checks.ReconstructionCheck.summary>`:
+        the errors, fold counts and tolerances the decision used.
+    notes : list of str
+        Remarks on the input or the run (faces of the target violating the
+        triangle inequality, a restart from the least-squares start, ...).
     method : str
         ``"gn"``, ``"bfs"``, ``"mst"``, ``"spt"``, ``"lsq"`` or ``"hybrid-<kind>"``.
     iterations : int
@@ -140,5 +153,8 @@ class ReconstructionResult(IterativeResult):
     energy_name: str = "quadratic"
     fixed_face: int = -1
     backend: str = ""
+    failure: str = ""
+    checks: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
 
     _summary_exclude = ("vertices",)

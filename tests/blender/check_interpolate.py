@@ -416,6 +416,35 @@ def finger_pair():
     return out
 
 
+def failed_checks_warn():
+    """A result failing its checks is written, with a WARNING (finger pair extrapolated to t = 1.25, 'FAST':
+    two smoothing iterations leave folded faces); 'PREVIEW' does not warn for a target it merely does not reproduce."""
+    import importlib
+
+    reset()
+    ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    load_mesh = importlib.import_module(MODULE + ".lacore.mesh_io").load_mesh
+    topology_mod = importlib.import_module(MODULE + ".lacore.topology")
+    meshes = shared_meshes_dir()
+    A, faces = load_mesh(os.path.join(meshes, "finger", "finger0.ply"))
+    B, _ = load_mesh(os.path.join(meshes, "finger", "finger1.ply"))
+    topo = topology_mod.MeshTopology.from_faces(faces, n_vertices=len(A))
+    fast = []
+    ops_mod.inbetween_shapes(topo, A, B, [0.5, 1.25], 'FAST', failures=fast)
+    preview = []
+    ops_mod.inbetween_shapes(topo, A, B, [0.5], 'PREVIEW', failures=preview)
+    warning = ops_mod.failure_warning(fast)
+    assert len(fast) == 1 and fast[0].startswith("t = 1.25: folded"), fast
+    assert preview == [] and ops_mod.failure_warning(preview) is None
+    obj = cases.shared_mesh_pair("Finger", os.path.join(meshes, "finger", "finger0.ply"),
+                                 os.path.join(meshes, "finger", "finger1.ply"), "Finger1", load_mesh)
+    status = interpolate(obj, key_from="Basis", key_to="Finger1", factors="1.25", method='FAST')
+    written = "LA Basis>Finger1 1.250" in key_names(obj)
+    assert status == {"FINISHED"} and written
+    return {"fast_failures": fast, "preview_failures": preview, "warning": warning, "status": sorted(status),
+            "written": written}
+
+
 def panel_buttons():
     """The panel draws the Encode, Interpolate and Bake buttons (recording layout, no GUI headless)."""
     from types import SimpleNamespace
@@ -432,7 +461,7 @@ def panel_buttons():
 
 def main():
     run_cases((install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
-               errors_change_nothing, bake_and_rebake, finger_pair, panel_buttons))
+               errors_change_nothing, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons))
 
 
 if __name__ == "__main__":
