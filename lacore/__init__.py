@@ -16,6 +16,7 @@ QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
 reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
+ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.shape_model`, on first use)
 """
 
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
@@ -32,7 +33,7 @@ from .topology import MeshTopology, check_vertices
 
 #: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
 _LAZY = {"interpolate": "interpolation", "keyframe_inbetweens": "interpolation",
-         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics"}
+         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics", "ShapeModel": "shape_model"}
 
 
 def __getattr__(name):
@@ -52,5 +53,5 @@ __all__ = [
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
-    "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile",
+    "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile", "ShapeModel",
 ]
