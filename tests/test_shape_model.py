@@ -244,3 +244,23 @@ def test_bad_input_messages(bar, bar_models, tmp_path):
     with pytest.raises(FileNotFoundError):
         ShapeModel.load(tmp_path / "missing.npz")
     assert issubclass(ShapeModelError, InputError)
+
+
+def test_angles_straddling_the_branch_cut_are_averaged_on_the_circle():
+    from lacore.shape_model import wrap_angles
+
+    X0, faces = bar_mesh(n_along=6, n_side=1)
+    topo = MeshTopology.from_faces(faces, n_vertices=len(X0))
+    E = topo.n_edges
+    z = lengths_and_angles(X0, topo)
+    np.testing.assert_array_equal(wrap_angles(z, topo), z)
+    d = np.zeros(2 * E)
+    d[E:] = [np.pi + 0.1, -np.pi - 0.1, 2 * np.pi] + [0.0] * (E - 3)
+    np.testing.assert_allclose(wrap_angles(d, topo)[E:E + 3], [-np.pi + 0.1, np.pi - 0.1, 0.0], atol=1e-15)
+    # samples whose angle at one edge is +(pi - 0.05) and -(pi - 0.05): the mean sits at pi, not at 0
+    Z = np.stack([z, z, z])
+    Z[:, E] = [np.pi - 0.05, -(np.pi - 0.05), np.pi - 0.05]
+    m = ShapeModel.fit_z(Z, topo, X0, n_modes=1, mean_options={"max_iterations": 0})
+    assert abs(abs(m.linear_mean_z[E]) - (np.pi - 0.05 / 3)) < 1e-12
+    v = m.tangent_vectors(Z)
+    assert np.abs(v[:, E]).max() < 0.2 + np.pi - abs(m.mean_z[E])
