@@ -243,6 +243,8 @@ class ShapeModel:
         ``tangent_solves``, ``gram``, ``eigen``, ``total`` (empty after :meth:`load`).
     mean_result : ReconstructionResult or None
         The reconstruction that projected the linear mean (None after :meth:`load`).
+    last_clamped_lengths : (K,) ndarray or None
+        Lengths raised to their floor per pose in the last :meth:`synthesize`.
     """
 
     def __init__(self, *, topology, reference_vertices, mean_z, mean_vertices, linear_mean_z, modes, variances,
@@ -269,6 +271,7 @@ class ShapeModel:
         self.mean_result = mean_result
         self.all_eigenvalues = all_eigenvalues
         self._projector = None
+        self.last_clamped_lengths = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -561,7 +564,7 @@ class ShapeModel:
         return a
 
     def synthesize(self, coefficients, method=None, initial_vertices=None, progress=None, return_results=False,
-                   **reconstruct_options):
+                   min_length_ratio=0.01, **reconstruct_options):
         """Poses of the model, ``P_Z[zbar + sum_j alpha_j u_j]`` (4.19), as vertices.
 
         Parameters
@@ -575,6 +578,12 @@ class ShapeModel:
             ``progress(done, total, message)`` per pose.
         return_results : bool
             Also return the :class:`~lacore.reconstruction.ReconstructionResult` of every pose.
+        min_length_ratio : float
+            Lengths of ``zbar + sum_j alpha_j u_j`` below this fraction of the
+            mean's length of the same edge are raised to it before the
+            projection (a length varying strongly over the training set, e.g.
+            in a skin crease, becomes negative a few standard deviations out);
+            :attr:`last_clamped_lengths` counts them per pose.
         **reconstruct_options
             Passed on to :func:`lacore.reconstruct` (tolerances, ``max_iterations`` ...).
 
@@ -592,6 +601,12 @@ class ShapeModel:
         out = np.empty((len(A), self.topology.n_vertices, 3))
         results = []
         zs = self.z_of(A)
+        # far along a mode (or with extreme coefficients) a length can reach zero or below: clamp it
+        E = self.topology.n_edges
+        floor = float(min_length_ratio) * self.mean_z[:E]
+        clamped = zs[:, :E] < floor
+        zs[:, :E] = np.maximum(zs[:, :E], floor)
+        self.last_clamped_lengths = np.count_nonzero(clamped, axis=1)
         for k, zk in enumerate(zs):
             report(progress, k, len(A), f"pose {k + 1} of {len(A)}")
             res = reconstruct(zk, self.topology, self.reference_vertices, method=method,

@@ -291,3 +291,17 @@ def test_localized_modes_separate_the_joints_of_an_articulated_bar():
     np.testing.assert_allclose(local.variances.sum(), model.variances.sum(), rtol=1e-12)
     with pytest.raises(ShapeModelError, match="one label per vertex"):
         model.localized(regions=np.zeros(7, int))
+
+
+def test_synthesis_far_out_clamps_lengths(bar_models):
+    model = bar_models["ambient"]
+    E = model.topology.n_edges
+    u, lbar = model.modes[0, :E], model.mean_z[:E]
+    a = np.zeros((2, model.n_modes))
+    a[1, 0] = 1.2 * np.min(lbar[u < 0] / -u[u < 0])  # far enough out that one length turns negative
+    z = model.z_of(a)
+    assert np.count_nonzero(z[1, :E] <= 0) > 0  # the linear combination has non-positive lengths
+    X = model.synthesize(a, max_iterations=5)
+    assert model.last_clamped_lengths[0] == 0 and model.last_clamped_lengths[1] == np.count_nonzero(
+        z[1, :E] < 0.01 * model.mean_z[:E])
+    assert np.all(np.isfinite(X))
