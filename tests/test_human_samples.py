@@ -82,7 +82,7 @@ def test_training_sets_and_takes_are_seeded(body):
     np.testing.assert_array_equal(body.take(T, seed=5)[1], angles)
     assert np.all((angles >= body.lower - 1e-12) & (angles <= body.upper + 1e-12))
     outside = (angles < lo - 1e-9) | (angles > hi + 1e-9)
-    assert 0.05 < outside.mean() < 0.5  # partly outside the training range (measured 0.16)
+    assert 0.1 < outside.mean() < 0.3  # partly outside the training range (measured 0.19)
     # smooth: |d angle / d frame| <= 2 pi f_max a_max / (T - 1) with f_max = 2 cycles, a_max = 1.2 half-ranges
     bound = 2 * np.pi * 2 * 1.2 * np.max(0.5 * (hi - lo)) / (T - 1)
     assert np.abs(np.diff(angles, axis=0)).max() <= bound
