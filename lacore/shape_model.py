@@ -275,6 +275,7 @@ class ShapeModel:
         self.mean_result = mean_result
         self.all_eigenvalues = all_eigenvalues
         self._projector = None
+        self._solver = None
         self.last_clamped_lengths = None
 
     # ------------------------------------------------------------------ properties
@@ -499,7 +500,7 @@ class ShapeModel:
         """The :class:`TangentProjector` at the mean (built on first use, e.g. after :meth:`load`)."""
         if self._projector is None:
             self._projector = TangentProjector(self.mean_z, self.topology, metric_weights=self.metric_weights,
-                                               metric=self.projection_metric, solver=getattr(self, "_solver", None))
+                                               metric=self.projection_metric, solver=self._solver)
         return self._projector
 
     def tangent_vectors(self, z):
@@ -615,7 +616,7 @@ class ShapeModel:
             report(progress, k, len(A), f"pose {k + 1} of {len(A)}")
             res = reconstruct(zk, self.topology, self.reference_vertices, method=method,
                               bending_weight=self.bending_weight, weights=self.weights, initial_vertices=X0,
-                              solver=getattr(self, "_solver", None), **reconstruct_options)
+                              solver=self._solver, **reconstruct_options)
             out[k] = res.vertices
             results.append(res)
         report(progress, len(A), len(A), "done")
