@@ -91,3 +91,18 @@ def test_training_sets_and_takes_are_seeded(body):
     # the body moves with the root: pelvis follows the path
     pelvis = body.joint_positions(angles, root_R, root_t)[:, 0]
     np.testing.assert_allclose(pelvis - pelvis[0], root_t - root_t[0], atol=1e-12)
+
+
+def test_vertex_normals_point_outward(body):
+    X = body.pose(body.random_angles(2, seed=9))
+    N = body.vertex_normals(X)
+    assert N.shape == X.shape
+    np.testing.assert_allclose(np.linalg.norm(N, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(body.vertex_normals(X[1]), N[1], atol=1e-15)
+    # outward: moving every vertex a little along its normal increases the enclosed volume
+    F = body.faces
+
+    def volume(Y):
+        return np.einsum("ij,ij->", Y[F[:, 0]], np.cross(Y[F[:, 1]], Y[F[:, 2]])) / 6
+
+    assert volume(X[0] + 0.01 * N[0]) - volume(X[0]) > 1.0  # measured 1.58 dm^3 = 0.01 dm x 160 dm^2 of skin
