@@ -379,7 +379,9 @@ class ShapeModel:
             (``"gn"``: energy-based projection, Def. 4.3).
         mean_options : dict, optional
             Extra keyword arguments of :func:`lacore.reconstruct` for the mean
-            (e.g. tolerances).
+            (e.g. tolerances).  Default for Gauss-Newton:
+            ``geodesic_acceleration=False`` (measured on averaged skinned
+            bodies, the accelerated iteration stalls far from the minimum).
         solver : {"cholmod", "scipy"}, optional
             Sparse Cholesky backend (reconstruction and tangent projection).
         progress : callable, optional
@@ -434,7 +436,10 @@ class ShapeModel:
         t = time.perf_counter()
         z_ref = lengths_and_angles(X_ref, topology)
         z_lin = wrap_angles(z_ref + wrap_angles(Z - z_ref, topology).mean(axis=0), topology)
-        opts = dict(mean_options or {})
+        # Gauss-Newton without geodesic acceleration: on averaged skinned bodies the accelerated steps stall
+        # (energy 46.6 vs 1.46 on the 13.4k body, 30 poses; 3.13 vs 0.95 on the coarse body, seed 2)
+        opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}
+        opts.update(mean_options or {})
         mean_z, mean_result = project(z_lin, topology, X_ref, method=method, bending_weight=bending_weight,
                                       weights=weights, solver=solver, **opts)
         mean_vertices = mean_result.vertices
@@ -591,6 +596,9 @@ class ShapeModel:
             :attr:`last_clamped_lengths` counts them per pose.
         **reconstruct_options
             Passed on to :func:`lacore.reconstruct` (tolerances, ``max_iterations`` ...).
+            Default for Gauss-Newton: ``geodesic_acceleration=False`` (measured: at +-2
+            standard deviations of the body's modes the accelerated iteration stops at 1.5-5x
+            higher energies).
 
         Returns
         -------
@@ -612,11 +620,13 @@ class ShapeModel:
         clamped = zs[:, :E] < floor
         zs[:, :E] = np.maximum(zs[:, :E], floor)
         self.last_clamped_lengths = np.count_nonzero(clamped, axis=1)
+        opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}  # see fit_z
+        opts.update(reconstruct_options)
         for k, zk in enumerate(zs):
             report(progress, k, len(A), f"pose {k + 1} of {len(A)}")
             res = reconstruct(zk, self.topology, self.reference_vertices, method=method,
                               bending_weight=self.bending_weight, weights=self.weights, initial_vertices=X0,
-                              solver=self._solver, **reconstruct_options)
+                              solver=self._solver, **opts)
             out[k] = res.vertices
             results.append(res)
         report(progress, len(A), len(A), "done")
