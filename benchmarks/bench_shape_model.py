@@ -23,6 +23,8 @@ import os
 import sys
 import time
 
+import numpy as np
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
@@ -53,7 +55,23 @@ def fit_case(body, n_samples, n_modes, tangent, sweep=True):
            "tangent": tangent, "runs": runs,
            "explained_variance": [round(float(r), 5) for r in model.explained_variance_ratio],
            "explained_variance_total": round(float(model.explained_variance_ratio.sum()), 5)}
+    out["mean_energy"] = float(model.mean_result.energy)
     if tangent == "projected":
+        # the mean by Gauss-Newton with geodesic acceleration (lacore's default elsewhere) for comparison
+        from lacore.projection import project
+
+        t = time.perf_counter()
+        _, res = project(model.linear_mean_z, topo, body.vertices, bending_weight=model.bending_weight,
+                         geodesic_acceleration=True)
+        out["mean_with_geodesic_acceleration"] = {"energy": float(res.energy), "iterations": int(res.iterations),
+                                                  "seconds": round(time.perf_counter() - t, 4)}
+        if body.n_vertices < 5000:  # +-2 standard deviations of modes 0 and 1, both ways (coarse body only)
+            A = np.zeros((4, n_modes))
+            A[[0, 1], 0] = np.array([-2, 2]) * model.standard_deviations[0]
+            A[[2, 3], 1] = np.array([-2, 2]) * model.standard_deviations[1]
+            for acc in (False, True):
+                _, rs = model.synthesize(A, return_results=True, geodesic_acceleration=acc)
+                out[f"synthesis_2sd_energies_acceleration_{acc}"] = [round(float(r.energy), 4) for r in rs]
         P = model.tangent_projector()
         out["max_integrability_residual_of_modes"] = float(P.residual(model.modes).max())
         out["projection_refinements"] = int(P.last_refinements)
