@@ -75,6 +75,18 @@ def fit_case(body, n_samples, n_modes, tangent, sweep=True):
         P = model.tangent_projector()
         out["max_integrability_residual_of_modes"] = float(P.residual(model.modes).max())
         out["projection_refinements"] = int(P.last_refinements)
+    # generalization: share of the g-norm^2 of tangent vectors outside the model's span, training vs a held-out
+    # take (60 frames, seed 5: smooth motion partly outside the training range, a walk of the whole body)
+    take = body.take(60, seed=5)[0]
+
+    def outside(X):
+        v = model.tangent_vectors(X)
+        c = model.coefficients(X)
+        r = v - c @ model.modes
+        return float(np.mean(model.metric_dot(r, r) / model.metric_dot(v, v)))
+
+    out["residual_share_training"] = round(outside(poses), 4)
+    out["residual_share_heldout_take"] = round(outside(take), 4)
     if sweep:
         t = time.perf_counter()
         _, results = model.mode_sweep(0, (-2, 2), 5, return_results=True)[0]

@@ -37,6 +37,10 @@ their lengths and angles ``z^i``) :meth:`ShapeModel.fit` learns a
 4. **Synthesis** (4.19): ``P_Z[zbar + sum_j alpha_j u_j]`` by reconstruction,
    warm-started from the mean's vertices.
 
+5. **Localized modes** (beyond the thesis, its "Sparse PCA" outlook):
+   :meth:`ShapeModel.localized` rotates the modes within their span toward
+   locality (a group varimax in ``g``).
+
 Rigid motions of the training meshes change nothing (lengths and angles are
 invariant; the mean's vertices are placed in the reference mesh's frame).
 """
@@ -437,7 +441,7 @@ class ShapeModel:
         z_ref = lengths_and_angles(X_ref, topology)
         z_lin = wrap_angles(z_ref + wrap_angles(Z - z_ref, topology).mean(axis=0), topology)
         # Gauss-Newton without geodesic acceleration: on averaged skinned bodies the accelerated steps stall
-        # (energy 46.6 vs 1.46 on the 13.4k body, 30 poses; 3.13 vs 0.95 on the coarse body, seed 2)
+        # (energy 46.6 vs 1.46 on the 13.4k body, 30 poses: bench_shape_model.py)
         opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}
         opts.update(mean_options or {})
         mean_z, mean_result = project(z_lin, topology, X_ref, method=method, bending_weight=bending_weight,
@@ -473,7 +477,8 @@ class ShapeModel:
         t_eig = time.perf_counter() - t
         lam_all = np.maximum(lam, 0.0)
         total = float(lam_all.sum())
-        # directions of zero variance: below _RANK_TOL of the largest eigenvalue or of the samples' own g-size
+        # directions of zero variance: below _RANK_TOL of the largest eigenvalue, or (all samples equal up to
+        # round-off) below 1e-20 of the samples' own squared g-size
         floor = _RANK_TOL * max(lam_all[0], float(np.sum(Z * Z * w)) * 1e-8)
         n_pos = int(np.count_nonzero(lam_all > floor))
         if J > n_pos:
