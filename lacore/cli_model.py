@@ -36,7 +36,8 @@ import time
 
 import numpy as np
 
-__all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
+__all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "output_paths", "MODEL_HELP",
+           "SWEEP_HELP"]
 
 MODEL_HELP = "fit a statistical shape model (PCA / simplified PGA in lengths and angles) to meshes"
 SWEEP_HELP = "write meshes along one mode of a shape model"
@@ -91,6 +92,12 @@ def configure_sweep(parser):
                         help="writes PREFIX_000.ply, PREFIX_001.ply, ...")
     parser.add_argument("--format", choices=("ply", "obj", "off"), default="ply", help="mesh format (default ply)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def output_paths(prefix, n, extension="ply"):
+    """``prefix_000.ext ... prefix_{n-1}.ext`` (at least three digits), as ``lacore interpolate`` names frames."""
+    width = max(3, len(str(max(n - 1, 0))))
+    return [f"{prefix}_{i:0{width}d}.{extension}" for i in range(n)]
 
 
 def _check_output_dir(path):
@@ -205,7 +212,6 @@ def run_model(args):
 
 def run_sweep(args):
     """Run ``lacore model-sweep``; returns the exit code."""
-    from .cli_interpolate import output_paths
     from .shape_model import ShapeModel, ShapeModelError
 
     start = time.perf_counter()
