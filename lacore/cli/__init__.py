@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..errors import InputError
-from . import encode, interpolate, reconstruct
+from . import encode, interpolate, model, reconstruct
 from .common import EXIT_FAILED_CHECKS, EXIT_OK, EXIT_USAGE, CliError
 from .encode import encode_mesh
 
@@ -57,6 +57,7 @@ def register_subcommand(name, help, configure, run):
 register_subcommand("encode", encode.HELP, encode.configure, encode.run)
 register_subcommand("reconstruct", reconstruct.HELP, reconstruct.configure, reconstruct.run)
 register_subcommand("interpolate", interpolate.HELP, interpolate.configure, interpolate.run)
+model.register(register_subcommand)  # model, model-sweep
 
 
 # --------------------------------------------------------------------------- main
