@@ -146,7 +146,7 @@ class TangentProjector:
         self._c = c
         self._AC = (A @ sp.diags(c)).tocsr()
         S = (self._AC @ A.T).tocsc()
-        cache = _topology_cache(topology, "tangent_cholesky", dict)
+        cache = topology.cache.get((__name__, "tangent_cholesky"), dict)
         key = (metric, solver)
         chol = cache.get(key)
         if chol is None:
@@ -914,14 +914,6 @@ class ShapeModel:
 
 
 # --------------------------------------------------------------------------- helpers
-def _topology_cache(topology, name, fn):
-    """A value derived from the connectivity, computed once per topology (``topology.cache`` or ``_cached``)."""
-    cache = getattr(topology, "cache", None)
-    if cache is not None and hasattr(cache, "get") and not isinstance(cache, dict):
-        return cache.get((__name__, name), fn)
-    return topology._cached(f"{__name__}.{name}", fn)
-
-
 def wrap_angles(z, topology):
     """``z (..., 2E)`` with its angle half wrapped to ``[-pi, pi)``; lengths unchanged.
 
