@@ -76,7 +76,7 @@ from .errors import InputError, format_indices
 from .lengths_angles import face_normals, lengths_and_angles
 from .marker_binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
 from .progress import report
-from .reconstruction.gauss_newton import _QuadraticObjective, _dof_ordering, _upper_outer, gauss_newton_pattern
+from .reconstruction.gauss_newton import _QuadraticObjective, _dof_ordering, gauss_newton_pattern
 from .rigid import apply_rigid, rigid_fit
 from .sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 
@@ -114,7 +114,8 @@ def check_markers(markers, binding):
     bad = np.isinf(x).any(2)
     if bad.any():
         t, m = np.nonzero(bad)
-        raise MarkerDataError(f"marker positions are infinite at (frame, marker) {format_indices(zip(t, m))}")
+        where = format_indices(zip(t, m, strict=True))
+        raise MarkerDataError(f"marker positions are infinite at (frame, marker) {where}")
     x = x.copy()
     x[np.isnan(x).any(2)] = np.nan
     return x
