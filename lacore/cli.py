@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cli_interpolate, cli_model, cli_reconstruct
+from . import cli_fit, cli_interpolate, cli_model, cli_reconstruct
 
 __all__ = ["main", "Subcommand", "SUBCOMMANDS", "register_subcommand", "CliError"]
 
@@ -140,6 +140,7 @@ register_subcommand("encode", "encode a mesh as edge lengths and dihedral angles
 register_subcommand("reconstruct", cli_reconstruct.HELP, cli_reconstruct.configure, cli_reconstruct.run)
 register_subcommand("interpolate", cli_interpolate.HELP, cli_interpolate.configure, cli_interpolate.run)
 cli_model.register(register_subcommand)  # model, model-sweep
+cli_fit.register(register_subcommand)  # fit
 
 
 # --------------------------------------------------------------------------- main

@@ -26,7 +26,8 @@ from .errors import InputError, format_indices
 from .lengths_angles import face_normals
 from .rigid import apply_rigid, rigid_fit
 
-__all__ = ["MarkerBinding", "MarkerBindingError", "bind_markers", "surface_points", "surface_point_jacobians"]
+__all__ = ["MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
+           "surface_point_jacobians"]
 
 
 class MarkerBindingError(InputError):
@@ -215,15 +216,84 @@ def surface_point_jacobians(vertices, mesh_faces, binding):
     return G, dofs
 
 
+# --------------------------------------------------------------------------- nearest surface points
+def closest_surface_points(vertices, mesh_faces, points, chunk=2_000_000):
+    """Nearest point of a triangle mesh to every query point (exhaustive, vectorized over faces).
+
+    Per triangle the closest point is found by the Voronoi-region test of
+    Ericson, *Real-Time Collision Detection* 5.1.5, for all (point, face) pairs
+    in chunks of about ``chunk`` pairs; ``O(P F)`` work, fine for the few
+    dozen markers of a motion-capture set.
+
+    Returns
+    -------
+    closest : (P, 3) ndarray
+    face : (P,) int64 ndarray
+    barycentric : (P, 3) ndarray
+        Of ``closest`` in ``face`` (non-negative, sum 1).
+    """
+    X = np.asarray(vertices, float)
+    F = np.asarray(mesh_faces, np.int64)
+    Q = np.atleast_2d(np.asarray(points, float))
+    A, B, C = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
+    AB, AC = B - A, C - A
+    best_d = np.full(len(Q), np.inf)
+    best_f = np.zeros(len(Q), np.int64)
+    best_b = np.zeros((len(Q), 3))
+    step = max(1, int(chunk) // max(1, len(F)))
+    for s in range(0, len(Q), step):
+        P = Q[s:s + step, None, :]                                  # (p, 1, 3)
+        AP, BP, CP = P - A, P - B, P - C                            # (p, F, 3)
+        d1, d2 = np.einsum("pfc,fc->pf", AP, AB), np.einsum("pfc,fc->pf", AP, AC)
+        d3, d4 = np.einsum("pfc,fc->pf", BP, AB), np.einsum("pfc,fc->pf", BP, AC)
+        d5, d6 = np.einsum("pfc,fc->pf", CP, AB), np.einsum("pfc,fc->pf", CP, AC)
+        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # interior (default), then edges and vertices overwrite in Ericson's order of precedence
+            den = va + vb + vc
+            v, w = vb / den, vc / den
+            u = 1.0 - v - w
+            bc = np.stack([u, v, w], -1)
+            t = d1 / (d1 - d3)                                      # edge AB
+            m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+            bc[m] = np.stack([1 - t, t, 0 * t], -1)[m]
+            t = d2 / (d2 - d6)                                      # edge AC
+            m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+            bc[m] = np.stack([1 - t, 0 * t, t], -1)[m]
+            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))                 # edge BC
+            m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+            bc[m] = np.stack([0 * t, 1 - t, t], -1)[m]
+        for k, m in enumerate(((d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (d6 >= 0) & (d5 <= d6))):
+            e = np.zeros(3)
+            e[k] = 1.0
+            bc[m] = e
+        bc = np.nan_to_num(bc, nan=1.0 / 3.0)
+        closest = bc[..., :1] * A + bc[..., 1:2] * B + bc[..., 2:] * C
+        dist = np.einsum("pfc,pfc->pf", closest - P, closest - P)
+        f = np.argmin(dist, axis=1)
+        rows = np.arange(len(f))
+        best_d[s:s + step] = dist[rows, f]
+        best_f[s:s + step] = f
+        best_b[s:s + step] = bc[rows, f]
+    best_b = np.clip(best_b, 0.0, None)
+    best_b /= best_b.sum(1, keepdims=True)
+    closest = np.einsum("pk,pkc->pc", best_b, X[F[best_f]])
+    return closest, best_f, best_b
+
+
 # --------------------------------------------------------------------------- binding helper
-def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iterations=20, offsets="signed"):
+def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iterations=100, offsets="signed"):
     """Bind markers to the nearest surface points of a mesh pose, after a rigid alignment.
 
-    The markers (one frame, e.g. a calibration pose) are moved rigidly onto the
-    mesh by an iterative-closest-point loop (nearest surface points, then
-    :func:`lacore.rigid.rigid_fit` of the markers minus their normal offsets,
-    starting from the centroid alignment), then every marker is bound to its
-    nearest surface point.
+    The markers (one frame, e.g. a calibration pose, roughly placed on the mesh)
+    are moved rigidly onto the mesh by an iterative-closest-point loop (nearest
+    surface points, then :func:`lacore.rigid.rigid_fit`) starting from where they
+    are, then every marker is bound to its nearest surface point.  ICP is a
+    local method: start within a few degrees and a fraction of the marker
+    offsets of the right placement (ICP cannot tell a marker's offset from a
+    misplacement: the targets are the nearest points lifted by the median
+    signed distance, exact for markers sharing one offset; pass
+    ``align=False`` for markers already in the mesh's frame).
 
     Parameters
     ----------
@@ -249,8 +319,6 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
         marker from the line through its surface point along the normal (0 if it
         sits straight above a face interior).
     """
-    import trimesh
-
     X = np.asarray(vertices, float)
     F = np.asarray(mesh_faces, np.int64)
     x = np.asarray(marker_positions, float)
@@ -259,24 +327,20 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     bad = np.flatnonzero(~np.isfinite(x).all(1))
     if bad.size:
         raise MarkerBindingError(f"markers {format_indices(bad)} have no finite position: cannot bind them")
-    mesh = trimesh.Trimesh(X, F, process=False)
     R, t = np.eye(3), np.zeros(3)
     if align:
-        t = X.mean(0) - x.mean(0)
         for _ in range(int(iterations)):
             y = apply_rigid(x, R, t)
-            q, _, tri = trimesh.proximity.closest_point(mesh, y)
-            R_new, t_new = rigid_fit(x, q)
+            q, tri, _ = closest_surface_points(X, F, y)
+            n = face_normals(X, F[tri])
+            lift = np.median(np.einsum("mc,mc->m", y - q, n))   # common marker offset, estimated
+            R_new, t_new = rigid_fit(x, q + lift * n)
             if np.allclose(R_new, R, atol=1e-10) and np.allclose(t_new, t, atol=1e-10 * (1 + np.abs(t).max())):
                 R, t = R_new, t_new
                 break
             R, t = R_new, t_new
     y = apply_rigid(x, R, t)
-    q, _, tri = trimesh.proximity.closest_point(mesh, y)
-    tri = np.asarray(tri, np.int64)
-    bary = trimesh.triangles.points_to_barycentric(X[F[tri]], q)
-    bary = np.clip(bary, 0.0, None)
-    bary /= bary.sum(1, keepdims=True)
+    q, tri, bary = closest_surface_points(X, F, y)
     n = face_normals(X, F[tri])
     d = y - q
     signed = np.einsum("mc,mc->m", d, n)

@@ -218,7 +218,7 @@ _SEVERITY = {-2: 5, -1: 4, 2: 3, 1: 2, 0: 0}
 class _Problem:
     """Constant pieces of one fit: model arrays, pattern, factorization, binding slots."""
 
-    def __init__(self, model, binding, gamma, tau, min_area_ratio, anchor_weight, solver):
+    def __init__(self, model, binding, gamma, tau, min_area_ratio, anchor_weight, solver, n_modes=None):
         topo = model.topology
         self.topology = topo
         self.faces = topo.faces
@@ -229,7 +229,7 @@ class _Problem:
         self.tau = float(tau)
         self.w = np.asarray(model.metric_weights, float)
         self.zbar = np.asarray(model.mean_z, float)
-        self.U = np.asarray(model.modes, float)                       # (J, 2E)
+        self.U = np.asarray(model.modes, float)[:n_modes]             # (J, 2E)
         self.J = self.U.shape[0]
         self.WU = (self.w * self.U).T.copy()                          # (2E, J) = M U^T
         self.UMU = self.U @ self.WU                                   # (J, J), = Id for a g-orthonormal model
@@ -260,7 +260,7 @@ class _Problem:
         self.data_slots = pos
         self.buffer = np.empty(len(pat["slots"]))
         self.rest_area = 0.5 * np.linalg.norm(face_normals(model.mean_vertices, self.faces, unit=False), axis=1)
-        self.min_area = float(min_area_ratio) * self.rest_area
+        self.min_area = (0.0 if min_area_ratio is None else float(min_area_ratio)) * self.rest_area
         self.safeguard = min_area_ratio is not None and min_area_ratio >= 0
         self.anchor_weight = float(anchor_weight)
         self.prior_scale = None
@@ -365,8 +365,31 @@ def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
     return 0.0, X, a, E0, None
 
 
+def _joint_step(prob, X, a, fr):
+    """Gauss-Newton step of the joint problem in ``(X, alpha)`` by the bordered system (Schur complement).
+
+    Returns ``(dX (3V,), da (J,) or None, slope)`` with ``slope = g . d`` the
+    directional derivative of the energy along the step.
+    """
+    grad, vals, gn = prob.linearize(X, a, fr)
+    prob.chol.factorize(vals)
+    if not prob.J:
+        dX = -prob.chol.solve(grad)
+        return dX, None, float(grad @ dX)
+    J = prob.J
+    rz = gn.z - (prob.zbar + a @ prob.U)
+    ga = -2.0 * prob.gamma * (prob.WU.T @ rz) + 2.0 * prob.tau * (a - fr.a_prev)
+    B = -2.0 * prob.gamma * np.asarray(gn.J.T @ prob.WU)                   # (3V, J), dense border
+    C = 2.0 * (prob.gamma * prob.UMU + prob.tau * np.eye(J))
+    Y = prob.chol.solve(np.column_stack([grad, B]))                         # A^-1 [g_X, B]: J + 1 solves
+    S = C - B.T @ Y[:, 1:]                                                  # Schur complement (J, J)
+    da = np.linalg.solve(S, B.T @ Y[:, 0] - ga)
+    dX = -(Y[:, 0] + Y[:, 1:] @ da)
+    return dX, da, float(grad @ dX + ga @ da)
+
+
 def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.0, alternating_iterations=3,
-                joint_iterations=15, ftol=1e-6, xtol=1e-9, min_area_ratio=0.05, anchor_weight=1e-3,
+                joint_iterations=15, n_modes=None, ftol=1e-6, xtol=1e-9, min_area_ratio=0.05, anchor_weight=1e-3,
                 initial_vertices=None, initial_coefficients=None, solver=None, progress=None):
     """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23)).
 
@@ -391,6 +414,9 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         ``z``-step + ``X``-step rounds before the joint iteration.
     joint_iterations : int
         Maximal joint Gauss-Newton iterations per frame.
+    n_modes : int, optional
+        Use only the first ``n_modes`` modes of the model (0: the mean-only prior
+        ``W_q[Z[X], zbar]``); default all.
     ftol, xtol : float
         Stop the joint iteration when the relative energy decrease is below
         ``ftol`` or the largest vertex move below ``xtol`` times the mesh size.
@@ -432,7 +458,10 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     if not prior_weight > 0:
         raise InputError(f"prior_weight must be > 0, got {prior_weight!r}")
     T, M = x_all.shape[:2]
-    prob = _Problem(model, binding, prior_weight, temporal_weight, min_area_ratio, anchor_weight, solver)
+    if n_modes is not None and not (int(n_modes) == n_modes and 0 <= n_modes <= model.n_modes):
+        raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {n_modes!r}")
+    prob = _Problem(model, binding, prior_weight, temporal_weight, min_area_ratio, anchor_weight, solver,
+                    None if n_modes is None else int(n_modes))
     V, J = prob.V, prob.J
     size = float(np.linalg.norm(np.ptp(model.mean_vertices, axis=0)))
 
@@ -503,29 +532,13 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
                 if E_opt <= E_cur:
                     a, E_cur = a_opt, E_opt
             for _ in range(int(joint_iterations)):
-                grad, vals, gn = prob.linearize(X, a, fr)
                 try:
-                    prob.chol.factorize(vals)
+                    dX, da, slope = _joint_step(prob, X, a, fr)
                 except NotPositiveDefiniteError:
                     st = -2
                     break
                 if prob.chol.shift and t not in regularized:
                     regularized.append(t)
-                if J:
-                    target = prob.zbar + a @ prob.U
-                    rz = gn.z - target
-                    ga = -2.0 * prob.gamma * (prob.WU.T @ rz) + 2.0 * prob.tau * (a - fr.a_prev)
-                    B = -2.0 * prob.gamma * np.asarray(gn.J.T @ prob.WU)          # (3V, J)
-                    C = 2.0 * (prob.gamma * prob.UMU + prob.tau * np.eye(J))
-                    Y = prob.chol.solve(np.column_stack([grad, B]))                 # A^-1 [g_X, B]
-                    S = C - B.T @ Y[:, 1:]
-                    da = np.linalg.solve(S, B.T @ Y[:, 0] - ga)
-                    dX = -(Y[:, 0] + Y[:, 1:] @ da)
-                    slope = float(grad @ dX + ga @ da)
-                else:
-                    da = None
-                    dX = -prob.chol.solve(grad)
-                    slope = float(grad @ dX)
                 n_joint += 1
                 if slope >= 0:
                     converged = True
