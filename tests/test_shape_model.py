@@ -10,7 +10,7 @@ from lacore.integrability import euler_integrability_jacobian
 from lacore.mesh_io import load_mesh
 from lacore.progress import Cancelled
 from lacore.rigid import apply_rigid, rigid_rms
-from lacore.samples.bar import bar_family, bar_mesh, bar_pose
+from lacore.samples.bar import articulated_bar_pose, bar_family, bar_mesh, bar_pose
 from lacore.shape_model import ShapeModel, ShapeModelError, TangentProjector
 
 # bend x twist grid: one-sided ranges where the bend-twist interaction (the third direction) stays below 0.1 %
@@ -264,3 +264,44 @@ def test_angles_straddling_the_branch_cut_are_averaged_on_the_circle():
     assert abs(abs(m.linear_mean_z[E]) - (np.pi - 0.05 / 3)) < 1e-12
     v = m.tangent_vectors(Z)
     assert np.abs(v[:, E]).max() < 0.2 + np.pi - abs(m.mean_z[E])
+
+
+def test_localized_modes_separate_the_joints_of_an_articulated_bar():
+    """Two independent joints with equal ranges: PCA mixes them, the g-varimax rotation separates them."""
+    X0, faces = bar_mesh()
+    topo = MeshTopology.from_faces(faces, n_vertices=len(X0))
+    g = np.linspace(-0.5, 0.5, 5)
+    poses = np.stack([articulated_bar_pose(X0, (a, b)) for a in g for b in g])
+    model = ShapeModel.fit(poses, topo, tangent="projected", n_modes=2, reference_vertices=X0)
+    halves = (X0[:, 0] > 3.0).astype(int)  # the joints sit at x = 2 and x = 4
+    assert model.region_energy(halves).max(axis=1).max() < 0.6  # measured 0.50: both modes move both joints
+    local = model.localized()  # default regions: single vertices
+    share = local.region_energy(halves)
+    assert np.all(share.max(axis=1) > 0.999)  # measured 1 - 2e-7
+    assert sorted(share.argmax(axis=1)) == [0, 1]  # one mode per joint
+    assert local.localization["objective_after"] > 1.9 * local.localization["objective_before"]
+    # the same subspace: z_of and the fit of any pose are unchanged up to the rotation
+    R = local.rotation
+    np.testing.assert_allclose(R @ R.T, np.eye(2), atol=1e-12)
+    c = model.training_coefficients
+    np.testing.assert_allclose(local.z_of(c @ R.T), model.z_of(c), atol=1e-12)
+    np.testing.assert_allclose(local.coefficients(poses), c @ R.T, atol=1e-10)
+    G = local.metric_dot(local.modes[:, None], local.modes[None])
+    assert np.abs(G - np.eye(2)).max() < 1e-12
+    np.testing.assert_allclose(local.variances.sum(), model.variances.sum(), rtol=1e-12)
+    with pytest.raises(ShapeModelError, match="one label per vertex"):
+        model.localized(regions=np.zeros(7, int))
+
+
+def test_synthesis_far_out_clamps_lengths(bar_models):
+    model = bar_models["ambient"]
+    E = model.topology.n_edges
+    u, lbar = model.modes[0, :E], model.mean_z[:E]
+    a = np.zeros((2, model.n_modes))
+    a[1, 0] = 1.2 * np.min(lbar[u < 0] / -u[u < 0])  # far enough out that one length turns negative
+    z = model.z_of(a)
+    assert np.count_nonzero(z[1, :E] <= 0) > 0  # the linear combination has non-positive lengths
+    X = model.synthesize(a, max_iterations=5)
+    assert model.last_clamped_lengths[0] == 0 and model.last_clamped_lengths[1] == np.count_nonzero(
+        z[1, :E] < 0.01 * model.mean_z[:E])
+    assert np.all(np.isfinite(X))

@@ -8,7 +8,7 @@ two-dimensional surface of ``R^{2E}``.
 
 import numpy as np
 
-__all__ = ["bar_mesh", "bar_pose", "bar_family"]
+__all__ = ["bar_mesh", "bar_pose", "bar_family", "articulated_bar_pose"]
 
 
 def bar_mesh(n_along=24, n_side=2, length=6.0, width=1.0):
@@ -101,3 +101,56 @@ def bar_family(bends, twists, n_along=24, n_side=2):
     params = np.array([(a, b) for a in bends for b in twists], float).reshape(-1, 2)
     poses = np.stack([bar_pose(X0, a, b) for a, b in params])
     return poses, faces, params
+
+
+def articulated_bar_pose(vertices, angles, joints=(2.0, 4.0), width=0.6):
+    """The bar bent at several joints (about the y axis), linear-blend skinned: a family with local modes.
+
+    Segment ``k`` (between joints ``k - 1`` and ``k``) is rotated by
+    ``angles[0] + ... + angles[k-1]`` about the joints' axes, chained like a
+    finger; skinning weights blend neighbouring segments with a smoothstep of
+    ``width`` around each joint.  Each angle changes lengths and angles only
+    near its joint.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like
+        Rest pose from :func:`bar_mesh`.
+    angles : (n_joints,) array_like
+        Radians.
+    joints : sequence of float
+        x positions of the joints (increasing).
+    width : float
+        Width of the blend zone.
+
+    Returns
+    -------
+    (V, 3) ndarray
+    """
+    X = np.asarray(vertices, float)
+    joints = np.asarray(joints, float)
+    angles = np.asarray(angles, float)
+    x = X[:, 0]
+    # cumulative rigid transforms of the segments
+    n = len(joints)
+    Rs, ts = [np.eye(3)], [np.zeros(3)]
+    for k in range(n):
+        c, s_ = np.cos(angles[k]), np.sin(angles[k])
+        Rk = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
+        p = np.array([joints[k], 0.0, 0.0])
+        R = Rs[-1] @ Rk
+        t = Rs[-1] @ (p - Rk @ p) + ts[-1]
+        Rs.append(R)
+        ts.append(t)
+    # weights: smoothstep partition of unity along x
+    u = np.clip((x[:, None] - joints[None, :]) / width + 0.5, 0.0, 1.0)
+    step = u * u * (3 - 2 * u)  # (V, n)
+    w = np.empty((len(X), n + 1))
+    w[:, 0] = 1 - step[:, 0]
+    for k in range(1, n):
+        w[:, k] = step[:, k - 1] - step[:, k]
+    w[:, n] = step[:, n - 1]
+    out = np.zeros_like(X)
+    for k in range(n + 1):  # a few segments
+        out += w[:, k:k + 1] * (X @ Rs[k].T + ts[k])
+    return out

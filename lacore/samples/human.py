@@ -48,8 +48,9 @@ N_BODY_VERTICES = 13380
 #: Degrees of freedom of a pose: ``(bone, kind, toward, low, high)`` with angles in degrees.
 #: ``kind="swing"`` rotates the bone about ``bone_direction x toward`` (positive angles move the
 #: bone toward ``toward``); ``kind="twist"`` rotates it about its own direction.  ``toward`` is
-#: ``"forward"`` (+z), ``"backward"``, ``"up"`` (+y), ``"outward"`` (away from the body's mid-plane)
-#: or ``"left"`` (+x).  Hips, LHipJoint and RHipJoint carry no angles (the root motion is separate).
+#: ``"forward"`` (+z), ``"backward"``, ``"up"`` (+y), ``"outward"`` (away from the body's mid-plane),
+#: ``"left"`` (+x) or ``"parent"`` (back onto the parent bone: the elbow's hinge).  Hips, LHipJoint and
+#: RHipJoint carry no angles (the root motion is separate).
 JOINT_DOFS = (
     ("LowerBack", "swing", "forward", -10, 20), ("LowerBack", "swing", "left", -10, 10),
     ("LowerBack", "twist", None, -10, 10),
@@ -62,8 +63,8 @@ JOINT_DOFS = (
     ("LeftArm", "swing", "forward", -30, 70), ("LeftArm", "swing", "up", -30, 70), ("LeftArm", "twist", None, -40, 40),
     ("RightArm", "swing", "forward", -30, 70), ("RightArm", "swing", "up", -30, 70),
     ("RightArm", "twist", None, -40, 40),
-    ("LeftForeArm", "swing", "forward", 0, 110), ("LeftForeArm", "twist", None, -30, 30),
-    ("RightForeArm", "swing", "forward", 0, 110), ("RightForeArm", "twist", None, -30, 30),
+    ("LeftForeArm", "swing", "parent", 0, 110), ("LeftForeArm", "twist", None, -30, 30),
+    ("RightForeArm", "swing", "parent", 0, 110), ("RightForeArm", "twist", None, -30, 30),
     ("LeftHand", "swing", "forward", -40, 50), ("RightHand", "swing", "forward", -40, 50),
     ("LeftFingerBase", "swing", "forward", 0, 25), ("RightFingerBase", "swing", "forward", 0, 25),
     ("LeftHandFinger1", "swing", "forward", 0, 30), ("RightHandFinger1", "swing", "forward", 0, 30),
@@ -203,6 +204,9 @@ class HumanBody:
         if toward == "outward":
             side = np.sign(self.heads[b][0]) or 1.0
             t = np.array([side, 0.0, 0.0])
+        elif toward == "parent":  # a hinge folding the bone back onto its parent (elbow)
+            p = self.parents[b]
+            t = self.heads[p] - self.tails[p]
         else:
             t = np.array(_DIRECTIONS[toward])
         a = np.cross(d, t)
@@ -305,7 +309,7 @@ class HumanBody:
         angles = self.random_angles(n, seed, spread)
         return self.pose(angles), angles
 
-    def take_angles(self, n_frames, seed=0, spread=1.1, cycles=(0.5, 2.0)):
+    def take_angles(self, n_frames, seed=0, spread=1.2, cycles=(0.5, 2.0)):
         """Smooth joint curves ``(T, P)`` for a held-out take.
 
         Every angle follows ``c + a sin(2 pi f s + phi)`` (``s`` from 0 to 1 over
@@ -318,14 +322,14 @@ class HumanBody:
         rng = np.random.default_rng(seed)
         lo, hi = self._limits(0.8)
         c = 0.5 * (lo + hi)
-        amp = 0.5 * (hi - lo) * spread * rng.uniform(0.5, 1.0, self.n_dofs)
+        amp = 0.5 * (hi - lo) * spread * rng.uniform(0.8, 1.0, self.n_dofs)
         f = rng.uniform(cycles[0], cycles[1], self.n_dofs)
         phi = rng.uniform(0, 2 * np.pi, self.n_dofs)
         s = np.linspace(0.0, 1.0, int(n_frames))[:, None]
         a = c + amp * np.sin(2 * np.pi * f * s + phi)
         return np.clip(a, self.lower, self.upper)
 
-    def take(self, n_frames, seed=0, spread=1.1, walk_distance=20.0, turn=np.pi / 2):
+    def take(self, n_frames, seed=0, spread=1.2, walk_distance=20.0, turn=np.pi / 2):
         """A held-out take: smooth motion plus a walk of the whole body.
 
         The body walks ``walk_distance`` decimetres along a curve turning by
