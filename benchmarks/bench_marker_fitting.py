@@ -57,10 +57,10 @@ def setup(body, n_train=30, n_modes=None, seed=0):
     return model, pca, binding, names, t_model
 
 
-def take(body, binding, n_frames, seed):
-    X, *_ = body.take(n_frames, seed=seed)
+def take(body, binding, n_frames, seed, return_root=False):
+    X, _, root_R, _ = body.take(n_frames, seed=seed)
     x = observe_markers(X, body.faces, binding, seed=seed)
-    return X, x
+    return (X, x, root_R) if return_root else (X, x)
 
 
 def errors(V, X):
@@ -119,7 +119,7 @@ def main(argv=None):
     t_pca = t_mean = 0.0
     occluded = visible_min = None
     for k in range(args.takes):
-        X, x = take(body, binding, args.frames, seed=1 + k)
+        X, x, root_R = take(body, binding, args.frames, seed=1 + k, return_root=True)
         hidden = np.isnan(x[:, :, 0])
         occluded = float(hidden.mean()) if occluded is None else occluded
         visible_min = int((~hidden).sum(1).min()) if visible_min is None else min(visible_min,
@@ -137,8 +137,8 @@ def main(argv=None):
         t_mean += time.perf_counter() - t
         e_mean.append(errors(m0.vertices, X))
         if k == 0 and args.save:
-            np.savez(args.save, true=X, markers=x, la=r.vertices, pca=o["vertices"], mean_only=m0.vertices,
-                     faces=body.faces, err_la=e_la[-1], err_pca=e_pca[-1], err_mean=e_mean[-1])
+            np.savez(args.save, true=X, markers=x, root_rotation=root_R, la=r.vertices, pca=o["vertices"],
+                     mean_only=m0.vertices, faces=body.faces, err_la=e_la[-1], err_pca=e_pca[-1], err_mean=e_mean[-1])
     e_la, e_pca, e_mean = map(np.concatenate, (e_la, e_pca, e_mean))
     T = len(e_la)
     ratio = e_la / e_pca
