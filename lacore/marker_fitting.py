@@ -15,7 +15,9 @@ over vertex positions ``X`` (V, 3) and model coefficients ``alpha`` (J,)
 
 Solver (the thesis' remark on implementation)
 ---------------------------------------------
-1. **Start.** Frame 0: the model's mean pose moved by a Kabsch fit
+1. **Start.** Frame 0: the model's reference mesh (not the immersion of the
+   mean ``zbar``, which can contain slivers: on the 2.5k-vertex coarse human a
+   face of the mean pose has 1e-9 of its rest area) moved by a Kabsch fit
    (:func:`lacore.rigid.rigid_fit`) of its marker points onto the visible
    markers; later frames: the previous frame's pose, moved by the Kabsch fit of
    its marker points onto the new markers (the walk), and its coefficients.
@@ -54,7 +56,7 @@ thesis saw fits get stuck when a Gauss-Newton step squashed a triangle.  The
 default safeguard is a **compression penalty** in the energy (in the spirit of
 the thin-shells membrane term, which penalizes compression, but one-sided and
 zero on every face with at least ``compression_ratio`` = 25 % of its area in
-the model's mean pose)::
+the model's reference mesh)::
 
     + compression_weight lbar^2 sum_f max(0, compression_ratio - a_f(X) / abar_f)^2
 
@@ -249,7 +251,8 @@ class _Problem:
         key = solver or "default"
         chol = cache.get(key)
         if chol is None:
-            ordering = _dof_ordering(topo, pat, model.mean_vertices) if (solver or "cholmod") == "cholmod" else None
+            use_nd = (solver or "cholmod") == "cholmod"
+            ordering = _dof_ordering(topo, pat, model.reference_vertices) if use_nd else None
             try:
                 chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
             except ValueError:
@@ -258,16 +261,16 @@ class _Problem:
         self.chol = chol
         self.diag = np.flatnonzero(pat["indices"] == pat["cols"])
         # data-term slots: upper pairs of every marker's 9x9 block in the pattern's value order
-        _, dofs = surface_point_jacobians(model.mean_vertices, self.faces, binding)
+        _, dofs = surface_point_jacobians(model.reference_vertices, self.faces, binding)
         self.dofs = dofs
         self.data_slots = self._slots(dofs)
         self.buffer = np.empty(len(pat["slots"]))
         # compression penalty: per face, the 9 coordinates of its corners
         self.face_dofs = (3 * self.faces[:, :, None] + np.arange(3)).reshape(-1, 9)
         self.face_slots = None
-        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.mean_vertices, self.faces, unit=False), axis=1)
+        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.reference_vertices, self.faces, unit=False), axis=1)
         self.rho = 0.0 if compression_ratio is None else float(compression_ratio)
-        edge = np.linalg.norm(np.diff(model.mean_vertices[model.edges], axis=1)[:, 0], axis=1)
+        edge = np.linalg.norm(np.diff(model.reference_vertices[model.edges], axis=1)[:, 0], axis=1)
         self.w_c = float(compression_weight) * float(np.mean(edge)) ** 2 if self.rho > 0 else 0.0
         self.anchor_weight = float(anchor_weight)
         self.prior_scale = None
@@ -439,7 +442,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     ----------
     model : lacore.shape_model.ShapeModel
         The prior: mean ``zbar``, ``g``-orthonormal modes ``U`` (``J`` may be 0:
-        the mean-only prior), weights of ``W_q``, mean pose.
+        the mean-only prior), weights of ``W_q``, reference mesh (start, areas ``abar_f``).
     markers : (T, M, 3) or (M, 3) array_like
         Marker positions per frame; NaN where a marker is occluded.
     binding : MarkerBinding
@@ -466,13 +469,13 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         Safeguard against degenerate triangles (see module notes): the penalty
         ``compression_weight lbar^2 sum_f max(0, compression_ratio - a_f / abar_f)^2``
         on faces compressed below ``compression_ratio`` of their area ``abar_f``
-        in the mean pose (``lbar`` the mean edge length, so the term has the
+        in the reference mesh (``lbar`` its mean edge length, so the term has the
         data term's unit); ``compression_ratio=None`` disables it.
     anchor_weight : float
         ``kappa`` of the anchor term in frames with < 3 usable markers, relative
         to ``gamma`` times the mean diagonal entry of the prior's Gauss-Newton matrix.
     initial_vertices : (V, 3) array_like, optional
-        Start of frame 0 instead of the Kabsch-placed mean pose.
+        Start of frame 0 instead of the Kabsch-placed reference mesh.
     initial_coefficients : (J,) array_like, optional
         ``alpha`` of the previous frame for frame 0 (temporal term), default 0.
     solver : {"cholmod", "scipy"}, optional
@@ -508,7 +511,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     prob = _Problem(model, binding, prior_weight, temporal_weight, compression_ratio, compression_weight,
                     anchor_weight, solver, None if n_modes is None else int(n_modes))
     V, J = prob.V, prob.J
-    size = float(np.linalg.norm(np.ptp(model.mean_vertices, axis=0)))
+    size = float(np.linalg.norm(np.ptp(model.reference_vertices, axis=0)))
 
     out_X = np.empty((T, V, 3))
     out_a = np.zeros((T, J))
@@ -521,7 +524,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
                "prolongation": 0.0}
     regularized = []
 
-    X = np.asarray(model.mean_vertices, float).copy() if initial_vertices is None else \
+    X = np.asarray(model.reference_vertices, float).copy() if initial_vertices is None else \
         np.asarray(initial_vertices, float).copy()
     if X.shape != (V, 3):
         raise InputError(f"initial_vertices must have shape ({V}, 3), got {X.shape}")
