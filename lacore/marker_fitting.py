@@ -21,7 +21,7 @@ Solver (the thesis' remark on implementation)
    (:func:`lacore.rigid.rigid_fit`) of its marker points onto the visible
    markers; later frames: the previous frame's pose, moved by the Kabsch fit of
    its marker points onto the new markers (the walk), and its coefficients.
-2. **Alternating iterations** (``alternating_iterations``, default 3): the
+2. **Alternating iterations** (``alternating_iterations``, default 3 in frame 0, 1 in warm-started frames): the
    ``z``-step minimizes over ``alpha`` exactly, the ``g``-orthogonal projection
    (4.22) of ``Z[X]`` onto ``zbar + span U`` (with the temporal term:
    ``(gamma U M U^T + tau Id) alpha = gamma U M (Z[X] - zbar) + tau alpha^{t-1}``);
@@ -433,6 +433,7 @@ def _joint_step(prob, X, a, fr):
 
 
 def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.0, alternating_iterations=3,
+                warm_alternating_iterations=1,
                 joint_iterations=5, n_modes=None, ftol=1e-3, xtol=1e-9, compression_ratio=0.25,
                 compression_weight=100.0, anchor_weight=1e-3,
                 initial_vertices=None, initial_coefficients=None, solver=None, progress=None):
@@ -455,7 +456,9 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         the model coefficients (``g``-norm of the change of ``z`` in the model's
         subspace) from the previous frame; rigid-motion free, so the walk is not
         damped.  0 (default): warm start only, as in the thesis.
-    alternating_iterations : int
+    alternating_iterations, warm_alternating_iterations : int
+        ``z``-step + ``X``-step rounds before the joint iteration in the first
+        frame and in warm-started (later) frames.
         ``z``-step + ``X``-step rounds before the joint iteration.
     joint_iterations : int
         Maximal joint Gauss-Newton iterations per frame.
@@ -553,7 +556,8 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         ta = time.perf_counter()
         n_alt = 0
         E_cur = prob.energy(X, a, fr)[0]
-        for _ in range(int(alternating_iterations)):
+        n_rounds = alternating_iterations if (t == 0 and not have_previous) else warm_alternating_iterations
+        for _ in range(int(n_rounds)):
             a = prob.z_step(X, fr)
             E_cur = prob.energy(X, a, fr)[0]
             grad, vals, _ = prob.linearize(X, a, fr)
