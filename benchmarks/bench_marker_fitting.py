@@ -68,9 +68,12 @@ def errors(V, X):
     return np.linalg.norm(V - X, axis=2).mean(1) * MM
 
 
+WARM_ALTERNATING = 1
+
+
 def run_la(model, x, binding, gamma, tau=0.0, n_modes=None):
-    r = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=tau, n_modes=n_modes)
-    return r
+    return fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=tau, n_modes=n_modes,
+                       warm_alternating_iterations=WARM_ALTERNATING)
 
 
 def main(argv=None):
@@ -83,15 +86,19 @@ def main(argv=None):
     p.add_argument("--lambdas", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1, 1.0])
     p.add_argument("--temporal-weight", type=float, default=0.0)
     p.add_argument("--coarse-file", default=None)
+    p.add_argument("--warm-alternating", type=int, default=1,
+                   help="alternating rounds in warm-started frames (fit_markers default 1)")
     p.add_argument("--save", default=None, help="write the fitted first test take to this .npz (for pictures)")
     args = p.parse_args(argv)
+    global WARM_ALTERNATING
+    WARM_ALTERNATING = args.warm_alternating
 
     t0 = time.perf_counter()
     body = coarse_body(args.coarse_file)
     model, pca, binding, names, t_model = setup(body, args.train)
     out = {"benchmark": "marker_fitting", "machine": machine_info(), "vertices": int(body.n_vertices),
            "faces": int(len(body.faces)), "markers": int(binding.n_markers), "train_poses": args.train,
-           "modes": int(model.n_modes), "model_seconds": t_model}
+           "modes": int(model.n_modes), "model_seconds": t_model, "warm_alternating": args.warm_alternating}
 
     # ---------------------------------------------------------------- validation: choose the weights
     Xv, xv = take(body, binding, args.validation_frames, seed=99)
