@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..errors import InputError
-from . import encode, interpolate, model, reconstruct
+from . import encode, fit, interpolate, model, reconstruct
 from .common import EXIT_FAILED_CHECKS, EXIT_OK, EXIT_USAGE, CliError
 from .encode import encode_mesh
 
@@ -58,6 +58,7 @@ register_subcommand("encode", encode.HELP, encode.configure, encode.run)
 register_subcommand("reconstruct", reconstruct.HELP, reconstruct.configure, reconstruct.run)
 register_subcommand("interpolate", interpolate.HELP, interpolate.configure, interpolate.run)
 model.register(register_subcommand)  # model, model-sweep
+fit.register(register_subcommand)  # fit
 
 
 # --------------------------------------------------------------------------- main
