@@ -14,8 +14,11 @@ classes = (*operators.classes, *operators_interpolate.classes, *panels.classes)
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    # Shape Keys specials menu (next to the key list): In-betweens, Bake, Clear Bake, Encode, Remove Data
+    bpy.types.MESH_MT_shape_key_context_menu.append(panels.draw_shape_key_menu)
 
 
 def unregister():
+    bpy.types.MESH_MT_shape_key_context_menu.remove(panels.draw_shape_key_menu)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

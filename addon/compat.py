@@ -18,7 +18,7 @@ channelbag path, which bpy 5.0.1 also exercises.
 
 import bpy
 
-__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves"]
+__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves", "fcurve_group"]
 
 
 def _slotted_action_api():
@@ -88,3 +88,12 @@ def id_fcurves(id_data, create=False, action_name=None):
         return owner.fcurves
     owner = animation_channels(id_data)
     return None if owner is None else owner.fcurves
+
+
+def fcurve_group(owner, name):
+    """The F-curve group ``name`` of ``owner`` (a channelbag or an Action), created if missing.
+
+    Both have ``.groups`` (``new(name)``); assign it with ``fcurve.group = group``.
+    """
+    group = owner.groups.get(name)
+    return group if group is not None else owner.groups.new(name)

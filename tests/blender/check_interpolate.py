@@ -88,7 +88,7 @@ def expect_error(run, obj, *fragments):
     before = snapshot(obj) if obj is not None and obj.type == 'MESH' else None
     try:
         run(obj)
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError) as exc:  # TypeError: a key name the key pickers (enums) do not offer
         msg = str(exc)
         for frag in fragments:
             assert frag.lower() in msg.lower(), f"expected {frag!r} in error message {msg!r}"
@@ -225,7 +225,7 @@ def quads_ngons_and_edit_mode():
 def errors_change_nothing():
     messages = {}
     reset()
-    messages["no_active_object"] = expect_error(lambda o: interpolate(o, key_from="A", key_to="B"), None,
+    messages["no_active_object"] = expect_error(lambda o: interpolate(o), None,
                                                 "no active object")
     obj = bar_with_keys()
     assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="0.5") == {"FINISHED"}  # state to keep
@@ -252,11 +252,11 @@ def errors_change_nothing():
 
     reset()
     plain = samples.make_object("Plain", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)])
-    messages["no_shape_keys"] = expect_error(lambda o: interpolate(o, key_from="Basis", key_to="Key 1"), plain,
+    messages["no_shape_keys"] = expect_error(lambda o: interpolate(o), plain,
                                              "no shape keys")
     empty = bpy.data.objects.new("Empty", None)
     bpy.context.scene.collection.objects.link(empty)
-    messages["not_a_mesh"] = expect_error(lambda o: interpolate(o, key_from="A", key_to="B"), empty, "not a mesh")
+    messages["not_a_mesh"] = expect_error(lambda o: interpolate(o), empty, "not a mesh")
 
     # non-manifold: a third quad at one cube edge (bmesh keeps the shape keys consistent)
     import bmesh
