@@ -736,17 +736,21 @@ class _ModalRun:
         return {'FINISHED'}
 
     def _start_modal(self, context, runner):
+        self._begin_modal(context, runner)
+        context.window_manager.modal_handler_add(self)
+        return {'RUNNING_MODAL'}
+
+    def _begin_modal(self, context, runner):
+        """Progress bar, status text and the timer whose ticks drive :meth:`modal` (one frame per tick)."""
         wm = context.window_manager
         self._runner = runner
         wm.progress_begin(0, max(runner.total, 1))
         self._timer = wm.event_timer_add(0.01, window=context.window)
-        wm.modal_handler_add(self)
         self._status(context, runner.status())
-        return {'RUNNING_MODAL'}
 
     @staticmethod
     def _status(context, text):
-        if context.workspace is not None:
+        if context.workspace is not None and context.window is not None:
             context.workspace.status_text_set(text)
 
     def _end_modal(self, context):
