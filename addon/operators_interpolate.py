@@ -21,11 +21,19 @@ Marking
 -------
 * In-betweens are named ``"LA <from>><to> <t>"`` (e.g. ``"LA Basis>Bend 0.250"``);
   re-running with the same keys and factors overwrites those keys in place.
-* Baked keys are named ``"LA bake <frame>"`` (e.g. ``"LA bake 012"``).  The mesh
-  ID property ``"lengths_angles_bake"`` lists the baked keys, the data paths of
-  the F-curves the bake created and the values the keyframed user keys had
-  before, so a new bake removes exactly the previous one (keys carrying the
-  prefix AND listed there) and nothing else.
+* Baked keys are named ``"LA bake <frame>"`` (e.g. ``"LA bake 012"``).  The bake's F-curves are in
+  two F-curve groups (:data:`BAKED_GROUP`: the keys it created, :data:`KEYED_GROUP`: your keys it
+  keyframed); Blender rewrites an F-curve's data path when its shape key is renamed, so
+  :func:`bake_identity` finds the bake under any names.  The mesh ID property
+  ``"lengths_angles_bake"`` records the values your keys had before, so a new bake or Clear Bake
+  removes exactly the previous bake and nothing else.
+
+Runs
+----
+Validation builds a :class:`JobRunner` (nothing written); its :meth:`JobRunner.tick` computes one
+frame (:class:`.jobs.ProjectionJob`), :meth:`JobRunner.finish` writes.  The operators run it
+modally from the UI (timer, progress bar, Esc) and synchronously from scripts, in background
+mode and from the redo panel; :mod:`.session` caches what depends only on the mesh and its keys.
 """
 
 import math
