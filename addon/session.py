@@ -30,7 +30,7 @@ from ..lacore.topology import MeshTopology, check_vertices
 from . import mesh_access, storage
 
 __all__ = ["STATS", "MeshData", "coords_hash", "topology_hash", "read_mesh", "key_z", "cached_result",
-           "store_result", "clear", "sizes"]
+           "store_result", "clear", "clear_results", "sizes"]
 
 #: Hit / miss counters: ``topology_hit``, ``topology_miss``, ``z_hit``, ``z_stored`` (taken from the
 #: mesh's stored encoding), ``z_miss``, ``result_hit``, ``result_miss``.
@@ -165,6 +165,11 @@ def store_result(key, X):
     _RESULTS.move_to_end(key)
     while sum(v.nbytes for v in _RESULTS.values()) > _MAX_RESULT_BYTES and len(_RESULTS) > 1:
         _RESULTS.popitem(last=False)
+
+
+def clear_results():
+    """Forget the computed frames only (benchmarks: recompute with the set-up cached)."""
+    _RESULTS.clear()
 
 
 def clear():
