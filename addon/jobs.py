@@ -19,11 +19,27 @@ import numpy as np
 from ..lacore.errors import LengthsAnglesError
 from ..lacore.interpolation import piecewise_linear_z, project_targets, spline_z
 from ..lacore.lengths_angles import check_z
+from ..lacore.multiresolution import MultiresolutionReconstruction
 from ..lacore.progress import report
 from ..lacore.rigid import rigid_align
 from . import session
 
-__all__ = ["ProjectionJob"]
+__all__ = ["ProjectionJob", "key_weights", "MULTIRES"]
+
+#: The ``method`` of :class:`ProjectionJob` that solves coarse, prolongs and finishes with a few fine
+#: Gauss-Newton steps (:class:`lacore.multiresolution.MultiresolutionReconstruction`).
+MULTIRES = "multires"
+
+
+def key_weights(keyframes, t):
+    """Weights ``(K,)`` of the keys in the piecewise-linear blend at time ``t`` (hat functions; the end
+    segments continue linearly beyond the first / last keyframe, as :func:`lacore.interpolation.piecewise_linear_z`)."""
+    k = np.asarray(keyframes, float)
+    j = int(np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2))
+    s = (t - k[j]) / (k[j + 1] - k[j])
+    w = np.zeros(len(k))
+    w[j], w[j + 1] = 1.0 - s, s
+    return w
 
 
 class ProjectionJob:
@@ -77,6 +93,7 @@ class ProjectionJob:
         self._order = np.argsort(self.times, kind="stable")
         self._key = (data.topology_hash, tuple(data.key_hashes[i] for i in idx), tuple(self.keyframes.tolist()),
                      self.smooth, method_label)
+        self._multires_coarse = None  # last coarse solution (warm start of the next coarse solve)
         self.results = [None] * len(self.times)
         self.done = 0
         self.computed = 0  # frames not taken from the session cache
@@ -98,9 +115,12 @@ class ProjectionJob:
         key = (*self._key, t)
         X = session.cached_result(key)
         if X is None:
-            res = project_targets(self.z_targets[i:i + 1], self.data.topology, self.key_vertices[0], times=[t],
-                                  anchors=self._anchors, method=self.method, **self.method_options)
-            Xr = np.asarray(res.vertices[0], float)
+            if self.method == MULTIRES:
+                Xr = self._multires(i, t)
+            else:
+                res = project_targets(self.z_targets[i:i + 1], self.data.topology, self.key_vertices[0], times=[t],
+                                      anchors=self._anchors, method=self.method, **self.method_options)
+                Xr = np.asarray(res.vertices[0], float)
             if not np.all(np.isfinite(Xr)):
                 raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
                                          "too far from any shape; try smaller factors)")
@@ -111,6 +131,18 @@ class ProjectionJob:
         self.results[i] = X
         self.done += 1
         return self.done
+
+    def _multires(self, i, t):
+        """One frame by coarse solve + prolongation + fine steps; the hierarchy is built once per keys (session)."""
+        key = (self.data.topology_hash, self._key[1], "multires")
+        options = dict(self.method_options)
+        setup = options.pop("setup", {})
+        mr = session.cached_object(key, lambda: MultiresolutionReconstruction(self.key_vertices, self.data.topology,
+                                                                              **setup))
+        res = mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i],
+                             initial_coarse=self._multires_coarse, **options)
+        self._multires_coarse = res.coarse_vertices
+        return np.asarray(res.vertices, float)
 
     def run(self, progress=None):
         """All remaining frames; ``progress(done, total, message)`` after each (:mod:`lacore.progress`)."""

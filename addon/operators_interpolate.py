@@ -73,6 +73,8 @@ METHOD_ITEMS = [
                      "factorizations: near the exact projection at a fraction of its cost"),
     ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
+    ('MULTIRES', "Multiresolution", "Solve on a coarsened mesh, carry the result to the full mesh and finish "
+                                    "with three Gauss-Newton steps (the coarse hierarchy is built once per keys)"),
 ]
 PLAYBACK_ITEMS = [
     ('STEPPED', "Stepped", "CONSTANT keyframes: exactly one baked key at full value on every frame, held "
@@ -81,7 +83,7 @@ PLAYBACK_ITEMS = [
                          "motion blur, retimed playback); identical to Stepped on whole frames"),
 ]
 _INTERPOLATION = {'STEPPED': 0, 'SMOOTH': 1}  # keyframe interpolation enum values: CONSTANT, LINEAR
-_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
+_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
 # Measured on a 50k-vertex bar (benchmarks/bench_blender_interpolate.py, README): PREVIEW ~1.6 s per
 # in-between with edge lengths within ~1.4 % on a bend -> twist blend; FAST ~5.4 s per in-between (the
 # first version, an MST walk + 3 Gauss-Newton iterations, took ~20 s and left 160 % errors there, because a
@@ -90,7 +92,8 @@ _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
 _METHOD_OPTIONS = {'PREVIEW': {},
                    'FAST': {"hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
                             "options": GaussNewtonOptions(reuse_factorization=True)},
-                   'GAUSS_NEWTON': {}}
+                   'GAUSS_NEWTON': {},
+                   'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"}}
 
 
 class InterpolationInputError(InputError):

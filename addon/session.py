@@ -10,6 +10,8 @@ do not invalidate it, and any edit does):
 * **z** of every shape key (lengths and angles, thesis eq. 2.1) keyed by (topology hash,
   :func:`coords_hash` of the key's coordinates); on a miss the encoding stored in the mesh by
   Encode is used when its hashes match, else z is computed;
+* **set-up objects** built from the keys (the multiresolution hierarchy), keyed by topology and
+  key hashes;
 * **results**: placed in-betweens keyed by (topology hash, key hashes, keyframes, spline or
   linear, method, time), so a redo-panel change re-computes only the frames that changed.
 
@@ -30,7 +32,7 @@ from ..lacore.topology import MeshTopology, check_vertices
 from . import mesh_access, storage
 
 __all__ = ["STATS", "MeshData", "coords_hash", "topology_hash", "read_mesh", "key_z", "cached_result",
-           "store_result", "clear", "clear_results", "sizes"]
+           "store_result", "cached_object", "clear", "clear_results", "sizes"]
 
 #: Hit / miss counters: ``topology_hit``, ``topology_miss``, ``z_hit``, ``z_stored`` (taken from the
 #: mesh's stored encoding), ``z_miss``, ``result_hit``, ``result_miss``.
@@ -42,6 +44,8 @@ _Z = OrderedDict()           # (topology hash, coords hash) -> (2E,) float64 (re
 _MAX_Z = 64
 _RESULTS = OrderedDict()     # (topology hash, job key, time) -> (V, 3) float64 (read-only)
 _MAX_RESULT_BYTES = 256 * 2 ** 20
+_OBJECTS = OrderedDict()     # (topology hash, ..., what) -> set-up object (e.g. a multiresolution hierarchy)
+_MAX_OBJECTS = 1
 
 
 def coords_hash(X):
@@ -149,6 +153,16 @@ def _stored_z(data, name):
     return z if z.shape == (2 * data.topology.n_edges,) else None
 
 
+def cached_object(key, build):
+    """A set-up object under ``key`` (built by ``build()`` on a miss; the last one is kept)."""
+    value = _OBJECTS.get(key)
+    STATS["object_hit" if value is not None else "object_miss"] += 1
+    if value is None:
+        value = build()
+    _lru_put(_OBJECTS, key, value, _MAX_OBJECTS)
+    return value
+
+
 def cached_result(key):
     """A stored result ``(V, 3)`` under ``key`` (hashable, starting with the topology hash), or None."""
     X = _RESULTS.get(key)
@@ -177,6 +191,7 @@ def clear():
     _TOPOLOGIES.clear()
     _Z.clear()
     _RESULTS.clear()
+    _OBJECTS.clear()
 
 
 def sizes():

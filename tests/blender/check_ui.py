@@ -331,8 +331,31 @@ def remove_data_and_messages():
             "integrable": [verdict, tip, bad_verdict]}
 
 
+def multires_method():
+    """Method Multiresolution on the bar: the 0.5 in-between vs Gauss-Newton's and vs Blender's 90-degree bend."""
+    session = mod("session")
+    reset()
+    obj = bar_with_keys()
+    out = {}
+    for method in ("GAUSS_NEWTON", "MULTIRES"):
+        session.clear()
+        t = time.perf_counter()
+        with ops_context(obj):
+            assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="0.5 0.75",
+                                                      method=method) == {'FINISHED'}
+        out[method] = {"seconds": time.perf_counter() - t, "X": coords(obj, "LA Basis>Bend180 0.500")}
+    A, R90 = coords(obj, "Basis"), coords(obj, "SimpleDeform90")
+    edges = cases.mesh_edges(obj)
+    diag = float(np.linalg.norm(A.max(0) - A.min(0)))
+    gn, mr = out["GAUSS_NEWTON"]["X"], out["MULTIRES"]["X"]
+    rms_vs_gn = float(np.sqrt(np.mean(np.sum((cases.rigid_align(mr, gn) - gn) ** 2, 1)))) / diag
+    return {"rms_vs_gauss_newton_per_diagonal": rms_vs_gn,
+            "vs_simple_deform_90": cases.blend_metrics(mr, R90, A, edges),
+            "seconds": {m: v["seconds"] for m, v in out.items()}, "objects": session.STATS.get("object_miss", 0)}
+
+
 def main():
-    run_cases((install_and_enable, modal_steps_and_cancel, session_cache, key_pickers_and_texts,
+    run_cases((install_and_enable, multires_method, modal_steps_and_cancel, session_cache, key_pickers_and_texts,
                bake_dialog_and_playback, clear_bake_after_renames, remove_data_and_messages))
 
 
