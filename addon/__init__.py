@@ -20,5 +20,6 @@ def register():
 
 def unregister():
     bpy.types.MESH_MT_shape_key_context_menu.remove(panels.draw_shape_key_menu)
+    operators_interpolate.shutdown_worker()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

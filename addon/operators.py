@@ -10,7 +10,7 @@ from bpy.props import StringProperty
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import integrability_violation
 from . import session, storage
-from .operators_interpolate import BAKE_PROP, bake_identity, remove_bake
+from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -117,9 +117,10 @@ class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.object
-        if obj.mode == 'EDIT':
-            obj.update_from_editmode()
-        self.report({'INFO'}, f"Removed from '{obj.name}': {remove_data(obj)}")
+        with object_mode(obj):  # removing shape keys in Edit Mode would be undone on leaving it
+            removed = remove_data(obj)
+            obj.data.update()
+        self.report({'INFO'}, f"Removed from '{obj.name}': {removed}")
         return {'FINISHED'}
 
 

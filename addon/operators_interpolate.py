@@ -39,6 +39,7 @@ mode and from the redo panel; :mod:`.session` caches what depends only on the me
 import math
 import re
 import traceback
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import bpy
@@ -53,7 +54,7 @@ __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", 
            "parse_key_list", "parse_frames", "inbetween_key_name", "bake_key_name", "interpolate_object",
            "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX", "INBETWEEN_PREFIX",
            "JobRunner", "interpolate_runner", "bake_runner", "bake_frames", "bake_summary", "key_items",
-           "BAKED_GROUP", "KEYED_GROUP", "bake_identity", "remove_bake"]
+           "BAKED_GROUP", "KEYED_GROUP", "bake_identity", "remove_bake", "object_mode"]
 
 INBETWEEN_PREFIX = "LA "
 BAKE_PREFIX = "LA bake "
@@ -395,7 +396,7 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
 
 # ----------------------------------------------------------------------------- writing
 @contextmanager
-def _object_mode(obj):
+def object_mode(obj):
     """Shape keys written in Edit Mode would be overwritten on leaving it: write in Object Mode."""
     if obj.mode != 'EDIT':
         yield
@@ -607,7 +608,7 @@ def interpolate_runner(obj, key_from, key_to, factors, method='FAST'):
         results = list(zip(names, shapes, strict=True))
         _check_finite(results, "Interpolate")
         existing = set(mesh_access.key_names(obj.data))
-        with _object_mode(obj):
+        with object_mode(obj):
             for name, X in results:
                 write_key(obj, name, X)
             obj.data.update()
@@ -623,7 +624,7 @@ def bake_runner(obj, keys, frames, smooth=False, method='FAST', playback='STEPPE
 
     def write(obj, shapes):
         full = _complete_plan(plan, shapes)
-        with _object_mode(obj):
+        with object_mode(obj):
             write_bake(obj, full, {"keys": list(keys), "frames": list(frames), "smooth": bool(smooth),
                                    "method": method, "playback": playback}, playback)
         return (f"Baked {len(full['keys'])} in-between keys for frames {frames[0]}..{frames[-1]} "
@@ -650,6 +651,23 @@ def _progress(wm, n):
     def update(done, total, message=""):
         wm.progress_update(min(int(done), n))
     return update
+
+
+_WORKER = []
+
+
+def _worker():
+    """The one worker thread of the modal runs (created on first use): a frame is computed there while
+    Blender keeps redrawing and handling events; it runs lacore only, never bpy."""
+    if not _WORKER:
+        _WORKER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lengths_angles"))
+    return _WORKER[0]
+
+
+def shutdown_worker():
+    """Stop the worker thread (add-on unregister); a frame being computed is dropped."""
+    while _WORKER:
+        _WORKER.pop().shutdown(wait=False, cancel_futures=True)
 
 
 _ITEMS = {}  # Blender needs Python to keep the strings of dynamic enum items alive
@@ -752,11 +770,12 @@ class _ModalRun:
         return {'RUNNING_MODAL'}
 
     def _begin_modal(self, context, runner):
-        """Progress bar, status text and the timer whose ticks drive :meth:`modal` (one frame per tick)."""
+        """Progress bar, status text and the timer whose events drive :meth:`modal`."""
         wm = context.window_manager
         self._runner = runner
+        self._future = None
         wm.progress_begin(0, max(runner.total, 1))
-        self._timer = wm.event_timer_add(0.01, window=context.window)
+        self._timer = wm.event_timer_add(0.05, window=context.window)
         self._status(context, runner.status())
 
     @staticmethod
@@ -773,16 +792,25 @@ class _ModalRun:
         self._status(context, None)
 
     def modal(self, context, event):
+        """One unit of work at a time: ``runner.tick()`` (one frame) runs in the worker thread (it never touches
+        bpy), timer events poll it, update the progress and start the next; Esc / right-click cancels."""
         runner = self._runner
         if event.type in {'ESC', 'RIGHTMOUSE'} and event.value == 'PRESS':
-            runner.cancel()
+            runner.cancel()  # a frame being computed finishes in the worker and is dropped
+            self._future = None
             self._end_modal(context)
             self.report({'WARNING'}, "Cancelled: nothing was changed")
             return {'CANCELLED'}
         if event.type != 'TIMER' or event.timer is not self._timer:
             return {'PASS_THROUGH'}
+        if self._future is None:
+            self._future = _worker().submit(runner.tick)
+            return {'RUNNING_MODAL'}
+        if not self._future.done():
+            return {'RUNNING_MODAL'}
+        future, self._future = self._future, None
         try:
-            finished = runner.tick()
+            finished = future.result()
         except Exception as exc:
             runner.cancel()
             self._end_modal(context)
@@ -791,6 +819,7 @@ class _ModalRun:
         context.window_manager.progress_update(runner.done)
         if not finished:
             self._status(context, runner.status())
+            self._future = _worker().submit(runner.tick)
             return {'RUNNING_MODAL'}
         self._end_modal(context)
         self.interactive = False  # a redo-panel change re-runs synchronously (from the session cache)
@@ -962,7 +991,7 @@ class LENGTHS_ANGLES_OT_clear_bake(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.object
-        with _object_mode(obj):
+        with object_mode(obj):
             n = remove_bake(obj)
             obj.data.update()
         self.report({'INFO'}, f"Removed the bake ({n} keys)")

@@ -21,6 +21,7 @@ No bpy here: the caller reads the Blender data (:func:`read_mesh` takes the obje
 """
 
 import hashlib
+import threading
 from collections import Counter, OrderedDict
 from dataclasses import dataclass
 
@@ -44,6 +45,7 @@ _Z = OrderedDict()           # (topology hash, coords hash) -> (2E,) float64 (re
 _MAX_Z = 64
 _RESULTS = OrderedDict()     # (topology hash, job key, time) -> (V, 3) float64 (read-only)
 _MAX_RESULT_BYTES = 256 * 2 ** 20
+_LOCK = threading.RLock()    # the modal runs compute frames in a worker thread
 _OBJECTS = OrderedDict()     # (topology hash, ..., what) -> set-up object (e.g. a multiresolution hierarchy)
 _MAX_OBJECTS = 1
 
@@ -79,10 +81,11 @@ class MeshData:
 
 
 def _lru_put(table, key, value, limit):
-    table[key] = value
-    table.move_to_end(key)
-    while len(table) > limit:
-        table.popitem(last=False)
+    with _LOCK:
+        table[key] = value
+        table.move_to_end(key)
+        while len(table) > limit:
+            table.popitem(last=False)
 
 
 def read_mesh(obj, what="processed"):
@@ -96,7 +99,8 @@ def read_mesh(obj, what="processed"):
     names, coords = mesh_access.read_shape_keys(mesh)
     tri = mesh_access.triangulate(mesh)
     thash = topology_hash(tri.faces, tri.edges, tri.n_vertices)
-    topology = _TOPOLOGIES.get(thash)
+    with _LOCK:
+        topology = _TOPOLOGIES.get(thash)
     if topology is None:
         STATS["topology_miss"] += 1
         try:
@@ -106,7 +110,7 @@ def read_mesh(obj, what="processed"):
         _lru_put(_TOPOLOGIES, thash, topology, _MAX_TOPOLOGIES)
     else:
         STATS["topology_hit"] += 1
-        _TOPOLOGIES.move_to_end(thash)
+        _lru_put(_TOPOLOGIES, thash, topology, _MAX_TOPOLOGIES)
     return MeshData(mesh=mesh, names=names, coords=coords, topology=topology, topology_hash=thash,
                     key_hashes=[coords_hash(X) for X in coords])
 
@@ -120,11 +124,12 @@ def key_z(data, name):
     """
     k = data.index(name)
     key = (data.topology_hash, data.key_hashes[k])
-    z = _Z.get(key)
-    if z is not None:
-        STATS["z_hit"] += 1
-        _Z.move_to_end(key)
-        return z
+    with _LOCK:
+        z = _Z.get(key)
+        if z is not None:
+            STATS["z_hit"] += 1
+            _Z.move_to_end(key)
+            return z
     z = _stored_z(data, name)
     if z is not None:
         STATS["z_stored"] += 1
@@ -155,8 +160,9 @@ def _stored_z(data, name):
 
 def cached_object(key, build):
     """A set-up object under ``key`` (built by ``build()`` on a miss; the last one is kept)."""
-    value = _OBJECTS.get(key)
-    STATS["object_hit" if value is not None else "object_miss"] += 1
+    with _LOCK:
+        value = _OBJECTS.get(key)
+        STATS["object_hit" if value is not None else "object_miss"] += 1
     if value is None:
         value = build()
     _lru_put(_OBJECTS, key, value, _MAX_OBJECTS)
@@ -165,33 +171,37 @@ def cached_object(key, build):
 
 def cached_result(key):
     """A stored result ``(V, 3)`` under ``key`` (hashable, starting with the topology hash), or None."""
-    X = _RESULTS.get(key)
-    STATS["result_hit" if X is not None else "result_miss"] += 1
-    if X is not None:
-        _RESULTS.move_to_end(key)
-    return X
+    with _LOCK:
+        X = _RESULTS.get(key)
+        STATS["result_hit" if X is not None else "result_miss"] += 1
+        if X is not None:
+            _RESULTS.move_to_end(key)
+        return X
 
 
 def store_result(key, X):
     X = np.array(X, np.float64)
     X.setflags(write=False)
-    _RESULTS[key] = X
-    _RESULTS.move_to_end(key)
-    while sum(v.nbytes for v in _RESULTS.values()) > _MAX_RESULT_BYTES and len(_RESULTS) > 1:
-        _RESULTS.popitem(last=False)
+    with _LOCK:
+        _RESULTS[key] = X
+        _RESULTS.move_to_end(key)
+        while sum(v.nbytes for v in _RESULTS.values()) > _MAX_RESULT_BYTES and len(_RESULTS) > 1:
+            _RESULTS.popitem(last=False)
 
 
 def clear_results():
     """Forget the computed frames only (benchmarks: recompute with the set-up cached)."""
-    _RESULTS.clear()
+    with _LOCK:
+        _RESULTS.clear()
 
 
 def clear():
     """Forget everything cached in this session (the stored encodings in .blend files stay)."""
-    _TOPOLOGIES.clear()
-    _Z.clear()
-    _RESULTS.clear()
-    _OBJECTS.clear()
+    with _LOCK:
+        _TOPOLOGIES.clear()
+        _Z.clear()
+        _RESULTS.clear()
+        _OBJECTS.clear()
 
 
 def sizes():
