@@ -12,10 +12,11 @@ shape key.  Timed:
 * ``redo_seconds``: the operator again with the same options (a redo-panel re-run: every frame
   comes from the session cache, addon/session.py);
 * ``steps_*``: the modal path's units of work with the operator's own runner
-  (``interpolate_runner``): validation, one ``tick()`` per in-between (each is the time Blender
-  does not respond between two timer events), ``finish()`` (checks + writing the keys); the
-  computed frames are dropped from the session cache first (the topology and the keys' lengths
-  and angles stay cached); the ticks under cProfile.
+  (``interpolate_runner``): validation, one ``tick()`` per in-between, ``finish()`` (checks +
+  writing the keys).  In the UI the ticks run in the worker thread while Blender keeps
+  responding; the main thread blocks only for validation and finish.  The computed frames are
+  dropped from the session cache first (the topology, the keys' lengths and angles and, for
+  MULTIRES, the coarse hierarchy stay cached); the ticks under cProfile.
 
 Prints one JSON object: seconds per stage and method, machine info, and (with
 ``--profile``, default on) the functions taking most of the compute time (cProfile,
@@ -85,7 +86,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--segments", type=int, nargs=3, default=(400, 30, 30))
     parser.add_argument("--count", type=int, default=10)
-    parser.add_argument("--methods", nargs="+", default=["FAST"], choices=["PREVIEW", "FAST", "GAUSS_NEWTON"])
+    parser.add_argument("--methods", nargs="+", default=["FAST"],
+                        choices=["PREVIEW", "FAST", "GAUSS_NEWTON", "MULTIRES"])
     parser.add_argument("--no-profile", action="store_true")
     parser.add_argument("--json", default=None, help="also write the result to this file")
     args = parser.parse_args(argv)

@@ -117,6 +117,7 @@ def install_and_enable():
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
     assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON", "MULTIRES"]
     assert props["method"].default == "FAST"
+    assert props["interactive"].is_hidden and not props["interactive"].default  # scripts run synchronously
     bake_props = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
     assert {"keys", "frames", "smooth", "method"} <= set(bake_props.keys()), bake_props.keys()
     assert bpy.ops.lengths_angles.interpolate.bl_options == {'REGISTER', 'UNDO'}
