@@ -286,7 +286,10 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             heapq.heappush(heap, item)
 
     E = topo.edges
-    push(np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]]))
+    src0, dst0 = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
+    heap = list(zip(costs(src0, dst0).tolist(), src0.tolist(), dst0.tolist(), [0] * len(src0), [0] * len(src0),
+                    strict=True))
+    heapq.heapify(heap)
 
     fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,N,3), sums of squared lengths (F,N)
     fnorm = np.sqrt((fcr * fcr).sum(-1))
@@ -361,10 +364,8 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             blocked[b].add((a, b))
             continue
         # --- collapse a -> b
-        ring_faces = fcur[list(Fa)]
-        rot = np.argmax(ring_faces == a, axis=1)
-        idx = (rot[:, None] + np.arange(1, 3)[None, :]) % 3
-        ring_chunks.append(np.take_along_axis(ring_faces, idx, axis=1))
+        ring_chunks.append([(q, r) if p == a else (r, p) if q == a else (p, q)
+                            for p, q, r in fcur[list(Fa)].tolist()])
         for f in shared:
             falive[f] = False
             for x in fcur[f].tolist():
@@ -417,7 +418,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         parent[a] = parent[b]
     sizes = np.array([len(c) for c in ring_chunks], np.int64)
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    pairs = np.concatenate(ring_chunks).astype(np.int64) if ring_chunks else np.zeros((0, 2), np.int64)
+    pairs = np.array([pq for c in ring_chunks for pq in c], np.int64).reshape(-1, 2)
     if progress is not None:
         report(progress, n_remove, n_remove, "coarsening done")
     return Coarsening(n_fine_vertices=V, fine_faces=faces, vertex_indices=keep, faces=cfaces,
