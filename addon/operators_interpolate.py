@@ -731,8 +731,9 @@ class _ModalRun:
     """Shared run logic: interactive (modal, timer-driven, progress bar, Esc) or synchronous."""
 
     interactive: BoolProperty(name="Interactive", default=False, options={'HIDDEN', 'SKIP_SAVE'},
-                              description="Compute one frame per timer tick with a progress bar and Esc to cancel "
-                                          "(set by the user interface; scripts and background mode run at once)")
+                              description="Compute frame by frame in a worker thread with a progress bar and Esc "
+                                          "to cancel (set by the user interface; scripts, background mode and "
+                                          "the redo panel run at once)")
 
     def _run(self, context, make_runner):
         obj = context.object
