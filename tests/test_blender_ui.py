@@ -85,7 +85,8 @@ def test_remove_data_and_messages(run):
 
 
 def test_multiresolution_method(run):
-    """Method Multiresolution (lacore.multiresolution) through the operator on the 1058-vertex bar: measured
+    """Method MULTIRES (lacore.multiresolution; through the operator's runner, not yet a Method item) on the
+    1058-vertex bar: measured
     1.37e-5 of the bounding-box diagonal (RMS) from Gauss-Newton's in-between, 4.0e-4 from Blender's 90-degree
     bend (Gauss-Newton: 3.98e-4); the hierarchy is built once for both factors."""
     res = run["cases"]["multires_method"]

@@ -346,17 +346,18 @@ def remove_data_and_messages():
 
 
 def multires_method():
-    """Method Multiresolution on the bar: the 0.5 in-between vs Gauss-Newton's and vs Blender's 90-degree bend."""
+    """Method MULTIRES (the runner's, not offered in the UI yet) on the bar: the 0.5 in-between vs Gauss-Newton's
+    and vs Blender's 90-degree bend."""
     session = mod("session")
     reset()
     obj = bar_with_keys()
     out = {}
-    for method in ("GAUSS_NEWTON", "MULTIRES"):
+    for method in ("GAUSS_NEWTON", "MULTIRES"):  # MULTIRES: not an item of the Method enum yet (the runner takes it)
         session.clear()
         t = time.perf_counter()
-        with ops_context(obj):
-            assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="0.5 0.75",
-                                                      method=method) == {'FINISHED'}
+        runner = mod("operators_interpolate").interpolate_runner(obj, "Basis", "Bend180", [0.5, 0.75], method)
+        runner.run()
+        runner.finish()
         out[method] = {"seconds": time.perf_counter() - t, "X": coords(obj, "LA Basis>Bend180 0.500")}
     A, R90 = coords(obj, "Basis"), coords(obj, "SimpleDeform90")
     edges = cases.mesh_edges(obj)
