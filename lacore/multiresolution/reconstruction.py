@@ -34,7 +34,7 @@
        reference factor stays a good preconditioner (on an 11k bar the
        relative residual after 10 PCG iterations is 0.06 with the rotation
        and 0.72 without).  Measured: good on near-isometric blends (deformed
-       spheres: 2e-4 above full Gauss-Newton after 3 steps), poor where the
+       spheres: 1.2e-3 above full Gauss-Newton after 3 steps), poor where the
        blend bends far from the reference (finger average: 100 % above after
        3 steps of 20 PCG iterations).
 
@@ -42,13 +42,16 @@ Coarse bending weight
 ---------------------
 With the weights (3.20) the membrane part of ``W_q`` sums ``(dl / l)^2`` over
 edges and grows with the number of edges for a given smooth strain, while the
-bending part (``l^2 / d`` times ``dtheta^2``) does not.  The coarse problem
-therefore uses ``eta_c = eta E_c / E`` (coarse over fine edge count) so that
-it approximates the same continuous energy; for the weights (3.21), both
-parts are area-weighted and ``eta_c = eta``.  On the 11k-vertex bar
-bend/twist in-between this halves the RMS distance of the prolonged coarse
+bending part (``l^2 / d`` times ``dtheta^2``) does not; ``eta E_c / E`` (coarse
+over fine edge count) would make the coarse problem approximate the same
+continuous energy.  Measured, that is not what pays: on the 11k-vertex bar
+bend/twist in-between it halves the RMS distance of the prolonged coarse
 solution to the fine optimum (0.076 % instead of 0.14 % of the bounding-box
-diagonal).
+diagonal) but the energy after three fine iterations is the same, and on the
+50k bar the softer coarse problem converges slower and leaves the fine
+iterations 5x further from the optimum.  The default is therefore the
+thesis' choice, the same ``eta`` on both levels (``coarse_bending_weight``
+sets another).
 """
 
 import time
@@ -119,8 +122,9 @@ class MultiresolutionReconstruction:
     coarsening : Coarsening, optional
         A precomputed coarsening of these shapes (``n_coarse`` is then unused).
     bending_weight : float
-        ``eta`` of the fine problem (default 1e-3); see the module docstring
-        for the coarse one.
+        ``eta`` of the fine problem (default 1e-3).
+    coarse_bending_weight : float, optional
+        ``eta`` of the coarse problem (default ``bending_weight``, see the module docstring).
     weights : {"frohlich_botsch", "heeren"}
         Weights of ``W_q`` (3.20) / (3.21).
     solver : {"cholmod", "scipy"}, optional
@@ -138,7 +142,7 @@ class MultiresolutionReconstruction:
     """
 
     def __init__(self, shapes, topology, n_coarse=None, *, reference=0, coarsening=None, bending_weight=1e-3,
-                 weights="frohlich_botsch", solver=None, progress=None):
+                 coarse_bending_weight=None, weights="frohlich_botsch", solver=None, progress=None):
         t0 = time.perf_counter()
         if not isinstance(topology, MeshTopology):
             raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
@@ -167,9 +171,8 @@ class MultiresolutionReconstruction:
         self.coarse_shapes = coarsening.restrict(S)
         self.z_keys = np.stack([lengths_and_angles(X, topology) for X in S])
         self.z_coarse_keys = np.stack([lengths_and_angles(X, ct) for X in self.coarse_shapes])
-        scale = ct.n_edges / topology.n_edges if weights == "frohlich_botsch" else 1.0
         self.bending_weight = float(bending_weight)
-        self.coarse_bending_weight = float(bending_weight) * scale
+        self.coarse_bending_weight = float(bending_weight if coarse_bending_weight is None else coarse_bending_weight)
         ref = S[self.reference]
         self.fine_context = ReconstructionContext(topology, ref, weights=weights, bending_weight=bending_weight,
                                                   solver=solver)
