@@ -93,7 +93,6 @@ class ProjectionJob:
         self._order = np.argsort(self.times, kind="stable")
         self._key = (data.topology_hash, tuple(data.key_hashes[i] for i in idx), tuple(self.keyframes.tolist()),
                      self.smooth, method_label)
-        self._multires_coarse = None  # last coarse solution (warm start of the next coarse solve)
         self.results = [None] * len(self.times)
         self.done = 0
         self.computed = 0  # frames not taken from the session cache
@@ -139,9 +138,9 @@ class ProjectionJob:
         setup = options.pop("setup", {})
         mr = session.cached_object(key, lambda: MultiresolutionReconstruction(self.key_vertices, self.data.topology,
                                                                               **setup))
-        res = mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i],
-                             initial_coarse=self._multires_coarse, **options)
-        self._multires_coarse = res.coarse_vertices
+        # the coarse solve starts from the coarse key of largest weight (lacore's default: a bend far from the
+        # previous frame's coarse solution is reached more reliably from the nearer key)
+        res = mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i], **options)
         return np.asarray(res.vertices, float)
 
     def run(self, progress=None):

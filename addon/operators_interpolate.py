@@ -77,8 +77,9 @@ METHOD_ITEMS = [
 ]
 # Not offered in the UI yet: 'MULTIRES' (lacore.multiresolution: coarse solve, prolongation, three fine Gauss-Newton
 # steps; the hierarchy is built once per keys in the session cache).  Measured on the 50k bar
-# (bench_blender_interpolate.py --methods MULTIRES): 7.9 s per in-between against Fast's 5.4 s, and edge lengths up
-# to 200 % off at t = 0.55 (max 0.78 % of the diagonal); add the item once lacore's multiresolution meets its goal:
+# (bench_blender_interpolate.py --methods MULTIRES, multires a30c903): 6.9 s per in-between against Fast's 5.4 s,
+# edge lengths up to 199 % off at t = 0.55 (max 0.78 % of the diagonal); add the item once lacore's
+# multiresolution meets its goal:
 # ('MULTIRES', "Multiresolution", "Solve on a coarsened mesh, carry the result to the full mesh and finish with a "
 #                                 "few Gauss-Newton steps (the coarse hierarchy is built once per keys)"),
 PLAYBACK_ITEMS = [
