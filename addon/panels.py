@@ -77,8 +77,8 @@ def draw_inbetweens(context, layout, mesh):
 
 def draw_shape_key_menu(self, context):
     """Entries in the Shape Keys specials menu (the menu next to the key list; also found by F3 search)."""
-    layout = self.layout
-    layout.separator()
+    self.layout.separator()
+    layout = self.layout.column()  # its own operator context, not the menu's
     layout.operator_context = 'INVOKE_DEFAULT'
     layout.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text="Lengths & Angles In-betweens...",
                     icon='IPO_EASE_IN_OUT')
