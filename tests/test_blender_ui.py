@@ -23,6 +23,10 @@ def test_modal_ticks_cancel_and_edit(run):
     assert res["events_full_run"] > 4  # timer events poll the worker thread: RUNNING_MODAL until all 4 frames
     assert res["modal_vs_sync_max_abs"] < 1e-5  # measured 0.0: the same computation
     assert "'Bend180' was edited" in res["edited_while_running"]
+    # the bake, modally: right-click after one frame changed nothing (snapshot), a full run = the synchronous bake
+    assert res["bake_state"] == ["FINISHED"]
+    assert res["bake_keys"] == ["LA bake 002", "LA bake 003", "LA bake 004", "LA bake 005"]
+    assert res["modal_bake_equals_sync"]
 
 
 def test_session_cache_hits_and_invalidation(run):

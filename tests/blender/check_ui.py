@@ -118,7 +118,30 @@ def modal_steps_and_cancel():
     assert snapshot(obj) == edited
     edit_message = op.reports[-1][1]
     assert "Bend180" in edit_message and "nothing was written" in edit_message, op.reports
-    return {"cancel_reports": cancel_reports, "events_full_run": events,
+    # a bake, modally: Esc after the first frame changes nothing; a full run writes what the synchronous bake does
+    reset()
+    obj = bar_with_keys()
+    session.clear()
+    before = snapshot(obj)
+    op = fake_operator()
+    runner = ops.bake_runner(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
+    op._begin_modal(ctx, runner)
+    drive(op, ctx, runner, until_done=1)
+    assert op.modal(ctx, SimpleNamespace(type='RIGHTMOUSE', value='PRESS', timer=None)) == {'CANCELLED'}
+    ops._worker().submit(lambda: None).result()
+    assert snapshot(obj) == before, "cancelling the bake changed the object"
+    op = fake_operator()
+    runner = ops.bake_runner(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
+    op._begin_modal(ctx, runner)
+    bake_state, _ = drive(op, ctx, runner)
+    modal_bake = snapshot(obj)
+    session.clear()  # the same bake synchronously from a clean cache: it replaces the modal one identically
+    with ops_context(obj):
+        assert bpy.ops.lengths_angles.bake_keyframes(keys="Basis, Bend180", frames="1 6", playback='SMOOTH') \
+            == {'FINISHED'}
+    bake_same = modal_bake == snapshot(obj)
+    return {"cancel_reports": cancel_reports, "events_full_run": events, "bake_state": sorted(bake_state),
+            "bake_keys": [n for n in key_names(obj) if n.startswith("LA bake")], "modal_bake_equals_sync": bake_same,
             "modal_vs_sync_max_abs": diff, "edited_while_running": edit_message}
 
 
