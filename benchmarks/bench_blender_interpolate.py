@@ -16,7 +16,10 @@ shape key.  Timed:
   writing the keys).  In the UI the ticks run in the worker thread while Blender keeps
   responding; the main thread blocks only for validation and finish.  The computed frames are
   dropped from the session cache first (the topology, the keys' lengths and angles and, for
-  MULTIRES, the coarse hierarchy stay cached); the ticks under cProfile.
+  MULTIRES, the coarse hierarchy stay cached).  With ``--no-profile`` the ticks run in a worker
+  thread as in the UI, and ``steps_main_thread_longest_wait_seconds`` is, per frame, the longest
+  time the main thread (waking every 5 ms) waited for Python's lock: how long Blender's
+  Python-drawn UI can stall meanwhile.  Otherwise the ticks run under cProfile.
 
 Prints one JSON object: seconds per stage and method, machine info, and (with
 ``--profile``, default on) the functions taking most of the compute time (cProfile,
@@ -37,6 +40,7 @@ import pstats
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -143,14 +147,32 @@ def main(argv=None):
         t1 = time.perf_counter()
         ticks = []
 
+        gaps = []
+
         def drive(runner=runner, ticks=ticks):
             while not runner.finished:
                 t = time.perf_counter()
                 runner.tick()
                 ticks.append(round(time.perf_counter() - t, 3))
 
+        def drive_in_worker(runner=runner, ticks=ticks, gaps=gaps):
+            """As the modal operator: each tick in a worker thread; the main thread wakes every 5 ms (as
+            Blender's event loop needs Python's lock for its Python-drawn UI) and records its longest wait."""
+            with ThreadPoolExecutor(max_workers=1) as worker:
+                while not runner.finished:
+                    t = last = time.perf_counter()
+                    future, gap = worker.submit(runner.tick), 0.0
+                    while not future.done():
+                        time.sleep(0.005)
+                        now = time.perf_counter()
+                        gap, last = max(gap, now - last), now
+                    future.result()
+                    ticks.append(round(time.perf_counter() - t, 3))
+                    gaps.append(round(gap, 3))
+
         if args.no_profile:
-            drive()
+            drive_in_worker()
+            entry["steps_main_thread_longest_wait_seconds"] = gaps
         else:
             _, top, own = profile_top(drive)
             entry["profile_cumulative"] = top
