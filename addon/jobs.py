@@ -94,6 +94,7 @@ class ProjectionJob:
         self._key = (data.topology_hash, tuple(data.key_hashes[i] for i in idx), tuple(self.keyframes.tolist()),
                      self.smooth, method_label)
         self.results = [None] * len(self.times)
+        self.failures = []  # "t = ...: <failure>: <message>" of frames failing their checks (written anyway)
         self.done = 0
         self.computed = 0  # frames not taken from the session cache
 
@@ -112,21 +113,27 @@ class ProjectionJob:
         i = int(self._order[self.done])
         t = float(self.times[i])
         key = (*self._key, t)
-        X = session.cached_result(key)
-        if X is None:
+        cached = session.cached_result(key)
+        if cached is not None:
+            X, note = cached
+        else:
             if self.method == MULTIRES:
-                Xr = self._multires(i, t)
+                rec = self._multires(i, t)
             else:
                 res = project_targets(self.z_targets[i:i + 1], self.data.topology, self.key_vertices[0], times=[t],
                                       anchors=self._anchors, method=self.method, **self.method_options)
-                Xr = np.asarray(res.vertices[0], float)
+                rec = res.reconstructions[0]
+            Xr = np.asarray(rec.vertices, float)
+            note = self._failure(rec, t)
             if not np.all(np.isfinite(Xr)):
                 raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
                                          "too far from any shape; try smaller factors)")
             self._anchors.append((t, Xr))  # warm start of the next Gauss-Newton frame
             X = rigid_align(Xr, self._placement[i])
-            session.store_result(key, X)
+            session.store_result(key, X, note)
             self.computed += 1
+        if note:
+            self.failures.append(note)
         self.results[i] = X
         self.done += 1
         return self.done
@@ -140,8 +147,18 @@ class ProjectionJob:
                                                                               **setup))
         # the coarse solve starts from the coarse key of largest weight (lacore's default: a bend far from the
         # previous frame's coarse solution is reached more reliably from the nearer key)
-        res = mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i], **options)
-        return np.asarray(res.vertices, float)
+        return mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i], **options)
+
+    def _failure(self, result, t):
+        """``"t = ...: <failure>: <message>"`` if the reconstruction failed its checks (lacore's ``success``,
+        ``failure``), else None; the least-squares relaxation (which minimizes nothing) not reproducing a
+        non-admissible target is expected and not listed, folds are."""
+        if result.success:
+            return None
+        failure = getattr(result, "failure", "") or "failed"
+        if self.method == "lsq" and failure == "not_reproduced":
+            return None
+        return f"t = {t:g}: {failure}: {result.message}"
 
     def run(self, progress=None):
         """All remaining frames; ``progress(done, total, message)`` after each (:mod:`lacore.progress`)."""

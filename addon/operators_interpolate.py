@@ -7,6 +7,16 @@ in lengths and angles, then projection onto admissible lengths and angles by
 reconstruction), and only then write to Blender.  Any error is reported as
 ERROR and returns CANCELLED with the object unchanged.
 
+Results that fail their checks
+------------------------------
+A reconstruction whose result fails its checks (``success=False``; with issue 12's
+:mod:`lacore.reconstruction.checks`: folded faces, or a minimizer that did not converge) is
+still written -- it is the best shape the method found, Blender's undo removes it, and hiding it
+would leave the user with nothing to inspect -- and the operator reports a WARNING naming how
+many frames failed and the first failure (:func:`failure_warning`) instead of the INFO line.
+For 'PREVIEW' (the least-squares relaxation, which minimizes nothing) a non-admissible target
+that is merely not reproduced is expected and not reported; folds are.
+
 Output placement
 ----------------
 A reconstruction is determined up to a rigid motion.  Every result is placed by
@@ -54,7 +64,7 @@ __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", 
            "parse_key_list", "parse_frames", "inbetween_key_name", "bake_key_name", "interpolate_object",
            "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX", "INBETWEEN_PREFIX",
            "JobRunner", "interpolate_runner", "bake_runner", "bake_frames", "bake_summary", "key_items",
-           "BAKED_GROUP", "KEYED_GROUP", "bake_identity", "remove_bake", "object_mode"]
+           "BAKED_GROUP", "KEYED_GROUP", "bake_identity", "remove_bake", "object_mode", "failure_warning"]
 
 INBETWEEN_PREFIX = "LA "
 BAKE_PREFIX = "LA bake "
@@ -222,7 +232,7 @@ def _inbetween_plan(obj, key_from, key_to, factors, method):
     return data, unique, job
 
 
-def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None):
+def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None, failures=None):
     """Compute in-betweens of two shape keys WITHOUT touching Blender data.
 
     Returns a list of ``(key name, (V, 3) float64 coordinates)``, one per factor,
@@ -230,16 +240,35 @@ def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=N
     :class:`lacore.errors.InputError` subclasses for unusable input.
     """
     _data, names, job = _inbetween_plan(obj, key_from, key_to, factors, method)
-    return list(zip(names, job.run(progress), strict=True))
+    results = list(zip(names, job.run(progress), strict=True))
+    if failures is not None:
+        failures.extend(job.failures)
+    return results
 
 
-def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None):
-    """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``."""
+def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None, failures=None):
+    """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``.
+
+    ``failures`` (a list, optional) collects the frames failing their checks (:meth:`.jobs.ProjectionJob._failure`).
+    """
     A, B = np.asarray(A, float), np.asarray(B, float)
     data = session.MeshData(mesh=None, names=["A", "B"], coords=np.stack([A, B]), topology=topology,
                             topology_hash=session.topology_hash(topology.faces, topology.edges, topology.n_vertices),
                             key_hashes=[session.coords_hash(A), session.coords_hash(B)])
-    return _job(data, ["A", "B"], [0.0, 1.0], factors, False, method).run(progress)
+    job = _job(data, ["A", "B"], [0.0, 1.0], factors, False, method)
+    results = job.run(progress)
+    if failures is not None:
+        failures.extend(job.failures)
+    return results
+
+
+def failure_warning(failures, what="in-between"):
+    """The operator's WARNING text for frames that failed their checks (written anyway), or None."""
+    if not failures:
+        return None
+    n = len(failures)
+    return (f"{n} {what}{'s' if n != 1 else ''} failed the reconstruction checks and {'were' if n != 1 else 'was'} "
+            f"written anyway (inspect, undo, or use the Gauss-Newton method): {failures[0]}")
 
 
 def _check_finite(results, what):
@@ -387,7 +416,7 @@ def _complete_plan(plan, results):
     return plan
 
 
-def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
+def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, failures=None):
     """Compute a bake WITHOUT touching Blender data.
 
     Returns a dict with ``keys`` (list of ``(name, (V, 3) coordinates)`` of the
@@ -396,7 +425,10 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None):
     ``frames``.  Raises :class:`lacore.errors.InputError` subclasses for unusable input.
     """
     _data, plan, job = _bake_plan(obj, keys, frames, smooth, method)
-    return _complete_plan(plan, job.run(progress) if job is not None else [])
+    plan = _complete_plan(plan, job.run(progress) if job is not None else [])
+    if failures is not None and job is not None:
+        failures.extend(job.failures)
+    return plan
 
 
 # ----------------------------------------------------------------------------- writing
@@ -536,7 +568,8 @@ class JobRunner:
     everything (nothing was written, so the object stays exactly as it was).
     """
 
-    def __init__(self, obj, data, job, keys, write):
+    def __init__(self, obj, data, job, keys, write, what="in-between"):
+        self.what = what
         self.obj_name, self.obj_pointer = obj.name, obj.as_pointer()
         self.counts = _counts(data.mesh)
         self.topology_hash = data.topology_hash
@@ -556,6 +589,11 @@ class JobRunner:
     @property
     def finished(self):
         return self.job is None or self.job.finished
+
+    @property
+    def failures(self):
+        """Frames that failed their reconstruction checks (written anyway, with a WARNING)."""
+        return [] if self.job is None else self.job.failures
 
     def tick(self):
         """Compute one frame; True when all are done."""
@@ -635,7 +673,7 @@ def bake_runner(obj, keys, frames, smooth=False, method='FAST', playback='STEPPE
         return (f"Baked {len(full['keys'])} in-between keys for frames {frames[0]}..{frames[-1]} "
                 f"({'cubic spline' if smooth else 'piecewise linear'} in lengths and angles, "
                 f"{playback.lower()} playback)")
-    return JobRunner(obj, data, job, keys, write)
+    return JobRunner(obj, data, job, keys, write, what="baked frame")
 
 
 # ----------------------------------------------------------------------------- operators
@@ -767,7 +805,8 @@ class _ModalRun:
         except Exception as exc:
             self.report({'ERROR'}, _error_text(exc))
             return {'CANCELLED'}
-        self.report({'INFO'}, message)
+        warning = failure_warning(runner.failures, runner.what)
+        self.report({'WARNING'} if warning else {'INFO'}, warning or message)
         return {'FINISHED'}
 
     def _start_modal(self, context, runner):

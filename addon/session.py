@@ -43,7 +43,7 @@ _TOPOLOGIES = OrderedDict()  # topology hash -> MeshTopology
 _MAX_TOPOLOGIES = 1          # a 50k-vertex topology with its factorization holds ~0.5 GB
 _Z = OrderedDict()           # (topology hash, coords hash) -> (2E,) float64 (read-only)
 _MAX_Z = 64
-_RESULTS = OrderedDict()     # (topology hash, job key, time) -> (V, 3) float64 (read-only)
+_RESULTS = OrderedDict()     # (topology hash, job key, time) -> ((V, 3) float64 read-only, failure note or None)
 _MAX_RESULT_BYTES = 256 * 2 ** 20
 _LOCK = threading.RLock()    # the modal runs compute frames in a worker thread
 _OBJECTS = OrderedDict()     # (topology hash, ..., what) -> set-up object (e.g. a multiresolution hierarchy)
@@ -170,7 +170,8 @@ def cached_object(key, build):
 
 
 def cached_result(key):
-    """A stored result ``(V, 3)`` under ``key`` (hashable, starting with the topology hash), or None."""
+    """A stored ``((V, 3) result, failure note or None)`` under ``key`` (hashable, starting with the
+    topology hash), or None."""
     with _LOCK:
         X = _RESULTS.get(key)
         STATS["result_hit" if X is not None else "result_miss"] += 1
@@ -179,13 +180,13 @@ def cached_result(key):
         return X
 
 
-def store_result(key, X):
+def store_result(key, X, note=None):
     X = np.array(X, np.float64)
     X.setflags(write=False)
     with _LOCK:
-        _RESULTS[key] = X
+        _RESULTS[key] = (X, note)
         _RESULTS.move_to_end(key)
-        while sum(v.nbytes for v in _RESULTS.values()) > _MAX_RESULT_BYTES and len(_RESULTS) > 1:
+        while sum(v[0].nbytes for v in _RESULTS.values()) > _MAX_RESULT_BYTES and len(_RESULTS) > 1:
             _RESULTS.popitem(last=False)
 
 
