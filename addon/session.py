@@ -148,6 +148,8 @@ def key_z(data, name):
 
 
 def _stored_z(data, name):
+    if data.mesh is None:  # shapes given as arrays (operators_interpolate.inbetween_shapes)
+        return None
     group = data.mesh.get(storage.PROP)
     if group is None or group.get("topology_hash", "") != data.topology_hash:
         return None

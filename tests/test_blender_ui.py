@@ -97,3 +97,4 @@ def test_multiresolution_method(run):
     assert res["rms_vs_gauss_newton_per_diagonal"] < 5e-5
     assert res["vs_simple_deform_90"]["rms_error_per_diagonal"] < 1e-3
     assert res["objects"] == 1
+    assert res["arrays_vs_operator_max_abs"] < 1e-5 and res["array_failures"] == []  # inbetween_shapes (arrays)
