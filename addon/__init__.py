@@ -14,10 +14,14 @@ classes = (*operators.classes, *operators_interpolate.classes, *operators_marker
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    # Shape Keys specials menu (next to the key list): In-betweens, Bake, Clear Bake, Encode, Remove Data
+    bpy.types.MESH_MT_shape_key_context_menu.append(panels.draw_shape_key_menu)
     operators_markers.register_menu()
 
 
 def unregister():
     operators_markers.unregister_menu()
+    bpy.types.MESH_MT_shape_key_context_menu.remove(panels.draw_shape_key_menu)
+    operators_interpolate.shutdown_worker()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

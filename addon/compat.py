@@ -18,7 +18,7 @@ the bake checks), and by hand with bpy 4.2.0, 4.5.15 and 5.0.1.
 
 import bpy
 
-__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves"]
+__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves", "fcurve_group"]
 
 
 HAS_SLOTTED_ACTIONS = bpy.app.version >= (4, 4, 0)
@@ -93,3 +93,12 @@ def id_fcurves(id_data, create=False, action_name=None):
         return owner.fcurves
     owner = animation_channels(id_data)
     return None if owner is None else owner.fcurves
+
+
+def fcurve_group(owner, name):
+    """The F-curve group ``name`` of ``owner`` (a channelbag or an Action), created if missing.
+
+    Both have ``.groups`` (``new(name)``); assign it with ``fcurve.group = group``.
+    """
+    group = owner.groups.get(name)
+    return group if group is not None else owner.groups.new(name)

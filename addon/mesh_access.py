@@ -123,9 +123,23 @@ def triangulate(mesh):
         polys = np.searchsorted(diag_offset, clash, side="right") - 1
         raise MeshAccessError(f"Mesh '{mesh.name}': the triangulation diagonal of face(s) {_fmt(np.unique(polys))} "
                               "coincides with an existing edge; triangulate those faces (Ctrl+T)")
+    _check_repeated_triangles(mesh.name, faces, face_polygon, n_vertices)
     edges = np.concatenate([mesh_edges, diagonals], axis=0)
     return Triangulation(faces=faces, edges=edges, face_polygon=face_polygon,
                          n_vertices=n_vertices, n_mesh_edges=len(mesh_edges))
+
+
+def _check_repeated_triangles(mesh_name, faces, face_polygon, n_vertices):
+    """Raise :class:`MeshAccessError` naming the Blender faces whose fan triangles repeat a triangle."""
+    tri = np.sort(faces, axis=1)
+    keys = (tri[:, 0] * n_vertices + tri[:, 1]) * n_vertices + tri[:, 2]
+    order = np.argsort(keys, kind="stable")
+    same = np.flatnonzero(keys[order][1:] == keys[order][:-1])
+    if same.size:
+        polys = np.unique(np.concatenate([face_polygon[order[same]], face_polygon[order[same + 1]]]))
+        raise MeshAccessError(f"Mesh '{mesh_name}': face(s) {_fmt(polys)} (Blender face indices) split into a "
+                              "triangle that already exists (a polygon folded onto itself or onto another face); "
+                              "select those faces and Triangulate them (Face > Triangulate Faces, Ctrl+T)")
 
 
 def _next_corner(loop_start, loop_total):

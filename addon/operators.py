@@ -1,18 +1,19 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore)."""
+"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore): Encode, Remove Data."""
 
 import time
 
 import bpy
 import numpy as np
+from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import integrability_violation
-from ..lacore.lengths_angles import check_nondegenerate, lengths_and_angles
-from ..lacore.topology import MeshTopology, check_vertices
-from . import mesh_access, storage
+from . import session, storage
+from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
 
-__all__ = ["LENGTHS_ANGLES_OT_encode", "encode_object", "classes"]
+__all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
+           "encode_object", "remove_data", "classes"]
 
 
 def encode_object(obj):
@@ -21,22 +22,16 @@ def encode_object(obj):
     Returns a dict with the arguments of :func:`storage.write_encoding` plus
     ``topology``.  Raises :class:`mesh_access.MeshAccessError` or
     :class:`lacore.errors.MeshError` (both :class:`lacore.errors.InputError`) for unusable input.
+    The lengths and angles come from (and go into) the session cache (:mod:`.session`), so
+    Encode after In-betweens, or In-betweens after Encode, does not compute them twice.
     """
-    mesh = mesh_access.require_mesh_object(obj)
-    names, coords = mesh_access.read_shape_keys(mesh)
-    tri = mesh_access.triangulate(mesh)
-    try:
-        topology = MeshTopology.from_faces(tri.faces, edges=tri.edges, n_vertices=tri.n_vertices)
-    except MeshError as exc:
-        raise MeshError(f"Mesh '{mesh.name}' cannot be encoded: {exc}") from exc
-    E = topology.n_edges
-    z = np.empty((len(names), 2 * E), np.float64)
-    violations = np.empty(len(names), np.float64)
-    for k, name in enumerate(names):
+    data = session.read_mesh(obj, "encoded")
+    topology = data.topology
+    z = np.empty((len(data.names), 2 * topology.n_edges), np.float64)
+    violations = np.empty(len(data.names), np.float64)
+    for k, name in enumerate(data.names):
+        z[k] = session.key_z(data, name)
         try:
-            X = check_vertices(coords[k], topology.n_vertices, name=f"shape key '{name}'")
-            check_nondegenerate(X, topology)
-            z[k] = lengths_and_angles(X, topology)
             v = integrability_violation(z[k], topology)
         except MeshError as exc:
             raise MeshError(f"Shape key '{name}': {exc}") from exc
@@ -44,12 +39,29 @@ def encode_object(obj):
     return {
         "faces": topology.faces,
         "edges": topology.edges,
-        "n_mesh_edges": tri.n_mesh_edges,
-        "names": names,
+        "n_mesh_edges": len(data.mesh.edges),
+        "names": data.names,
         "z": z,
         "violations": violations,
         "topology": topology,
+        "coords_hashes": data.key_hashes,
+        "topology_hash": data.topology_hash,
     }
+
+
+def remove_data(obj):
+    """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
+    by identity) and the session cache.  Returns a short description of what was removed."""
+    mesh = obj.data
+    removed = []
+    if storage.PROP in mesh:
+        storage.clear_encoding(mesh)
+        removed.append("encoding")
+    if BAKE_PROP in mesh or any(bake_identity(obj).values()):
+        n = remove_bake(obj)
+        removed.append(f"bake ({n} keys)")
+    session.clear()
+    return ", ".join(removed) if removed else "nothing stored"
 
 
 class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
@@ -58,6 +70,8 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
 
     bl_idname = "lengths_angles.encode"
     bl_label = "Encode Shape Keys"
+    bl_description = ("Encode every shape key as edge lengths and dihedral angles, stored in the mesh (saved with "
+                      "the .blend) and reused by In-betweens and Bake")
     bl_options = {'REGISTER', 'UNDO'}
 
     @classmethod
@@ -66,11 +80,9 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
         return True
 
     def execute(self, context):
-        obj = context.active_object
+        obj = context.object
         start = time.perf_counter()
         try:
-            if obj is not None and obj.type == 'MESH' and obj.mode == 'EDIT':
-                obj.update_from_editmode()  # make edit-mode changes visible in the mesh data
             result = encode_object(obj)  # computes everything; nothing is written yet
         except InputError as exc:  # MeshAccessError, MeshError, LengthsAnglesError; anything else is a bug
             self.report({'ERROR'}, str(exc))
@@ -78,13 +90,57 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
         mesh = obj.data
         storage.write_encoding(mesh, faces=result["faces"], edges=result["edges"],
                                n_mesh_edges=result["n_mesh_edges"], names=result["names"], z=result["z"],
-                               violations=result["violations"])
+                               violations=result["violations"], coords_hashes=result["coords_hashes"],
+                               topology_hash=result["topology_hash"])
         n = len(result["names"])
         worst = float(result["violations"].max())
+        verdict = "integrable" if worst <= storage.INTEGRABLE_TOLERANCE else "NOT integrable"
         self.report({'INFO'}, f"Encoded {n} shape key{'s' if n != 1 else ''} of '{obj.name}' "
-                              f"({result['topology'].n_edges} edges, max integrability violation {worst:.3g}, "
+                              f"({result['topology'].n_edges} edges, {verdict}: max violation {worst:.3g}, "
                               f"{time.perf_counter() - start:.2f} s)")
         return {'FINISHED'}
 
 
-classes = (LENGTHS_ANGLES_OT_encode,)
+class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
+    """Remove everything Lengths & Angles stored on the mesh"""
+
+    bl_idname = "lengths_angles.remove_data"
+    bl_label = "Remove Lengths & Angles Data"
+    bl_description = ("Remove everything Lengths & Angles stored on this mesh: the encoding, the bake (its keys "
+                      "and keyframes) and the cached computations")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.type == 'MESH'
+
+    def execute(self, context):
+        obj = context.object
+        with object_mode(obj):  # removing shape keys in Edit Mode would be undone on leaving it
+            removed = remove_data(obj)
+            obj.data.update()
+        self.report({'INFO'}, f"Removed from '{obj.name}': {removed}")
+        return {'FINISHED'}
+
+
+class LENGTHS_ANGLES_OT_integrability_info(bpy.types.Operator):
+    """Integrability of an encoded shape key"""
+
+    bl_idname = "lengths_angles.integrability_info"
+    bl_label = "Integrability"
+    bl_description = "Whether the stored lengths and angles describe a shape"
+    bl_options = {'INTERNAL'}
+
+    detail: StringProperty(options={'HIDDEN', 'SKIP_SAVE'})
+
+    @classmethod
+    def description(cls, context, properties):
+        return properties.detail or cls.bl_description
+
+    def execute(self, context):
+        self.report({'INFO'}, self.detail)
+        return {'FINISHED'}
+
+
+classes = (LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_remove_data, LENGTHS_ANGLES_OT_integrability_info)

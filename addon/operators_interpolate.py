@@ -9,15 +9,13 @@ ERROR and returns CANCELLED with the object unchanged.
 
 Results that fail their checks
 ------------------------------
-A reconstruction whose result fails the checks of
-:mod:`lacore.reconstruction.checks` (``success=False``: folded faces, or a
-minimizer that did not converge) is still written -- it is the best shape the
-method found, Blender's undo removes it, and hiding it would leave the user
-with nothing to inspect -- and the operator reports a WARNING naming how many
-frames failed and the first failure (:func:`failure_warning`) instead of the
-INFO line.  For 'PREVIEW' (the least-squares relaxation, which minimizes
-nothing) a non-admissible target that is merely not reproduced is expected and
-not reported; folds are.
+A reconstruction whose result fails its checks (``success=False``; with issue 12's
+:mod:`lacore.reconstruction.checks`: folded faces, or a minimizer that did not converge) is
+still written -- it is the best shape the method found, Blender's undo removes it, and hiding it
+would leave the user with nothing to inspect -- and the operator reports a WARNING naming how
+many frames failed and the first failure (:func:`failure_warning`) instead of the INFO line.
+For 'PREVIEW' (the least-squares relaxation, which minimizes nothing) a non-admissible target
+that is merely not reproduced is expected and not reported; folds are.
 
 Output placement
 ----------------
@@ -33,39 +31,49 @@ Marking
 -------
 * In-betweens are named ``"LA <from>><to> <t>"`` (e.g. ``"LA Basis>Bend 0.250"``);
   re-running with the same keys and factors overwrites those keys in place.
-* Baked keys are named ``"LA bake <frame>"`` (e.g. ``"LA bake 012"``).  The mesh
-  ID property ``"lengths_angles_bake"`` lists the baked keys, the data paths of
-  the F-curves the bake created and the values the keyframed user keys had
-  before, so a new bake removes exactly the previous one (keys carrying the
-  prefix AND listed there) and nothing else.
+* Baked keys are named ``"LA bake <frame>"`` (e.g. ``"LA bake 012"``).  The bake's F-curves are in
+  two F-curve groups (:data:`BAKED_GROUP`: the keys it created, :data:`KEYED_GROUP`: your keys it
+  keyframed); Blender rewrites an F-curve's data path when its shape key is renamed, so
+  :func:`bake_identity` finds the bake under any names.  The mesh ID property
+  ``"lengths_angles_bake"`` records the values your keys had before, so a new bake or Clear Bake
+  removes exactly the previous bake and nothing else.
+
+Runs
+----
+Validation builds a :class:`JobRunner` (nothing written); its :meth:`JobRunner.tick` computes one
+frame (:class:`.jobs.ProjectionJob`), :meth:`JobRunner.finish` writes.  The operators run it
+modally from the UI (timer, progress bar, Esc) and synchronously from scripts, in background
+mode and from the redo panel; :mod:`.session` caches what depends only on the mesh and its keys.
 """
 
-import hashlib
 import math
 import re
 import traceback
-from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from ..lacore.errors import InputError, MeshError
-from ..lacore.interpolation import keyframe_inbetweens, piecewise_linear_z
+from ..lacore.errors import InputError
 from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
-from ..lacore.rigid import rigid_align
-from ..lacore.topology import MeshTopology
-from . import compat, mesh_access
+from . import compat, jobs, mesh_access, session
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "classes", "parse_factors",
            "parse_key_list", "parse_frames", "inbetween_key_name", "bake_key_name", "interpolate_object",
-           "failure_warning", "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX",
-           "INBETWEEN_PREFIX"]
+           "bake_object", "inbetween_shapes", "read_mesh", "write_key", "BAKE_PROP", "BAKE_PREFIX", "INBETWEEN_PREFIX",
+           "JobRunner", "interpolate_runner", "bake_runner", "bake_frames", "bake_summary", "key_items",
+           "BAKED_GROUP", "KEYED_GROUP", "bake_identity", "remove_bake", "object_mode", "failure_warning"]
 
 INBETWEEN_PREFIX = "LA "
 BAKE_PREFIX = "LA bake "
 BAKE_PROP = "lengths_angles_bake"
+# F-curve groups of a bake: the identity of its curves and keys (Blender fixes the data paths of
+# F-curves when a shape key is renamed, so the group finds them under any name).
+BAKED_GROUP = "Lengths & Angles bake: new keys"
+KEYED_GROUP = "Lengths & Angles bake: your keys"
+NO_KEY = "__NONE__"
 MAX_NEW_KEYS = 1000
 _NAME_BYTES = 63  # Blender's shape-key names hold 63 bytes
 
@@ -77,7 +85,21 @@ METHOD_ITEMS = [
     ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
 ]
-_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
+# Not offered in the UI yet: 'MULTIRES' (lacore.multiresolution: coarse solve, prolongation, three fine Gauss-Newton
+# steps; the hierarchy is built once per keys in the session cache).  Measured on the 50k bar
+# (bench_blender_interpolate.py --methods MULTIRES, multires a30c903): 6.9 s per in-between against Fast's 5.4 s,
+# edge lengths up to 199 % off at t = 0.55 (max 0.78 % of the diagonal); add the item once lacore's
+# multiresolution meets its goal:
+# ('MULTIRES', "Multiresolution", "Solve on a coarsened mesh, carry the result to the full mesh and finish with a "
+#                                 "few Gauss-Newton steps (the coarse hierarchy is built once per keys)"),
+PLAYBACK_ITEMS = [
+    ('STEPPED', "Stepped", "CONSTANT keyframes: exactly one baked key at full value on every frame, held "
+                           "between frames"),
+    ('SMOOTH', "Smooth", "LINEAR keyframes: between two frames the neighbouring baked keys cross-fade (sub-frame "
+                         "motion blur, retimed playback); identical to Stepped on whole frames"),
+]
+_INTERPOLATION = {'STEPPED': 0, 'SMOOTH': 1}  # keyframe interpolation enum values: CONSTANT, LINEAR
+_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
 # Measured on a 50k-vertex bar (benchmarks/bench_blender_interpolate.py, README): PREVIEW ~1.6 s per
 # in-between with edge lengths within ~1.4 % on a bend -> twist blend; FAST ~5.4 s per in-between (the
 # first version, an MST walk + 3 Gauss-Newton iterations, took ~20 s and left 160 % errors there, because a
@@ -86,7 +108,8 @@ _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn"}
 _METHOD_OPTIONS = {'PREVIEW': {},
                    'FAST': {"hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
                             "options": GaussNewtonOptions(reuse_factorization=True)},
-                   'GAUSS_NEWTON': {}}
+                   'GAUSS_NEWTON': {},
+                   'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"}}
 
 
 class InterpolationInputError(InputError):
@@ -165,33 +188,10 @@ def _value_path(name):
 
 
 # ----------------------------------------------------------------------------- reading (no writes)
-# The last topologies by connectivity: lacore caches everything that does not depend on the
-# targets on the topology (Gauss-Newton pattern, fill-reducing ordering, symbolic factorization,
-# reconstruction contexts), so re-running the operator (redo panel) on the same mesh skips that set-up.
-_TOPOLOGIES = OrderedDict()
-_TOPOLOGY_CACHE_SIZE = 1  # a 50k-vertex factorization holds ~0.5 GB
-
-
 def read_mesh(obj):
-    """Validated ``(mesh, names, coords (K, V, 3), topology)`` of a mesh object with shape keys."""
-    mesh = mesh_access.require_mesh_object(obj)
-    if obj.mode == 'EDIT':
-        obj.update_from_editmode()  # make edit-mode changes visible in the mesh data
-    names, coords = mesh_access.read_shape_keys(mesh)
-    tri = mesh_access.triangulate(mesh)
-    key = (tri.n_vertices, hashlib.blake2b(tri.faces.tobytes() + b"|" + tri.edges.tobytes()).hexdigest())
-    topology = _TOPOLOGIES.get(key)
-    if topology is None:
-        try:
-            topology = MeshTopology.from_faces(tri.faces, edges=tri.edges, n_vertices=tri.n_vertices)
-        except MeshError as exc:
-            raise MeshError(f"Mesh '{mesh.name}' cannot be interpolated: {exc}") from exc
-        _TOPOLOGIES[key] = topology
-        while len(_TOPOLOGIES) > _TOPOLOGY_CACHE_SIZE:
-            _TOPOLOGIES.popitem(last=False)
-    else:
-        _TOPOLOGIES.move_to_end(key)
-    return mesh, names, coords, topology
+    """Validated ``(mesh, names, coords (K, V, 3), topology)`` of a mesh object with shape keys (session cache)."""
+    data = session.read_mesh(obj, "interpolated")
+    return data.mesh, data.names, data.coords, data.topology
 
 
 def _require_keys(names, wanted, what):
@@ -202,19 +202,19 @@ def _require_keys(names, wanted, what):
         raise InterpolationInputError(f"{what}: no shape key {shown} (the mesh has {have})")
 
 
-def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None, failures=None):
-    """Compute in-betweens of two shape keys WITHOUT touching Blender data.
+def _job(data, keys, keyframes, times, smooth, method):
+    return jobs.ProjectionJob(data, keys, keyframes, times, smooth, _LACORE_METHOD[method], _METHOD_OPTIONS[method],
+                              method)
 
-    Returns a list of ``(key name, (V, 3) float64 coordinates)``, one per factor,
-    placed as described in the module docstring.  Raises
-    :class:`lacore.errors.InputError` subclasses for unusable input.
-    """
-    if not key_from or not key_to:
+
+def _inbetween_plan(obj, key_from, key_to, factors, method):
+    """Validate and set up in-betweens: ``(data, names of the new keys, ProjectionJob)``; nothing written."""
+    data = session.read_mesh(obj, "interpolated")
+    if not key_from or not key_to or NO_KEY in (key_from, key_to):
         raise InterpolationInputError("Choose the two shape keys to interpolate between (From and To)")
     if key_from == key_to:
         raise InterpolationInputError(f"From and To are the same shape key '{key_from}': choose two different keys")
-    mesh, names, coords, topology = read_mesh(obj)
-    _require_keys(names, [key_from, key_to], f"Mesh '{mesh.name}'")
+    _require_keys(data.names, [key_from, key_to], f"Mesh '{data.mesh.name}'")
     out_names = [inbetween_key_name(key_from, key_to, t) for t in factors]
     seen = {}
     for t, n in zip(factors, out_names, strict=True):
@@ -226,48 +226,40 @@ def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=N
     if clash:
         raise InterpolationInputError(f"The result '{clash[0]}' would overwrite one of the input keys")
     unique = list(dict.fromkeys(out_names))
-    factors = [seen[n] for n in unique]
     if len(unique) > MAX_NEW_KEYS:
         raise InterpolationInputError(f"{len(unique)} in-betweens requested; at most {MAX_NEW_KEYS}")
-    A, B = coords[names.index(key_from)], coords[names.index(key_to)]
-    return list(zip(unique, inbetween_shapes(topology, A, B, factors, method, progress, failures), strict=True))
+    job = _job(data, [key_from, key_to], [0.0, 1.0], [seen[n] for n in unique], False, method)
+    return data, unique, job
+
+
+def interpolate_object(obj, key_from, key_to, factors, method='FAST', progress=None, failures=None):
+    """Compute in-betweens of two shape keys WITHOUT touching Blender data.
+
+    Returns a list of ``(key name, (V, 3) float64 coordinates)``, one per factor,
+    placed as described in the module docstring.  Raises
+    :class:`lacore.errors.InputError` subclasses for unusable input.
+    """
+    _data, names, job = _inbetween_plan(obj, key_from, key_to, factors, method)
+    results = list(zip(names, job.run(progress), strict=True))
+    if failures is not None:
+        failures.extend(job.failures)
+    return results
 
 
 def inbetween_shapes(topology, A, B, factors, method='FAST', progress=None, failures=None):
     """The placed in-betweens ``[(V, 3)]`` of the shapes ``A`` (t = 0) and ``B`` (t = 1) at ``factors``.
 
-    ``failures`` (a list, optional) collects the frames failing their checks, see :func:`_project`.
+    ``failures`` (a list, optional) collects the frames failing their checks (:meth:`.jobs.ProjectionJob._failure`).
     """
-    results = _inbetweens(topology, A, B, factors, method, progress, failures)
-    return [rigid_align(X, (1.0 - t) * A + t * B) for t, X in zip(factors, results, strict=True)]
-
-
-def _inbetweens(topology, A, B, factors, method, progress, failures=None):
-    """Projected linear interpolation/extrapolation of the lengths and angles of ``A`` (t = 0) and ``B`` (t = 1)."""
-    return _project(topology, [A, B], [0.0, 1.0], factors, False, method, progress, failures)
-
-
-def _keyframe_shapes(topology, shapes, keyframes, frames, smooth, method, progress, failures=None):
-    """Projected piecewise-linear (or cubic spline) lengths and angles of the keyed shapes at ``frames``."""
-    return _project(topology, shapes, keyframes, frames, smooth, method, progress, failures)
-
-
-def _project(topology, shapes, keyframes, times, smooth, method, progress, failures=None):
-    """:func:`lacore.interpolation.keyframe_inbetweens` of the shapes at ``times`` (list of ``(V, 3)``).
-
-    ``progress(done, total, message)`` is called after every frame (:mod:`lacore.progress`).
-    Frames whose reconstruction failed its checks (:mod:`lacore.reconstruction.checks`) are
-    appended to ``failures`` as ``"t = ...: <failure>: <message>"``; for 'PREVIEW' (the
-    least-squares relaxation, which minimizes nothing) a target that is merely not reproduced
-    is expected and not listed, folds are.
-    """
-    res = keyframe_inbetweens(shapes, topology, keyframes, frames=np.asarray(times, float), smooth=smooth,
-                              method=_LACORE_METHOD[method], progress=progress, **_METHOD_OPTIONS[method])
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    data = session.MeshData(mesh=None, names=["A", "B"], coords=np.stack([A, B]), topology=topology,
+                            topology_hash=session.topology_hash(topology.faces, topology.edges, topology.n_vertices),
+                            key_hashes=[session.coords_hash(A), session.coords_hash(B)])
+    job = _job(data, ["A", "B"], [0.0, 1.0], factors, False, method)
+    results = job.run(progress)
     if failures is not None:
-        for t, r in zip(res.times, res.reconstructions, strict=True):
-            if not r.success and not (method == 'PREVIEW' and r.failure == "not_reproduced"):
-                failures.append(f"t = {float(t):g}: {r.failure}: {r.message}")
-    return list(res.vertices)
+        failures.extend(job.failures)
+    return results
 
 
 def failure_warning(failures, what="in-between"):
@@ -296,16 +288,55 @@ def read_bake_record(mesh):
     """The record of the previous bake on ``mesh`` as plain data (empty lists if there is none)."""
     rec = mesh.get(BAKE_PROP)
     if rec is None:
-        return {"keys": [], "fcurves": [], "values_before": {}, "action": "", "source": {}}
+        return {"keys": [], "fcurves": [], "values_before": {}, "user_keys": [], "action": "", "source": {}}
     rec = rec.to_dict()
     return {"keys": list(rec.get("keys", [])), "fcurves": list(rec.get("fcurves", [])),
-            "values_before": dict(rec.get("values_before", {})), "action": str(rec.get("action", "")),
-            "source": dict(rec.get("source", {}))}
+            "values_before": dict(rec.get("values_before", {})), "user_keys": list(rec.get("user_keys", [])),
+            "action": str(rec.get("action", "")), "source": dict(rec.get("source", {}))}
+
+
+def _curve_key_name(key, fc):
+    """The name of the shape key whose value ``fc`` animates (None if it animates something else)."""
+    path = fc.data_path
+    if not path.startswith("key_blocks[") or not path.endswith(".value"):
+        return None
+    try:
+        kb = key.path_resolve(path[: -len(".value")])
+    except ValueError:
+        return None
+    return kb.name if isinstance(kb, bpy.types.ShapeKey) else None
+
+
+def bake_identity(obj):
+    """The bake on ``obj`` found by identity, under the keys' CURRENT names (renames are followed).
+
+    Returns ``{"baked": [(fcurve or None, key name)], "keyed": [(fcurve, key name)]}``: the curves of
+    the bake's F-curve groups (:data:`BAKED_GROUP`: the keys the bake created, :data:`KEYED_GROUP`:
+    your keys it keyframed; Blender updates an F-curve's data path when its key is renamed), plus
+    keys listed in the bake record that lost their curve.
+    """
+    out = {"baked": [], "keyed": []}
+    key = obj.data.shape_keys
+    if key is None:
+        return out
+    cb = _channelbag(key)
+    if cb is not None:
+        for fc in cb.fcurves:
+            group = fc.group.name if fc.group is not None else None
+            role = "baked" if group == BAKED_GROUP else "keyed" if group == KEYED_GROUP else None
+            if role is not None:
+                out[role].append((fc, _curve_key_name(key, fc)))
+    named = {n for _, n in out["baked"]}
+    for n in read_bake_record(obj.data)["keys"]:
+        if n not in named and n in key.key_blocks:
+            out["baked"].append((None, n))
+    return out
 
 
 def activity_keyframes(active_frames, first, last):
     """Keyframes ``[(frame, value)]`` of a key that is 1 exactly at ``active_frames`` (CONSTANT interpolation)
-    and 0 at every other frame of ``[first, last]`` (held constant outside)."""
+    and 0 at every other frame of ``[first, last]`` (held constant outside).  With LINEAR interpolation the
+    same points cross-fade neighbouring frames (the values of all keys sum to 1 at every time)."""
     active = set(active_frames)
     points = {first}
     for f in active:
@@ -313,14 +344,8 @@ def activity_keyframes(active_frames, first, last):
     return [(f, 1.0 if f in active else 0.0) for f in sorted(points) if first <= f <= last]
 
 
-def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, failures=None):
-    """Compute a bake WITHOUT touching Blender data.
-
-    Returns a dict with ``keys`` (list of ``(name, (V, 3) coordinates)`` of the
-    baked in-betweens, by frame), ``animation`` (``{key name: [(frame, value)]}``
-    for every key the bake drives), ``user_keys`` (the keyframed keys) and
-    ``frames``.  Raises ``ValueError`` subclasses for unusable input.
-    """
+def bake_frames(keys, frames):
+    """The frames a bake of ``keys`` at ``frames`` creates a key for (validated), list of int."""
     if len(keys) < 2:
         raise InterpolationInputError("Keys: give at least two shape keys (the keyframes of the motion)")
     if len(keys) != len(frames):
@@ -329,18 +354,37 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, f
     if bad:
         i = bad[0]
         raise InterpolationInputError(f"Frames must increase strictly: {frames[i - 1]} is followed by {frames[i]}")
-    mesh, names, coords, topology = read_mesh(obj)
-    _require_keys(names, keys, f"Mesh '{mesh.name}'")
-    record = read_bake_record(mesh)
-    own_keys = {n for n in record["keys"] if n.startswith(BAKE_PREFIX)}
-    used_own = [k for k in keys if k in own_keys]
-    if used_own:
-        raise InterpolationInputError(f"Keys: '{used_own[0]}' is a key of the previous bake, which a new bake "
-                                      "replaces; keyframe your own keys")
     inbetween = [f for f in range(frames[0] + 1, frames[-1]) if f not in set(frames)]
     if len(inbetween) > MAX_NEW_KEYS:
         raise InterpolationInputError(f"Frames {frames[0]}..{frames[-1]} would bake {len(inbetween)} shape keys; "
                                       f"at most {MAX_NEW_KEYS}")
+    return inbetween
+
+
+def bake_summary(obj, keys, frames):
+    """One line for the Bake dialog: how many keys the bake creates (and replaces), or what is wrong."""
+    try:
+        inbetween = bake_frames(keys, frames)
+    except InputError as exc:
+        return str(exc)
+    old = len(bake_identity(obj)["baked"]) if obj is not None and obj.type == 'MESH' else 0
+    text = (f"Creates {len(inbetween)} shape key{'s' if len(inbetween) != 1 else ''} "
+            f"(frames {frames[0]}-{frames[-1]}) and keyframes {len(set(keys))} of yours")
+    return text + (f"; replaces the previous bake ({old} keys)" if old else "")
+
+
+def _bake_plan(obj, keys, frames, smooth, method):
+    """Validate a bake and set it up: ``(data, plan without shapes, ProjectionJob or None)``; nothing written."""
+    inbetween = bake_frames(keys, frames)
+    data = session.read_mesh(obj, "interpolated")
+    mesh, names = data.mesh, data.names
+    _require_keys(names, keys, f"Mesh '{mesh.name}'")
+    ident = bake_identity(obj)
+    own_keys = {n for _, n in ident["baked"] if n is not None}
+    used_own = [k for k in keys if k in own_keys]
+    if used_own:
+        raise InterpolationInputError(f"Keys: '{used_own[0]}' is a key of the previous bake, which a new bake "
+                                      "replaces; keyframe your own keys")
     out_names = [bake_key_name(f) for f in inbetween]
     foreign = [n for n in out_names if n in names and n not in own_keys]
     if foreign:
@@ -348,39 +392,48 @@ def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, f
                                       "(a bake names its keys 'LA bake <frame>')")
     cb = _channelbag(mesh.shape_keys)
     if cb is not None:
-        own_paths = set(record["fcurves"])
+        own_paths = {fc.data_path for role in ("baked", "keyed") for fc, _ in ident[role] if fc is not None}
         for k in dict.fromkeys(keys):
             path = _value_path(k)
             if cb.fcurves.find(path) is not None and path not in own_paths:
                 raise InterpolationInputError(f"Shape key '{k}' already has animation of its value: the bake "
                                               "keyframes it, so remove that animation first (or duplicate the key)")
-    shapes = np.stack([coords[names.index(k)] for k in keys])
-    baked = _keyframe_shapes(topology, shapes, frames, inbetween, smooth, method, progress,
-                             failures) if inbetween else []
-    targets = _piecewise_linear(shapes, frames, inbetween) if inbetween else []
-    results = [(n, rigid_align(X, T)) for n, X, T in zip(out_names, baked, targets, strict=True)]
-    _check_finite(results, "Bake")
     first, last = frames[0], frames[-1]
     active = {}
     for k, f in zip(keys, frames, strict=True):
         active.setdefault(k, []).append(f)
     for n, f in zip(out_names, inbetween, strict=True):
         active[n] = [f]
-    animation = {n: activity_keyframes(fs, first, last) for n, fs in active.items()}
-    return {"keys": results, "animation": animation, "user_keys": list(dict.fromkeys(keys)), "frames": list(frames),
-            "inbetween_frames": inbetween}
+    plan = {"names": out_names, "animation": {n: activity_keyframes(fs, first, last) for n, fs in active.items()},
+            "user_keys": list(dict.fromkeys(keys)), "frames": list(frames), "inbetween_frames": inbetween}
+    job = _job(data, keys, frames, inbetween, smooth, method) if inbetween else None
+    return data, plan, job
 
 
-def _piecewise_linear(shapes, keyframes, frames):
-    """Piecewise-linear blend of the key coordinates at ``frames`` (the placement targets), list of ``(V, 3)``."""
-    V = len(shapes[0])
-    flat = np.asarray(shapes, float).reshape(len(shapes), 3 * V)
-    return list(piecewise_linear_z(flat, keyframes, frames).reshape(-1, V, 3))
+def _complete_plan(plan, results):
+    plan = dict(plan, keys=list(zip(plan["names"], results, strict=True)))
+    _check_finite(plan["keys"], "Bake")
+    return plan
+
+
+def bake_object(obj, keys, frames, smooth=False, method='FAST', progress=None, failures=None):
+    """Compute a bake WITHOUT touching Blender data.
+
+    Returns a dict with ``keys`` (list of ``(name, (V, 3) coordinates)`` of the
+    baked in-betweens, by frame), ``animation`` (``{key name: [(frame, value)]}``
+    for every key the bake drives), ``user_keys`` (the keyframed keys) and
+    ``frames``.  Raises :class:`lacore.errors.InputError` subclasses for unusable input.
+    """
+    _data, plan, job = _bake_plan(obj, keys, frames, smooth, method)
+    plan = _complete_plan(plan, job.run(progress) if job is not None else [])
+    if failures is not None and job is not None:
+        failures.extend(job.failures)
+    return plan
 
 
 # ----------------------------------------------------------------------------- writing
 @contextmanager
-def _object_mode(obj):
+def object_mode(obj):
     """Shape keys written in Edit Mode would be overwritten on leaving it: write in Object Mode."""
     if obj.mode != 'EDIT':
         yield
@@ -407,23 +460,31 @@ def write_key(obj, name, coords):
 
 
 def remove_bake(obj):
-    """Remove the previous bake of ``obj``: its F-curves, its keys; restore keyframed user keys' values.
-
-    Returns the number of removed keys.
-    """
+    """Remove the bake of ``obj`` by identity (:func:`bake_identity`): its F-curves and keys, under any
+    names; restore the values your keyframed keys had before.  Returns the number of removed keys."""
     mesh = obj.data
     record = read_bake_record(mesh)
-    if BAKE_PROP not in mesh:
-        return 0
+    ident = bake_identity(obj)
     key = mesh.shape_keys
+    if BAKE_PROP not in mesh and not ident["baked"] and not ident["keyed"]:
+        return 0
     removed = 0
     if key is not None:
+        baked_names = [n for _, n in ident["baked"] if n is not None]
+        keyed = [n for _, n in ident["keyed"]]
+        by_order = len(keyed) == len(record["user_keys"])  # renamed keys: the curves keep their creation order
+        values = []
+        for i, n in enumerate(keyed):
+            original = n if n in record["values_before"] else (record["user_keys"][i] if by_order else None)
+            values.append((n, record["values_before"].get(original)))
         cb = _channelbag(key)
         if cb is not None:
-            for path in record["fcurves"]:
-                fc = cb.fcurves.find(path)
-                if fc is not None:
-                    cb.fcurves.remove(fc)
+            for fc in [fc for role in ("baked", "keyed") for fc, _ in ident[role] if fc is not None]:
+                cb.fcurves.remove(fc)
+            for name in (BAKED_GROUP, KEYED_GROUP):
+                group = cb.groups.get(name)
+                if group is not None:
+                    cb.groups.remove(group)
         ad = key.animation_data
         if (record["action"] and ad is not None and ad.action is not None and ad.action.name == record["action"]
                 and cb is not None and len(cb.fcurves) == 0):
@@ -431,15 +492,16 @@ def remove_bake(obj):
             ad.action = None
             if action.users == 0:
                 bpy.data.actions.remove(action)
-        for name, value in record["values_before"].items():
-            if name in key.key_blocks:
+        for name, value in values:
+            if name is not None and value is not None and name in key.key_blocks:
                 key.key_blocks[name].value = float(value)
-        for name in record["keys"]:
+        for name in baked_names:
             kb = key.key_blocks.get(name)
-            if kb is not None and name.startswith(BAKE_PREFIX):
+            if kb is not None:
                 obj.shape_key_remove(kb)
                 removed += 1
-    del mesh[BAKE_PROP]
+    if BAKE_PROP in mesh:
+        del mesh[BAKE_PROP]
     return removed
 
 
@@ -451,8 +513,11 @@ def _ensure_channelbag(key):
     return compat.ensure_animation_channels(key, f"{key.user.name} LA bake" if key.user else "LA bake")
 
 
-def write_bake(obj, plan, source):
-    """Replace the previous bake of ``obj`` by ``plan`` (from :func:`bake_object`)."""
+def write_bake(obj, plan, source, playback='STEPPED'):
+    """Replace the previous bake of ``obj`` by ``plan`` (from :func:`bake_object`).
+
+    ``playback``: 'STEPPED' (CONSTANT keyframes) or 'SMOOTH' (LINEAR: neighbouring frames cross-fade).
+    """
     mesh = obj.data
     old = read_bake_record(mesh)
     values_before = {}
@@ -463,13 +528,16 @@ def write_bake(obj, plan, source):
         write_key(obj, name, X)
     key = mesh.shape_keys
     cb, created = _ensure_channelbag(key)
+    groups = {True: compat.fcurve_group(cb, BAKED_GROUP), False: compat.fcurve_group(cb, KEYED_GROUP)}
+    baked = {n for n, _ in plan["keys"]}
     paths = []
     for name, points in plan["animation"].items():
         path = _value_path(name)
         fc = cb.fcurves.new(path)
+        fc.group = groups[name in baked]
         fc.keyframe_points.add(len(points))
         fc.keyframe_points.foreach_set("co", np.asarray(points, np.float32).ravel())
-        fc.keyframe_points.foreach_set("interpolation", np.zeros(len(points), np.int32))  # 0 = 'CONSTANT'
+        fc.keyframe_points.foreach_set("interpolation", np.full(len(points), _INTERPOLATION[playback], np.int32))
         fc.update()
         paths.append(path)
     frame = bpy.context.scene.frame_current
@@ -479,10 +547,133 @@ def write_bake(obj, plan, source):
         "keys": [n for n, _ in plan["keys"]],
         "fcurves": paths,
         "values_before": values_before,
+        "user_keys": list(plan["user_keys"]),
         "action": created or old["action"],
         "source": source,
     }
     mesh.update()
+
+
+# ----------------------------------------------------------------------------- runs (plain Python, testable)
+def _counts(mesh):
+    return {"vertices": len(mesh.vertices), "edges": len(mesh.edges), "faces": len(mesh.polygons)}
+
+
+class JobRunner:
+    """One run of a long operator as plain Python (no event loop): the modal operator's step function.
+
+    Created after all validation (nothing written yet); :meth:`tick` computes one frame
+    (one unit of work), :meth:`finish` checks that the object is still the one read (same
+    datablock, connectivity and input keys) and writes the results, :meth:`cancel` drops
+    everything (nothing was written, so the object stays exactly as it was).
+    """
+
+    def __init__(self, obj, data, job, keys, write, what="in-between"):
+        self.what = what
+        self.obj_name, self.obj_pointer = obj.name, obj.as_pointer()
+        self.counts = _counts(data.mesh)
+        self.topology_hash = data.topology_hash
+        self.key_hashes = {k: data.key_hashes[data.index(k)] for k in keys}
+        self.job = job
+        self._write = write
+        self.cancelled = False
+
+    @property
+    def total(self):
+        return 0 if self.job is None else self.job.total
+
+    @property
+    def done(self):
+        return 0 if self.job is None else self.job.done
+
+    @property
+    def finished(self):
+        return self.job is None or self.job.finished
+
+    @property
+    def failures(self):
+        """Frames that failed their reconstruction checks (written anyway, with a WARNING)."""
+        return [] if self.job is None else self.job.failures
+
+    def tick(self):
+        """Compute one frame; True when all are done."""
+        if self.cancelled:
+            raise RuntimeError("the run was cancelled")
+        if self.job is not None:
+            self.job.step()
+        return self.finished
+
+    def run(self, progress=None):
+        if self.job is not None:
+            self.job.run(progress)
+
+    def cancel(self):
+        self.cancelled = True
+        self.job = None
+
+    def status(self):
+        return f"Lengths & Angles: frame {self.done + 1} of {self.total} (Esc to cancel)"
+
+    def _current_object(self):
+        obj = bpy.data.objects.get(self.obj_name)
+        if obj is None or obj.as_pointer() != self.obj_pointer:
+            raise InterpolationInputError(f"Object '{self.obj_name}' was deleted or renamed while computing; "
+                                          "nothing was written")
+        return obj
+
+    def finish(self):
+        """Write the results (after checking the inputs did not change); returns the report text."""
+        if self.cancelled or not self.finished:
+            raise RuntimeError("finish() before the last frame")
+        obj = self._current_object()
+        now = _counts(obj.data)
+        changed = [f"{k} {self.counts[k]} -> {now[k]}" for k in now if now[k] != self.counts[k]]
+        if changed:
+            raise InterpolationInputError(f"The mesh of '{obj.name}' changed while computing ({', '.join(changed)}); "
+                                          "nothing was written: run again")
+        data = session.read_mesh(obj, "interpolated")
+        if data.topology_hash != self.topology_hash:
+            raise InterpolationInputError(f"The faces of '{obj.name}' changed while computing; nothing was written: "
+                                          "run again")
+        edited = [k for k, h in self.key_hashes.items() if k not in data.names or data.key_hashes[data.index(k)] != h]
+        if edited:
+            raise InterpolationInputError(f"Shape key '{edited[0]}' was edited, renamed or deleted while computing; "
+                                          "nothing was written: run again")
+        results = [] if self.job is None else self.job.results
+        return self._write(obj, results)
+
+
+def interpolate_runner(obj, key_from, key_to, factors, method='FAST'):
+    """A :class:`JobRunner` for in-betweens (validated; raises InputError subclasses)."""
+    data, names, job = _inbetween_plan(obj, key_from, key_to, factors, method)
+
+    def write(obj, shapes):
+        results = list(zip(names, shapes, strict=True))
+        _check_finite(results, "Interpolate")
+        existing = set(mesh_access.key_names(obj.data))
+        with object_mode(obj):
+            for name, X in results:
+                write_key(obj, name, X)
+            obj.data.update()
+        replaced = sum(name in existing for name, _ in results)
+        return (f"{len(results)} in-between key{'s' if len(results) != 1 else ''} '{key_from}' > '{key_to}'"
+                + (f" ({replaced} replaced)" if replaced else ""))
+    return JobRunner(obj, data, job, [key_from, key_to], write)
+
+
+def bake_runner(obj, keys, frames, smooth=False, method='FAST', playback='STEPPED'):
+    """A :class:`JobRunner` for a bake (validated; raises InputError subclasses)."""
+    data, plan, job = _bake_plan(obj, keys, frames, smooth, method)
+
+    def write(obj, shapes):
+        full = _complete_plan(plan, shapes)
+        with object_mode(obj):
+            write_bake(obj, full, {"keys": list(keys), "frames": list(frames), "smooth": bool(smooth),
+                                   "method": method, "playback": playback}, playback)
+        return (f"Baked {len(full['keys'])} in-between keys for frames {frames[0]}..{frames[-1]} "
+                f"({'cubic spline' if smooth else 'piecewise linear'} in lengths and angles, "
+                f"{playback.lower()} playback)")
+    return JobRunner(obj, data, job, keys, write, what="baked frame")
 
 
 # ----------------------------------------------------------------------------- operators
@@ -505,23 +696,208 @@ def _progress(wm, n):
     return update
 
 
-class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
+_WORKER = []
+
+
+def _worker():
+    """The one worker thread of the modal runs (created on first use): a frame is computed there while
+    Blender keeps redrawing and handling events; it runs lacore only, never bpy."""
+    if not _WORKER:
+        _WORKER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lengths_angles"))
+    return _WORKER[0]
+
+
+def shutdown_worker():
+    """Stop the worker thread (add-on unregister); a frame being computed is dropped."""
+    while _WORKER:
+        _WORKER.pop().shutdown(wait=False, cancel_futures=True)
+
+
+_ITEMS = {}  # Blender needs Python to keep the strings of dynamic enum items alive
+
+
+def _remember(kind, items):
+    key = (kind, tuple(i[0] for i in items))
+    if key not in _ITEMS:
+        if len(_ITEMS) > 256:
+            _ITEMS.clear()
+        _ITEMS[key] = items
+    return _ITEMS[key]
+
+
+def _context_key_names(context):
+    obj = getattr(context, "object", None)
+    if obj is None or obj.type != 'MESH':
+        return []
+    return mesh_access.key_names(obj.data)
+
+
+def key_items(self, context):
+    """Dynamic enum items: the shape keys of ``context.object`` (value = position in the key list)."""
+    names = _context_key_names(context) if context is not None else []
+    items = [(n, n, f"Shape key '{n}' (position {i} in the key list)", 'SHAPEKEY_DATA', i)
+             for i, n in enumerate(names)]
+    return _remember("key", items or [(NO_KEY, "(no shape keys)", "The object has no shape keys", 'ERROR', 0)])
+
+
+def key_flag_items(self, context):
+    """Dynamic ENUM_FLAG items: the first 32 shape keys of ``context.object`` (bit i = key i)."""
+    names = _context_key_names(context)[:32] if context is not None else []
+    return _remember("flag", [(n, n, f"Pass through shape key '{n}'", 'NONE', 1 << i) for i, n in enumerate(names)])
+
+
+def _default_pair(obj):
+    """(reference key, active key or the first other key that is not an in-between), or None."""
+    key = obj.data.shape_keys if obj is not None and obj.type == 'MESH' else None
+    if key is None or key.reference_key is None or len(key.key_blocks) < 2:
+        return None
+    ref = key.reference_key.name
+    active = obj.active_shape_key.name if obj.active_shape_key is not None else ref
+    if active == ref or active.startswith(INBETWEEN_PREFIX):
+        active = next((kb.name for kb in key.key_blocks if kb.name != ref and not kb.name.startswith(INBETWEEN_PREFIX)),
+                      None)
+    return None if active is None else (ref, active)
+
+
+def _warn_transform(op, obj):
+    """Lengths and angles are measured in the mesh's own coordinates; warn if the object scales non-uniformly."""
+    if obj is None or obj.type != 'MESH':
+        return
+    s = [abs(v) for v in obj.matrix_world.to_scale()]
+    if max(s) > 0 and (max(s) - min(s)) > 1e-4 * max(s):
+        op.report({'WARNING'}, f"Object '{obj.name}' has a non-uniform scale ({s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g}): "
+                               "lengths and angles are measured in the mesh's own coordinates, ignoring the object's "
+                               "transform (Apply Scale, Ctrl+A, to use the displayed shape)")
+
+
+class _ModalRun:
+    """Shared run logic: interactive (modal, timer-driven, progress bar, Esc) or synchronous."""
+
+    interactive: BoolProperty(name="Interactive", default=False, options={'HIDDEN', 'SKIP_SAVE'},
+                              description="Compute frame by frame in a worker thread with a progress bar and Esc "
+                                          "to cancel (set by the user interface; scripts, background mode and "
+                                          "the redo panel run at once)")
+
+    def _run(self, context, make_runner):
+        obj = context.object
+        try:
+            runner = make_runner(obj)
+        except Exception as exc:  # nothing has been written: report and leave the object as it was
+            self.report({'ERROR'}, _error_text(exc))
+            return {'CANCELLED'}
+        _warn_transform(self, obj)
+        if self.interactive and not bpy.app.background and context.window is not None and not runner.finished:
+            return self._start_modal(context, runner)
+        wm = context.window_manager
+        update = _progress(wm, runner.total)
+        try:
+            runner.run(update)
+        except Exception as exc:
+            self.report({'ERROR'}, _error_text(exc))
+            return {'CANCELLED'}
+        finally:
+            wm.progress_end()
+        return self._finish(runner)
+
+    def _finish(self, runner):
+        try:
+            message = runner.finish()
+        except Exception as exc:
+            self.report({'ERROR'}, _error_text(exc))
+            return {'CANCELLED'}
+        warning = failure_warning(runner.failures, runner.what)
+        self.report({'WARNING'} if warning else {'INFO'}, warning or message)
+        return {'FINISHED'}
+
+    def _start_modal(self, context, runner):
+        self._begin_modal(context, runner)
+        context.window_manager.modal_handler_add(self)
+        return {'RUNNING_MODAL'}
+
+    def _begin_modal(self, context, runner):
+        """Progress bar, status text and the timer whose events drive :meth:`modal`."""
+        wm = context.window_manager
+        self._runner = runner
+        self._future = None
+        wm.progress_begin(0, max(runner.total, 1))
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        self._status(context, runner.status())
+
+    @staticmethod
+    def _status(context, text):
+        if context.workspace is not None and context.window is not None:
+            context.workspace.status_text_set(text)
+
+    def _end_modal(self, context):
+        wm = context.window_manager
+        if getattr(self, "_timer", None) is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        self._status(context, None)
+
+    def modal(self, context, event):
+        """One unit of work at a time: ``runner.tick()`` (one frame) runs in the worker thread (it never touches
+        bpy), timer events poll it, update the progress and start the next; Esc / right-click cancels."""
+        runner = self._runner
+        if event.type in {'ESC', 'RIGHTMOUSE'} and event.value == 'PRESS':
+            runner.cancel()  # a frame being computed finishes in the worker and is dropped
+            self._future = None
+            self._end_modal(context)
+            self.report({'WARNING'}, "Cancelled: nothing was changed")
+            return {'CANCELLED'}
+        if event.type != 'TIMER' or event.timer is not self._timer:
+            return {'PASS_THROUGH'}
+        if self._future is None:
+            self._future = _worker().submit(runner.tick)
+            return {'RUNNING_MODAL'}
+        if not self._future.done():
+            return {'RUNNING_MODAL'}
+        future, self._future = self._future, None
+        try:
+            finished = future.result()
+        except Exception as exc:
+            runner.cancel()
+            self._end_modal(context)
+            self.report({'ERROR'}, _error_text(exc))
+            return {'CANCELLED'}
+        context.window_manager.progress_update(runner.done)
+        if not finished:
+            self._status(context, runner.status())
+            self._future = _worker().submit(runner.tick)
+            return {'RUNNING_MODAL'}
+        self._end_modal(context)
+        self.interactive = False  # a redo-panel change re-runs synchronously (from the session cache)
+        return self._finish(runner)
+
+    def cancel(self, context):  # Blender ends the modal operator (e.g. the window closes)
+        if getattr(self, "_runner", None) is not None:
+            self._runner.cancel()
+        self._end_modal(context)
+
+
+class LENGTHS_ANGLES_OT_interpolate(_ModalRun, bpy.types.Operator):
     """Create in-between (or extrapolated) shape keys by interpolating edge lengths and dihedral angles
     of two shape keys and reconstructing: bending and twisting stay rigid where a linear blend shrinks"""
 
     bl_idname = "lengths_angles.interpolate"
-    bl_label = "Interpolate Shape Keys"
+    bl_label = "Lengths & Angles In-betweens"
+    bl_description = ("Create in-between shape keys of two keys by interpolating edge lengths and dihedral angles: "
+                      "bends and twists stay rigid where a linear blend shrinks")
     bl_options = {'REGISTER', 'UNDO'}
 
-    key_from: StringProperty(name="From", description="Shape key at factor 0 (default: the reference key)")
-    key_to: StringProperty(name="To", description="Shape key at factor 1 (default: the active shape key)")
+    key_from: EnumProperty(name="From", items=key_items, options={'SKIP_SAVE'},
+                           description="Shape key at factor 0 (default: the reference key)")
+    key_to: EnumProperty(name="To", items=key_items, options={'SKIP_SAVE'},
+                         description="Shape key at factor 1 (default: the active shape key)")
     factors: StringProperty(
         name="Factors",
         description="Factors of the new keys, separated by spaces or commas (0 = From, 1 = To; values below 0 or "
                     "above 1 extrapolate); empty: Count evenly spaced in-betweens")
     count: IntProperty(name="Count", description="Number of evenly spaced in-betweens when Factors is empty",
                        default=3, min=1, soft_max=50, max=MAX_NEW_KEYS)
-    method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST')
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST',
+                         description="How the interpolated lengths and angles are turned into a shape")
 
     @classmethod
     def poll(cls, context):
@@ -529,13 +905,9 @@ class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
 
     def draw(self, context):
         layout = self.layout
-        obj = context.active_object
-        key = obj.data.shape_keys if obj is not None and obj.type == 'MESH' else None
-        for prop in ("key_from", "key_to"):
-            if key is not None:
-                layout.prop_search(self, prop, key, "key_blocks")
-            else:
-                layout.prop(self, prop)
+        layout.use_property_split = True
+        layout.prop(self, "key_from")
+        layout.prop(self, "key_to")
         layout.prop(self, "factors")
         row = layout.row()
         row.enabled = not self.factors.strip()
@@ -543,124 +915,128 @@ class LENGTHS_ANGLES_OT_interpolate(bpy.types.Operator):
         layout.prop(self, "method")
 
     def _fill_defaults(self, obj):
-        if obj is None or obj.type != 'MESH' or obj.data.shape_keys is None:
+        pair = _default_pair(obj)
+        if pair is None:
             return
-        key = obj.data.shape_keys
-        if not self.key_from and key.reference_key is not None:
-            self.key_from = key.reference_key.name
-        if not self.key_to and obj.active_shape_key is not None:
-            self.key_to = obj.active_shape_key.name
+        if not self.properties.is_property_set("key_from"):
+            self.key_from = pair[0]
+        if not self.properties.is_property_set("key_to"):
+            self.key_to = pair[1]
+
+    def _factors(self):
+        if self.factors.strip():
+            return parse_factors(self.factors)
+        return [i / (self.count + 1) for i in range(1, self.count + 1)]
+
+    def invoke(self, context, event):
+        self._fill_defaults(context.object)
+        self.interactive = True
+        return context.window_manager.invoke_props_dialog(self, width=360)
 
     def execute(self, context):
-        obj = context.active_object
-        wm = context.window_manager
-        self._fill_defaults(obj)
-        failures = []
-        try:
-            if self.factors.strip():
-                factors = parse_factors(self.factors)
-            else:
-                factors = [i / (self.count + 1) for i in range(1, self.count + 1)]
-            update = _progress(wm, len(factors))
-            try:
-                results = interpolate_object(obj, self.key_from, self.key_to, factors, self.method, progress=update,
-                                             failures=failures)
-                _check_finite(results, "Interpolate")
-            finally:
-                wm.progress_end()
-        except Exception as exc:  # nothing has been written yet: report and leave the object as it was
-            self.report({'ERROR'}, _error_text(exc))
-            return {'CANCELLED'}
-        existing = set(mesh_access.key_names(obj.data))
-        with _object_mode(obj):
-            for name, X in results:
-                write_key(obj, name, X)
-            obj.data.update()
-        replaced = sum(name in existing for name, _ in results)
-        warning = failure_warning(failures)
-        if warning:
-            self.report({'WARNING'}, warning)
-            return {'FINISHED'}
-        self.report({'INFO'}, f"{len(results)} in-between key{'s' if len(results) != 1 else ''} "
-                              f"'{self.key_from}' > '{self.key_to}'" + (f" ({replaced} replaced)" if replaced else ""))
-        return {'FINISHED'}
+        self._fill_defaults(context.object)
+        return self._run(context, lambda obj: interpolate_runner(obj, self.key_from, self.key_to, self._factors(),
+                                                                 self.method))
 
 
-class LENGTHS_ANGLES_OT_bake_keyframes(bpy.types.Operator):
+class LENGTHS_ANGLES_OT_bake_keyframes(_ModalRun, bpy.types.Operator):
     """Bake a lengths-and-angles motion through shape keys at given frames: one new shape key per in-between
-    frame, and CONSTANT keyframes on the key values so that playback shows exactly one key per frame"""
+    frame, keyframed so that playback shows exactly one key per frame"""
 
     bl_idname = "lengths_angles.bake_keyframes"
-    bl_label = "Bake Keyframe In-betweens"
+    bl_label = "Bake Lengths & Angles In-betweens"
+    bl_description = ("Bake a motion through shape keys: one new shape key per in-between frame, keyframed so that "
+                      "playback shows one key per frame")
     bl_options = {'REGISTER', 'UNDO'}
 
-    keys: StringProperty(name="Keys", description="Shape keys to pass through, separated by commas, "
-                                                  "e.g. \"Basis, Bend, Twist\"")
-    frames: StringProperty(name="Frames", description="Frame of every key, strictly increasing, e.g. \"1, 12, 24\"")
-    smooth: BoolProperty(name="Smooth", description="Cubic spline through the keys' lengths and angles "
-                                                    "(otherwise piecewise linear)", default=False)
-    method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST')
+    key_set: EnumProperty(name="Keys", items=key_flag_items, options={'ENUM_FLAG', 'SKIP_SAVE'},
+                          description="Shape keys the motion passes through, in key-list order (default: the "
+                                      "reference key and the active key)")
+    frame_start: IntProperty(name="Start Frame", default=1, options={'SKIP_SAVE'},
+                             description="Frame of the first key (default: the current frame)")
+    frame_step: IntProperty(name="Frames Between Keys", default=10, min=1, soft_max=100,
+                            description="Frames from one key to the next")
+    keys: StringProperty(name="Keys (typed)", options={'SKIP_SAVE'},
+                         description="For scripts: shape keys separated by commas, e.g. \"Basis, Bend, Twist\"; "
+                                     "overrides Keys, Start Frame and Frames Between Keys")
+    frames: StringProperty(name="Frames (typed)", options={'SKIP_SAVE'},
+                           description="For scripts: the frame of every typed key, strictly increasing, "
+                                       "e.g. \"1, 12, 24\"")
+    smooth: BoolProperty(name="Spline", default=False,
+                         description="Cubic spline through the keys' lengths and angles (otherwise piecewise linear)")
+    playback: EnumProperty(name="Playback", items=PLAYBACK_ITEMS, default='STEPPED',
+                           description="Interpolation of the keyframes on the key values")
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST',
+                         description="How the interpolated lengths and angles are turned into a shape")
 
     @classmethod
     def poll(cls, context):
         return True
 
+    def bake_inputs(self, obj):
+        """``(keys, frames)`` of this bake: the typed lists, else the picked keys from Start Frame on."""
+        if self.keys.strip() or self.frames.strip():
+            return parse_key_list(self.keys), parse_frames(self.frames)
+        names = [n for n in (mesh_access.key_names(obj.data) if obj is not None and obj.type == 'MESH' else [])
+                 if n in self.key_set]
+        return names, [self.frame_start + i * self.frame_step for i in range(len(names))]
+
+    def summary(self, obj):
+        try:
+            keys, frames = self.bake_inputs(obj)
+        except InputError as exc:
+            return str(exc)
+        return bake_summary(obj, keys, frames)
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.object
+        if self.keys.strip() or self.frames.strip():
+            layout.prop(self, "keys")
+            layout.prop(self, "frames")
+        else:
+            layout.label(text="Keys")
+            layout.column(align=True).prop(self, "key_set")
+            layout.prop(self, "frame_start")
+            layout.prop(self, "frame_step")
+        layout.prop(self, "smooth")
+        layout.prop(self, "playback")
+        layout.prop(self, "method")
+        layout.label(text=self.summary(obj), icon='INFO')
+
     def invoke(self, context, event):
-        obj = context.active_object
-        if not self.keys and obj is not None and obj.type == 'MESH' and obj.data.shape_keys is not None:
-            names = [n for n in mesh_access.key_names(obj.data) if not n.startswith(INBETWEEN_PREFIX)]
-            if len(names) >= 2:
-                scene = context.scene
-                start, end = scene.frame_start, scene.frame_end
-                step = max((end - start) // (len(names) - 1), 1)
-                self.keys = ", ".join(names)
-                self.frames = ", ".join(str(start + i * step) for i in range(len(names)))
-        return context.window_manager.invoke_props_dialog(self, width=400)
+        obj = context.object
+        pair = _default_pair(obj)
+        if not self.keys.strip() and not self.properties.is_property_set("key_set") and pair is not None:
+            self.key_set = set(pair)
+        if not self.properties.is_property_set("frame_start"):
+            self.frame_start = context.scene.frame_current
+        self.interactive = True
+        return context.window_manager.invoke_props_dialog(self, width=420)
 
     def execute(self, context):
-        obj = context.active_object
-        wm = context.window_manager
-        failures = []
-        try:
-            keys = parse_key_list(self.keys)
-            frames = parse_frames(self.frames)
-            n = max(frames[-1] - frames[0] - len(frames) + 1, 1)
-            update = _progress(wm, n)
-            try:
-                plan = bake_object(obj, keys, frames, smooth=self.smooth, method=self.method, progress=update,
-                                   failures=failures)
-            finally:
-                wm.progress_end()
-        except Exception as exc:  # nothing has been written yet
-            self.report({'ERROR'}, _error_text(exc))
-            return {'CANCELLED'}
-        with _object_mode(obj):
-            write_bake(obj, plan, {"keys": keys, "frames": frames, "smooth": bool(self.smooth),
-                                   "method": self.method})
-        warning = failure_warning(failures, what="baked frame")
-        if warning:
-            self.report({'WARNING'}, warning)
-            return {'FINISHED'}
-        self.report({'INFO'}, f"Baked {len(plan['keys'])} in-between keys for frames {frames[0]}..{frames[-1]} "
-                              f"({'cubic spline' if self.smooth else 'piecewise linear'} in lengths and angles)")
-        return {'FINISHED'}
+        def make(obj):
+            keys, frames = self.bake_inputs(obj)
+            return bake_runner(obj, keys, frames, smooth=self.smooth, method=self.method, playback=self.playback)
+        return self._run(context, make)
 
 
 class LENGTHS_ANGLES_OT_clear_bake(bpy.types.Operator):
-    """Remove the keys and keyframes made by Bake Keyframe In-betweens (your own keys stay)"""
+    """Remove the keys and keyframes made by Bake In-betweens (your own keys stay)"""
 
     bl_idname = "lengths_angles.clear_bake"
-    bl_label = "Clear Bake"
+    bl_label = "Clear Lengths & Angles Bake"
+    bl_description = "Remove the shape keys and keyframes made by Bake In-betweens, even if renamed (your keys stay)"
     bl_options = {'REGISTER', 'UNDO'}
 
     @classmethod
     def poll(cls, context):
-        obj = context.active_object
-        return obj is not None and obj.type == 'MESH' and BAKE_PROP in obj.data
+        obj = context.object
+        return obj is not None and obj.type == 'MESH' and (BAKE_PROP in obj.data or any(bake_identity(obj).values()))
 
     def execute(self, context):
-        obj = context.active_object
-        with _object_mode(obj):
+        obj = context.object
+        with object_mode(obj):
             n = remove_bake(obj)
             obj.data.update()
         self.report({'INFO'}, f"Removed the bake ({n} keys)")

@@ -1,14 +1,25 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""UI: a sub-panel of Properties > Object Data > Shape Keys."""
+"""UI: a sub-panel of Properties > Object Data > Shape Keys, and entries in the Shape Keys specials menu.
+
+Panel and operators act on ``context.object`` (which follows a pinned Properties editor).
+"""
 
 import bpy
 
 from . import storage
-from .operators import LENGTHS_ANGLES_OT_encode
+from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
 from .operators_interpolate import (BAKE_PROP, LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
-__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "classes"]
+__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "classes", "draw_shape_key_menu", "integrability_text"]
+
+
+def integrability_text(violation):
+    """``("integrable" | "not integrable", tooltip with the number)`` for a key's max violation."""
+    verdict = "integrable" if violation <= storage.INTEGRABLE_TOLERANCE else "not integrable"
+    return verdict, (f"Largest per-vertex integrability violation |tr I - 3| = {violation:.3g} (integrable up to "
+                     f"{storage.INTEGRABLE_TOLERANCE:g}): the stored lengths and angles "
+                     + ("describe a shape" if verdict == "integrable" else "describe no shape exactly"))
 
 
 class LENGTHS_ANGLES_PT_shape_keys(bpy.types.Panel):
@@ -27,43 +38,55 @@ class LENGTHS_ANGLES_PT_shape_keys(bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         mesh = context.object.data
-        layout.operator(LENGTHS_ANGLES_OT_encode.bl_idname, icon='MOD_EDGESPLIT')
         rows = storage.key_status(mesh)
         if not rows:
-            layout.label(text="No shape keys to encode", icon='INFO')
+            layout.label(text="No shape keys: add a Basis and a target key", icon='INFO')
             return
         draw_inbetweens(context, layout, mesh)
+        row = layout.row(align=True)
+        row.operator(LENGTHS_ANGLES_OT_encode.bl_idname, icon='MOD_EDGESPLIT')
+        row.operator(LENGTHS_ANGLES_OT_remove_data.bl_idname, text="", icon='TRASH')
+        changed = storage.encoding_mismatch(mesh)
+        if changed:
+            layout.label(text=f"Mesh changed since encoding ({changed}): encode again", icon='ERROR')
         col = layout.column(align=True)
-        header = col.row()
-        header.label(text="Shape key")
-        header.label(text="Integrability violation")
         for name, encoded, violation in rows:
             row = col.row()
             row.label(text=name, icon='CHECKMARK' if encoded else 'X')
-            row.label(text=f"{violation:.3g}" if encoded else "not encoded")
+            if not encoded:
+                row.label(text="not encoded")
+                continue
+            verdict, tip = integrability_text(violation)
+            op = row.operator(LENGTHS_ANGLES_OT_integrability_info.bl_idname, text=verdict, emboss=False,
+                              icon='NONE' if verdict == "integrable" else 'ERROR')
+            op.detail = tip
 
 
 def draw_inbetweens(context, layout, mesh):
-    """Interpolate from the reference key to the active key (options in the redo panel) and bake."""
-    key = mesh.shape_keys
-    obj = context.object
+    """In-betweens (options dialog: From, To, Count ...) and Bake; Clear Bake when there is one."""
     col = layout.column(align=True)
-    ref = key.reference_key.name if key.reference_key is not None else ""
-    active = obj.active_shape_key.name if obj.active_shape_key is not None else ""
     row = col.row(align=True)
-    if active and active != ref:
-        op = row.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text=f"In-betweens {ref} > {active}",
-                          icon='IPO_EASE_IN_OUT')
-        op.key_from = ref
-        op.key_to = active
-    else:
-        row.enabled = False
-        row.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text="In-betweens: select a target key",
-                     icon='IPO_EASE_IN_OUT')
+    row.operator_context = 'INVOKE_DEFAULT'
+    row.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text="In-betweens...", icon='IPO_EASE_IN_OUT')
     row = col.row(align=True)
-    row.operator(LENGTHS_ANGLES_OT_bake_keyframes.bl_idname, text="Bake Keyframes...", icon='KEYFRAME_HLT')
+    row.operator_context = 'INVOKE_DEFAULT'
+    row.operator(LENGTHS_ANGLES_OT_bake_keyframes.bl_idname, text="Bake In-betweens...", icon='KEYFRAME_HLT')
     if BAKE_PROP in mesh:
         row.operator(LENGTHS_ANGLES_OT_clear_bake.bl_idname, text="", icon='X')
+
+
+def draw_shape_key_menu(self, context):
+    """Entries in the Shape Keys specials menu (the menu next to the key list; also found by F3 search)."""
+    self.layout.separator()
+    layout = self.layout.column()  # its own operator context, not the menu's
+    layout.operator_context = 'INVOKE_DEFAULT'
+    layout.operator(LENGTHS_ANGLES_OT_interpolate.bl_idname, text="Lengths & Angles In-betweens...",
+                    icon='IPO_EASE_IN_OUT')
+    layout.operator(LENGTHS_ANGLES_OT_bake_keyframes.bl_idname, text="Bake Lengths & Angles In-betweens...",
+                    icon='KEYFRAME_HLT')
+    layout.operator(LENGTHS_ANGLES_OT_clear_bake.bl_idname, icon='X')
+    layout.operator(LENGTHS_ANGLES_OT_encode.bl_idname, text="Encode Lengths & Angles", icon='MOD_EDGESPLIT')
+    layout.operator(LENGTHS_ANGLES_OT_remove_data.bl_idname, icon='TRASH')
 
 
 classes = (LENGTHS_ANGLES_PT_shape_keys,)

@@ -6,25 +6,36 @@ Layout of ``mesh["lengths_angles"]`` (an ID property group, saved in the .blend)
     format_version   int     (FORMAT_VERSION)
     n_vertices       int
     n_mesh_edges     int     first rows of ``edges`` that are Blender's mesh.edges
+    n_polygons       int     len(mesh.polygons) when encoded
+    topology_hash    str     :func:`..session.topology_hash` of (faces, edges)
     faces            int32 array, flattened (F, 3) fixed fan triangulation
     edges            int32 array, flattened (E, 2) as oriented by lacore
     keys             group: shape-key name -> group
         z                               float64 array (2E,) = (lengths, angles)
         max_integrability_violation     float
         key_index                       int (position in the key list when encoded)
+        coords_hash                     str :func:`..session.coords_hash` of the key's coordinates
+
+The interpolation operators reuse a stored ``z`` when the topology hash and the
+key's coordinate hash still match (:func:`..session.key_z`), so what is stored is used.
 
 ID properties cannot be attached to shape-key blocks, hence the Mesh.
 """
 
 import numpy as np
 
-__all__ = ["PROP", "FORMAT_VERSION", "write_encoding", "read_encoding", "key_status", "clear_encoding"]
+__all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "write_encoding", "read_encoding", "key_status",
+           "clear_encoding", "encoding_mismatch"]
 
 PROP = "lengths_angles"
 FORMAT_VERSION = 1
+#: Largest per-vertex violation ``|tr I_v - 3|`` (lacore.integrability) shown as "integrable": round-off of
+#: lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
+INTEGRABLE_TOLERANCE = 1e-8
 
 
-def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations):
+def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations, coords_hashes=None,
+                   topology_hash=""):
     """Replace ``mesh[PROP]`` by a new encoding (all inputs already computed and valid)."""
     z = np.asarray(z, dtype=np.float64)
     keys = {
@@ -32,6 +43,7 @@ def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations):
             "z": np.ascontiguousarray(z[k]),
             "max_integrability_violation": float(violations[k]),
             "key_index": k,
+            "coords_hash": "" if coords_hashes is None else str(coords_hashes[k]),
         }
         for k, name in enumerate(names)
     }
@@ -39,6 +51,8 @@ def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations):
         "format_version": FORMAT_VERSION,
         "n_vertices": len(mesh.vertices),
         "n_mesh_edges": int(n_mesh_edges),
+        "n_polygons": len(mesh.polygons),
+        "topology_hash": str(topology_hash),
         "faces": np.ascontiguousarray(faces, dtype=np.int32).ravel(),
         "edges": np.ascontiguousarray(edges, dtype=np.int32).ravel(),
         "keys": keys,
@@ -77,6 +91,18 @@ def read_encoding(mesh):
     }
 
 
+def encoding_mismatch(mesh):
+    """What changed in ``mesh`` since it was encoded (e.g. ``"vertices 8 -> 9, edges 12 -> 13"``), or None."""
+    group = mesh.get(PROP)
+    if group is None:
+        return None
+    now = {"vertices": len(mesh.vertices), "edges": len(mesh.edges), "faces": len(mesh.polygons)}
+    then = {"vertices": group.get("n_vertices"), "edges": group.get("n_mesh_edges"), "faces": group.get("n_polygons")}
+    changed = [f"{what} {then[what]} -> {now[what]}" for what in now
+               if then[what] is not None and int(then[what]) != now[what]]
+    return ", ".join(changed) if changed else None
+
+
 def key_status(mesh):
     """Per shape key ``(name, encoded, max_violation or None)`` for the UI.
 
@@ -85,8 +111,7 @@ def key_status(mesh):
     """
     names = [] if mesh.shape_keys is None else [kb.name for kb in mesh.shape_keys.key_blocks]
     group = mesh.get(PROP)
-    valid = (group is not None and group.get("n_vertices") == len(mesh.vertices)
-             and group.get("n_mesh_edges") == len(mesh.edges))
+    valid = group is not None and encoding_mismatch(mesh) is None
     stored = group["keys"] if valid else {}
     rows = []
     for name in names:

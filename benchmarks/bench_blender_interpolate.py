@@ -9,10 +9,17 @@ shape key.  Timed:
 * ``operator_seconds``: ``bpy.ops.lengths_angles.interpolate`` (count = 10) as a user runs it,
   the first time on this connectivity (pays the one-time set-up: Gauss-Newton sparsity pattern,
   fill-reducing ordering, symbolic factorization);
-* ``rerun_*``: the same work again (like a redo-panel re-run, set-up cached), split into stages
-  with the operator's own functions: ``read`` (shape keys via foreach_get, fixed triangulation,
-  lacore topology), ``compute`` (lacore interpolation + projection + placement) and ``write``
-  (10 shape keys via foreach_set), the compute stage under cProfile.
+* ``redo_seconds``: the operator again with the same options (a redo-panel re-run: every frame
+  comes from the session cache, addon/session.py);
+* ``steps_*``: the modal path's units of work with the operator's own runner
+  (``interpolate_runner``): validation, one ``tick()`` per in-between, ``finish()`` (checks +
+  writing the keys).  In the UI the ticks run in the worker thread while Blender keeps
+  responding; the main thread blocks only for validation and finish.  The computed frames are
+  dropped from the session cache first (the topology, the keys' lengths and angles and, for
+  MULTIRES, the coarse hierarchy stay cached).  With ``--no-profile`` the ticks run in a worker
+  thread as in the UI, and ``steps_main_thread_longest_wait_seconds`` is, per frame, the longest
+  time the main thread (waking every 5 ms) waited for Python's lock: how long Blender's
+  Python-drawn UI can stall meanwhile.  Otherwise the ticks run under cProfile.
 
 Prints one JSON object: seconds per stage and method, machine info, and (with
 ``--profile``, default on) the functions taking most of the compute time (cProfile,
@@ -33,6 +40,7 @@ import pstats
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -82,7 +90,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--segments", type=int, nargs=3, default=(400, 30, 30))
     parser.add_argument("--count", type=int, default=10)
-    parser.add_argument("--methods", nargs="+", default=["FAST"], choices=["FAST", "GAUSS_NEWTON"])
+    parser.add_argument("--methods", nargs="+", default=["FAST"],
+                        choices=["PREVIEW", "FAST", "GAUSS_NEWTON", "MULTIRES"])
     parser.add_argument("--no-profile", action="store_true")
     parser.add_argument("--json", default=None, help="also write the result to this file")
     args = parser.parse_args(argv)
@@ -96,6 +105,7 @@ def main(argv=None):
 
     pkg = load_addon()
     ops = pkg.addon.operators_interpolate
+    session = pkg.addon.session
     bpy.ops.wm.read_homefile(use_empty=True)
     t = time.perf_counter()
     obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
@@ -111,39 +121,72 @@ def main(argv=None):
         # 1. end to end, as a user runs it (the first run on this connectivity pays the set-up)
         bpy.ops.wm.read_homefile(use_empty=True)
         obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
-        t = time.perf_counter()
-        with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
-            assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="",
-                                                      count=args.count, method=method) == {'FINISHED'}
-        entry["operator_seconds"] = round(time.perf_counter() - t, 3)
-        entry["operator_run"] = "first run on this connectivity" if not result["methods"] else "set-up cached"
-        # 2. the same work again, stage by stage with the operator's own functions (= a redo-panel re-run:
-        #    the topology and its reconstruction set-up are cached)
-        bpy.ops.wm.read_homefile(use_empty=True)
-        obj = cases.bent_bar("Bar", 180.0, segments=tuple(args.segments))
-        t0 = time.perf_counter()
-        _mesh, names, coords, topology = ops.read_mesh(obj)
-        t1 = time.perf_counter()
-        A, B = coords[names.index("Basis")], coords[names.index("Bend180")]
 
-        def compute(A=A, B=B, topology=topology, method=method):
-            return ops.inbetween_shapes(topology, A, B, factors, method)
+        def run_operator(obj=obj, method=method):
+            t = time.perf_counter()
+            if method in {item[0] for item in ops.METHOD_ITEMS}:
+                with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+                    assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="",
+                                                              count=args.count, method=method) == {'FINISHED'}
+            else:  # not offered in the UI (MULTIRES): the operator's own runner, synchronously
+                runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method)
+                runner.run()
+                runner.finish()
+            return round(time.perf_counter() - t, 3)
+
+        entry["operator_seconds"] = run_operator()
+        entry["operator_run"] = "first run on this connectivity" if not result["methods"] else "set-up cached"
+        # 2. a redo-panel re-run with the same options: everything from the session cache
+        entry["redo_seconds"] = run_operator()
+        # 3. the modal path's units of work: validation, one timer tick per in-between (the longest tick is
+        #    the longest time Blender does not respond), finish (checks + writing); computed frames dropped
+        #    from the session cache first, the topology and the keys' lengths and angles stay cached
+        session.clear_results()
+        t0 = time.perf_counter()
+        runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method)
+        t1 = time.perf_counter()
+        ticks = []
+
+        gaps = []
+
+        def drive(runner=runner, ticks=ticks):
+            while not runner.finished:
+                t = time.perf_counter()
+                runner.tick()
+                ticks.append(round(time.perf_counter() - t, 3))
+
+        def drive_in_worker(runner=runner, ticks=ticks, gaps=gaps):
+            """As the modal operator: each tick in a worker thread; the main thread wakes every 5 ms (as
+            Blender's event loop needs Python's lock for its Python-drawn UI) and records its longest wait."""
+            with ThreadPoolExecutor(max_workers=1) as worker:
+                while not runner.finished:
+                    t = last = time.perf_counter()
+                    future, gap = worker.submit(runner.tick), 0.0
+                    while not future.done():
+                        time.sleep(0.005)
+                        now = time.perf_counter()
+                        gap, last = max(gap, now - last), now
+                    future.result()
+                    ticks.append(round(time.perf_counter() - t, 3))
+                    gaps.append(round(gap, 3))
 
         if args.no_profile:
-            shapes = compute()
+            drive_in_worker()
+            entry["steps_main_thread_longest_wait_seconds"] = gaps
         else:
-            shapes, top, own = profile_top(compute)
+            _, top, own = profile_top(drive)
             entry["profile_cumulative"] = top
             entry["profile_own_time"] = own
         t2 = time.perf_counter()
-        for t_, X in zip(factors, shapes, strict=True):
-            ops.write_key(obj, ops.inbetween_key_name("Basis", "Bend180", t_), X)
-        obj.data.update()
+        shapes = list(runner.job.results)
+        runner.finish()
         t3 = time.perf_counter()
-        entry.update({"rerun_read_seconds": round(t1 - t0, 3), "rerun_compute_seconds": round(t2 - t1, 3),
-                      "rerun_write_seconds": round(t3 - t2, 3), "rerun_total_seconds": round(t3 - t0, 3),
-                      "rerun_compute_seconds_per_inbetween": round((t2 - t1) / args.count, 3),
+        entry.update({"steps_validate_seconds": round(t1 - t0, 3), "steps_tick_seconds": ticks,
+                      "steps_longest_tick_seconds": max(ticks), "steps_finish_seconds": round(t3 - t2, 3),
+                      "steps_total_seconds": round(t3 - t0, 3),
+                      "steps_seconds_per_inbetween": round((t2 - t1) / args.count, 3),
                       "profiled": not args.no_profile})
+        A = cases.key_coords(obj, "Basis")
         k = len(factors) // 2  # quality check: the k-th in-between vs Blender's bend by the same fraction
         Rk = cases.simple_deform_coords(obj, "BEND", math.radians(180.0 * factors[k]))
         entry["quality"] = {"t": round(factors[k], 4), "reference": f"Simple Deform BEND {180 * factors[k]:.2f} deg",

@@ -217,7 +217,12 @@ def panel_draw():
     calls = draw_panel(panel, ctx)
     texts = [kw.get("text") for name, _, kw in calls if name == "label"]
     assert "not encoded" not in texts and "Scaled" in texts, texts
-    return {"labels": texts}
+    # "integrable" per key, the number only in the tooltip (the info operator's description)
+    verdicts = [kw.get("text") for name, args, kw in calls
+                if name == "operator" and args[0] == "lengths_angles.integrability_info"]
+    assert verdicts == ["integrable"] * 3, verdicts
+    assert not any("e-" in (t or "") for t in texts), texts
+    return {"labels": texts, "verdicts": verdicts}
 
 
 def edit_mode_and_key_io():

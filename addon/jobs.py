@@ -1,0 +1,169 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The computation of the long operators as an explicit step function (no bpy).
+
+A :class:`ProjectionJob` computes the frames of a lengths-and-angles motion (thesis 4.2:
+piecewise-linear or cubic-spline ``z`` through the keys, projected onto admissible lengths
+and angles by reconstruction, eq. 4.10) ONE FRAME PER :meth:`ProjectionJob.step`.  The
+modal operators call ``step()`` once per timer tick (Blender stays responsive, Esc
+cancels between frames); the synchronous path (scripts, background mode, redo panel)
+calls :meth:`ProjectionJob.run`.  Nothing here touches Blender data: cancelling is
+dropping the job.
+
+Every frame is looked up in / stored into the session cache (:mod:`.session`) under the
+key hashes, keyframes, spline flag, method and time, so a redo that changes only some
+factors recomputes only those.
+"""
+
+import numpy as np
+
+from ..lacore.errors import LengthsAnglesError
+from ..lacore.interpolation import piecewise_linear_z, project_targets, spline_z
+from ..lacore.lengths_angles import check_z
+from ..lacore.multiresolution import MultiresolutionReconstruction
+from ..lacore.progress import report
+from ..lacore.rigid import rigid_align
+from . import session
+
+__all__ = ["ProjectionJob", "key_weights", "MULTIRES"]
+
+#: The ``method`` of :class:`ProjectionJob` that solves coarse, prolongs and finishes with a few fine
+#: Gauss-Newton steps (:class:`lacore.multiresolution.MultiresolutionReconstruction`).
+MULTIRES = "multires"
+
+
+def key_weights(keyframes, t):
+    """Weights ``(K,)`` of the keys in the piecewise-linear blend at time ``t`` (hat functions; the end
+    segments continue linearly beyond the first / last keyframe, as :func:`lacore.interpolation.piecewise_linear_z`)."""
+    k = np.asarray(keyframes, float)
+    j = int(np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2))
+    s = (t - k[j]) / (k[j + 1] - k[j])
+    w = np.zeros(len(k))
+    w[j], w[j + 1] = 1.0 - s, s
+    return w
+
+
+class ProjectionJob:
+    """Frames of a motion through shape keys, computed one per :meth:`step`.
+
+    Parameters
+    ----------
+    data : session.MeshData
+    keys : list of str
+        Shape keys at ``keyframes`` (at least 2).
+    keyframes : (K,) strictly increasing floats
+    times : (N,) floats
+        Frames (or factors) to compute; may extrapolate.
+    smooth : bool
+        Cubic spline in ``z`` (else piecewise linear).
+    method : str
+        lacore reconstruction method (``"lsq"``, ``"hybrid"``, ``"gn"``).
+    method_options : dict
+        Keywords of :func:`lacore.interpolation.project_targets` (``hybrid``, ``options``).
+    method_label : str
+        Distinguishes cached results of different option sets (e.g. the operator's method item).
+
+    Attributes
+    ----------
+    results : list of N (V, 3) arrays or None
+        Placed results (rigid fit to the piecewise-linear blend of the key coordinates), by ``times`` order.
+    done, total : int
+    """
+
+    def __init__(self, data, keys, keyframes, times, smooth, method, method_options, method_label):
+        self.data = data
+        self.keys = list(keys)
+        self.keyframes = np.asarray(keyframes, float)
+        self.times = np.asarray(times, float)
+        self.smooth = bool(smooth)
+        self.method = method
+        self.method_options = dict(method_options)
+        idx = [data.index(k) for k in self.keys]
+        self.key_vertices = data.coords[idx]
+        z_keys = np.stack([session.key_z(data, k) for k in self.keys])
+        if self.smooth and len(self.keys) > 2:
+            self.z_targets = spline_z(z_keys, self.keyframes, self.times)
+        else:
+            self.z_targets = piecewise_linear_z(z_keys, self.keyframes, self.times)
+        for t, z in zip(self.times, self.z_targets, strict=True):  # fail before any work, naming the frame
+            check_z(z, data.topology, name=f"target at {t:g} (extrapolated too far?)")
+        V = data.topology.n_vertices
+        flat = self.key_vertices.reshape(len(self.keys), 3 * V)
+        self._placement = piecewise_linear_z(flat, self.keyframes, self.times).reshape(-1, V, 3)
+        self._anchors = [(float(t), X) for t, X in zip(self.keyframes, self.key_vertices, strict=True)]
+        self._order = np.argsort(self.times, kind="stable")
+        self._key = (data.topology_hash, tuple(data.key_hashes[i] for i in idx), tuple(self.keyframes.tolist()),
+                     self.smooth, method_label)
+        self.results = [None] * len(self.times)
+        self.failures = []  # "t = ...: <failure>: <message>" of frames failing their checks (written anyway)
+        self.done = 0
+        self.computed = 0  # frames not taken from the session cache
+
+    @property
+    def total(self):
+        return len(self.times)
+
+    @property
+    def finished(self):
+        return self.done >= self.total
+
+    def step(self):
+        """Compute the next frame (in time order); returns the number of frames done."""
+        if self.finished:
+            return self.done
+        i = int(self._order[self.done])
+        t = float(self.times[i])
+        key = (*self._key, t)
+        cached = session.cached_result(key)
+        if cached is not None:
+            X, note = cached
+        else:
+            if self.method == MULTIRES:
+                rec = self._multires(i, t)
+            else:
+                res = project_targets(self.z_targets[i:i + 1], self.data.topology, self.key_vertices[0], times=[t],
+                                      anchors=self._anchors, method=self.method, **self.method_options)
+                rec = res.reconstructions[0]
+            Xr = np.asarray(rec.vertices, float)
+            note = self._failure(rec, t)
+            if not np.all(np.isfinite(Xr)):
+                raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
+                                         "too far from any shape; try smaller factors)")
+            self._anchors.append((t, Xr))  # warm start of the next Gauss-Newton frame
+            X = rigid_align(Xr, self._placement[i])
+            session.store_result(key, X, note)
+            self.computed += 1
+        if note:
+            self.failures.append(note)
+        self.results[i] = X
+        self.done += 1
+        return self.done
+
+    def _multires(self, i, t):
+        """One frame by coarse solve + prolongation + fine steps; the hierarchy is built once per keys (session)."""
+        key = (self.data.topology_hash, self._key[1], "multires")
+        options = dict(self.method_options)
+        setup = options.pop("setup", {})
+        mr = session.cached_object(key, lambda: MultiresolutionReconstruction(self.key_vertices, self.data.topology,
+                                                                              **setup))
+        # the coarse solve starts from the coarse key of largest weight (lacore's default: a bend far from the
+        # previous frame's coarse solution is reached more reliably from the nearer key)
+        return mr.reconstruct(key_weights(self.keyframes, t), z_target=self.z_targets[i], **options)
+
+    def _failure(self, result, t):
+        """``"t = ...: <failure>: <message>"`` if the reconstruction failed its checks (lacore's ``success``,
+        ``failure``), else None; the least-squares relaxation (which minimizes nothing) not reproducing a
+        non-admissible target is expected and not listed, folds are."""
+        if result.success:
+            return None
+        failure = getattr(result, "failure", "") or "failed"
+        if self.method == "lsq" and failure == "not_reproduced":
+            return None
+        return f"t = {t:g}: {failure}: {result.message}"
+
+    def run(self, progress=None):
+        """All remaining frames; ``progress(done, total, message)`` after each (:mod:`lacore.progress`)."""
+        report(progress, self.done, self.total, "starting")
+        while not self.finished:
+            self.step()
+            report(progress, self.done, self.total, f"frame {self.done} of {self.total}")
+        return self.results
