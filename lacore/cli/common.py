@@ -6,10 +6,13 @@ import sys
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, MeshError
+from ..lengths_angles import check_nondegenerate
+from ..mesh_io import load_mesh
+from ..topology import MeshTopology
 
 __all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "print_json", "json_float",
-           "nonnegative_int", "positive_int", "add_allow_failure", "exit_code"]
+           "nonnegative_int", "positive_int", "add_allow_failure", "exit_code", "load_meshes_in_correspondence"]
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input or usage, same code argparse uses
@@ -64,3 +67,23 @@ def json_float(x):
     """A float for JSON (NaN/inf are not valid JSON: they become None)."""
     x = float(x)
     return x if np.isfinite(x) else None
+
+
+def load_meshes_in_correspondence(paths):
+    """Vertices of every mesh file and the topology of the first.
+
+    Returns ``(shapes, topology)``: a list of ``(V, 3)`` arrays (each checked for
+    degenerate triangles) and the :class:`~lacore.topology.MeshTopology` of the first
+    file.  A mesh with another vertex count or other faces than the first raises
+    :class:`~lacore.errors.MeshError` ("... is not in dense correspondence with ...").
+    """
+    X0, faces = load_mesh(paths[0])
+    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
+    shapes = [check_nondegenerate(X0, topology)]
+    for path in paths[1:]:
+        X, F = load_mesh(path)
+        if len(X) != len(X0) or F.shape != faces.shape or not np.array_equal(F, faces):
+            raise MeshError(f"{path} ({len(X)} vertices, {len(F)} faces) is not in dense correspondence with "
+                            f"{paths[0]} ({len(X0)} vertices, {len(faces)} faces)")
+        shapes.append(check_nondegenerate(X, topology))
+    return shapes, topology

@@ -41,13 +41,11 @@ import time
 
 import numpy as np
 
-from ..errors import MeshError
-from ..lengths_angles import check_nondegenerate
-from ..mesh_io import load_mesh, save_mesh
+from ..mesh_io import save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import SOLVERS, WEIGHTS
-from ..topology import MeshTopology
-from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, positive_int, print_json
+from .common import (CliError, add_allow_failure, exit_code, json_float, load_meshes_in_correspondence, nonnegative_int,
+                     positive_int, print_json)
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -107,21 +105,10 @@ def frame_times(keyframes, n_frames):
 
 
 def _load_shapes(paths):
-    """Vertices of all meshes, the faces and topology of the first; errors for meshes not in correspondence."""
+    """Vertices of all meshes and the topology of the first (:func:`.common.load_meshes_in_correspondence`)."""
     if len(paths) < 2:
         raise CliError(f"interpolation needs at least 2 meshes, got {len(paths)}")
-    X0, faces = load_mesh(paths[0])
-    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
-    shapes = [check_nondegenerate(X0, topology)]
-    for path in paths[1:]:
-        X, F = load_mesh(path)
-        if len(X) != len(X0):
-            raise MeshError(f"{path} has {len(X)} vertices but {paths[0]} has {len(X0)}: the meshes are not in "
-                            "dense correspondence")
-        if F.shape != faces.shape or not np.array_equal(F, faces):
-            raise MeshError(f"{path} has other faces than {paths[0]}: the meshes are not in dense correspondence")
-        shapes.append(check_nondegenerate(X, topology))
-    return shapes, topology
+    return load_meshes_in_correspondence(paths)
 
 
 def run(args):

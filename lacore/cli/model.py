@@ -33,11 +33,9 @@ import time
 
 import numpy as np
 
-from ..lengths_angles import check_nondegenerate
-from ..mesh_io import load_mesh, save_mesh
+from ..mesh_io import save_mesh
 from ..shape_model import ShapeModel, ShapeModelError
-from ..topology import MeshTopology
-from .common import EXIT_OK, add_allow_failure, exit_code, positive_int, print_json
+from .common import EXIT_OK, add_allow_failure, exit_code, load_meshes_in_correspondence, positive_int, print_json
 from .interpolate import output_paths
 
 __all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
@@ -96,15 +94,7 @@ def _check_output_dir(path):
 def _load_training(paths):
     if len(paths) < 2:
         raise ShapeModelError(f"a shape model needs at least 2 training meshes, got {len(paths)}")
-    X0, faces = load_mesh(paths[0])
-    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
-    shapes = [check_nondegenerate(X0, topology)]
-    for path in paths[1:]:
-        X, F = load_mesh(path)
-        if len(X) != len(X0) or F.shape != faces.shape or not np.array_equal(F, faces):
-            raise ShapeModelError(f"{path} ({len(X)} vertices, {len(F)} faces) is not in correspondence with "
-                                  f"{paths[0]} ({len(X0)} vertices, {len(faces)} faces)")
-        shapes.append(check_nondegenerate(X, topology))
+    shapes, topology = load_meshes_in_correspondence(paths)
     return np.stack(shapes), topology
 
 
