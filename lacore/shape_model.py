@@ -45,8 +45,10 @@ Rigid motions of the training meshes change nothing (lengths and angles are
 invariant; the mean's vertices are placed in the reference mesh's frame).
 """
 
+import copy
 import os
 import time
+import zipfile
 
 import numpy as np
 import scipy.linalg
@@ -708,7 +710,6 @@ class ShapeModel:
             (of the total), sorted by variance; ``rotation`` ``(J, J)`` and
             ``localization`` (the objective before and after, iterations) set.
         """
-        import copy
 
         t0 = time.perf_counter()
         G = self._region_matrix(regions)
@@ -849,8 +850,6 @@ class ShapeModel:
             or other faces than ``faces``.
         FileNotFoundError
         """
-        import zipfile
-
         try:
             npz = np.load(path, allow_pickle=False)
         except FileNotFoundError:
