@@ -74,6 +74,10 @@ def test_prolongation_errors(coarse_bar):
     x = surface_points(train[:1, c.vertex_indices], c.faces, binding)
     with pytest.raises(InputError, match="prolongation"):
         fit_markers(model, x, binding, prolongation=3)
+    with pytest.raises(InputError, match="must return"):
+        fit_markers(model, x, binding, prolongation=lambda X, a: X[:, :2])
+    with pytest.raises(InputError, match="coefficients must have shape"):
+        keys.weights(np.zeros(2))
     with pytest.raises(InputError, match="n_nearest"):
         NearestKeysProlongation(keys.prolongation, model.training_coefficients, n_nearest=0, offset=1)
     with pytest.raises(InputError, match="do not fit"):
