@@ -74,9 +74,13 @@ energy to 0.1 %.
 
 Multiresolution
 ---------------
-lacore has no multiresolution module yet: the fit runs on the model's mesh
-directly (for the human, the ~2.4k-vertex coarse body); ``timings
-["prolongation"]`` is 0.
+Fit the model of a coarse mesh (for the human, the 2.5k-vertex coarse body)
+and give ``prolongation`` (a :class:`lacore.multiresolution.Prolongation` or
+a callable ``(coarse_vertices, coefficients) -> fine vertices``, e.g.
+:class:`lacore.marker_prolongation.NearestKeysProlongation`): every fitted
+frame is prolonged to the full mesh (``fine_vertices``, timed in
+``timings["prolongation"]``, thesis 2.3: ~20 ms).  Without it
+``fine_vertices`` is None and ``timings["prolongation"]`` is 0.
 """
 
 import time
@@ -86,6 +90,7 @@ import numpy as np
 
 from .errors import InputError, format_indices
 from .lengths_angles import face_normals, lengths_and_angles
+from .marker_prolongation import as_fit_prolongation
 from .marker_binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
 from .progress import report
 from .reconstruction.assembly import dof_ordering, gauss_newton_pattern
@@ -171,7 +176,9 @@ class MarkerFitResult(SolverResult):
         Total Gauss-Newton iterations (alternating X-steps and joint steps).
     timings : dict
         Seconds in ``initialization`` (set-up, starts), ``alternating``,
-        ``joint``, ``prolongation`` (0: no multiresolution), ``total``.
+        ``joint``, ``prolongation`` (0 without ``prolongation``), ``total``.
+    fine_vertices : (T, V_fine, 3) ndarray or None
+        The fitted poses prolonged to the fine mesh (``prolongation`` given).
     prior_weight, temporal_weight : float
     regularized_frames : list of int
         Frames that needed the anchor term or a diagonal shift of the factorization.
@@ -194,6 +201,7 @@ class MarkerFitResult(SolverResult):
     prior_weight: float = 1.0
     temporal_weight: float = 0.0
     regularized_frames: list = field(default_factory=list)
+    fine_vertices: np.ndarray = None
 
     @property
     def n_frames(self):
@@ -433,7 +441,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
                 warm_alternating_iterations=1,
                 joint_iterations=5, n_modes=None, ftol=1e-3, xtol=1e-9, compression_ratio=0.25,
                 compression_weight=100.0, anchor_weight=1e-3,
-                initial_vertices=None, initial_coefficients=None, solver=None, progress=None):
+                initial_vertices=None, initial_coefficients=None, solver=None, prolongation=None, progress=None):
     """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23)).
 
     Parameters
@@ -479,6 +487,10 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     initial_coefficients : (J,) array_like, optional
         ``alpha`` of the previous frame for frame 0 (temporal term), default 0.
     solver : {"cholmod", "scipy"}, optional
+    prolongation : lacore.multiresolution.Prolongation or callable, optional
+        Prolong every fitted pose to the fine mesh the model's mesh was
+        coarsened from (module notes): a ``Prolongation`` (first key shape)
+        or ``f(coarse_vertices (V, 3), coefficients (J,)) -> (V_fine, 3)``.
     progress : callable, optional
         ``progress(done, total, message)`` per frame (:mod:`lacore.progress`).
 
@@ -508,6 +520,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     T, M = x_all.shape[:2]
     if n_modes is not None and not (int(n_modes) == n_modes and 0 <= n_modes <= model.n_modes):
         raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {n_modes!r}")
+    prolong = None if prolongation is None else as_fit_prolongation(prolongation)
     prob = _Problem(model, binding, prior_weight, temporal_weight, compression_ratio, compression_weight,
                     anchor_weight, solver, None if n_modes is None else int(n_modes))
     V, J = prob.V, prob.J
@@ -523,6 +536,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     timings = {"initialization": time.perf_counter() - t_start, "alternating": 0.0, "joint": 0.0,
                "prolongation": 0.0}
     regularized = []
+    out_fine = None
 
     X = np.asarray(model.reference_vertices, float).copy() if initial_vertices is None else \
         np.asarray(initial_vertices, float).copy()
@@ -610,6 +624,15 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         out_a[t] = a
         out_z[t] = lengths_and_angles(X, prob.topology, check=False)
         energy[t] = prob.energy(X, a, fr)
+        if prolong is not None:
+            tp = time.perf_counter()
+            fine = np.asarray(prolong(X, a), float)
+            if out_fine is None:
+                if fine.ndim != 2 or fine.shape[1] != 3:
+                    raise InputError(f"prolongation must return (V_fine, 3) vertices, got {fine.shape}")
+                out_fine = np.empty((T,) + fine.shape)
+            out_fine[t] = fine
+            timings["prolongation"] += time.perf_counter() - tp
         seconds[t] = time.perf_counter() - t0
     report(progress, T, T, "done")
 
@@ -630,4 +653,5 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         frame_status=status, frame_messages=[FRAME_STATUS[int(s)] for s in status], frame_iterations=iters,
         frame_seconds=seconds, visible=np.isfinite(x_all[:, :, 0]).sum(1), success=bool(np.all(status >= 0)),
         status=int(worst), message=message, iterations=int(iters.sum()), timings=timings,
-        prior_weight=float(prior_weight), temporal_weight=float(temporal_weight), regularized_frames=regularized)
+        prior_weight=float(prior_weight), temporal_weight=float(temporal_weight), regularized_frames=regularized,
+        fine_vertices=out_fine)

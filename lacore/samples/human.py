@@ -40,7 +40,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HumanBody", "load_human", "human_data_dir", "JOINT_DOFS", "LIMBS", "N_BODY_VERTICES"]
+__all__ = ["HumanBody", "load_human", "coarse_human_coarsening", "human_data_dir", "JOINT_DOFS", "LIMBS",
+           "N_BODY_VERTICES"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
 N_BODY_VERTICES = 13380
@@ -414,6 +415,39 @@ def _load_full(folder):
 def coarse_body_file():
     """Path of the committed coarse-body file (kept vertex ids and faces), ``tests/data/human_coarse.npz``."""
     return Path(__file__).resolve().parents[2] / "tests" / "data" / "human_coarse.npz"
+
+
+@functools.lru_cache(maxsize=2)
+def coarse_human_coarsening(path=None):
+    """The :class:`~lacore.multiresolution.Coarsening` record of the coarse body (needed to prolong to the full one).
+
+    Recomputed deterministically (a few seconds, cached per process) from the
+    inputs stored in :func:`coarse_body_file` (``seed``, ``n_poses``,
+    ``target_vertices``: the rest pose plus ``n_poses`` random poses, as
+    ``scripts/make_coarse_human.py`` makes them) and checked against the
+    committed ``kept_vertices`` and ``faces``.
+
+    Raises
+    ------
+    MeshError
+        The recomputed coarse mesh differs from the committed one (another
+        base mesh or another coarsening code: re-run the script).
+    """
+    from ..errors import MeshError
+    from ..multiresolution import coarsen
+
+    body = _load_full(str(human_data_dir(path)))
+    f = coarse_body_file()
+    if not f.is_file():
+        raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
+    with np.load(f) as d:
+        kept, faces = d["kept_vertices"], d["faces"]
+        seed, n_poses, target = int(d["seed"]), int(d["n_poses"]), int(d["target_vertices"])
+    poses, _ = body.random_poses(n_poses, seed=seed)
+    c = coarsen(np.concatenate([body.vertices[None], poses]), body.faces, target)
+    if not (np.array_equal(c.vertex_indices, kept) and np.array_equal(c.faces, faces)):
+        raise MeshError(f"recomputed coarsening does not reproduce {f}: run scripts/make_coarse_human.py")
+    return c
 
 
 def load_human(path=None, coarse=False):

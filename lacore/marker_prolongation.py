@@ -1,0 +1,94 @@
+"""Prolongation of coarse marker fits to the full mesh (thesis 2.3 and 4.3.1: fit coarse, prolong, ~20 ms).
+
+:func:`~lacore.marker_fitting.fit_markers` fits the shape model of a coarse
+mesh (:func:`lacore.multiresolution.coarsen`); its ``prolongation`` option
+turns every fitted coarse pose into a pose of the full mesh by
+:class:`lacore.multiresolution.Prolongation` (the removed vertices
+re-inserted in local ring frames of the coarse solution, with the local
+coordinates of key shapes).  Which key shapes' detail to use:
+
+* one key, the full reference (rest) mesh: ``Prolongation(coarsening, rest)``;
+* :class:`NearestKeysProlongation`: the training poses as keys, blended by
+  inverse squared distance of the fitted coefficients ``alpha`` to the
+  ``n_nearest`` training poses' coefficients (``g``-distance of the poses in
+  the model's subspace).
+
+On the sample human (``benchmarks/bench_marker_fitting.py --prolong``) both are
+within 0.1 mm of each other; the blend of the 3 nearest training poses is the
+slightly better one (README, marker fitting).
+"""
+
+import numpy as np
+
+from .errors import InputError
+from .multiresolution import Prolongation
+
+__all__ = ["NearestKeysProlongation", "as_fit_prolongation"]
+
+
+class NearestKeysProlongation:
+    """Prolong with the detail of the training poses nearest to the fitted coefficients.
+
+    Parameters
+    ----------
+    prolongation : lacore.multiresolution.Prolongation
+        Built with the fine training poses as its key shapes, in the order of
+        ``key_coefficients`` (more keys before them are allowed: ``offset``).
+    key_coefficients : (N, J) array_like
+        Model coefficients of the keys (e.g. ``ShapeModel.training_coefficients``).
+    n_nearest : int
+        Keys blended per pose (weights ``1 / d^2``, normalized; an exact
+        match gets weight 1).
+    offset : int
+        Index of the first training key in ``prolongation``'s key shapes.
+
+    Calling it with ``(coarse_vertices (Vc, 3), coefficients (J,))`` returns
+    the fine vertices ``(V, 3)``.
+    """
+
+    def __init__(self, prolongation, key_coefficients, n_nearest=3, offset=0):
+        if not isinstance(prolongation, Prolongation):
+            raise InputError(f"prolongation must be a lacore.multiresolution.Prolongation, "
+                             f"got {type(prolongation).__name__}")
+        self.prolongation = prolongation
+        self.key_coefficients = np.atleast_2d(np.asarray(key_coefficients, float))
+        n_keys = prolongation.alpha.shape[0]
+        N = len(self.key_coefficients)
+        if not (0 <= offset and offset + N <= n_keys):
+            raise InputError(f"{N} key coefficients from key {offset} do not fit the prolongation's {n_keys} keys")
+        if not (int(n_nearest) == n_nearest and 1 <= n_nearest <= N):
+            raise InputError(f"n_nearest must be an integer from 1 to {N}, got {n_nearest!r}")
+        self.n_nearest = int(n_nearest)
+        self.offset = int(offset)
+
+    def weights(self, coefficients):
+        """Key weights ``(n_keys,)`` for one pose's coefficients ``(J,)``."""
+        a = np.asarray(coefficients, float).reshape(-1)
+        if a.shape != self.key_coefficients.shape[1:]:
+            raise InputError(f"coefficients must have shape {self.key_coefficients.shape[1:]}, got {a.shape}")
+        d2 = np.sum((self.key_coefficients - a) ** 2, axis=1)
+        idx = np.argsort(d2, kind="stable")[:self.n_nearest]
+        w = np.zeros(self.prolongation.alpha.shape[0])
+        if d2[idx[0]] <= 1e-24 * max(1.0, float(a @ a)):
+            w[self.offset + idx[0]] = 1.0
+            return w
+        inv = 1.0 / d2[idx]
+        w[self.offset + idx] = inv / inv.sum()
+        return w
+
+    def __call__(self, coarse_vertices, coefficients):
+        return self.prolongation(coarse_vertices, self.weights(coefficients))
+
+
+def as_fit_prolongation(prolongation):
+    """A callable ``f(coarse_vertices (Vc, 3), coefficients (J,)) -> (V, 3)`` from what ``fit_markers`` accepts.
+
+    A :class:`~lacore.multiresolution.Prolongation` is used with its first key
+    shape (its default weights); any other callable must take
+    ``(coarse_vertices, coefficients)``.
+    """
+    if isinstance(prolongation, Prolongation):
+        return lambda X, a: prolongation(X)
+    if not callable(prolongation):
+        raise InputError(f"prolongation must be a Prolongation or a callable, got {type(prolongation).__name__}")
+    return prolongation
