@@ -37,6 +37,14 @@
        spheres: 1.2e-3 above full Gauss-Newton after 3 steps), poor where the
        blend bends far from the reference (finger average: 100 % above after
        3 steps of 20 PCG iterations).
+   ``"two_level"``
+       no fine factorization at all: every fine step is solved by conjugate
+       gradients preconditioned with a symmetric two-level cycle (block-Jacobi
+       smoothing and the coarse Galerkin correction ``P (P^T A P)^-1 P^T``,
+       :mod:`.two_level`); only the coarse matrix (``3 Vc`` unknowns) is
+       factorized per step.  Measured: finger average 4.1e-4 above full
+       Gauss-Newton after 5 steps; on the 50k bar 4.0x the optimal energy in
+       6.0 s (3 exact steps: 10.2x in 6.1 s).
 
 Coarse bending weight
 ---------------------
