@@ -17,7 +17,9 @@ contexts), then in-betweens at ``t = 0.25, 0.5, 0.75`` by
 :class:`lacore.multiresolution.MultiresolutionReconstruction` (default: coarse
 Gauss-Newton from the nearer key, prolongation, 3 exact fine Gauss-Newton
 iterations), the same at
-``t = 0.5`` with the rotated-reference PCG fine solver and with the fine
+``t = 0.5`` with the rotated-reference PCG fine solver, with the two-level
+PCG fine solver (5 and 10 Gauss-Newton steps of at most 30 PCG iterations,
+relative residual 1e-2), and with the fine
 Gauss-Newton run to convergence (``ftol = 1e-9``), and full Gauss-Newton
 (from key 0) at ``t = 0.5``: energies, relative energy excess, RMS vertex
 distance to full Gauss-Newton over the bounding-box diagonal (after a rigid
@@ -143,6 +145,10 @@ def run_case(S, topo):
                        "fine_iterations": r.iterations, "fine_factorizations": r.factorizations,
                        "vertices": r.vertices})
     ref = mr.reconstruct([0.5, 0.5], fine_solver="reference")
+    two = {}
+    for its in (5, 10):  # two-level PCG (coarse Galerkin + block Jacobi): no fine factorization
+        two[its] = mr.reconstruct([0.5, 0.5], fine_solver="two_level", fine_iterations=its, pcg_rtol=1e-2,
+                                  pcg_maxiter=30, ftol=1e-9)
     conv = mr.reconstruct([0.5, 0.5], fine_iterations=200, ftol=1e-9)  # fine Gauss-Newton to convergence
     out["maxrss_mb_after_multires"] = maxrss_mb()
     z = mr.fine_target([0.5, 0.5])
@@ -170,6 +176,10 @@ def run_case(S, topo):
     out["multires_reference_pcg"] = {"seconds": ref.timings["total"], "timings": ref.timings,
                                      "energy": ref.energy, "pcg_iterations": ref.pcg_iterations,
                                      **compare(ref.vertices, ref.energy)}
+    out["multires_two_level"] = [{"fine_iterations": r.iterations, "seconds": r.timings["total"],
+                                  "timings": r.timings, "energy": r.energy, "pcg_iterations": r.pcg_iterations,
+                                  "fine_factorizations": r.factorizations, **compare(r.vertices, r.energy)}
+                                 for r in two.values()]
     return out
 
 

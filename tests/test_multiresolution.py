@@ -149,3 +149,58 @@ def test_bad_input(finger):
     with pytest.raises(InputError, match="coarsening"):
         MultiresolutionReconstruction(S, topo, coarsening=coarsen(S[:, :4], np.array([[0, 1, 2], [0, 2, 3],
                                                                                       [0, 3, 1], [1, 3, 2]]), 4))
+
+
+def test_two_level_preconditioner_matches_direct_solve(finger):
+    import scipy.sparse.linalg as spla
+
+    from lacore.multiresolution import interpolation_matrix
+    from lacore.reconstruction.gauss_newton import preconditioned_cg
+
+    S, topo, mr = finger
+    c = mr.coarsening
+    Ps = interpolation_matrix(c, mr.prolongation._level_data)
+    assert Ps.shape == (topo.n_vertices, c.n_vertices)
+    assert np.allclose(np.asarray(Ps.sum(axis=1)).ravel(), 1.0) and Ps.min() >= 0
+    assert np.diff(Ps.indptr).max() <= 4
+    assert np.allclose(Ps[c.vertex_indices].toarray(), np.eye(c.n_vertices))
+    ctx = mr.fine_context
+    res = mr.reconstruct([0.5, 0.5], fine_iterations=0)
+    _, g, M = ctx.objective(mr.fine_target([0.5, 0.5])).linearize(ctx.to_canonical(res.vertices))
+    fixed = ctx.fixed_dofs
+    g[fixed] = 0.0
+    A = mr.fine_matrix(M)
+    pc = mr.two_level_preconditioner()
+    pc.update(A)
+    rng = np.random.default_rng(0)
+    u, v = rng.standard_normal((2, A.shape[0]))
+    u[fixed] = v[fixed] = 0.0
+    assert abs(u @ pc(v) - v @ pc(u)) < 1e-10 * abs(u @ pc(u))  # symmetric
+    assert u @ pc(u) > 0
+    direct = spla.spsolve(A.tocsc(), -g)
+    # measured: 264 iterations to 1e-10 (3.3k unknowns, 7 to 1e-2); the solution is the direct one
+    x, n, rel = preconditioned_cg(A.dot, -g, pc, fixed, 1e-10, 1000)
+    assert rel <= 1e-10 and n < 600
+    assert np.linalg.norm(x - direct) < 1e-7 * np.linalg.norm(direct)
+    _, n2, _ = preconditioned_cg(A.dot, -g, pc, fixed, 1e-2, 500)
+    assert n2 <= 20
+
+
+def test_two_level_close_to_full_gauss_newton(finger):
+    S, topo, mr = finger
+    full = reconstruct(mr.fine_target([0.5, 0.5]), topo, S[0])
+    res = mr.reconstruct([0.5, 0.5], fine_solver="two_level", fine_iterations=5, pcg_rtol=1e-2, pcg_maxiter=30)
+    assert res.factorizations == 0 and 1 <= len(res.pcg_iterations) <= 5
+    size = np.linalg.norm(S[0].max(0) - S[0].min(0))
+    # measured: 4.1e-4 above full Gauss-Newton, RMS 2.8e-5 of the diagonal, no fine factorization
+    assert res.energy <= full.energy * (1 + 2e-3)
+    assert rigid_rms(res.vertices, full.vertices) < 1e-4 * size
+
+
+def test_two_level_rolled_plates():
+    S, topo = _group("plate/plate4SD_rolledA.ply", "plate/plate4SD_rolledB.ply")
+    mr = MultiresolutionReconstruction(S, topo)
+    full = reconstruct(mr.fine_target([0.5, 0.5]), topo, S[0], max_iterations=400)
+    res = mr.reconstruct([0.5, 0.5], fine_solver="two_level", fine_iterations=10, pcg_rtol=1e-2, pcg_maxiter=30)
+    # measured: 12 % above full Gauss-Newton after 10 steps (the exact solver: 0.07 % after 5; full GN needs ~290)
+    assert res.energy <= full.energy * 1.5

@@ -37,6 +37,14 @@
        spheres: 1.2e-3 above full Gauss-Newton after 3 steps), poor where the
        blend bends far from the reference (finger average: 100 % above after
        3 steps of 20 PCG iterations).
+   ``"two_level"``
+       no fine factorization at all: every fine step is solved by conjugate
+       gradients preconditioned with a symmetric two-level cycle (block-Jacobi
+       smoothing and the coarse Galerkin correction ``P (P^T A P)^-1 P^T``,
+       :mod:`.two_level`); only the coarse matrix (``3 Vc`` unknowns) is
+       factorized per step.  Measured: finger average 4.1e-4 above full
+       Gauss-Newton after 5 steps; on the 50k bar 4.0x the optimal energy in
+       6.0 s (3 exact steps: 10.2x in 6.1 s).
 
 Coarse bending weight
 ---------------------
@@ -68,10 +76,11 @@ from ..sparse_cholesky import SparseCholesky, nested_dissection
 from ..topology import MeshTopology
 from .coarsening import Coarsening, coarsen
 from .prolongation import Prolongation
+from .two_level import TwoLevelPreconditioner, interpolation_matrix
 
 __all__ = ["MultiresolutionReconstruction", "vertex_rotations", "FINE_SOLVERS"]
 
-FINE_SOLVERS = ("reference", "exact")
+FINE_SOLVERS = ("reference", "exact", "two_level")
 
 
 def vertex_rotations(reference_vertices, vertices, edges):
@@ -180,6 +189,7 @@ class MultiresolutionReconstruction:
                                                     bending_weight=self.coarse_bending_weight, solver=solver)
         self._reference_factor = None
         self._reference_canonical = None
+        self._two_level = None
         self.setup_seconds = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ pieces
@@ -228,7 +238,8 @@ class MultiresolutionReconstruction:
 
     # ------------------------------------------------------------------ solve
     def reconstruct(self, key_weights, z_target=None, *, initial_coarse=None, fine_iterations=3,
-                    fine_solver="exact", pcg_rtol=1e-3, pcg_maxiter=20, ftol=1e-6, coarse_options=None):
+                    fine_solver="exact", pcg_rtol=1e-3, pcg_maxiter=20, ftol=1e-6, smoothing_steps=2,
+                    coarse_options=None):
         """Reconstruct the blend of the keys with weights ``key_weights``.
 
         Parameters
@@ -246,10 +257,12 @@ class MultiresolutionReconstruction:
             in-between starts from the nearer roll).
         fine_iterations : int
             At most this many fine Gauss-Newton iterations (0: prolongation only).
-        fine_solver : {"reference", "exact"}
+        fine_solver : {"exact", "reference", "two_level"}
             See the module docstring.
         pcg_rtol, pcg_maxiter : float, int
-            Conjugate gradients of ``"reference"`` steps.
+            Conjugate gradients of ``"reference"`` and ``"two_level"`` steps.
+        smoothing_steps : int
+            Block-Jacobi sweeps before and after the coarse correction of ``"two_level"``.
         ftol : float
             Stop the fine iterations when one decreases the energy by less than
             ``ftol`` times its value.
@@ -294,12 +307,12 @@ class MultiresolutionReconstruction:
                 res.status
             X, energy, iterations = res.vertices, res.energy, res.iterations
         else:
-            if fine_iterations and self._reference_factor is None:
+            if fine_iterations and fine_solver == "reference" and self._reference_factor is None:
                 t1 = time.perf_counter()
                 self.reference_factor()
                 timings["reference_factorization"] = time.perf_counter() - t1
             X, energy, hist, pcg_its, status = self._fine_pcg(z, X, int(fine_iterations), pcg_rtol, pcg_maxiter,
-                                                              ftol)
+                                                              ftol, fine_solver, smoothing_steps)
             iterations, factorizations = len(hist) - 1, 0
         timings["fine"] = time.perf_counter() - t0 - timings["reference_factorization"]
         timings["total"] = time.perf_counter() - t_start
@@ -316,8 +329,28 @@ class MultiresolutionReconstruction:
         result.prolonged_energy = hist[0]
         return result
 
-    def _fine_pcg(self, z, X, iterations, rtol, maxiter, ftol):
-        """Fine Gauss-Newton steps by PCG with the rotated reference factorization; Armijo line search."""
+    def two_level_preconditioner(self, smoothing_steps=2):
+        """The :class:`~.two_level.TwoLevelPreconditioner` of the fine system (interpolation built once)."""
+        if self._two_level is None:
+            Ps = interpolation_matrix(self.coarsening, self.prolongation._level_data)
+            self._two_level = TwoLevelPreconditioner(Ps, self.fine_context.fixed_dofs,
+                                                     backend=self.fine_context.backend)
+        self._two_level.smoothing_steps = int(smoothing_steps)
+        return self._two_level
+
+    def fine_matrix(self, matrix):
+        """The full symmetric fine Gauss-Newton matrix (CSR, fixed rows and columns = identity)."""
+        ctx = self.fine_context
+        pat = ctx.pattern
+        values = matrix()
+        touch, diag = ctx.fixed_entries
+        values[touch] = 0.0
+        values[diag] = 1.0
+        L = sp.csc_matrix((values, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"]))
+        return (L + L.T - sp.diags(L.diagonal())).tocsr()
+
+    def _fine_pcg(self, z, X, iterations, rtol, maxiter, ftol, fine_solver="reference", smoothing_steps=2):
+        """Fine Gauss-Newton steps by PCG (rotated reference factorization or two-level); Armijo line search."""
         ctx = self.fine_context
         objective = ctx.objective(z)
         fixed = ctx.fixed_dofs
@@ -333,17 +366,24 @@ class MultiresolutionReconstruction:
                 break
             energy, grad, matrix = objective.linearize(Xc)
             grad[fixed] = 0.0
-            R = vertex_rotations(self._reference_canonical, Xc, edges)
-            factor = self._reference_factor
+            if fine_solver == "two_level":
+                A = self.fine_matrix(matrix)
+                precondition = self.two_level_preconditioner(smoothing_steps)
+                precondition.update(A)
+                matvec = A.dot
+            else:
+                R = vertex_rotations(self._reference_canonical, Xc, edges)
+                factor = self._reference_factor
+                matvec = matrix.dot
 
-            def precondition(r, R=R, factor=factor):
-                y = np.einsum("vji,vj->vi", R, r.reshape(-1, 3)).ravel()  # R^T r
-                y[fixed] = 0.0
-                y = factor.solve(y)
-                y[fixed] = 0.0
-                return np.einsum("vij,vj->vi", R, y.reshape(-1, 3)).ravel()
+                def precondition(r, R=R, factor=factor):
+                    y = np.einsum("vji,vj->vi", R, r.reshape(-1, 3)).ravel()  # R^T r
+                    y[fixed] = 0.0
+                    y = factor.solve(y)
+                    y[fixed] = 0.0
+                    return np.einsum("vij,vj->vi", R, y.reshape(-1, 3)).ravel()
 
-            d, n_cg, _ = preconditioned_cg(matrix.dot, -grad, precondition, fixed, rtol, maxiter)
+            d, n_cg, _ = preconditioned_cg(matvec, -grad, precondition, fixed, rtol, maxiter)
             pcg_its.append(n_cg)
             slope = float(grad @ d)
             if not slope < 0:
