@@ -70,8 +70,8 @@ import scipy.sparse as sp
 from ..errors import InputError, MeshError
 from ..lengths_angles import check_z, lengths_and_angles
 from ..progress import report
-from ..reconstruction import ReconstructionContext, ReconstructionResult, reconstruct
-from ..reconstruction.gauss_newton import preconditioned_cg
+from ..reconstruction import STATUS_MESSAGES, ReconstructionContext, ReconstructionResult, reconstruct
+from ..reconstruction.pcg import preconditioned_cg
 from ..sparse_cholesky import SparseCholesky, nested_dissection
 from ..topology import MeshTopology
 from .coarsening import Coarsening, coarsen
@@ -316,8 +316,6 @@ class MultiresolutionReconstruction:
             iterations, factorizations = len(hist) - 1, 0
         timings["fine"] = time.perf_counter() - t0 - timings["reference_factorization"]
         timings["total"] = time.perf_counter() - t_start
-        from ..reconstruction import STATUS_MESSAGES
-
         result = ReconstructionResult(vertices=X, success=status >= 0, status=status,
                                       message=STATUS_MESSAGES[status], method="multires", iterations=iterations,
                                       energy=float(energy), energy_name="quadratic", initial_energy=hist[0],
