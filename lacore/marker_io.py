@@ -1,0 +1,601 @@
+"""Reading and writing motion-capture marker trajectories (C3D and TRC).
+
+A *take* (:class:`MarkerTake`) is ``T`` frames of ``M`` labelled 3-D marker
+positions sampled at ``rate`` Hz, always in **metres**, with ``NaN`` where a
+marker was occluded or its sample is flagged invalid.  Readers convert from the
+file's own unit (C3D ``POINT:UNITS``, the TRC header's ``Units``); the original
+unit string is kept in :attr:`MarkerTake.units`.
+
+C3D (https://www.c3d.org)
+    Header and parameter section are parsed by the pure-Python ``c3d`` package
+    (imported on first use); the point data are then decoded here in one
+    vectorized pass over the whole data section (the package's
+    ``Reader.read_frames`` yields one frame at a time; benchmarks/bench_markers.py
+    compares the two).  All three
+    processor formats (Intel, DEC/VAX, SGI/MIPS) and both storages (16-bit
+    integers times ``POINT:SCALE``, 32-bit floats when ``POINT:SCALE < 0``)
+    are handled.  A sample is invalid (``NaN``) when its residual word is
+    negative (the C3D convention) or a coordinate is not finite.  Entries that
+    are model outputs rather than markers (their labels listed in
+    ``POINT:ANGLES``, ``FORCES``, ``MOMENTS``, ``POWERS``, ``SCALARS``, see
+    :data:`MODEL_OUTPUT_GROUPS`) are skipped.
+TRC (OpenSim / Motion Analysis ``PathFileType 4``)
+    Tab-separated text; empty fields are occluded samples.
+
+Labels are made unique and non-empty (C3D files do repeat labels): a blank
+label becomes ``"POINT<n>"`` (``n`` the 1-based entry in the file) and the
+``k``-th repeat of a label gets ``"#k"`` appended (``"RKNE"``, ``"RKNE#2"``).
+
+Every problem with a file raises :class:`MarkerFileError` (an
+:class:`~lacore.errors.InputError`) naming the file and what is wrong.
+"""
+
+import io
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
+           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS",
+           "UNIT_SCALES"]
+
+#: POINT parameters whose labels name model outputs (angles, forces...), not markers.
+MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
+
+#: Length units (lower case) and their size in metres.
+UNIT_SCALES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "um": 1e-6, "\u00b5m": 1e-6,
+               "in": 0.0254, "inch": 0.0254, "inches": 0.0254, "ft": 0.3048, "feet": 0.3048,
+               "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "millimeter": 1e-3,
+               "millimeters": 1e-3, "millimetre": 1e-3, "millimetres": 1e-3, "centimeter": 1e-2,
+               "centimeters": 1e-2, "centimetre": 1e-2, "centimetres": 1e-2}
+
+_C3D_MAGIC = 0x50
+_PROCESSORS = {84: "Intel", 85: "DEC", 86: "SGI/MIPS"}
+
+
+class MarkerError(InputError):
+    """A marker take (arrays, rate, labels) is not valid."""
+
+
+class MarkerFileError(MarkerError):
+    """A marker file cannot be read or written; the message names the file and the problem."""
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerTake:
+    """Labelled marker trajectories of one recording.
+
+    Attributes
+    ----------
+    labels : (M,) tuple of str
+        Unique, non-empty marker labels.
+    positions : (T, M, 3) float64 ndarray
+        Positions in metres; ``NaN`` (all three coordinates) where the marker is
+        occluded or the sample is invalid.
+    rate : float
+        Frames per second (Hz).
+    first_frame : int
+        Number of the first frame in the recording (C3D counts from 1).
+    units : str
+        The unit the file stored positions in (``"mm"``, ``"m"``...); positions
+        here are always metres.
+    source : str
+        Where the take came from (file path), for messages and metadata.
+    residuals : (T, M) float64 ndarray or None
+        Per-sample residual (reconstruction error estimate) in metres, ``NaN``
+        where invalid; ``None`` if the format has none (TRC).
+    """
+
+    labels: tuple
+    positions: np.ndarray
+    rate: float
+    first_frame: int = 1
+    units: str = "m"
+    source: str = ""
+    residuals: np.ndarray = field(default=None)
+
+    def __post_init__(self):
+        labels = tuple(str(s) for s in self.labels)
+        pos = np.asarray(self.positions, dtype=np.float64)
+        what = f"marker take {self.source!r}" if self.source else "marker take"
+        if pos.ndim != 3 or pos.shape[2] != 3:
+            raise MarkerError(f"{what}: positions must have shape (frames, markers, 3), got {pos.shape}")
+        if len(labels) != pos.shape[1]:
+            raise MarkerError(f"{what}: {len(labels)} labels for {pos.shape[1]} markers")
+        if len(set(labels)) != len(labels) or any(not s for s in labels):
+            raise MarkerError(f"{what}: labels must be unique and non-empty")
+        if not (np.isfinite(self.rate) and self.rate > 0):
+            raise MarkerError(f"{what}: frame rate must be positive and finite, got {self.rate!r}")
+        # a sample is either fully valid or fully missing
+        pos = pos.copy()
+        pos[~np.isfinite(pos).all(axis=2)] = np.nan
+        res = None
+        if self.residuals is not None:
+            res = np.asarray(self.residuals, dtype=np.float64)
+            if res.shape != pos.shape[:2]:
+                raise MarkerError(f"{what}: residuals have shape {res.shape}, expected {pos.shape[:2]}")
+        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "positions", pos)
+        object.__setattr__(self, "rate", float(self.rate))
+        object.__setattr__(self, "first_frame", int(self.first_frame))
+        object.__setattr__(self, "residuals", res)
+
+    @property
+    def n_frames(self):
+        """Number of frames ``T``."""
+        return self.positions.shape[0]
+
+    @property
+    def n_markers(self):
+        """Number of markers ``M``."""
+        return self.positions.shape[1]
+
+    @property
+    def visible(self):
+        """(T, M) bool: True where the marker has a valid position."""
+        return ~np.isnan(self.positions[:, :, 0])
+
+    @property
+    def times(self):
+        """(T,) float64: time of each frame in seconds, 0 at the first frame."""
+        return np.arange(self.n_frames) / self.rate
+
+
+# ----------------------------------------------------------------------------- resampling
+def resample(take, rate):
+    """The take resampled to ``rate`` Hz by linear interpolation in time, NaN-aware.
+
+    New sample ``j`` is at time ``j / rate`` (the first sample stays at time 0),
+    ``j = 0 .. floor((T - 1) * rate / take.rate)``: the new take never extends
+    past the last original sample.  A new sample that falls exactly on an
+    original one (to 1e-9 of a sample) copies it; one strictly between two
+    originals is their linear interpolation if BOTH are valid and NaN otherwise
+    (an occluded sample is never filled in).  Residuals are not resampled
+    (``None``).
+
+    Parameters
+    ----------
+    take : MarkerTake
+    rate : float
+        New rate (Hz), positive.
+
+    Returns
+    -------
+    MarkerTake
+        Same labels, units, source and first frame; positions (T', M, 3).
+    """
+    rate = float(rate)
+    if not (np.isfinite(rate) and rate > 0):
+        raise MarkerError(f"resample: the new rate must be positive and finite, got {rate!r}")
+    T = take.n_frames
+    ratio = take.rate / rate  # original samples per new sample
+    n_new = int(np.floor((T - 1) / ratio + 1e-9)) + 1
+    s = np.arange(n_new) * ratio  # positions in original samples
+    i0 = np.floor(s + 1e-9).astype(np.int64)
+    frac = s - i0
+    exact = np.abs(frac) <= 1e-9
+    i0 = np.minimum(i0, T - 1)
+    i1 = np.minimum(i0 + 1, T - 1)
+    frac = np.where(exact, 0.0, frac)[:, None, None]
+    p0, p1 = take.positions[i0], take.positions[i1]
+    blended = (1.0 - frac) * p0 + frac * p1  # NaN if either neighbour is NaN
+    positions = np.where(exact[:, None, None], p0, blended)
+    return MarkerTake(labels=take.labels, positions=positions, rate=rate, first_frame=take.first_frame,
+                      units=take.units, source=take.source)
+
+
+# ----------------------------------------------------------------------------- keys for animation systems
+def sample_frames(n_frames, rate, frame_start=1.0, scene_rate=None):
+    """Frame numbers at which to key the samples of a take.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of samples ``T``.
+    rate : float
+        The take's sample rate (Hz).
+    frame_start : float
+        Frame of the first sample.
+    scene_rate : float, optional
+        Frame rate of the target timeline.  ``None`` (or equal to ``rate``): one
+        frame per sample.  Otherwise samples are placed by time,
+        ``frame_start + i * scene_rate / rate``, on fractional frames: no sample
+        is dropped or merged.
+
+    Returns
+    -------
+    (T,) float64 ndarray
+    """
+    step = 1.0 if scene_rate is None else float(scene_rate) / float(rate)
+    if not (np.isfinite(step) and step > 0):
+        raise MarkerError(f"cannot map a {rate!r} Hz take to a {scene_rate!r} fps timeline")
+    return float(frame_start) + np.arange(int(n_frames), dtype=np.float64) * step
+
+
+def visibility_keys(visible):
+    """Step keys reproducing each marker's visibility with constant interpolation.
+
+    Parameters
+    ----------
+    visible : (T, M) bool array_like
+
+    Returns
+    -------
+    list of M pairs ``(samples, values)``
+        ``samples`` (K,) int: the first sample and every sample whose visibility
+        differs from the previous one; ``values`` (K,) float64 in {0, 1}: the
+        visibility from that sample on.
+    """
+    vis = np.asarray(visible, dtype=bool)
+    if vis.ndim != 2 or vis.shape[0] == 0:
+        raise MarkerError(f"visibility must have shape (frames >= 1, markers), got {vis.shape}")
+    change = np.ones(vis.shape, bool)
+    change[1:] = vis[1:] != vis[:-1]
+    out = []
+    for m in range(vis.shape[1]):
+        idx = np.flatnonzero(change[:, m])
+        out.append((idx, vis[idx, m].astype(np.float64)))
+    return out
+
+
+# ----------------------------------------------------------------------------- helpers
+def unit_scale(units, path=""):
+    """Size in metres of the length unit ``units`` (e.g. ``"mm"`` -> 0.001); MarkerFileError if unknown."""
+    key = str(units).strip().strip("\x00").strip().lower()
+    if key not in UNIT_SCALES:
+        where = f"{path}: " if path else ""
+        raise MarkerFileError(f"{where}unknown length unit {units!r} (known: mm, cm, dm, m, in, ft); "
+                              "pass units= to override")
+    return UNIT_SCALES[key]
+
+
+def _unique_labels(labels):
+    """Blank labels -> ``POINT<n>``; repeats -> ``label#k`` (see the module docstring)."""
+    out, seen = [], set()
+    counts = {}
+    for i, s in enumerate(labels):
+        s = s.strip() or f"POINT{i + 1}"
+        counts[s] = counts.get(s, 0) + 1
+        name, k = s, counts[s]
+        while name in seen:
+            name = f"{s}#{k}"
+            k += 1
+        seen.add(name)
+        out.append(name)
+    return out
+
+
+def _dec_to_ieee(raw):
+    """DEC F-floats (uint8 bytes, 4 per value) -> IEEE float32, as the ``c3d`` package decodes them.
+
+    A DEC F-float has the IEEE layout with its two 16-bit words swapped and a value
+    a quarter of the IEEE reading (exponent bias 128, hidden bit before the point):
+    swap the words, lower the exponent by 2 (leaving exponent 0, DEC's zero, alone).
+    """
+    b = np.asarray(raw, dtype=np.uint8).reshape(-1, 4)
+    out = np.empty_like(b)
+    out[:, 0], out[:, 1], out[:, 2] = b[:, 2], b[:, 3], b[:, 0]
+    high = b[:, 1]
+    out[:, 3] = high + ((high & 0x7F) == 0) - 1  # sign + top exponent bits; -1 here is -2 on the exponent
+    return out.reshape(-1).view("<f4")
+
+
+def _read_bytes(path):
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise MarkerFileError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+
+
+def _import_c3d():
+    try:
+        import c3d
+    except ImportError:  # pragma: no cover - c3d is a declared dependency
+        raise MarkerFileError("reading C3D files needs the 'c3d' package (pip install c3d)") from None
+    return c3d
+
+
+# ----------------------------------------------------------------------------- dispatch
+def read_markers(path, units=None):
+    """Read a marker file, C3D or TRC, recognised by its content (not its extension).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    units : str, optional
+        Override the file's length unit (e.g. when a C3D file lacks ``POINT:UNITS``).
+
+    Returns
+    -------
+    MarkerTake
+    """
+    data = _read_bytes(path)
+    if len(data) >= 2 and data[1] == _C3D_MAGIC and not data[:20].lstrip().lower().startswith(b"pathfiletype"):
+        return _read_c3d_bytes(data, str(path), units)
+    if data.lstrip()[:12].lower() == b"pathfiletype":
+        return _read_trc_text(data, str(path), units)
+    raise MarkerFileError(f"{path}: neither a C3D file (byte 2 is {data[1] if len(data) > 1 else 'missing'}, "
+                          f"expected {_C3D_MAGIC}) nor a TRC file (no 'PathFileType' header)")
+
+
+# ----------------------------------------------------------------------------- C3D
+def read_c3d(path, units=None):
+    """Read the markers of a C3D file (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    units : str, optional
+        Override ``POINT:UNITS``.
+
+    Returns
+    -------
+    MarkerTake
+        positions (T, M, 3) metres, NaN where invalid; residuals (T, M) metres.
+    """
+    return _read_c3d_bytes(_read_bytes(path), str(path), units)
+
+
+def _c3d_reader(data, path):
+    """The ``c3d.Reader`` of the header and parameter section, with clear errors for non-C3D input."""
+    c3d = _import_c3d()
+    if len(data) < 512:
+        raise MarkerFileError(f"{path}: not a C3D file or truncated: {len(data)} bytes, a C3D header alone is 512")
+    if data[1] != _C3D_MAGIC:
+        raise MarkerFileError(f"{path}: not a C3D file (byte 2 is {data[1]}, expected {_C3D_MAGIC})")
+    param_block = data[0]
+    proc_at = (param_block - 1) * 512 + 3
+    if param_block < 2 or proc_at >= len(data):
+        raise MarkerFileError(f"{path}: truncated or malformed C3D file: the parameter section (block {param_block}) "
+                              f"is beyond the end of the file ({len(data)} bytes)")
+    if data[proc_at] not in _PROCESSORS:
+        raise MarkerFileError(f"{path}: malformed C3D file: unknown processor type {data[proc_at]} "
+                              "(expected 84 Intel, 85 DEC or 86 SGI/MIPS)")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return c3d.Reader(io.BytesIO(data))
+    except Exception as exc:  # the package raises assorted errors on malformed parameter sections
+        raise MarkerFileError(f"{path}: malformed C3D parameter section ({type(exc).__name__}: {exc})") from None
+
+
+def _c3d_strings(reader, name):
+    """All strings of a (possibly multi-part, e.g. LABELS, LABELS2...) string parameter ``POINT:<name>``."""
+    out = []
+    for key in [name] + [f"{name}{k}" for k in range(2, 100)]:
+        param = reader.get(f"POINT:{key}")
+        if param is None:
+            if key != name:
+                break
+            continue
+        if not param.dimensions:
+            continue
+        arr = np.atleast_1d(param.string_array) if len(param.dimensions) > 1 else [param.string_value]
+        out.extend(str(s).strip() for s in np.ravel(arr))
+    return out
+
+
+def _read_c3d_bytes(data, path, units):
+    reader = _c3d_reader(data, path)
+    proc = data[(data[0] - 1) * 512 + 3]
+    try:
+        used = int(reader.point_used)
+        scale = float(reader.point_scale)
+        rate = float(reader.point_rate)
+        first, last = int(reader.first_frame), int(reader.last_frame)
+        analog_used = int(reader.analog_used)
+        analog_rate = float(reader.analog_rate) if analog_used else 0.0
+        data_block = int(reader.header.data_block)
+        unit_param = reader.get("POINT:UNITS")
+        file_units = unit_param.string_value.strip().strip("\x00").strip() if unit_param is not None else ""
+    except Exception as exc:
+        raise MarkerFileError(f"{path}: malformed C3D parameters ({type(exc).__name__}: {exc})") from None
+    if not np.isfinite(rate) or rate <= 0:
+        raise MarkerFileError(f"{path}: invalid point rate {rate!r} Hz")
+    if not np.isfinite(scale) or scale == 0:
+        raise MarkerFileError(f"{path}: invalid POINT:SCALE {scale!r}")
+    if used == 0:
+        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is 0)")
+    n_frames = last - first + 1
+    if n_frames < 1:
+        raise MarkerFileError(f"{path}: no frames (first frame {first}, last {last})")
+    if units is None and not file_units:
+        raise MarkerFileError(f"{path}: no POINT:UNITS parameter; pass units= (e.g. 'mm')")
+    to_metres = unit_scale(units if units is not None else file_units, path)
+
+    is_float = scale < 0
+    word = 4 if is_float else 2
+    analog_per_frame = int(round(analog_rate / rate)) if analog_used else 0
+    point_bytes = 4 * used * word
+    frame_bytes = point_bytes + analog_used * analog_per_frame * word
+    start = (data_block - 1) * 512
+    need = start + n_frames * frame_bytes
+    if data_block < 2 or len(data) < need:
+        complete = max(0, (len(data) - start) // frame_bytes) if frame_bytes else 0
+        raise MarkerFileError(f"{path}: truncated C3D file: {n_frames} frames of {used} points need {need} bytes, "
+                              f"the file has {len(data)} (only {min(complete, n_frames)} complete frames)")
+
+    block = np.frombuffer(data, dtype=np.uint8, count=n_frames * frame_bytes, offset=start)
+    raw_bytes = np.ascontiguousarray(block.reshape(n_frames, frame_bytes)[:, :point_bytes])
+    if is_float:
+        if proc == 85:
+            words = _dec_to_ieee(raw_bytes)
+        else:
+            words = raw_bytes.view(">f4" if proc == 86 else "<f4")
+        words = words.reshape(n_frames, used, 4)
+        xyz = words[:, :, :3].astype(np.float64)
+        w4 = words[:, :, 3].astype(np.float64)
+        finite4 = np.isfinite(w4)
+        last_word = np.clip(np.where(finite4, w4, -1.0), -2.0 ** 31, 2.0 ** 31 - 1).astype(np.int64)
+        invalid = ~finite4
+    else:
+        words = raw_bytes.view(">i2" if proc == 86 else "<i2").reshape(n_frames, used, 4)
+        xyz = words[:, :, :3].astype(np.float64) * abs(scale)
+        last_word = words[:, :, 3].astype(np.int64)
+        invalid = np.zeros(last_word.shape, bool)
+    invalid |= last_word < 0
+    invalid |= ~np.isfinite(xyz).all(axis=2)
+    residuals = (last_word & 0xFF).astype(np.float64) * abs(scale) * to_metres
+    positions = xyz * to_metres
+    positions[invalid] = np.nan
+    residuals[invalid] = np.nan
+
+    labels = _c3d_strings(reader, "LABELS")[:used]
+    labels += [""] * (used - len(labels))
+    model_outputs = set()
+    for group in MODEL_OUTPUT_GROUPS:
+        model_outputs.update(s for s in _c3d_strings(reader, group) if s)
+    keep = np.array([s.strip() not in model_outputs for s in labels], bool)
+    if not keep.any():
+        raise MarkerFileError(f"{path}: all {used} points are model outputs (POINT:{'/'.join(MODEL_OUTPUT_GROUPS)}),"
+                              " no markers")
+    labels = _unique_labels([s for s, k in zip(labels, keep, strict=True) if k])
+    return MarkerTake(labels=labels, positions=positions[:, keep], rate=rate, first_frame=first,
+                      units=units if units is not None else file_units, source=path, residuals=residuals[:, keep])
+
+
+def write_c3d(path, take, units="mm", integer=False):
+    """Write ``take`` as a C3D file (Intel processor format) with the ``c3d`` package.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Written atomically (temporary file in the same folder, then renamed).
+    take : MarkerTake
+    units : str
+        Length unit stored in the file (``POINT:UNITS``); positions are converted from metres.
+    integer : bool
+        Store 16-bit integers (``POINT:SCALE`` > 0, chosen so the largest coordinate
+        uses the int16 range) instead of 32-bit floats.
+
+    Invalid samples (NaN) are written with residual -1; valid ones with the
+    take's residual (0, "modelled", when it has none).
+    """
+    c3d = _import_c3d()
+    path = str(path)
+    factor = 1.0 / unit_scale(units, path)
+    pos = take.positions * factor
+    valid = take.visible
+    if integer:
+        peak = float(np.nanmax(np.abs(pos))) if valid.any() else 1.0
+        point_scale = float(np.float32(max(peak, 1e-12) / 32000.0))  # stored as float32
+    else:
+        point_scale = -1.0
+    res = np.zeros(valid.shape) if take.residuals is None else np.nan_to_num(take.residuals * factor)
+    frames = np.zeros((take.n_frames, take.n_markers, 5), np.float32)
+    frames[:, :, :3] = np.where(valid[:, :, None], pos, 0.0)
+    # the writer stores round(residual / |scale|) in a byte
+    frames[:, :, 3] = np.where(valid, np.clip(res, 0, 255 * abs(point_scale)), -1.0)
+    if integer:
+        # the writer truncates value / scale to int16: hand it (k + 0.25 sign k) * scale so it stores k = round
+        k = np.round(np.where(valid[:, :, None], pos, 0.0) / point_scale)
+        frames[:, :, :3] = (k + 0.25 * np.sign(k)) * point_scale
+    writer = c3d.Writer(point_rate=float(take.rate), analog_rate=0.0, point_scale=point_scale, point_units=units)
+    writer.set_point_labels(list(take.labels))
+    empty_analog = np.zeros((0, 0), np.float32)
+    writer.add_frames([(frames[t], empty_analog) for t in range(take.n_frames)])
+    writer.set_start_frame(max(1, take.first_frame))
+
+    def write(fh):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "No analog data found in file."
+            writer.write(fh)
+
+    _atomic_write(path, write)
+
+
+def _atomic_write(path, write):
+    folder = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise MarkerFileError(f"{path}: cannot write the file ({exc.strerror or exc})") from None
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+# ----------------------------------------------------------------------------- TRC
+def read_trc(path, units=None):
+    """Read a TRC file (tab-separated ``PathFileType 4`` text; empty fields = occluded).
+
+    The header's ``DataRate`` is the rate, ``Units`` the length unit, the first
+    ``Frame#`` the first frame.  Returns a :class:`MarkerTake` (no residuals).
+    """
+    return _read_trc_text(_read_bytes(path), str(path), units)
+
+
+def _read_trc_text(data, path, units):
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    lines = text.splitlines()
+    if len(lines) < 5 or not lines[0].lower().startswith("pathfiletype"):
+        raise MarkerFileError(f"{path}: not a TRC file (expected 'PathFileType' and 4 more header lines)")
+    keys = lines[1].split("\t")
+    values = lines[2].split("\t")
+    header = {k.strip().lower(): v.strip() for k, v in zip(keys, values, strict=False)}
+    try:
+        rate = float(header["datarate"])
+        n_markers = int(float(header["nummarkers"]))
+        file_units = header["units"]
+    except (KeyError, ValueError) as exc:
+        raise MarkerFileError(f"{path}: malformed TRC header (DataRate, NumMarkers, Units): {exc}") from None
+    to_metres = unit_scale(units if units is not None else file_units, path)
+    names = [s.strip() for s in lines[3].split("\t")[2:]]
+    labels = [s for s in names if s]
+    if len(labels) != n_markers:
+        raise MarkerFileError(f"{path}: header says NumMarkers {n_markers} but line 4 names {len(labels)} markers")
+    width = 2 + 3 * n_markers
+    fields, n_rows = [], 0
+    for ln in lines[5:]:
+        if not ln.strip():
+            continue
+        row = ln.split("\t")
+        if len(row) < width:  # trailing empty fields may be left out
+            row += [""] * (width - len(row))
+        elif len(row) > width:
+            if any(f.strip() for f in row[width:]):
+                raise MarkerFileError(f"{path}: data row {n_rows + 1} has more than {width} fields")
+            row = row[:width]
+        fields += row
+        n_rows += 1
+    if not n_rows:
+        raise MarkerFileError(f"{path}: TRC file without data rows")
+    try:
+        numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
+    except ValueError as exc:
+        raise MarkerFileError(f"{path}: non-numeric TRC data ({exc})") from None
+    frames = numbers[:, 0]
+    if np.isnan(frames).any():
+        raise MarkerFileError(f"{path}: data row {int(np.flatnonzero(np.isnan(frames))[0]) + 1} has no frame number")
+    positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
+    return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
+                      units=units if units is not None else file_units, source=path)
+
+
+def write_trc(path, take, units="mm"):
+    """Write ``take`` as a TRC file (occluded samples as empty fields), atomically."""
+    factor = 1.0 / unit_scale(units, str(path))
+    T, M = take.n_frames, take.n_markers
+    lines = ["PathFileType\t4\t(X/Y/Z)\t" + os.path.basename(str(path)),
+             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+             f"{take.rate:.12g}\t{take.rate:.12g}\t{T}\t{M}\t{units}\t{take.rate:.12g}\t{take.first_frame}\t{T}",
+             "Frame#\tTime\t" + "\t".join(f"{s}\t\t" for s in take.labels),
+             "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(M)), ""]
+    table = np.column_stack([take.first_frame + np.arange(T), take.times, (take.positions * factor).reshape(T, 3 * M)])
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=["%d", "%.6f"] + ["%.17g"] * (3 * M), delimiter="\t")  # %.17g: exact float64
+    data = buf.getvalue().replace("\tnan", "\t")  # occluded: empty fields (no number starts with "nan")
+    body = ("\n".join(lines) + "\n" + data).encode()
+    _atomic_write(str(path), lambda fh: fh.write(body))
+

