@@ -18,6 +18,7 @@ ReconstructionSettings, GaussNewtonOptions, HybridOptions  its settings (:mod:`l
 SolverResult                    base of every solver's result (:mod:`lacore.result`)
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
+ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.shape_model`, on first use)
 """
 
 import importlib
@@ -38,7 +39,7 @@ from .topology import MeshTopology, check_vertices
 
 #: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
 _LAZY = {"interpolate": "interpolation", "keyframe_inbetweens": "interpolation",
-         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics"}
+         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics", "ShapeModel": "shape_model"}
 
 
 def __getattr__(name):
@@ -57,5 +58,5 @@ __all__ = [
     "transition_rotations", "triangle_inequality_map",
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
     "ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "SolverResult",
-    "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile",
+    "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile", "ShapeModel",
 ]

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..errors import InputError
-from . import encode, interpolate, reconstruct
+from . import encode, fit, interpolate, model, reconstruct
 from .common import EXIT_OK, EXIT_USAGE, CliError
 from .encode import encode_mesh
 
@@ -51,6 +51,8 @@ def register_subcommand(name, help, configure, run):
 register_subcommand("encode", encode.HELP, encode.configure, encode.run)
 register_subcommand("reconstruct", reconstruct.HELP, reconstruct.configure, reconstruct.run)
 register_subcommand("interpolate", interpolate.HELP, interpolate.configure, interpolate.run)
+model.register(register_subcommand)  # model, model-sweep
+fit.register(register_subcommand)  # fit
 
 
 # --------------------------------------------------------------------------- main

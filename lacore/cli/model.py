@@ -1,0 +1,226 @@
+"""``lacore model`` and ``lacore model-sweep``: statistical shape models on the command line.
+
+Usage::
+
+    lacore model TRAIN_MESH... -o MODEL.npz [--modes J] [--tangent ambient|projected]
+                 [--bending-weight ETA] [--reference MESH] [--json]
+    lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off] [--json]
+
+``lacore model`` fits a :class:`lacore.shape_model.ShapeModel` (thesis 4.3:
+extrinsic mean (4.16), tangent vectors (4.18) or (4.17), PCA in the metric of
+``W_q`` (4.14)) to two or more meshes in dense correspondence and saves it to
+one ``.npz`` (see :meth:`ShapeModel.save`).  ``--json`` prints one object with
+``vertices``, ``samples``, ``modes``, ``explained_variance`` (per mode),
+``seconds`` and the seconds of each stage (``mean``, ``tangent_decomposition``,
+``tangent_solves``, ``gram``, ``eigen``, plus ``load`` and ``save``).
+
+``lacore model-sweep`` writes ``K`` poses along mode ``J`` (0-based), at ``t``
+evenly spaced from ``T0`` to ``T1`` standard deviations of the mode
+(:meth:`ShapeModel.mode_sweep`), to ``PREFIX_000.ply ...``.
+
+Bad input (fewer than 2 meshes, meshes not in correspondence, ``--modes``
+larger than N - 1, a corrupt model file, a mode out of range) prints one line
+on stderr and exits with code 2; nothing is written then.  Every output file is
+written to a temporary file in its folder and renamed into place.
+
+Registered in :mod:`lacore.cli` through :func:`register`.
+"""
+
+import json
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+__all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
+
+MODEL_HELP = "fit a statistical shape model (PCA / simplified PGA in lengths and angles) to meshes"
+SWEEP_HELP = "write meshes along one mode of a shape model"
+
+
+def register(register_subcommand):
+    """Register both subcommands with ``register_subcommand(name, help, configure, run)`` (:mod:`lacore.cli`)."""
+    register_subcommand("model", MODEL_HELP, configure_model, run_model)
+    register_subcommand("model-sweep", SWEEP_HELP, configure_sweep, run_sweep)
+
+
+def _positive_int(text):
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def configure_model(parser):
+    """Arguments of ``lacore model``."""
+    parser.add_argument("meshes", nargs="+", metavar="TRAIN_MESH",
+                        help="two or more training meshes in dense correspondence (same vertices and faces)")
+    parser.add_argument("-o", "--output", required=True, metavar="MODEL.npz", help="model file to write")
+    parser.add_argument("--modes", type=_positive_int, default=None, metavar="J",
+                        help="number of modes J (1 <= J <= N - 1; default N - 1)")
+    parser.add_argument("--tangent", choices=("ambient", "projected"), default="projected",
+                        help="tangent vectors: z - mean (4.18) or projected onto the tangent space (4.17, default)")
+    parser.add_argument("--projection-metric", choices=("euclidean", "g"), default="euclidean",
+                        help="orthogonality of the tangent projection: Euclidean as in the thesis (default) or g")
+    parser.add_argument("--bending-weight", type=float, default=0.005, metavar="ETA",
+                        help="bending weight eta of the quadratic energy W_q (default 0.005)")
+    parser.add_argument("--reference", type=int, default=0, metavar="I",
+                        help="index of the training mesh used as reference (weights, frame); default 0")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with the model's summary")
+
+
+def configure_sweep(parser):
+    """Arguments of ``lacore model-sweep``."""
+    parser.add_argument("model", metavar="MODEL.npz", help="a model written by `lacore model`")
+    parser.add_argument("--mode", type=int, required=True, metavar="J", help="mode index, 0-based")
+    parser.add_argument("--range", type=float, nargs=2, default=(-2.0, 2.0), metavar=("T0", "T1"),
+                        help="first and last t in standard deviations of the mode (default -2 2)")
+    parser.add_argument("--frames", type=_positive_int, default=5, metavar="K", help="number of meshes (default 5)")
+    parser.add_argument("-o", "--output", required=True, metavar="PREFIX",
+                        help="writes PREFIX_000.ply, PREFIX_001.ply, ...")
+    parser.add_argument("--format", choices=("ply", "obj", "off"), default="ply", help="mesh format (default ply)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _check_output_dir(path):
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"output directory {os.path.dirname(path) or '.'} does not exist")
+    return folder
+
+
+def _atomic_save_meshes(paths, vertices, faces):
+    """Write every mesh to a temporary file in its folder, then rename all of them (nothing left on failure)."""
+    from ..mesh_io import save_mesh
+
+    temps = []
+    try:
+        for path, x in zip(paths, vertices, strict=True):
+            folder = os.path.dirname(os.path.abspath(path))
+            fd, tmp = tempfile.mkstemp(suffix=os.path.splitext(path)[1], prefix=".tmp-sweep-", dir=folder)
+            os.close(fd)
+            temps.append(tmp)
+            save_mesh(tmp, x, faces)
+        for tmp, path in zip(temps, paths, strict=True):
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp in temps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+
+
+def _load_training(paths):
+    from ..lengths_angles import check_nondegenerate
+    from ..mesh_io import load_mesh
+    from ..shape_model import ShapeModelError
+    from ..topology import MeshTopology
+
+    if len(paths) < 2:
+        raise ShapeModelError(f"a shape model needs at least 2 training meshes, got {len(paths)}")
+    X0, faces = load_mesh(paths[0])
+    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
+    shapes = [check_nondegenerate(X0, topology)]
+    for path in paths[1:]:
+        X, F = load_mesh(path)
+        if len(X) != len(X0) or F.shape != faces.shape or not np.array_equal(F, faces):
+            raise ShapeModelError(f"{path} ({len(X)} vertices, {len(F)} faces) is not in correspondence with "
+                                  f"{paths[0]} ({len(X0)} vertices, {len(faces)} faces)")
+        shapes.append(check_nondegenerate(X, topology))
+    return np.stack(shapes), topology
+
+
+def run_model(args):
+    """Run ``lacore model``; returns the exit code (bad input raises for :func:`lacore.cli.main`)."""
+    from ..shape_model import ShapeModel, ShapeModelError
+
+    start = time.perf_counter()
+    if not args.output.endswith(".npz"):
+        raise ShapeModelError(f"the model file must end in .npz, got {args.output}")
+    _check_output_dir(args.output)
+    X, topology = _load_training(args.meshes)
+    N = len(X)
+    if args.modes is not None and args.modes > N - 1:
+        raise ShapeModelError(f"--modes {args.modes} is larger than N - 1 = {N - 1} for {N} training meshes")
+    if not 0 <= args.reference < N:
+        raise ShapeModelError(f"--reference {args.reference} is not the index of one of the {N} meshes")
+    t_load = time.perf_counter() - start
+    model = ShapeModel.fit(X, topology, reference_vertices=X[args.reference], n_modes=args.modes,
+                           tangent=args.tangent, projection_metric=args.projection_metric,
+                           bending_weight=args.bending_weight)
+    t = time.perf_counter()
+    model.save(args.output)
+    t_save = time.perf_counter() - t
+    seconds = time.perf_counter() - start
+    tm = model.timings
+    summary = {
+        "command": "model",
+        "output": args.output,
+        "vertices": int(topology.n_vertices),
+        "edges": int(topology.n_edges),
+        "faces": int(topology.n_faces),
+        "samples": N,
+        "modes": model.n_modes,
+        "tangent": model.tangent,
+        "projection_metric": model.projection_metric,
+        "bending_weight": model.bending_weight,
+        "explained_variance": [float(r) for r in model.explained_variance_ratio],
+        "explained_variance_total": float(np.sum(model.explained_variance_ratio)),
+        "variances": [float(v) for v in model.variances],
+        "mean_iterations": int(model.mean_result.iterations),
+        "mean_energy": float(model.mean_result.energy),
+        "seconds": seconds,
+        "stages": {"load": t_load, "encode": tm.get("encode", 0.0), "mean": tm["mean"],
+                   "tangent_decomposition": tm["tangent_decomposition"], "tangent_solves": tm["tangent_solves"],
+                   "gram": tm["gram"], "eigen": tm["eigen"], "save": t_save},
+    }
+    if args.json:
+        json.dump(summary, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"{model.n_modes} modes from {N} meshes ({topology.n_vertices} vertices), {model.tangent} tangents: "
+              f"explained {summary['explained_variance_total']:.4f} of the g-variance")
+        print("  per mode: " + " ".join(f"{r:.4f}" for r in model.explained_variance_ratio))
+        print("  stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in summary["stages"].items()))
+        print(f"  wrote {args.output} in {seconds:.3f} s")
+    return 0
+
+
+def run_sweep(args):
+    """Run ``lacore model-sweep``; returns the exit code."""
+    from .interpolate import output_paths
+    from ..shape_model import ShapeModel, ShapeModelError
+
+    start = time.perf_counter()
+    _check_output_dir(args.output)
+    model = ShapeModel.load(args.model)
+    if not 0 <= args.mode < model.n_modes:
+        raise ShapeModelError(f"--mode {args.mode} is not a mode of the model (0 to {model.n_modes - 1})")
+    (X, results), t = model.mode_sweep(args.mode, tuple(args.range), args.frames, return_results=True)
+    paths = output_paths(args.output, len(t), args.format)
+    _atomic_save_meshes(paths, X, model.faces)
+    seconds = time.perf_counter() - start
+    outputs = [{"file": p, "t": float(ti), "alpha": float(ti * model.standard_deviations[args.mode]),
+                "iterations": int(r.iterations), "energy": float(r.energy), "seconds": float(r.timings["total"])}
+               for p, ti, r in zip(paths, t, results, strict=True)]
+    if args.json:
+        json.dump({"command": "model-sweep", "model": args.model, "mode": args.mode,
+                   "standard_deviation": float(model.standard_deviations[args.mode]),
+                   "explained_variance": float(model.explained_variance_ratio[args.mode]),
+                   "vertices": int(model.topology.n_vertices), "outputs": outputs, "seconds": seconds},
+                  sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"mode {args.mode} ({model.explained_variance_ratio[args.mode]:.4f} of the variance), "
+              f"{len(t)} frames:")
+        for o in outputs:
+            print(f"  {o['file']}: t {o['t']:g} sd, {o['iterations']} iterations, energy {o['energy']:.4g}")
+        print(f"  total {seconds:.3f} s")
+    return 0

@@ -1,0 +1,584 @@
+"""Armature-free marker fitting: mesh poses from motion-capture markers and a shape model (thesis 4.3.1).
+
+For every frame ``t`` of a take, :func:`fit_markers` solves (4.23) with the
+data term generalized to surface points with normal offsets
+(:mod:`lacore.marker_binding`) and an optional temporal term::
+
+    minimize  J_t[X, alpha] = sum_{m visible} |p_m(X) - x_m^t|^2                    data (4.20)
+                            + gamma W_q[Z[X], zbar + U^T alpha]                      prior (4.21)-(4.23)
+                            + tau |alpha - alpha^{t-1}|^2                            temporal
+                            (+ kappa |X - X^{t-1}|^2 only in frames with < 3 usable markers)
+
+over vertex positions ``X`` (V, 3) and model coefficients ``alpha`` (J,)
+(``z = zbar + sum_j alpha_j u_j``, the ``u_j`` ``g``-orthonormal: ``U M U^T = Id``,
+``M = diag(w)`` the residual weights of ``W_q`` from the model's reference mesh).
+
+Solver (the thesis' remark on implementation)
+---------------------------------------------
+1. **Start.** Frame 0: the model's mean pose moved by a Kabsch fit
+   (:func:`lacore.rigid.rigid_fit`) of its marker points onto the visible
+   markers; later frames: the previous frame's pose, moved by the Kabsch fit of
+   its marker points onto the new markers (the walk), and its coefficients.
+2. **Alternating iterations** (``alternating_iterations``, default 3): the
+   ``z``-step minimizes over ``alpha`` exactly, the ``g``-orthogonal projection
+   (4.22) of ``Z[X]`` onto ``zbar + span U`` (with the temporal term:
+   ``(gamma U M U^T + tau Id) alpha = gamma U M (Z[X] - zbar) + tau alpha^{t-1}``);
+   the ``X``-step is one Gauss-Newton step in ``X`` for fixed ``z`` (the prior
+   then is the energy of the reconstruction, :mod:`lacore.reconstruction.gauss_newton`).
+3. **Joint Gauss-Newton** in ``(X, alpha)`` (at most ``joint_iterations``).
+   The Gauss-Newton matrix is bordered::
+
+       [ A    B ] [dX]     [g_X]      A = 2 (gamma J^T M J + sum_m G_m^T G_m) (+ 2 kappa Id)   sparse (3V, 3V)
+       [ B^T  C ] [da] = - [g_a]      B = -2 gamma J^T M U^T                              dense (3V, J)
+                                      C = 2 (gamma U M U^T + tau Id)                      (J, J)
+
+   with ``J = dZ/dX`` and ``G_m`` the ``(3, 9)`` Jacobian of marker ``m``'s
+   surface point (normal derivative included).  ``A`` is factorized once per
+   iteration by :class:`lacore.sparse_cholesky.SparseCholesky` (symbolic
+   analysis once per topology, reused by every iteration and frame); the Schur
+   complement ``S = C - B^T A^-1 B`` (J x J) gives ``da = S^-1 (B^T A^-1 g_X - g_a)``
+   and ``dX = -A^-1 (g_X + B da)``: ``J + 1`` solves with one factor, never a
+   dense ``3V x 3V`` matrix.
+
+``W_q`` is invariant under rigid motions, so ``A`` is singular without data;
+``>= 3`` visible, non-collinear markers make it definite.  Frames with fewer
+(or collinear ones) add the anchor term ``kappa |X - X^{t-1}|^2`` (``kappa =
+anchor_weight``, relative to ``gamma`` times the mean diagonal of the prior's
+Gauss-Newton matrix) and report status 2; the pose then comes from the prior,
+the temporal term and the markers still seen.
+
+Degenerate triangles (the thesis' exploding gradients)
+------------------------------------------------------
+The gradient of a dihedral angle grows like ``1 / height`` of its triangles; the
+thesis saw fits get stuck when a Gauss-Newton step squashed a triangle.  The
+default is a **safeguard in the line search**: a trial step is rejected (halved)
+if it shrinks a face below ``min_area_ratio`` (default 0.05) of its area in the
+model's mean pose.  This keeps every iterate away from the singular set (a face
+flipped by a step shows as a fold in the dihedral angles the prior sees) at
+the cost of a few shorter steps.  Rejecting every step that flips a face
+normal (tried first) blocks the large first-frame steps on
+the human body (limbs turning by tens of degrees; 212 mm instead of 14 mm
+error in frame 0).  The thin-shells energy (whose membrane term penalizes
+compression) would change the prior itself and lose the closed-form
+``z``-step (4.22), so it is not used; ``tests/test_marker_fitting.py`` shows a
+fit that collapses triangles to 1e-7 of their area without the safeguard and
+keeps them above 5 % with it.
+
+Multiresolution
+---------------
+lacore has no multiresolution module yet: the fit runs on the model's mesh
+directly (for the human, the ~2.4k-vertex coarse body); ``timings
+["prolongation"]`` is 0.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError, format_indices
+from .lengths_angles import face_normals, lengths_and_angles
+from .marker_binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
+from .progress import report
+from .reconstruction.gauss_newton import _QuadraticObjective, _dof_ordering, gauss_newton_pattern
+from .rigid import apply_rigid, rigid_fit
+from .sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+
+__all__ = ["fit_markers", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers"]
+
+#: Meaning of :attr:`MarkerFitResult.frame_status`.
+FRAME_STATUS = {
+    -2: "the linear system could not be solved",
+    -1: "the line search found no decrease before the first joint step",
+    0: "converged",
+    1: "iteration limit reached",
+    2: "fewer than 3 usable (visible, non-collinear) markers: pose from the prior and the temporal term",
+}
+
+_I9, _J9 = np.triu_indices(9)
+
+
+class MarkerDataError(InputError):
+    """Marker positions of a wrong shape or with infinite values."""
+
+
+def check_markers(markers, binding):
+    """Marker positions as float ``(T, M, 3)`` (a single frame ``(M, 3)`` becomes ``T = 1``).
+
+    NaN marks an occluded marker (a row with any NaN counts as occluded); infinite
+    values and a marker count other than the binding's raise :class:`MarkerDataError`.
+    """
+    x = np.asarray(markers, float)
+    if x.ndim == 2:
+        x = x[None]
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise MarkerDataError(f"marker positions must have shape (T, M, 3), got {np.shape(markers)}")
+    if x.shape[1] != binding.n_markers:
+        raise MarkerBindingError(f"the marker data has {x.shape[1]} markers, the binding {binding.n_markers}")
+    bad = np.isinf(x).any(2)
+    if bad.any():
+        t, m = np.nonzero(bad)
+        where = format_indices(zip(t, m, strict=True))
+        raise MarkerDataError(f"marker positions are infinite at (frame, marker) {where}")
+    x = x.copy()
+    x[np.isnan(x).any(2)] = np.nan
+    return x
+
+
+@dataclass
+class MarkerFitResult:
+    """Outcome of :func:`fit_markers` (fields like :class:`lacore.reconstruction.ReconstructionResult`).
+
+    Attributes
+    ----------
+    vertices : (T, V, 3) ndarray
+        Fitted poses, in the markers' frame.
+    coefficients : (T, J) ndarray
+        ``alpha`` per frame (``z = zbar + alpha @ modes``).
+    z : (T, 2E) ndarray
+        ``Z[vertices]`` per frame (admissible lengths and angles of the fitted pose).
+    marker_residuals : (T, M) ndarray
+        ``|p_m(X) - x_m|`` per frame and marker (NaN where occluded).
+    frame_rms : (T,) ndarray
+        RMS of the visible markers' residuals (NaN without visible markers).
+    marker_rms : float
+        RMS over all visible samples.
+    frame_energy : (T,) ndarray
+        ``J_t`` at the solution; ``frame_data`` and ``frame_prior`` its data and ``gamma W_q`` parts.
+    frame_status : (T,) int ndarray
+        See :data:`FRAME_STATUS`; ``frame_messages`` the same in words.
+    frame_iterations : (T, 2) int ndarray
+        Alternating and joint iterations per frame.
+    frame_seconds : (T,) ndarray
+    visible : (T,) int ndarray
+        Visible markers per frame.
+    success : bool
+        No frame failed (all statuses >= 0).
+    status : int
+        Worst frame status by severity (-2, -1, 1, 2, 0 in that order).
+    message : str
+    iterations : int
+        Total Gauss-Newton iterations (alternating X-steps and joint steps).
+    timings : dict
+        Seconds in ``initialization`` (set-up, starts), ``alternating``,
+        ``joint``, ``prolongation`` (0: no multiresolution), ``total``.
+    prior_weight, temporal_weight : float
+    regularized_frames : list of int
+        Frames that needed the anchor term or a diagonal shift of the factorization.
+    """
+
+    vertices: np.ndarray
+    coefficients: np.ndarray
+    z: np.ndarray
+    marker_residuals: np.ndarray
+    frame_rms: np.ndarray
+    marker_rms: float
+    frame_energy: np.ndarray
+    frame_data: np.ndarray
+    frame_prior: np.ndarray
+    frame_status: np.ndarray
+    frame_messages: list
+    frame_iterations: np.ndarray
+    frame_seconds: np.ndarray
+    visible: np.ndarray
+    success: bool
+    status: int
+    message: str
+    iterations: int
+    timings: dict = field(default_factory=dict)
+    prior_weight: float = 1.0
+    temporal_weight: float = 0.0
+    regularized_frames: list = field(default_factory=list)
+
+    @property
+    def n_frames(self):
+        return int(self.vertices.shape[0])
+
+    def summary(self):
+        """A JSON-serializable dict of the scalar fields and per-frame statistics (no vertex arrays)."""
+        def f(x):
+            x = float(x)
+            return x if np.isfinite(x) else None
+        T = self.n_frames
+        total = float(self.timings.get("total", 0.0))
+        return {
+            "success": bool(self.success), "status": int(self.status), "message": self.message,
+            "frames": T, "iterations": int(self.iterations),
+            "timings": {k: float(v) for k, v in self.timings.items()},
+            "seconds": total, "seconds_per_frame": total / T if T else None,
+            "marker_rms": f(self.marker_rms),
+            "max_frame_rms": f(np.nanmax(self.frame_rms)) if np.isfinite(self.frame_rms).any() else None,
+            "frame_status_counts": {str(int(s)): int(np.sum(self.frame_status == s))
+                                    for s in np.unique(self.frame_status)},
+            "mean_iterations": [float(v) for v in self.frame_iterations.mean(0)] if T else [0.0, 0.0],
+            "prior_weight": float(self.prior_weight), "temporal_weight": float(self.temporal_weight),
+            "regularized_frames": [int(t) for t in self.regularized_frames],
+        }
+
+
+_SEVERITY = {-2: 5, -1: 4, 2: 3, 1: 2, 0: 0}
+
+
+class _Problem:
+    """Constant pieces of one fit: model arrays, pattern, factorization, binding slots."""
+
+    def __init__(self, model, binding, gamma, tau, min_area_ratio, anchor_weight, solver, n_modes=None):
+        topo = model.topology
+        self.topology = topo
+        self.faces = topo.faces
+        self.V = topo.n_vertices
+        self.E = topo.n_edges
+        self.binding = binding
+        self.gamma = float(gamma)
+        self.tau = float(tau)
+        self.w = np.asarray(model.metric_weights, float)
+        self.zbar = np.asarray(model.mean_z, float)
+        self.U = np.asarray(model.modes, float)[:n_modes]             # (J, 2E)
+        self.J = self.U.shape[0]
+        self.WU = (self.w * self.U).T.copy()                          # (2E, J) = M U^T
+        self.UMU = self.U @ self.WU                                   # (J, J), = Id for a g-orthonormal model
+        self.pattern = pat = gauss_newton_pattern(topo)
+        cache = topo._cached("lacore.marker_fitting.cholesky", dict)
+        key = solver or "default"
+        chol = cache.get(key)
+        if chol is None:
+            ordering = _dof_ordering(topo, pat, model.mean_vertices) if (solver or "cholmod") == "cholmod" else None
+            try:
+                chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
+            except ValueError:
+                chol = SparseCholesky(pat["matrix"], backend=solver)
+            cache[key] = chol
+        self.chol = chol
+        self.diag = np.flatnonzero(pat["indices"] == pat["cols"])
+        # data-term slots: upper pairs of every marker's 9x9 block in the pattern's value order
+        _, dofs = surface_point_jacobians(model.mean_vertices, self.faces, binding)
+        self.dofs = dofs
+        r = np.maximum(dofs[:, _I9], dofs[:, _J9])
+        c = np.minimum(dofs[:, _I9], dofs[:, _J9])
+        n = pat["n"]
+        keys = pat["cols"] * n + pat["indices"]
+        k = c * n + r
+        pos = np.searchsorted(keys, k)
+        if np.any(keys[np.minimum(pos, len(keys) - 1)] != k):  # pragma: no cover - faces are in the pattern
+            raise RuntimeError("marker blocks outside the Gauss-Newton pattern")
+        self.data_slots = pos
+        self.buffer = np.empty(len(pat["slots"]))
+        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.mean_vertices, self.faces, unit=False), axis=1)
+        self.min_area = (0.0 if min_area_ratio is None else float(min_area_ratio)) * self.rest_area
+        self.safeguard = min_area_ratio is not None and min_area_ratio >= 0
+        self.anchor_weight = float(anchor_weight)
+        self.prior_scale = None
+
+    # ---------------------------------------------------------------- pieces
+    def data(self, X, x, vis):
+        """Data residuals ``(m, 3)`` of the visible markers and their value."""
+        P = surface_points(X, self.faces, self._sub(vis))
+        r = P - x[vis]
+        return r, float(np.einsum("ij,ij->", r, r))
+
+    def _sub(self, vis):
+        b = self.binding
+        return MarkerBinding(b.faces[vis], b.barycentric[vis], b.offsets[vis])
+
+    def energy(self, X, a, fr):
+        """``(total, data, prior)`` at ``(X, a)`` for frame data ``fr``; NaN if the safeguard rejects ``X``."""
+        z = lengths_and_angles(X, self.topology, check=False)
+        _, d = self.data(X, fr.x, fr.vis) if fr.n_vis else (None, 0.0)
+        rz = z - self.zbar - a @ self.U if self.J else z - self.zbar
+        p = self.gamma * float(np.einsum("i,i,i->", self.w, rz, rz))
+        tot = d + p
+        if self.J and self.tau:
+            da = a - fr.a_prev
+            tot += self.tau * float(da @ da)
+        if fr.kappa:
+            dx = X - fr.X_anchor
+            tot += fr.kappa * float(np.einsum("ij,ij->", dx, dx))
+        return tot, d, p
+
+    def admissible(self, X):
+        """The safeguard: no face below ``min_area``."""
+        if not self.safeguard:
+            return True
+        n_new = face_normals(X, self.faces, unit=False)
+        return bool(np.all(0.5 * np.linalg.norm(n_new, axis=1) >= self.min_area))
+
+    def linearize(self, X, a, fr):
+        """Gradient in X ``(3V,)``, GN matrix values of ``A`` (pattern order), prior objective and its GN matrix."""
+        target = self.zbar + a @ self.U if self.J else self.zbar
+        obj = _QuadraticObjective(target, self.gamma * self.w, self.topology, self.pattern, buffer=self.buffer)
+        _, grad, gn = obj.linearize(X)
+        vals = gn()
+        if self.prior_scale is None:
+            self.prior_scale = float(np.mean(vals[self.diag])) / self.gamma if self.gamma else 1.0
+        if fr.n_vis:
+            r, _ = self.data(X, fr.x, fr.vis)
+            G, _ = surface_point_jacobians(X, self.faces, self._sub(fr.vis))
+            dofs = self.dofs[fr.vis]
+            grad = grad + np.bincount(dofs.ravel(), weights=(2.0 * np.einsum("mij,mi->mj", G, r)).ravel(),
+                                      minlength=3 * self.V)
+            H = 2.0 * np.einsum("mki,mkj->mij", G, G)[:, _I9, _J9]
+            vals = vals + np.bincount(self.data_slots[fr.vis].ravel(), weights=H.ravel(), minlength=len(vals))
+        if fr.kappa:
+            grad = grad + 2.0 * fr.kappa * (X - fr.X_anchor).ravel()
+            vals = vals.copy()
+            vals[self.diag] += 2.0 * fr.kappa
+        return grad, vals, gn
+
+    def z_step(self, X, fr):
+        """Exact minimizer over ``alpha`` for fixed ``X`` (4.22) (+ temporal term)."""
+        if not self.J:
+            return np.zeros(0)
+        z = lengths_and_angles(X, self.topology, check=False)
+        lhs = self.gamma * self.UMU + self.tau * np.eye(self.J)
+        rhs = self.gamma * (self.WU.T @ (z - self.zbar)) + self.tau * fr.a_prev
+        return np.linalg.solve(lhs, rhs)
+
+
+@dataclass
+class _Frame:
+    x: np.ndarray
+    vis: np.ndarray
+    n_vis: int
+    a_prev: np.ndarray
+    X_anchor: np.ndarray
+    kappa: float
+
+
+def _usable(x_vis):
+    """At least 3 visible markers that are not collinear (second singular value > 1e-3 of the first)."""
+    if len(x_vis) < 3:
+        return False
+    s = np.linalg.svd(x_vis - x_vis.mean(0), compute_uv=False)
+    return bool(s[0] > 0 and s[1] > 1e-3 * s[0])
+
+
+def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
+    """Armijo backtracking with the degenerate-triangle safeguard; returns ``(t, X, a, E, parts)``."""
+    t = 1.0
+    for _ in range(max_backtracks):
+        Xt = X + t * dX.reshape(-1, 3)
+        at = a + t * da if da is not None else a
+        if prob.admissible(Xt):
+            Et, d, p = prob.energy(Xt, at, fr)
+            if np.isfinite(Et) and Et <= E0 + 1e-4 * t * slope:
+                return t, Xt, at, Et, (d, p)
+        t *= 0.5
+    return 0.0, X, a, E0, None
+
+
+def _joint_step(prob, X, a, fr):
+    """Gauss-Newton step of the joint problem in ``(X, alpha)`` by the bordered system (Schur complement).
+
+    Returns ``(dX (3V,), da (J,) or None, slope)`` with ``slope = g . d`` the
+    directional derivative of the energy along the step.
+    """
+    grad, vals, gn = prob.linearize(X, a, fr)
+    prob.chol.factorize(vals)
+    if not prob.J:
+        dX = -prob.chol.solve(grad)
+        return dX, None, float(grad @ dX)
+    J = prob.J
+    rz = gn.z - (prob.zbar + a @ prob.U)
+    ga = -2.0 * prob.gamma * (prob.WU.T @ rz) + 2.0 * prob.tau * (a - fr.a_prev)
+    B = -2.0 * prob.gamma * np.asarray(gn.J.T @ prob.WU)                   # (3V, J), dense border
+    C = 2.0 * (prob.gamma * prob.UMU + prob.tau * np.eye(J))
+    Y = prob.chol.solve(np.column_stack([grad, B]))                         # A^-1 [g_X, B]: J + 1 solves
+    S = C - B.T @ Y[:, 1:]                                                  # Schur complement (J, J)
+    da = np.linalg.solve(S, B.T @ Y[:, 0] - ga)
+    dX = -(Y[:, 0] + Y[:, 1:] @ da)
+    return dX, da, float(grad @ dX + ga @ da)
+
+
+def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.0, alternating_iterations=3,
+                joint_iterations=15, n_modes=None, ftol=1e-6, xtol=1e-9, min_area_ratio=0.05, anchor_weight=1e-3,
+                initial_vertices=None, initial_coefficients=None, solver=None, progress=None):
+    """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23)).
+
+    Parameters
+    ----------
+    model : lacore.shape_model.ShapeModel
+        The prior: mean ``zbar``, ``g``-orthonormal modes ``U`` (``J`` may be 0:
+        the mean-only prior), weights of ``W_q``, mean pose.
+    markers : (T, M, 3) or (M, 3) array_like
+        Marker positions per frame; NaN where a marker is occluded.
+    binding : MarkerBinding
+        Surface point and normal offset of every marker on the model's mesh.
+    prior_weight : float
+        ``gamma`` > 0 of (4.23).  The data term is in squared length units of the
+        markers, ``W_q`` is scale-free (lengths weighted by ``1 / lbar^2``).
+    temporal_weight : float
+        ``tau >= 0``: penalty ``tau |alpha^t - alpha^{t-1}|^2`` on the change of
+        the model coefficients (``g``-norm of the change of ``z`` in the model's
+        subspace) from the previous frame; rigid-motion free, so the walk is not
+        damped.  0 (default): warm start only, as in the thesis.
+    alternating_iterations : int
+        ``z``-step + ``X``-step rounds before the joint iteration.
+    joint_iterations : int
+        Maximal joint Gauss-Newton iterations per frame.
+    n_modes : int, optional
+        Use only the first ``n_modes`` modes of the model (0: the mean-only prior
+        ``W_q[Z[X], zbar]``); default all.
+    ftol, xtol : float
+        Stop the joint iteration when the relative energy decrease is below
+        ``ftol`` or the largest vertex move below ``xtol`` times the mesh size.
+    min_area_ratio : float or None
+        Safeguard (see module notes): reject steps that shrink a face below this
+        fraction of its area in the mean pose; None disables it.
+    anchor_weight : float
+        ``kappa`` of the anchor term in frames with < 3 usable markers, relative
+        to ``gamma`` times the mean diagonal entry of the prior's Gauss-Newton matrix.
+    initial_vertices : (V, 3) array_like, optional
+        Start of frame 0 instead of the Kabsch-placed mean pose.
+    initial_coefficients : (J,) array_like, optional
+        ``alpha`` of the previous frame for frame 0 (temporal term), default 0.
+    solver : {"cholmod", "scipy"}, optional
+    progress : callable, optional
+        ``progress(done, total, message)`` per frame (:mod:`lacore.progress`).
+
+    Returns
+    -------
+    MarkerFitResult
+
+    Raises
+    ------
+    MarkerBindingError
+        Binding out of range, marker bound to nothing, marker count mismatch.
+    MarkerDataError
+        Marker array of a wrong shape or with infinite values.
+    InputError
+        Bad weights.
+    """
+    t_start = time.perf_counter()
+    if not isinstance(binding, MarkerBinding):
+        raise MarkerBindingError(f"binding must be a MarkerBinding, got {type(binding).__name__}")
+    binding.check(model.faces)
+    x_all = check_markers(markers, binding)
+    for name, v, lo in (("prior_weight", prior_weight, 0.0), ("temporal_weight", temporal_weight, 0.0)):
+        if not (np.isfinite(v) and v >= lo):
+            raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
+    if not prior_weight > 0:
+        raise InputError(f"prior_weight must be > 0, got {prior_weight!r}")
+    T, M = x_all.shape[:2]
+    if n_modes is not None and not (int(n_modes) == n_modes and 0 <= n_modes <= model.n_modes):
+        raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {n_modes!r}")
+    prob = _Problem(model, binding, prior_weight, temporal_weight, min_area_ratio, anchor_weight, solver,
+                    None if n_modes is None else int(n_modes))
+    V, J = prob.V, prob.J
+    size = float(np.linalg.norm(np.ptp(model.mean_vertices, axis=0)))
+
+    out_X = np.empty((T, V, 3))
+    out_a = np.zeros((T, J))
+    out_z = np.empty((T, 2 * prob.E))
+    status = np.zeros(T, np.int64)
+    iters = np.zeros((T, 2), np.int64)
+    energy = np.zeros((T, 3))
+    seconds = np.zeros(T)
+    timings = {"initialization": time.perf_counter() - t_start, "alternating": 0.0, "joint": 0.0,
+               "prolongation": 0.0}
+    regularized = []
+
+    X = np.asarray(model.mean_vertices, float).copy() if initial_vertices is None else \
+        np.asarray(initial_vertices, float).copy()
+    if X.shape != (V, 3):
+        raise InputError(f"initial_vertices must have shape ({V}, 3), got {X.shape}")
+    a = np.zeros(J) if initial_coefficients is None else np.asarray(initial_coefficients, float).reshape(J)
+    have_previous = initial_vertices is not None
+    for t in range(T):
+        report(progress, t, T, f"frame {t + 1}/{T}")
+        t0 = time.perf_counter()
+        x = x_all[t]
+        vis = np.flatnonzero(np.isfinite(x[:, 0]))
+        usable = _usable(x[vis])
+        # start: Kabsch fit of the current pose's marker points onto the visible markers
+        if usable:
+            R, tr = rigid_fit(surface_points(X, prob.faces, binding)[vis], x[vis])
+            X = apply_rigid(X, R, tr)
+        elif t == 0 and not have_previous and len(vis):
+            X = X + (x[vis].mean(0) - surface_points(X, prob.faces, binding)[vis].mean(0))
+        if prob.prior_scale is None:
+            prob.linearize(X, a, _Frame(x, vis[:0], 0, a, X, 0.0))
+        kappa = 0.0 if usable else prob.anchor_weight * prob.gamma * prob.prior_scale
+        fr = _Frame(x, vis, len(vis), a.copy(), X.copy(), kappa)
+        if kappa:
+            regularized.append(t)
+        st = 0
+        # ------------------------------------------------ alternating
+        ta = time.perf_counter()
+        n_alt = 0
+        E_cur = prob.energy(X, a, fr)[0]
+        for _ in range(int(alternating_iterations)):
+            a = prob.z_step(X, fr)
+            E_cur = prob.energy(X, a, fr)[0]
+            grad, vals, _ = prob.linearize(X, a, fr)
+            try:
+                prob.chol.factorize(vals)
+            except NotPositiveDefiniteError:
+                st = -2
+                break
+            dX = -prob.chol.solve(grad)
+            step, X, a, E_new, _ = _line_search(prob, X, a, dX, None, E_cur, float(grad @ dX), fr)
+            n_alt += 1
+            if step == 0.0:
+                break
+            E_cur = E_new
+        timings["alternating"] += time.perf_counter() - ta
+        # ------------------------------------------------ joint
+        tj = time.perf_counter()
+        n_joint = 0
+        converged = False
+        if st == 0:
+            if J:
+                a_opt = prob.z_step(X, fr)  # exact in alpha for the current X: a better joint start
+                E_opt = prob.energy(X, a_opt, fr)[0]
+                if E_opt <= E_cur:
+                    a, E_cur = a_opt, E_opt
+            for _ in range(int(joint_iterations)):
+                try:
+                    dX, da, slope = _joint_step(prob, X, a, fr)
+                except NotPositiveDefiniteError:
+                    st = -2
+                    break
+                if prob.chol.shift and t not in regularized:
+                    regularized.append(t)
+                n_joint += 1
+                if slope >= 0:
+                    converged = True
+                    break
+                step, X, a, E_new, _ = _line_search(prob, X, a, dX, da, E_cur, slope, fr)
+                if step == 0.0:
+                    converged = True  # no decrease left at this precision
+                    break
+                dec = E_cur - E_new
+                E_cur = E_new
+                if dec <= ftol * max(E_cur, 1e-300) or step * np.abs(dX).max() <= xtol * size:
+                    converged = True
+                    break
+        timings["joint"] += time.perf_counter() - tj
+        if st == 0:
+            st = 2 if not usable else (0 if converged else 1)
+        status[t] = st
+        iters[t] = (n_alt, n_joint)
+        out_X[t] = X
+        out_a[t] = a
+        out_z[t] = lengths_and_angles(X, prob.topology, check=False)
+        energy[t] = prob.energy(X, a, fr)
+        seconds[t] = time.perf_counter() - t0
+    report(progress, T, T, "done")
+
+    P = surface_points(out_X, prob.faces, binding)
+    res = np.linalg.norm(P - x_all, axis=2)                  # NaN where occluded
+    with np.errstate(invalid="ignore"):
+        frame_rms = np.sqrt(np.nanmean(res ** 2, axis=1)) if M else np.full(T, np.nan)
+    finite = np.isfinite(res)
+    marker_rms = float(np.sqrt(np.mean(res[finite] ** 2))) if finite.any() else float("nan")
+    worst = max(status.tolist(), key=lambda s: _SEVERITY[s]) if T else 0
+    counts = {s: int(np.sum(status == s)) for s in np.unique(status)}
+    message = "; ".join(f"{n} frame{'s' if n != 1 else ''}: {FRAME_STATUS[int(s)]}" for s, n in counts.items())
+    timings["total"] = time.perf_counter() - t_start
+    return MarkerFitResult(
+        vertices=out_X, coefficients=out_a, z=out_z, marker_residuals=res, frame_rms=frame_rms,
+        marker_rms=marker_rms, frame_energy=energy[:, 0], frame_data=energy[:, 1], frame_prior=energy[:, 2],
+        frame_status=status, frame_messages=[FRAME_STATUS[int(s)] for s in status], frame_iterations=iters,
+        frame_seconds=seconds, visible=np.isfinite(x_all[:, :, 0]).sum(1), success=bool(np.all(status >= 0)),
+        status=int(worst), message=message, iterations=int(iters.sum()), timings=timings,
+        prior_weight=float(prior_weight), temporal_weight=float(temporal_weight), regularized_frames=regularized)

@@ -1,0 +1,425 @@
+"""A rigged human body posed by linear-blend skinning: seeded training sets and held-out takes.
+
+Sample data, not shipped data: everything is read from ``shared/data/human``
+(the CC0 MakeHuman base mesh "hm08", its 31-bone CMU-style skeleton and
+skinning weights; see that folder's README) and generated reproducibly from a
+seed.  Independent of the rest of lacore (NumPy/SciPy only).
+
+* :func:`load_human` -- the ``body`` group of ``base.obj`` (vertices 0..13379;
+  its 13,378 quads fan-triangulated ``(a, b, c), (a, c, d)``: 26,756 outward
+  triangles), bone heads/tails (centres of the ``joint-*`` cube groups or means
+  of listed vertices, as ``rig.cmu_mb.json`` says) and the ``(V, 31)`` sparse
+  skinning weights.  ``coarse=True`` gives the coarse body (a subset of the
+  vertices, see ``scripts/make_coarse_human.py``) once it has been made.
+* :class:`HumanBody` -- posing: a pose is a vector of joint angles (one per
+  entry of :data:`JOINT_DOFS`: anatomical swings and twists about axes fixed in
+  the rest pose, with one-sided limits where anatomy has them: knees and
+  elbows bend one way); :meth:`HumanBody.pose` composes the bone transforms
+  down the hierarchy and skins all frames with one sparse product
+  ``W (V, B) @ M (B, 12 T)``.
+* :meth:`HumanBody.random_poses` (training sets) and :meth:`HumanBody.take`
+  (held-out motion: smooth joint curves reaching beyond the training range,
+  plus a walk of the whole body), all from a seed.
+
+Units are those of ``base.obj``: decimetres; ``+y`` is up, ``+z`` forward
+(the face), ``+x`` the body's left.
+
+Extension point (markers): marker placement for motion-capture fitting belongs in
+a separate function taking a :class:`HumanBody` and posed vertices (e.g.
+vertices or surface points chosen per bone via :attr:`HumanBody.vertex_bone`,
+offset along the normal); :meth:`HumanBody.take` returns the posed vertices and
+the rigid root motion, which is all such a function needs.
+"""
+
+import functools
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+
+__all__ = ["HumanBody", "load_human", "human_data_dir", "JOINT_DOFS", "LIMBS", "N_BODY_VERTICES"]
+
+#: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
+N_BODY_VERTICES = 13380
+
+#: Degrees of freedom of a pose: ``(bone, kind, toward, low, high)`` with angles in degrees.
+#: ``kind="swing"`` rotates the bone about ``bone_direction x toward`` (positive angles move the
+#: bone toward ``toward``); ``kind="twist"`` rotates it about its own direction.  ``toward`` is
+#: ``"forward"`` (+z), ``"backward"``, ``"up"`` (+y), ``"outward"`` (away from the body's mid-plane),
+#: ``"left"`` (+x) or ``"parent"`` (back onto the parent bone: the elbow's hinge).  Hips, LHipJoint and
+#: RHipJoint carry no angles (the root motion is separate).
+JOINT_DOFS = (
+    ("LowerBack", "swing", "forward", -10, 20), ("LowerBack", "swing", "left", -10, 10),
+    ("LowerBack", "twist", None, -10, 10),
+    ("Spine", "swing", "forward", -10, 20), ("Spine", "swing", "left", -10, 10), ("Spine", "twist", None, -15, 15),
+    ("Spine1", "swing", "forward", -5, 15), ("Spine1", "twist", None, -10, 10),
+    ("Neck", "swing", "forward", -15, 25), ("Neck", "swing", "left", -15, 15),
+    ("Head", "swing", "forward", -20, 25), ("Head", "twist", None, -40, 40),
+    ("LeftShoulder", "swing", "up", -5, 20), ("LeftShoulder", "swing", "forward", -10, 15),
+    ("RightShoulder", "swing", "up", -5, 20), ("RightShoulder", "swing", "forward", -10, 15),
+    ("LeftArm", "swing", "forward", -30, 70), ("LeftArm", "swing", "up", -30, 70), ("LeftArm", "twist", None, -40, 40),
+    ("RightArm", "swing", "forward", -30, 70), ("RightArm", "swing", "up", -30, 70),
+    ("RightArm", "twist", None, -40, 40),
+    ("LeftForeArm", "swing", "parent", 0, 110), ("LeftForeArm", "twist", None, -30, 30),
+    ("RightForeArm", "swing", "parent", 0, 110), ("RightForeArm", "twist", None, -30, 30),
+    ("LeftHand", "swing", "forward", -40, 50), ("RightHand", "swing", "forward", -40, 50),
+    ("LeftFingerBase", "swing", "forward", 0, 25), ("RightFingerBase", "swing", "forward", 0, 25),
+    ("LeftHandFinger1", "swing", "forward", 0, 30), ("RightHandFinger1", "swing", "forward", 0, 30),
+    ("LThumb", "swing", "forward", 0, 20), ("RThumb", "swing", "forward", 0, 20),
+    ("LeftUpLeg", "swing", "forward", -20, 75), ("LeftUpLeg", "swing", "outward", -10, 40),
+    ("LeftUpLeg", "twist", None, -20, 20),
+    ("RightUpLeg", "swing", "forward", -20, 75), ("RightUpLeg", "swing", "outward", -10, 40),
+    ("RightUpLeg", "twist", None, -20, 20),
+    ("LeftLeg", "swing", "backward", 0, 110), ("RightLeg", "swing", "backward", 0, 110),
+    ("LeftFoot", "swing", "up", -30, 20), ("RightFoot", "swing", "up", -30, 20),
+    ("LeftToeBase", "swing", "up", -10, 30), ("RightToeBase", "swing", "up", -10, 30),
+)
+
+#: Bones of each limb (for region statistics, e.g. the locality of shape-model modes).
+LIMBS = {
+    "left_arm": ("LeftArm", "LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandFinger1", "LThumb"),
+    "right_arm": ("RightArm", "RightForeArm", "RightHand", "RightFingerBase", "RightHandFinger1", "RThumb"),
+    "left_leg": ("LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase"),
+    "right_leg": ("RightUpLeg", "RightLeg", "RightFoot", "RightToeBase"),
+    "trunk_head": ("Hips", "LHipJoint", "RHipJoint", "LowerBack", "Spine", "Spine1", "Neck", "Neck1", "Head",
+                   "LeftShoulder", "RightShoulder"),
+}
+
+_DIRECTIONS = {"forward": (0.0, 0.0, 1.0), "backward": (0.0, 0.0, -1.0), "up": (0.0, 1.0, 0.0),
+               "left": (1.0, 0.0, 0.0)}
+
+
+def human_data_dir(path=None):
+    """The ``human`` data folder: ``path``, else ``$LACORE_SHARED_DATA/human``, else ``<repo>/../shared/data/human``.
+
+    ``path`` (or the environment variable) may name the ``data`` folder, its
+    ``meshes`` folder or the ``human`` folder itself.
+    """
+    if path is None:
+        env = os.environ.get("LACORE_SHARED_DATA")
+        path = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    path = Path(path)
+    if path.name == "meshes":
+        path = path.parent
+    if path.name != "human":
+        path = path / "human"
+    if not (path / "base.obj").is_file():
+        raise FileNotFoundError(f"human body data not found: {path / 'base.obj'} (set LACORE_SHARED_DATA or pass "
+                                "path=)")
+    return path
+
+
+def _read_obj(path):
+    """Vertices (all), body quads and the vertex sets of the ``joint-*`` groups of ``base.obj``."""
+    vertices, body, groups = [], [], {}
+    group = None
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if line.startswith("v "):
+                vertices.append(line.split()[1:4])
+            elif line.startswith("g "):
+                group = line.split()[1]
+            elif line.startswith("f "):
+                idx = [int(t.split("/")[0]) - 1 for t in line.split()[1:]]
+                if group == "body":
+                    body.append(idx)
+                elif group is not None and group.startswith("joint-"):
+                    groups.setdefault(group, set()).update(idx)
+    return np.array(vertices, float), np.array(body, np.int64), {k: np.array(sorted(v)) for k, v in groups.items()}
+
+
+def _joint_position(spec, vertices, groups):
+    if spec["strategy"] == "CUBE" and spec.get("cube_name") in groups:
+        return vertices[groups[spec["cube_name"]]].mean(axis=0)
+    if spec["strategy"] == "MEAN" and spec.get("vertex_indices"):
+        return vertices[np.asarray(spec["vertex_indices"])].mean(axis=0)
+    raise ValueError(f"cannot locate joint {spec!r} in base.obj")
+
+
+class HumanBody:
+    """The skinned human body: rest mesh, skeleton, weights and posing.
+
+    Attributes
+    ----------
+    vertices : (V, 3) ndarray
+        Rest pose (A-pose), decimetres.
+    faces : (F, 3) int64 ndarray
+        Outward-oriented triangles.
+    vertex_ids : (V,) int64 ndarray
+        Index of each vertex in ``base.obj`` (``arange(13380)`` for the full body,
+        the kept subset for the coarse body).
+    bones : tuple of str
+        Bone names in topological order (parents first).
+    parents : (B,) int64 ndarray
+        Parent index of each bone (-1 for the root ``Hips``).
+    heads, tails : (B, 3) ndarray
+        Rest positions of the bone heads (rotation centres) and tails.
+    weights : (V, B) scipy.sparse.csr_matrix
+        Skinning weights, rows sum to 1.
+    vertex_bone : (V,) int64 ndarray
+        Bone of largest weight per vertex.
+    dofs : tuple
+        :data:`JOINT_DOFS`.
+    lower, upper : (P,) ndarray
+        Joint limits in radians.
+    """
+
+    def __init__(self, vertices, faces, vertex_ids, bones, parents, heads, tails, weights):
+        self.vertices = vertices
+        self.faces = faces
+        self.vertex_ids = vertex_ids
+        self.bones = tuple(bones)
+        self.parents = parents
+        self.heads = heads
+        self.tails = tails
+        self.weights = weights
+        self.vertex_bone = np.asarray(weights.argmax(axis=1)).ravel()
+        self.dofs = JOINT_DOFS
+        self.lower = np.radians([d[3] for d in JOINT_DOFS])
+        self.upper = np.radians([d[4] for d in JOINT_DOFS])
+        index = {b: i for i, b in enumerate(self.bones)}
+        self._dof_bone = np.array([index[d[0]] for d in JOINT_DOFS])
+        self._dof_axis = np.array([self._axis(index[d[0]], d[1], d[2]) for d in JOINT_DOFS])
+
+    @property
+    def n_vertices(self):
+        return len(self.vertices)
+
+    @property
+    def n_dofs(self):
+        """``P``, the number of joint angles of a pose."""
+        return len(JOINT_DOFS)
+
+    def bone_index(self, name):
+        return self.bones.index(name)
+
+    def _axis(self, b, kind, toward):
+        d = self.tails[b] - self.heads[b]
+        d = d / np.linalg.norm(d)
+        if kind == "twist":
+            return d
+        if toward == "outward":
+            side = np.sign(self.heads[b][0]) or 1.0
+            t = np.array([side, 0.0, 0.0])
+        elif toward == "parent":  # a hinge folding the bone back onto its parent (elbow)
+            p = self.parents[b]
+            t = self.heads[p] - self.tails[p]
+        else:
+            t = np.array(_DIRECTIONS[toward])
+        a = np.cross(d, t)
+        n = np.linalg.norm(a)
+        if n < 1e-6:
+            raise ValueError(f"bone {self.bones[b]} points along {toward}: no swing axis")
+        return a / n
+
+    # ------------------------------------------------------------------ posing
+    def bone_transforms(self, angles, root_rotation=None, root_translation=None):
+        """World transforms of all bones for ``T`` poses.
+
+        Parameters
+        ----------
+        angles : (P,) or (T, P) array_like
+            Joint angles in radians (order of :data:`JOINT_DOFS`).
+        root_rotation : (3, 3) or (T, 3, 3) array_like, optional
+            Rotation of the whole body about the rest pelvis (``Hips`` head).
+        root_translation : (3,) or (T, 3) array_like, optional
+
+        Returns
+        -------
+        R : (T, B, 3, 3) ndarray
+        t : (T, B, 3) ndarray
+            Bone ``b`` maps a rest point ``x`` to ``R[:, b] @ x + t[:, b]``.
+        """
+        a = np.atleast_2d(np.asarray(angles, float))
+        T, B = len(a), len(self.bones)
+        if a.shape[1] != self.n_dofs:
+            raise ValueError(f"a pose has {self.n_dofs} joint angles, got {a.shape[1]}")
+        # local rotations: product of the dof rotations of each bone, in JOINT_DOFS order
+        local = np.broadcast_to(np.eye(3), (T, B, 3, 3)).copy()
+        rot = Rotation.from_rotvec((a[:, :, None] * self._dof_axis[None]).reshape(-1, 3)).as_matrix()
+        rot = rot.reshape(T, self.n_dofs, 3, 3)
+        for k, b in enumerate(self._dof_bone):  # P = 47 small products, vectorized over frames
+            local[:, b] = rot[:, k] @ local[:, b]
+        R = np.empty((T, B, 3, 3))
+        t = np.empty((T, B, 3))
+        root_R = np.broadcast_to(np.eye(3) if root_rotation is None else np.asarray(root_rotation, float),
+                                 (T, 3, 3))
+        root_t = np.broadcast_to(np.zeros(3) if root_translation is None else np.asarray(root_translation, float),
+                                 (T, 3))
+        h0 = self.heads[0]
+        for b in range(B):  # parents first
+            h = self.heads[b]
+            # rotate about the rest head: x -> L (x - h) + h, then the parent's transform
+            Lb = local[:, b]
+            tb = h - Lb @ h
+            p = self.parents[b]
+            if p < 0:
+                PR, Pt = root_R, root_t + h0 - root_R @ h0
+            else:
+                PR, Pt = R[:, p], t[:, p]
+            R[:, b] = PR @ Lb
+            t[:, b] = np.einsum("tij,tj->ti", PR, tb) + Pt
+        return R, t
+
+    def pose(self, angles, root_rotation=None, root_translation=None):
+        """Skinned vertices ``(V, 3)`` (one pose) or ``(T, V, 3)`` by linear-blend skinning.
+
+        ``x_v' = sum_b w_vb (R_b x_v + t_b)``: all frames in one sparse product
+        of the weights ``(V, B)`` with the stacked affine maps ``(B, 12 T)``.
+        """
+        single = np.ndim(angles) == 1
+        R, t = self.bone_transforms(angles, root_rotation, root_translation)
+        T, B = R.shape[:2]
+        M = np.concatenate([R, t[..., None]], axis=-1)  # (T, B, 3, 4)
+        M = M.transpose(1, 0, 2, 3).reshape(B, T * 12)
+        blended = np.asarray(self.weights @ M).reshape(-1, T, 3, 4)  # (V, T, 3, 4)
+        X = np.einsum("vtij,vj->tvi", blended[..., :3], self.vertices) + blended[..., 3].transpose(1, 0, 2)
+        return X[0] if single else X
+
+    def joint_positions(self, angles, root_rotation=None, root_translation=None):
+        """Posed bone heads ``(T, B, 3)`` (or ``(B, 3)`` for one pose)."""
+        single = np.ndim(angles) == 1
+        R, t = self.bone_transforms(angles, root_rotation, root_translation)
+        P = np.einsum("tbij,bj->tbi", R, self.heads) + t
+        return P[0] if single else P
+
+    # ------------------------------------------------------------------ random poses and takes
+    def random_angles(self, n, seed=0, spread=0.8):
+        """``(n, P)`` joint angles drawn uniformly in the middle ``spread`` fraction of every joint's range.
+
+        One-sided joints (knees, elbows, fingers: lower limit 0) stay on their
+        side; ``spread=1`` uses the full range.
+        """
+        rng = np.random.default_rng(seed)
+        lo, hi = self._limits(spread)
+        return lo + (hi - lo) * rng.random((int(n), self.n_dofs))
+
+    def _limits(self, spread):
+        lo, hi = self.lower, self.upper
+        one_sided = lo == 0
+        mid = np.where(one_sided, 0.0, 0.5 * (lo + hi))
+        half = np.where(one_sided, hi, 0.5 * (hi - lo)) * spread
+        return np.where(one_sided, 0.0, mid - half), np.where(one_sided, half, mid + half)
+
+    def random_poses(self, n, seed=0, spread=0.8):
+        """A training set: ``(n, V, 3)`` skinned vertices of :meth:`random_angles` and the angles ``(n, P)``."""
+        angles = self.random_angles(n, seed, spread)
+        return self.pose(angles), angles
+
+    def take_angles(self, n_frames, seed=0, spread=1.2, cycles=(0.5, 2.0)):
+        """Smooth joint curves ``(T, P)`` for a held-out take.
+
+        Every angle follows ``c + a sin(2 pi f s + phi)`` (``s`` from 0 to 1 over
+        the take, ``f`` drawn from ``cycles``) with amplitude ``a`` reaching
+        ``spread`` times the half-range of the training poses
+        (:meth:`random_angles` with its default ``spread=0.8``), so parts of the
+        take lie outside the training range; the result is clipped to the
+        joint limits.
+        """
+        rng = np.random.default_rng(seed)
+        lo, hi = self._limits(0.8)
+        c = 0.5 * (lo + hi)
+        amp = 0.5 * (hi - lo) * spread * rng.uniform(0.8, 1.0, self.n_dofs)
+        f = rng.uniform(cycles[0], cycles[1], self.n_dofs)
+        phi = rng.uniform(0, 2 * np.pi, self.n_dofs)
+        s = np.linspace(0.0, 1.0, int(n_frames))[:, None]
+        a = c + amp * np.sin(2 * np.pi * f * s + phi)
+        return np.clip(a, self.lower, self.upper)
+
+    def take(self, n_frames, seed=0, spread=1.2, walk_distance=20.0, turn=np.pi / 2):
+        """A held-out take: smooth motion plus a walk of the whole body.
+
+        The body walks ``walk_distance`` decimetres along a curve turning by
+        ``turn`` radians about the vertical, with a small vertical bob.
+
+        Returns
+        -------
+        vertices : (T, V, 3) ndarray
+        angles : (T, P) ndarray
+        root_rotation : (T, 3, 3) ndarray
+        root_translation : (T, 3) ndarray
+        """
+        angles = self.take_angles(n_frames, seed, spread)
+        s = np.linspace(0.0, 1.0, int(n_frames))
+        yaw = turn * s
+        root_R = Rotation.from_rotvec(np.outer(yaw, [0.0, 1.0, 0.0])).as_matrix()
+        # path: forward along the current heading
+        heading = np.column_stack([np.sin(yaw), np.zeros_like(s), np.cos(yaw)])
+        ds = np.diff(s, prepend=0.0) * walk_distance
+        root_t = np.cumsum(heading * ds[:, None], axis=0)
+        root_t[:, 1] = 0.2 * np.sin(2 * np.pi * 4 * s)
+        return self.pose(angles, root_R, root_t), angles, root_R, root_t
+
+    def restrict(self, keep, faces):
+        """The body on a vertex subset ``keep`` (indices into this body) with new ``faces``; weights carry over."""
+        keep = np.asarray(keep, np.int64)
+        return HumanBody(self.vertices[keep], np.asarray(faces, np.int64), self.vertex_ids[keep], self.bones,
+                         self.parents, self.heads, self.tails, self.weights[keep])
+
+
+@functools.lru_cache(maxsize=4)
+def _load_full(folder):
+    folder = Path(folder)
+    vertices, quads, groups = _read_obj(folder / "base.obj")
+    rig = json.loads((folder / "rig.cmu_mb.json").read_text(encoding="utf-8"))
+    weights = json.loads((folder / "weights.cmu_mb.json").read_text(encoding="utf-8"))["weights"]
+    # bones in topological order (parents first), ties by name
+    names, order = sorted(rig), []
+    placed = set()
+    while len(order) < len(names):
+        for n in names:
+            p = rig[n]["parent"]
+            if n not in placed and (not p or p in placed):
+                order.append(n)
+                placed.add(n)
+    index = {n: i for i, n in enumerate(order)}
+    parents = np.array([index[rig[n]["parent"]] if rig[n]["parent"] else -1 for n in order], np.int64)
+    heads = np.array([_joint_position(rig[n]["head"], vertices, groups) for n in order])
+    tails = np.array([_joint_position(rig[n]["tail"], vertices, groups) for n in order])
+    rows, cols, vals = [], [], []
+    for n, pairs in weights.items():
+        pairs = np.asarray(pairs, float).reshape(-1, 2)
+        v = pairs[:, 0].astype(np.int64)
+        use = v < N_BODY_VERTICES
+        rows.append(v[use])
+        cols.append(np.full(use.sum(), index[n]))
+        vals.append(pairs[use, 1])
+    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(N_BODY_VERTICES, len(order)))
+    W = sp.diags(1.0 / np.asarray(W.sum(axis=1)).ravel()) @ W  # sums are 1 up to the file's rounding
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    return HumanBody(vertices[:N_BODY_VERTICES].copy(), faces, np.arange(N_BODY_VERTICES), order, parents, heads,
+                     tails, W.tocsr())
+
+
+def coarse_body_file():
+    """Path of the committed coarse-body file (kept vertex ids and faces), ``tests/data/human_coarse.npz``."""
+    return Path(__file__).resolve().parents[2] / "tests" / "data" / "human_coarse.npz"
+
+
+def load_human(path=None, coarse=False):
+    """The human body of ``shared/data/human`` (see :func:`human_data_dir` for ``path``).
+
+    Parameters
+    ----------
+    path : str or path-like, optional
+    coarse : bool
+        The coarse body (a vertex subset of the full one with its own faces,
+        made by ``scripts/make_coarse_human.py`` and stored in
+        :func:`coarse_body_file`).
+
+    Returns
+    -------
+    HumanBody
+    """
+    body = _load_full(str(human_data_dir(path)))
+    if not coarse:
+        return body
+    f = coarse_body_file()
+    if not f.is_file():
+        raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
+    with np.load(f) as d:
+        return body.restrict(d["kept_vertices"], d["faces"])

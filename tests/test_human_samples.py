@@ -1,0 +1,93 @@
+"""lacore.samples.human: the skinned CC0 body, its seeded training poses and held-out takes."""
+
+import numpy as np
+import pytest
+from conftest import shared_data_dir
+
+from lacore import MeshTopology
+from lacore.samples.human import JOINT_DOFS, LIMBS, N_BODY_VERTICES, human_data_dir, load_human
+
+
+@pytest.fixture(scope="module")
+def body():
+    return load_human(shared_data_dir())
+
+
+def test_body_mesh_skeleton_and_weights(body):
+    assert body.vertices.shape == (N_BODY_VERTICES, 3) and body.faces.shape == (26756, 3)
+    topo = MeshTopology.from_faces(body.faces, n_vertices=body.n_vertices)
+    assert topo.is_closed and topo.genus() == 0
+    X, F = body.vertices, body.faces
+    volume = np.einsum("ij,ij->", X[F[:, 0]], np.cross(X[F[:, 1]], X[F[:, 2]])) / 6
+    assert volume > 50  # outward (dm^3; measured 54.9)
+    assert len(body.bones) == 31 and body.parents[0] == -1
+    assert all(body.parents[b] < b for b in range(1, 31))  # parents first
+    np.testing.assert_allclose(np.asarray(body.weights.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    assert {b for limb in LIMBS.values() for b in limb} == set(body.bones)
+    # the skeleton sits inside the body: pelvis between the hips, head above the neck
+    assert body.heads[body.bone_index("Head")][1] > body.heads[body.bone_index("Neck")][1] > \
+        body.heads[body.bone_index("Hips")][1]
+    assert human_data_dir(shared_data_dir() / "meshes") == human_data_dir(shared_data_dir())
+
+
+def test_posing_is_linear_blend_skinning(body):
+    rest = body.pose(np.zeros(body.n_dofs))
+    assert np.abs(rest - body.vertices).max() < 1e-12
+    angles = body.random_angles(2, seed=3)
+    X = body.pose(angles)
+    R, t = body.bone_transforms(angles)
+    v = np.array([0, 5000, 9000, 13000])
+    W = body.weights[v].toarray()
+    expected = np.einsum("vb,tbij,vj->tvi", W, R, body.vertices[v]) + np.einsum("vb,tbi->tvi", W, t)
+    assert np.abs(X[:, v] - expected).max() < 1e-12
+    assert np.allclose(np.linalg.det(R), 1.0) and np.abs(R @ R.transpose(0, 1, 3, 2) - np.eye(3)).max() < 1e-12
+    # connected bones stay connected: the posed tail of a parent is the posed head of its child
+    heads = body.joint_positions(angles)
+    for b in range(1, len(body.bones)):
+        p = body.parents[b]
+        if np.allclose(body.tails[p], body.heads[b]):
+            tail = np.einsum("tij,j->ti", R[:, p], body.tails[p]) + t[:, p]
+            assert np.abs(tail - heads[:, b]).max() < 1e-12
+
+
+def test_joints_bend_the_anatomical_way(body):
+    i = [k for k, d in enumerate(JOINT_DOFS) if d[0] == "LeftLeg"][0]
+    a = np.zeros(body.n_dofs)
+    a[i] = np.radians(90)
+    foot = body.bone_index("LeftFoot")
+    rest, bent = body.joint_positions(np.zeros(body.n_dofs))[foot], body.joint_positions(a)[foot]
+    assert bent[2] < rest[2] - 2 and bent[1] > rest[1] + 2  # knee: the foot goes back and up (dm)
+    i = [k for k, d in enumerate(JOINT_DOFS) if d[0] == "RightForeArm" and d[1] == "swing"][0]
+    a = np.zeros(body.n_dofs)
+    a[i] = np.radians(90)
+    hand = body.bone_index("RightHand")
+    rest, bent = body.joint_positions(np.zeros(body.n_dofs))[hand], body.joint_positions(a)[hand]
+    shoulder = body.joint_positions(a)[body.bone_index("RightArm")]
+    assert np.linalg.norm(bent - shoulder) < np.linalg.norm(rest - shoulder) - 1.0  # elbow: the hand comes closer
+    assert bent[1] > rest[1] + 1.5  # and up
+    hinges = [k for k, d in enumerate(JOINT_DOFS) if d[0] in ("LeftLeg", "RightForeArm") and d[1] == "swing"]
+    assert np.all(body.lower[hinges] == 0)  # one-sided
+
+
+def test_training_sets_and_takes_are_seeded(body):
+    X1, A1 = body.random_poses(4, seed=11)
+    X2, A2 = body.random_poses(4, seed=11)
+    np.testing.assert_array_equal(X1, X2)
+    assert not np.allclose(body.random_angles(4, seed=12), A1)
+    lo, hi = body._limits(0.8)
+    assert np.all((A1 >= lo) & (A1 <= hi))
+    T = 60
+    X, angles, root_R, root_t = body.take(T, seed=5)
+    assert X.shape == (T, N_BODY_VERTICES, 3) and angles.shape == (T, body.n_dofs)
+    np.testing.assert_array_equal(body.take(T, seed=5)[1], angles)
+    assert np.all((angles >= body.lower - 1e-12) & (angles <= body.upper + 1e-12))
+    outside = (angles < lo - 1e-9) | (angles > hi + 1e-9)
+    assert 0.05 < outside.mean() < 0.5  # partly outside the training range (measured 0.16)
+    # smooth: |d angle / d frame| <= 2 pi f_max a_max / (T - 1) with f_max = 2 cycles, a_max = 1.2 half-ranges
+    bound = 2 * np.pi * 2 * 1.2 * np.max(0.5 * (hi - lo)) / (T - 1)
+    assert np.abs(np.diff(angles, axis=0)).max() <= bound
+    travelled = np.linalg.norm(root_t[-1, [0, 2]] - root_t[0, [0, 2]])
+    assert 12 < travelled < 20  # a 20 dm walk along a quarter-turn arc (chord 18)
+    # the body moves with the root: pelvis follows the path
+    pelvis = body.joint_positions(angles, root_R, root_t)[:, 0]
+    np.testing.assert_allclose(pelvis - pelvis[0], root_t - root_t[0], atol=1e-12)
