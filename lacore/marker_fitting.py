@@ -80,7 +80,8 @@ from .errors import InputError, format_indices
 from .lengths_angles import face_normals, lengths_and_angles
 from .marker_binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
 from .progress import report
-from .reconstruction.gauss_newton import _QuadraticObjective, _dof_ordering, gauss_newton_pattern
+from .reconstruction.assembly import dof_ordering, gauss_newton_pattern
+from .reconstruction.objectives import QuadraticObjective
 from .rigid import apply_rigid, rigid_fit
 from .sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 
@@ -242,7 +243,7 @@ class _Problem:
         key = solver or "default"
         chol = cache.get(key)
         if chol is None:
-            ordering = _dof_ordering(topo, pat, model.mean_vertices) if (solver or "cholmod") == "cholmod" else None
+            ordering = dof_ordering(topo, pat, model.mean_vertices) if (solver or "cholmod") == "cholmod" else None
             try:
                 chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
             except ValueError:
@@ -305,7 +306,7 @@ class _Problem:
     def linearize(self, X, a, fr):
         """Gradient in X ``(3V,)``, GN matrix values of ``A`` (pattern order), prior objective and its GN matrix."""
         target = self.zbar + a @ self.U if self.J else self.zbar
-        obj = _QuadraticObjective(target, self.gamma * self.w, self.topology, self.pattern, buffer=self.buffer)
+        obj = QuadraticObjective(target, self.gamma * self.w, self.topology, self.pattern, buffer=self.buffer)
         _, grad, gn = obj.linearize(X)
         vals = gn()
         if self.prior_scale is None:
