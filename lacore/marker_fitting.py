@@ -15,11 +15,13 @@ over vertex positions ``X`` (V, 3) and model coefficients ``alpha`` (J,)
 
 Solver (the thesis' remark on implementation)
 ---------------------------------------------
-1. **Start.** Frame 0: the model's mean pose moved by a Kabsch fit
+1. **Start.** Frame 0: the model's reference mesh (not the immersion of the
+   mean ``zbar``, which can contain slivers: on the 2.5k-vertex coarse human a
+   face of the mean pose has 1e-9 of its rest area) moved by a Kabsch fit
    (:func:`lacore.rigid.rigid_fit`) of its marker points onto the visible
    markers; later frames: the previous frame's pose, moved by the Kabsch fit of
    its marker points onto the new markers (the walk), and its coefficients.
-2. **Alternating iterations** (``alternating_iterations``, default 3): the
+2. **Alternating iterations** (``alternating_iterations``, default 3 in frame 0, 1 in warm-started frames): the
    ``z``-step minimizes over ``alpha`` exactly, the ``g``-orthogonal projection
    (4.22) of ``Z[X]`` onto ``zbar + span U`` (with the temporal term:
    ``(gamma U M U^T + tau Id) alpha = gamma U M (Z[X] - zbar) + tau alpha^{t-1}``);
@@ -51,18 +53,24 @@ Degenerate triangles (the thesis' exploding gradients)
 ------------------------------------------------------
 The gradient of a dihedral angle grows like ``1 / height`` of its triangles; the
 thesis saw fits get stuck when a Gauss-Newton step squashed a triangle.  The
-default is a **safeguard in the line search**: a trial step is rejected (halved)
-if it shrinks a face below ``min_area_ratio`` (default 0.05) of its area in the
-model's mean pose.  This keeps every iterate away from the singular set (a face
-flipped by a step shows as a fold in the dihedral angles the prior sees) at
-the cost of a few shorter steps.  Rejecting every step that flips a face
-normal (tried first) blocks the large first-frame steps on
-the human body (limbs turning by tens of degrees; 212 mm instead of 14 mm
-error in frame 0).  The thin-shells energy (whose membrane term penalizes
-compression) would change the prior itself and lose the closed-form
-``z``-step (4.22), so it is not used; ``tests/test_marker_fitting.py`` shows a
-fit that collapses triangles to 1e-7 of their area without the safeguard and
-keeps them above 5 % with it.
+default safeguard is a **compression penalty** in the energy (in the spirit of
+the thin-shells membrane term, which penalizes compression, but one-sided and
+zero on every face with at least ``compression_ratio`` = 25 % of its area in
+the model's reference mesh)::
+
+    + compression_weight lbar^2 sum_f max(0, compression_ratio - a_f(X) / abar_f)^2
+
+with its exact Gauss-Newton block per face (``lbar`` the mean edge length, so
+the term has the data term's unit).  It leaves normal poses untouched and
+keeps the closed-form ``z``-step (4.22) that using ``W_TS`` as the prior would
+lose.  Two alternatives were tried on the human and rejected: a line search
+rejecting steps that flip a face (blocks the large first-frame steps: 212 mm
+instead of 14 mm error in frame 0) and one rejecting steps that shrink a face
+below 5 % of its area (faces pressed against the bound block every later step:
+the fit stalls and trails the markers by up to 200 mm).
+``tests/test_marker_fitting.py`` shows a fit that collapses triangles to 7e-10
+of their area without the penalty and keeps them at 25 % with it, at the same
+energy to 0.1 %.
 
 Multiresolution
 ---------------
@@ -223,7 +231,8 @@ _SEVERITY = {-2: 5, -1: 4, 2: 3, 1: 2, 0: 0}
 class _Problem:
     """Constant pieces of one fit: model arrays, pattern, factorization, binding slots."""
 
-    def __init__(self, model, binding, gamma, tau, min_area_ratio, anchor_weight, solver, n_modes=None):
+    def __init__(self, model, binding, gamma, tau, compression_ratio, compression_weight, anchor_weight, solver,
+                 n_modes=None):
         topo = model.topology
         self.topology = topo
         self.faces = topo.faces
@@ -243,7 +252,8 @@ class _Problem:
         key = solver or "default"
         chol = cache.get(key)
         if chol is None:
-            ordering = dof_ordering(topo, pat, model.mean_vertices) if (solver or "cholmod") == "cholmod" else None
+            use_nd = (solver or "cholmod") == "cholmod"
+            ordering = dof_ordering(topo, pat, model.reference_vertices) if use_nd else None
             try:
                 chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
             except ValueError:
@@ -252,25 +262,56 @@ class _Problem:
         self.chol = chol
         self.diag = np.flatnonzero(pat["indices"] == pat["cols"])
         # data-term slots: upper pairs of every marker's 9x9 block in the pattern's value order
-        _, dofs = surface_point_jacobians(model.mean_vertices, self.faces, binding)
+        _, dofs = surface_point_jacobians(model.reference_vertices, self.faces, binding)
         self.dofs = dofs
+        self.data_slots = self._slots(dofs)
+        self.buffer = np.empty(len(pat["slots"]))
+        # compression penalty: per face, the 9 coordinates of its corners
+        self.face_dofs = (3 * self.faces[:, :, None] + np.arange(3)).reshape(-1, 9)
+        self.face_slots = None
+        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.reference_vertices, self.faces, unit=False), axis=1)
+        self.rho = 0.0 if compression_ratio is None else float(compression_ratio)
+        edge = np.linalg.norm(np.diff(model.reference_vertices[model.edges], axis=1)[:, 0], axis=1)
+        self.w_c = float(compression_weight) * float(np.mean(edge)) ** 2 if self.rho > 0 else 0.0
+        self.anchor_weight = float(anchor_weight)
+        self.prior_scale = None
+
+    def _slots(self, dofs):
+        """Positions of the upper pairs of ``(k, 9)`` coordinate blocks in the pattern's value order."""
+        pat = self.pattern
+        n = pat["n"]
         r = np.maximum(dofs[:, _I9], dofs[:, _J9])
         c = np.minimum(dofs[:, _I9], dofs[:, _J9])
-        n = pat["n"]
         keys = pat["cols"] * n + pat["indices"]
         k = c * n + r
         pos = np.searchsorted(keys, k)
         if np.any(keys[np.minimum(pos, len(keys) - 1)] != k):  # pragma: no cover - faces are in the pattern
-            raise RuntimeError("marker blocks outside the Gauss-Newton pattern")
-        self.data_slots = pos
-        self.buffer = np.empty(len(pat["slots"]))
-        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.mean_vertices, self.faces, unit=False), axis=1)
-        self.min_area = (0.0 if min_area_ratio is None else float(min_area_ratio)) * self.rest_area
-        self.safeguard = min_area_ratio is not None and min_area_ratio >= 0
-        self.anchor_weight = float(anchor_weight)
-        self.prior_scale = None
+            raise RuntimeError("face blocks outside the Gauss-Newton pattern")
+        return pos
 
     # ---------------------------------------------------------------- pieces
+    def compression(self, X):
+        """Compression residuals ``rho - a_f / abar_f`` (positive part), their faces and value ``w_c sum r^2``."""
+        if not self.w_c:
+            return np.zeros(0), np.zeros(0, np.int64), 0.0
+        a = 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1)
+        r = self.rho - a / self.rest_area
+        act = np.flatnonzero(r > 0)
+        r = r[act]
+        return r, act, self.w_c * float(r @ r)
+
+    def compression_jacobian(self, X, act):
+        """``d (a_f / abar_f) / dX`` of the faces ``act``: ``(k, 9)`` on their corner coordinates.
+
+        ``da/dX_0 = n x (e_2 - e_1) / 2``, ``da/dX_1 = -n x e_2 / 2``, ``da/dX_2 = n x e_1 / 2``.
+        """
+        P = X[self.faces[act]]
+        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        c = np.cross(e1, e2)
+        n = c / np.linalg.norm(c, axis=1)[:, None]
+        g = 0.5 * np.concatenate([np.cross(n, e2 - e1), -np.cross(n, e2), np.cross(n, e1)], axis=1)
+        return g / self.rest_area[act, None]
+
     def data(self, X, x, vis):
         """Data residuals ``(m, 3)`` of the visible markers and their value."""
         P = surface_points(X, self.faces, self._sub(vis))
@@ -282,12 +323,12 @@ class _Problem:
         return MarkerBinding(b.faces[vis], b.barycentric[vis], b.offsets[vis])
 
     def energy(self, X, a, fr):
-        """``(total, data, prior)`` at ``(X, a)`` for frame data ``fr``; NaN if the safeguard rejects ``X``."""
+        """``(total, data, prior)`` at ``(X, a)`` for frame ``fr``; the total adds compression, temporal, anchor."""
         z = lengths_and_angles(X, self.topology, check=False)
         _, d = self.data(X, fr.x, fr.vis) if fr.n_vis else (None, 0.0)
         rz = z - self.zbar - a @ self.U if self.J else z - self.zbar
         p = self.gamma * float(np.einsum("i,i,i->", self.w, rz, rz))
-        tot = d + p
+        tot = d + p + self.compression(X)[2]
         if self.J and self.tau:
             da = a - fr.a_prev
             tot += self.tau * float(da @ da)
@@ -295,13 +336,6 @@ class _Problem:
             dx = X - fr.X_anchor
             tot += fr.kappa * float(np.einsum("ij,ij->", dx, dx))
         return tot, d, p
-
-    def admissible(self, X):
-        """The safeguard: no face below ``min_area``."""
-        if not self.safeguard:
-            return True
-        n_new = face_normals(X, self.faces, unit=False)
-        return bool(np.all(0.5 * np.linalg.norm(n_new, axis=1) >= self.min_area))
 
     def linearize(self, X, a, fr):
         """Gradient in X ``(3V,)``, GN matrix values of ``A`` (pattern order), prior objective and its GN matrix."""
@@ -319,6 +353,16 @@ class _Problem:
                                       minlength=3 * self.V)
             H = 2.0 * np.einsum("mki,mkj->mij", G, G)[:, _I9, _J9]
             vals = vals + np.bincount(self.data_slots[fr.vis].ravel(), weights=H.ravel(), minlength=len(vals))
+        rc, act, _ = self.compression(X)
+        if act.size:
+            g = self.compression_jacobian(X, act)                       # d ratio / dX, residual rho - ratio
+            dofs = self.face_dofs[act]
+            grad = grad + np.bincount(dofs.ravel(), weights=(-2.0 * self.w_c * rc[:, None] * g).ravel(),
+                                      minlength=3 * self.V)
+            H = 2.0 * self.w_c * (g[:, _I9] * g[:, _J9])
+            if self.face_slots is None:
+                self.face_slots = self._slots(self.face_dofs)
+            vals = vals + np.bincount(self.face_slots[act].ravel(), weights=H.ravel(), minlength=len(vals))
         if fr.kappa:
             grad = grad + 2.0 * fr.kappa * (X - fr.X_anchor).ravel()
             vals = vals.copy()
@@ -354,15 +398,14 @@ def _usable(x_vis):
 
 
 def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
-    """Armijo backtracking with the degenerate-triangle safeguard; returns ``(t, X, a, E, parts)``."""
+    """Armijo backtracking; returns ``(t, X, a, E, parts)``."""
     t = 1.0
     for _ in range(max_backtracks):
         Xt = X + t * dX.reshape(-1, 3)
         at = a + t * da if da is not None else a
-        if prob.admissible(Xt):
-            Et, d, p = prob.energy(Xt, at, fr)
-            if np.isfinite(Et) and Et <= E0 + 1e-4 * t * slope:
-                return t, Xt, at, Et, (d, p)
+        Et, d, p = prob.energy(Xt, at, fr)
+        if np.isfinite(Et) and Et <= E0 + 1e-4 * t * slope:
+            return t, Xt, at, Et, (d, p)
         t *= 0.5
     return 0.0, X, a, E0, None
 
@@ -391,7 +434,9 @@ def _joint_step(prob, X, a, fr):
 
 
 def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.0, alternating_iterations=3,
-                joint_iterations=15, n_modes=None, ftol=1e-6, xtol=1e-9, min_area_ratio=0.05, anchor_weight=1e-3,
+                warm_alternating_iterations=1,
+                joint_iterations=5, n_modes=None, ftol=1e-3, xtol=1e-9, compression_ratio=0.25,
+                compression_weight=100.0, anchor_weight=1e-3,
                 initial_vertices=None, initial_coefficients=None, solver=None, progress=None):
     """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23)).
 
@@ -399,7 +444,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     ----------
     model : lacore.shape_model.ShapeModel
         The prior: mean ``zbar``, ``g``-orthonormal modes ``U`` (``J`` may be 0:
-        the mean-only prior), weights of ``W_q``, mean pose.
+        the mean-only prior), weights of ``W_q``, reference mesh (start, areas ``abar_f``).
     markers : (T, M, 3) or (M, 3) array_like
         Marker positions per frame; NaN where a marker is occluded.
     binding : MarkerBinding
@@ -412,7 +457,9 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         the model coefficients (``g``-norm of the change of ``z`` in the model's
         subspace) from the previous frame; rigid-motion free, so the walk is not
         damped.  0 (default): warm start only, as in the thesis.
-    alternating_iterations : int
+    alternating_iterations, warm_alternating_iterations : int
+        ``z``-step + ``X``-step rounds before the joint iteration in the first
+        frame and in warm-started (later) frames.
         ``z``-step + ``X``-step rounds before the joint iteration.
     joint_iterations : int
         Maximal joint Gauss-Newton iterations per frame.
@@ -422,14 +469,17 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     ftol, xtol : float
         Stop the joint iteration when the relative energy decrease is below
         ``ftol`` or the largest vertex move below ``xtol`` times the mesh size.
-    min_area_ratio : float or None
-        Safeguard (see module notes): reject steps that shrink a face below this
-        fraction of its area in the mean pose; None disables it.
+    compression_ratio, compression_weight : float
+        Safeguard against degenerate triangles (see module notes): the penalty
+        ``compression_weight lbar^2 sum_f max(0, compression_ratio - a_f / abar_f)^2``
+        on faces compressed below ``compression_ratio`` of their area ``abar_f``
+        in the reference mesh (``lbar`` its mean edge length, so the term has the
+        data term's unit); ``compression_ratio=None`` disables it.
     anchor_weight : float
         ``kappa`` of the anchor term in frames with < 3 usable markers, relative
         to ``gamma`` times the mean diagonal entry of the prior's Gauss-Newton matrix.
     initial_vertices : (V, 3) array_like, optional
-        Start of frame 0 instead of the Kabsch-placed mean pose.
+        Start of frame 0 instead of the Kabsch-placed reference mesh.
     initial_coefficients : (J,) array_like, optional
         ``alpha`` of the previous frame for frame 0 (temporal term), default 0.
     solver : {"cholmod", "scipy"}, optional
@@ -462,10 +512,10 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     T, M = x_all.shape[:2]
     if n_modes is not None and not (int(n_modes) == n_modes and 0 <= n_modes <= model.n_modes):
         raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {n_modes!r}")
-    prob = _Problem(model, binding, prior_weight, temporal_weight, min_area_ratio, anchor_weight, solver,
-                    None if n_modes is None else int(n_modes))
+    prob = _Problem(model, binding, prior_weight, temporal_weight, compression_ratio, compression_weight,
+                    anchor_weight, solver, None if n_modes is None else int(n_modes))
     V, J = prob.V, prob.J
-    size = float(np.linalg.norm(np.ptp(model.mean_vertices, axis=0)))
+    size = float(np.linalg.norm(np.ptp(model.reference_vertices, axis=0)))
 
     out_X = np.empty((T, V, 3))
     out_a = np.zeros((T, J))
@@ -478,7 +528,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
                "prolongation": 0.0}
     regularized = []
 
-    X = np.asarray(model.mean_vertices, float).copy() if initial_vertices is None else \
+    X = np.asarray(model.reference_vertices, float).copy() if initial_vertices is None else \
         np.asarray(initial_vertices, float).copy()
     if X.shape != (V, 3):
         raise InputError(f"initial_vertices must have shape ({V}, 3), got {X.shape}")
@@ -507,7 +557,8 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
         ta = time.perf_counter()
         n_alt = 0
         E_cur = prob.energy(X, a, fr)[0]
-        for _ in range(int(alternating_iterations)):
+        n_rounds = alternating_iterations if (t == 0 and not have_previous) else warm_alternating_iterations
+        for _ in range(int(n_rounds)):
             a = prob.z_step(X, fr)
             E_cur = prob.energy(X, a, fr)[0]
             grad, vals, _ = prob.linearize(X, a, fr)
@@ -568,8 +619,9 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
 
     P = surface_points(out_X, prob.faces, binding)
     res = np.linalg.norm(P - x_all, axis=2)                  # NaN where occluded
-    with np.errstate(invalid="ignore"):
-        frame_rms = np.sqrt(np.nanmean(res ** 2, axis=1)) if M else np.full(T, np.nan)
+    n_vis = np.isfinite(res).sum(1)
+    frame_rms = np.full(T, np.nan)
+    frame_rms[n_vis > 0] = np.sqrt(np.nansum(res ** 2, axis=1)[n_vis > 0] / n_vis[n_vis > 0])
     finite = np.isfinite(res)
     marker_rms = float(np.sqrt(np.mean(res[finite] ** 2))) if finite.any() else float("nan")
     worst = max(status.tolist(), key=lambda s: _SEVERITY[s]) if T else 0

@@ -16,7 +16,7 @@ def body():
 def test_body_mesh_skeleton_and_weights(body):
     assert body.vertices.shape == (N_BODY_VERTICES, 3) and body.faces.shape == (26756, 3)
     topo = MeshTopology.from_faces(body.faces, n_vertices=body.n_vertices)
-    assert topo.is_closed and topo.genus() == 0
+    assert topo.is_closed and topo.genus().tolist() == [0]
     X, F = body.vertices, body.faces
     volume = np.einsum("ij,ij->", X[F[:, 0]], np.cross(X[F[:, 1]], X[F[:, 2]])) / 6
     assert volume > 50  # outward (dm^3; measured 54.9)
@@ -82,7 +82,7 @@ def test_training_sets_and_takes_are_seeded(body):
     np.testing.assert_array_equal(body.take(T, seed=5)[1], angles)
     assert np.all((angles >= body.lower - 1e-12) & (angles <= body.upper + 1e-12))
     outside = (angles < lo - 1e-9) | (angles > hi + 1e-9)
-    assert 0.05 < outside.mean() < 0.5  # partly outside the training range (measured 0.16)
+    assert 0.1 < outside.mean() < 0.3  # partly outside the training range (measured 0.19)
     # smooth: |d angle / d frame| <= 2 pi f_max a_max / (T - 1) with f_max = 2 cycles, a_max = 1.2 half-ranges
     bound = 2 * np.pi * 2 * 1.2 * np.max(0.5 * (hi - lo)) / (T - 1)
     assert np.abs(np.diff(angles, axis=0)).max() <= bound
@@ -91,3 +91,18 @@ def test_training_sets_and_takes_are_seeded(body):
     # the body moves with the root: pelvis follows the path
     pelvis = body.joint_positions(angles, root_R, root_t)[:, 0]
     np.testing.assert_allclose(pelvis - pelvis[0], root_t - root_t[0], atol=1e-12)
+
+
+def test_vertex_normals_point_outward(body):
+    X = body.pose(body.random_angles(2, seed=9))
+    N = body.vertex_normals(X)
+    assert N.shape == X.shape
+    np.testing.assert_allclose(np.linalg.norm(N, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(body.vertex_normals(X[1]), N[1], atol=1e-15)
+    # outward: moving every vertex a little along its normal increases the enclosed volume
+    F = body.faces
+
+    def volume(Y):
+        return np.einsum("ij,ij->", Y[F[:, 0]], np.cross(Y[F[:, 1]], Y[F[:, 2]])) / 6
+
+    assert volume(X[0] + 0.01 * N[0]) - volume(X[0]) > 1.0  # measured 1.58 dm^3 = 0.01 dm x 160 dm^2 of skin

@@ -57,7 +57,9 @@ def test_gradient_and_bordered_step_match_fd_and_dense_solve(bar):
     x = surface_points(bar_pose(X0, 0.7, -0.2) @ ROT.T + SHIFT, F, binding)
     x[3] = np.nan
     vis = np.flatnonzero(np.isfinite(x[:, 0]))
-    prob = _Problem(model, binding, 0.7, 0.3, 0.05, 1e-3, None)
+    # compression ratio 0.98: 144 faces are penalized here (checks that Jacobian too; none within 0.5 % of the kink)
+    prob = _Problem(model, binding, 0.7, 0.3, 0.98, 100.0, 1e-3, None)
+    assert 0 < len(prob.compression(X)[1]) < len(F)
     rng = np.random.default_rng(3)
     a = 0.1 * rng.standard_normal(model.n_modes)
     fr = _Frame(x, vis, len(vis), 0.05 * rng.standard_normal(model.n_modes), X.copy(), 0.0)
@@ -99,7 +101,7 @@ def test_fit_recovers_held_out_poses_under_rigid_motion_and_occlusion(bar):
     assert np.isnan(res.marker_residuals[3, :5]).all() and np.isfinite(res.marker_residuals[3, 5:]).all()
     assert res.vertices.shape == (8, len(X0), 3) and res.coefficients.shape == (8, 4)
     assert set(res.timings) >= {"alternating", "joint", "prolongation", "total"}
-    assert res.frame_iterations[:, 1].max() <= 6
+    assert res.frame_iterations[:, 1].max() <= 5  # measured 3
     # the model's own lengths and angles are reproduced: Z[X] vs z of the result
     assert res.z.shape == (8, 2 * model.topology.n_edges)
     s = res.summary()
@@ -114,7 +116,7 @@ def test_mean_only_prior_is_worse_than_the_model(bar):
     res0 = fit_markers(model, x, binding, n_modes=0)
     e_mean = np.linalg.norm(res0.vertices[0] - true, axis=1).mean()
     assert res0.coefficients.shape == (1, 0)
-    assert e_model < 0.3 * e_mean, (e_model, e_mean)  # measured 0.0015 vs 0.04
+    assert e_model < 0.1 * e_mean, (e_model, e_mean)  # measured 0.0021 vs 0.072
 
 
 def test_frames_with_fewer_than_three_markers_and_temporal_term(bar):
@@ -135,7 +137,7 @@ def test_frames_with_fewer_than_three_markers_and_temporal_term(bar):
     res_t = fit_markers(model, x, binding, temporal_weight=10.0)
     jump = np.linalg.norm(np.diff(res.coefficients, axis=0), axis=1)
     jump_t = np.linalg.norm(np.diff(res_t.coefficients, axis=0), axis=1)
-    assert jump_t.max() < 0.7 * jump.max(), (jump_t, jump)
+    assert jump_t.max() < 0.3 * jump.max(), (jump_t, jump)  # measured 0.021 vs 0.31
 
 
 def test_bind_markers_recovers_a_binding_after_a_rigid_motion(bar):
@@ -177,19 +179,20 @@ def test_bad_input_errors(bar):
 
 
 def test_safeguard_keeps_triangles_from_collapsing(bar):
-    """Outlier markers and a weak prior: without the safeguard Gauss-Newton squashes triangles to ~zero area
-    (where the dihedral-angle gradients explode); with it no face falls below 5 % of its mean-pose area, at an
-    energy only 5 % higher."""
+    """Outlier markers and a weak prior: without the compression penalty Gauss-Newton squashes triangles to ~zero
+    area (where the dihedral-angle gradients explode); with it no face falls below 25 % of its reference-mesh area, at
+    the same energy to 0.1 %."""
     X0, F, model, binding = bar
     b = MarkerBinding.from_vertices(binding.vertices, F)
     x = surface_points(bar_pose(X0, 0.5, 0.2), F, b)
     x[0] += [0.0, 0.0, -1.5]
     x[1] += [0.0, 1.5, 0.0]
-    a0 = face_areas(model.mean_vertices, F)
-    off = fit_markers(model, x, b, prior_weight=1e-3, min_area_ratio=None, joint_iterations=50)
-    on = fit_markers(model, x, b, prior_weight=1e-3, joint_iterations=50)
+    a0 = face_areas(model.reference_vertices, F)
+    opts = {"prior_weight": 1e-3, "joint_iterations": 50, "ftol": 1e-9}
+    off = fit_markers(model, x, b, compression_ratio=None, **opts)
+    on = fit_markers(model, x, b, **opts)
     ratio_off = (face_areas(off.vertices[0], F) / a0).min()
     ratio_on = (face_areas(on.vertices[0], F) / a0).min()
-    assert ratio_off < 1e-4, ratio_off    # measured 9e-8
-    assert ratio_on >= 0.05 - 1e-9, ratio_on
-    assert on.frame_energy[0] < 1.2 * off.frame_energy[0]  # measured 0.02185 vs 0.02089
+    assert ratio_off < 1e-4, ratio_off    # measured 7e-10
+    assert ratio_on > 0.2, ratio_on       # measured 0.24999 (a penalty, not a hard bound)
+    assert on.frame_energy[0] < 1.003 * off.frame_energy[0]  # measured 0.020407 vs 0.020416

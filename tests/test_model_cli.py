@@ -112,3 +112,15 @@ def test_console_script_subprocess(tmp_path, bar_files):
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["modes"] == 3
+
+
+def test_model_localize_option(capsys, tmp_path, bar_files):
+    paths, poses, faces = bar_files
+    out = tmp_path / "loc.npz"
+    code, stdout, err = run_main(capsys, "model", *paths, "-o", out, "--modes", 2, "--localize", "--json")
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["localized"] is True and summary["stages"]["localize"] > 0
+    loaded = ShapeModel.load(out)
+    expected = ShapeModel.fit(poses, faces, n_modes=2, tangent="projected").localized()
+    assert np.abs(loaded.modes - expected.modes).max() < 1e-8

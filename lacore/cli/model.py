@@ -3,7 +3,7 @@
 Usage::
 
     lacore model TRAIN_MESH... -o MODEL.npz [--modes J] [--tangent ambient|projected]
-                 [--bending-weight ETA] [--reference MESH] [--json]
+                 [--bending-weight ETA] [--reference I] [--localize] [--json]
     lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off] [--json]
 
 ``lacore model`` fits a :class:`lacore.shape_model.ShapeModel` (thesis 4.3:
@@ -12,7 +12,9 @@ extrinsic mean (4.16), tangent vectors (4.18) or (4.17), PCA in the metric of
 one ``.npz`` (see :meth:`ShapeModel.save`).  ``--json`` prints one object with
 ``vertices``, ``samples``, ``modes``, ``explained_variance`` (per mode),
 ``seconds`` and the seconds of each stage (``mean``, ``tangent_decomposition``,
-``tangent_solves``, ``gram``, ``eigen``, plus ``load`` and ``save``).
+``tangent_solves``, ``gram``, ``eigen``, plus ``load``, ``localize`` and
+``save``).  ``--localize`` saves the modes rotated toward locality
+(:meth:`ShapeModel.localized`).
 
 ``lacore model-sweep`` writes ``K`` poses along mode ``J`` (0-based), at ``t``
 evenly spaced from ``T0`` to ``T1`` standard deviations of the mode
@@ -71,6 +73,8 @@ def configure_model(parser):
                         help="orthogonality of the tangent projection: Euclidean as in the thesis (default) or g")
     parser.add_argument("--bending-weight", type=float, default=0.005, metavar="ETA",
                         help="bending weight eta of the quadratic energy W_q (default 0.005)")
+    parser.add_argument("--localize", action="store_true",
+                        help="rotate the modes toward locality (g-varimax, same subspace; beyond the thesis)")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
                         help="index of the training mesh used as reference (weights, frame); default 0")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the model's summary")
@@ -155,6 +159,11 @@ def run_model(args):
     model = ShapeModel.fit(X, topology, reference_vertices=X[args.reference], n_modes=args.modes,
                            tangent=args.tangent, projection_metric=args.projection_metric,
                            bending_weight=args.bending_weight)
+    t_localize = 0.0
+    if args.localize:
+        t = time.perf_counter()
+        model = model.localized()
+        t_localize = time.perf_counter() - t
     t = time.perf_counter()
     model.save(args.output)
     t_save = time.perf_counter() - t
@@ -174,12 +183,13 @@ def run_model(args):
         "explained_variance": [float(r) for r in model.explained_variance_ratio],
         "explained_variance_total": float(np.sum(model.explained_variance_ratio)),
         "variances": [float(v) for v in model.variances],
+        "localized": bool(args.localize),
         "mean_iterations": int(model.mean_result.iterations),
         "mean_energy": float(model.mean_result.energy),
         "seconds": seconds,
         "stages": {"load": t_load, "encode": tm.get("encode", 0.0), "mean": tm["mean"],
                    "tangent_decomposition": tm["tangent_decomposition"], "tangent_solves": tm["tangent_solves"],
-                   "gram": tm["gram"], "eigen": tm["eigen"], "save": t_save},
+                   "gram": tm["gram"], "eigen": tm["eigen"], "localize": t_localize, "save": t_save},
     }
     if args.json:
         json.dump(summary, sys.stdout, allow_nan=False)

@@ -27,7 +27,7 @@ Units are those of ``base.obj``: decimetres; ``+y`` is up, ``+z`` forward
 Extension point (markers): marker placement for motion-capture fitting belongs in
 a separate function taking a :class:`HumanBody` and posed vertices (e.g.
 vertices or surface points chosen per bone via :attr:`HumanBody.vertex_bone`,
-offset along the normal); :meth:`HumanBody.take` returns the posed vertices and
+offset along :meth:`HumanBody.vertex_normals`); :meth:`HumanBody.take` returns the posed vertices and
 the rigid root motion, which is all such a function needs.
 """
 
@@ -285,6 +285,22 @@ class HumanBody:
         R, t = self.bone_transforms(angles, root_rotation, root_translation)
         P = np.einsum("tbij,bj->tbi", R, self.heads) + t
         return P[0] if single else P
+
+    def vertex_normals(self, vertices):
+        """Unit area-weighted vertex normals of posed vertices ``(V, 3)`` or ``(T, V, 3)`` (outward).
+
+        For placing markers on the skin, offset along the normal.
+        """
+        X = np.asarray(vertices, float)
+        F = self.faces
+        n = np.cross(X[..., F[:, 1], :] - X[..., F[:, 0], :], X[..., F[:, 2], :] - X[..., F[:, 0], :])
+        S = sp.csr_matrix((np.ones(3 * len(F)), (F.T.ravel(), np.tile(np.arange(len(F)), 3))),
+                          shape=(self.n_vertices, len(F)))
+        if X.ndim == 2:
+            out = S @ n
+        else:
+            out = np.stack([S @ ni for ni in n])
+        return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
     # ------------------------------------------------------------------ random poses and takes
     def random_angles(self, n, seed=0, spread=0.8):

@@ -1,0 +1,142 @@
+"""Groupwise quadric-error coarsening (lacore.multiresolution.coarsening, thesis 2.3)."""
+
+import numpy as np
+import pytest
+from conftest import shared_mesh
+
+from lacore.errors import InputError, MeshError
+from lacore.mesh_io import load_mesh
+from lacore.multiresolution import coarsen
+from lacore.multiresolution.coarsening import vertex_quadrics
+from lacore.topology import MeshTopology
+
+
+def _load(*names):
+    Xs = [load_mesh(shared_mesh(n))[0] for n in names]
+    return np.stack(Xs), load_mesh(shared_mesh(names[0]))[1]
+
+
+def _face_cross(X, faces):
+    a, b, c = (X[..., faces[:, i], :] for i in range(3))
+    return np.cross(b - a, c - a)
+
+
+def _check_coarsening(S, F, c, n_target):
+    V = S.shape[1]
+    topo = MeshTopology.from_faces(F, n_vertices=V)
+    assert c.n_vertices == n_target
+    assert np.all(np.diff(c.vertex_indices) > 0)
+    # manifold and consistently oriented: MeshTopology accepts it; same Euler characteristic and boundary loops
+    tc = MeshTopology.from_faces(c.faces, n_vertices=c.n_vertices)
+    assert tc.euler_characteristic == topo.euler_characteristic
+    assert len(tc.boundary_loops()) == len(topo.boundary_loops())
+    # coarse boundary vertices are fine boundary vertices
+    assert np.all(topo.is_boundary_vertex[c.vertex_indices[tc.boundary_vertices]])
+    # no flipped or degenerate triangle in any shape: every coarse face normal agrees with the fine
+    # normals of the faces it replaces (averaged over the fine faces around its corners' parents)
+    Sc = c.restrict(S)
+    cr = _face_cross(Sc, c.faces)  # (N, Fc, 3)
+    area = np.linalg.norm(cr, axis=-1)
+    assert area.min() > 0
+    fine_cr = _face_cross(S, F)
+    vn = np.zeros_like(S)
+    for i in range(3):
+        np.add.at(vn, (slice(None), F[:, i]), fine_cr)
+    owner = np.zeros_like(Sc)  # fine vertex normals summed onto the coarse vertex that absorbed them
+    np.add.at(owner, (slice(None), c.parent), vn)
+    n_face = owner[:, c.faces].sum(axis=2)
+    cos = np.einsum("nfi,nfi->nf", n_face, cr) / (np.linalg.norm(n_face, axis=-1) * area)
+    assert cos.min() > 0.0
+    # bookkeeping: collapses and parents
+    K = V - n_target
+    assert len(c.collapse_sources) == K and len(np.unique(c.collapse_sources)) == K
+    assert not np.isin(c.collapse_sources, c.vertex_indices).any()
+    assert np.array_equal(c.parent[c.vertex_indices], np.arange(n_target))
+    assert c.parent.min() == 0 and c.parent.max() == n_target - 1
+    assert len(c.ring_offsets) == K + 1 and c.ring_offsets[-1] == len(c.ring_pairs)
+    return tc, cos
+
+
+def test_finger_pair_coarsened_to_exact_count():
+    S, F = _load("finger/finger0.ply", "finger/finger1.ply")
+    c = coarsen(S, F, 400)
+    tc, cos = _check_coarsening(S, F, c, 400)
+    assert tc.is_closed
+    # measured: worst agreement of coarse normals with the fine ones 0.50 (2 shapes); mean well aligned
+    assert np.median(cos) > 0.95
+
+
+def test_plate_with_boundary_keeps_boundary_outline():
+    S, F = _load("plate/plate4SD.ply", "plate/plate4SD_rolledA.ply", "plate/plate4SD_rolledB.ply")
+    c = coarsen(S, F, 200)
+    tc, _ = _check_coarsening(S, F, c, 200)
+    topo = MeshTopology.from_faces(F, n_vertices=S.shape[1])
+    # the flat plate's outline (a square) is kept: the coarse boundary polygon has the fine bounding box
+    # and every coarse boundary vertex lies on the fine outline
+    X = S[0]
+    fine_bd = X[topo.boundary_vertices]
+    coarse_bd = X[c.vertex_indices[tc.boundary_vertices]]
+    assert np.allclose(coarse_bd.min(0), fine_bd.min(0)) and np.allclose(coarse_bd.max(0), fine_bd.max(0))
+    # the four corners of the square survive (the boundary planes make them expensive to remove)
+    lo, hi = fine_bd.min(0)[:2], fine_bd.max(0)[:2]
+    corners = [np.flatnonzero(np.all(np.isclose(X[:, :2], [x, y]), axis=1)) for x in (lo[0], hi[0])
+               for y in (lo[1], hi[1])]
+    assert all(np.isin(k, c.vertex_indices).all() for k in corners)
+
+
+def test_spheres_group_and_determinism():
+    names = [f"sphere/defSphere{i}.ply" for i in range(4)]
+    S, F = _load(*names)
+    c1 = coarsen(S, F, 100)
+    _check_coarsening(S, F, c1, 100)
+    c2 = coarsen(S, F, 100)
+    assert np.array_equal(c1.vertex_indices, c2.vertex_indices)
+    assert np.array_equal(c1.faces, c2.faces)
+    assert np.array_equal(c1.collapse_sources, c2.collapse_sources)
+    # groupwise: coarsening one shape alone keeps another vertex set
+    c0 = coarsen(S[:1], F, 100)
+    assert not np.array_equal(c0.vertex_indices, c1.vertex_indices)
+
+
+def test_quadric_zero_on_own_planes():
+    S, F = _load("finger/finger0.ply", "finger/finger1.ply")
+    topo = MeshTopology.from_faces(F, n_vertices=S.shape[1])
+    Q = vertex_quadrics(S, topo)
+    H = np.concatenate([S, np.ones(S.shape[:2] + (1,))], axis=-1).transpose(1, 0, 2)
+    own = np.einsum("vni,vnij,vnj->vn", H, Q, H)
+    scale = np.einsum("vnii->vn", Q[..., :3, :3]).max()
+    assert np.abs(own).max() < 1e-12 * scale
+    # positive semi-definite
+    assert np.linalg.eigvalsh(Q[:, :, :3, :3]).min() > -1e-12 * scale
+
+
+def test_cost_zero_on_flat_region_collapses_first():
+    S, F = _load("plate/plate4SD.ply")
+    c = coarsen(S, F, 900)
+    # a flat plate: interior collapses cost nothing; the first 189 collapses all cost ~0
+    assert np.abs(c.costs).max() < 1e-20
+
+
+def test_bad_input():
+    S, F = _load("finger/finger0.ply")
+    with pytest.raises(InputError, match="n_vertices"):
+        coarsen(S, F, 3)
+    with pytest.raises(InputError, match="n_vertices"):
+        coarsen(S, F, S.shape[1] + 1)
+    bad = S.copy()
+    bad[0, 5, 1] = np.nan
+    with pytest.raises(MeshError, match="non-finite"):
+        coarsen(bad, F, 100)
+    with pytest.raises(MeshError):
+        coarsen(S[:, :-1], F, 100)
+
+
+def test_progress_and_cancel():
+    from lacore.progress import Cancelled
+
+    S, F = _load("finger/finger0.ply")
+    calls = []
+    coarsen(S, F, 1500, progress=lambda d, t, m: calls.append((d, t)))
+    assert calls[-1] == (546, 546) and len(calls) > 10
+    with pytest.raises(Cancelled):
+        coarsen(S, F, 1500, progress=lambda d, t, m: d > 100)

@@ -1,0 +1,97 @@
+"""Shape models of the coarse human body: the coarse mesh, a fitted model, localized modes."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO, shared_data_dir
+
+from lacore import MeshTopology, lengths_and_angles
+from lacore.rigid import rigid_rms
+from lacore.samples.human import LIMBS, coarse_body_file, load_human
+from lacore.shape_model import ShapeModel, wrap_angles
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    return load_human(shared_data_dir(), coarse=True)
+
+
+@pytest.fixture(scope="module")
+def model(coarse):
+    topo = MeshTopology.from_faces(coarse.faces, n_vertices=coarse.n_vertices)
+    poses, _ = coarse.random_poses(120, seed=1)
+    return ShapeModel.fit(poses, topo, reference_vertices=coarse.vertices, n_modes=10, tangent="ambient")
+
+
+def test_coarse_body_is_a_vertex_subset_with_its_weights(coarse):
+    full = load_human(shared_data_dir())
+    assert 2000 <= coarse.n_vertices <= 3000
+    topo = MeshTopology.from_faces(coarse.faces, n_vertices=coarse.n_vertices)
+    assert topo.is_closed and topo.genus().tolist() == [0]
+    ids = coarse.vertex_ids
+    assert np.all(np.diff(ids) > 0)
+    np.testing.assert_array_equal(coarse.vertices, full.vertices[ids])
+    # skinning carries over by index: a coarse pose is the fine pose at the kept vertices
+    angles = full.random_angles(2, seed=4)
+    np.testing.assert_allclose(coarse.pose(angles), full.pose(angles)[:, ids], atol=1e-12)
+    with np.load(coarse_body_file()) as d:
+        assert int(d["seed"]) == 7 and int(d["target_vertices"]) == coarse.n_vertices
+
+
+def test_coarse_body_is_reproducible_from_the_script():
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "make_coarse_human.py"), "--check"],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert json.loads(proc.stdout)["reproduced"] is True
+
+
+def test_model_of_the_coarse_body(model, coarse):
+    assert model.n_samples == 120 and model.n_modes == 10
+    ratio = model.explained_variance_ratio
+    assert np.all(np.diff(ratio) <= 0) and 0.5 < ratio.sum() < 0.9  # measured 0.68: 47 independent joint angles
+    G = model.metric_dot(model.modes[:, None], model.modes[None])
+    assert np.abs(G - np.eye(10)).max() < 1e-12
+    # synthesis at the coefficients of 5 training poses: the g-distance (squared) to each pose, relative to the
+    # mean's, is about what the linear subspace leaves (measured 0.56 after P_Z vs 0.44 in the subspace)
+    poses, _ = coarse.random_poses(5, seed=1)  # the first 5 training poses
+    X = model.synthesize(model.training_coefficients[:5])
+    Z = np.stack([lengths_and_angles(x, model.topology) for x in poses])
+    Zs = np.stack([lengths_and_angles(x, model.topology) for x in X])
+    d_synth, d_mean = wrap_angles(Zs - Z, model.topology), wrap_angles(model.mean_z - Z, model.topology)
+    synth = np.mean(model.metric_dot(d_synth, d_synth) / model.metric_dot(d_mean, d_mean))
+    v = model.tangent_vectors(Z)
+    r = v - model.training_coefficients[:5] @ model.modes
+    linear = np.mean(model.metric_dot(r, r) / model.metric_dot(v, v))
+    assert synth < 0.7 and synth < 1.5 * linear
+    assert rigid_rms(X[0], model.mean_vertices) > 0.1  # dm: the synthesized pose is not the mean
+
+
+def _joint_share(model, coarse, modes):
+    """Largest share of each mode's g-energy on one joint region (a bone and its parent)."""
+    e = model.region_energy(coarse.vertex_bone, modes)
+    B = len(coarse.bones)
+    e = np.pad(e, ((0, 0), (0, B - e.shape[1])))
+    parent = coarse.parents
+    joint = e + np.where(parent[None, :] >= 0, e[:, np.maximum(parent, 0)], 0.0)
+    return joint.max(axis=1)
+
+
+def test_localized_modes_concentrate_on_one_joint_and_limb(model, coarse):
+    local = model.localized()
+    limb = {b: i for i, bones in enumerate(LIMBS.values()) for b in bones}
+    vertex_limb = np.array([limb[coarse.bones[b]] for b in coarse.vertex_bone])
+    pca_limb = model.region_energy(vertex_limb).max(axis=1)
+    loc_limb = local.region_energy(vertex_limb).max(axis=1)
+    # measured: 1 of 10 PCA modes and 7 of 10 localized modes keep at least half their energy in one limb
+    assert np.count_nonzero(pca_limb >= 0.5) <= 2
+    assert np.count_nonzero(loc_limb >= 0.5) >= 6
+    pca_joint, loc_joint = _joint_share(model, coarse, model.modes), _joint_share(model, coarse, local.modes)
+    # median share on the best joint region: measured 0.35 (PCA) -> 0.63 (localized)
+    assert np.median(loc_joint) > 1.5 * np.median(pca_joint)
+    assert np.median(loc_joint) > 0.55
+    # same subspace
+    c = model.training_coefficients
+    np.testing.assert_allclose(local.z_of(c @ local.rotation.T), model.z_of(c), atol=1e-10)
