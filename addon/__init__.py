@@ -6,18 +6,21 @@ All mathematics lives in the sibling package ``lacore`` (imported relatively).
 
 import bpy
 
-from . import operators, operators_interpolate, operators_markers, panels
+from . import operators, operators_fit, operators_interpolate, operators_markers, panels
 
-classes = (*operators.classes, *operators_interpolate.classes, *operators_markers.classes, *panels.classes)
+classes = (*operators.classes, *operators_interpolate.classes, *operators_markers.classes,
+           *operators_fit.classes, *panels.classes)
 
 
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    operators_fit.register_properties()
     operators_markers.register_menu()
 
 
 def unregister():
     operators_markers.unregister_menu()
+    operators_fit.unregister_properties()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)
