@@ -123,6 +123,7 @@ def test_shape_key_output(run):
 
 @pytest.mark.parametrize("case, words", [
     ("take_too_short", "covers frames"), ("no_model", "no shape model"), ("bind_without_model", "no shape model"),
+    ("bind_occluded", "occluded at frame 3"),
     ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after")])
 def test_bad_input_changes_nothing(run, case, words):
     res = run["cases"]["bad_input"][case]

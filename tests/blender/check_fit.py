@@ -202,6 +202,9 @@ def bad_input():
     select_only(obj, take)
     attempt("bind_without_model", bpy.ops.lengths_angles.bind_markers)
     obj.data["lengths_angles_model"] = meta
+    scene.frame_set(3)  # markers 3, 10, 20 are occluded at frames 3..5
+    attempt("bind_occluded", bpy.ops.lengths_angles.bind_markers)
+    scene.frame_set(1)
     binding = obj["lengths_angles_binding"].to_dict()
     del obj["lengths_angles_binding"]
     select_only(obj)
