@@ -11,6 +11,10 @@ Operators
     (:meth:`ShapeModel.save`) base64-encoded in a string ID property, plus the key
     names and vertex count; it survives save/reload and is read back by
     :func:`read_model`.
+Mode sliders
+    Dragging a slider previews its pose: at most every :data:`PREVIEW_INTERVAL` seconds (a timer) the
+    pose is synthesized (:meth:`ShapeModel.synthesize`, one reconstruction) into the shape key
+    :data:`PREVIEW_KEY` at value 1 (keys named ``"LA ..."`` are never training keys).
 ``lengths_angles.model_pose_to_shape_key``
     Writes the pose of the mode sliders (``object.lengths_angles_mode_weights``, in
     standard deviations; the panel shows one slider per mode) as a new shape key,
@@ -84,8 +88,8 @@ def build_model(obj, keys=None, n_modes=None):
     """A ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but the basis)."""
     mesh = require_mesh_object(obj)
     names, coords = read_shape_keys(mesh)
-    if keys is None:
-        keys = names[1:]
+    if keys is None:  # all but the basis and the add-on's own keys ("LA model preview", "LA fit <f>")
+        keys = [k for k in names[1:] if not k.startswith("LA ")]
     missing = [k for k in keys if k not in names]
     if missing:
         raise FitSetupError(f"mesh '{mesh.name}' has no shape key(s) {', '.join(map(repr, missing))}")
@@ -108,13 +112,22 @@ def store_model(mesh, model, keys):
                         "n_modes": int(model.n_modes)}
 
 
+_MODEL_CACHE = {}
+
+
 def read_model(obj):
     """The ShapeModel stored on ``obj``'s mesh, checked against the mesh as it is now."""
     mesh = require_mesh_object(obj)
     meta = mesh.get(MODEL_PROP)
     if meta is None:
         raise FitSetupError(f"mesh '{mesh.name}' has no shape model: run Build Model first")
-    model = ShapeModel.load(io.BytesIO(base64.b64decode(meta["npz_base64"])))
+    data = meta["npz_base64"]
+    key = (mesh.name_full, hash(data))
+    model = _MODEL_CACHE.get(key)
+    if model is None:  # decoded once per stored model (the sliders' preview reads it often)
+        model = ShapeModel.load(io.BytesIO(base64.b64decode(data)))
+        _MODEL_CACHE.clear()
+        _MODEL_CACHE[key] = model
     faces = triangulate(mesh).faces
     if len(mesh.vertices) != int(meta["n_vertices"]) or not np.array_equal(faces, model.faces):
         raise FitSetupError(f"mesh '{mesh.name}' was edited after its model was built ({len(mesh.vertices)} vertices "
@@ -136,6 +149,48 @@ def _mesh_vertices(obj, depsgraph):
         raise FitSetupError(f"object '{obj.name}': its modifiers change the vertex count ({V} evaluated, "
                             f"{len(obj.data.vertices)} in the mesh): bind with those modifiers off")
     return co.reshape(V, 3).astype(np.float64)
+
+
+# -------------------------------------------------------------------------------------------- preview
+PREVIEW_KEY = "LA model preview"
+PREVIEW_INTERVAL = 0.2  # seconds: the slider preview is recomputed at most this often
+_PENDING_PREVIEWS = set()
+
+
+def preview_pose(obj):
+    """Write the mode sliders' pose (``ShapeModel.synthesize``) into the shape key :data:`PREVIEW_KEY` (at 1)."""
+    model = read_model(obj)
+    w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
+    X = model.synthesize(w * model.standard_deviations)
+    if obj.data.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    kb = obj.data.shape_keys.key_blocks.get(PREVIEW_KEY) or obj.shape_key_add(name=PREVIEW_KEY, from_mix=False)
+    kb.data.foreach_set("co", np.asarray(X, np.float32).ravel())
+    kb.value = 1.0
+    obj.data.update()
+    return X
+
+
+def update_previews():
+    """Timer callback: recompute the previews of the objects whose sliders moved (rate limit)."""
+    names = sorted(_PENDING_PREVIEWS)
+    _PENDING_PREVIEWS.clear()
+    for name in names:
+        obj = bpy.data.objects.get(name)
+        if obj is not None and obj.type == 'MESH' and MODEL_PROP in obj.data:
+            try:
+                preview_pose(obj)
+            except InputError as exc:  # e.g. mesh edited since the model: no preview
+                print(f"Lengths & Angles preview of '{name}': {exc}")
+    return None
+
+
+def _mode_weights_changed(obj, _context):
+    if obj.type != 'MESH' or MODEL_PROP not in obj.data:
+        return
+    if not _PENDING_PREVIEWS and not bpy.app.background:
+        bpy.app.timers.register(update_previews, first_interval=PREVIEW_INTERVAL)
+    _PENDING_PREVIEWS.add(obj.name)
 
 
 # -------------------------------------------------------------------------------------------- binding
@@ -319,7 +374,9 @@ class LENGTHS_ANGLES_OT_build_model(bpy.types.Operator):
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
+        _PENDING_PREVIEWS.add(obj.name)
         obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
+        _PENDING_PREVIEWS.discard(obj.name)
         self.report({'INFO'}, f"shape model of {len(keys)} keys, {model.n_modes} modes")
         return {'FINISHED'}
 
@@ -463,7 +520,9 @@ classes = (LENGTHS_ANGLES_OT_build_model, LENGTHS_ANGLES_OT_model_pose_to_shape_
 def register_properties():
     bpy.types.Object.lengths_angles_mode_weights = FloatVectorProperty(
         name="Mode Weights", size=MAX_MODES, default=[0.0] * MAX_MODES, soft_min=-3.0, soft_max=3.0,
-        description="Shape-model coefficients in standard deviations (Model Pose to Shape Key)")
+        update=_mode_weights_changed,
+        description="Shape-model coefficients in standard deviations: dragging previews the pose in the "
+                    f"shape key '{PREVIEW_KEY}' (at most every {PREVIEW_INTERVAL} s); Model Pose to Shape Key keeps it")
 
 
 def unregister_properties():

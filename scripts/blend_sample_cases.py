@@ -30,12 +30,17 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def _load_rigid():
     """The repository's lacore/rigid.py (NumPy only), loaded by path: importing the ``lacore`` package would
     import SciPy, which the bpy-only test interpreters do not have (the installed extension has its own copy)."""
-    import importlib.util
+    import importlib
+    import sys
+    import types
 
-    spec = importlib.util.spec_from_file_location("_lacore_rigid", os.path.join(REPO, "lacore", "rigid.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    # a stand-in package over lacore/ whose __init__ is not run: rigid.py's ``from .errors import`` resolves
+    # to lacore/errors.py (plain Python) without importing lacore/__init__.py
+    if "_lacore_numpy_only" not in sys.modules:
+        pkg = types.ModuleType("_lacore_numpy_only")
+        pkg.__path__ = [os.path.join(REPO, "lacore")]
+        sys.modules["_lacore_numpy_only"] = pkg
+    return importlib.import_module("_lacore_numpy_only.rigid")
 
 
 rigid_align = _load_rigid().rigid_align

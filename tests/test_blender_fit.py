@@ -73,6 +73,9 @@ def test_model_from_shape_keys_survives_reload(run, inputs):
     # the slider pose written as a shape key = lacore's synthesis of mode 1 at +1 std
     expected = model.synthesize(np.eye(model.n_modes)[0] * model.standard_deviations)
     assert np.abs(run["arrays"]["mode1"] - expected).max() < 1e-4  # float32 of ~10 dm coordinates
+    # dragging the slider previewed the same pose in the "LA model preview" key at 1
+    assert res["preview"]["pending"] == ["Body"] and res["preview"]["value"] == 1.0
+    assert np.abs(run["arrays"]["preview"] - expected).max() < 1e-4
 
 
 def test_pc2_and_mesh_cache_settings(run):

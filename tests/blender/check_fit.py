@@ -83,6 +83,16 @@ def whole_path():
     OUT["model_npz"] = np.frombuffer(base64.b64decode(meta["npz_base64"]), np.uint8)
     # the mode sliders as a shape key: mode 1 at +1 std
     obj.lengths_angles_mode_weights[0] = 1.0
+    fit = ext("addon.operators_fit")
+    pending = sorted(fit._PENDING_PREVIEWS)  # the slider's update asked for a preview
+    t = time.perf_counter()
+    fit.update_previews()  # the timer's callback (timers do not run in background mode)
+    t_preview = time.perf_counter() - t
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
+    OUT["preview"] = co.reshape(-1, 3)
+    preview_value = obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].value
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
     assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["mode1"].data.foreach_get("co", co)
@@ -143,7 +153,8 @@ def whole_path():
     obj = bpy.data.objects["Body"]
     model = ext("addon.operators_fit").read_model(obj)
     np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
-    return {"n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
+    return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3)},
+            "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
             "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
             "fit_seconds_per_frame": t_fit / T,
             "modifier": modifier, "pc2_bytes": os.path.getsize(pc2), "n_vertices": n_vertices,
