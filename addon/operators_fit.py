@@ -508,7 +508,8 @@ class LENGTHS_ANGLES_OT_fit_markers(bpy.types.Operator):
         wm.progress_update(self._job.progress[0])
         if self._thread.is_alive():
             return {'RUNNING_MODAL'}
-        wm.event_timer_remove(self._timer)
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
         wm.progress_end()
         return self._finish(context, self._job)
 

@@ -137,3 +137,12 @@ def test_cancel_changes_nothing(run):
     res = run["cases"]["fit_job_cancel"]
     assert res["error"] == "cancelled" and res["unchanged"]
     assert res["progress_seen"][-1] == 2
+
+
+def test_modal_operator_steps(run):
+    """Esc (before the worker starts) cancels with nothing changed; otherwise the timer steps end in FINISHED."""
+    res = run["cases"]["modal_steps"]
+    assert res["esc"]["first"] == ["PASS_THROUGH"] and res["esc"]["last"] == ["CANCELLED"]
+    assert res["esc"]["reports"] == [["WARNING"]] and res["esc"]["unchanged"]
+    assert res["complete"]["last"] == ["FINISHED"] and res["complete"]["reports"] == [["INFO"]]
+    assert res["complete"]["modifier"] and res["complete"]["progress"] == [8, 8]

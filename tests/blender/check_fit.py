@@ -259,5 +259,37 @@ def fit_job_cancel():
     return {"error": job.error, "progress_seen": seen, "unchanged": state(obj) == before}
 
 
+def modal_steps():
+    """The modal operator's steps with a worker thread: Esc cancels, nothing changes; then a full run."""
+    import threading
+    from types import SimpleNamespace
+
+    fit = ext("addon.operators_fit")
+    op_cls = fit.LENGTHS_ANGLES_OT_fit_markers
+    obj = bpy.data.objects["Body"]
+    out = {}
+    for name, esc in (("esc", True), ("complete", False)):
+        before = state(obj)
+        job = fit.FitJob(bpy.context, obj, 1, INPUTS["true"].shape[0])
+        reports = []
+        op = SimpleNamespace(_job=job, _timer=None, report=lambda kind, msg, r=reports: r.append(sorted(kind)))
+        op._finish = lambda context, j, op=op: op_cls._finish(op, context, j)
+        if esc:
+            job.cancel = True  # Esc arrives before the worker starts: cancelled at the first frame
+        op._thread = threading.Thread(target=job.run, daemon=True)
+        op._thread.start()
+        steps = [sorted(op_cls.modal(op, bpy.context, SimpleNamespace(type='ESC' if esc else 'MOUSEMOVE')))]
+        while True:
+            r = op_cls.modal(op, bpy.context, SimpleNamespace(type='TIMER'))
+            if r != {'RUNNING_MODAL'}:
+                steps.append(sorted(r))
+                break
+            time.sleep(0.05)
+        out[name] = {"first": steps[0], "last": steps[-1], "reports": reports, "unchanged": state(obj) == before,
+                     "progress": list(job.progress)}
+    out["complete"]["modifier"] = "LA Fit" in obj.modifiers
+    return out
+
+
 if __name__ == "__main__":
-    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, fit_job_cancel])
+    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, fit_job_cancel, modal_steps])
