@@ -41,7 +41,8 @@ Mode sliders
     * ``'PC2'`` (default, any length): a PC2 point cache ``//<object>_<take>.pc2``
       next to the .blend (the blend must be saved) played by a Mesh Cache modifier
       named ``"LA Fit"`` with ``frame_start`` = the first fitted frame and
-      ``frame_scale`` 1, so scene frame ``f`` shows fitted frame ``f``;
+      ``frame_scale`` 1, so scene frame ``f`` shows fitted frame ``f`` (the modifier is added last in
+      the stack: move it first if other modifiers change the vertex count);
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
       shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
 
@@ -66,6 +67,7 @@ from ..lacore.marker_fitting import fit_markers
 from ..lacore.point_cache import write_pc2
 from ..lacore.progress import Cancelled
 from ..lacore.shape_model import ShapeModel
+from .compat import ensure_animation_channels
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
 
@@ -336,10 +338,7 @@ class FitJob:
         mesh = obj.data
         if mesh.shape_keys is None:
             obj.shape_key_add(name="Basis", from_mix=False)
-        key = mesh.shape_keys
-        ad = key.animation_data or key.animation_data_create()
-        from .compat import ensure_animation_channels
-        owner, _ = ensure_animation_channels(key, f"{obj.name} LA fit")
+        owner, _ = ensure_animation_channels(mesh.shape_keys, f"{obj.name} LA fit")
         for t, f in enumerate(self.frames):
             kb = obj.shape_key_add(name=f"LA fit {int(f)}", from_mix=False)
             kb.data.foreach_set("co", X[t].astype(np.float32).ravel())
@@ -349,7 +348,6 @@ class FitJob:
             fc.keyframe_points.foreach_set("co", np.array(kf, np.float32).ravel())
             for k in fc.keyframe_points:
                 k.interpolation = 'CONSTANT'
-        del ad
         return f"fitted {len(self.frames)} frames as shape keys"
 
 
