@@ -53,6 +53,7 @@ from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helpe
 
 from ..lacore.errors import InputError
 from ..lacore.marker_io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
+from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",
            "remove_take", "read_take",
@@ -65,35 +66,9 @@ VISIBLE_PROP = "visible"
 _NAME_BYTES = 63
 
 
-# ============================================================================ F-curve compatibility shim
-# (to be unified with addon/compat.py at merge.)  Layered actions (4.4+; the only kind in 5.0+) keep
-# an object's F-curves in the channelbag of its action slot.  On 4.4/4.5 Action.fcurves is a legacy
-# proxy that may create a slot the object does not use, so the slot is made and assigned explicitly
-# from 4.4 on; 4.2/4.3 use Action.fcurves.
-_LAYERED_ACTIONS = bpy.app.version >= (4, 4, 0)
-
-
-def _new_action_for(obj, name):
-    """A new action assigned to ``obj`` (with a slot for it on layered actions)."""
-    action = bpy.data.actions.new(name)
-    ad = obj.animation_data or obj.animation_data_create()
-    ad.action = action
-    if _LAYERED_ACTIONS and ad.action_slot is None:
-        ad.action_slot = action.slots.new(id_type='OBJECT', name=obj.name)
-    return action
-
-
 def _fcurves_for(obj):
-    """The F-curve collection of ``obj``'s assigned action (``.new``, ``.find``, ``.remove``)."""
-    ad = obj.animation_data
-    action = ad.action
-    if _LAYERED_ACTIONS:
-        slot = ad.action_slot
-        layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
-        strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type='KEYFRAME')
-        return strip.channelbag(slot, ensure=True).fcurves
-    return action.fcurves
-# ============================================================================ end of shim
+    """The F-curve collection of ``obj``'s assigned action (:func:`..compat.id_fcurves`), or None."""
+    return id_fcurves(obj)
 
 
 _INTERPOLATION = {}
@@ -193,9 +168,10 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
             obj.id_properties_ui(VISIBLE_PROP).update(
                 min=0.0, max=1.0, description="1 on frames where the marker was measured, 0 where it was occluded")
             collection.objects.link(obj)
-            action = _new_action_for(obj, _clip_name(f"{obj.name} markers"))
-            created_actions.append(action)
-            fcurves = _fcurves_for(obj)
+            # a new object has no action: one is created with a slot for it (compat: 4.2 .. 5.2)
+            owner, _created = ensure_animation_channels(obj, _clip_name(f"{obj.name} markers"))
+            created_actions.append(obj.animation_data.action)
+            fcurves = owner.fcurves
             seen = visible[:, m]
             key_frames = frames[seen]
             if seen.any():

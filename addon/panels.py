@@ -11,7 +11,8 @@ from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability
 from .operators_interpolate import (BAKE_PROP, LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
-__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "classes", "draw_shape_key_menu", "integrability_text"]
+__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_mocap", "classes", "draw_shape_key_menu",
+           "integrability_text"]
 
 
 def integrability_text(violation):
@@ -89,4 +90,45 @@ def draw_shape_key_menu(self, context):
     layout.operator(LENGTHS_ANGLES_OT_remove_data.bl_idname, icon='TRASH')
 
 
-classes = (LENGTHS_ANGLES_PT_shape_keys,)
+
+class LENGTHS_ANGLES_PT_mocap(bpy.types.Panel):
+    """Shape model (one slider per mode), marker binding (marker, offset, warning) and fit."""
+    bl_label = "Lengths & Angles: Model and Markers"
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    bl_context = "data"
+    bl_parent_id = "DATA_PT_shape_keys"
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.type == 'MESH'
+
+    def draw(self, context):
+        from . import operators_fit as fit
+        layout = self.layout
+        obj = context.object
+        layout.operator(fit.LENGTHS_ANGLES_OT_build_model.bl_idname, icon='MOD_DATA_TRANSFER')
+        meta = obj.data.get(fit.MODEL_PROP)
+        if meta is None:
+            layout.label(text="No shape model", icon='INFO')
+            return
+        col = layout.column(align=True)
+        col.label(text=f"Model: {len(meta['keys'])} keys, {meta['n_modes']} modes (sliders in std. dev.)")
+        for j in range(min(int(meta["n_modes"]), fit.MAX_MODES)):
+            col.prop(obj, "lengths_angles_mode_weights", index=j, text=f"Mode {j + 1}", slider=True)
+        col.operator(fit.LENGTHS_ANGLES_OT_model_pose_to_shape_key.bl_idname, icon='SHAPEKEY_DATA')
+        layout.operator(fit.LENGTHS_ANGLES_OT_bind_markers.bl_idname, icon='EMPTY_DATA')
+        binding = obj.get(fit.BINDING_PROP)
+        if binding is not None:
+            box = layout.box()
+            box.label(text=f"Take '{binding['take']}' bound at frame {binding['frame']}")
+            for label, face, offset in zip(binding["labels"], binding["faces"], binding["offsets"], strict=True):
+                row = box.row()
+                row.label(text=label, icon='ERROR' if abs(offset) > 0.05 else 'CHECKMARK')
+                row.label(text=f"triangle {face}")
+                row.label(text=f"{offset:.4f}")
+            layout.operator(fit.LENGTHS_ANGLES_OT_fit_markers.bl_idname, icon='ARMATURE_DATA')
+
+
+classes = (LENGTHS_ANGLES_PT_shape_keys, LENGTHS_ANGLES_PT_mocap)

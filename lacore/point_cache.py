@@ -1,0 +1,87 @@
+"""PC2 point caches: vertex positions per frame, the format Blender's Mesh Cache modifier plays.
+
+Layout (little endian), as written by 3ds Max / Blender's PC2 exporter::
+
+    char[12]  "POINTCACHE2\\0"
+    int32     version (1)
+    int32     number of points V
+    float32   start frame
+    float32   sample rate (frames between samples)
+    int32     number of samples T
+    float32   T x V x 3 positions, sample by sample
+
+i.e. a 32-byte header and 12 bytes per vertex per frame.
+"""
+
+import os
+import tempfile
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["PointCacheError", "HEADER_BYTES", "write_pc2", "read_pc2"]
+
+_MAGIC = b"POINTCACHE2\0"
+_HEADER = np.dtype([("magic", "S12"), ("version", "<i4"), ("points", "<i4"), ("start", "<f4"),
+                    ("sampling", "<f4"), ("samples", "<i4")])
+HEADER_BYTES = _HEADER.itemsize  # 32
+
+
+class PointCacheError(InputError):
+    """A point cache that cannot be written or read (shape, header, truncated file)."""
+
+
+def write_pc2(path, vertices, start=0.0, sampling=1.0):
+    """Write vertex positions per frame as a PC2 file, atomically (temp file in the folder, then rename).
+
+    Parameters
+    ----------
+    path : str or path-like
+    vertices : (T, V, 3) array_like
+        Positions per sample; stored as float32.
+    start, sampling : float
+        Header fields: frame of the first sample and frames between samples.
+    """
+    X = np.asarray(vertices, dtype=np.float64)
+    if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 1 or X.shape[1] < 1:
+        raise PointCacheError(f"point cache: vertices must have shape (T >= 1, V >= 1, 3), got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        t = int(np.flatnonzero(~np.isfinite(X).all(axis=(1, 2)))[0])
+        raise PointCacheError(f"point cache: frame {t} has non-finite positions")
+    header = np.zeros(1, _HEADER)
+    header[0] = (_MAGIC, 1, X.shape[1], start, sampling, X.shape[0])
+    path = os.fspath(path)
+    fd, tmp = tempfile.mkstemp(suffix=".pc2", prefix=".tmp-", dir=os.path.dirname(os.path.abspath(path)))
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(header.tobytes())
+            fh.write(X.astype("<f4").tobytes())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_pc2(path):
+    """Read a PC2 file.
+
+    Returns
+    -------
+    vertices : (T, V, 3) float32 ndarray
+    start, sampling : float
+        Header fields.
+    """
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    if len(raw) < HEADER_BYTES or raw[:12] != _MAGIC:
+        raise PointCacheError(f"{os.fspath(path)}: not a PC2 point cache (no POINTCACHE2 header)")
+    h = np.frombuffer(raw[:HEADER_BYTES], _HEADER)[0]
+    V, T = int(h["points"]), int(h["samples"])
+    need = HEADER_BYTES + 12 * V * T
+    if len(raw) != need:
+        raise PointCacheError(f"{os.fspath(path)}: {len(raw)} bytes, the header ({T} samples of {V} points) "
+                              f"needs {need}")
+    X = np.frombuffer(raw[HEADER_BYTES:], "<f4").reshape(T, V, 3)
+    return X, float(h["start"]), float(h["sampling"])

@@ -1,0 +1,295 @@
+"""Blender-side checks of Build Shape Model / Bind Markers / Fit to Markers of the INSTALLED extension
+(run in a SUBPROCESS by tests/test_blender_fit.py, which prepares the inputs with the repo's lacore:
+``<work>/inputs.npz`` (faces, basis, training poses, true take, bind pose) and ``<work>/take.c3d``).
+
+usage: BLENDER_USER_RESOURCES=<tmp> python check_fit.py --zip EXT.zip --workdir DIR --result OUT.json
+
+The check writes what Blender produced (model, binding, evaluated Mesh Cache poses) to
+``<workdir>/blender_fit.npz``; pytest compares it with lacore's own fit of the same data.
+"""
+
+import base64
+import importlib
+import os
+import time
+
+from harness import ARGS, MODULE, bpy, reset, run_cases
+import numpy as np
+
+WORK = os.path.dirname(ARGS.workdir)
+INPUTS = dict(np.load(os.path.join(WORK, "inputs.npz")))
+C3D = os.path.join(WORK, "take.c3d")
+OUT = {}
+
+
+def ext(name):
+    return importlib.import_module(f"{MODULE}.{name}")
+
+
+def install_and_enable():
+    result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
+                                                      enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    return {"operators": [bpy.ops.lengths_angles.build_model.idname(), bpy.ops.lengths_angles.bind_markers.idname(),
+                          bpy.ops.lengths_angles.fit_markers.idname()]}
+
+
+def make_body():
+    """Mesh object 'Body' with Basis + training shape keys (and the bind pose key, value 0)."""
+    faces = INPUTS["faces"]
+    mesh = bpy.data.meshes.new("Body")
+    mesh.from_pydata(INPUTS["basis"].tolist(), [], faces.tolist())
+    obj = bpy.data.objects.new("Body", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.shape_key_add(name="Basis", from_mix=False)
+    for k, X in enumerate(INPUTS["training"]):
+        kb = obj.shape_key_add(name=f"train{k:02d}", from_mix=False)
+        kb.data.foreach_set("co", X.astype(np.float32).ravel())
+        kb.value = 0.0  # (new keys are at 1 in Blender 5)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    return obj
+
+
+def select_only(*objs):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+def state(obj):
+    """A snapshot of everything a failed operator must leave alone."""
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    return {"keys": [kb.name for kb in mesh.shape_keys.key_blocks] if mesh.shape_keys else [],
+            "modifiers": [m.name for m in obj.modifiers], "props": sorted(obj.keys()),
+            "mesh_props": sorted(mesh.keys()), "co": co.tobytes(),
+            "files": sorted(os.listdir(ARGS.workdir)) if os.path.isdir(ARGS.workdir) else []}
+
+
+def whole_path():
+    reset()
+    os.makedirs(ARGS.workdir, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = make_body()
+    n_keys = len(INPUTS["training"])
+    t = time.perf_counter()
+    assert bpy.ops.lengths_angles.build_model() == {"FINISHED"}
+    t_model = time.perf_counter() - t
+    meta = obj.data[ext("addon.operators_fit").MODEL_PROP].to_dict()
+    OUT["model_npz"] = np.frombuffer(base64.b64decode(meta["npz_base64"]), np.uint8)
+    # the mode sliders as a shape key: mode 1 at +1 std
+    obj.lengths_angles_mode_weights[0] = 1.0
+    fit = ext("addon.operators_fit")
+    pending = sorted(fit._PENDING_PREVIEWS)  # the slider's update asked for a preview
+    t = time.perf_counter()
+    fit.update_previews()  # the timer's callback (timers do not run in background mode)
+    t_preview = time.perf_counter() - t
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
+    OUT["preview"] = co.reshape(-1, 3)
+    preview_value = obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].value
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
+    assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks["mode1"].data.foreach_get("co", co)
+    OUT["mode1"] = co.reshape(-1, 3)
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks["mode1"])
+    # markers
+    assert bpy.ops.lengths_angles.import_markers(filepath=C3D, scale=10.0) == {"FINISHED"}
+    take = bpy.data.objects["take"]
+    scene = bpy.context.scene
+    # pose the mesh like the first frame of the take (a shape key at 1) and bind there
+    kb = obj.shape_key_add(name="bind pose", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
+    kb.value = 1.0
+    scene.frame_set(1)
+    select_only(obj, take)
+    fit = ext("addon.operators_fit")
+    OUT["bind_mesh"] = fit._mesh_vertices(obj, bpy.context.evaluated_depsgraph_get())
+    OUT["bind_markers"] = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
+    assert bpy.ops.lengths_angles.bind_markers(warn_distance=0.2) == {"FINISHED"}
+    obj.shape_key_remove(kb)
+    binding = obj[ext("addon.operators_fit").BINDING_PROP]
+    OUT["bind_faces"] = np.array(binding["faces"])
+    OUT["bind_barycentric"] = np.array(binding["barycentric"]).reshape(-1, 3)
+    OUT["bind_offsets"] = np.array(binding["offsets"])
+    # fit the scene range (synchronous in background mode), PC2 output
+    T = INPUTS["true"].shape[0]
+    scene.frame_start, scene.frame_end = 1, T
+    before = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.vertices.foreach_get("co", before)
+    keys_before = [k.name for k in obj.data.shape_keys.key_blocks]
+    t = time.perf_counter()
+    assert bpy.ops.lengths_angles.fit_markers() == {"FINISHED"}
+    t_fit = time.perf_counter() - t
+    mod = obj.modifiers["LA Fit"]
+    pc2 = bpy.path.abspath(mod.filepath)
+    after = np.empty_like(before)
+    obj.data.vertices.foreach_get("co", after)
+    # evaluated mesh per frame (the Mesh Cache modifier playing the PC2)
+    frames = np.arange(1, T + 1)
+    evaluated = []
+    for f in frames:
+        scene.frame_set(int(f))
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        me = ev.to_mesh()
+        c = np.empty(3 * len(me.vertices), np.float32)
+        me.vertices.foreach_get("co", c)
+        ev.to_mesh_clear()
+        evaluated.append(c.reshape(-1, 3))
+    OUT["evaluated"] = np.array(evaluated)
+    modifier = {"type": mod.type, "cache_format": mod.cache_format, "filepath": mod.filepath,
+                "frame_start": mod.frame_start, "frame_scale": mod.frame_scale, "time_mode": mod.time_mode}
+    n_vertices = len(obj.data.vertices)
+    keys_unchanged = keys_before == [k.name for k in obj.data.shape_keys.key_blocks]
+    OUT["frames"] = frames
+    # save and reload: model, binding and modifier survive
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    model = ext("addon.operators_fit").read_model(obj)
+    np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
+    return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3)},
+            "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
+            "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
+            "fit_seconds_per_frame": t_fit / T,
+            "modifier": modifier, "pc2_bytes": os.path.getsize(pc2), "n_vertices": n_vertices,
+            "mesh_untouched": bool(np.array_equal(before, after)), "keys_unchanged": keys_unchanged,
+            "reloaded": {"n_modes": int(model.n_modes), "binding": "lengths_angles_binding" in obj,
+                         "modifier": "LA Fit" in obj.modifiers}}
+
+
+def shape_key_output():
+    """Short clip as shape keys: one key per frame, showing exactly at its frame."""
+    obj = bpy.data.objects["Body"]
+    scene = bpy.context.scene
+    select_only(obj)
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    n_before = len(obj.data.shape_keys.key_blocks)
+    assert bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=2,
+                                              frame_end=4) == {"FINISHED"}
+    names = [k.name for k in obj.data.shape_keys.key_blocks][n_before:]
+    scene.frame_set(3)
+    values = {k.name: k.value for k in obj.data.shape_keys.key_blocks[n_before:]}
+    # a clip too long for shape keys
+    scene.frame_start, scene.frame_end = 1, 200
+    before = state(obj)
+    try:
+        res = bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS')
+    except RuntimeError:  # bpy.ops raise on ERROR reports
+        res = {"CANCELLED"}
+    return {"names": names, "values_at_3": values, "too_long": sorted(res), "too_long_unchanged": state(obj) == before}
+
+
+def bad_input():
+    """No model, not bound, take too short, empties deleted, mesh edited: ERROR, nothing changed."""
+    out = {}
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    scene = bpy.context.scene
+    obj = bpy.data.objects["Body"]
+    take = bpy.data.objects["take"]
+    T = INPUTS["true"].shape[0]
+
+    def attempt(name, op, **kw):
+        before = state(obj)
+        try:
+            res = op(**kw)
+            msg = ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = {"CANCELLED"}, str(exc)
+        out[name] = {"result": sorted(res), "message": msg, "unchanged": state(obj) == before}
+
+    select_only(obj)
+    scene.frame_start, scene.frame_end = 1, T + 5
+    attempt("take_too_short", bpy.ops.lengths_angles.fit_markers)
+    scene.frame_end = T
+    meta = obj.data["lengths_angles_model"].to_dict()
+    del obj.data["lengths_angles_model"]
+    attempt("no_model", bpy.ops.lengths_angles.fit_markers)
+    select_only(obj, take)
+    attempt("bind_without_model", bpy.ops.lengths_angles.bind_markers)
+    obj.data["lengths_angles_model"] = meta
+    scene.frame_set(3)  # markers 3, 10, 20 are occluded at frames 3..5
+    attempt("bind_occluded", bpy.ops.lengths_angles.bind_markers)
+    scene.frame_set(1)
+    binding = obj["lengths_angles_binding"].to_dict()
+    del obj["lengths_angles_binding"]
+    select_only(obj)
+    attempt("not_bound", bpy.ops.lengths_angles.fit_markers)
+    obj["lengths_angles_binding"] = binding
+    victim = next(c for c in take.children if c.get("lengths_angles_marker") == binding["labels"][3])
+    bpy.data.objects.remove(victim)
+    attempt("empty_deleted", bpy.ops.lengths_angles.fit_markers)
+    # mesh edited: one vertex deleted
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    import bmesh
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.verts[0]], context='VERTS')
+    bm.to_mesh(obj.data)
+    bm.free()
+    select_only(obj)
+    attempt("mesh_edited", bpy.ops.lengths_angles.fit_markers)
+    return out
+
+
+def fit_job_cancel():
+    """The modal operator's worker: cancelling through the progress callback changes nothing."""
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    select_only(obj)
+    os.remove(bpy.path.abspath(obj.modifiers["LA Fit"].filepath))
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    before = state(obj)
+    job = ext("addon.operators_fit").FitJob(bpy.context, obj, 1, INPUTS["true"].shape[0])
+    seen = []
+
+    def cancel_after_two(done, total, message=""):
+        seen.append(done)
+        job.progress = (done, total)
+        return done >= 2
+    job._progress = cancel_after_two
+    job.run()
+    return {"error": job.error, "progress_seen": seen, "unchanged": state(obj) == before}
+
+
+def modal_steps():
+    """The modal operator's steps with a worker thread: Esc cancels, nothing changes; then a full run."""
+    import threading
+    from types import SimpleNamespace
+
+    fit = ext("addon.operators_fit")
+    op_cls = fit.LENGTHS_ANGLES_OT_fit_markers
+    obj = bpy.data.objects["Body"]
+    out = {}
+    for name, esc in (("esc", True), ("complete", False)):
+        before = state(obj)
+        job = fit.FitJob(bpy.context, obj, 1, INPUTS["true"].shape[0])
+        reports = []
+        op = SimpleNamespace(_job=job, _timer=None, report=lambda kind, msg, r=reports: r.append(sorted(kind)))
+        op._finish = lambda context, j, op=op: op_cls._finish(op, context, j)
+        if esc:
+            job.cancel = True  # Esc arrives before the worker starts: cancelled at the first frame
+        op._thread = threading.Thread(target=job.run, daemon=True)
+        op._thread.start()
+        steps = [sorted(op_cls.modal(op, bpy.context, SimpleNamespace(type='ESC' if esc else 'MOUSEMOVE')))]
+        while True:
+            r = op_cls.modal(op, bpy.context, SimpleNamespace(type='TIMER'))
+            if r != {'RUNNING_MODAL'}:
+                steps.append(sorted(r))
+                break
+            time.sleep(0.05)
+        out[name] = {"first": steps[0], "last": steps[-1], "reports": reports, "unchanged": state(obj) == before,
+                     "progress": list(job.progress)}
+    out["complete"]["modifier"] = "LA Fit" in obj.modifiers
+    return out
+
+
+if __name__ == "__main__":
+    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, fit_job_cancel, modal_steps])
