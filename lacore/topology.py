@@ -259,10 +259,6 @@ class MeshTopology:
     def n_edges(self):
         return len(self.edges)
 
-    def _cached(self, name, fn):
-        """Deprecated: ``self.cache.get((owner, name), fn)`` (:class:`lacore.cache.DerivedCache`)."""
-        return self.cache.get(("<unnamed>", name), fn)
-
     # ------------------------------------------------------------- edges
     @property
     def is_boundary_edge(self):
