@@ -8,8 +8,8 @@ frames sharing one symbolic factorization):
 * ``finger``: the 2046-vertex finger0 -> finger1 pair of the shared data, 10 in-betweens
   ``t = 1/11 .. 10/11``;
 * ``bar50k``: a generated closed box bar ``4 x 1 x 1`` with ~49k vertices
-  (:func:`lacore.sample_shapes.box_bar`, ``n_length=210, n_width=52``), straight -> bent by 90 degrees
-  with Blender's Simple Deform 'BEND' formula (:func:`lacore.sample_shapes.simple_deform_bend`), 10 in-betweens.
+  (:func:`lacore.samples.simple_deform.box_bar`, ``n_length=210, n_width=52``), straight -> bent by 90 degrees
+  with Blender's Simple Deform 'BEND' formula (:func:`lacore.samples.simple_deform.simple_deform_bend`), 10 in-betweens.
 
 Deterministic (no random numbers).  Every case reports per-frame seconds,
 iterations and energies, the total, and the same run without warm starts
@@ -34,7 +34,7 @@ if REPO not in sys.path:  # lacore importable without installing it
 
 from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 
-from lacore.sample_shapes import box_bar, simple_deform_bend  # noqa: E402
+from lacore.samples.simple_deform import box_bar, simple_deform_bend  # noqa: E402
 
 __all__ = ["main"]
 

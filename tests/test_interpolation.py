@@ -14,7 +14,7 @@ from lacore.progress import Cancelled
 from lacore.lengths_angles import edge_lengths, face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction import get_context, reconstruct
 from lacore.rigid import rigid_rms
-from lacore.sample_shapes import box_bar, simple_deform_bend
+from lacore.samples.simple_deform import box_bar, simple_deform_bend
 from lacore.topology import MeshTopology
 
 

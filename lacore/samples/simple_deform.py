@@ -10,7 +10,7 @@
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["box_bar", "simple_deform_bend"]
 
