@@ -24,6 +24,9 @@ Steps now:
    180 degrees by Simple Deform -> ``bar_blend_comparison.png`` (linear shape-key blend vs
    lengths-and-angles in-between vs Blender's 90-degree bend), ``bar_blend_comparison.json``
    and ``bar_inbetweens.blend`` (in-between keys + a baked motion), via scripts/render_comparison.py.
+7. ``blender_mocap_fit``: the take of step 4 as ``human_take.c3d``; the add-on's Build Shape Model (from shape
+   keys), Import Markers, Bind Markers and Fit to Markers operators (scripts/demo_mocap_blender.py) ->
+   ``human_mocap_fit.blend`` with a Mesh Cache modifier playing its PC2 next to it, ``human_mocap_fit.json``.
 """
 
 import argparse
@@ -241,7 +244,40 @@ def cli_human_fit(out_dir):
     }
 
 
-STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate]
+def blender_mocap_fit(out_dir):
+    """The add-on's Build Shape Model / Import Markers (C3D) / Bind Markers / Fit to Markers on the coarse human."""
+    import numpy as np
+
+    from lacore.marker_io import MarkerTake, write_c3d
+    from lacore.samples.markers import observe_markers, place_markers
+    body, train, take, _ = _human_data()
+    names, binding = place_markers(body)
+    x = observe_markers(take, body.faces, binding, seed=3)
+    x[0] = observe_markers(take[:1], body.faces, binding, occlusion=0.0, seed=3)[0]  # all seen at the bind frame
+    c3d = os.path.join(out_dir, "human_take.c3d")
+    write_c3d(c3d, MarkerTake(labels=tuple(names), positions=x / 10.0, rate=100.0, units="m"), units="mm")
+    with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
+        inputs = os.path.join(user_dir, "inputs.npz")
+        np.savez(inputs, faces=body.faces, basis=body.vertices, training=train, true=take)
+        run([BLENDER_PYTHON, os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d],
+            env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+    with open(os.path.join(out_dir, "human_mocap_fit.json")) as fh:
+        result = json.load(fh)
+    s = result["seconds"]
+    return {
+        "outputs": ["human_take.c3d", "human_mocap_fit.blend", result["pc2"], "human_mocap_fit.json"],
+        "text": (f"Blender add-on on the coarse human: Build Shape Model from {len(train)} shape keys "
+                 f"({s['build_model']:.1f} s), Import Markers human_take.c3d ({result['markers']} markers, "
+                 f"{result['frames']} frames), Bind Markers, Fit to Markers ({s['fit_markers']:.1f} s) -> "
+                 f"{result['pc2']} played by a Mesh Cache modifier: mean per-vertex error vs the true poses "
+                 f"{result['mean_vertex_error_mm']:.1f} mm (max {result['max_vertex_error_mm']:.0f} mm); "
+                 "open human_mocap_fit.blend and press Play"),
+        "result": result,
+    }
+
+
+STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate,
+         blender_mocap_fit]
 
 
 def main(argv=None):
