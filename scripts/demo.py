@@ -11,14 +11,22 @@ Steps now:
 
 1. ``cli_encode``: ``lacore encode`` on a shared mesh (finger0) -> ``finger0_encoded.npz`` + JSON.
 2. ``cli_interpolate``: ``lacore interpolate`` finger0 -> finger1 (and beyond) -> ``finger_inbetween_*.ply``.
-3. ``blender_encode``: the add-on's Encode operator on a generated scene (cube, bar,
+3. ``cli_human_model``: ``lacore model`` on 20 seeded random poses of the coarse CC0 human (5 modes) and
+   ``lacore model-sweep`` of mode 0 -> ``human_model.npz``, ``human_model.json``, ``human_mode0*.ply``.
+4. ``cli_human_fit``: the 41 standard markers of a 20-frame held-out take -> ``human_take_markers.npz``;
+   ``lacore fit`` -> ``human_fit.npz``, ``human_fit.json`` (with the mean per-vertex error vs the true poses)
+   and ``human_fit.png`` (true mesh + markers vs the fit coloured by error, scripts/render_marker_fit.py).
+5. ``blender_encode``: the add-on's Encode operator on a generated scene (cube, bar,
    grid with shape keys) -> ``demo_scene.blend`` (encodings stored in the meshes),
    ``demo_scene.json``, ``demo_scene.npz`` and a rendered picture of every key
    ``demo_scene_keys.png`` (runs in a subprocess: bpy can be imported once).
-4. ``blender_interpolate``: the Interpolate and Bake Keyframes operators on a box bar bent
+6. ``blender_interpolate``: the Interpolate and Bake Keyframes operators on a box bar bent
    180 degrees by Simple Deform -> ``bar_blend_comparison.png`` (linear shape-key blend vs
    lengths-and-angles in-between vs Blender's 90-degree bend), ``bar_blend_comparison.json``
    and ``bar_inbetweens.blend`` (in-between keys + a baked motion), via scripts/render_comparison.py.
+7. ``blender_mocap_fit``: the take of step 4 as ``human_take.c3d``; the add-on's Build Shape Model (from shape
+   keys), Import Markers, Bind Markers and Fit to Markers operators (scripts/demo_mocap_blender.py) ->
+   ``human_mocap_fit.blend`` with a Mesh Cache modifier playing its PC2 next to it, ``human_mocap_fit.json``.
 """
 
 import argparse
@@ -140,7 +148,136 @@ def cli_interpolate(out_dir):
     }
 
 
-STEPS = [cli_encode, cli_interpolate, blender_encode, blender_interpolate]
+def _human_data():
+    """Coarse CC0 human (2,500 vertices): 20 seeded training poses and a 20-frame held-out take."""
+    from lacore.samples.human import load_human
+    body = load_human(coarse=True)
+    train, _ = body.random_poses(20, seed=1)
+    take, _, root_rotation, _ = body.take(20, seed=2)
+    return body, train, take, root_rotation
+
+
+def _write_ply(path, vertices, faces):
+    import trimesh
+    trimesh.Trimesh(vertices, faces, process=False).export(path)
+
+
+def cli_human_model(out_dir):
+    """`lacore model` on 20 random poses of the coarse human, then `lacore model-sweep` of its first mode."""
+    body, train, _, _ = _human_data()
+    with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as tmp:
+        meshes = [os.path.join(tmp, f"human_train_{i:02d}.ply") for i in range(len(train))]
+        for path, X in zip(meshes, train, strict=True):
+            _write_ply(path, X, body.faces)
+        model = os.path.join(out_dir, "human_model.npz")
+        proc = run([sys.executable, "-m", "lacore.cli", "model", *meshes, "-o", model, "--modes", "5", "--json"],
+                   capture_output=True, text=True)
+    result = {"model": json.loads(proc.stdout)}
+    prefix = os.path.join(out_dir, "human_mode0")
+    proc = run([sys.executable, "-m", "lacore.cli", "model-sweep", model, "--mode", "0", "--range", "-2", "2",
+                "--frames", "5", "-o", prefix, "--allow-failure", "--json"], capture_output=True, text=True)
+    result["sweep"] = json.loads(proc.stdout)
+    with open(os.path.join(out_dir, "human_model.json"), "w") as fh:
+        json.dump(result, fh, indent=1)
+    sweep = sorted(f for f in os.listdir(out_dir) if f.startswith("human_mode0"))
+    failures = [o["failure"] for o in result["sweep"]["outputs"] if not o["success"]]
+    return {
+        "outputs": ["human_model.npz", "human_model.json", *sweep],
+        "text": (f"`lacore model` on {len(train)} random poses (seed 1) of the coarse CC0 human "
+                 f"({body.n_vertices} vertices, {len(body.faces)} faces), 5 modes; `lacore model-sweep` of mode 0 "
+                 f"from -2 to 2 standard deviations: {len(sweep)} PLY files, "
+                 f"{len(sweep) - len(failures)} of them pass the reconstruction checks "
+                 f"(failed: {', '.join(failures) or 'none'})"),
+        "result": result,
+    }
+
+
+def cli_human_fit(out_dir):
+    """`lacore fit` of human_model.npz to the 41 standard markers of a 20-frame held-out take + a picture."""
+    sys.path.insert(0, HERE)
+    import numpy as np
+    from render_marker_fit import draw_points, error_colors, rasterize, write_png
+
+    from lacore.samples.markers import observe_markers, place_markers
+    body, _, take, root_rotation = _human_data()
+    _, binding = place_markers(body)
+    positions = observe_markers(take, body.faces, binding, seed=3)
+    markers = os.path.join(out_dir, "human_take_markers.npz")
+    np.savez(markers, positions=positions, faces=binding.faces, barycentric=binding.barycentric,
+             offsets=binding.offsets)
+    fit = os.path.join(out_dir, "human_fit.npz")
+    proc = run([sys.executable, "-m", "lacore.cli", "fit", os.path.join(out_dir, "human_model.npz"),
+                "--markers", markers, "-o", fit, "--json"], capture_output=True, text=True)
+    result = json.loads(proc.stdout)
+    fitted = np.load(fit)["vertices"]
+    err_mm = np.linalg.norm(fitted - take, axis=2) * 100.0     # the body is in decimetres
+    result["mean_vertex_error_mm"] = float(err_mm.mean())
+    result["max_vertex_error_mm"] = float(err_mm.max())
+    with open(os.path.join(out_dir, "human_fit.json"), "w") as fh:
+        json.dump(result, fh, indent=1)
+    # one frame, front view: true mesh + markers (left), fit coloured by per-vertex error (right)
+    t = len(take) // 2
+    heading = root_rotation[t] @ np.array([0.0, 0.0, 1.0])
+    heading[1] = 0.0
+    zc = heading / np.linalg.norm(heading)
+    yc = np.array([0.0, 1.0, 0.0])
+    view = np.stack([np.cross(yc, zc), yc, zc])
+    cell = (400, 260)
+    image = np.ones((cell[0], 2 * cell[1], 3))
+    depth = np.full(image.shape[:2], -np.inf)
+    X = take[t]
+    centre = 0.5 * (X.min(0) + X.max(0))
+    scale = 0.9 * cell[0] / 18.0
+    rasterize(X, body.faces, np.tile([0.75, 0.8, 0.9], (len(X), 1)), view, cell, image, depth, (0, 0), scale, centre)
+    draw_points(image, depth, positions[t], view, cell, (0, 0), scale, centre, np.array([0.1, 0.6, 0.1]))
+    rasterize(fitted[t], body.faces, error_colors(err_mm[t]), view, cell, image, depth, (0, cell[1]), scale, centre)
+    draw_points(image, depth, positions[t], view, cell, (0, cell[1]), scale, centre, np.array([0.1, 0.6, 0.1]))
+    write_png(os.path.join(out_dir, "human_fit.png"), (np.clip(image, 0, 1) * 255).astype(np.uint8))
+    return {
+        "outputs": ["human_take_markers.npz", "human_fit.npz", "human_fit.json", "human_fit.png"],
+        "text": (f"`lacore fit` human_model.npz to {result['markers']} markers (5 mm noise, occlusions) of a "
+                 f"{result['frames']}-frame held-out take (seed 2): marker RMS {100 * result['marker_rms']:.1f} mm, "
+                 f"mean per-vertex error vs the true poses {result['mean_vertex_error_mm']:.1f} mm (max "
+                 f"{result['max_vertex_error_mm']:.0f} mm), {result['seconds']:.1f} s; human_fit.png frame {t}: "
+                 "true mesh + markers (left), fit coloured by error, white 0 -> red >= 50 mm (right)"),
+        "result": result,
+    }
+
+
+def blender_mocap_fit(out_dir):
+    """The add-on's Build Shape Model / Import Markers (C3D) / Bind Markers / Fit to Markers on the coarse human."""
+    import numpy as np
+
+    from lacore.marker_io import MarkerTake, write_c3d
+    from lacore.samples.markers import observe_markers, place_markers
+    body, train, take, _ = _human_data()
+    names, binding = place_markers(body)
+    x = observe_markers(take, body.faces, binding, seed=3)
+    x[0] = observe_markers(take[:1], body.faces, binding, occlusion=0.0, seed=3)[0]  # all seen at the bind frame
+    c3d = os.path.join(out_dir, "human_take.c3d")
+    write_c3d(c3d, MarkerTake(labels=tuple(names), positions=x / 10.0, rate=100.0, units="m"), units="mm")
+    with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
+        inputs = os.path.join(user_dir, "inputs.npz")
+        np.savez(inputs, faces=body.faces, basis=body.vertices, training=train, true=take)
+        run([BLENDER_PYTHON, os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d],
+            env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+    with open(os.path.join(out_dir, "human_mocap_fit.json")) as fh:
+        result = json.load(fh)
+    s = result["seconds"]
+    return {
+        "outputs": ["human_take.c3d", "human_mocap_fit.blend", result["pc2"], "human_mocap_fit.json"],
+        "text": (f"Blender add-on on the coarse human: Build Shape Model from {len(train)} shape keys "
+                 f"({s['build_model']:.1f} s), Import Markers human_take.c3d ({result['markers']} markers, "
+                 f"{result['frames']} frames), Bind Markers, Fit to Markers ({s['fit_markers']:.1f} s) -> "
+                 f"{result['pc2']} played by a Mesh Cache modifier: mean per-vertex error vs the true poses "
+                 f"{result['mean_vertex_error_mm']:.1f} mm (max {result['max_vertex_error_mm']:.0f} mm); "
+                 "open human_mocap_fit.blend and press Play"),
+        "result": result,
+    }
+
+
+STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate,
+         blender_mocap_fit]
 
 
 def main(argv=None):
