@@ -109,10 +109,13 @@ samples: venv venv-np2 $(STAMP_BLENDER52)
 	PYTHONPATH=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
 	$(VENV_BLENDER52)/bin/python scripts/make_samples.py --output blend_samples
 
-bench: venv
-	@set -e; shopt -s nullglob; files=(benchmarks/*.py); \
-	if [ $${#files[@]} -eq 0 ]; then echo "no benchmarks"; fi; \
-	for f in "$${files[@]}"; do echo "== $$f"; $(PY) "$$f"; done
+# bench_blender_*.py need bpy AND SciPy in one Python: bpy 5.2's venv with $(VENV_NP2)'s packages on the path.
+bench: venv venv-np2 $(STAMP_BLENDER52)
+	@set -e; shopt -s nullglob; files=(benchmarks/bench_*.py); \
+	np2_site=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])"); \
+	for f in "$${files[@]}"; do echo "== $$f"; case "$$f" in \
+	  */bench_blender_*) PYTHONPATH="$$np2_site" $(VENV_BLENDER52)/bin/python "$$f";; \
+	  *) $(PY) "$$f";; esac; done
 
 clean:
 	rm -rf dist demo_output blend_samples .pytest_cache .ruff_cache build *.egg-info

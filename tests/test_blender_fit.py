@@ -14,9 +14,6 @@ import numpy as np
 import pytest
 from conftest import REPO, run_blender_check
 
-pytest.importorskip("bpy", reason="the bpy module is needed for the add-on tests")
-pytest.importorskip("c3d", reason="the c3d package is needed to write C3D files")
-
 from lacore.marker_binding import MarkerBinding
 from lacore.marker_baselines import VertexPCA, fit_markers_vertex_pca
 from lacore.marker_fitting import fit_markers

@@ -7,6 +7,7 @@ The real files are test-only (no licence): they are read in place, never copied 
 
 import warnings
 
+import c3d  # a declared dependency: a missing one must fail, not skip
 import numpy as np
 import pytest
 from conftest import shared_data_dir
@@ -15,7 +16,6 @@ from lacore.errors import InputError
 from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
                               read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
 
-c3d = pytest.importorskip("c3d")
 pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
 
 MOCAP = shared_data_dir() / "mocap"
