@@ -94,7 +94,7 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
                                topology_hash=result["topology_hash"])
         n = len(result["names"])
         worst = float(result["violations"].max())
-        verdict = "integrable" if worst <= storage.INTEGRABLE_TOLERANCE else "NOT integrable"
+        verdict = "integrable" if storage.is_integrable(worst) else "NOT integrable"
         self.report({'INFO'}, f"Encoded {n} shape key{'s' if n != 1 else ''} of '{obj.name}' "
                               f"({result['topology'].n_edges} edges, {verdict}: max violation {worst:.3g}, "
                               f"{time.perf_counter() - start:.2f} s)")

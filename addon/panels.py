@@ -17,24 +17,29 @@ __all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_mocap", "classes",
 
 def integrability_text(violation):
     """``("integrable" | "not integrable", tooltip with the number)`` for a key's max violation."""
-    verdict = "integrable" if violation <= storage.INTEGRABLE_TOLERANCE else "not integrable"
+    verdict = "integrable" if storage.is_integrable(violation) else "not integrable"
     return verdict, (f"Largest per-vertex integrability violation |tr I - 3| = {violation:.3g} (integrable up to "
                      f"{storage.INTEGRABLE_TOLERANCE:g}): the stored lengths and angles "
                      + ("describe a shape" if verdict == "integrable" else "describe no shape exactly"))
 
 
-class LENGTHS_ANGLES_PT_shape_keys(bpy.types.Panel):
-    bl_label = "Lengths & Angles"
+class _ShapeKeysSubpanel:
+    """Placement and poll shared by the add-on's panels: inside Properties > Object Data > Shape Keys,
+    right where the keys are listed, for the (possibly pinned) mesh object of the editor."""
+
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
     bl_context = "data"
-    # Shown inside the Shape Keys panel, i.e. right where the keys are listed.
     bl_parent_id = "DATA_PT_shape_keys"
 
     @classmethod
     def poll(cls, context):
         obj = context.object
         return obj is not None and obj.type == 'MESH'
+
+
+class LENGTHS_ANGLES_PT_shape_keys(_ShapeKeysSubpanel, bpy.types.Panel):
+    bl_label = "Lengths & Angles"
 
     def draw(self, context):
         layout = self.layout
@@ -90,19 +95,9 @@ def draw_shape_key_menu(self, context):
     layout.operator(LENGTHS_ANGLES_OT_remove_data.bl_idname, icon='TRASH')
 
 
-
-class LENGTHS_ANGLES_PT_mocap(bpy.types.Panel):
+class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     """Shape model (one slider per mode), marker binding (marker, offset, warning) and fit."""
     bl_label = "Lengths & Angles: Model and Markers"
-    bl_space_type = 'PROPERTIES'
-    bl_region_type = 'WINDOW'
-    bl_context = "data"
-    bl_parent_id = "DATA_PT_shape_keys"
-
-    @classmethod
-    def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == 'MESH'
 
     def draw(self, context):
         from . import operators_fit as fit

@@ -24,14 +24,19 @@ ID properties cannot be attached to shape-key blocks, hence the Mesh.
 
 import numpy as np
 
-__all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "write_encoding", "read_encoding", "key_status",
-           "clear_encoding", "encoding_mismatch"]
+__all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "write_encoding", "read_encoding",
+           "key_status", "clear_encoding", "encoding_mismatch"]
 
 PROP = "lengths_angles"
 FORMAT_VERSION = 1
 #: Largest per-vertex violation ``|tr I_v - 3|`` (lacore.integrability) shown as "integrable": round-off of
 #: lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
 INTEGRABLE_TOLERANCE = 1e-8
+
+
+def is_integrable(violation):
+    """Whether a key's largest violation counts as "integrable" (:data:`INTEGRABLE_TOLERANCE`)."""
+    return float(violation) <= INTEGRABLE_TOLERANCE
 
 
 def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations, coords_hashes=None,
