@@ -20,7 +20,9 @@ iterations), the same at
 ``t = 0.5`` with the rotated-reference PCG fine solver, with the two-level
 PCG fine solver (5 and 10 Gauss-Newton steps of at most 30 PCG iterations,
 relative residual 1e-2), and with the fine
-Gauss-Newton run to convergence (``ftol = 1e-9``), and full Gauss-Newton
+Gauss-Newton run to convergence (``ftol = 1e-9``), the add-on's "Fast" method
+on the full mesh (least-squares start + 2 Gauss-Newton steps reusing
+factorizations, ``t = 0.25, 0.5, 0.75`` in order), and full Gauss-Newton
 (from key 0) at ``t = 0.5``: energies, relative energy excess, RMS vertex
 distance to full Gauss-Newton over the bounding-box diagonal (after a rigid
 fit, and as returned), peak memory (``ru_maxrss``) after the multiresolution
@@ -126,8 +128,9 @@ def maxrss_mb():
 
 
 def run_case(S, topo):
+    from lacore.lengths_angles import lengths_and_angles
     from lacore.multiresolution import MultiresolutionReconstruction
-    from lacore.reconstruction import reconstruct
+    from lacore.reconstruction import GaussNewtonOptions, HybridOptions, reconstruct
     from lacore.rigid import rigid_rms
 
     diag = float(np.linalg.norm(S[0].max(0) - S[0].min(0)))
@@ -150,6 +153,16 @@ def run_case(S, topo):
         two[its] = mr.reconstruct([0.5, 0.5], fine_solver="two_level", fine_iterations=its, pcg_rtol=1e-2,
                                   pcg_maxiter=30, ftol=1e-9)
     conv = mr.reconstruct([0.5, 0.5], fine_iterations=200, ftol=1e-9)  # fine Gauss-Newton to convergence
+    # the add-on's "Fast" (least-squares start + 2 Gauss-Newton steps reusing factorizations) on the full mesh,
+    # the three in-betweens in order as the add-on computes them (each may reuse the last one's factorization)
+    z_keys = [lengths_and_angles(X, topo) for X in S]
+    fast = []
+    for t in (0.25, 0.5, 0.75):
+        t0 = time.perf_counter()
+        r = reconstruct((1 - t) * z_keys[0] + t * z_keys[1], topo, S[0], method="hybrid", context=mr.fine_context,
+                        hybrid=HybridOptions(start="lsq", smoothing_iterations=2),
+                        options=GaussNewtonOptions(reuse_factorization=True))
+        fast.append((t, time.perf_counter() - t0, r))
     out["maxrss_mb_after_multires"] = maxrss_mb()
     z = mr.fine_target([0.5, 0.5])
     t0 = time.perf_counter()
@@ -176,6 +189,9 @@ def run_case(S, topo):
     out["multires_reference_pcg"] = {"seconds": ref.timings["total"], "timings": ref.timings,
                                      "energy": ref.energy, "pcg_iterations": ref.pcg_iterations,
                                      **compare(ref.vertices, ref.energy)}
+    out["fast"] = [{"t": t, "seconds": sec, "energy": r.energy, "factorizations": r.factorizations,
+                    "pcg_iterations": r.pcg_iterations, "timings": r.timings,
+                    **(compare(r.vertices, r.energy) if t == 0.5 else {})} for t, sec, r in fast]
     out["multires_two_level"] = [{"fine_iterations": r.iterations, "seconds": r.timings["total"],
                                   "timings": r.timings, "energy": r.energy, "pcg_iterations": r.pcg_iterations,
                                   "fine_factorizations": r.factorizations, **compare(r.vertices, r.energy)}
