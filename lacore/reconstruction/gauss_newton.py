@@ -123,14 +123,8 @@ __all__ = [
 #: The defaults of :class:`GaussNewtonOptions` as a dict (derived from the dataclass, for code that wants a dict).
 GN_OPTIONS = {f.name: f.default for f in fields(GaussNewtonOptions)}
 
-#: PCG has stalled (refactorize) when ``pcg_maxiter`` iterations reduced the relative residual less than this, ...
+#: PCG has stalled (refactorize) when ``pcg_maxiter`` iterations reduced the relative residual less than this.
 _PCG_STALL = 0.5
-#: ... or when, with a factorization from another call (``reuse_factorization``), the relative residual after
-#: ``_PCG_EARLY[0]`` iterations is still above ``_PCG_EARLY[1]``.  Measured on the 53k-vertex body's in-betweens
-#: (t = 0.1, 0.2, ... with the factorization of the previous one): such a factor gives 1.0, 3-4, 2.8, 1.2,
-#: 0.5-1.0, 0.5-0.8 (never reaching the tolerance), a fresh one of the same call 0.11-0.13 after three
-#: iterations; giving up there saves three of the six solves of a doomed attempt (~0.14 s at 50k).
-_PCG_EARLY = (3, 1.0)
 
 #: Near convergence (``reuse_near_convergence``): the last step was a full step and the vertices moved by at most
 #: this fraction of the mean target edge length (sum of the steps' max-norms) since the held factorization ...
@@ -188,10 +182,8 @@ def _linearize(objective, state, fixed):
 def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_drift):
     """A Gauss-Newton direction by PCG with the held factorization, or None (refactorize)."""
     solver, fixed = context.solver, context.fixed_dofs
-    stall = None
     if options.reuse_factorization and solver.has_factor:
         rtol, maxiter, accept = options.pcg_rtol, options.pcg_maxiter, _PCG_STALL
-        stall = _PCG_EARLY
     elif (options.reuse_near_convergence and state.own_factor and state.steps[-1] == 1.0
           and state.drift <= max_drift):
         # forcing term W_k / W_{k-1}: superlinear convergence; no more accuracy than the noise floor needs
@@ -201,7 +193,7 @@ def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_
     else:
         return None
     t0 = time.perf_counter()
-    d, n_cg, rel = preconditioned_cg(matrix.dot, -grad, solver.solve, fixed, rtol, maxiter, stall=stall)
+    d, n_cg, rel = preconditioned_cg(matrix.dot, -grad, solver.solve, fixed, rtol, maxiter)
     state.add_time("solve", t0)
     if rel <= accept and dot(grad, d) < 0:
         state.pcg_its.append(n_cg)

@@ -21,7 +21,7 @@ def dot(a, b):
     return float(np.einsum("i,i->", a, b))
 
 
-def preconditioned_cg(matvec, b, precondition, fixed, rtol, maxiter, stall=None):
+def preconditioned_cg(matvec, b, precondition, fixed, rtol, maxiter):
     """Preconditioned conjugate gradients for ``A x = b`` on the free coordinates.
 
     Parameters
@@ -40,12 +40,6 @@ def preconditioned_cg(matvec, b, precondition, fixed, rtol, maxiter, stall=None)
         residual in the preconditioner's dual norm).
     maxiter : int
         At most this many iterations (each: one ``matvec``, one ``precondition``).
-    stall : (int, float), optional
-        ``(k, ceiling)``: give up after iteration ``k`` if the relative residual
-        is still above ``ceiling`` (a preconditioner made at a point far from
-        this matrix: its residual grows several-fold in the first iterations,
-        while a fitting one is below 1 after two or three; the caller then
-        refactorizes instead of paying the remaining iterations).
 
     Returns
     -------
@@ -81,8 +75,6 @@ def preconditioned_cg(matvec, b, precondition, fixed, rtol, maxiter, stall=None)
         zr[fixed] = 0.0
         rz_new = dot(r, zr)
         if rz_new <= target:
-            return x, k, float(np.sqrt(rz_new / rz0))
-        if stall is not None and k == stall[0] and rz_new > stall[1] ** 2 * rz0:
             return x, k, float(np.sqrt(rz_new / rz0))
         p = zr + (rz_new / rz) * p
         rz = rz_new
