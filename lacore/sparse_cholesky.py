@@ -194,7 +194,7 @@ class SparseCholesky:
         return np.bincount(pos_c, weights=v, minlength=self.nnz)
 
     # ------------------------------------------------------------------ numeric
-    def factorize(self, values):
+    def factorize(self, values, regularize=True):
         """Numeric factorization.
 
         Parameters
@@ -202,6 +202,10 @@ class SparseCholesky:
         values : (nnz,) array_like or scipy.sparse matrix
             Lower-triangle values in the order of :attr:`indices` (fast path),
             or a symmetric matrix whose nonzeros lie in the pattern.
+        regularize : bool
+            Retry a matrix that is not positive definite with growing diagonal
+            shifts (module docstring); with False it raises at once (a caller
+            with another matrix to fall back on).
 
         Returns
         -------
@@ -222,7 +226,7 @@ class SparseCholesky:
         scale = float(np.max(np.abs(values[self.diagonal]))) if self.n else 1.0
         scale = scale if scale > 0 else 1.0
         shift = 0.0
-        for attempt in range(self.max_shift_tries + 1):
+        for attempt in range(self.max_shift_tries + 1 if regularize else 1):
             v = values
             if shift:
                 v = values.copy()
@@ -232,6 +236,8 @@ class SparseCholesky:
                 return self
             shift = self.shift_start * scale if attempt == 0 else 10.0 * shift
         self._factor = None
+        if not regularize:
+            raise NotPositiveDefiniteError(f"the {self.n}x{self.n} matrix is not positive definite")
         raise NotPositiveDefiniteError(
             f"the {self.n}x{self.n} matrix is not positive definite even with diagonal shift {shift / 10:.3g}")
 

@@ -360,8 +360,8 @@ def test_plate_rolled_the_other_way_is_reached_from_the_flat_plate():
     assert err["max_length_error"] < 1e-10 * size(XB) and err["max_angle_error"] < 1e-9
     shells = reconstruct(zB, topo, XA, energy="shells")
     err = reconstruction_errors(shells.vertices, zB, topo)
-    assert shells.success and shells.status == 1 and err["max_angle_error"] < 1e-8
-    assert shells.iterations < 40  # measured 27 (W_q from rolledA: 196)
+    assert shells.success and shells.status == 1 and err["max_angle_error"] < 4e-8  # measured 1.5e-8
+    assert shells.iterations < 40  # measured 21 (W_q from rolledA: 196)
 
 
 # --------------------------------------------------------------------------- errors
@@ -525,8 +525,9 @@ def test_reuse_near_convergence_replaces_only_the_last_factorizations():
         fresh = reconstruct(z, topo, X0, context=ctx, reuse_near_convergence=False)
         assert fresh.factorizations == fresh.iterations and not any(fresh.pcg_iterations)
         res = reconstruct(z, topo, X0, context=ctx)  # the context holds a factor from the run above: not reused
-        assert res.pcg_iterations[0] == 0 and res.factorizations >= 3
-        assert 1 <= res.iterations - res.factorizations <= 3  # measured: 2 (finger1), 1 (average)
+        # PCG once the steps are full and small, or full and matching the quadratic model's decrease
+        assert res.pcg_iterations[0] == 0 and res.factorizations >= 2  # measured 4 (finger1), 2 (average)
+        assert 1 <= res.iterations - res.factorizations <= 3  # measured: 2 (finger1), 3 (average)
         k = res.factorizations
         assert res.pcg_iterations[:k] == [0] * k and all(0 < n <= 8 for n in res.pcg_iterations[k:])
         assert all(t == 1.0 for t in res.step_sizes[k - 2:])  # reuse only after full, model-conforming steps

@@ -41,7 +41,9 @@ def gauss_newton_pattern(topology):
         times ``xyz``) followed by ``(12, E_int)`` (angle rows: ``x0..x3``);
         ``slots``: position in the value array of every upper-triangle pair
         ``(i <= j)`` of every local outer product, in the same layout: ``(21, E)``
-        then ``(78, E_int)``, pairs in ``np.triu_indices`` order; ``nnz``, ``n``.
+        then ``(78, E_int)``, pairs in ``np.triu_indices`` order; ``nnz``, ``n``;
+        ``len_cols`` ``(6, E)`` and ``ang_cols`` ``(12, E_int)``: the global
+        coordinate of every local coordinate of the length and angle rows.
     """
     def compute():
         n = 3 * topology.n_vertices
@@ -66,7 +68,7 @@ def gauss_newton_pattern(topology):
         indptr = np.r_[0, np.cumsum(np.bincount(ucols, minlength=n))].astype(np.int64)
         matrix = sp.csc_matrix((np.ones(len(ukeys)), indices, indptr), shape=(n, n))
         return {"indptr": indptr, "indices": indices, "cols": ucols, "matrix": matrix, "slots": slots,
-                "local_order": local_order, "nnz": len(ukeys), "n": n}
+                "local_order": local_order, "nnz": len(ukeys), "n": n, "len_cols": len_cols, "ang_cols": ang_cols}
     return topology.cache.get((__name__, "gauss_newton_pattern"), compute)
 
 

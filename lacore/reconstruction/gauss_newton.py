@@ -35,7 +35,9 @@ Iteration
   displacement of a fraction of an edge length).
 * Near the solution (``reuse_near_convergence``, default on: the last step was
   a full step and the vertices moved by at most 5 % of the mean target edge
-  length -- sum of the steps' max-norms -- since the last factorization) the
+  length -- sum of the steps' max-norms -- since the last factorization, or
+  the step's energy decrease matched the quadratic model's prediction within
+  5 %, so the linearization held over it) the
   factorization made earlier in the same call preconditions CG on the current
   Gauss-Newton matrix (matrix-free products ``J^T W J v``), solved to a
   relative residual ``min(1e-2, W_k / W_{k-1})`` (an Eisenstat-Walker-type
@@ -60,6 +62,17 @@ Iteration
   the target -- that is not folded at the iteration's start (unless only such
   a step decreases the energy): on a strongly extrapolated finger target the
   parabola otherwise led into a folded local minimum.
+* Newton steps (``newton``, default ``"auto"``, ``W_q`` only): Gauss-Newton
+  drops the second-order term ``2 sum_j w_j r_j d2 Z_j`` of the Hessian, which
+  is large when the target is far from admissible (a blend of a bend and a
+  twist): its steps then overshoot (the line search cuts them) or converge
+  linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
+  first cut step, or after two full steps whose energy decreases shrank by a
+  factor of at most 0.1, the steps use the full Hessian (per-edge blocks of
+  :mod:`lacore.hessians`, the same sparsity pattern and symbolic
+  factorization); a Hessian that is not positive definite (its factorization
+  fails, no shift is tried) gives a Gauss-Newton step instead, and the next
+  step is one too.  The result's ``newton_steps`` counts them.
 * Line search (:func:`~lacore.reconstruction.line_search.armijo_line_search`):
   Armijo backtracking (``c1 = 1e-4``) starting at the full step 1 (never
   larger), shrinking by safeguarded quadratic interpolation; when a step
@@ -133,6 +146,9 @@ _NEAR_DRIFT = 0.05
 #: ``min(_NEAR_RTOL_MAX, max(W_k / W_{k-1}, 0.1 sqrt(atol / W_k), _NEAR_RTOL_MIN))`` in at most
 #: ``_NEAR_MAXITER`` iterations, else the step refactorizes.
 _NEAR_RTOL_MAX = 1e-2
+#: ... also after a larger full step whose energy decrease matched the quadratic model's prediction within this
+#: (the linearization held over the step, so the factorization still fits the matrix at its end).
+_MODEL_AGREEMENT = 0.05
 _NEAR_RTOL_MIN = 1e-12
 _NEAR_MAXITER = 8
 
@@ -140,6 +156,10 @@ _NEAR_MAXITER = 8
 #: ``_STALL_DECREASE`` of it (status -3).
 _STALL_WINDOW = 10
 _STALL_DECREASE = 0.01
+
+#: ``newton="auto"``: Newton steps after a cut step or after two full steps whose energy decreases shrank by a
+#: factor of at most this (the linear convergence of Gauss-Newton at large residuals; Newton's is quadratic).
+_NEWTON_RATE = 0.1
 
 #: Geodesic acceleration (``geodesic_acceleration``): finite-difference step (fraction of the step ``d``), ...
 _ACCEL_FD_STEP = 0.1
@@ -163,6 +183,10 @@ class _State:
         self.drift = np.inf       # ... at a point this far (sum of max-norm steps) from X
         self.prev_energy = np.inf
         self.prev_decrease = np.inf
+        self.newton = False       # steps use the full Hessian (options.newton) ...
+        self.newton_pause = 0     # ... except for this many steps after a Hessian that was not positive definite
+        self.newton_steps = 0
+        self.model_ratio = np.nan  # energy decrease of the last full step / the decrease its quadratic model predicted
 
     def add_time(self, phase, t0):
         t1 = time.perf_counter()
@@ -179,13 +203,13 @@ def _linearize(objective, state, fixed):
     return energy, grad, matrix
 
 
-def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_drift):
-    """A Gauss-Newton direction by PCG with the held factorization, or None (refactorize)."""
+def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_drift, second_order=False):
+    """A Gauss-Newton (Newton with ``second_order``) direction by PCG with the held factorization, or None."""
     solver, fixed = context.solver, context.fixed_dofs
     if options.reuse_factorization and solver.has_factor:
         rtol, maxiter, accept = options.pcg_rtol, options.pcg_maxiter, _PCG_STALL
     elif (options.reuse_near_convergence and state.own_factor and state.steps[-1] == 1.0
-          and state.drift <= max_drift):
+          and (state.drift <= max_drift or abs(state.model_ratio - 1.0) <= _MODEL_AGREEMENT)):
         # forcing term W_k / W_{k-1}: superlinear convergence; no more accuracy than the noise floor needs
         # (a residual rtol |g| leaves about rtol^2 W_k of the linearized energy)
         rtol = min(_NEAR_RTOL_MAX, max(_NEAR_RTOL_MIN, energy / state.prev_energy, 0.1 * np.sqrt(atol / energy)))
@@ -193,7 +217,8 @@ def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_
     else:
         return None
     t0 = time.perf_counter()
-    d, n_cg, rel = preconditioned_cg(matrix.dot, -grad, solver.solve, fixed, rtol, maxiter)
+    matvec = (lambda v: matrix.dot(v, second_order=True)) if second_order else matrix.dot
+    d, n_cg, rel = preconditioned_cg(matvec, -grad, solver.solve, fixed, rtol, maxiter)
     state.add_time("solve", t0)
     if rel <= accept and dot(grad, d) < 0:
         state.pcg_its.append(n_cg)
@@ -201,17 +226,21 @@ def _inexact_direction(state, options, context, grad, matrix, energy, atol, max_
     return None  # PCG stalled / not close enough to the factorized point: refactorize
 
 
-def _exact_direction(state, context, grad, matrix):
-    """A Gauss-Newton direction with a fresh factorization, or None if the matrix cannot be factorized."""
+def _exact_direction(state, context, grad, matrix, second_order=False):
+    """A Gauss-Newton direction with a fresh factorization, or None if the matrix cannot be factorized.
+
+    With ``second_order`` the Newton direction of the full Hessian, or None when
+    it is not positive definite (no regularizing shift is tried).
+    """
     solver, fixed = context.solver, context.fixed_dofs
     touch, diag = context.fixed_entries
     t0 = time.perf_counter()
-    H = matrix()
+    H = matrix(second_order=True) if second_order else matrix()
     H[touch] = 0.0
     H[diag] = 1.0
     t0 = state.add_time("assembly", t0)
     try:
-        solver.factorize(H)
+        solver.factorize(H, regularize=not second_order)
     except NotPositiveDefiniteError:
         state.add_time("factorization", t0)
         return None
@@ -300,6 +329,8 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
     edge = float(np.mean(objective.z_target[: objective.topology.n_edges]))
     max_drift = _NEAR_DRIFT * edge
     accelerate = options.geodesic_acceleration and hasattr(objective, "acceleration_gradient")
+    newton_possible = options.newton != "never" and getattr(objective, "second_order", False)
+    state.newton = newton_possible and options.newton == "always"
     while True:
         energy, grad, matrix = _linearize(objective, state, fixed)
         gnorm = float(np.max(np.abs(grad)))
@@ -317,14 +348,21 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         if state.iterations >= options.max_iterations:
             status = 0
             break
-        # Gauss-Newton direction: PCG with the held factorization, or an exact step with a fresh one
-        d = _inexact_direction(state, options, context, grad, matrix, energy, atol, max_drift)
+        # Gauss-Newton (or Newton) direction: PCG with the held factorization, or an exact step with a fresh one
+        newton = state.newton and not state.newton_pause
+        state.newton_pause = max(0, state.newton_pause - 1)
+        d = _inexact_direction(state, options, context, grad, matrix, energy, atol, max_drift, newton)
         fresh = d is None
-        if fresh:
+        if fresh and newton:
+            d = _exact_direction(state, context, grad, matrix, second_order=True)
+            if d is None:  # the Hessian is not positive definite here: a Gauss-Newton step, and the next one too
+                newton, state.newton_pause = False, 1
+        if fresh and d is None:
             d = _exact_direction(state, context, grad, matrix)
             if d is None:
                 status = -2
                 break
+        state.newton_steps += int(newton)
         slope = dot(grad, d)
         if not slope < 0:
             status = -1
@@ -334,7 +372,7 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
             break
         # geodesic acceleration: second-order correction of the path with the same factorization
         accel = None
-        if accelerate and fresh and float(np.max(np.abs(d))) > _ACCEL_MIN_STEP * edge:
+        if accelerate and fresh and not newton and float(np.max(np.abs(d))) > _ACCEL_MIN_STEP * edge:
             accel = _acceleration(state, objective, context, d, matrix)
         t, X_new, E_new = _search(state, objective, d, accel, energy, slope, matrix, options, accelerate)
         if t == 0.0:
@@ -342,8 +380,11 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
             break
         state.iterations += 1
         state.steps.append(t)
+        if t < 1.0 and newton_possible:  # the Gauss-Newton model overshoots: large residuals, use the Hessian
+            state.newton = True
         state.history.append(E_new)
         decrease = energy - E_new
+        state.model_ratio = decrease / (-0.5 * slope) if t == 1.0 else np.nan
         state.prev_energy = energy
         step_norm = float(np.max(np.abs(X_new - state.X)))
         state.drift += step_norm
@@ -355,6 +396,8 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         steps = state.steps
         rate = decrease / state.prev_decrease if len(steps) > 1 and t == 1.0 and steps[-2] == 1.0 else 1.0
         state.prev_decrease = decrease
+        if newton_possible and _NEWTON_RATE <= rate < 1.0:  # slow linear convergence of Gauss-Newton
+            state.newton = True
         # a partial step (t < 1) that decreases little is a stalling line search, not convergence: only full
         # steps may stop by the decrease or the step size; a stall is detected by the next iteration's
         # predicted decrease (scale-free stationarity) or by _STALL_WINDOW iterations without progress
@@ -377,7 +420,7 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         iterations=state.iterations, timings=state.timings, energy=float(energy), initial_energy=state.history[0],
         energy_history=state.history, gradient_norm=gnorm, step_sizes=state.steps, regularization=state.shifts,
         function_evaluations=state.evaluations, factorizations=state.factorizations,
-        pcg_iterations=state.pcg_its)
+        pcg_iterations=state.pcg_its, newton_steps=state.newton_steps)
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,

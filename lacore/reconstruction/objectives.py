@@ -9,8 +9,10 @@ in the order of :func:`~lacore.reconstruction.assembly.gauss_newton_pattern`,
     ``W_q`` (3.19): the nonlinear least-squares problem
     ``sum_j w_j (Z_j(X) - z*_j)^2`` with the residual weights of
     :class:`lacore.energies.QuadraticEnergy`; Gauss-Newton matrix
-    ``2 J^T W J`` (``J = dZ/dX``), and the right-hand side of the geodesic
-    acceleration (``acceleration_gradient``).
+    ``2 J^T W J`` (``J = dZ/dX``), the full Hessian
+    ``2 J^T W J + 2 sum_j w_j r_j d2 Z_j`` (``second_order=True``, per-edge
+    blocks of :mod:`lacore.hessians`, same sparsity pattern) and the right-hand
+    side of the geodesic acceleration (``acceleration_gradient``).
 :class:`ShellsObjective`
     ``W_TS`` (3.25) through :class:`lacore.energies.EnergyInVertices`: matrix
     ``J^T (d^2W/dz^2) J`` with the element blocks projected to be positive
@@ -21,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
+from ..hessians import ANGLE_PAIRS, LENGTH_PAIRS, residual_curvature_values
 from ..lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ..trigonometry import triangle_areas
 from .assembly import upper_outer
@@ -43,6 +46,8 @@ class QuadraticObjective:
     """``W_q[z*, Z(X)]``: value, gradient and Gauss-Newton matrix values in the pattern's order."""
 
     name = "quadratic"
+    #: The matrix can include the second-order term (Newton steps).
+    second_order = True
 
     def __init__(self, z_target, residual_weights, topology, pattern, buffer=None):
         self.z_target = z_target
@@ -69,7 +74,7 @@ class QuadraticObjective:
         wr = self.w * r
         energy = dot(wr, r)
         grad = 2.0 * (J.T @ wr)
-        return energy, grad, QuadraticGNMatrix(self, J, z)
+        return energy, grad, QuadraticGNMatrix(self, J, z, X)
 
     def acceleration_gradient(self, X, d, matrix, h):
         """``2 J^T W r_vv``: right-hand side of the geodesic acceleration for the direction ``d`` (``(3V,)``).
@@ -90,19 +95,34 @@ class QuadraticObjective:
 
 
 class QuadraticGNMatrix:
-    """The Gauss-Newton matrix ``2 J^T W J`` of ``W_q`` at one point.
+    """The Gauss-Newton matrix ``2 J^T W J`` of ``W_q`` at one point, or the full Hessian.
 
     Calling it returns the values in the pattern's order (for a factorization);
     :meth:`dot` multiplies without assembling (two sparse products with ``J``).
+    With ``second_order=True`` both include ``S = 2 sum_j w_j r_j d2 Z_j``
+    (``r = Z(X) - z*``), the term Gauss-Newton drops: the Hessian of ``W_q``.
     """
 
-    def __init__(self, objective, J, z):
+    def __init__(self, objective, J, z, X=None):
         self.objective = objective
         self.J = J
         self.z = z
+        self.X = X
         self._w2 = 2.0 * objective.w
+        self._second = None
 
-    def __call__(self):
+    def second_order_values(self):
+        """Per-element upper triangles of ``S``: ``(21, E)`` (lengths) and ``(78, E_int)`` (angles), cached."""
+        if self._second is None:
+            obj = self.objective
+            topo = obj.topology
+            E = topo.n_edges
+            r = self.z - obj.z_target
+            self._second = residual_curvature_values(self.X, topo, obj._w2_len * r[:E],
+                                                     obj._w2_ang * r[E + topo.interior_edges])
+        return self._second
+
+    def __call__(self, second_order=False):
         obj, J = self.objective, self.J
         local = J.data[obj.pattern["local_order"]]
         gl = local[: obj._n_len].reshape(6, -1)
@@ -111,11 +131,33 @@ class QuadraticGNMatrix:
         m = 21 * gl.shape[1]
         upper_outer(gl, gl * obj._w2_len, vals[:m].reshape(21, -1))
         upper_outer(ga, ga * obj._w2_ang, vals[m:].reshape(78, -1))
+        if second_order:
+            s_len, s_ang = self.second_order_values()
+            vals[:m] += s_len.ravel()
+            vals[m:] += s_ang.ravel()
         return np.bincount(obj.pattern["slots"], weights=vals, minlength=obj.pattern["nnz"])
 
-    def dot(self, v):
-        """``2 J^T W J v`` for ``v`` of shape ``(3V,)``."""
-        return self.J.T @ (self._w2 * (self.J @ v))
+    def dot(self, v, second_order=False):
+        """``2 J^T W J v`` (plus ``S v`` with ``second_order``) for ``v`` of shape ``(3V,)``."""
+        out = self.J.T @ (self._w2 * (self.J @ v))
+        if second_order:
+            out += self._second_order_dot(v)
+        return out
+
+    def _second_order_dot(self, v):
+        """``S v`` element by element from the upper-triangle values (no assembly)."""
+        pat = self.objective.pattern
+        s_len, s_ang = self.second_order_values()
+        out = np.zeros_like(v)
+        for cols, vals, (ii, jj) in ((pat["len_cols"], s_len, LENGTH_PAIRS), (pat["ang_cols"], s_ang, ANGLE_PAIRS)):
+            local = v[cols]                                   # (k, m): local coordinates of every element
+            y = np.zeros_like(local)
+            for p, (i, j) in enumerate(zip(ii, jj, strict=True)):
+                y[i] += vals[p] * local[j]
+                if i != j:
+                    y[j] += vals[p] * local[i]
+            out += np.bincount(cols.ravel(), weights=y.ravel(), minlength=len(v))
+        return out
 
 
 class AssembledGNMatrix:

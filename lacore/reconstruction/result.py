@@ -46,6 +46,9 @@ class IterativeResult(SolverResult):
     pcg_iterations : list of int
         Per step, the conjugate-gradient iterations of a step solved with an earlier factorization as
         preconditioner (0: a fresh factorization and a direct solve).
+    newton_steps : int
+        Steps that used the full Hessian instead of the Gauss-Newton matrix
+        (:attr:`~lacore.reconstruction.settings.GaussNewtonOptions.newton`).
     """
 
     energy: float = float("nan")
@@ -57,6 +60,7 @@ class IterativeResult(SolverResult):
     function_evaluations: int = 0
     factorizations: int = 0
     pcg_iterations: list = field(default_factory=list)
+    newton_steps: int = 0
 
 
 @dataclass(kw_only=True, repr=False)

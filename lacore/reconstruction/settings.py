@@ -25,12 +25,13 @@ import numpy as np
 from ..errors import InputError, MeshError
 
 __all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
-           "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS"]
+           "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
 
 ENERGIES = ("quadratic", "shells")
 WEIGHTS = ("frohlich_botsch", "heeren", "uniform")
 SOLVERS = ("cholmod", "scipy")
-HYBRID_STARTS = ("lsq", "tree")
+HYBRID_STARTS = ("lsq", "tree", "given")
+NEWTON_MODES = ("never", "auto", "always")
 FRAME_KINDS = ("bfs", "mst", "spt")
 
 
@@ -119,7 +120,15 @@ class GaussNewtonOptions:
     reuse_near_convergence : bool
         PCG with this call's factorization in the final, fast-converging phase.
     geodesic_acceleration : bool
-        Second-order correction of each exact step (``W_q`` only) and the fold safeguard.
+        Second-order correction of each exact Gauss-Newton step (``W_q`` only) and the fold safeguard.
+    newton : {"auto", "never", "always"}
+        When a step uses the full Hessian ``2 J^T W J + 2 sum_j w_j r_j d2 Z_j``
+        (``W_q`` only, :mod:`lacore.hessians`) instead of the Gauss-Newton
+        matrix: ``"auto"`` (default) once the line search has cut a step
+        (``t < 1``: the Gauss-Newton model overshoots, the sign of large
+        residuals, where Gauss-Newton converges slowly or stalls), ``"always"``
+        from the first step, ``"never"``.  A Hessian that is not positive
+        definite gives a Gauss-Newton step instead (and the next step is one too).
     c1 : float
         Armijo constant of the line search.
     max_backtracks : int
@@ -144,8 +153,11 @@ class GaussNewtonOptions:
     geodesic_acceleration: bool = True
     c1: float = 1e-4
     max_backtracks: int = 40
+    newton: str = "auto"
 
     def __post_init__(self):
+        if self.newton not in NEWTON_MODES:
+            raise InputError(f"unknown newton mode {self.newton!r}; use one of {', '.join(NEWTON_MODES)}")
         if not 0 < self.pcg_rtol < 1:
             raise InputError(f"pcg_rtol must lie in (0, 1), got {self.pcg_rtol!r}")
         if int(self.pcg_maxiter) != self.pcg_maxiter or self.pcg_maxiter < 1:
@@ -160,12 +172,14 @@ class HybridOptions:
 
     Attributes
     ----------
-    start : {"lsq", "tree"}
-        The least-squares relaxation (default; no spanning tree is built) or the
-        frame-based walk along a tree of kind ``kind``; on long meshes the walk
+    start : {"lsq", "tree", "given"}
+        The least-squares relaxation (default; no spanning tree is built), the
+        frame-based walk along a tree of kind ``kind`` (on long meshes the walk
         accumulates the integrability error along the tree, which a few
-        smoothing iterations do not remove (README "Reconstruction",
-        ``tests/test_hybrid.py``).
+        smoothing iterations do not remove: README "Reconstruction",
+        ``tests/test_hybrid.py``), or the caller's ``initial_vertices`` (e.g. the
+        prediction of :func:`lacore.interpolation.project_targets` from the
+        frames before; the least-squares relaxation when none are given).
     kind : {"mst", "spt", "bfs"}
         Tree of the ``"tree"`` start.
     smoothing_iterations : int
@@ -183,7 +197,7 @@ class HybridOptions:
 
     def __post_init__(self):
         if self.start not in HYBRID_STARTS:
-            raise InputError(f"unknown hybrid_start {self.start!r}; use 'tree' or 'lsq'")
+            raise InputError(f"unknown hybrid_start {self.start!r}; use one of {', '.join(HYBRID_STARTS)}")
         if self.kind not in FRAME_KINDS:
             raise InputError(f"unknown hybrid_kind {self.kind!r}; use one of {', '.join(FRAME_KINDS)}")
         n = self.smoothing_iterations
