@@ -12,8 +12,9 @@ frames sharing one symbolic factorization):
   with Blender's Simple Deform 'BEND' formula (:func:`lacore.samples.simple_deform.simple_deform_bend`), 10 in-betweens.
 
 Deterministic (no random numbers).  Every case reports per-frame seconds,
-iterations and energies, the total, and the same run without warm starts
-(``--no-cold`` skips it).  Timings on a shared machine vary with its load
+iterations and energies, the total, the same run started from the nearest
+known frame instead of the secant extrapolation (``nearest_start``), and
+without warm starts (``--no-cold`` skips it).  Timings on a shared machine vary with its load
 (reported before and after).
 
 Prints ONE JSON object.  usage: python benchmarks/bench_interpolation.py [--quick] [--no-cold]
@@ -87,7 +88,8 @@ def main(argv=None):
               "factors": factors.tolist(), "cases": {}}
     for name, (topo, X0, X1) in cases(args.quick).items():
         entry = {"vertices": int(topo.n_vertices), "faces": int(topo.n_faces)}
-        entry["warm_start"] = run_case(topo, X0, X1, factors, True)
+        entry["warm_start"] = run_case(topo, X0, X1, factors, True)   # "secant": continuation along t
+        entry["nearest_start"] = run_case(topo, X0, X1, factors, "nearest")
         if not args.no_cold:
             entry["cold_start"] = run_case(topo, X0, X1, factors, False)
         result["cases"][name] = entry

@@ -32,10 +32,18 @@ Sharing work between frames
   face, Gauss-Newton sparsity pattern and symbolic Cholesky factorization) is
   made for the reference shape and passed to every frame, so all frames share
   one symbolic factorization (``result.context``).
-* Frames are processed in order of ``t``; with ``warm_start=True`` each
-  Gauss-Newton projection starts from its nearest already known neighbour in
-  time: an input shape given as vertices (at its keyframe time) or an already
-  computed frame (ties go to input shapes).
+* Frames are processed in order of ``t``; with warm starts (default) each
+  Gauss-Newton projection (``"gn"``, and ``"hybrid"`` with
+  ``hybrid_start="given"``) starts from a prediction made of the already known
+  shapes: input shapes given as vertices (at their keyframe times) and the
+  computed frames.  ``warm_start="secant"`` (default, also ``True``)
+  extrapolates linearly through the nearest known shape and the next one on the
+  same side (:func:`predicted_start`, continuation along ``t``: the error of
+  the start is second order in the frame spacing, so one or two Gauss-Newton
+  steps finish a frame) and keeps that prediction if its energy for the frame's
+  target is below the nearest shape's (a linear extrapolation of positions
+  shrinks rotating parts: across a whole bend it is worse than the key);
+  ``"nearest"`` starts from the nearest known shape.
 * Frame-based methods (``"bfs"``, ``"mst"``, ``"spt"``, ``"hybrid"``) use one
   spanning tree for all frames, preassembled from the keyframe samples ``z_k``
   (remark after Algorithm 2, :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
@@ -72,7 +80,15 @@ __all__ = [
     "check_keyframes",
     "piecewise_linear_z",
     "spline_z",
+    "predicted_start",
+    "WARM_STARTS",
 ]
+
+#: Values of ``warm_start`` (besides ``True`` = ``"secant"`` and ``False`` = cold starts from the reference).
+WARM_STARTS = ("secant", "nearest")
+
+#: The secant prediction extrapolates at most this many times the spacing of the two shapes it goes through.
+MAX_EXTRAPOLATION = 1.0
 
 
 @dataclass(kw_only=True, repr=False)
@@ -309,6 +325,65 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
     return out
 
 
+# --------------------------------------------------------------------------- warm starts
+def _warm_start_kind(warm_start):
+    if warm_start is True:
+        return "secant"
+    if warm_start is False or warm_start is None:
+        return None
+    if warm_start not in WARM_STARTS:
+        raise InputError(f"warm_start must be True, False or one of {', '.join(WARM_STARTS)}, got {warm_start!r}")
+    return warm_start
+
+
+def predicted_start(t, known_times, known_vertices, kind="secant", place=None):
+    """Starting vertices for the frame at ``t`` from shapes known at other times.
+
+    Parameters
+    ----------
+    t : float
+    known_times : (K,) array_like
+        Times of the known shapes (K >= 1).
+    known_vertices : sequence of K (V, 3) arrays
+        The known shapes.
+    place : callable, optional
+        ``X -> X`` moving a shape into one common placement (e.g.
+        :meth:`~lacore.reconstruction.ReconstructionContext.align`), applied to
+        the two shapes a secant combines; default: they already share one.
+    kind : {"secant", "nearest"}
+        ``"nearest"``: the known shape ``X_j`` nearest in time (the first one on
+        ties).  ``"secant"``: ``X_j + r (X_j - X_k)``, ``r = (t - t_j) / (t_j - t_k)``,
+        with ``X_k`` the known shape nearest to ``t_j`` on the other side of
+        ``t_j`` than ``t`` (linear extrapolation of the path ``t -> X(t)``, error
+        ``O(h^2)`` for a frame spacing ``h``); ``X_j`` alone when there is no such
+        shape or ``r > MAX_EXTRAPOLATION``.
+
+    Returns
+    -------
+    vertices : (V, 3) ndarray
+    source_time : float
+        ``t_j``.
+    """
+    kt = np.asarray(known_times, float)
+    dist = np.abs(kt - t)
+    j = int(np.argmin(dist))
+    Xj = np.asarray(known_vertices[j], float)
+    if kind == "nearest" or dist[j] == 0.0:
+        return Xj, float(kt[j])
+    side = (kt - kt[j]) * (t - kt[j]) < 0.0   # beyond t_j, away from t
+    if not np.any(side):
+        return Xj, float(kt[j])
+    cand = np.flatnonzero(side)
+    k = int(cand[np.argmin(np.abs(kt[cand] - kt[j]))])
+    r = (t - kt[j]) / (kt[j] - kt[k])
+    if r > MAX_EXTRAPOLATION:
+        return Xj, float(kt[j])
+    Xk = np.asarray(known_vertices[k], float)
+    if place is not None:
+        Xj, Xk = place(Xj), place(Xk)
+    return Xj + r * (Xj - Xk), float(kt[j])
+
+
 # --------------------------------------------------------------------------- projection of many frames
 def _frame_tree(method, hybrid, z_keys, topology, context, tree):
     """The shared spanning tree of the frame-based methods; None for methods that walk no tree.
@@ -343,9 +418,10 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         Known shapes (e.g. the input keyframes) usable as warm starts.
     method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
         Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
-    warm_start : bool
-        Start every Gauss-Newton projection from the nearest known neighbour in
-        time (otherwise from the reference shape).
+    warm_start : {True, "secant", "nearest", False}
+        Start every Gauss-Newton projection from a prediction through the known
+        neighbours in time (``True`` / ``"secant"``, :func:`predicted_start`), from
+        the nearest one (``"nearest"``), or from the reference shape (``False``).
     tree : DualSpanningTree, optional
         Spanning tree for frame-based methods; default preassembled from ``z_keys``.
     z_keys : (n_s, 2E) array_like, optional
@@ -386,6 +462,8 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     settings, options, hybrid = setup
     if method not in METHODS:
         raise InputError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
+    warm_start = _warm_start_kind(warm_start)
+    takes_start = method == "gn" or (method == "hybrid" and hybrid.start == "given")
     Zt = np.asarray(z_targets, float)
     if Zt.ndim != 2 or Zt.shape[1] != 2 * topology.n_edges:
         raise LengthsAnglesError(f"targets must have shape (N, {2 * topology.n_edges}), got {Zt.shape}")
@@ -413,11 +491,12 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     for n, i in enumerate(order):
         t = float(times[i])
         initial = None
-        if warm_start and method == "gn" and known_t:
-            dist = np.abs(np.asarray(known_t) - t)
-            j = int(np.argmin(dist))  # first minimum: anchors (listed first) win ties
-            initial = known_X[j]
-            warm_times[i] = known_t[j]
+        if warm_start and takes_start and known_t:  # anchors (listed first) win ties
+            initial, warm_times[i] = predicted_start(t, known_t, known_X, "nearest")
+            if warm_start == "secant":
+                guess, _ = predicted_start(t, known_t, known_X, "secant", place=lambda X: _placed(context, X))
+                if context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
+                    initial = guess
         t0 = time.perf_counter()
         try:
             res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
@@ -453,6 +532,15 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
         order=order, reconstructions=results, context=context, tree=tree, method=method, success=bool(success),
         message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total}, total_seconds=total,
         total_iterations=int(iterations.sum()))
+
+
+def _placed(context, X):
+    """``X`` rigidly moved into the context's output frame (as reconstructions return it), when possible."""
+    X = np.asarray(X, float)
+    try:
+        return context.align(X)
+    except MeshError:  # a degenerate fixed face in X: keep its placement (Gauss-Newton re-places any start)
+        return X
 
 
 def _reference(Xs, reference, reference_vertices, topology):
@@ -509,10 +597,11 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         the output frame (default 0).
     reference_vertices : (V, 3) array_like, optional
         An explicit reference shape instead (needed if shape ``reference`` is given as ``z``).
-    warm_start : bool
-        Warm-start every Gauss-Newton projection from the nearest known
-        neighbour in time (see the module docstring); False starts every frame
-        from the reference shape.
+    warm_start : {True, "secant", "nearest", False}
+        Warm-start every Gauss-Newton projection from the extrapolation through
+        the two nearest known shapes on one side (``True`` = ``"secant"``,
+        :func:`predicted_start`), from the nearest known shape (``"nearest"``),
+        or (False) from the reference shape (see the module docstring).
     tree : DualSpanningTree, optional
         Spanning tree for the frame-based methods (default preassembled from the shapes).
     settings, options, hybrid : optional

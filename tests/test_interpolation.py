@@ -343,3 +343,65 @@ def test_progress_reports_every_frame_and_cancels(plates):
     with pytest.raises(Cancelled, match="cancelled after 2 of 3"):
         interpolate([XA, XB], topo, [0.25, 0.5, 0.75], progress=stop_after_two)
     assert seen == [0, 1, 2]
+
+
+# --------------------------------------------------------------------------- continuation (warm starts)
+def test_predicted_start_extrapolates_a_linear_path_exactly():
+    """The secant through the nearest known shape and the next one beyond it; nearest alone otherwise."""
+    from lacore.interpolation import MAX_EXTRAPOLATION, predicted_start
+
+    rng = np.random.default_rng(5)
+    A, D = rng.standard_normal((2, 7, 3))
+    kt = [0.0, 0.2, 1.0]
+    known = [A + t * D for t in kt]
+    X, tj = predicted_start(0.4, kt, known)          # through 0.2 and 0.0, r = 1
+    assert tj == 0.2 and np.abs(X - (A + 0.4 * D)).max() < 1e-14
+    X, tj = predicted_start(-0.1, kt, known)         # through 0.0 and 0.2, r = 0.5
+    assert tj == 0.0 and np.abs(X - (A - 0.1 * D)).max() < 1e-14
+    assert MAX_EXTRAPOLATION == 1.0
+    X, tj = predicted_start(-0.3, kt, known)         # r = 1.5: too far, the nearest shape
+    assert tj == 0.0 and X is known[0]
+    X, tj = predicted_start(0.7, kt, known)          # nearest 1.0, nothing beyond it
+    assert tj == 1.0 and X is known[2]
+    X, tj = predicted_start(0.4, kt, known, "nearest")
+    assert tj == 0.2 and X is known[1]
+    X, _ = predicted_start(0.2, kt, known)           # a known time: that shape itself
+    assert X is known[1]
+    # the two combined shapes go through `place` (e.g. into one rigid placement)
+    X, _ = predicted_start(0.4, kt, [k + 1.0 for k in known], place=lambda Y: Y - 1.0)
+    assert np.abs(X - (A + 0.4 * D)).max() < 1e-14
+    tri = _topology(np.array([[0, 1, 2]]), 3)
+    with pytest.raises(lacore.errors.InputError, match="warm_start must be True, False or one of secant, nearest"):
+        interpolate([A[:3], A[:3] + D[:3]], tri, [0.5], warm_start="cubic")
+
+
+def test_secant_starts_save_iterations_on_the_finger(finger):
+    """Ten in-betweens: the extrapolated starts need fewer Gauss-Newton iterations and factorizations than
+    starts from the nearest frame, for the same minima."""
+    topo, X0, X1 = finger
+    ts = np.arange(1, 11) / 11
+    secant = interpolate([X0, X1], topo, ts)
+    nearest = interpolate([X0, X1], topo, ts, warm_start="nearest")
+    assert secant.success and nearest.success
+    np.testing.assert_allclose(secant.energy, nearest.energy, rtol=1e-6)   # measured 3.5e-8
+    assert secant.total_iterations <= nearest.total_iterations - 6          # measured 35 vs 46
+    assert sum(r.factorizations for r in secant.reconstructions) <= 17     # measured 16 vs 20
+
+
+def test_fast_continuation_stays_near_gauss_newton(finger):
+    """The add-on's Fast (the extrapolated start, at most two Gauss-Newton steps, ftol 1e-4) on ten finger
+    in-betweens: within 1e-4 of converged Gauss-Newton's energies, one factorization on most frames."""
+    from lacore.reconstruction import GaussNewtonOptions, HybridOptions
+
+    topo, X0, X1 = finger
+    ts = np.arange(1, 11) / 11
+    gn = interpolate([X0, X1], topo, ts)
+    fast = interpolate([X0, X1], topo, ts, method="hybrid", options=GaussNewtonOptions(ftol=1e-4),
+                       hybrid=HybridOptions(start="given", smoothing_iterations=2))
+    assert fast.success and all(r.method == "hybrid-given" for r in fast.reconstructions)
+    excess = fast.energy / gn.energy - 1.0
+    assert np.all(excess > -1e-9) and excess.max() < 1e-4                  # measured 3.2e-5
+    assert np.all(fast.iterations <= 2) and fast.total_iterations <= 16     # measured 15
+    # without a start to smooth, "given" is the least-squares start
+    z = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
+    assert reconstruct(z, topo, X0, method="hybrid", hybrid_start="given").method == "hybrid-lsq"

@@ -67,7 +67,7 @@ def configure(parser):
                         help=f"bending weight eta (default {settings.bending_weight:g})")
     parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
                         help="weights of W_q: (3.20) (default), (3.21) or 1")
-    parser.add_argument("--hybrid-start", choices=HYBRID_STARTS, default=hybrid.start,
+    parser.add_argument("--hybrid-start", choices=[s for s in HYBRID_STARTS if s != "given"], default=hybrid.start,
                         help="start of --method hybrid: least-squares relaxation (default) or a tree walk")
     parser.add_argument("--hybrid-kind", choices=FRAME_KINDS, default=hybrid.kind,
                         help=f"spanning tree of the tree-walk start of --method hybrid (default {hybrid.kind})")

@@ -14,9 +14,10 @@ dispatches to
     the linear least-squares relaxation of the frame-based method,
     :mod:`.least_squares`;
 ``"hybrid"``
-    the least-squares relaxation (default ``hybrid_start="lsq"``) or, with
-    ``hybrid_start="tree"``, a frame-based walk (tree ``hybrid_kind``, default
-    ``"mst"``), smoothed by at most ``smoothing_iterations`` Gauss-Newton
+    the least-squares relaxation (default ``hybrid_start="lsq"``), with
+    ``hybrid_start="tree"`` a frame-based walk (tree ``hybrid_kind``, default
+    ``"mst"``), or with ``hybrid_start="given"`` the ``initial_vertices``,
+    smoothed by at most ``smoothing_iterations`` Gauss-Newton
     iterations (section 3.4.3, "smoothing").
 
 Fast smoothing
@@ -160,7 +161,8 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         Start (``"lsq"``, default, or ``"tree"``), tree kind and smoothing
         iterations of ``"hybrid"``.
     initial_vertices : (V, 3) array_like, optional
-        Start of ``"gn"`` (default: the reference); ignored by the other methods.
+        Start of ``"gn"`` (default: the reference) and of ``"hybrid"`` with
+        ``hybrid_start="given"``; ignored by the other methods.
     tree : DualSpanningTree, optional
         A precomputed tree for ``"bfs"``/``"mst"``/``"spt"`` and the tree start of ``"hybrid"``
         (e.g. :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
@@ -234,12 +236,17 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
-    X, direct = _direct(z, topology, context, kind=tree_kind(method, hybrid), tree=tree)
+    given_start = method == "hybrid" and hybrid.start == "given" and initial_vertices is not None
+    if given_start:
+        X, direct = initial_vertices, {}
+    else:
+        X, direct = _direct(z, topology, context, kind=tree_kind(method, hybrid), tree=tree)
     if method == "hybrid":
         n = hybrid.smoothing_iterations
+        name = "given" if given_start else (tree_kind(method, hybrid) or "lsq")
         res = gauss_newton_reconstruction(
             z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{tree_kind(method, hybrid) or 'lsq'}", extra_timings=direct, started=t_start,
+            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start,
             success_status=(6, f"{n} smoothing iterations done"))
         return replace(res, notes=notes)
     energy_value = context.energy(z, X)
