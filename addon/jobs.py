@@ -128,10 +128,12 @@ class ProjectionJob:
             if not np.all(np.isfinite(Xr)):
                 raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
                                          "too far from any shape; try smaller factors)")
-            self._anchors.append((t, Xr))  # warm start of the next Gauss-Newton frame
             X = rigid_align(Xr, self._placement[i])
             session.store_result(key, X, note)
             self.computed += 1
+        # a known shape, cached or computed (the same placed array either way, so a run with cache hits predicts
+        # what a fresh run does): the next frames start from the extrapolation through the last ones
+        self._anchors.append((t, X))
         if note:
             self.failures.append(note)
         self.results[i] = X

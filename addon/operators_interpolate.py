@@ -80,8 +80,9 @@ _NAME_BYTES = 63  # Blender's shape-key names hold 63 bytes
 METHOD_ITEMS = [
     ('PREVIEW', "Preview", "Least-squares relaxation of the frame-based reconstruction only (one linear solve "
                            "over the whole mesh): quickest, edge lengths within ~1.5 % on strong blends"),
-    ('FAST', "Fast", "Least-squares relaxation followed by two Gauss-Newton smoothing steps that reuse "
-                     "factorizations: near the exact projection at a fraction of its cost"),
+    ('FAST', "Fast", "Each in-between starts from the extrapolation of the ones before it and takes one "
+                     "Gauss-Newton step: the exact projection on smooth motions at one solve per in-between "
+                     "(strongly mixed blends, such as a bend into a twist, need Gauss-Newton)"),
     ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
 ]
@@ -100,14 +101,17 @@ PLAYBACK_ITEMS = [
 ]
 _INTERPOLATION = {'STEPPED': 0, 'SMOOTH': 1}  # keyframe interpolation enum values: CONSTANT, LINEAR
 _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
-# Measured on a 50k-vertex bar (benchmarks/bench_blender_interpolate.py, README): PREVIEW ~1.6 s per
-# in-between with edge lengths within ~1.4 % on a bend -> twist blend; FAST ~5.4 s per in-between (the
-# first version, an MST walk + 3 Gauss-Newton iterations, took ~20 s and left 160 % errors there, because a
-# tree walk accumulates the integrability error along the tree); the two smoothing steps are what small
-# meshes with non-admissible targets need (tests/test_blender_interpolate.py: n-gon prism).
+# FAST: continuation along t (lacore.interpolation.predicted_start: the secant through the two nearest
+# computed in-betweens or keys, kept when its energy is lower than the nearest one's) and one Gauss-Newton
+# step; a frame starting from a known shape itself (the first after a key) gets up to three, stopping once
+# the predicted decrease is below ftol = 1e-4 of the energy.  Measured (benchmarks/bench_continuation.py,
+# README "In-betweens of large meshes"): one factorization per in-between, within 1e-6 of Gauss-Newton's
+# energy on a 53k-vertex body, where the previous FAST (least-squares start + two steps reusing
+# factorizations across frames) left 35-40 % on every other frame; on a bend -> twist bar blend it drifts
+# from Gauss-Newton's minima mid-blend (use Gauss-Newton there).
 _METHOD_OPTIONS = {'PREVIEW': {},
-                   'FAST': {"hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
-                            "options": GaussNewtonOptions(reuse_factorization=True)},
+                   'FAST': {"hybrid": HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3),
+                            "options": GaussNewtonOptions(ftol=1e-4)},
                    'GAUSS_NEWTON': {},
                    'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"}}
 

@@ -57,7 +57,7 @@ jump.
 """
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -376,7 +376,7 @@ def predicted_start(t, known_times, known_vertices, kind="secant", place=None):
     cand = np.flatnonzero(side)
     k = int(cand[np.argmin(np.abs(kt[cand] - kt[j]))])
     r = (t - kt[j]) / (kt[j] - kt[k])
-    if r > MAX_EXTRAPOLATION:
+    if r > MAX_EXTRAPOLATION * (1.0 + 1e-9):  # (equal spacings give r = 1 only up to round-off)
         return Xj, float(kt[j])
     Xk = np.asarray(known_vertices[k], float)
     if place is not None:
@@ -490,17 +490,20 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     report(progress, 0, N, "projecting frames")
     for n, i in enumerate(order):
         t = float(times[i])
-        initial = None
+        initial, frame_hybrid = None, hybrid
         if warm_start and takes_start and known_t:  # anchors (listed first) win ties
             initial, warm_times[i] = predicted_start(t, known_t, known_X, "nearest")
+            predicted = False
             if warm_start == "secant":
                 guess, _ = predicted_start(t, known_t, known_X, "secant", place=lambda X: _placed(context, X))
-                if context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
-                    initial = guess
+                if guess is not initial and context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
+                    initial, predicted = guess, True
+            if not predicted and hybrid.nearest_start_iterations is not None:
+                frame_hybrid = replace(hybrid, smoothing_iterations=hybrid.nearest_start_iterations)
         t0 = time.perf_counter()
         try:
             res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
-                              tree=tree, options=options, hybrid=hybrid)
+                              tree=tree, options=options, hybrid=frame_hybrid)
         except LengthsAnglesError as exc:
             raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
         seconds[i] = time.perf_counter() - t0

@@ -70,7 +70,9 @@ def test_redo_replaces_keys(run):
 def test_ngons_and_edit_mode(run):
     res = run["cases"]["quads_ngons_and_edit_mode"]
     assert abs(res["cube_edge_at_0.5"] - 2.5) < 1e-4  # lengths interpolate linearly (edge 2 -> 3)
-    assert abs(res["prism_height_at_0.5"] - 2.0) < 2e-4  # hexagonal prism height 1 -> 3 (measured 4.8e-5 off)
+    # hexagonal prism height 1 -> 3: about 2 (the target is not admissible: the side quads' diagonals do not
+    # average to those of a prism of height 2; measured 2.2e-4 off with Fast, 4.8e-5 with the previous Fast)
+    assert abs(res["prism_height_at_0.5"] - 2.0) < 6e-4
 
 
 def test_errors_leave_object_unchanged(run):
@@ -121,7 +123,7 @@ def test_panel_buttons(run):
 def test_failed_checks_are_written_with_a_warning(run):
     """success=False in the add-on: the in-between is written and a WARNING names the failure (issue 12)."""
     res = run["cases"]["failed_checks_warn"]
-    assert len(res["fast_failures"]) == 1 and res["fast_failures"][0].startswith("t = 1.25: folded")
-    assert res["preview_failures"] == []
+    assert len(res["preview_failures"]) == 1 and res["preview_failures"][0].startswith("t = 1.25: folded")
+    assert res["fast_failures"] == []  # Fast continues from t = 0.5 and reaches an unfolded t = 1.25
     assert res["warning"].startswith("1 in-between failed the reconstruction checks and was written anyway")
     assert res["status"] == ["FINISHED"] and res["written"]

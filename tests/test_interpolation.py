@@ -363,6 +363,9 @@ def test_predicted_start_extrapolates_a_linear_path_exactly():
     assert tj == 0.0 and X is known[0]
     X, tj = predicted_start(0.7, kt, known)          # nearest 1.0, nothing beyond it
     assert tj == 1.0 and X is known[2]
+    third = [0.0, 1 / 11, 2 / 11]                   # equal spacings: r = 1 up to round-off, still a secant
+    X, tj = predicted_start(3 / 11, third, [A + t * D for t in third])
+    assert tj == 2 / 11 and np.abs(X - (A + 3 / 11 * D)).max() < 1e-14
     X, tj = predicted_start(0.4, kt, known, "nearest")
     assert tj == 0.2 and X is known[1]
     X, _ = predicted_start(0.2, kt, known)           # a known time: that shape itself
@@ -389,19 +392,22 @@ def test_secant_starts_save_iterations_on_the_finger(finger):
 
 
 def test_fast_continuation_stays_near_gauss_newton(finger):
-    """The add-on's Fast (the extrapolated start, at most two Gauss-Newton steps, ftol 1e-4) on ten finger
-    in-betweens: within 1e-4 of converged Gauss-Newton's energies, one factorization on most frames."""
+    """The add-on's Fast (the extrapolated start and one Gauss-Newton step; up to three, ftol 1e-4, for the
+    first frame, which starts from the key itself) on ten finger in-betweens: near converged Gauss-Newton's
+    energies with one factorization per frame after the first."""
     from lacore.reconstruction import GaussNewtonOptions, HybridOptions
 
     topo, X0, X1 = finger
     ts = np.arange(1, 11) / 11
     gn = interpolate([X0, X1], topo, ts)
     fast = interpolate([X0, X1], topo, ts, method="hybrid", options=GaussNewtonOptions(ftol=1e-4),
-                       hybrid=HybridOptions(start="given", smoothing_iterations=2))
+                       hybrid=HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3))
     assert fast.success and all(r.method == "hybrid-given" for r in fast.reconstructions)
     excess = fast.energy / gn.energy - 1.0
-    assert np.all(excess > -1e-9) and excess.max() < 1e-4                  # measured 3.2e-5
-    assert np.all(fast.iterations <= 2) and fast.total_iterations <= 16     # measured 15
+    assert np.all(excess > -1e-9) and excess.max() < 5e-3                  # measured 1.6e-3 (last frame)
+    assert excess[:6].max() < 1e-4                                          # measured 2.9e-5
+    assert fast.iterations.tolist() == [2] + [1] * 9                        # the first from the key: 2 of 3
+    assert [r.factorizations for r in fast.reconstructions] == [2] + [1] * 9
     # without a start to smooth, "given" is the least-squares start
     z = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
     assert reconstruct(z, topo, X0, method="hybrid", hybrid_start="given").method == "hybrid-lsq"

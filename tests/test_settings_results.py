@@ -109,3 +109,16 @@ def test_run_gauss_newton_returns_a_result_object(plates):
     assert out.iterations == len(out.step_sizes) == len(out.energy_history) - 1 <= 3
     assert out.energy < out.initial_energy and out.success == (out.status > 0)
     assert "x" not in out.summary()
+
+
+def test_hybrid_nearest_start_iterations():
+    from lacore.errors import InputError
+    from lacore.reconstruction import HybridOptions
+
+    assert HybridOptions().nearest_start_iterations is None
+    h = HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3.0)
+    assert h.nearest_start_iterations == 3 and isinstance(h.nearest_start_iterations, int)
+    with pytest.raises(InputError, match="nearest_start_iterations must be a non-negative integer"):
+        HybridOptions(nearest_start_iterations=-1)
+    with pytest.raises(InputError, match="unknown hybrid_start 'warm'; use one of lsq, tree, given"):
+        HybridOptions(start="warm")

@@ -67,8 +67,8 @@ Iteration
   is large when the target is far from admissible (a blend of a bend and a
   twist): its steps then overshoot (the line search cuts them) or converge
   linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
-  first cut step, or after two full steps whose energy decreases shrank by a
-  factor of at most 0.1, the steps use the full Hessian (per-edge blocks of
+  first cut step, or after two full steps in a row whose energy decreases
+  shrank by less than a factor of 10, the steps use the full Hessian (per-edge blocks of
   :mod:`lacore.hessians`, the same sparsity pattern and symbolic
   factorization); a Hessian that is not positive definite (its factorization
   fails, no shift is tried) gives a Gauss-Newton step instead, and the next
@@ -157,8 +157,8 @@ _NEAR_MAXITER = 8
 _STALL_WINDOW = 10
 _STALL_DECREASE = 0.01
 
-#: ``newton="auto"``: Newton steps after a cut step or after two full steps whose energy decreases shrank by a
-#: factor of at most this (the linear convergence of Gauss-Newton at large residuals; Newton's is quadratic).
+#: ``newton="auto"``: Newton steps after a cut step or after two full steps in a row whose energy decreases have
+#: a ratio (later / earlier) of at least this (linear convergence of Gauss-Newton at large residuals).
 _NEWTON_RATE = 0.1
 
 #: Geodesic acceleration (``geodesic_acceleration``): finite-difference step (fraction of the step ``d``), ...

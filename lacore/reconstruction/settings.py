@@ -184,6 +184,12 @@ class HybridOptions:
         Tree of the ``"tree"`` start.
     smoothing_iterations : int
         At most this many Gauss-Newton iterations (they stop earlier once converged).
+    nearest_start_iterations : int or None
+        The budget instead of ``smoothing_iterations`` for a frame of
+        :func:`lacore.interpolation.project_targets` whose given start is the
+        nearest known shape rather than an extrapolation through two of them
+        (the first in-between after a key: its start is first-order off in the
+        frame spacing, an extrapolation second-order); default ``smoothing_iterations``.
 
     Raises
     ------
@@ -194,16 +200,20 @@ class HybridOptions:
     start: str = "lsq"
     kind: str = "mst"
     smoothing_iterations: int = 10
+    nearest_start_iterations: int | None = None
 
     def __post_init__(self):
         if self.start not in HYBRID_STARTS:
             raise InputError(f"unknown hybrid_start {self.start!r}; use one of {', '.join(HYBRID_STARTS)}")
         if self.kind not in FRAME_KINDS:
             raise InputError(f"unknown hybrid_kind {self.kind!r}; use one of {', '.join(FRAME_KINDS)}")
-        n = self.smoothing_iterations
-        if int(n) != n or n < 0:
-            raise InputError(f"smoothing_iterations must be a non-negative integer, got {n!r}")
-        object.__setattr__(self, "smoothing_iterations", int(n))
+        for name in ("smoothing_iterations", "nearest_start_iterations"):
+            n = getattr(self, name)
+            if n is None and name == "nearest_start_iterations":
+                continue
+            if int(n) != n or n < 0:
+                raise InputError(f"{name} must be a non-negative integer, got {n!r}")
+            object.__setattr__(self, name, int(n))
 
     @property
     def uses_tree(self):

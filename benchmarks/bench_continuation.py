@@ -1,0 +1,145 @@
+#!/usr/bin/env python3
+"""Benchmark: 10 in-betweens of ~50k-vertex meshes by continuation along t, and Newton steps.
+
+Cases: ``bar50k`` (box bar, 49,090 vertices, bend 90 -> twist 90) and ``body50k``
+(the MakeHuman body subdivided once, 53,514 vertices, bent 60 -> twisted 60), the
+cases of ``bench_multires.py``.  ``W_q``, weights (3.20) from key 0, ``eta = 1e-3``.
+
+Sequence ``t = 1/11 .. 10/11`` (:func:`lacore.interpolation.interpolate`, frames in
+order, one context), by
+
+* ``gauss_newton``: ``method="gn"`` run to convergence, started from the secant
+  prediction through the two frames before (default ``warm_start="secant"``)
+  with Newton steps where Gauss-Newton converges slowly (default
+  ``newton="auto"``): the reference every other row is compared with;
+* ``gauss_newton_before``: the same before this change (``warm_start="nearest"``,
+  ``newton="never"``);
+* ``fast``: the add-on's Fast (``addon/operators_interpolate.py``, ``_METHOD_OPTIONS['FAST']``):
+  the secant prediction and one Gauss-Newton step (a frame started from a
+  known shape itself, the first after a key: up to three, ``ftol = 1e-4``);
+* ``fast_before``: the add-on's Fast before (least-squares start, two steps
+  reusing factorizations across frames, nearest warm start ignored);
+* ``one_step``: the secant prediction and one Gauss-Newton step.
+
+Per row: seconds per frame and in total, iterations and numeric factorizations
+per frame, energy excess over ``gauss_newton`` per frame, the largest RMS vertex
+distance to ``gauss_newton`` (rigid fit) over the bounding-box diagonal, peak
+memory.  ``single`` solves ``t = 0.5`` alone from the least-squares start with
+``newton="never"`` and ``"auto"`` (on the bar Gauss-Newton alone stalls).
+
+Prints ONE JSON object.  usage: python benchmarks/bench_continuation.py [--quick] [--cases bar50k body50k]
+[--rows gauss_newton fast ...]
+"""
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+for p in (REPO, HERE):
+    if p not in sys.path:
+        sys.path.insert(0, p)
+
+from bench_common import machine_info  # noqa: E402
+from bench_multires import cases  # noqa: E402
+
+ROWS = ("gauss_newton", "fast", "one_step", "fast_before", "gauss_newton_before")
+
+
+def row_options(name):
+    """Keywords of :func:`lacore.interpolation.interpolate` for a row (the add-on's Fast from the add-on's table)."""
+    from lacore.reconstruction import GaussNewtonOptions, HybridOptions
+
+    if name == "gauss_newton":
+        return {"method": "gn"}
+    if name == "gauss_newton_before":
+        return {"method": "gn", "warm_start": "nearest", "newton": "never"}
+    if name == "fast":
+        return {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1,
+                                                            nearest_start_iterations=3),
+                "options": GaussNewtonOptions(ftol=1e-4)}
+    if name == "fast_before":
+        return {"method": "hybrid", "hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
+                "options": GaussNewtonOptions(reuse_factorization=True, newton="never"), "warm_start": "nearest"}
+    if name == "one_step":
+        return {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1)}
+    raise ValueError(name)
+
+
+def maxrss_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run_case(S, topo, rows):
+    from lacore.interpolation import interpolate
+    from lacore.lengths_angles import lengths_and_angles
+    from lacore.reconstruction import get_context, reconstruct
+    from lacore.rigid import rigid_rms
+
+    ts = np.arange(1, 11) / 11.0
+    diag = float(np.linalg.norm(S[0].max(0) - S[0].min(0)))
+    out = {"vertices": int(topo.n_vertices), "faces": int(topo.n_faces), "t": ts.tolist(), "rows": {}}
+    ctx = get_context(topo, S[0])
+    t0 = time.perf_counter()
+    _ = ctx.solver  # symbolic analysis once, outside the rows
+    out["symbolic_seconds"] = time.perf_counter() - t0
+    ref = None
+    for name in rows:
+        t0 = time.perf_counter()
+        r = interpolate(list(S), topo, ts, **row_options(name))
+        total = time.perf_counter() - t0
+        if ref is None:
+            ref = r
+        row = {"total_seconds": total, "seconds": r.seconds.tolist(), "iterations": r.iterations.tolist(),
+               "factorizations": [x.factorizations for x in r.reconstructions],
+               "newton_steps": [x.newton_steps for x in r.reconstructions],
+               "energy": r.energy.tolist(), "success": [bool(x.success) for x in r.reconstructions]}
+        if ref is not r:
+            excess = r.energy / ref.energy - 1.0
+            row["energy_excess"] = excess.tolist()
+            row["max_energy_excess"] = float(excess.max())
+            row["max_rms_over_diagonal"] = max(rigid_rms(a, b) / diag for a, b in zip(r.vertices, ref.vertices,
+                                                                                    strict=True))
+        row["maxrss_mb"] = maxrss_mb()
+        out["rows"][name] = row
+        print(f"{name}: {total:.1f} s", file=sys.stderr, flush=True)
+    z = 0.5 * (lengths_and_angles(S[0], topo) + lengths_and_angles(S[1], topo))
+    single = {}
+    for mode in ("never", "auto"):
+        t0 = time.perf_counter()
+        r = reconstruct(z, topo, S[0], context=ctx, method="hybrid", hybrid_start="lsq", smoothing_iterations=200,
+                        newton=mode)
+        single[mode] = {"seconds": time.perf_counter() - t0, "iterations": r.iterations,
+                        "factorizations": r.factorizations, "newton_steps": r.newton_steps, "energy": r.energy,
+                        "success": bool(r.success), "message": r.message}
+    out["single_t05_from_least_squares"] = single
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small meshes (bar 1.8k, body 13.4k) instead of ~50k")
+    parser.add_argument("--cases", nargs="+", help="case names (default: all)")
+    parser.add_argument("--rows", nargs="+", choices=ROWS, default=list(ROWS),
+                        help="rows to run; the first is the reference of the others (default: all)")
+    args = parser.parse_args(argv)
+    from lacore.sparse_cholesky import default_backend
+
+    result = {"benchmark": "continuation", "machine": machine_info(), "backend": default_backend(), "cases": {}}
+    for name, (S, topo) in cases(args.quick).items():
+        if args.cases and name not in args.cases:
+            continue
+        result["cases"][name] = run_case(S, topo, args.rows)
+    result["machine"]["load_average_after"] = list(os.getloadavg())
+    json.dump(result, sys.stdout, indent=1)
+    sys.stdout.write("\n")
+
+
+if __name__ == "__main__":
+    main()
