@@ -78,6 +78,14 @@ def _length_blocks(e, lengths):
     return K * inv_l
 
 
+def _vertex_length_blocks(K):
+    """Length blocks ``K`` ``(3, 3, n)`` -> vertex Hessians ``(6, 6, n)`` (``x0, x1``): ``[[K, -K], [-K, K]]``."""
+    L = np.empty((2, 2) + K.shape)
+    L[0, 0] = L[1, 1] = K
+    L[0, 1] = L[1, 0] = -K
+    return L.transpose(0, 2, 1, 3, 4).reshape((6, 6) + K.shape[2:])
+
+
 def _angle_blocks(e, a, b, n0, n1, lengths):
     """Dihedral-angle Hessians of a block of edges in the variables ``(e, a, b)``: ``(3, 3, 3, 3, n)``.
 
@@ -143,11 +151,7 @@ def length_hessians(vertices, topology):
     X = _check(vertices, topology)
     e = (X[topology.edges[:, 1]] - X[topology.edges[:, 0]]).T
     K = _length_blocks(e, np.sqrt(np.einsum("in,in->n", e, e)))
-    out = np.empty((topology.n_edges, 6, 6))
-    Kt = K.transpose(2, 0, 1)
-    out[:, :3, :3] = out[:, 3:, 3:] = Kt
-    out[:, :3, 3:] = out[:, 3:, :3] = -Kt
-    return out
+    return np.ascontiguousarray(_vertex_length_blocks(K).transpose(2, 0, 1))
 
 
 def dihedral_angle_hessians(vertices, topology):
@@ -211,10 +215,7 @@ def residual_curvature_values(vertices, topology, length_coefficients, angle_coe
     for (s0, s1), k0 in zip(blocks["ranges"], blocks["interior_before"], strict=True):
         e, a, b, n0, n1, lengths, _ = _block_geometry(Xc, blocks["stencil"][4 * s0:4 * s1], buf)
         K = _length_blocks(e, lengths) * length_coefficients[s0:s1]
-        L = np.empty((2, 2, 3, 3, s1 - s0))
-        L[0, 0] = L[1, 1] = K
-        L[0, 1] = L[1, 0] = -K
-        out_len[:, s0:s1] = L.transpose(0, 2, 1, 3, 4).reshape(6, 6, -1)[il, jl]
+        out_len[:, s0:s1] = _vertex_length_blocks(K)[il, jl]
         keep = interior[s0:s1]
         k1 = k0 + int(np.count_nonzero(keep))
         if k1 == k0:

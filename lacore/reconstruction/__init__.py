@@ -22,15 +22,16 @@ dispatches to
 
 Fast smoothing
 --------------
-The Blender operator's 'FAST' method is ``"hybrid"`` with
-``hybrid_start="lsq", reuse_factorization=True``: on long meshes errors of a
-tree walk accumulate along the tree (a 50k-vertex bar blended from a bend to a
-twist: edge lengths off by 160 % after the MST walk and still after three
-Gauss-Newton iterations), while the least-squares relaxation spreads them
-(1.4 %).  The Gauss-Newton steps solve their systems by conjugate gradients
-preconditioned with the factorization held by the context (made at an earlier
-iteration or frame), refactorizing only when PCG stalls, so an interpolation
-pays about one numeric factorization instead of one per iteration and frame.
+The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"``
+and one smoothing iteration: :func:`lacore.interpolation.project_targets`
+gives every in-between the extrapolation through the frames before it
+(continuation along ``t``), so one Gauss-Newton step finishes a frame of a
+smooth motion (README "In-betweens of large meshes").  The least-squares start
+(``hybrid_start="lsq"``) suits a single target with no neighbours: on long
+meshes errors of a tree walk accumulate along the tree (a 50k-vertex bar
+blended from a bend to a twist: edge lengths off by 160 % after the MST walk
+and still after three Gauss-Newton iterations), while the least-squares
+relaxation spreads them (1.4 %).
 
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
