@@ -89,8 +89,9 @@ METHOD_ITEMS = [
 # Not offered in the UI: 'MULTIRES' (lacore.multiresolution: coarse solve, prolongation, three fine Gauss-Newton
 # steps; the hierarchy is built once per keys in the session cache; the runner takes it).  Measured at 50k
 # (benchmarks/bench_multires.py, README "Multiresolution", 2026-11-25): on the bar 10x full Gauss-Newton's energy
-# in ~5 s per in-between where Fast reaches 3.4x in 3.3 s; on a character-like body both reach Gauss-Newton's
-# energy, multires in 1.4-1.6 s and Fast in 1.7 s, after an 8-10 s set-up.  Add the item once it pays:
+# in ~5 s per in-between where the previous Fast reached 3.4x in 3.3 s; on a character-like body both reach
+# Gauss-Newton's energy, multires in 1.4-1.6 s and that Fast in 1.7 s, after an 8-10 s set-up.  Add the item once
+# it pays:
 # ('MULTIRES', "Multiresolution", "Solve on a coarsened mesh, carry the result to the full mesh and finish with a "
 #                                 "few Gauss-Newton steps (the coarse hierarchy is built once per keys)"),
 PLAYBACK_ITEMS = [

@@ -495,7 +495,8 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
             initial, warm_times[i] = predicted_start(t, known_t, known_X, "nearest")
             predicted = False
             if warm_start == "secant":
-                guess, _ = predicted_start(t, known_t, known_X, "secant", place=lambda X: _placed(context, X))
+                guess, _ = predicted_start(t, known_t, known_X, "secant",
+                                           place=lambda X: context.align(X, keep_degenerate=True))
                 if guess is not initial and context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
                     initial, predicted = guess, True
             if not predicted and hybrid.nearest_start_iterations is not None:
@@ -535,15 +536,6 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
         order=order, reconstructions=results, context=context, tree=tree, method=method, success=bool(success),
         message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total}, total_seconds=total,
         total_iterations=int(iterations.sum()))
-
-
-def _placed(context, X):
-    """``X`` rigidly moved into the context's output frame (as reconstructions return it), when possible."""
-    X = np.asarray(X, float)
-    try:
-        return context.align(X)
-    except MeshError:  # a degenerate fixed face in X: keep its placement (Gauss-Newton re-places any start)
-        return X
 
 
 def _reference(Xs, reference, reference_vertices, topology):

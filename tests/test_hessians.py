@@ -133,3 +133,17 @@ def test_newton_steps_make_the_hard_bar_blend_converge():
         assert r.success and r.energy == pytest.approx(gn.energy, rel=1e-8)
     assert gn.newton_steps == 0 and always.newton_steps > 0
     assert always.iterations <= gn.iterations - 3 and auto.iterations < gn.iterations   # measured 5, 8 vs 9
+
+
+def test_newton_option_and_unregularized_factorization_errors(bent_bar):
+    """An unknown mode is named; a Newton matrix that is not positive definite fails at once (no shift)."""
+    from lacore.errors import InputError
+    from lacore.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+
+    with pytest.raises(InputError, match="unknown newton mode 'sometimes'; use one of never, auto, always"):
+        GaussNewtonOptions(newton="sometimes")
+    A = sp.csc_matrix(np.array([[1.0, 2.0], [2.0, 1.0]]))     # eigenvalues 3 and -1
+    chol = SparseCholesky(A, backend="scipy")
+    with pytest.raises(NotPositiveDefiniteError, match="the 2x2 matrix is not positive definite$"):
+        chol.factorize(A, regularize=False)
+    assert chol.factorize(A).shift > 0                        # the default retries with a diagonal shift

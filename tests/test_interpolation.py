@@ -411,3 +411,17 @@ def test_fast_continuation_stays_near_gauss_newton(finger):
     # without a start to smooth, "given" is the least-squares start
     z = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
     assert reconstruct(z, topo, X0, method="hybrid", hybrid_start="given").method == "hybrid-lsq"
+
+
+def test_align_keeps_a_start_whose_fixed_face_is_degenerate(finger):
+    """``align(X, keep_degenerate=True)`` (used to combine starts) returns X unmoved when its fixed face has
+    zero area; without the flag the MeshError names the face."""
+    topo, X0, _ = finger
+    ctx = get_context(topo, X0)
+    X = X0.copy()
+    a, b, c = topo.faces[ctx.fixed_face]
+    X[c] = X[a]                                            # the fixed face collapses
+    with pytest.raises(MeshError, match=r"the fixed face \(.*\) is degenerate \(zero area\)"):
+        ctx.align(X)
+    assert np.array_equal(ctx.align(X, keep_degenerate=True), X)
+    assert rigid_rms(ctx.align(X0 + 1.0, keep_degenerate=True), X0) < 1e-12

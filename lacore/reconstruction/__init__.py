@@ -57,7 +57,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
+from ..errors import InputError, LengthsAnglesError, format_indices
 from ..lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
 from ..topology import MeshTopology, check_vertices
 from ..trigonometry import triangle_inequality_margin
@@ -267,10 +267,9 @@ def _direct(z, topology, context, kind, tree=None):
     else:
         X = frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
                                        reference_vertices=context.reference_vertices)
-    try:
-        X = context.align(X)  # the fixed face placed exactly as for Gauss-Newton
-    except MeshError:
-        pass  # a degenerate fixed face (target violates the triangle inequality there): keep the method's placement
+    # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
+    # inequality there) keeps the method's placement
+    X = context.align(X, keep_degenerate=True)
     return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
 
 

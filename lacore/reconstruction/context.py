@@ -256,9 +256,19 @@ class ReconstructionContext:
         comp = self._vertex_component
         return np.einsum("vji,vj->vi", self._Qs[comp], Xc) + self._origins[comp]
 
-    def align(self, vertices):
-        """Rigidly move ``vertices`` (per component) into the output frame of this context."""
-        return self.from_canonical(self.to_canonical(vertices))
+    def align(self, vertices, keep_degenerate=False):
+        """Rigidly move ``vertices`` (per component) into the output frame of this context.
+
+        A fixed face that is degenerate in ``vertices`` raises :class:`MeshError`,
+        or with ``keep_degenerate`` returns the vertices where they are (a start
+        for Gauss-Newton, which places any start itself).
+        """
+        try:
+            return self.from_canonical(self.to_canonical(vertices))
+        except MeshError:
+            if not keep_degenerate:
+                raise
+            return np.asarray(vertices, float)
 
     def objective(self, z_target):
         """The energy ``X -> W[z*, Z(X)]`` for a target (``z*`` already validated)."""
