@@ -17,6 +17,8 @@ order, one context), by
 * ``fast``: the add-on's Fast (``addon/operators_interpolate.py``, ``_METHOD_OPTIONS['FAST']``):
   the secant prediction and one Gauss-Newton step (a frame started from a
   known shape itself, the first after a key: up to three, ``ftol = 1e-4``);
+* ``fast_2_workers``: ``fast`` with ``workers=2`` (:mod:`lacore.parallel`): frames
+  1-5 here, 10-6 in a worker process (which builds its own solver);
 * ``fast_before``: the add-on's Fast before (least-squares start, two steps
   reusing factorizations across frames, nearest warm start ignored);
 * ``one_step``: the secant prediction and one Gauss-Newton step.
@@ -49,7 +51,7 @@ for p in (REPO, HERE):
 from bench_common import machine_info  # noqa: E402
 from bench_multires import cases  # noqa: E402
 
-ROWS = ("gauss_newton", "fast", "one_step", "fast_before", "gauss_newton_before")
+ROWS = ("gauss_newton", "fast", "fast_2_workers", "one_step", "fast_before", "gauss_newton_before")
 
 
 def row_options(name):
@@ -64,6 +66,8 @@ def row_options(name):
         return {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1,
                                                             nearest_start_iterations=3),
                 "options": GaussNewtonOptions(ftol=1e-4)}
+    if name == "fast_2_workers":
+        return {**row_options("fast"), "workers": 2}
     if name == "fast_before":
         return {"method": "hybrid", "hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
                 "options": GaussNewtonOptions(reuse_factorization=True, newton="never"), "warm_start": "nearest"}

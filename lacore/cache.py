@@ -41,6 +41,14 @@ class DerivedCache:
         if not (isinstance(key, tuple) and len(key) >= 2 and isinstance(key[0], str) and isinstance(key[1], str)):
             raise TypeError(f"cache keys are tuples (owner module, name, *params), got {key!r}")
 
+    def __getstate__(self):
+        """A pickled cache arrives empty: derived data and solver objects are rebuilt in the process that uses them
+        (e.g. a :mod:`lacore.parallel` worker receiving a topology)."""
+        return {}
+
+    def __setstate__(self, state):
+        self.__init__()
+
     def get(self, key, compute):
         """The value under ``key``, computed by ``compute()`` on first use (arrays made read-only)."""
         try:

@@ -56,6 +56,7 @@ where the reference shape has it, so an animation made of the frames does not
 jump.
 """
 
+import queue
 import time
 from dataclasses import dataclass, field, replace
 
@@ -64,6 +65,7 @@ from scipy.interpolate import CubicSpline
 
 from .errors import InputError, LengthsAnglesError, MeshError
 from .lengths_angles import check_z, lengths_and_angles
+from .parallel import WorkerProcess, check_workers, frame_chains, raise_worker_error
 from .progress import report
 from .reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
 from .reconstruction.settings import split_options
@@ -123,7 +125,11 @@ class InterpolationResult(SolverResult):
         Time of the neighbour whose vertices started the Gauss-Newton projection
         (NaN: started from the reference shape).
     order : (N,) ndarray of int
-        Processing order (indices into the frames).
+        Processing order (indices into the frames): the chains one after another
+        (:func:`lacore.parallel.frame_chains`; one chain: increasing time).
+    workers : int
+        Chains computed side by side (this process and ``workers - 1`` worker
+        processes, :mod:`lacore.parallel`).
     reconstructions : list of ReconstructionResult
     context : ReconstructionContext
         The set-up shared by all frames (one symbolic factorization).
@@ -163,6 +169,7 @@ class InterpolationResult(SolverResult):
     method: str = "gn"
     total_seconds: float = 0.0
     total_iterations: int = 0
+    workers: int = 1
 
     _summary_exclude = ("vertices", "z_targets", "reconstructions", "context", "tree")
 
@@ -401,7 +408,7 @@ def _frame_tree(method, hybrid, z_keys, topology, context, tree):
 
 def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
                     warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
-                    progress=None, on_frame=None, **reconstruct_kw):
+                    progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
 
     Parameters
@@ -437,7 +444,16 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         ``on_frame(index, result)`` as soon as the frame ``index`` (position in
         the given times) is projected, with its
         :class:`~lacore.reconstruction.ReconstructionResult` (frames finish in
-        time order): stream results to disk as they finish.
+        time order, with ``workers > 1`` chain by chain, interleaved): stream
+        results to disk as they finish.
+    workers : int
+        Chains of frames computed side by side (:mod:`lacore.parallel`): this
+        process computes the first, ``workers - 1`` worker processes the others
+        (default 1: all frames here, in increasing time).  Each chain starts
+        next to a key and continues from its own frames; each worker builds its
+        own solver (about 2 s and one more factorization's memory at 50k
+        vertices), so it pays for long runs of frames of large meshes.
+        :func:`lacore.parallel.default_workers` tells how many cores there are.
     **reconstruct_kw
         The fields of these objects as keywords of :func:`~lacore.reconstruction.reconstruct`
         (``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
@@ -454,15 +470,24 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     """
     return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
                     split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
-                    progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame)
+                    progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame,
+                    workers=workers)
 
 
 def _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-             setup, progress, keyframes, smooth, t_start, on_frame=None):
+             setup, progress, keyframes, smooth, t_start, on_frame=None, workers=1, order=None, send=None):
+    """Project the targets (see :func:`project_targets`).
+
+    The frames are split into ``workers`` chains (:func:`lacore.parallel.frame_chains`); this process
+    computes the first, a :class:`lacore.parallel.WorkerProcess` each other one (running this function on
+    its chain with ``order`` = the chain's processing order and ``send`` = the pipe back).  Every chain
+    starts from the anchors and its own frames only, so the result does not depend on timing.
+    """
     settings, options, hybrid = setup
     if method not in METHODS:
         raise InputError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
     warm_start = _warm_start_kind(warm_start)
+    workers = check_workers(workers)
     takes_start = method == "gn" or (method == "hybrid" and hybrid.start == "given")
     Zt = np.asarray(z_targets, float)
     if Zt.ndim != 2 or Zt.shape[1] != 2 * topology.n_edges:
@@ -471,15 +496,17 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     times = np.arange(N, dtype=float) if times is None else _check_times(times, "times")
     if len(times) != N:
         raise InputError(f"{len(times)} times for {N} targets")
-    for i in np.argsort(times, kind="stable"):  # fail before any work, naming the frame
-        check_z(Zt[i], topology, name=f"target at t = {times[i]:g} (extrapolated too far?)")
+    if send is None:
+        for i in np.argsort(times, kind="stable"):  # fail before any work, naming the frame
+            check_z(Zt[i], topology, name=f"target at t = {times[i]:g} (extrapolated too far?)")
     X_ref = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
     context = get_context(topology, X_ref, settings)
     tree = _frame_tree(method, hybrid, Zt if z_keys is None else np.asarray(z_keys, float), topology, context, tree)
-    known_t = [float(t) for t, _ in (anchors or [])]
-    known_X = [np.asarray(X, float) for _, X in (anchors or [])]
+    anchors = [(float(t), np.asarray(X, float)) for t, X in (anchors or [])]
+    known_t = [t for t, _ in anchors]
+    known_X = [X for _, X in anchors]
+    chains = [np.asarray(order)] if order is not None else frame_chains(times, known_t, workers)
 
-    order = np.argsort(times, kind="stable")
     V = topology.n_vertices
     vertices = np.empty((N, V, 3))
     energy, seconds = np.empty(N), np.empty(N)
@@ -487,43 +514,57 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     max_len, max_ang = np.empty(N), np.empty(N)
     warm_times = np.full(N, np.nan)
     results = [None] * N
-    report(progress, 0, N, "projecting frames")
-    for n, i in enumerate(order):
-        t = float(times[i])
-        initial, frame_hybrid = None, hybrid
-        if warm_start and takes_start and known_t:  # anchors (listed first) win ties
-            initial, warm_times[i] = predicted_start(t, known_t, known_X, "nearest")
-            predicted = False
-            if warm_start == "secant":
-                guess, _ = predicted_start(t, known_t, known_X, "secant",
-                                           place=lambda X: context.align(X, keep_degenerate=True))
-                if guess is not initial and context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
-                    initial, predicted = guess, True
-            if not predicted and hybrid.nearest_start_iterations is not None:
-                frame_hybrid = replace(hybrid, smoothing_iterations=hybrid.nearest_start_iterations)
-        t0 = time.perf_counter()
-        try:
-            res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
-                              tree=tree, options=options, hybrid=frame_hybrid)
-        except LengthsAnglesError as exc:
-            raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
-        seconds[i] = time.perf_counter() - t0
-        X = np.asarray(res.vertices, float)
-        vertices[i] = X
-        results[i] = res
-        energy[i] = res.energy
-        iterations[i] = res.iterations
-        status[i] = res.status
-        if np.all(np.isfinite(X)):
-            err = reconstruction_errors(X, Zt[i], topology)
-            max_len[i], max_ang[i] = err["max_length_error"], err["max_angle_error"]
-            known_t.append(t)  # usable as a warm start
-            known_X.append(X)
-        else:
-            max_len[i] = max_ang[i] = np.nan
+    done = 0
+
+    def record(i, res, sec, errors, warm_time):
+        nonlocal done
+        vertices[i] = res.vertices
+        results[i], energy[i], seconds[i] = res, res.energy, sec
+        iterations[i], status[i] = res.iterations, res.status
+        max_len[i], max_ang[i] = errors
+        warm_times[i] = warm_time
+        if send is not None:
+            send((int(i), res, sec, errors, warm_time))
         if on_frame is not None:
             on_frame(int(i), res)
-        report(progress, n + 1, N, f"frame {n + 1} of {N} (t = {t:g})")
+        done += 1
+        report(progress, done, N, f"frame {done} of {N} (t = {times[i]:g})")
+
+    pool = _start_chains(chains[1:], Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup)
+    try:
+        report(progress, 0, N, "projecting frames")
+        for i in chains[0]:
+            t = float(times[i])
+            initial, frame_hybrid, warm_time = None, hybrid, np.nan
+            if warm_start and takes_start and known_t:  # anchors (listed first) win ties
+                initial, warm_time = predicted_start(t, known_t, known_X, "nearest")
+                predicted = False
+                if warm_start == "secant":
+                    guess, _ = predicted_start(t, known_t, known_X, "secant",
+                                               place=lambda X: context.align(X, keep_degenerate=True))
+                    if guess is not initial and context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
+                        initial, predicted = guess, True
+                if not predicted and hybrid.nearest_start_iterations is not None:
+                    frame_hybrid = replace(hybrid, smoothing_iterations=hybrid.nearest_start_iterations)
+            t0 = time.perf_counter()
+            try:
+                res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
+                                  tree=tree, options=options, hybrid=frame_hybrid)
+            except LengthsAnglesError as exc:
+                raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
+            sec = time.perf_counter() - t0
+            X = np.asarray(res.vertices, float)
+            errors = (np.nan, np.nan)
+            if np.all(np.isfinite(X)):
+                err = reconstruction_errors(X, Zt[i], topology)
+                errors = (err["max_length_error"], err["max_angle_error"])
+                known_t.append(t)  # usable as a warm start
+                known_X.append(X)
+            record(i, res, sec, errors, warm_time)
+            pool.collect(record, block=False)
+        pool.collect(record, block=True)
+    finally:
+        pool.close()
     success = all(r.success for r in results)
     failed = [float(times[i]) for i in range(N) if not results[i].success]
     first = next((r for r in results if not r.success), None)
@@ -533,9 +574,61 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
     return InterpolationResult(
         vertices=vertices, times=times, z_targets=Zt, energy=energy, iterations=iterations, seconds=seconds,
         max_length_error=max_len, max_angle_error=max_ang, status=status, warm_start_times=warm_times,
-        order=order, reconstructions=results, context=context, tree=tree, method=method, success=bool(success),
-        message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total}, total_seconds=total,
-        total_iterations=int(iterations.sum()))
+        order=np.concatenate(chains), reconstructions=results, context=context, tree=tree, method=method,
+        success=bool(success), message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total},
+        total_seconds=total, total_iterations=int(iterations.sum()), workers=len(chains))
+
+
+def _project_chain(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, setup, *,
+                   send):
+    """A worker's job (:class:`lacore.parallel.WorkerProcess`): one chain of frames, in the given order,
+    every frame sent back as it finishes."""
+    _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, None, setup, None,
+             keyframes=None, smooth=False, t_start=time.perf_counter(), order=np.arange(len(times)), send=send)
+
+
+class _ChainPool:
+    """The worker processes of the chains after the first: start, collect frames, close."""
+
+    def __init__(self, chains, args):
+        self._chains = chains
+        self._messages = queue.Queue()
+        self._open = set()
+        self._workers = []
+        try:
+            for tag, chain in enumerate(chains):
+                Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup = args
+                job = (Zt[chain], topology, X_ref, times[chain], anchors, method, warm_start, tree, setup)
+                self._workers.append(WorkerProcess(_project_chain, job, tag=tag, messages=self._messages))
+                self._open.add(tag)
+        except BaseException:
+            self.close()
+            raise
+
+    def collect(self, record, block):
+        """Record the frames the workers sent (``block``: until every worker is done)."""
+        while self._open:
+            try:
+                tag, kind, payload = self._messages.get(block=block)
+            except queue.Empty:
+                return
+            if kind == "message":
+                j, res, sec, errors, warm_time = payload
+                record(int(self._chains[tag][j]), res, sec, errors, warm_time)
+            elif kind == "done":
+                self._open.discard(tag)
+            else:
+                self.close()
+                raise_worker_error(payload)
+
+    def close(self):
+        for worker in self._workers:
+            worker.close()
+        self._open.clear()
+
+
+def _start_chains(chains, *args):
+    return _ChainPool(chains, args)
 
 
 def _reference(Xs, reference, reference_vertices, topology):
@@ -551,7 +644,7 @@ def _reference(Xs, reference, reference_vertices, topology):
 
 
 def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference, reference_vertices, warm_start,
-         tree, setup, progress, on_frame=None):
+         tree, setup, progress, on_frame=None, workers=1):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
@@ -562,12 +655,12 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference,
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
     return _project(targets, topology, X_ref, times, anchors, method, warm_start, tree, z_keys, setup, progress,
-                    keyframes=k, smooth=smooth, t_start=t_start, on_frame=on_frame)
+                    keyframes=k, smooth=smooth, t_start=t_start, on_frame=on_frame, workers=workers)
 
 
 def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
-                on_frame=None, **reconstruct_kw):
+                on_frame=None, workers=1, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
 
     Parameters
@@ -610,7 +703,16 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         ``on_frame(index, result)`` as soon as the frame ``index`` (position in
         the given times) is projected, with its
         :class:`~lacore.reconstruction.ReconstructionResult` (frames finish in
-        time order): stream results to disk as they finish.
+        time order, with ``workers > 1`` chain by chain, interleaved): stream
+        results to disk as they finish.
+    workers : int
+        Chains of frames computed side by side (:mod:`lacore.parallel`): this
+        process computes the first, ``workers - 1`` worker processes the others
+        (default 1: all frames here, in increasing time).  Each chain starts
+        next to a key and continues from its own frames; each worker builds its
+        own solver (about 2 s and one more factorization's memory at 50k
+        vertices), so it pays for long runs of frames of large meshes.
+        :func:`lacore.parallel.default_workers` tells how many cores there are.
     **reconstruct_kw
         The fields of these objects as keywords (``energy, weights,
         bending_weight, fixed_face, fix_triangle_shape, solver, hybrid_start,
@@ -637,12 +739,12 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     times = _check_times(factors, "factors")
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
-                warm_start, tree, setup, progress, on_frame)
+                warm_start, tree, setup, progress, on_frame, workers)
 
 
 def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
-                        options=None, hybrid=None, progress=None, on_frame=None, **reconstruct_kw):
+                        options=None, hybrid=None, progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
 
     Parameters
@@ -661,7 +763,9 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         spline in ``z`` through the keyframes (:func:`spline_z`).
     bc_type : str
         Spline boundary condition, default ``"natural"``.
-    method, reference, reference_vertices, warm_start, tree, settings, options, hybrid, progress, **reconstruct_kw
+    method, reference, reference_vertices, warm_start, tree, settings, options, hybrid, progress, on_frame
+        As in :func:`interpolate`.
+    workers, **reconstruct_kw
         As in :func:`interpolate`.
 
     Returns
@@ -678,4 +782,4 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     times = _check_times(frames, "frames")
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
-                warm_start, tree, setup, progress, on_frame)
+                warm_start, tree, setup, progress, on_frame, workers)

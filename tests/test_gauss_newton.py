@@ -135,6 +135,28 @@ def test_pattern_is_cached_per_topology():
     assert np.all(pat["indices"] >= pat["cols"])  # lower triangle
 
 
+
+@pytest.mark.parametrize("pair", [("finger/finger0.ply", "finger/finger1.ply"),
+                                  ("plate/plate121_rolledA.ply", "plate/plate121_rolledB.ply")])
+def test_pattern_is_the_lower_structure_of_JtJ_with_its_diagonal(pair):
+    """The pattern built from vertex pairs equals the structure of tril(|J|^T |J| + I), rows sorted per column;
+    every slot of every local outer product lands on its (row, column)."""
+    topo, X0 = mesh_pair(*pair)[:2]
+    pat = gauss_newton_pattern(topo)
+    J = lengths_and_angles_jacobian(X0, topo).tocsr()
+    J.data[:] = 1.0   # structure only (a rolled plate has exactly zero derivative components)
+    expected = sp.tril(J.T @ J + sp.eye(J.shape[1]), format="csc")
+    expected.sort_indices()
+    assert np.array_equal(pat["indptr"], expected.indptr) and np.array_equal(pat["indices"], expected.indices)
+    assert np.array_equal(pat["cols"], np.repeat(np.arange(pat["n"]), np.diff(pat["indptr"])))
+    E = topo.n_edges
+    for local_cols, k, part in ((pat["len_cols"], 6, pat["slots"][: 21 * E]), (pat["ang_cols"], 12,
+                                                                               pat["slots"][21 * E:])):
+        ii, jj = np.triu_indices(k)
+        gi, gj = local_cols[ii].ravel(), local_cols[jj].ravel()
+        assert np.array_equal(pat["indices"][part], np.maximum(gi, gj))
+        assert np.array_equal(pat["cols"][part], np.minimum(gi, gj))
+
 # --------------------------------------------------------------------------- convergence
 def test_admissible_target_from_perturbed_start_is_reproduced():
     topo, X0, X1, z0, z1 = finger()

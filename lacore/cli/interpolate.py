@@ -84,6 +84,9 @@ def configure(parser):
                         help="start every Gauss-Newton projection from the reference mesh")
     parser.add_argument("--solver", choices=SOLVERS,
                         help="sparse Cholesky backend (default cholmod if cvxopt is installed)")
+    parser.add_argument("--workers", type=positive_int, default=1, metavar="N",
+                        help="chains of frames computed side by side, N - 1 of them in worker processes "
+                             "(default 1; pays for many frames of large meshes, up to the number of cores)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
                         help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
     parser.add_argument("--format", choices=_FORMATS, default="ply", help="output mesh format (default ply)")
@@ -145,7 +148,7 @@ def run(args):
                                  settings=ReconstructionSettings(bending_weight=args.bending_weight,
                                                                  weights=args.energy_weights, solver=args.solver),
                                  options=GaussNewtonOptions(max_iterations=args.max_iterations),
-                                 on_frame=write_frame)
+                                 on_frame=write_frame, workers=args.workers)
     seconds = time.perf_counter() - start
     if not result.success:
         print(f"lacore interpolate: {'warning' if args.allow_failure else 'failed'}: {result.message}",
@@ -173,6 +176,7 @@ def run(args):
             "method": args.method,
             "smooth_spline": bool(args.smooth_spline),
             "warm_start": not args.no_warm_start,
+            "workers": int(result.workers),
             "vertices": int(topology.n_vertices),
             "faces": int(topology.n_faces),
             "outputs": outputs,

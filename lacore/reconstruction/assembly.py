@@ -55,21 +55,97 @@ def gauss_newton_pattern(topology):
         xyz = np.arange(3)
         len_cols = (3 * topology.edges[:, [0, 0, 0, 1, 1, 1]] + np.tile(xyz, 2)).T   # (6, E)
         ang_cols = (3 * np.repeat(jp["quad"], 3, axis=1) + np.tile(xyz, 4)).T     # (12, E_int)
-        rows = np.concatenate([np.maximum(len_cols[_I6], len_cols[_J6]).ravel(),
-                               np.maximum(ang_cols[_I12], ang_cols[_J12]).ravel()])
-        cols = np.concatenate([np.minimum(len_cols[_I6], len_cols[_J6]).ravel(),
-                               np.minimum(ang_cols[_I12], ang_cols[_J12]).ravel()])
-        keys = cols * n + rows
-        diag = np.arange(n) * (n + 1)  # every coordinate gets a diagonal entry
-        ukeys, inverse = np.unique(np.concatenate([keys, diag]), return_inverse=True)
-        slots = inverse.ravel()[: len(keys)].astype(np.intp)
-        indices = (ukeys % n).astype(np.int64)
-        ucols = ukeys // n
-        indptr = np.r_[0, np.cumsum(np.bincount(ucols, minlength=n))].astype(np.int64)
-        matrix = sp.csc_matrix((np.ones(len(ukeys)), indices, indptr), shape=(n, n))
+        V = topology.n_vertices
+        structure = _vertex_block_structure(V, [topology.edges, jp["quad"]])
+        slots = np.concatenate([structure.slots(topology.edges, _I6, _J6).ravel(),
+                                structure.slots(jp["quad"], _I12, _J12).ravel()])
+        indptr, indices, ucols = structure.indptr, structure.indices, structure.cols
+        matrix = sp.csc_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
         return {"indptr": indptr, "indices": indices, "cols": ucols, "matrix": matrix, "slots": slots,
-                "local_order": local_order, "nnz": len(ukeys), "n": n, "len_cols": len_cols, "ang_cols": ang_cols}
+                "local_order": local_order, "nnz": len(indices), "n": n, "len_cols": len_cols, "ang_cols": ang_cols}
     return topology.cache.get((__name__, "gauss_newton_pattern"), compute)
+
+
+class _VertexBlockStructure:
+    """Lower-CSC structure of a ``(3V, 3V)`` matrix made of 3x3 blocks, one per coupled vertex pair.
+
+    Built from the vertex pairs alone (a few per element instead of the 21 or 78
+    coordinate pairs of its outer product): every vertex gets its diagonal block;
+    column ``3u + a`` holds rows ``3u + a .. 3u + 2`` of the diagonal block, then
+    the 3 rows of every coupled vertex ``w > u`` in increasing ``w``.
+    """
+
+    def __init__(self, n_vertices, pairs):
+        V = n_vertices
+        lo, hi = np.minimum(pairs[0], pairs[1]), np.maximum(pairs[0], pairs[1])
+        keys = np.unique(np.concatenate([lo * V + hi, np.arange(V, dtype=np.int64) * (V + 1)]))
+        self.V, self.keys = V, keys
+        pu, pw = keys // V, keys % V
+        self.group_start = np.searchsorted(pu, np.arange(V))          # index of (u, u) in keys
+        degree = np.bincount(pu, minlength=V) - 1                     # coupled vertices w > u
+        counts = (3 - np.arange(3))[None, :] + 3 * degree[:, None]    # (V, 3) entries of column 3u + a
+        self.indptr = np.r_[0, np.cumsum(counts.ravel())].astype(np.int64)
+        nnz = int(self.indptr[-1])
+        indices = np.empty(nnz, np.int64)
+        cols = np.empty(nnz, np.int64)
+        a, b = np.triu_indices(3)
+        for alpha in range(3):
+            for beta in range(3):
+                off = pu != pw
+                pos = self.position(np.flatnonzero(off), pu[off], pw[off], alpha, beta)
+                indices[pos], cols[pos] = 3 * pw[off] + beta, 3 * pu[off] + alpha
+        for alpha, beta in zip(a, b, strict=True):
+            diag = np.flatnonzero(pu == pw)
+            pos = self.position(diag, pu[diag], pw[diag], alpha, beta)
+            indices[pos], cols[pos] = 3 * pw[diag] + beta, 3 * pu[diag] + alpha
+        self.indices, self.cols = indices, cols
+
+    def position(self, pair, u, w, alpha, beta):
+        """Value-array position of row ``3 w + beta``, column ``3 u + alpha`` (``u <= w``; ``beta >= alpha`` if
+        ``u == w``) of the vertex pair with index ``pair`` in :attr:`keys`."""
+        start = self.indptr[3 * u + alpha]
+        return np.where(u == w, start + beta - alpha, start + (3 - alpha) + 3 * (pair - self.group_start[u] - 1)
+                        + beta)
+
+    def slots(self, element_vertices, ii, jj):
+        """Positions of the upper-triangle pairs ``(ii, jj)`` of every element's local outer product.
+
+        ``element_vertices`` ``(m, k)``: the vertices of ``m`` elements, whose local coordinate ``3 a + c``
+        is coordinate ``c`` of vertex ``a``; ``ii <= jj`` index local coordinates.  Returns
+        ``(len(ii), m)``.  Works per vertex pair of an element (one search each), then per coordinate pair
+        with vectors over the elements.
+        """
+        el = np.asarray(element_vertices, np.int64)
+        m = el.shape[0]
+        out = np.empty((len(ii), m), np.intp)
+        bases = {}
+        for r, (p, q) in enumerate(zip(ii, jj, strict=True)):
+            a, b, cp, cq = p // 3, q // 3, p % 3, q % 3
+            if (a, b) not in bases:
+                va, vb = el[:, a], el[:, b]
+                u, w = np.minimum(va, vb), np.maximum(va, vb)
+                if a == b:   # diagonal block of vertex u: column 3u + alpha starts with rows 3u + alpha..
+                    bases[a, b] = (None, [self.indptr[3 * u + c] - c for c in range(3)])
+                else:
+                    rank = np.searchsorted(self.keys, u * self.V + w) - self.group_start[u] - 1
+                    bases[a, b] = (va < vb, [self.indptr[3 * u + c] + (3 - c) + 3 * rank for c in range(3)])
+            less, base = bases[a, b]
+            if less is None:
+                out[r] = base[min(cp, cq)] + max(cp, cq)
+            else:
+                out[r] = np.where(less, base[cp] + cq, base[cq] + cp)
+        return out
+
+
+def _vertex_block_structure(n_vertices, elements):
+    """:class:`_VertexBlockStructure` of the vertex pairs of elements given as ``(m_i, k_i)`` vertex arrays."""
+    first, second = [], []
+    for el in elements:
+        el = np.asarray(el, np.int64)
+        i, j = np.triu_indices(el.shape[1], 1)
+        first.append(el[:, i].ravel())
+        second.append(el[:, j].ravel())
+    return _VertexBlockStructure(n_vertices, (np.concatenate(first), np.concatenate(second)))
 
 
 def upper_outer(g, gw, out):

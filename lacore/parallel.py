@@ -1,0 +1,251 @@
+"""Worker processes: the frames of one projection computed side by side.
+
+Continuation along ``t`` (:func:`lacore.interpolation.predicted_start`) makes a
+sequence of frames sequential: every frame starts from the ones before it.  The
+frames are therefore split into *chains* of consecutive times (:func:`frame_chains`),
+each starting next to a known shape (a key) and running away from it; the calling
+process computes the first chain and every other chain runs in a
+:class:`WorkerProcess`.  Processes, not threads: the numeric Cholesky
+factorization, a frame's main cost, runs on one core in cvxopt's CHOLMOD and
+holds the interpreter lock, so threads would take turns.
+
+A worker is a fresh interpreter (``sys.executable``, so Blender's own Python inside
+Blender) with the caller's ``sys.path``, importing this ``lacore`` under the same
+package name (inside Blender ``bl_ext.<repository>.<extension>.lacore``: the parent
+packages are registered as bare namespaces, the add-on itself is never imported,
+so a worker never loads bpy).  Jobs and results cross a pipe as pickles, so lacore
+objects arrive as the same classes; a topology arrives without its cache
+(:class:`lacore.cache.DerivedCache`), and the worker builds its own reconstruction
+context.  Each worker costs the start of an interpreter and one symbolic
+factorization (about 2 s at 50k vertices) and the memory of one more solver.
+
+:func:`close_workers` ends them all (a cancelled run, the add-on's unregister).
+"""
+
+import os
+import pickle
+import queue
+import subprocess
+import sys
+import threading
+import traceback
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["frame_chains", "WorkerProcess", "WorkerError", "check_workers", "close_workers", "default_workers"]
+
+_LACORE_PACKAGE = __package__  # "lacore", or "bl_ext.<repository>.<extension>.lacore" inside Blender
+_LACORE_DIR = os.path.dirname(os.path.abspath(__file__))
+
+# The worker's main program.  It reads the header pickle (only built-in types, so it unpickles before any
+# import), makes the caller's lacore importable under its package name and hands the pipe to serve().
+_BOOTSTRAP = r"""
+import importlib, os, pickle, sys, types
+channel_in, channel_out = sys.stdin.buffer, sys.stdout.buffer
+sys.stdout = sys.stderr
+header = pickle.load(channel_in)
+sys.path[:] = header["sys_path"]
+for name, path in header["parents"]:
+    if name not in sys.modules:
+        module = types.ModuleType(name)
+        module.__path__ = [path]
+        sys.modules[name] = module
+        if "." in name:
+            parent, _, child = name.rpartition(".")
+            setattr(sys.modules[parent], child, module)
+importlib.import_module(header["module"]).serve(channel_in, channel_out)
+"""
+
+
+class WorkerError(RuntimeError):
+    """A worker process failed with an error that is not a :class:`lacore.errors.LengthsAnglesError`
+    (the message carries the worker's traceback), or could not be started."""
+
+
+def check_workers(workers):
+    """``workers`` as an int >= 1 (``InputError`` otherwise)."""
+    if isinstance(workers, bool) or int(workers) != workers or workers < 1:
+        raise InputError(f"workers must be a positive integer, got {workers!r}")
+    return int(workers)
+
+
+def default_workers():
+    """Processes worth running side by side on this machine: the CPU cores available to this process, at most 4
+    (each worker holds one more factorization in memory; beyond the cores they only take turns)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        cores = os.cpu_count() or 1
+    return max(1, min(4, cores))
+
+
+def frame_chains(times, known_times, n_chains):
+    """Split frames into chains of consecutive times, each in processing order away from the nearest known time.
+
+    Parameters
+    ----------
+    times : (N,) array_like
+        Frame times.
+    known_times : (K,) array_like
+        Times of the known shapes (keys); may be empty.
+    n_chains : int
+        Chains wanted (fewer when there are fewer frames).
+
+    Returns
+    -------
+    list of int arrays
+        Indices into ``times``; together a partition of ``0..N-1``.  The sorted
+        frames are cut into ``n_chains`` blocks of (nearly) equal size; a block is
+        processed in increasing time unless its last frame is strictly nearer to a
+        known time than its first (then decreasing), so every chain starts next to
+        a key.  One chain: all frames in increasing time (stable order).
+    """
+    t = np.asarray(times, float)
+    order = np.argsort(t, kind="stable")
+    n = max(1, min(int(n_chains), len(t)))
+    if n == 1:
+        return [order]
+    known = np.asarray(known_times, float)
+    chains = []
+    for block in np.array_split(order, n):
+        if known.size:
+            first = np.min(np.abs(known - t[block[0]]))
+            last = np.min(np.abs(known - t[block[-1]]))
+            if last < first:
+                block = block[::-1]
+        chains.append(block)
+    return chains
+
+
+_RUNNING = set()  # live workers, for close_workers()
+_RUNNING_LOCK = threading.Lock()
+
+
+class WorkerProcess:
+    """A Python interpreter running one job: ``function(*args, send=...)`` from lacore.
+
+    The job calls ``send(message)`` any number of times; every message, then
+    ``("done", return value)`` or ``("error", ...)``, arrives in :attr:`messages`
+    (a :class:`queue.Queue` of ``(tag, message)``, read by a thread).  :meth:`close`
+    kills the process if it is still running.
+
+    Parameters
+    ----------
+    function : callable
+        A module-level function of lacore (pickled by reference).
+    args : tuple
+        Its positional arguments (pickled).
+    tag : object
+        Identifies this worker's messages in a queue shared by several workers.
+    messages : queue.Queue, optional
+        The queue to deliver into (default: a new one).
+    """
+
+    def __init__(self, function, args, tag=0, messages=None):
+        self.tag = tag
+        self.messages = queue.Queue() if messages is None else messages
+        parents = []
+        names = _LACORE_PACKAGE.split(".")[:-1]
+        directory = os.path.dirname(_LACORE_DIR)
+        paths = []
+        for _ in names:
+            paths.append(directory)
+            directory = os.path.dirname(directory)
+        for i, path in enumerate(reversed(paths)):
+            parents.append((".".join(names[:i + 1]), path))
+        header = {"sys_path": [p for p in sys.path if isinstance(p, str)], "parents": parents,
+                  "module": __name__}
+        try:
+            self._process = subprocess.Popen([sys.executable, "-c", _BOOTSTRAP], stdin=subprocess.PIPE,
+                                             stdout=subprocess.PIPE)
+            pickle.dump(header, self._process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump((function, args), self._process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self._process.stdin.flush()
+        except (OSError, pickle.PicklingError) as exc:
+            self.close()
+            raise WorkerError(f"could not start a worker process ({sys.executable}): {exc}") from exc
+        with _RUNNING_LOCK:
+            _RUNNING.add(self)
+        self._reader = threading.Thread(target=self._read, name="lacore-worker-reader", daemon=True)
+        self._reader.start()
+
+    def _read(self):
+        stream = self._process.stdout
+        finished = False
+        try:
+            while True:
+                kind, payload = pickle.load(stream)
+                self.messages.put((self.tag, kind, payload))
+                if kind in ("done", "error"):
+                    finished = True
+                    return
+        except Exception as exc:  # EOF or a broken pipe: the process died (or was killed)
+            if not finished:
+                code = self._process.poll()
+                self.messages.put((self.tag, "error", ("WorkerError", f"the worker process ended unexpectedly "
+                                                                      f"(exit code {code}): {exc!r}", "")))
+
+    @property
+    def running(self):
+        """Whether the process is alive."""
+        return getattr(self, "_process", None) is not None and self._process.poll() is None
+
+    def close(self):
+        """Kill the process if it is still running and wait for it (idempotent)."""
+        process = getattr(self, "_process", None)
+        if process is not None:
+            if process.poll() is None:
+                process.kill()
+            process.wait()
+            for stream in (process.stdin, process.stdout):
+                try:
+                    if stream is not None:
+                        stream.close()
+                except OSError:
+                    pass
+        with _RUNNING_LOCK:
+            _RUNNING.discard(self)
+
+
+def raise_worker_error(payload):
+    """Re-raise a worker's ``("error", (type name, message, traceback))`` in this process:
+    :class:`lacore.errors.LengthsAnglesError` (and its subclasses) keep their message, anything else is a
+    :class:`WorkerError` carrying the worker's traceback."""
+    name, message, trace = payload
+    if name in _LACORE_ERRORS:
+        raise _LACORE_ERRORS[name](message)
+    raise WorkerError(f"a worker process failed: {name}: {message}" + (f"\n{trace}" if trace else ""))
+
+
+def _lacore_errors():
+    from . import errors
+    return {name: obj for name, obj in vars(errors).items()
+            if isinstance(obj, type) and issubclass(obj, InputError)}
+
+
+_LACORE_ERRORS = _lacore_errors()
+
+
+def close_workers():
+    """Kill every worker process still running (e.g. when the Blender add-on is disabled)."""
+    with _RUNNING_LOCK:
+        running = list(_RUNNING)
+    for worker in running:
+        worker.close()
+
+
+def serve(channel_in, channel_out):
+    """The worker's side (called by the bootstrap): run one job, sending its messages back."""
+    def send(kind, payload):
+        pickle.dump((kind, payload), channel_out, protocol=pickle.HIGHEST_PROTOCOL)
+        channel_out.flush()
+
+    try:
+        function, args = pickle.load(channel_in)
+        value = function(*args, send=lambda message: send("message", message))
+    except BaseException as exc:  # every failure goes back to the caller, named
+        send("error", (type(exc).__name__, str(exc), traceback.format_exc()))
+        return
+    send("done", value)
