@@ -12,23 +12,50 @@ dropping the job.
 Every frame is looked up in / stored into the session cache (:mod:`.session`) under the
 key hashes, keyframes, spline flag, method and time, so a redo that changes only some
 factors recomputes only those.
+
+With more than one process (:func:`job_workers`) the frames are split into chains
+(:func:`lacore.parallel.frame_chains`, each starting next to a key): this process computes the
+first chain, one step per frame as above, while :class:`lacore.interpolation.ChainWorkers` run
+the other chains in worker processes (lacore only); a step records the frames they finished.
+:meth:`ProjectionJob.close` kills them (cancel, error, add-on unregister).
 """
 
 import numpy as np
 
 from ..lacore.errors import LengthsAnglesError
-from ..lacore.interpolation import piecewise_linear_z, project_targets, spline_z
+from ..lacore.interpolation import ChainWorkers, piecewise_linear_z, project_targets, spline_z
 from ..lacore.lengths_angles import check_z
 from ..lacore.multiresolution import MultiresolutionReconstruction
+from ..lacore.parallel import default_workers, frame_chains
 from ..lacore.progress import report
+from ..lacore.reconstruction.settings import split_options
 from ..lacore.rigid import rigid_align
 from . import session
 
-__all__ = ["ProjectionJob", "key_weights", "MULTIRES"]
+__all__ = ["ProjectionJob", "key_weights", "job_workers", "MULTIRES", "AUTO_WORKERS_MIN_VERTICES",
+           "AUTO_WORKERS_MIN_FRAMES"]
 
 #: The ``method`` of :class:`ProjectionJob` that solves coarse, prolongs and finishes with a few fine
 #: Gauss-Newton steps (:class:`lacore.multiresolution.MultiresolutionReconstruction`).
 MULTIRES = "multires"
+
+
+#: "Auto" processes (``workers=0``) only for meshes at least this large ...
+AUTO_WORKERS_MIN_VERTICES = 20000
+#: ... with at least this many frames to compute: a worker process costs the start of an interpreter and its
+#: own solver set-up (~2-4 s at 50k vertices, about two Fast frames; benchmarks/bench_continuation.py).
+AUTO_WORKERS_MIN_FRAMES = 6
+
+
+def job_workers(requested, n_vertices, n_frames):
+    """Processes computing a job's frames: ``requested >= 1`` as given; ``0`` (Auto):
+    :func:`lacore.parallel.default_workers` for a mesh of at least :data:`AUTO_WORKERS_MIN_VERTICES` vertices
+    with at least :data:`AUTO_WORKERS_MIN_FRAMES` frames to compute, else 1."""
+    if requested >= 1:
+        return int(requested)
+    if n_vertices >= AUTO_WORKERS_MIN_VERTICES and n_frames >= AUTO_WORKERS_MIN_FRAMES:
+        return default_workers()
+    return 1
 
 
 def key_weights(keyframes, t):
@@ -61,6 +88,8 @@ class ProjectionJob:
         Keywords of :func:`lacore.interpolation.project_targets` (``hybrid``, ``options``).
     method_label : str
         Distinguishes cached results of different option sets (e.g. the operator's method item).
+    workers : int
+        Processes computing the frames (:func:`job_workers`; 0 = Auto; the multiresolution method: 1).
 
     Attributes
     ----------
@@ -69,7 +98,7 @@ class ProjectionJob:
     done, total : int
     """
 
-    def __init__(self, data, keys, keyframes, times, smooth, method, method_options, method_label):
+    def __init__(self, data, keys, keyframes, times, smooth, method, method_options, method_label, workers=1):
         self.data = data
         self.keys = list(keys)
         self.keyframes = np.asarray(keyframes, float)
@@ -90,13 +119,16 @@ class ProjectionJob:
         flat = self.key_vertices.reshape(len(self.keys), 3 * V)
         self._placement = piecewise_linear_z(flat, self.keyframes, self.times).reshape(-1, V, 3)
         self._anchors = [(float(t), X) for t, X in zip(self.keyframes, self.key_vertices, strict=True)]
-        self._order = np.argsort(self.times, kind="stable")
         self._key = (data.topology_hash, tuple(data.key_hashes[i] for i in idx), tuple(self.keyframes.tolist()),
                      self.smooth, method_label)
         self.results = [None] * len(self.times)
         self.failures = []  # "t = ...: <failure>: <message>" of frames failing their checks (written anyway)
         self.done = 0
         self.computed = 0  # frames not taken from the session cache
+        self.workers = int(workers)
+        self.processes = None  # processes used (known after the first step)
+        self._own = None       # frames of this process's chain still to do (set by the first step)
+        self._remote = None    # ChainWorkers of the other chains
 
     @property
     def total(self):
@@ -106,13 +138,58 @@ class ProjectionJob:
     def finished(self):
         return self.done >= self.total
 
+    def _frame_key(self, i):
+        return (*self._key, float(self.times[i]))
+
+    def _start(self):
+        """Split the frames into chains and start the worker processes of all but the first (see the module
+        docstring); chains whose frames are all cached stay here (cache hits)."""
+        todo = sum(not session.has_result(self._frame_key(i)) for i in range(self.total))
+        n = 1 if self.method == MULTIRES else job_workers(self.workers, self.data.topology.n_vertices, todo)
+        chains = frame_chains(self.times, self.keyframes, n)
+        self._own = [int(i) for i in chains[0]]
+        remote = []
+        for chain in chains[1:]:
+            if all(session.has_result(self._frame_key(i)) for i in chain):
+                self._own.extend(int(i) for i in chain)
+            else:
+                remote.append(chain)
+        self.processes = 1 + len(remote)
+        if remote:
+            options = dict(self.method_options)
+            setup = split_options({}, None, options.pop("options", None), options.pop("hybrid", None))[:3]
+            self._remote = ChainWorkers(remote, self.z_targets, self.data.topology, self.key_vertices[0], self.times,
+                                        self._anchors, self.method, "secant", None, setup)
+
     def step(self):
-        """Compute the next frame (in time order); returns the number of frames done."""
+        """Compute the next frame of this process's chain (in its order) and record the frames the worker
+        processes finished; with this chain done, wait for the next worker frame.  Returns the frames done."""
         if self.finished:
             return self.done
-        i = int(self._order[self.done])
+        try:
+            if self._own is None:
+                self._start()
+            if self._own:
+                self._local_frame(self._own.pop(0))
+                if self._remote is not None:
+                    self._remote.collect(self._record_remote, block=False)
+            else:
+                self._remote.collect(self._record_remote, block=True, limit=1)
+        except BaseException:
+            self.close()
+            raise
+        if self.finished:
+            self.close()
+        return self.done
+
+    def close(self):
+        """Kill the worker processes still running (cancel, error; idempotent)."""
+        if self._remote is not None:
+            self._remote.close()
+
+    def _local_frame(self, i):
         t = float(self.times[i])
-        key = (*self._key, t)
+        key = self._frame_key(i)
         cached = session.cached_result(key)
         if cached is not None:
             X, note = cached
@@ -123,22 +200,34 @@ class ProjectionJob:
                 res = project_targets(self.z_targets[i:i + 1], self.data.topology, self.key_vertices[0], times=[t],
                                       anchors=self._anchors, method=self.method, **self.method_options)
                 rec = res.reconstructions[0]
-            Xr = np.asarray(rec.vertices, float)
-            note = self._failure(rec, t)
-            if not np.all(np.isfinite(Xr)):
-                raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
-                                         "too far from any shape; try smaller factors)")
-            X = rigid_align(Xr, self._placement[i])
-            session.store_result(key, X, note)
-            self.computed += 1
+            X, note = self._store(i, rec)
         # a known shape, cached or computed (the same placed array either way, so a run with cache hits predicts
         # what a fresh run does): the next frames start from the extrapolation through the last ones
         self._anchors.append((t, X))
+        self._record(i, X, note)
+
+    def _record_remote(self, i, rec, seconds, errors, warm_time):
+        X, note = self._store(i, rec)
+        self._record(i, X, note)
+
+    def _store(self, i, rec):
+        """Place a computed frame (rigid fit to the blend of the keys), check it and put it in the session cache."""
+        t = float(self.times[i])
+        Xr = np.asarray(rec.vertices, float)
+        note = self._failure(rec, t)
+        if not np.all(np.isfinite(Xr)):
+            raise LengthsAnglesError(f"the reconstruction at {t:g} is not finite (the lengths and angles are "
+                                     "too far from any shape; try smaller factors)")
+        X = rigid_align(Xr, self._placement[i])
+        session.store_result(self._frame_key(i), X, note)
+        self.computed += 1
+        return X, note
+
+    def _record(self, i, X, note):
         if note:
             self.failures.append(note)
         self.results[i] = X
         self.done += 1
-        return self.done
 
     def _multires(self, i, t):
         """One frame by coarse solve + prolongation + fine steps; the hierarchy is built once per keys (session)."""

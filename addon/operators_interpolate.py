@@ -57,6 +57,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
+from ..lacore.parallel import close_workers
 from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
 from . import compat, jobs, mesh_access, session
 
@@ -115,6 +116,13 @@ _METHOD_OPTIONS = {'PREVIEW': {},
                             "options": GaussNewtonOptions(ftol=1e-4)},
                    'GAUSS_NEWTON': {},
                    'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"}}
+
+
+PROCESSES_DESCRIPTION = (
+    f"Frames computed side by side in this many processes, each starting next to a key (each process builds "
+    f"its own solver, about 2-4 s and one more solver's memory at 50,000 vertices). 0 = Auto: one per CPU core "
+    f"(at most 4) for meshes of {jobs.AUTO_WORKERS_MIN_VERTICES:,} vertices or more with at least "
+    f"{jobs.AUTO_WORKERS_MIN_FRAMES} frames to compute, else 1")
 
 
 class InterpolationInputError(InputError):
@@ -207,12 +215,12 @@ def _require_keys(names, wanted, what):
         raise InterpolationInputError(f"{what}: no shape key {shown} (the mesh has {have})")
 
 
-def _job(data, keys, keyframes, times, smooth, method):
+def _job(data, keys, keyframes, times, smooth, method, workers=1):
     return jobs.ProjectionJob(data, keys, keyframes, times, smooth, _LACORE_METHOD[method], _METHOD_OPTIONS[method],
-                              method)
+                              method, workers=workers)
 
 
-def _inbetween_plan(obj, key_from, key_to, factors, method):
+def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
     """Validate and set up in-betweens: ``(data, names of the new keys, ProjectionJob)``; nothing written."""
     data = session.read_mesh(obj, "interpolated")
     if not key_from or not key_to or NO_KEY in (key_from, key_to):
@@ -233,7 +241,7 @@ def _inbetween_plan(obj, key_from, key_to, factors, method):
     unique = list(dict.fromkeys(out_names))
     if len(unique) > MAX_NEW_KEYS:
         raise InterpolationInputError(f"{len(unique)} in-betweens requested; at most {MAX_NEW_KEYS}")
-    job = _job(data, [key_from, key_to], [0.0, 1.0], [seen[n] for n in unique], False, method)
+    job = _job(data, [key_from, key_to], [0.0, 1.0], [seen[n] for n in unique], False, method, workers)
     return data, unique, job
 
 
@@ -378,7 +386,7 @@ def bake_summary(obj, keys, frames):
     return text + (f"; replaces the previous bake ({old} keys)" if old else "")
 
 
-def _bake_plan(obj, keys, frames, smooth, method):
+def _bake_plan(obj, keys, frames, smooth, method, workers=1):
     """Validate a bake and set it up: ``(data, plan without shapes, ProjectionJob or None)``; nothing written."""
     inbetween = bake_frames(keys, frames)
     data = session.read_mesh(obj, "interpolated")
@@ -411,7 +419,7 @@ def _bake_plan(obj, keys, frames, smooth, method):
         active[n] = [f]
     plan = {"names": out_names, "animation": {n: activity_keyframes(fs, first, last) for n, fs in active.items()},
             "user_keys": list(dict.fromkeys(keys)), "frames": list(frames), "inbetween_frames": inbetween}
-    job = _job(data, keys, frames, inbetween, smooth, method) if inbetween else None
+    job = _job(data, keys, frames, inbetween, smooth, method, workers) if inbetween else None
     return data, plan, job
 
 
@@ -614,6 +622,8 @@ class JobRunner:
 
     def cancel(self):
         self.cancelled = True
+        if self.job is not None:
+            self.job.close()  # worker processes, if any
         self.job = None
 
     def status(self):
@@ -648,9 +658,10 @@ class JobRunner:
         return self._write(obj, results)
 
 
-def interpolate_runner(obj, key_from, key_to, factors, method='FAST'):
-    """A :class:`JobRunner` for in-betweens (validated; raises InputError subclasses)."""
-    data, names, job = _inbetween_plan(obj, key_from, key_to, factors, method)
+def interpolate_runner(obj, key_from, key_to, factors, method='FAST', workers=1):
+    """A :class:`JobRunner` for in-betweens (validated; raises InputError subclasses); ``workers``: processes
+    (:func:`.jobs.job_workers`, 0 = Auto)."""
+    data, names, job = _inbetween_plan(obj, key_from, key_to, factors, method, workers)
 
     def write(obj, shapes):
         results = list(zip(names, shapes, strict=True))
@@ -666,9 +677,10 @@ def interpolate_runner(obj, key_from, key_to, factors, method='FAST'):
     return JobRunner(obj, data, job, [key_from, key_to], write)
 
 
-def bake_runner(obj, keys, frames, smooth=False, method='FAST', playback='STEPPED'):
-    """A :class:`JobRunner` for a bake (validated; raises InputError subclasses)."""
-    data, plan, job = _bake_plan(obj, keys, frames, smooth, method)
+def bake_runner(obj, keys, frames, smooth=False, method='FAST', playback='STEPPED', workers=1):
+    """A :class:`JobRunner` for a bake (validated; raises InputError subclasses); ``workers`` as in
+    :func:`interpolate_runner`."""
+    data, plan, job = _bake_plan(obj, keys, frames, smooth, method, workers)
 
     def write(obj, shapes):
         full = _complete_plan(plan, shapes)
@@ -713,9 +725,11 @@ def _worker():
 
 
 def shutdown_worker():
-    """Stop the worker thread (add-on unregister); a frame being computed is dropped."""
+    """Stop the worker thread and kill lacore's worker processes (add-on unregister); a frame being computed is
+    dropped."""
     while _WORKER:
         _WORKER.pop().shutdown(wait=False, cancel_futures=True)
+    close_workers()
 
 
 _ITEMS = {}  # Blender needs Python to keep the strings of dynamic enum items alive
@@ -903,6 +917,7 @@ class LENGTHS_ANGLES_OT_interpolate(_ModalRun, bpy.types.Operator):
                        default=3, min=1, soft_max=50, max=MAX_NEW_KEYS)
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST',
                          description="How the interpolated lengths and angles are turned into a shape")
+    processes: IntProperty(name="Processes", default=0, min=0, max=8, description=PROCESSES_DESCRIPTION)
 
     @classmethod
     def poll(cls, context):
@@ -918,6 +933,7 @@ class LENGTHS_ANGLES_OT_interpolate(_ModalRun, bpy.types.Operator):
         row.enabled = not self.factors.strip()
         row.prop(self, "count")
         layout.prop(self, "method")
+        layout.prop(self, "processes")
 
     def _fill_defaults(self, obj):
         pair = _default_pair(obj)
@@ -941,7 +957,7 @@ class LENGTHS_ANGLES_OT_interpolate(_ModalRun, bpy.types.Operator):
     def execute(self, context):
         self._fill_defaults(context.object)
         return self._run(context, lambda obj: interpolate_runner(obj, self.key_from, self.key_to, self._factors(),
-                                                                 self.method))
+                                                                 self.method, workers=self.processes))
 
 
 class LENGTHS_ANGLES_OT_bake_keyframes(_ModalRun, bpy.types.Operator):
@@ -973,6 +989,7 @@ class LENGTHS_ANGLES_OT_bake_keyframes(_ModalRun, bpy.types.Operator):
                            description="Interpolation of the keyframes on the key values")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST',
                          description="How the interpolated lengths and angles are turned into a shape")
+    processes: IntProperty(name="Processes", default=0, min=0, max=8, description=PROCESSES_DESCRIPTION)
 
     @classmethod
     def poll(cls, context):
@@ -1007,6 +1024,7 @@ class LENGTHS_ANGLES_OT_bake_keyframes(_ModalRun, bpy.types.Operator):
         layout.prop(self, "smooth")
         layout.prop(self, "playback")
         layout.prop(self, "method")
+        layout.prop(self, "processes")
         layout.label(text=self.summary(obj), icon='INFO')
 
     def invoke(self, context, event):
@@ -1022,7 +1040,8 @@ class LENGTHS_ANGLES_OT_bake_keyframes(_ModalRun, bpy.types.Operator):
     def execute(self, context):
         def make(obj):
             keys, frames = self.bake_inputs(obj)
-            return bake_runner(obj, keys, frames, smooth=self.smooth, method=self.method, playback=self.playback)
+            return bake_runner(obj, keys, frames, smooth=self.smooth, method=self.method, playback=self.playback,
+                               workers=self.processes)
         return self._run(context, make)
 
 

@@ -182,6 +182,12 @@ def cached_result(key):
         return X
 
 
+def has_result(key):
+    """Whether a result is stored under ``key`` (planning: neither counted in :data:`STATS` nor refreshed)."""
+    with _LOCK:
+        return key in _RESULTS
+
+
 def store_result(key, X, note=None):
     X = np.array(X, np.float64)
     X.setflags(write=False)

@@ -25,8 +25,13 @@ Prints one JSON object: seconds per stage and method, machine info, and (with
 ``--profile``, default on) the functions taking most of the compute time (cProfile,
 cumulative, lacore/scipy/numpy functions).
 
+With more than one process (``--processes``, default 0 = the operators' Auto) a worker
+process computes the in-betweens nearer to ``Bend180``; ``steps_tick_seconds`` then lists this
+process's frames first, then the waits for the worker's (``processes`` says how many ran).
+
 usage: python benchmarks/bench_blender_interpolate.py [--segments 400 30 30] [--count 10]
                                                       [--methods FAST [GAUSS_NEWTON]] [--no-profile]
+                                                      [--processes N]
 """
 
 import argparse
@@ -93,6 +98,8 @@ def main(argv=None):
     parser.add_argument("--methods", nargs="+", default=["FAST"],
                         choices=["PREVIEW", "FAST", "GAUSS_NEWTON", "MULTIRES"])
     parser.add_argument("--no-profile", action="store_true")
+    parser.add_argument("--processes", type=int, default=0,
+                        help="the operators' Processes (default 0 = Auto: one per core for >= 20k vertices)")
     parser.add_argument("--json", default=None, help="also write the result to this file")
     args = parser.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="lengths_angles_bench_"))
@@ -127,9 +134,10 @@ def main(argv=None):
             if method in {item[0] for item in ops.METHOD_ITEMS}:
                 with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
                     assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Bend180", factors="",
-                                                              count=args.count, method=method) == {'FINISHED'}
+                                                              count=args.count, method=method,
+                                                              processes=args.processes) == {'FINISHED'}
             else:  # not offered in the UI (MULTIRES): the operator's own runner, synchronously
-                runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method)
+                runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=args.processes)
                 runner.run()
                 runner.finish()
             return round(time.perf_counter() - t, 3)
@@ -143,7 +151,7 @@ def main(argv=None):
         #    from the session cache first, the topology and the keys' lengths and angles stay cached
         session.clear_results()
         t0 = time.perf_counter()
-        runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method)
+        runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=args.processes)
         t1 = time.perf_counter()
         ticks = []
 
@@ -185,7 +193,7 @@ def main(argv=None):
                       "steps_longest_tick_seconds": max(ticks), "steps_finish_seconds": round(t3 - t2, 3),
                       "steps_total_seconds": round(t3 - t0, 3),
                       "steps_seconds_per_inbetween": round((t2 - t1) / args.count, 3),
-                      "profiled": not args.no_profile})
+                      "profiled": not args.no_profile, "processes": runner.job.processes})
         A = cases.key_coords(obj, "Basis")
         k = len(factors) // 2  # quality check: the k-th in-between vs Blender's bend by the same fraction
         Rk = cases.simple_deform_coords(obj, "BEND", math.radians(180.0 * factors[k]))

@@ -26,8 +26,9 @@ order, one context), by
 Per row: seconds per frame and in total, iterations and numeric factorizations
 per frame, energy excess over ``gauss_newton`` per frame, the largest RMS vertex
 distance to ``gauss_newton`` (rigid fit) over the bounding-box diagonal, peak
-memory.  ``single`` solves ``t = 0.5`` alone from the least-squares start with
-``newton="never"`` and ``"auto"`` (on the bar Gauss-Newton alone stalls).
+memory (``maxrss_mb``: this process; ``worker_maxrss_mb``: the largest worker
+process so far).  ``single`` solves ``t = 0.5`` alone from the least-squares start
+with ``newton="never"`` and ``"auto"`` (on the bar Gauss-Newton alone stalls).
 
 Prints ONE JSON object.  usage: python benchmarks/bench_continuation.py [--quick] [--cases bar50k body50k]
 [--rows gauss_newton fast ...]
@@ -111,6 +112,7 @@ def run_case(S, topo, rows):
             row["max_rms_over_diagonal"] = max(rigid_rms(a, b) / diag for a, b in zip(r.vertices, ref.vertices,
                                                                                     strict=True))
         row["maxrss_mb"] = maxrss_mb()
+        row["worker_maxrss_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0  # largest so far
         out["rows"][name] = row
         print(f"{name}: {total:.1f} s", file=sys.stderr, flush=True)
     z = 0.5 * (lengths_and_angles(S[0], topo) + lengths_and_angles(S[1], topo))

@@ -75,6 +75,7 @@ from .topology import MeshTopology, check_vertices
 
 __all__ = [
     "InterpolationResult",
+    "ChainWorkers",
     "interpolate",
     "keyframe_inbetweens",
     "project_targets",
@@ -530,7 +531,7 @@ def _project(z_targets, topology, reference_vertices, times, anchors, method, wa
         done += 1
         report(progress, done, N, f"frame {done} of {N} (t = {times[i]:g})")
 
-    pool = _start_chains(chains[1:], Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup)
+    pool = ChainWorkers(chains[1:], Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup)
     try:
         report(progress, 0, N, "projecting frames")
         for i in chains[0]:
@@ -587,48 +588,75 @@ def _project_chain(z_targets, topology, reference_vertices, times, anchors, meth
              keyframes=None, smooth=False, t_start=time.perf_counter(), order=np.arange(len(times)), send=send)
 
 
-class _ChainPool:
-    """The worker processes of the chains after the first: start, collect frames, close."""
+class ChainWorkers:
+    """Chains of frames computed in worker processes (:mod:`lacore.parallel`), one process per chain.
 
-    def __init__(self, chains, args):
-        self._chains = chains
+    Parameters
+    ----------
+    chains : list of int arrays
+        Frame indices of every chain in processing order (:func:`lacore.parallel.frame_chains`).
+    z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree
+        As in :func:`project_targets` (all frames; each worker receives its chain's).
+    setup : tuple
+        ``(settings, options, hybrid)`` (:func:`lacore.reconstruction.settings.split_options`).
+
+    Every chain starts from the anchors and continues from its own frames.  :meth:`collect`
+    hands finished frames to a callback ``record(index, result, seconds, (max length error,
+    max angle error), warm-start time)``; :meth:`close` kills the processes still running
+    (cancel, error).
+    """
+
+    def __init__(self, chains, z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree,
+                 setup):
+        self._chains = [np.asarray(c) for c in chains]
         self._messages = queue.Queue()
         self._open = set()
         self._workers = []
+        Zt, times = np.asarray(z_targets, float), np.asarray(times, float)
+        anchors = [(float(t), np.asarray(X, float)) for t, X in (anchors or [])]
         try:
-            for tag, chain in enumerate(chains):
-                Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup = args
-                job = (Zt[chain], topology, X_ref, times[chain], anchors, method, warm_start, tree, setup)
+            for tag, chain in enumerate(self._chains):
+                job = (Zt[chain], topology, reference_vertices, times[chain], anchors, method, warm_start, tree, setup)
                 self._workers.append(WorkerProcess(_project_chain, job, tag=tag, messages=self._messages))
                 self._open.add(tag)
         except BaseException:
             self.close()
             raise
 
-    def collect(self, record, block):
-        """Record the frames the workers sent (``block``: until every worker is done)."""
-        while self._open:
+    @property
+    def finished(self):
+        """Whether every worker has sent all its frames."""
+        return not self._open
+
+    def collect(self, record, block, limit=None):
+        """Record the frames the workers sent; returns how many.
+
+        ``block=False``: only those already there; ``block=True``: wait until every
+        worker is done, or until ``limit`` frames were recorded.  A worker's error is
+        raised here (:func:`lacore.parallel.raise_worker_error`) after closing all.
+        """
+        count = 0
+        while self._open and (limit is None or count < limit):
             try:
                 tag, kind, payload = self._messages.get(block=block)
             except queue.Empty:
-                return
+                break
             if kind == "message":
                 j, res, sec, errors, warm_time = payload
                 record(int(self._chains[tag][j]), res, sec, errors, warm_time)
+                count += 1
             elif kind == "done":
                 self._open.discard(tag)
             else:
                 self.close()
                 raise_worker_error(payload)
+        return count
 
     def close(self):
+        """Kill the worker processes still running (idempotent)."""
         for worker in self._workers:
             worker.close()
         self._open.clear()
-
-
-def _start_chains(chains, *args):
-    return _ChainPool(chains, args)
 
 
 def _reference(Xs, reference, reference_vertices, topology):

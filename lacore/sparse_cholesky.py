@@ -300,16 +300,18 @@ def nested_dissection(graph, coordinates, leaf_size=32):
     -------
     (m,) int64 permutation: ``order[k]`` is the vertex eliminated k-th.
     """
-    G = sp.csr_matrix(graph, dtype=np.float64)
-    G.data[:] = 1.0
+    G = sp.coo_matrix(graph)
+    off = G.row != G.col
     X = np.asarray(coordinates, float)
     m = G.shape[0]
     out = []
-    mark = np.zeros(m)
-    # explicit stack of (vertex set, separator-to-append-after) frames: no deep recursion
-    stack = [("split", np.arange(m))]
+    side = np.zeros(m, np.int8)       # 0 left, 1 right, 2 separator: valid for the set being split
+    touched = np.zeros(m, bool)
+    # explicit stack of (vertex set, its internal edges (both directions)) frames: no deep recursion;
+    # every level of the recursion visits every edge once
+    stack = [("split", np.arange(m), (G.row[off].astype(np.int64), G.col[off].astype(np.int64)))]
     while stack:
-        kind, verts = stack.pop()
+        kind, verts, (a, b) = stack.pop()
         if kind == "emit" or len(verts) <= leaf_size:
             out.append(verts)
             continue
@@ -321,16 +323,24 @@ def nested_dissection(graph, coordinates, leaf_size=32):
         if len(left) == 0 or len(right) == 0:
             out.append(verts)
             continue
-        mark[:] = 0.0
-        mark[right] = 1.0
-        touch_l = (G[left] @ mark) > 0
-        mark[:] = 0.0
-        mark[left] = 1.0
-        touch_r = (G[right] @ mark) > 0
+        side[left], side[right] = 0, 1
+        sa, sb = side[a], side[b]
+        cross = (sa == 0) & (sb == 1)                 # left -> right; the reverse direction is listed too
+        touched[a[cross]] = True
+        touch_l = touched[left]
+        touched[a[cross]] = False
+        touched[b[cross]] = True
+        touch_r = touched[right]
+        touched[b[cross]] = False
         if touch_l.sum() <= touch_r.sum():
             sep, left = left[touch_l], left[~touch_l]
         else:
             sep, right = right[touch_r], right[~touch_r]
+        side[sep] = 2
+        sa, sb = side[a], side[b]
+        inner_l, inner_r = (sa == 0) & (sb == 0), (sa == 1) & (sb == 1)
+        none = (a[:0], b[:0])
         # processed in reverse push order: left, right, then the separator
-        stack += [("emit", sep), ("split", right), ("split", left)]
+        stack += [("emit", sep, none), ("split", right, (a[inner_r], b[inner_r])),
+                  ("split", left, (a[inner_l], b[inner_l]))]
     return np.concatenate(out).astype(np.int64)

@@ -127,3 +127,19 @@ def test_failed_checks_are_written_with_a_warning(run):
     assert res["fast_failures"] == []  # Fast continues from t = 0.5 and reaches an unfolded t = 1.25
     assert res["warning"].startswith("1 in-between failed the reconstruction checks and was written anyway")
     assert res["status"] == ["FINISHED"] and res["written"]
+
+
+def test_processes_side_by_side(run):
+    """Two processes (a worker process importing the installed lacore under bl_ext) give the frames of one;
+    cancelling the modal run after one tick kills the worker process.
+
+    Measured (2026-11-25, 1058-vertex bar, 6 in-betweens, bpy 4.2.23 and 5.2.3): Gauss-Newton 3.7e-11 of the
+    diagonal apart (both converged), Fast 1.4e-8 (other warm starts in the second chain), the operator's keys
+    2.8e-8 (float32)."""
+    res = run["cases"]["processes_side_by_side"]
+    assert res["processes"] == {"GAUSS_NEWTON 1": 1, "GAUSS_NEWTON 2": 2, "FAST 1": 1, "FAST 2": 2}
+    assert res["max_difference_per_diagonal"]["GAUSS_NEWTON"] < 2e-10
+    assert res["max_difference_per_diagonal"]["FAST"] < 1e-7
+    assert res["operator_keys"] == 6 and res["operator_max_difference_per_diagonal"] < 1e-6
+    assert res["auto_small_mesh"] == 1 and res["auto_large_mesh"] >= 1
+    assert res["running_after_tick"] == 1 and res["running_after_cancel"] == 0

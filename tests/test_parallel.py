@@ -82,9 +82,9 @@ def test_two_workers_give_the_frames_of_one_process(finger):
     assert sorted(seen) == list(range(8))
     assert [d for d, _ in progress] == list(range(9)) and {n for _, n in progress} == {8}
     assert two.success and all(r is not None for r in two.reconstructions)
-    # converged Gauss-Newton: the same minimizers (measured 3e-9 relative energy, 1e-8 in vertices)
-    assert np.max(np.abs(two.energy / one.energy - 1)) < 1e-6
-    assert np.abs(two.vertices - one.vertices).max() < 1e-5
+    # converged Gauss-Newton: the same minimizers (measured 7.5e-10 relative energy, 6.2e-7 in vertices)
+    assert np.max(np.abs(two.energy / one.energy - 1)) < 1e-8
+    assert np.abs(two.vertices - one.vertices).max() < 5e-6
     assert np.all(two.seconds > 0) and np.all(np.isfinite(two.max_length_error))
     # the worker's chain started from the second key (time 1), this process's from the first
     assert two.warm_start_times[7] == 1.0 and two.warm_start_times[0] == 0.0
@@ -98,7 +98,7 @@ def test_fast_with_workers_matches_within_its_tolerance(finger):
             "options": GaussNewtonOptions(ftol=1e-4)}
     ref = interpolate(shapes, topo, t)
     two = interpolate(shapes, topo, t, workers=2, **fast)
-    assert np.max(two.energy / ref.energy - 1) < 5e-3   # the goal's 0.5 %
+    assert np.max(two.energy / ref.energy - 1) < 2e-3   # measured 3.5e-4 (the goal: 0.5 %)
 
 
 def test_cancel_kills_the_workers(finger):

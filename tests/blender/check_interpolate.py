@@ -461,9 +461,54 @@ def panel_buttons():
     return {"operators": ops}
 
 
+def processes_side_by_side():
+    """Frames computed in two processes (the worker imports the installed lacore as bl_ext...lacore, without
+    the add-on and bpy) match those of one process; the operator's Processes property reaches the job;
+    Auto stays in one process for a small mesh."""
+    import importlib
+
+    reset()
+    obj = bar_with_keys()
+    ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    jobs_mod = importlib.import_module(MODULE + ".addon.jobs")
+    session = importlib.import_module(MODULE + ".addon.session")
+    A = coords(obj, "Basis")
+    diag = float(np.linalg.norm(A.max(0) - A.min(0)))
+    factors = [i / 7 for i in range(1, 7)]
+    runs = {}
+    for method in ("GAUSS_NEWTON", "FAST"):
+        for n in (1, 2):
+            session.clear_results()
+            runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=n)
+            runner.run()
+            runs[method, n] = (runner.job.processes, np.array(runner.job.results))
+    differences = {m: float(np.abs(runs[m, 1][1] - runs[m, 2][1]).max() / diag) for m in ("GAUSS_NEWTON", "FAST")}
+    session.clear_results()
+    before = len(key_names(obj))
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors="", count=6, processes=2,
+                       method='GAUSS_NEWTON') == {"FINISHED"}
+    written = key_names(obj)[before:]
+    operator_difference = max(float(np.abs(coords(obj, n) - X).max()) for n, X in
+                              zip(written, runs["GAUSS_NEWTON", 2][1], strict=True)) / diag
+    # the modal path: one tick (starts the worker process, computes this process's first frame), then Esc
+    parallel = importlib.import_module(MODULE + ".lacore.parallel")
+    session.clear_results()
+    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner.tick()
+    running_after_tick = len(parallel._RUNNING)
+    runner.cancel()
+    running_after_cancel = len(parallel._RUNNING)
+    return {"processes": {f"{m} {n}": runs[m, n][0] for m, n in runs}, "max_difference_per_diagonal": differences,
+            "running_after_tick": running_after_tick, "running_after_cancel": running_after_cancel,
+            "operator_keys": len(written), "operator_max_difference_per_diagonal": operator_difference,
+            "auto_small_mesh": jobs_mod.job_workers(0, len(A), 6),
+            "auto_large_mesh": jobs_mod.job_workers(0, 50000, 6)}
+
+
 def main():
     run_cases((install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
-               errors_change_nothing, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons))
+               errors_change_nothing, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons,
+               processes_side_by_side))
 
 
 if __name__ == "__main__":
