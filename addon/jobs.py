@@ -26,7 +26,7 @@ from ..lacore.errors import LengthsAnglesError
 from ..lacore.interpolation import ChainWorkers, piecewise_linear_z, project_targets, spline_z
 from ..lacore.lengths_angles import check_z
 from ..lacore.multiresolution import MultiresolutionReconstruction
-from ..lacore.parallel import default_workers, frame_chains
+from ..lacore.parallel import WorkerError, default_workers, frame_chains
 from ..lacore.progress import report
 from ..lacore.reconstruction.settings import split_options
 from ..lacore.rigid import rigid_align
@@ -129,6 +129,8 @@ class ProjectionJob:
         self.processes = None  # processes used (known after the first step)
         self._own = None       # frames of this process's chain still to do (set by the first step)
         self._remote = None    # ChainWorkers of the other chains
+        self._remote_frames = []
+        self.notes = []        # what the user should know besides failed checks (a worker process failed ...)
 
     @property
     def total(self):
@@ -156,10 +158,32 @@ class ProjectionJob:
                 remote.append(chain)
         self.processes = 1 + len(remote)
         if remote:
+            self._remote_frames = [int(i) for chain in remote for i in chain]
             options = dict(self.method_options)
             setup = split_options({}, None, options.pop("options", None), options.pop("hybrid", None))[:3]
-            self._remote = ChainWorkers(remote, self.z_targets, self.data.topology, self.key_vertices[0], self.times,
-                                        self._anchors, self.method, "secant", None, setup)
+            try:
+                self._remote = ChainWorkers(remote, self.z_targets, self.data.topology, self.key_vertices[0],
+                                            self.times, self._anchors, self.method, "secant", None, setup)
+            except WorkerError as exc:
+                self._fall_back(exc)
+
+    def _collect(self, block, limit=None):
+        try:
+            self._remote.collect(self._record_remote, block=block, limit=limit)
+        except WorkerError as exc:  # not a lacore input error: a worker that could not start or died
+            self._fall_back(exc)
+
+    def _fall_back(self, exc):
+        """A worker process could not start or died (not an error of the input, which is raised): compute its
+        chain's remaining frames here, and say so."""
+        self.close()
+        self._remote = None
+        pending = [i for i in self._remote_frames if self.results[i] is None]
+        self._own.extend(pending)
+        self.processes = 1
+        print(f"Lengths & Angles: {exc}", flush=True)
+        self.notes.append(f"A worker process failed ({str(exc).splitlines()[0]}); its {len(pending)} frame(s) were "
+                          "computed in this process instead")
 
     def step(self):
         """Compute the next frame of this process's chain (in its order) and record the frames the worker
@@ -172,9 +196,9 @@ class ProjectionJob:
             if self._own:
                 self._local_frame(self._own.pop(0))
                 if self._remote is not None:
-                    self._remote.collect(self._record_remote, block=False)
+                    self._collect(block=False)
             else:
-                self._remote.collect(self._record_remote, block=True, limit=1)
+                self._collect(block=True, limit=1)
         except BaseException:
             self.close()
             raise

@@ -608,6 +608,11 @@ class JobRunner:
         """Frames that failed their reconstruction checks (written anyway, with a WARNING)."""
         return [] if self.job is None else self.job.failures
 
+    @property
+    def notes(self):
+        """Other things the report should say (a worker process failed and this process took over ...)."""
+        return [] if self.job is None else self.job.notes
+
     def tick(self):
         """Compute one frame; True when all are done."""
         if self.cancelled:
@@ -824,7 +829,7 @@ class _ModalRun:
         except Exception as exc:
             self.report({'ERROR'}, _error_text(exc))
             return {'CANCELLED'}
-        warning = failure_warning(runner.failures, runner.what)
+        warning = " ".join([w for w in [failure_warning(runner.failures, runner.what), *runner.notes] if w])
         self.report({'WARNING'} if warning else {'INFO'}, warning or message)
         return {'FINISHED'}
 

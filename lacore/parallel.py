@@ -216,6 +216,8 @@ def raise_worker_error(payload):
     name, message, trace = payload
     if name in _LACORE_ERRORS:
         raise _LACORE_ERRORS[name](message)
+    if name == "WorkerError":  # the reader's own report: the process ended without a result
+        raise WorkerError(message)
     raise WorkerError(f"a worker process failed: {name}: {message}" + (f"\n{trace}" if trace else ""))
 
 

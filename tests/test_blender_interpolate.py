@@ -143,3 +143,8 @@ def test_processes_side_by_side(run):
     assert res["operator_keys"] == 6 and res["operator_max_difference_per_diagonal"] < 1e-6
     assert res["auto_small_mesh"] == 1 and res["auto_large_mesh"] >= 1
     assert res["running_after_tick"] == 1 and res["running_after_cancel"] == 0
+    # no worker (it cannot start, or it dies after the first frame): this process computes its frames, says so
+    for case in ("worker_cannot_start", "worker_died"):
+        fallback = res[case]
+        assert fallback["processes"] == 1 and fallback["difference"] < 2e-10, (case, fallback)
+        assert len(fallback["notes"]) == 1 and "computed in this process instead" in fallback["notes"][0]

@@ -498,7 +498,29 @@ def processes_side_by_side():
     running_after_tick = len(parallel._RUNNING)
     runner.cancel()
     running_after_cancel = len(parallel._RUNNING)
+    # a worker that cannot start (here: no such interpreter) or dies mid-run: this process takes over its frames
+    import sys
+
+    executable = sys.executable
+    session.clear_results()
+    sys.executable = os.path.join(ARGS.workdir, "no-such-python")
+    try:
+        runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+        runner.run()
+    finally:
+        sys.executable = executable
+    no_start = {"processes": runner.job.processes, "notes": list(runner.notes),
+                "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max() / diag)}
+    session.clear_results()
+    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner.tick()
+    for worker in list(parallel._RUNNING):
+        worker._process.kill()
+    runner.run()
+    died = {"processes": runner.job.processes, "notes": list(runner.notes),
+            "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max() / diag)}
     return {"processes": {f"{m} {n}": runs[m, n][0] for m, n in runs}, "max_difference_per_diagonal": differences,
+            "worker_cannot_start": no_start, "worker_died": died,
             "running_after_tick": running_after_tick, "running_after_cancel": running_after_cancel,
             "operator_keys": len(written), "operator_max_difference_per_diagonal": operator_difference,
             "auto_small_mesh": jobs_mod.job_workers(0, len(A), 6),
