@@ -448,13 +448,7 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         time order, with ``workers > 1`` chain by chain, interleaved): stream
         results to disk as they finish.
     workers : int
-        Chains of frames computed side by side (:mod:`lacore.parallel`): this
-        process computes the first, ``workers - 1`` worker processes the others
-        (default 1: all frames here, in increasing time).  Each chain starts
-        next to a key and continues from its own frames; each worker builds its
-        own solver (about 2 s and one more factorization's memory at 50k
-        vertices), so it pays for long runs of frames of large meshes.
-        :func:`lacore.parallel.default_workers` tells how many cores there are.
+        Chains of frames computed side by side, see :func:`interpolate` (default 1).
     **reconstruct_kw
         The fields of these objects as keywords of :func:`~lacore.reconstruction.reconstruct`
         (``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
@@ -738,9 +732,12 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         process computes the first, ``workers - 1`` worker processes the others
         (default 1: all frames here, in increasing time).  Each chain starts
         next to a key and continues from its own frames; each worker builds its
-        own solver (about 2 s and one more factorization's memory at 50k
-        vertices), so it pays for long runs of frames of large meshes.
+        own solver (about 4 s and one more solver's memory at 50k vertices),
+        so it pays for long runs of frames of large meshes.
         :func:`lacore.parallel.default_workers` tells how many cores there are.
+        A worker that cannot start or dies raises
+        :class:`lacore.parallel.WorkerError` (the add-on then computes its
+        frames itself); an input error in a worker is raised as itself.
     **reconstruct_kw
         The fields of these objects as keywords (``energy, weights,
         bending_weight, fixed_face, fix_triangle_shape, solver, hybrid_start,
