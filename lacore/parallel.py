@@ -127,15 +127,18 @@ _RUNNING_LOCK = threading.Lock()
 class WorkerProcess:
     """A Python interpreter running one job: ``function(*args, send=...)`` from lacore.
 
-    The job calls ``send(message)`` any number of times; every message, then
-    ``("done", return value)`` or ``("error", ...)``, arrives in :attr:`messages`
-    (a :class:`queue.Queue` of ``(tag, message)``, read by a thread).  :meth:`close`
-    kills the process if it is still running.
+    The job calls ``send(message)`` any number of times; every message arrives in
+    :attr:`messages` (a :class:`queue.Queue`) as ``(tag, "message", message)``, then
+    ``(tag, "done", return value)`` or ``(tag, "error", (type name, text, traceback))``
+    (also when the process dies).  A thread writes the job to the process and reads
+    its answers, so the caller goes on at once.  :meth:`close` kills the process if
+    it is still running.
 
     Parameters
     ----------
     function : callable
-        A module-level function of lacore (pickled by reference).
+        A module-level function importable in the worker (lacore's, or any module on
+        the caller's ``sys.path``), pickled by reference.
     args : tuple
         Its positional arguments (pickled).
     tag : object
@@ -159,23 +162,25 @@ class WorkerProcess:
         header = {"sys_path": [p for p in sys.path if isinstance(p, str)], "parents": parents,
                   "module": __name__}
         try:
+            job = pickle.dumps((function, args), protocol=pickle.HIGHEST_PROTOCOL)
             self._process = subprocess.Popen([sys.executable, "-c", _BOOTSTRAP], stdin=subprocess.PIPE,
                                              stdout=subprocess.PIPE)
             pickle.dump(header, self._process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-            pickle.dump((function, args), self._process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
             self._process.stdin.flush()
         except (OSError, pickle.PicklingError) as exc:
             self.close()
             raise WorkerError(f"could not start a worker process ({sys.executable}): {exc}") from exc
         with _RUNNING_LOCK:
             _RUNNING.add(self)
-        self._reader = threading.Thread(target=self._read, name="lacore-worker-reader", daemon=True)
+        self._reader = threading.Thread(target=self._read, args=(job,), name="lacore-worker-io", daemon=True)
         self._reader.start()
 
-    def _read(self):
+    def _read(self, job):
         stream = self._process.stdout
         finished = False
         try:
+            self._process.stdin.write(job)  # blocks while the worker imports lacore: here, not in the caller
+            self._process.stdin.flush()
             while True:
                 kind, payload = pickle.load(stream)
                 self.messages.put((self.tag, kind, payload))
