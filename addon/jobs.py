@@ -17,6 +17,9 @@ With more than one process (:func:`job_workers`) the frames are split into chain
 (:func:`lacore.parallel.frame_chains`, each starting next to a key): this process computes the
 first chain, one step per frame as above, while :class:`lacore.interpolation.ChainWorkers` run
 the other chains in worker processes (lacore only); a step records the frames they finished.
+With :attr:`ProjectionJob.all_in_workers` (the modal operators) every chain runs in a worker
+process and Blender's process only collects: its Python stays free for the UI (a CHOLMOD
+factorization in Blender's own process holds Python's lock for ~1-2 s at 50k vertices).
 :meth:`ProjectionJob.close` kills them (cancel, error, add-on unregister).
 """
 
@@ -131,6 +134,10 @@ class ProjectionJob:
         self._remote = None    # ChainWorkers of the other chains
         self._remote_frames = []
         self.notes = []        # what the user should know besides failed checks (a worker process failed ...)
+        #: with more than one process, compute every chain in a worker process (set before the first step)
+        self.all_in_workers = False
+        self._closed = False
+        self.local_frames = 0  # frames computed in this process
 
     @property
     def total(self):
@@ -144,19 +151,20 @@ class ProjectionJob:
         return (*self._key, float(self.times[i]))
 
     def _start(self):
-        """Split the frames into chains and start the worker processes of all but the first (see the module
-        docstring); chains whose frames are all cached stay here (cache hits)."""
+        """Split the frames into chains and start the worker processes of all but the first (of all with
+        :attr:`all_in_workers`; see the module docstring); chains whose frames are all cached stay here."""
         todo = sum(not session.has_result(self._frame_key(i)) for i in range(self.total))
         n = 1 if self.method == MULTIRES else job_workers(self.workers, self.data.topology.n_vertices, todo)
         chains = frame_chains(self.times, self.keyframes, n)
-        self._own = [int(i) for i in chains[0]]
+        here = 0 if self.all_in_workers and n > 1 else 1
+        self._own = [int(i) for chain in chains[:here] for i in chain]
         remote = []
-        for chain in chains[1:]:
+        for chain in chains[here:]:
             if all(session.has_result(self._frame_key(i)) for i in chain):
                 self._own.extend(int(i) for i in chain)
             else:
                 remote.append(chain)
-        self.processes = 1 + len(remote)
+        self.processes = here + len(remote) if remote else 1
         if remote:
             self._remote_frames = [int(i) for chain in remote for i in chain]
             options = dict(self.method_options)
@@ -171,12 +179,14 @@ class ProjectionJob:
         try:
             self._remote.collect(self._record_remote, block=block, limit=limit)
         except WorkerError as exc:  # not a lacore input error: a worker that could not start or died
-            self._fall_back(exc)
+            if not self._closed:    # (a cancelled job's workers were killed on purpose)
+                self._fall_back(exc)
 
     def _fall_back(self, exc):
         """A worker process could not start or died (not an error of the input, which is raised): compute its
         chain's remaining frames here, and say so."""
-        self.close()
+        if self._remote is not None:
+            self._remote.close()
         self._remote = None
         pending = [i for i in self._remote_frames if self.results[i] is None]
         self._own.extend(pending)
@@ -202,12 +212,14 @@ class ProjectionJob:
         except BaseException:
             self.close()
             raise
-        if self.finished:
-            self.close()
+        if self.finished and self._remote is not None:
+            self._remote.close()
         return self.done
 
     def close(self):
-        """Kill the worker processes still running (cancel, error; idempotent)."""
+        """Kill the worker processes still running and stop taking over their frames (cancel, error;
+        idempotent)."""
+        self._closed = True
         if self._remote is not None:
             self._remote.close()
 
@@ -225,6 +237,7 @@ class ProjectionJob:
                                       anchors=self._anchors, method=self.method, **self.method_options)
                 rec = res.reconstructions[0]
             X, note = self._store(i, rec)
+            self.local_frames += 1
         # a known shape, cached or computed (the same placed array either way, so a run with cache hits predicts
         # what a fresh run does): the next frames start from the extrapolation through the last ones
         self._anchors.append((t, X))

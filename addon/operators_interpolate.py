@@ -839,7 +839,10 @@ class _ModalRun:
         return {'RUNNING_MODAL'}
 
     def _begin_modal(self, context, runner):
-        """Progress bar, status text and the timer whose events drive :meth:`modal`."""
+        """Progress bar, status text and the timer whose events drive :meth:`modal`; with more than one
+        process, every frame is computed in a worker process (Blender's Python stays free for the UI)."""
+        if runner.job is not None:
+            runner.job.all_in_workers = True
         wm = context.window_manager
         self._runner = runner
         self._future = None

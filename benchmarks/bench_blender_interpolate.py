@@ -25,9 +25,11 @@ Prints one JSON object: seconds per stage and method, machine info, and (with
 ``--profile``, default on) the functions taking most of the compute time (cProfile,
 cumulative, lacore/scipy/numpy functions).
 
-With more than one process (``--processes``, default 0 = the operators' Auto) a worker
-process computes the in-betweens nearer to ``Bend180``; ``steps_tick_seconds`` then lists this
-process's frames first, then the waits for the worker's (``processes`` says how many ran).
+With more than one process (``--processes``, default 0 = the operators' Auto) the operator's
+synchronous run (``operator_seconds``) computes the in-betweens nearer to ``Basis`` itself and a
+worker process those nearer to ``Bend180``; the modal path (``steps_*``), as the modal operator,
+computes every chain in a worker process (``frames_computed_in_blender_process``: 0), so a tick is
+the wait for the next frame and Blender's Python stays free.
 
 usage: python benchmarks/bench_blender_interpolate.py [--segments 400 30 30] [--count 10]
                                                       [--methods FAST [GAUSS_NEWTON]] [--no-profile]
@@ -152,6 +154,7 @@ def main(argv=None):
         session.clear_results()
         t0 = time.perf_counter()
         runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=args.processes)
+        runner.job.all_in_workers = True  # as the modal operator (_ModalRun._begin_modal)
         t1 = time.perf_counter()
         ticks = []
 
@@ -193,7 +196,8 @@ def main(argv=None):
                       "steps_longest_tick_seconds": max(ticks), "steps_finish_seconds": round(t3 - t2, 3),
                       "steps_total_seconds": round(t3 - t0, 3),
                       "steps_seconds_per_inbetween": round((t2 - t1) / args.count, 3),
-                      "profiled": not args.no_profile, "processes": runner.job.processes})
+                      "profiled": not args.no_profile, "processes": runner.job.processes,
+                      "frames_computed_in_blender_process": runner.job.local_frames})
         A = cases.key_coords(obj, "Basis")
         k = len(factors) // 2  # quality check: the k-th in-between vs Blender's bend by the same fraction
         Rk = cases.simple_deform_coords(obj, "BEND", math.radians(180.0 * factors[k]))

@@ -148,3 +148,7 @@ def test_processes_side_by_side(run):
         fallback = res[case]
         assert fallback["processes"] == 1 and fallback["difference"] < 2e-10, (case, fallback)
         assert len(fallback["notes"]) == 1 and "computed in this process instead" in fallback["notes"][0]
+    # the modal operators' mode: both chains in worker processes, none in Blender's; cancel kills them
+    every = res["all_in_workers"]
+    assert every["processes"] == 2 and every["local_frames"] == 0 and every["difference"] < 2e-10
+    assert every["cancel"]["running"] == 0

@@ -498,6 +498,20 @@ def processes_side_by_side():
     running_after_tick = len(parallel._RUNNING)
     runner.cancel()
     running_after_cancel = len(parallel._RUNNING)
+    # the modal operators: every chain in a worker process, Blender's process only collects
+    session.clear_results()
+    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner.job.all_in_workers = True
+    runner.run()
+    all_in_workers = {"processes": runner.job.processes, "local_frames": runner.job.local_frames,
+                      "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max()
+                                          / diag)}
+    session.clear_results()
+    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner.job.all_in_workers = True
+    runner.tick()  # waits for the first frame of a worker
+    runner.cancel()
+    all_in_workers["cancel"] = {"done": runner.done, "running": len(parallel._RUNNING)}
     # a worker that cannot start (here: no such interpreter) or dies mid-run: this process takes over its frames
     import sys
 
@@ -520,7 +534,7 @@ def processes_side_by_side():
     died = {"processes": runner.job.processes, "notes": list(runner.notes),
             "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max() / diag)}
     return {"processes": {f"{m} {n}": runs[m, n][0] for m, n in runs}, "max_difference_per_diagonal": differences,
-            "worker_cannot_start": no_start, "worker_died": died,
+            "worker_cannot_start": no_start, "worker_died": died, "all_in_workers": all_in_workers,
             "running_after_tick": running_after_tick, "running_after_cancel": running_after_cancel,
             "operator_keys": len(written), "operator_max_difference_per_diagonal": operator_difference,
             "auto_small_mesh": jobs_mod.job_workers(0, len(A), 6),
