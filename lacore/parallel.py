@@ -120,6 +120,16 @@ def frame_chains(times, known_times, n_chains):
     return chains
 
 
+def _parent_packages():
+    """``[(name, directory)]`` of the packages above lacore, outermost first (``bl_ext``,
+    ``bl_ext.<repository>``, ``bl_ext.<repository>.<extension>`` inside Blender; none standalone)."""
+    names = _LACORE_PACKAGE.split(".")[:-1]
+    directories = [os.path.dirname(_LACORE_DIR)]        # the innermost parent holds lacore/
+    while len(directories) < len(names):
+        directories.append(os.path.dirname(directories[-1]))
+    return [(".".join(names[:i + 1]), d) for i, d in enumerate(reversed(directories[:len(names)]))]
+
+
 _RUNNING = set()  # live workers, for close_workers()
 _RUNNING_LOCK = threading.Lock()
 
@@ -150,16 +160,7 @@ class WorkerProcess:
     def __init__(self, function, args, tag=0, messages=None):
         self.tag = tag
         self.messages = queue.Queue() if messages is None else messages
-        parents = []
-        names = _LACORE_PACKAGE.split(".")[:-1]
-        directory = os.path.dirname(_LACORE_DIR)
-        paths = []
-        for _ in names:
-            paths.append(directory)
-            directory = os.path.dirname(directory)
-        for i, path in enumerate(reversed(paths)):
-            parents.append((".".join(names[:i + 1]), path))
-        header = {"sys_path": [p for p in sys.path if isinstance(p, str)], "parents": parents,
+        header = {"sys_path": [p for p in sys.path if isinstance(p, str)], "parents": _parent_packages(),
                   "module": __name__}
         try:
             job = pickle.dumps((function, args), protocol=pickle.HIGHEST_PROTOCOL)

@@ -123,6 +123,14 @@ def test_an_error_in_a_worker_is_raised_here_with_its_message(finger):
         parallel.raise_worker_error(("ZeroDivisionError", "division by zero", "Traceback (most recent call last)"))
 
 
+def test_a_worker_that_cannot_start_names_the_interpreter(monkeypatch, tmp_path):
+    missing = str(tmp_path / "no-such-python")
+    monkeypatch.setattr(sys, "executable", missing)
+    with pytest.raises(WorkerError, match="could not start a worker process .*no-such-python"):
+        WorkerProcess(sleeping_job, (1,))
+    assert not parallel._RUNNING
+
+
 def test_close_workers_kills_a_running_job():
     worker = WorkerProcess(sleeping_job, (60,))
     tag, kind, pid = worker.messages.get(timeout=60)

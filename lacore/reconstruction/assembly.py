@@ -85,20 +85,13 @@ class _VertexBlockStructure:
         degree = np.bincount(pu, minlength=V) - 1                     # coupled vertices w > u
         counts = (3 - np.arange(3))[None, :] + 3 * degree[:, None]    # (V, 3) entries of column 3u + a
         self.indptr = np.r_[0, np.cumsum(counts.ravel())].astype(np.int64)
-        nnz = int(self.indptr[-1])
-        indices = np.empty(nnz, np.int64)
-        cols = np.empty(nnz, np.int64)
-        a, b = np.triu_indices(3)
+        indices = np.empty(int(self.indptr[-1]), np.int64)
         for alpha in range(3):
-            for beta in range(3):
-                off = pu != pw
-                pos = self.position(np.flatnonzero(off), pu[off], pw[off], alpha, beta)
-                indices[pos], cols[pos] = 3 * pw[off] + beta, 3 * pu[off] + alpha
-        for alpha, beta in zip(a, b, strict=True):
-            diag = np.flatnonzero(pu == pw)
-            pos = self.position(diag, pu[diag], pw[diag], alpha, beta)
-            indices[pos], cols[pos] = 3 * pw[diag] + beta, 3 * pu[diag] + alpha
-        self.indices, self.cols = indices, cols
+            for beta in range(3):   # every entry of an off-diagonal block, the lower triangle of a diagonal one
+                sel = np.flatnonzero((pu != pw) | (beta >= alpha))
+                indices[self.position(sel, pu[sel], pw[sel], alpha, beta)] = 3 * pw[sel] + beta
+        self.indices = indices
+        self.cols = np.repeat(np.arange(3 * V), counts.ravel())
 
     def position(self, pair, u, w, alpha, beta):
         """Value-array position of row ``3 w + beta``, column ``3 u + alpha`` (``u <= w``; ``beta >= alpha`` if
