@@ -65,7 +65,8 @@ from .reconstruction import METHODS, reconstruct
 from .sparse_cholesky import SparseCholesky
 from .topology import MeshTopology, check_vertices
 
-__all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS"]
+__all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS",
+           "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
 
 #: Value of the ``format`` entry of a saved model.
 FORMAT = "lacore.shape_model"
@@ -73,7 +74,15 @@ FORMAT = "lacore.shape_model"
 FORMAT_VERSION = 1
 #: Tangent-vector variants: (4.18) and (4.17).
 TANGENTS = ("ambient", "projected")
-_PROJECTION_METRICS = ("euclidean", "g")
+#: Tangent used when none is given (library, CLI and add-on): ``"ambient"``.  On 20 random skinned poses
+#: of the coarse human, its first mode reconstructs without folds out to +-2 standard deviations, while the
+#: projected variant folds already at +-1 and even at the training samples' own coefficients (the linear
+#: projection at the mean distorts tangents of large deformations; ``tests/test_human_shape_model.py``).
+DEFAULT_TANGENT = "ambient"
+#: Orthogonality of the tangent projection: the thesis' Euclidean one (default) or ``g``.
+PROJECTION_METRICS = ("euclidean", "g")
+#: Bending weight ``eta`` of ``W_q`` of a model, as in the thesis' experiments.
+DEFAULT_BENDING_WEIGHT = 0.005
 #: Eigenvalues below this fraction of the largest are treated as zero variance.
 _RANK_TOL = 1e-12
 
@@ -130,7 +139,7 @@ class TangentProjector:
 
     def __init__(self, z, topology, metric_weights=None, metric="euclidean", shift=1e-14, max_refinements=8,
                  rtol=1e-13, solver=None):
-        if metric not in _PROJECTION_METRICS:
+        if metric not in PROJECTION_METRICS:
             raise ValueError(f"unknown projection metric {metric!r}; use 'euclidean' or 'g'")
         t0 = time.perf_counter()
         A = euler_integrability_jacobian(z, topology).tocsr()
@@ -358,8 +367,9 @@ class ShapeModel:
         return model
 
     @classmethod
-    def fit_z(cls, z, topology, reference_vertices, *, n_modes=None, tangent="ambient", projection_metric="euclidean",
-              bending_weight=0.005, weights="frohlich_botsch", method="gn", mean_options=None, solver=None,
+    def fit_z(cls, z, topology, reference_vertices, *, n_modes=None, tangent=DEFAULT_TANGENT,
+              projection_metric=PROJECTION_METRICS[0], bending_weight=DEFAULT_BENDING_WEIGHT,
+              weights="frohlich_botsch", method="gn", mean_options=None, solver=None,
               progress=None):
         """Fit a model to ``N`` lengths-and-angles vectors (4.14)-(4.18).
 
@@ -374,7 +384,8 @@ class ShapeModel:
         n_modes : int, optional
             ``J``, ``1 <= J <= N - 1``; default ``N - 1``.
         tangent : {"ambient", "projected"}
-            (4.18) ``v = z - zbar`` or (4.17) its linear projection onto ``T_zbar Z``.
+            (4.18) ``v = z - zbar`` (default, :data:`DEFAULT_TANGENT` says why) or (4.17)
+            its linear projection onto ``T_zbar Z`` (the thesis' simplified PGA).
         projection_metric : {"euclidean", "g"}
             Orthogonality of the tangent projection: the thesis' Euclidean
             ``Id - A^T (A A^T)^-1 A`` (default) or ``g``-orthogonal.
@@ -411,7 +422,7 @@ class ShapeModel:
         t_start = time.perf_counter()
         if tangent not in TANGENTS:
             raise ShapeModelError(f"unknown tangent {tangent!r}; use 'ambient' or 'projected'")
-        if projection_metric not in _PROJECTION_METRICS:
+        if projection_metric not in PROJECTION_METRICS:
             raise ShapeModelError(f"unknown projection_metric {projection_metric!r}; use 'euclidean' or 'g'")
         if method not in METHODS:
             raise ShapeModelError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
@@ -893,7 +904,7 @@ class ShapeModel:
             raise ShapeModelError(f"{path} is a corrupt shape model: training_coefficients has shape "
                                   f"{d['training_coefficients'].shape}, expected (N, {J})")
         tangent, pm, method = str(d["tangent"]), str(d["projection_metric"]), str(d["method"])
-        if tangent not in TANGENTS or pm not in _PROJECTION_METRICS or method not in METHODS:
+        if tangent not in TANGENTS or pm not in PROJECTION_METRICS or method not in METHODS:
             raise ShapeModelError(f"{path} is a corrupt shape model: unknown settings {tangent!r}, {pm!r}, {method!r}")
         model = cls(topology=topology, reference_vertices=d["reference_vertices"].astype(float),
                     mean_z=d["mean_z"].astype(float), mean_vertices=d["mean_vertices"].astype(float),

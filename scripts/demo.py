@@ -11,7 +11,8 @@ Steps now:
 
 1. ``cli_encode``: ``lacore encode`` on a shared mesh (finger0) -> ``finger0_encoded.npz`` + JSON.
 2. ``cli_interpolate``: ``lacore interpolate`` finger0 -> finger1 (and beyond) -> ``finger_inbetween_*.ply``.
-3. ``cli_human_model``: ``lacore model`` on 20 seeded random poses of the coarse CC0 human (5 modes) and
+3. ``cli_human_model``: ``lacore model`` on the rest pose (the reference) and 20 seeded random poses of the
+   coarse CC0 human (5 modes) and
    ``lacore model-sweep`` of mode 0 -> ``human_model.npz``, ``human_model.json``, ``human_mode0*.ply``.
 4. ``cli_human_fit``: the 41 standard markers of a 20-frame held-out take -> ``human_take_markers.npz``;
    ``lacore fit`` -> ``human_fit.npz``, ``human_fit.json`` (with the mean per-vertex error vs the true poses)
@@ -163,11 +164,16 @@ def _write_ply(path, vertices, faces):
 
 
 def cli_human_model(out_dir):
-    """`lacore model` on 20 random poses of the coarse human, then `lacore model-sweep` of its first mode."""
+    """`lacore model` on the rest pose and 20 random poses of the coarse human, then `lacore model-sweep` of mode 0.
+
+    The rest pose comes first, so it is the reference (weights (3.20) of the energy): with a skinned pose as
+    the reference, whose crushed triangles set the weights, the sweep's +-2 standard-deviation frames fold.
+    """
     body, train, _, _ = _human_data()
+    shapes = [body.vertices, *train]
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as tmp:
-        meshes = [os.path.join(tmp, f"human_train_{i:02d}.ply") for i in range(len(train))]
-        for path, X in zip(meshes, train, strict=True):
+        meshes = [os.path.join(tmp, f"human_train_{i:02d}.ply") for i in range(len(shapes))]
+        for path, X in zip(meshes, shapes, strict=True):
             _write_ply(path, X, body.faces)
         model = os.path.join(out_dir, "human_model.npz")
         proc = run([sys.executable, "-m", "lacore.cli", "model", *meshes, "-o", model, "--modes", "5", "--json"],
@@ -183,7 +189,8 @@ def cli_human_model(out_dir):
     failures = [o["failure"] for o in result["sweep"]["outputs"] if not o["success"]]
     return {
         "outputs": ["human_model.npz", "human_model.json", *sweep],
-        "text": (f"`lacore model` on {len(train)} random poses (seed 1) of the coarse CC0 human "
+        "text": (f"`lacore model` on the rest pose (the reference) and {len(train)} random poses (seed 1) of the "
+                 f"coarse CC0 human "
                  f"({body.n_vertices} vertices, {len(body.faces)} faces), 5 modes; `lacore model-sweep` of mode 0 "
                  f"from -2 to 2 standard deviations: {len(sweep)} PLY files, "
                  f"{len(sweep) - len(failures)} of them pass the reconstruction checks "

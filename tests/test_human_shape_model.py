@@ -11,7 +11,7 @@ from conftest import REPO, shared_data_dir
 from lacore import MeshTopology, lengths_and_angles
 from lacore.rigid import rigid_rms
 from lacore.samples.human import LIMBS, coarse_body_file, load_human
-from lacore.shape_model import ShapeModel, wrap_angles
+from lacore.shape_model import DEFAULT_TANGENT, ShapeModel, wrap_angles
 
 
 @pytest.fixture(scope="module")
@@ -95,3 +95,22 @@ def test_localized_modes_concentrate_on_one_joint_and_limb(model, coarse):
     # same subspace
     c = model.training_coefficients
     np.testing.assert_allclose(local.z_of(c @ local.rotation.T), model.z_of(c), atol=1e-10)
+
+
+def test_default_tangent_sweeps_the_first_mode_without_folds(coarse):
+    """Why ``DEFAULT_TANGENT`` is "ambient": on the demo's 20 random skinned poses of the coarse body, the first
+    mode of the ambient model reconstructs at +-1 and +-2 standard deviations and passes every check; the
+    projected (simplified PGA) model folds at +1 (the linearized projection at the mean distorts the large
+    tangents of skinned poses)."""
+    topo = MeshTopology.from_faces(coarse.faces, n_vertices=coarse.n_vertices)
+    poses, _ = coarse.random_poses(20, seed=1)  # the random poses of `make demo` (which adds the rest pose)
+    ambient = ShapeModel.fit(poses, topo, reference_vertices=coarse.vertices, n_modes=5)
+    assert ambient.tangent == DEFAULT_TANGENT == "ambient"
+    _, results = ambient.synthesize(np.array([[-2.0], [-1.0], [1.0], [2.0]]) * ambient.standard_deviations[0]
+                                    * np.eye(5)[0], return_results=True)
+    energies = [r.energy for r in results]
+    assert all(r.success for r in results), [r.message for r in results]
+    assert max(energies[1:3]) < 0.25 and max(energies) < 1.0, energies  # measured 0.06 and 0.26-0.27
+    projected = ShapeModel.fit(poses, topo, reference_vertices=coarse.vertices, n_modes=5, tangent="projected")
+    _, r = projected.synthesize(projected.standard_deviations[0] * np.eye(5)[0], return_results=True)
+    assert r.failure == "folded" and r.energy > 20 * energies[2], (r.failure, r.energy)  # measured 8.4 vs 0.06

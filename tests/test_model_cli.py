@@ -12,7 +12,7 @@ from lacore.cli import SUBCOMMANDS, main
 from lacore.mesh_io import load_mesh, save_mesh
 from lacore.rigid import rigid_rms
 from lacore.samples.bar import bar_family
-from lacore.shape_model import ShapeModel
+from lacore.shape_model import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, ShapeModel
 
 STAGES = {"mean", "tangent_decomposition", "tangent_solves", "gram", "eigen"}
 
@@ -111,7 +111,10 @@ def test_console_script_subprocess(tmp_path, bar_files):
                            str(tmp_path / "m.npz"), "--json"], capture_output=True, text=True, cwd=REPO,
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["modes"] == 3
+    summary = json.loads(proc.stdout)
+    assert summary["modes"] == 3
+    assert (summary["tangent"], summary["bending_weight"]) == (DEFAULT_TANGENT, DEFAULT_BENDING_WEIGHT) == (
+        "ambient", 0.005)
 
 
 def test_model_localize_option(capsys, tmp_path, bar_files):
@@ -122,5 +125,5 @@ def test_model_localize_option(capsys, tmp_path, bar_files):
     summary = json.loads(stdout)
     assert summary["localized"] is True and summary["stages"]["localize"] > 0
     loaded = ShapeModel.load(out)
-    expected = ShapeModel.fit(poses, faces, n_modes=2, tangent="projected").localized()
+    expected = ShapeModel.fit(poses, faces, n_modes=2).localized()  # the CLI's defaults are the library's
     assert np.abs(loaded.modes - expected.modes).max() < 1e-8

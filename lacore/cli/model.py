@@ -7,7 +7,7 @@ Usage::
     lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off] [--json]
 
 ``lacore model`` fits a :class:`lacore.shape_model.ShapeModel` (thesis 4.3:
-extrinsic mean (4.16), tangent vectors (4.18) or (4.17), PCA in the metric of
+extrinsic mean (4.16), tangent vectors (4.18, the default) or (4.17), PCA in the metric of
 ``W_q`` (4.14)) to two or more meshes in dense correspondence and saves it to
 one ``.npz`` (see :meth:`ShapeModel.save`).  ``--json`` prints one object with
 ``vertices``, ``samples``, ``modes``, ``explained_variance`` (per mode),
@@ -34,7 +34,8 @@ import time
 import numpy as np
 
 from ..mesh_io import save_mesh
-from ..shape_model import ShapeModel, ShapeModelError
+from ..shape_model import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModel,
+                           ShapeModelError)
 from .common import EXIT_OK, add_allow_failure, exit_code, load_meshes_in_correspondence, positive_int, print_json
 from .interpolate import output_paths
 
@@ -57,12 +58,15 @@ def configure_model(parser):
     parser.add_argument("-o", "--output", required=True, metavar="MODEL.npz", help="model file to write")
     parser.add_argument("--modes", type=positive_int, default=None, metavar="J",
                         help="number of modes J (1 <= J <= N - 1; default N - 1)")
-    parser.add_argument("--tangent", choices=("ambient", "projected"), default="projected",
-                        help="tangent vectors: z - mean (4.18) or projected onto the tangent space (4.17, default)")
-    parser.add_argument("--projection-metric", choices=("euclidean", "g"), default="euclidean",
-                        help="orthogonality of the tangent projection: Euclidean as in the thesis (default) or g")
-    parser.add_argument("--bending-weight", type=float, default=0.005, metavar="ETA",
-                        help="bending weight eta of the quadratic energy W_q (default 0.005)")
+    parser.add_argument("--tangent", choices=TANGENTS, default=DEFAULT_TANGENT,
+                        help="tangent vectors: z - mean (4.18, ambient) or projected onto the tangent space "
+                             "(4.17, the thesis' simplified PGA; harder to reconstruct far from the mean); "
+                             "default %(default)s")
+    parser.add_argument("--projection-metric", choices=PROJECTION_METRICS, default=PROJECTION_METRICS[0],
+                        help="orthogonality of the tangent projection: Euclidean as in the thesis or g; "
+                             "default %(default)s")
+    parser.add_argument("--bending-weight", type=float, default=DEFAULT_BENDING_WEIGHT, metavar="ETA",
+                        help="bending weight eta of the quadratic energy W_q (default %(default)s)")
     parser.add_argument("--localize", action="store_true",
                         help="rotate the modes toward locality (g-varimax, same subspace; beyond the thesis)")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
