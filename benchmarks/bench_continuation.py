@@ -17,6 +17,8 @@ order, one context), by
 * ``fast``: the add-on's Fast (``addon/operators_interpolate.py``, ``_METHOD_OPTIONS['FAST']``):
   the secant prediction and one Gauss-Newton step (a frame started from a
   known shape itself, the first after a key: up to three, ``ftol = 1e-4``);
+* ``fast_geometric_ordering``: ``fast`` with lacore's geometric nested dissection
+  instead of METIS (``ordering="geometric"``; both tried against AMD by CHOLMOD);
 * ``fast_2_workers``: ``fast`` with ``workers=2`` (:mod:`lacore.parallel`): frames
   1-5 here, 10-6 in a worker process (which builds its own solver);
 * ``fast_before``: the add-on's Fast before (least-squares start, two steps
@@ -52,7 +54,8 @@ for p in (REPO, HERE):
 from bench_common import machine_info  # noqa: E402
 from bench_multires import cases  # noqa: E402
 
-ROWS = ("gauss_newton", "fast", "fast_2_workers", "one_step", "fast_before", "gauss_newton_before")
+ROWS = ("gauss_newton", "fast", "fast_geometric_ordering", "fast_2_workers", "one_step", "fast_before",
+        "gauss_newton_before")
 
 
 def row_options(name):
@@ -69,6 +72,8 @@ def row_options(name):
                 "options": GaussNewtonOptions(ftol=1e-4)}
     if name == "fast_2_workers":
         return {**row_options("fast"), "workers": 2}
+    if name == "fast_geometric_ordering":
+        return {**row_options("fast"), "ordering": "geometric"}
     if name == "fast_before":
         return {"method": "hybrid", "hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
                 "options": GaussNewtonOptions(reuse_factorization=True, newton="never"), "warm_start": "nearest"}
@@ -94,6 +99,9 @@ def run_case(S, topo, rows):
     t0 = time.perf_counter()
     _ = ctx.solver  # symbolic analysis once, outside the rows
     out["symbolic_seconds"] = time.perf_counter() - t0
+    out["ordering"] = ctx.ordering
+    if "fast_geometric_ordering" in rows:  # its own context (settings differ), also set up outside the rows
+        _ = get_context(topo, S[0], ordering="geometric").solver
     ref = None
     for name in rows:
         t0 = time.perf_counter()

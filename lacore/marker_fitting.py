@@ -256,8 +256,8 @@ class _Problem:
         key = solver or "default"
         chol = cache.get(key)
         if chol is None:
-            use_nd = (solver or "cholmod") == "cholmod"
-            ordering = dof_ordering(topo, pat, model.reference_vertices) if use_nd else None
+            ordered = (solver or "cholmod") == "cholmod"  # CHOLMOD takes an ordering; SuperLU finds its own
+            ordering = dof_ordering(topo, pat, model.reference_vertices)[0] if ordered else None
             try:
                 chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
             except ValueError:

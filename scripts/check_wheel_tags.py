@@ -44,16 +44,20 @@ PLATFORMS = {
     "macos-arm64": ("macos", {"arm64", "universal2"}, (12, 0)),
 }
 
-# (distribution, Blender platform, Python) pairs allowed to have no wheel: optional backends
-# that lacore replaces (cvxopt/CHOLMOD -> SciPy's sparse factorization; lacore.sparse_cholesky).
+# (distribution, Blender platform, Python) pairs allowed to have no wheel: optional accelerators
+# that lacore replaces (lacore.sparse_cholesky: cvxopt/CHOLMOD -> SciPy's sparse factorization;
+# pymetis/METIS -> lacore's geometric nested dissection).
 KNOWN_GAPS = frozenset({
     ("cvxopt", "macos-arm64", (3, 13)),
     ("cvxopt", "macos-x64", (3, 13)),
+    ("pymetis", "windows-x64", (3, 11)),
+    ("pymetis", "windows-x64", (3, 13)),
 })
 
 # Distributions lacore can do without: on early Blender 4.2.x (4.2.0; fixed by 4.2.13) their cp313 wheel may win
-# (it cannot be imported by Python 3.11, so lacore uses SciPy's factorization instead of CHOLMOD).
-LEGACY_OPTIONAL = frozenset({"cvxopt"})
+# (it cannot be imported by Python 3.11, so lacore uses SciPy's factorization instead of CHOLMOD, and its own
+# ordering instead of METIS).
+LEGACY_OPTIONAL = frozenset({"cvxopt", "pymetis"})
 
 _LEGACY_MANYLINUX = {"manylinux1": (2, 5), "manylinux2010": (2, 12), "manylinux2014": (2, 17)}
 

@@ -32,7 +32,7 @@ def test_zip_contents(extension_zip):
     assert not any(n.startswith(("tests/", "scripts/", ".venv/", ".ci/", "benchmarks/")) for n in names), names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert any(n.startswith("wheels/scipy-") for n in names) and any(n.startswith("wheels/trimesh-") for n in names)
-    assert any(n.startswith("wheels/cvxopt-") for n in names)
+    assert any(n.startswith("wheels/cvxopt-") for n in names) and any(n.startswith("wheels/pymetis-") for n in names)
 
 
 def test_install_and_enable(blender_run):
@@ -79,17 +79,21 @@ def test_zip_wheel_tags(extension_zip):
 
 def test_installed_for_this_blender(blender_run, extension_zip):
     """Blender installed the wheels of ITS Python from the same zip: cp311 on 4.2 (NumPy 1.26, SciPy 1.16.3),
-    cp313 on 5.2 (NumPy 2.5, SciPy 1.16.2); CHOLMOD (cvxopt) is the sparse Cholesky on Linux for both."""
+    cp313 on 5.2 (NumPy 2.5, SciPy 1.16.2); CHOLMOD (cvxopt) is the sparse Cholesky and METIS (pymetis) orders
+    it on Linux for both."""
     install = blender_run["cases"]["install_and_enable"]
     major, minor = blender_python_version(extension_zip.label)
     assert install["python"] == f"python{major}.{minor}"
     assert install["numpy"].startswith("1.26." if minor == 11 else "2.")  # what Blender ships (5.2: 2.5)
     scipy = "1.16.3" if minor == 11 else "1.16.2"
     assert sorted(install["bundled"]) == ["c3d-0.6.0.dist-info", "cvxopt-1.3.2.dist-info",
-                                          f"scipy-{scipy}.dist-info", "trimesh-5.2.0.dist-info"]
+                                          "pymetis-2025.2.2.dist-info", f"scipy-{scipy}.dist-info",
+                                          "trimesh-5.2.0.dist-info", "typing_extensions-4.16.0.dist-info"]
     assert install["scipy"] == scipy
-    # Early 4.2.x (4.2.0) ignore Python tags and install the cp313 cvxopt, which 3.11 cannot import: SciPy
+    # Early 4.2.x (4.2.0) ignore Python tags and install the cp313 cvxopt and pymetis, which 3.11 cannot
+    # import: SciPy's factorization and lacore's geometric ordering
     assert install["sparse_cholesky"] == ("cholmod" if install["installer_matches_python_tags"] else "scipy")
+    assert install["metis"] == install["installer_matches_python_tags"]
     if extension_zip.label in ("4.2", "5.2"):  # what make test installs: bpy 4.2.23 and 5.2.3
         assert install["installer_matches_python_tags"]
 

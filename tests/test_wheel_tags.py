@@ -31,12 +31,13 @@ def test_manifest_wheels_cover_every_platform_and_python():
 
 def test_manifest_matrix_picks_one_wheel_each():
     """What Blender installs where: one SciPy per pair (cp311 for 4.2-5.0, cp313 for 5.1/5.2), cvxopt
-    everywhere but macOS on Python 3.13 (lacore's SciPy backend there)."""
+    everywhere but macOS on Python 3.13 (lacore's SciPy backend there), pymetis everywhere but Windows
+    (lacore's geometric ordering there)."""
     platforms, wheels = manifest()
     matrix = tags.wheel_matrix(wheels, platforms)
     assert len(matrix) == 8
     for (platform, python), dists in matrix.items():
-        assert set(dists) == {"scipy", "trimesh", "cvxopt", "c3d"}
+        assert set(dists) == {"scipy", "trimesh", "cvxopt", "c3d", "pymetis", "typing-extensions"}
         cp = f"cp{python[0]}{python[1]}"
         assert [w.split("-")[2] for w in dists["scipy"]] == [cp], (platform, python, dists["scipy"])
         assert dists["scipy"][0].split("-")[1] == {(3, 11): "1.16.3", (3, 13): "1.16.2"}[python]
@@ -44,17 +45,23 @@ def test_manifest_matrix_picks_one_wheel_each():
         assert dists["c3d"] == ["c3d-0.6.0-py3-none-any.whl"]
         missing_cvxopt = platform.startswith("macos") and python == (3, 13)
         assert len(dists["cvxopt"]) == (0 if missing_cvxopt else 1), (platform, python, dists["cvxopt"])
+        pymetis = [] if platform.startswith("windows") else [f"pymetis-2025.2.2-{cp}-{cp}-"]
+        assert [w[: len("pymetis-2025.2.2-cp3xx-cp3xx-")] for w in dists["pymetis"]] == pymetis, dists["pymetis"]
+        assert dists["typing-extensions"] == ["typing_extensions-4.16.0-py3-none-any.whl"]
     assert {(d, p, py) for (p, py), ds in matrix.items() for d, w in ds.items() if not w} == tags.KNOWN_GAPS
 
 
 def test_early_blender_42_installer_picks_cp311_scipy():
     """Blender 4.2.0 ignores Python tags and keeps the highest version per distribution (ties: the
     greater file name, cp313 > cp311): the cp311 SciPy (1.16.3) outranks the cp313 one (1.16.2);
-    cvxopt's cp313 wheel wins on Linux/Windows (lacore falls back to SciPy there)."""
+    cvxopt's cp313 wheel wins on Linux/Windows (lacore falls back to SciPy there), pymetis' everywhere it is
+    bundled (lacore falls back to its geometric ordering)."""
     platforms, wheels = manifest()
     for platform in platforms:
         picks = tags.legacy_installer_picks(wheels, platform)
-        assert set(picks) == {"scipy", "trimesh", "cvxopt", "c3d"}
+        assert set(picks) == {"scipy", "trimesh", "cvxopt", "c3d", "typing_extensions"} | (  # file-name prefixes
+            set() if platform.startswith("windows") else {"pymetis"})
+        assert platform.startswith("windows") or picks["pymetis"].startswith("pymetis-2025.2.2-cp313-"), picks
         assert picks["scipy"].startswith("scipy-1.16.3-cp311-"), picks
         cvxopt_tag = "cp311" if platform.startswith("macos") else "cp313"
         assert picks["cvxopt"].startswith(f"cvxopt-1.3.2-{cvxopt_tag}-"), picks
@@ -132,12 +139,13 @@ def test_split_platform_zip_check(tmp_path):
     text = MANIFEST.read_text(encoding="utf-8")
     _platforms, wheels = manifest()
     mac = [w for w in wheels if "x86_64.whl" in w and "macosx" in w or w.endswith("-none-any.whl")]
-    assert len(mac) == 5  # scipy cp311 + cp313, cvxopt cp311, trimesh, c3d
+    assert len(mac) == 8  # scipy cp311 + cp313, cvxopt cp311, pymetis cp311 + cp313, trimesh, c3d, typing_extensions
     assert tags.check_zip(_zip(tmp_path / "mac.zip", text, mac)) == []
     no313 = [w for w in mac if "-cp313-" not in w]
     problems = tags.check_zip(_zip(tmp_path / "mac311.zip", text, no313))
-    assert problems[0] == (f"{tmp_path / 'mac311.zip'}: macos-x64: manifest lists "
-                           "wheels/scipy-1.16.2-cp313-cp313-macosx_10_14_x86_64.whl but the zip does not hold it")
-    assert len(problems) == 2 and "holds the wheels of none" in problems[1]
+    assert problems[:2] == [f"{tmp_path / 'mac311.zip'}: macos-x64: manifest lists wheels/{w} but the zip does not "
+                            "hold it" for w in ("pymetis-2025.2.2-cp313-cp313-macosx_10_13_x86_64.whl",
+                                                "scipy-1.16.2-cp313-cp313-macosx_10_14_x86_64.whl")]
+    assert len(problems) == 3 and "holds the wheels of none" in problems[2]
     pure = [w for w in wheels if w.endswith("-none-any.whl")]
     assert "holds the wheels of none" in tags.check_zip(_zip(tmp_path / "pure.zip", text, pure))[-1]

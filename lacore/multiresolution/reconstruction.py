@@ -71,8 +71,9 @@ from ..errors import InputError, MeshError
 from ..lengths_angles import check_z, lengths_and_angles
 from ..progress import report
 from ..reconstruction import STATUS_MESSAGES, ReconstructionContext, ReconstructionResult, reconstruct
+from ..reconstruction.assembly import dof_ordering
 from ..reconstruction.pcg import preconditioned_cg
-from ..sparse_cholesky import SparseCholesky, nested_dissection
+from ..sparse_cholesky import SparseCholesky
 from ..topology import MeshTopology
 from .coarsening import Coarsening, coarsen
 from .prolongation import Prolongation
@@ -205,12 +206,8 @@ class MultiresolutionReconstruction:
             pat = ctx.pattern
             Xr = ctx.to_canonical(ctx.reference_vertices)
             ordering = None
-            if ctx.backend == "cholmod":  # geometric nested dissection; CHOLMOD keeps it or AMD, whichever fills less
-                rows, cols = pat["indices"] // 3, pat["cols"] // 3
-                V = self.topology.n_vertices
-                G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(V, V))
-                order = nested_dissection(G + G.T, ctx.reference_vertices)
-                ordering = (3 * order[:, None] + np.arange(3)).ravel()
+            if ctx.backend == "cholmod":  # CHOLMOD keeps it or AMD, whichever fills less
+                ordering, _ = dof_ordering(self.topology, pat, ctx.reference_vertices, ctx.settings.ordering)
             chol = SparseCholesky(pat["matrix"], backend=ctx.backend, ordering=ordering)
             _, _, matrix = ctx.objective(self.z_keys[self.reference]).linearize(Xr)
             values = matrix()

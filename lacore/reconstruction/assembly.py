@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..lengths_angles import jacobian_pattern
-from ..sparse_cholesky import nested_dissection
+from ..sparse_cholesky import vertex_ordering
 
 __all__ = ["gauss_newton_pattern", "upper_outer", "dof_ordering"]
 
@@ -158,11 +158,22 @@ def upper_outer(g, gw, out):
     return out
 
 
-def dof_ordering(topology, pattern, vertices):
-    """Nested-dissection ordering of the coordinates: vertex order from the mesh geometry, 3 coordinates each."""
+def dof_ordering(topology, pattern, vertices, method=None):
+    """Fill-reducing ordering of the coordinates, 3 per vertex, from a vertex ordering of the coupled vertices.
+
+    The vertex order is :func:`lacore.sparse_cholesky.vertex_ordering` (``method``: ``"metis"``,
+    ``"geometric"``, default METIS when pymetis is importable) of the graph of vertex pairs the pattern
+    couples; the geometric one dissects ``vertices``.
+
+    Returns
+    -------
+    order : (3V,) int64 ndarray
+    method : str
+        The method used.
+    """
     V = topology.n_vertices
     rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
     G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(V, V))
-    order = nested_dissection(G + G.T, vertices)
-    return (3 * order[:, None] + np.arange(3)).ravel()
+    order, method = vertex_ordering(G + G.T, vertices, method)
+    return (3 * order[:, None] + np.arange(3)).ravel(), method
 

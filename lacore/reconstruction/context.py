@@ -30,8 +30,9 @@ Factorization
 The symbolic Cholesky factorization of the Gauss-Newton pattern
 (:class:`lacore.sparse_cholesky.SparseCholesky`, CHOLMOD when available) is made
 once per context.  Its fill-reducing ordering is the better (fewer nonzeros) of
-CHOLMOD's AMD and a geometric nested dissection of the reference mesh
-(:func:`lacore.sparse_cholesky.nested_dissection`).
+CHOLMOD's AMD and :func:`lacore.sparse_cholesky.vertex_ordering` (METIS nested
+dissection when pymetis is importable, else a geometric nested dissection of
+the reference mesh).
 """
 
 from collections import OrderedDict
@@ -171,6 +172,9 @@ class ReconstructionContext:
         self._solver = None
         self._buffer = None
         self._fixed_entries = None
+        #: the ordering method given to CHOLMOD ("metis" / "geometric"; None until :attr:`solver` is built,
+        #: and with the SciPy backend, whose SuperLU orders by itself)
+        self.ordering = None
 
     # the settings, under the names used throughout lacore
     @property
@@ -214,7 +218,8 @@ class ReconstructionContext:
             pat = self.pattern
             ordering = None
             if self.backend == "cholmod":
-                ordering = dof_ordering(self.topology, pat, self.reference_vertices)
+                ordering, self.ordering = dof_ordering(self.topology, pat, self.reference_vertices,
+                                                       self.settings.ordering)
             s = SparseCholesky(pat["matrix"], backend=self.backend, ordering=ordering)
             if not (np.array_equal(s.indptr, pat["indptr"]) and np.array_equal(s.indices, pat["indices"])):
                 raise RuntimeError("sparse Cholesky pattern mismatch")  # pragma: no cover

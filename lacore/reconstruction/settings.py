@@ -23,6 +23,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..errors import InputError, MeshError
+from ..sparse_cholesky import ORDERINGS
 
 __all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
            "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
@@ -66,11 +67,16 @@ class ReconstructionSettings:
         only the six rigid motions.
     solver : {None, "cholmod", "scipy"}
         Sparse Cholesky backend; ``None``: CHOLMOD if cvxopt is installed.
+    ordering : {None, "metis", "geometric"}
+        Fill-reducing ordering CHOLMOD tries besides AMD (keeping the one that
+        fills less; :func:`lacore.sparse_cholesky.vertex_ordering`): METIS
+        (needs pymetis) or the geometric nested dissection; ``None``: METIS if
+        pymetis is installed.  Changes speed and round-off only.
 
     Raises
     ------
     InputError
-        An unknown energy, weights or solver, a negative or non-finite bending weight.
+        An unknown energy, weights, solver or ordering, a negative or non-finite bending weight.
     """
 
     energy: str = "quadratic"
@@ -79,6 +85,7 @@ class ReconstructionSettings:
     fixed_face: tuple | None = None
     fix_triangle_shape: bool = False
     solver: str | None = None
+    ordering: str | None = None
 
     def __post_init__(self):
         if self.energy not in ENERGIES:
@@ -93,6 +100,8 @@ class ReconstructionSettings:
             raise InputError(f"bending_weight must be a finite number >= 0, got {self.bending_weight!r}")
         if self.solver is not None and self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; use 'cholmod' or 'scipy'")
+        if self.ordering is not None and self.ordering not in ORDERINGS:
+            raise InputError(f"unknown ordering {self.ordering!r}; use one of {', '.join(ORDERINGS)}")
         object.__setattr__(self, "bending_weight", eta)
         object.__setattr__(self, "fixed_face", _fixed_face_key(self.fixed_face))
         object.__setattr__(self, "fix_triangle_shape", bool(self.fix_triangle_shape))

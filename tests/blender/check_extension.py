@@ -111,7 +111,16 @@ def install_and_enable():
             "bundled": [n for n in bundled if n.endswith(".dist-info")], "python": python,
             "blender": bpy.app.version_string, "numpy": numpy.__version__, "scipy": scipy.__version__,
             "sparse_cholesky": ext().sparse_cholesky.default_backend(),
+            "metis": ext().sparse_cholesky.metis_nested_dissection(_path_graph(4)) is not None,
             "installer_matches_python_tags": installer_matches_python_tags()}
+
+
+def _path_graph(n):
+    """Adjacency of the path 0 - 1 - ... - n-1 (a tiny graph to order)."""
+    import scipy.sparse as sp
+
+    off = np.ones(n - 1)
+    return sp.diags([off, off], [-1, 1], format="csr")
 
 
 def installer_matches_python_tags():
