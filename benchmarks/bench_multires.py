@@ -215,9 +215,7 @@ def fill(quick):
     _, _, M = ctx.objective(lengths_and_angles(simple_deform_bend(B, np.pi / 2), topo)).linearize(
         ctx.to_canonical(B))
     vals = M()
-    touch, diag = ctx.fixed_entries
-    vals[touch] = 0.0
-    vals[diag] = 1.0
+    ctx.eliminate_fixed(vals)
     rows, cols = pat["indices"] // 3, pat["cols"] // 3
     G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(B), len(B)))
     G = G + G.T

@@ -90,9 +90,7 @@ def run_case(S, topo, repeat):
     z = 0.5 * (lengths_and_angles(S[0], topo) + lengths_and_angles(S[1], topo))
     _, _, matrix = ctx.objective(z).linearize(ctx.to_canonical(S[0]))
     values = matrix()
-    touch, diag = ctx.fixed_entries
-    values[touch] = 0.0
-    values[diag] = 1.0
+    ctx.eliminate_fixed(values)
     G = vertex_graph(pat, topo.n_vertices)
     out = {"vertices": int(topo.n_vertices), "unknowns": int(pat["n"]), "matrix_nnz_lower": int(pat["nnz"]),
            "orderings": {}}

@@ -47,9 +47,7 @@ def gn_system(topo, X, z):
     obj = ctx.objective(z)
     _, grad, matrix = obj.linearize(ctx.to_canonical(X))
     H = matrix()
-    touch, diag = ctx.fixed_entries
-    H[touch] = 0.0
-    H[diag] = 1.0
+    ctx.eliminate_fixed(H)
     grad[ctx.fixed_dofs] = 0.0
     lower = sp.csc_matrix((H, ctx.pattern["matrix"].indices, ctx.pattern["matrix"].indptr),
                           shape=ctx.pattern["matrix"].shape)

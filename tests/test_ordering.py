@@ -35,9 +35,7 @@ def bar():
     _, _, matrix = ctx.objective(lengths_and_angles(simple_deform_bend(B, np.pi / 2), topo)).linearize(
         ctx.to_canonical(B))
     values = matrix()
-    touch, diag = ctx.fixed_entries
-    values[touch] = 0.0
-    values[diag] = 1.0
+    ctx.eliminate_fixed(values)
     return topo, B, pat, (G + G.T).tocsr(), values
 
 

@@ -211,9 +211,7 @@ class MultiresolutionReconstruction:
             chol = SparseCholesky(pat["matrix"], backend=ctx.backend, ordering=ordering)
             _, _, matrix = ctx.objective(self.z_keys[self.reference]).linearize(Xr)
             values = matrix()
-            touch, diag = ctx.fixed_entries
-            values[touch] = 0.0
-            values[diag] = 1.0
+            ctx.eliminate_fixed(values)
             chol.factorize(values)
             self._reference_factor = chol
             self._reference_canonical = Xr
@@ -338,9 +336,7 @@ class MultiresolutionReconstruction:
         ctx = self.fine_context
         pat = ctx.pattern
         values = matrix()
-        touch, diag = ctx.fixed_entries
-        values[touch] = 0.0
-        values[diag] = 1.0
+        ctx.eliminate_fixed(values)
         L = sp.csc_matrix((values, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"]))
         return (L + L.T - sp.diags(L.diagonal())).tocsr()
 

@@ -238,6 +238,14 @@ class ReconstructionContext:
             self._fixed_entries = (touch, diag)
         return self._fixed_entries
 
+    def eliminate_fixed(self, values):
+        """Gauss-Newton matrix values (pattern order) with the fixed coordinates' rows and columns replaced by
+        the identity, in place: the system the solver factorizes.  Returns ``values``."""
+        touch, diag = self.fixed_entries
+        values[touch] = 0.0
+        values[diag] = 1.0
+        return values
+
     # coordinates
     def to_canonical(self, vertices):
         """Rigidly move every component so that its fixed face sits in the 3-2-1 position.

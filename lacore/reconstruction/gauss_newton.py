@@ -233,11 +233,8 @@ def _exact_direction(state, context, grad, matrix, second_order=False):
     it is not positive definite (no regularizing shift is tried).
     """
     solver, fixed = context.solver, context.fixed_dofs
-    touch, diag = context.fixed_entries
     t0 = time.perf_counter()
-    H = matrix(second_order=True) if second_order else matrix()
-    H[touch] = 0.0
-    H[diag] = 1.0
+    H = context.eliminate_fixed(matrix(second_order=True) if second_order else matrix())
     t0 = state.add_time("assembly", t0)
     try:
         solver.factorize(H, regularize=not second_order)
