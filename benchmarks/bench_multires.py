@@ -199,11 +199,11 @@ def run_case(S, topo):
 
 def fill(quick):
     """Nonzeros of the fine Cholesky factor and numeric factorization time under three orderings."""
-    import scipy.sparse as sp
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
     from lacore.lengths_angles import lengths_and_angles
     from lacore.reconstruction import get_context
+    from lacore.reconstruction.assembly import coupled_vertex_graph
     from lacore.sparse_cholesky import SparseCholesky, nested_dissection
     from lacore.topology import MeshTopology
 
@@ -216,11 +216,9 @@ def fill(quick):
         ctx.to_canonical(B))
     vals = M()
     ctx.eliminate_fixed(vals)
-    rows, cols = pat["indices"] // 3, pat["cols"] // 3
-    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(B), len(B)))
-    G = G + G.T
+    G = coupled_vertex_graph(pat, len(B))
     nd = nested_dissection(G, B)
-    rcm = reverse_cuthill_mckee(G.tocsr(), symmetric_mode=True)
+    rcm = reverse_cuthill_mckee(G, symmetric_mode=True)
     out = {"vertices": len(B), "unknowns": int(pat["n"]), "matrix_nnz_lower": int(pat["nnz"])}
     for name, order in (("amd", None), ("nested_dissection", nd), ("rcm", rcm)):
         ordering = None if order is None else (3 * np.asarray(order)[:, None] + np.arange(3)).ravel()

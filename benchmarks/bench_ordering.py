@@ -43,15 +43,6 @@ from bench_common import machine_info  # noqa: E402
 from bench_multires import cases  # noqa: E402
 
 
-def vertex_graph(pattern, n_vertices):
-    """Symmetric adjacency of the vertices coupled by the Gauss-Newton pattern (diagonal included)."""
-    import scipy.sparse as sp
-
-    rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
-    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
-    return (G + G.T).tocsr()
-
-
 def measure(pattern, values, vertex_order, repeat, compare_amd=False):
     """Nonzeros, flop estimate and numeric time of CHOLMOD with one vertex ordering (None: AMD)."""
     import cvxopt.cholmod
@@ -82,7 +73,7 @@ def measure(pattern, values, vertex_order, repeat, compare_amd=False):
 def run_case(S, topo, repeat):
     from lacore.lengths_angles import lengths_and_angles
     from lacore.reconstruction import get_context
-    from lacore.reconstruction.assembly import dof_ordering
+    from lacore.reconstruction.assembly import coupled_vertex_graph, dof_ordering
     from lacore.sparse_cholesky import metis_nested_dissection, nested_dissection
 
     ctx = get_context(topo, S[0])
@@ -91,7 +82,7 @@ def run_case(S, topo, repeat):
     _, _, matrix = ctx.objective(z).linearize(ctx.to_canonical(S[0]))
     values = matrix()
     ctx.eliminate_fixed(values)
-    G = vertex_graph(pat, topo.n_vertices)
+    G = coupled_vertex_graph(pat, topo.n_vertices)
     out = {"vertices": int(topo.n_vertices), "unknowns": int(pat["n"]), "matrix_nnz_lower": int(pat["nnz"]),
            "orderings": {}}
     t0 = time.perf_counter()

@@ -10,14 +10,13 @@ import sys
 import numpy as np
 import pymetis  # noqa: F401  (lacore[test] installs it: these tests check the METIS path, not a skip)
 import pytest
-import scipy.sparse as sp
 from conftest import REPO
 
 from lacore import sparse_cholesky
 from lacore.errors import InputError
 from lacore.lengths_angles import lengths_and_angles
 from lacore.reconstruction import get_context, reconstruct
-from lacore.reconstruction.assembly import dof_ordering
+from lacore.reconstruction.assembly import coupled_vertex_graph, dof_ordering
 from lacore.samples.simple_deform import box_bar, simple_deform_bend
 from lacore.sparse_cholesky import SparseCholesky, metis_nested_dissection, nested_dissection, vertex_ordering
 from lacore.topology import MeshTopology
@@ -30,13 +29,12 @@ def bar():
     topo = MeshTopology.from_faces(F, n_vertices=len(B))
     ctx = get_context(topo, B)
     pat = ctx.pattern
-    V = topo.n_vertices
-    G = sp.csr_matrix((np.ones(pat["nnz"]), (pat["indices"] // 3, pat["cols"] // 3)), shape=(V, V))
+    G = coupled_vertex_graph(pat, topo.n_vertices)
     _, _, matrix = ctx.objective(lengths_and_angles(simple_deform_bend(B, np.pi / 2), topo)).linearize(
         ctx.to_canonical(B))
     values = matrix()
     ctx.eliminate_fixed(values)
-    return topo, B, pat, (G + G.T).tocsr(), values
+    return topo, B, pat, G, values
 
 
 def factor_counts(pat, values, vertex_order):

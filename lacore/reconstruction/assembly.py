@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from ..lengths_angles import jacobian_pattern
 from ..sparse_cholesky import vertex_ordering
 
-__all__ = ["gauss_newton_pattern", "upper_outer", "dof_ordering"]
+__all__ = ["gauss_newton_pattern", "upper_outer", "dof_ordering", "coupled_vertex_graph"]
 
 _I6, _J6 = np.triu_indices(6)
 _I12, _J12 = np.triu_indices(12)
@@ -171,9 +171,13 @@ def dof_ordering(topology, pattern, vertices, method=None):
     method : str
         The method used.
     """
-    V = topology.n_vertices
-    rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
-    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(V, V))
-    order, method = vertex_ordering(G + G.T, vertices, method)
+    order, method = vertex_ordering(coupled_vertex_graph(pattern, topology.n_vertices), vertices, method)
     return (3 * order[:, None] + np.arange(3)).ravel(), method
+
+
+def coupled_vertex_graph(pattern, n_vertices):
+    """``(V, V)`` symmetric CSR adjacency of the vertices a Gauss-Newton pattern couples (diagonal included)."""
+    rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
+    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
+    return (G + G.T).tocsr()
 
