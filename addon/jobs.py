@@ -15,7 +15,7 @@ factors recomputes only those.
 
 With more than one process (:func:`job_workers`) the frames are split into chains
 (:func:`lacore.parallel.frame_chains`, each starting next to a key): this process computes the
-first chain, one step per frame as above, while :class:`lacore.interpolation.ChainWorkers` run
+first chain, one step per frame as above, while :class:`lacore.shapes.interpolation.ChainWorkers` run
 the other chains in worker processes (lacore only); a step records the frames they finished.
 With :attr:`ProjectionJob.all_in_workers` (the modal operators) every chain runs in a worker
 process and Blender's process only collects: its Python stays free for the UI (a CHOLMOD
@@ -26,13 +26,13 @@ factorization in Blender's own process holds Python's lock for ~1-2 s at 50k ver
 import numpy as np
 
 from ..lacore.errors import LengthsAnglesError
-from ..lacore.interpolation import ChainWorkers, piecewise_linear_z, project_targets, spline_z
-from ..lacore.lengths_angles import check_z
+from ..lacore.shapes.interpolation import ChainWorkers, piecewise_linear_z, project_targets, spline_z
+from ..lacore.geometry.lengths_angles import check_z
 from ..lacore.multiresolution import MultiresolutionReconstruction
 from ..lacore.parallel import WorkerError, default_workers, frame_chains
 from ..lacore.progress import report
 from ..lacore.reconstruction.settings import split_options
-from ..lacore.rigid import rigid_align
+from ..lacore.geometry.rigid import rigid_align
 from . import session
 
 __all__ = ["ProjectionJob", "key_weights", "job_workers", "MULTIRES", "AUTO_WORKERS_MIN_VERTICES",
@@ -63,7 +63,8 @@ def job_workers(requested, n_vertices, n_frames):
 
 def key_weights(keyframes, t):
     """Weights ``(K,)`` of the keys in the piecewise-linear blend at time ``t`` (hat functions; the end
-    segments continue linearly beyond the first / last keyframe, as :func:`lacore.interpolation.piecewise_linear_z`)."""
+    segments continue linearly beyond the first / last keyframe, as
+    :func:`lacore.shapes.interpolation.piecewise_linear_z`)."""
     k = np.asarray(keyframes, float)
     j = int(np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2))
     s = (t - k[j]) / (k[j + 1] - k[j])
@@ -88,7 +89,7 @@ class ProjectionJob:
     method : str
         lacore reconstruction method (``"lsq"``, ``"hybrid"``, ``"gn"``).
     method_options : dict
-        Keywords of :func:`lacore.interpolation.project_targets` (``hybrid``, ``options``).
+        Keywords of :func:`lacore.shapes.interpolation.project_targets` (``hybrid``, ``options``).
     method_label : str
         Distinguishes cached results of different option sets (e.g. the operator's method item).
     workers : int

@@ -8,7 +8,7 @@ import numpy as np
 from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
-from ..lacore.integrability import integrability_violation
+from ..lacore.integrability.local import integrability_violation
 from . import session, storage
 from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
 

@@ -4,7 +4,7 @@
 Operators
 ---------
 ``lengths_angles.build_model``
-    Builds a :class:`..lacore.shape_model.ShapeModel` from the active mesh's shape
+    Builds a :class:`..lacore.models.shape_model.ShapeModel` from the active mesh's shape
     keys (default all but the basis; ``keys`` a comma-separated list chooses), on the
     fan triangulation of :func:`.mesh_access.triangulate`.  The model is stored IN
     THE .blend: ``mesh["lengths_angles_model"]`` holds the model's ``.npz``
@@ -23,7 +23,7 @@ Mode sliders
     Binds the take's marker empties (the active/selected take empty, or the selected
     marker empties) to the active mesh at the current frame: each marker to the
     nearest surface point of the evaluated mesh with its signed normal offset
-    (:func:`..lacore.marker_binding.bind_markers`, ``align=False`` by default: the
+    (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
     markers are where the mesh is).  Stored on the object in
     ``obj["lengths_angles_binding"]`` (take, labels, empties, triangles of the fan
     triangulation, barycentric coordinates, offsets, distances); the panel lists
@@ -32,7 +32,7 @@ Mode sliders
 ``lengths_angles.fit_markers``
     Fits the frame range.  Marker positions are read from the empties' F-curves in
     bulk (:func:`.operators_markers.read_take`, no ``frame_set``), mapped into the
-    object's space and passed to :func:`..lacore.marker_fitting.fit_markers`.
+    object's space and passed to :func:`..lacore.markers.fitting.fit_markers`.
     Interactively it runs MODAL: the fit runs in a worker thread (only lacore, no
     bpy), a timer updates the progress bar and Esc cancels through lacore's progress
     callback.  In background mode (``blender -b``) it runs synchronously.
@@ -62,11 +62,11 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
-from ..lacore.marker_binding import MarkerBinding, bind_markers
-from ..lacore.marker_fitting import fit_markers
-from ..lacore.point_cache import write_pc2
+from ..lacore.markers.binding import MarkerBinding, bind_markers
+from ..lacore.markers.fitting import fit_markers
+from ..lacore.io.point_cache import write_pc2
 from ..lacore.progress import Cancelled
-from ..lacore.shape_model import ShapeModel
+from ..lacore.models.shape_model import ShapeModel
 from .compat import ensure_animation_channels
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take

@@ -2,7 +2,7 @@
 """Operators: in-betweens of two shape keys and baked keyframe in-betweens (thesis 4.2).
 
 Both operators follow the pattern of :mod:`.operators`: read the shape keys,
-compute every result with :mod:`..lacore.interpolation` (linear or cubic spline
+compute every result with :mod:`..lacore.shapes.interpolation` (linear or cubic spline
 in lengths and angles, then projection onto admissible lengths and angles by
 reconstruction), and only then write to Blender.  Any error is reported as
 ERROR and returns CANCELLED with the object unchanged.
@@ -103,7 +103,7 @@ PLAYBACK_ITEMS = [
 ]
 _INTERPOLATION = {'STEPPED': 0, 'SMOOTH': 1}  # keyframe interpolation enum values: CONSTANT, LINEAR
 _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
-# FAST: continuation along t (lacore.interpolation.predicted_start: the secant through the two nearest
+# FAST: continuation along t (lacore.shapes.interpolation.predicted_start: the secant through the two nearest
 # computed in-betweens or keys, kept when its energy is lower than the nearest one's) and one Gauss-Newton
 # step; a frame starting from a known shape itself (the first after a key) gets up to three, stopping once
 # the predicted decrease is below ftol = 1e-4 of the energy.  Measured (benchmarks/bench_continuation.py,

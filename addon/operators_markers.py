@@ -3,7 +3,7 @@
 
 ``lengths_angles.import_markers`` (also File > Import > Motion Capture Markers, and
 drag and drop of .c3d/.trc files onto the 3D viewport)
-reads a take with :mod:`..lacore.marker_io` (positions in metres, NaN where a
+reads a take with :mod:`..lacore.markers.io` (positions in metres, NaN where a
 marker is occluded) and only then creates, in the active collection:
 
 * one *take empty* named after the file (``PLAIN_AXES``), holding the take's
@@ -26,7 +26,7 @@ Timing: by default the scene's frame rate is set to the take's (``fps`` /
 ``frame_start``.  With ``rate_mode='RETIME'`` the scene keeps its rate and
 sample ``i`` is keyed at ``frame_start + i * scene_fps / take_rate`` (fractional
 frames): every sample is kept, none merged or dropped.  With ``'RESAMPLE'`` the take
-is resampled to the scene's rate (:func:`..lacore.marker_io.resample`: linear in
+is resampled to the scene's rate (:func:`..lacore.markers.io.resample`: linear in
 time; a frame between an occluded and a visible sample is occluded), one key
 per frame; the take empty records both the file's rate and frame count and
 the keyed ones (``keyed_rate``, ``keyed_samples``).
@@ -52,7 +52,7 @@ from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatPrope
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
-from ..lacore.marker_io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
+from ..lacore.markers.io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
 from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",

@@ -4,7 +4,7 @@
 One mechanism, content-addressed (so undo, which re-allocates datablocks, and key renames
 do not invalidate it, and any edit does):
 
-* **topology** (:class:`lacore.topology.MeshTopology`, which owns lacore's per-connectivity
+* **topology** (:class:`lacore.geometry.topology.MeshTopology`, which owns lacore's per-connectivity
   cache: Gauss-Newton pattern, fill-reducing ordering, symbolic factorization, reconstruction
   contexts) keyed by :func:`topology_hash` of the fixed fan triangulation;
 * **z** of every shape key (lengths and angles, thesis eq. 2.1) keyed by (topology hash,
@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..lacore.errors import MeshError
-from ..lacore.lengths_angles import check_nondegenerate, lengths_and_angles
-from ..lacore.topology import MeshTopology, check_vertices
+from ..lacore.geometry.lengths_angles import check_nondegenerate, lengths_and_angles
+from ..lacore.geometry.topology import MeshTopology, check_vertices
 from . import mesh_access, storage
 
 __all__ = ["STATS", "MeshData", "coords_hash", "topology_hash", "read_mesh", "key_z", "cached_result",

@@ -29,7 +29,7 @@ __all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "w
 
 PROP = "lengths_angles"
 FORMAT_VERSION = 1
-#: Largest per-vertex violation ``|tr I_v - 3|`` (lacore.integrability) shown as "integrable": round-off of
+#: Largest per-vertex violation ``|tr I_v - 3|`` (lacore.integrability.local) shown as "integrable": round-off of
 #: lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
 INTEGRABLE_TOLERANCE = 1e-8
 

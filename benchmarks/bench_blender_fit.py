@@ -8,7 +8,7 @@ noise, ~10 % occluded) written as C3D and imported, Bind Markers at frame 1, the
 
 * ``blender_seconds``: ``bpy.ops.lengths_angles.fit_markers()`` as a user runs it (background mode:
   synchronous), i.e. reading the take from the F-curves, the fit, writing the PC2 and the modifier;
-* ``lacore_seconds``: ``lacore.marker_fitting.fit_markers`` on the same model, binding and marker
+* ``lacore_seconds``: ``lacore.markers.fitting.fit_markers`` on the same model, binding and marker
   positions, in the same process (best of ``--repeat`` each, interleaved);
 * ``setup_seconds`` / ``finish_seconds``: the operator's own work around that call (reading the take
   from the F-curves; writing the PC2 and the modifier), best of 5: the operator's time is lacore's plus
@@ -47,8 +47,8 @@ def main(argv=None):
     from addon_dev import load_addon
 
     pkg = load_addon()
-    fit_markers = pkg.lacore.marker_fitting.fit_markers  # the add-on's own copy of lacore
-    from lacore.marker_io import MarkerTake, write_c3d
+    fit_markers = pkg.lacore.markers.fitting.fit_markers  # the add-on's own copy of lacore
+    from lacore.markers.io import MarkerTake, write_c3d
     from lacore.samples.human import load_human
     from lacore.samples.markers import observe_markers, place_markers
 

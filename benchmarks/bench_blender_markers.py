@@ -7,7 +7,7 @@ written as C3D and imported with ``bpy.ops.lengths_angles.import_markers`` from 
 (scripts/addon_dev.py), best of ``--repeat`` runs in a fresh empty scene each.  Timed:
 
 * ``operator_seconds``: the operator call as a user runs it (read, objects, F-curves, undo push);
-* ``read_seconds``: ``lacore.marker_io.read_markers`` alone;
+* ``read_seconds``: ``lacore.markers.io.read_markers`` alone;
 * ``create_seconds``: ``addon.operators_markers.import_take`` alone (objects and bulk F-curves).
 
 Prints one JSON object.
@@ -43,7 +43,7 @@ def main(argv=None):
     from addon_dev import load_addon
 
     pkg = load_addon()
-    mio, ops = pkg.lacore.marker_io, pkg.addon.operators_markers
+    mio, ops = pkg.lacore.markers.io, pkg.addon.operators_markers
     take = synthetic_take(args.frames, args.markers)
     tmp = tempfile.mkdtemp(prefix="lengths_angles_markers_")
     path = os.path.join(tmp, "take.c3d")

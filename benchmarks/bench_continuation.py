@@ -5,7 +5,7 @@ Cases: ``bar50k`` (box bar, 49,090 vertices, bend 90 -> twist 90) and ``body50k`
 (the MakeHuman body subdivided once, 53,514 vertices, bent 60 -> twisted 60), the
 cases of ``bench_multires.py``.  ``W_q``, weights (3.20) from key 0, ``eta = 1e-3``.
 
-Sequence ``t = 1/11 .. 10/11`` (:func:`lacore.interpolation.interpolate`, frames in
+Sequence ``t = 1/11 .. 10/11`` (:func:`lacore.shapes.interpolation.interpolate`, frames in
 order, one context), by
 
 * ``gauss_newton``: ``method="gn"`` run to convergence, started from the secant
@@ -59,7 +59,7 @@ ROWS = ("gauss_newton", "fast", "fast_geometric_ordering", "fast_2_workers", "on
 
 
 def row_options(name):
-    """Keywords of :func:`lacore.interpolation.interpolate` for a row (the add-on's Fast from the add-on's table)."""
+    """Keywords of :func:`lacore.shapes.interpolation.interpolate` for a row (the add-on's Fast from its table)."""
     from lacore.reconstruction import GaussNewtonOptions, HybridOptions
 
     if name == "gauss_newton":
@@ -87,10 +87,10 @@ def maxrss_mb():
 
 
 def run_case(S, topo, rows):
-    from lacore.interpolation import interpolate
-    from lacore.lengths_angles import lengths_and_angles
+    from lacore.shapes.interpolation import interpolate
+    from lacore.geometry.lengths_angles import lengths_and_angles
     from lacore.reconstruction import get_context, reconstruct
-    from lacore.rigid import rigid_rms
+    from lacore.geometry.rigid import rigid_rms
 
     ts = np.arange(1, 11) / 11.0
     diag = float(np.linalg.norm(S[0].max(0) - S[0].min(0)))
@@ -143,7 +143,7 @@ def main(argv=None):
     parser.add_argument("--rows", nargs="+", choices=ROWS, default=list(ROWS),
                         help="rows to run; the first is the reference of the others (default: all)")
     args = parser.parse_args(argv)
-    from lacore.sparse_cholesky import default_backend
+    from lacore.linalg.sparse_cholesky import default_backend
 
     result = {"benchmark": "continuation", "machine": machine_info(), "backend": default_backend(), "cases": {}}
     for name, (S, topo) in cases(args.quick).items():

@@ -17,7 +17,7 @@ sys.path.insert(0, REPO)
 from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 
 from lacore.cli import encode_mesh  # noqa: E402
-from lacore.mesh_io import load_mesh  # noqa: E402
+from lacore.io.meshes import load_mesh  # noqa: E402
 
 MESHES = ["sphere/unitSphere1.ply", "plate/plate121.ply", "sphere/defSphere0.ply", "plate/plate4SD.ply",
           "finger/finger0.ply"]

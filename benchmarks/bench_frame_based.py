@@ -43,12 +43,12 @@ import trimesh  # noqa: E402
 from bench_common import machine_info  # noqa: E402
 from meshes import bent_tube, benchmark_mesh  # noqa: E402
 
-from lacore.lengths_angles import lengths_and_angles  # noqa: E402
+from lacore.geometry.lengths_angles import lengths_and_angles  # noqa: E402
 from lacore.reconstruction.frame_based import _walk_schedule, frame_based_reconstruction  # noqa: E402
 from lacore.reconstruction.least_squares import least_squares_reconstruction  # noqa: E402
 from lacore.reconstruction.spanning_trees import (adaptive_edge_weights, bfs_tree, default_root_faces,  # noqa: E402
                                                   minimal_spanning_tree, preassembled_tree, shortest_path_tree)
-from lacore.topology import MeshTopology  # noqa: E402
+from lacore.geometry.topology import MeshTopology  # noqa: E402
 
 GOAST_FINGER_MS = {"bfs": {"tree": 0.08, "walk": 0.39}, "mst": {"tree": 1.0, "walk": 0.4},
                    "spt": {"tree": 1.0, "walk": 0.4}}

@@ -44,11 +44,11 @@ sys.path.insert(0, HERE)
 from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 from meshes import deformed_sphere  # noqa: E402
 
-from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian  # noqa: E402
-from lacore.mesh_io import load_mesh  # noqa: E402
+from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian  # noqa: E402
+from lacore.io.meshes import load_mesh  # noqa: E402
 from lacore.reconstruction import ReconstructionContext, reconstruct  # noqa: E402
-from lacore.sparse_cholesky import SparseCholesky, available_backends  # noqa: E402
-from lacore.topology import MeshTopology  # noqa: E402
+from lacore.linalg.sparse_cholesky import SparseCholesky, available_backends  # noqa: E402
+from lacore.geometry.topology import MeshTopology  # noqa: E402
 
 GOAST = {
     "finger1": {"iterations": 14, "seconds": 1.44},

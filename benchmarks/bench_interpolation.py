@@ -44,8 +44,8 @@ __all__ = ["main"]
 
 
 def cases(quick):
-    from lacore.mesh_io import load_mesh
-    from lacore.topology import MeshTopology
+    from lacore.io.meshes import load_mesh
+    from lacore.geometry.topology import MeshTopology
 
     d = shared_meshes_dir()
     X0, F = load_mesh(os.path.join(d, "finger", "finger0.ply"))
@@ -59,7 +59,7 @@ def cases(quick):
 
 
 def run_case(topo, X0, X1, factors, warm_start):
-    from lacore.interpolation import interpolate
+    from lacore.shapes.interpolation import interpolate
 
     t0 = time.perf_counter()
     res = interpolate([X0, X1], topo, factors, warm_start=warm_start)
@@ -81,7 +81,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small bar (~4k vertices) instead of ~50k")
     parser.add_argument("--no-cold", action="store_true", help="skip the runs without warm starts")
     args = parser.parse_args(argv)
-    from lacore.sparse_cholesky import default_backend
+    from lacore.linalg.sparse_cholesky import default_backend
 
     factors = np.arange(1, 11) / 11.0
     result = {"benchmark": "interpolation", "machine": machine_info(), "backend": default_backend(),

@@ -19,7 +19,7 @@ Usage::
 ``--prolong`` (thesis 2.3: fit coarse, prolong): the lengths-and-angles fit is
 prolonged to the full 13,380-vertex body
 (:func:`lacore.samples.human.coarse_human_coarsening`) with the 3 nearest
-training poses as key shapes (:class:`lacore.marker_prolongation.NearestKeysProlongation`),
+training poses as key shapes (:class:`lacore.markers.prolongation.NearestKeysProlongation`),
 and, for comparison, with the rest pose as the only key; reported: the
 full-body mean per-vertex error against the true fine poses, the error at the
 kept (coarse) and the re-inserted vertices, the coarse error counted per fine
@@ -40,13 +40,13 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from bench_common import machine_info
 
-from lacore.marker_baselines import VertexPCA, fit_markers_vertex_pca
-from lacore.marker_fitting import fit_markers
-from lacore.marker_prolongation import NearestKeysProlongation
+from lacore.markers.baselines import VertexPCA, fit_markers_vertex_pca
+from lacore.markers.fitting import fit_markers
+from lacore.markers.prolongation import NearestKeysProlongation
 from lacore.multiresolution import Prolongation
 from lacore.samples.human import HumanBody, coarse_human_coarsening, load_human
 from lacore.samples.markers import observe_markers, place_markers
-from lacore.shape_model import ShapeModel
+from lacore.models.shape_model import ShapeModel
 
 MM = 100.0  # decimetres -> millimetres
 

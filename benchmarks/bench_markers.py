@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Benchmark: reading a 5,000-frame, 50-marker C3D take with lacore.marker_io.
+"""Benchmark: reading a 5,000-frame, 50-marker C3D take with lacore.markers.io.
 
 A seeded synthetic take (100 Hz, occlusion gaps of 5-40 frames) is written as C3D in float and in
-16-bit integer storage (``lacore.marker_io.write_c3d``), then read (best of ``--repeat``) by
+16-bit integer storage (``lacore.markers.io.write_c3d``), then read (best of ``--repeat``) by
 
-* ``lacore``: :func:`lacore.marker_io.read_markers` (one vectorized pass over the data section);
+* ``lacore``: :func:`lacore.markers.io.read_markers` (one vectorized pass over the data section);
 * ``c3d_read_frames``: the ``c3d`` package's per-frame ``Reader.read_frames`` stacked into an
   array (the reference the tests compare against).
 
@@ -29,7 +29,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 import numpy as np  # noqa: E402
 from bench_common import machine_info  # noqa: E402
 
-from lacore.marker_io import MarkerTake, read_markers, write_c3d, write_trc  # noqa: E402
+from lacore.markers.io import MarkerTake, read_markers, write_c3d, write_trc  # noqa: E402
 
 
 def synthetic_take(frames, markers, seed=7, rate=100.0):

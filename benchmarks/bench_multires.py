@@ -86,7 +86,7 @@ def load_body(path=HUMAN):
 
 def midpoint_subdivide(X, F):
     """Split every triangle into four at its edge midpoints (vertices: V + E)."""
-    from lacore.topology import MeshTopology
+    from lacore.geometry.topology import MeshTopology
 
     topo = MeshTopology.from_faces(F, n_vertices=len(X))
     V = len(X)
@@ -110,7 +110,7 @@ def beam_bend(X, angle, axis=1, towards=2):
 
 
 def cases(quick):
-    from lacore.topology import MeshTopology
+    from lacore.geometry.topology import MeshTopology
 
     nl, nw = (40, 10) if quick else (210, 52)
     B, FB = box_bar(nl, nw)
@@ -130,7 +130,7 @@ def maxrss_mb():
 def run_case(S, topo):
     from lacore.multiresolution import MultiresolutionReconstruction
     from lacore.reconstruction import GaussNewtonOptions, HybridOptions, reconstruct
-    from lacore.rigid import rigid_rms
+    from lacore.geometry.rigid import rigid_rms
 
     diag = float(np.linalg.norm(S[0].max(0) - S[0].min(0)))
     out = {"vertices": int(topo.n_vertices), "faces": int(topo.n_faces)}
@@ -201,11 +201,11 @@ def fill(quick):
     """Nonzeros of the fine Cholesky factor and numeric factorization time under three orderings."""
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-    from lacore.lengths_angles import lengths_and_angles
+    from lacore.geometry.lengths_angles import lengths_and_angles
     from lacore.reconstruction import get_context
     from lacore.reconstruction.assembly import coupled_vertex_graph
-    from lacore.sparse_cholesky import SparseCholesky, nested_dissection
-    from lacore.topology import MeshTopology
+    from lacore.linalg.sparse_cholesky import SparseCholesky, nested_dissection
+    from lacore.geometry.topology import MeshTopology
 
     nl, nw = (40, 10) if quick else (100, 25)
     B, F = box_bar(nl, nw)
@@ -239,7 +239,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="small meshes (bar 1.8k, body 13.4k) instead of ~50k")
     args = parser.parse_args(argv)
-    from lacore.sparse_cholesky import default_backend
+    from lacore.linalg.sparse_cholesky import default_backend
 
     result = {"benchmark": "multires", "machine": machine_info(), "backend": default_backend(), "cases": {}}
     result["fill"] = fill(args.quick)

@@ -8,10 +8,10 @@ the blend ``t = 0.5``, 3 V unknowns.  Each ordering is given to CHOLMOD alone
 
 * ``amd``: CHOLMOD's AMD;
 * ``nested_dissection``: lacore's geometric nested dissection
-  (:func:`lacore.sparse_cholesky.nested_dissection` on the coupled-vertex graph,
+  (:func:`lacore.linalg.sparse_cholesky.nested_dissection` on the coupled-vertex graph,
   from key 0's coordinates);
 * ``metis``: METIS nested dissection of the same graph
-  (:func:`lacore.sparse_cholesky.metis_nested_dissection`; pymetis, an optional
+  (:func:`lacore.linalg.sparse_cholesky.metis_nested_dissection`; pymetis, an optional
   dependency, ``lacore[fast]``), else ``{"unavailable": ...}``;
 * ``lacore_default``: what :class:`lacore.reconstruction.ReconstructionContext`
   uses (:func:`lacore.reconstruction.assembly.dof_ordering`: METIS if available,
@@ -47,7 +47,7 @@ def measure(pattern, values, vertex_order, repeat, compare_amd=False):
     """Nonzeros, flop estimate and numeric time of CHOLMOD with one vertex ordering (None: AMD)."""
     import cvxopt.cholmod
 
-    from lacore.sparse_cholesky import SparseCholesky
+    from lacore.linalg.sparse_cholesky import SparseCholesky
 
     ordering = None if vertex_order is None else (3 * vertex_order[:, None] + np.arange(3)).ravel()
     saved = dict(cvxopt.cholmod.options)
@@ -71,10 +71,10 @@ def measure(pattern, values, vertex_order, repeat, compare_amd=False):
 
 
 def run_case(S, topo, repeat):
-    from lacore.lengths_angles import lengths_and_angles
+    from lacore.geometry.lengths_angles import lengths_and_angles
     from lacore.reconstruction import get_context
     from lacore.reconstruction.assembly import coupled_vertex_graph, dof_ordering
-    from lacore.sparse_cholesky import metis_nested_dissection, nested_dissection
+    from lacore.linalg.sparse_cholesky import metis_nested_dissection, nested_dissection
 
     ctx = get_context(topo, S[0])
     pat = ctx.pattern
@@ -111,7 +111,7 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=3, help="numeric factorizations per ordering (fastest kept)")
     args = parser.parse_args(argv)
     result = {"benchmark": "ordering", "machine": machine_info(), "cases": {}}
-    from lacore.sparse_cholesky import _pymetis
+    from lacore.linalg.sparse_cholesky import _pymetis
 
     result["machine"]["pymetis"] = _pymetis() is not None
     for name, (S, topo) in cases(args.quick).items():

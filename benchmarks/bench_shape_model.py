@@ -6,7 +6,7 @@ linear-blend skinning (:mod:`lacore.samples.human`, seed 1, the default
 training spread), the rest pose as reference (weights (3.20), ``eta = 0.005``).
 For the full 13,380-vertex body (and the coarse body if
 ``tests/data/human_coarse.npz`` exists) and both tangent variants, every stage
-of :meth:`lacore.shape_model.ShapeModel.fit` is timed (encode, mean (4.16),
+of :meth:`lacore.models.shape_model.ShapeModel.fit` is timed (encode, mean (4.16),
 tangent decomposition = Jacobian + Cholesky of ``D I (D I)^T``, tangent solves,
 Gram matrix, eigendecomposition), twice: ``first`` (fresh process state: GN and
 Cholesky symbolic analyses) and ``repeat`` (same topology, cached analyses).
@@ -33,7 +33,7 @@ from bench_common import machine_info  # noqa: E402
 
 from lacore import MeshTopology  # noqa: E402
 from lacore.samples.human import coarse_body_file, load_human  # noqa: E402
-from lacore.shape_model import ShapeModel  # noqa: E402
+from lacore.models.shape_model import ShapeModel  # noqa: E402
 
 STAGES = ("encode", "mean", "tangent_decomposition", "tangent_solves", "gram", "eigen", "total")
 
@@ -58,7 +58,7 @@ def fit_case(body, n_samples, n_modes, tangent, sweep=True):
     out["mean_energy"] = float(model.mean_result.energy)
     if tangent == "projected":
         # the mean by Gauss-Newton with geodesic acceleration (lacore's default elsewhere) for comparison
-        from lacore.projection import project
+        from lacore.shapes.projection import project
 
         t = time.perf_counter()
         _, res = project(model.linear_mean_z, topo, body.vertices, bending_weight=model.bending_weight,

@@ -176,7 +176,7 @@ if __name__ == "__main__":  # pragma: no cover
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from lacore.topology import MeshTopology
+    from lacore.geometry.topology import MeshTopology
 
     summary = {}
     for name, (_, _, desc) in BENCHMARK_MESHES.items():

@@ -8,38 +8,39 @@ integrability conditions.
 
 Main entry points
 -----------------
-MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.topology`)
-lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.lengths_angles`)
-euler_integrability_map         admissibility conditions (:mod:`lacore.integrability`)
+MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.geometry.topology`)
+lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.geometry.lengths_angles`)
+euler_integrability_map         admissibility conditions (:mod:`lacore.integrability.local`)
 integrability_violation         |tr I_v - 3| per vertex
 QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
 reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
 ReconstructionSettings, GaussNewtonOptions, HybridOptions  its settings (:mod:`lacore.reconstruction.settings`)
 SolverResult                    base of every solver's result (:mod:`lacore.result`)
-interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.interpolation`, imported on first use)
-discrete_geodesic               geodesics on the admissible set (:mod:`lacore.geodesics`, on first use)
-ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.shape_model`, on first use)
+interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.shapes.interpolation`, imported on first use)
+discrete_geodesic               geodesics on the admissible set (:mod:`lacore.shapes.geodesics`, on first use)
+ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.models.shape_model`, on first use)
 """
 
 import importlib
 
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import InputError, LengthsAnglesError, MeshError
-from .integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
-                            integrability_violation, transition_rotations, triangle_inequality_map)
-from .lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
-                             split_z)
+from .integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
+                                  integrability_violation, transition_rotations, triangle_inequality_map)
+from .geometry.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
+                                      split_z)
 from .progress import Cancelled
-from .projection import project
+from .shapes.projection import project
 from .reconstruction import (GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
                              reconstruction_errors)
 from .result import SolverResult
-from .rigid import rigid_align, rigid_fit
-from .topology import MeshTopology, check_vertices
+from .geometry.rigid import rigid_align, rigid_fit
+from .geometry.topology import MeshTopology, check_vertices
 
 #: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
-_LAZY = {"interpolate": "interpolation", "keyframe_inbetweens": "interpolation",
-         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics", "ShapeModel": "shape_model"}
+_LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
+         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.geodesics",
+         "ShapeModel": "models.shape_model"}
 
 
 def __getattr__(name):

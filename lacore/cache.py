@@ -1,6 +1,6 @@
 """Per-mesh caches and scratch buffers: the one mechanism for data derived from a mesh's connectivity.
 
-Every :class:`~lacore.topology.MeshTopology` owns a :class:`DerivedCache`
+Every :class:`~lacore.geometry.topology.MeshTopology` owns a :class:`DerivedCache`
 (``topology.cache``).  Modules that derive target-independent data from the
 connectivity (sparsity patterns, stencils, spanning-tree tables, symbolic
 factorizations, reconstruction contexts) store it there under a key in ONE

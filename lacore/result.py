@@ -3,8 +3,8 @@
 Every long-running lacore entry point returns a subclass of :class:`SolverResult`
 (:class:`lacore.reconstruction.ReconstructionResult`,
 :class:`lacore.reconstruction.GaussNewtonResult`,
-:class:`lacore.interpolation.InterpolationResult`,
-:class:`lacore.geodesics.GeodesicResult`), complete when returned: no field is
+:class:`lacore.shapes.interpolation.InterpolationResult`,
+:class:`lacore.shapes.geodesics.GeodesicResult`), complete when returned: no field is
 filled in by the caller afterwards.  Fields are attributes; for code written
 against ``OptimizeResult`` they can also be read as ``res["name"]``.
 """

@@ -29,20 +29,20 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _rigid_module():
-    """lacore.rigid: the installed extension's copy inside the Blender checks (whose bpy-only interpreters have no
-    SciPy for the repository's ``lacore`` package), else the repository's."""
+    """lacore.geometry.rigid: the installed extension's copy inside the Blender checks (whose bpy-only interpreters
+    have no SciPy for the repository's ``lacore`` package), else the repository's."""
     import importlib
 
     try:
-        return importlib.import_module("bl_ext.user_default.lengths_angles.lacore.rigid")
+        return importlib.import_module("bl_ext.user_default.lengths_angles.lacore.geometry.rigid")
     except ImportError:
         if REPO not in sys.path:
             sys.path.insert(0, REPO)
-        return importlib.import_module("lacore.rigid")
+        return importlib.import_module("lacore.geometry.rigid")
 
 
 def rigid_align(source, target):
-    """``source`` moved rigidly onto ``target`` (:func:`lacore.rigid.rigid_align`)."""
+    """``source`` moved rigidly onto ``target`` (:func:`lacore.geometry.rigid.rigid_align`)."""
     return _rigid_module().rigid_align(source, target)
 
 __all__ = ["make_box_bar", "add_simple_deform_key", "simple_deform_coords", "bent_bar", "twisted_bar",
@@ -195,7 +195,7 @@ def twisted_bar(name="BarTwist", angle_deg=180.0, segments=(64, 4, 4), length=8.
 def shared_mesh_pair(name, basis_path, key_path, key_name, load_mesh):
     """One object from two meshes in correspondence: ``Basis`` = ``basis_path``, ``key_name`` = ``key_path``.
 
-    ``load_mesh`` is :func:`lacore.mesh_io.load_mesh` (keeps the vertex order).
+    ``load_mesh`` is :func:`lacore.io.meshes.load_mesh` (keeps the vertex order).
     """
     V0, F0 = load_mesh(basis_path)
     V1, F1 = load_mesh(key_path)

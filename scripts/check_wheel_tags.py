@@ -45,7 +45,7 @@ PLATFORMS = {
 }
 
 # (distribution, Blender platform, Python) pairs allowed to have no wheel: optional accelerators
-# that lacore replaces (lacore.sparse_cholesky: cvxopt/CHOLMOD -> SciPy's sparse factorization;
+# that lacore replaces (lacore.linalg.sparse_cholesky: cvxopt/CHOLMOD -> SciPy's sparse factorization;
 # pymetis/METIS -> lacore's geometric nested dissection).
 KNOWN_GAPS = frozenset({
     ("cvxopt", "macos-arm64", (3, 13)),

@@ -255,7 +255,7 @@ def blender_mocap_fit(out_dir):
     """The add-on's Build Shape Model / Import Markers (C3D) / Bind Markers / Fit to Markers on the coarse human."""
     import numpy as np
 
-    from lacore.marker_io import MarkerTake, write_c3d
+    from lacore.markers.io import MarkerTake, write_c3d
     from lacore.samples.markers import observe_markers, place_markers
     body, train, take, _ = _human_data()
     names, binding = place_markers(body)

@@ -11,7 +11,7 @@ processor's own format:
   words swapped);
 * SGI/MIPS (86): big-endian integers and IEEE floats.
 
-Not used by lacore; tests compare lacore.marker_io and the ``c3d`` package on these files.
+Not used by lacore; tests compare lacore.markers.io and the ``c3d`` package on these files.
 """
 
 import struct

@@ -56,8 +56,8 @@ def load_mesh(relative: str):
 
 
 def load_topology(relative: str):
-    """Vertices ``(V, 3)`` and the :class:`~lacore.topology.MeshTopology` of a shared mesh."""
-    from lacore.topology import MeshTopology
+    """Vertices ``(V, 3)`` and the :class:`~lacore.geometry.topology.MeshTopology` of a shared mesh."""
+    from lacore.geometry.topology import MeshTopology
 
     X, faces = load_mesh(relative)
     return X, MeshTopology.from_faces(faces, n_vertices=len(X))

@@ -28,7 +28,8 @@ def test_zip_contents(extension_zip):
 
     names = set(zipfile.ZipFile(extension_zip).namelist())
     assert {"blender_manifest.toml", "__init__.py", "LICENSE", "addon/__init__.py", "addon/operators.py",
-            "addon/panels.py", "addon/mesh_access.py", "lacore/__init__.py", "lacore/topology.py"} <= names
+            "addon/panels.py", "addon/mesh_access.py", "lacore/__init__.py", "lacore/geometry/topology.py",
+            "lacore/markers/io.py"} <= names
     assert not any(n.startswith(("tests/", "scripts/", ".venv/", ".ci/", "benchmarks/")) for n in names), names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert any(n.startswith("wheels/scipy-") for n in names) and any(n.startswith("wheels/trimesh-") for n in names)

@@ -5,7 +5,7 @@ shape keys from skinned training poses -> build_model -> a held-out take written
 with occlusions) -> import_markers (scale 10: decimetres, the body's unit) -> bind_markers at frame 1 ->
 fit_markers (PC2 + Mesh Cache modifier).  The modifier's evaluated mesh at every frame must equal lacore's
 own fit of the same data (model and binding as stored in the .blend, markers as read from the C3D file by
-lacore.marker_io) and be close to the true poses; bad input leaves the scene unchanged.
+lacore.markers.io) and be close to the true poses; bad input leaves the scene unchanged.
 """
 
 import io
@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from conftest import REPO, run_blender_check
 
-from lacore.marker_binding import MarkerBinding
-from lacore.marker_baselines import VertexPCA, fit_markers_vertex_pca
-from lacore.marker_fitting import fit_markers
-from lacore.marker_io import MarkerTake, read_markers, write_c3d
-from lacore.shape_model import ShapeModel
+from lacore.markers.binding import MarkerBinding
+from lacore.markers.baselines import VertexPCA, fit_markers_vertex_pca
+from lacore.markers.fitting import fit_markers
+from lacore.markers.io import MarkerTake, read_markers, write_c3d
+from lacore.models.shape_model import ShapeModel
 
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_fit.py"
 N_TRAIN, N_FRAMES = 12, 8

@@ -4,7 +4,7 @@
 * every real C3D file of shared/data/mocap imports with one empty per marker, one location key per
   visible sample (none on occluded ones), the keyed "visible" property matching the occlusion at
   every frame, the scene rate set to the take's, positions to float32 round-off; all compared with
-  lacore.marker_io's reading of the same file (tests/test_marker_io.py checks that reading against
+  lacore.markers.io's reading of the same file (tests/test_marker_io.py checks that reading against
   the files' own headers);
 * options: scale and axis conversion, start frame, mapping by time to the scene's rate, resampling
   to it; the same take as TRC;
@@ -75,7 +75,7 @@ def test_options(run):
     assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0
     assert ret["frame_range"] == [1, 61]  # 150 samples * 24/60 = frame 61
     assert ret["read_back_same_mask"] and ret["read_back_max_abs"] < FLOAT32_METRES and ret["read_back_rate"] == 60
-    # resampled to 24 fps: one key per scene frame, values = lacore.marker_io.resample
+    # resampled to 24 fps: one key per scene frame, values = lacore.markers.io.resample
     res_ = res["resampled"]
     assert res["resampled_frames"] == 61 and res_["frames"] == 61 and res_["fps_unchanged"]
     assert res_["location_keys"] == 3 * res["resampled_visible"] and res_["visible_mismatches"] == 0

@@ -8,8 +8,8 @@ import trimesh
 from conftest import shared_mesh
 
 from lacore.cache import DerivedCache, carve, scratch
-from lacore.interpolation import interpolate
-from lacore.topology import MeshTopology
+from lacore.shapes.interpolation import interpolate
+from lacore.geometry.topology import MeshTopology
 
 
 def test_derived_cache_computes_once_and_freezes_arrays():
@@ -52,7 +52,7 @@ def test_every_lacore_entry_is_keyed_by_its_owner_module():
     shapes = [np.asarray(m.vertices, float) for m in meshes]
     interpolate(shapes, topo, [0.5], method="hybrid", hybrid_start="tree")
     owners = {k[0] for k in topo.cache.keys()}
-    assert {"lacore.topology", "lacore.lengths_angles", "lacore.reconstruction.assembly",
+    assert {"lacore.geometry.topology", "lacore.geometry.lengths_angles", "lacore.reconstruction.assembly",
             "lacore.reconstruction.context", "lacore.reconstruction.spanning_trees"} <= owners
     assert all(o in sys.modules and o.startswith("lacore.") for o in owners), owners
     topo.cache.clear("lacore.reconstruction.context")

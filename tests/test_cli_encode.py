@@ -11,7 +11,7 @@ from conftest import REPO, shared_mesh
 
 from lacore.cli import SUBCOMMANDS, Subcommand, main
 from lacore.errors import MeshError
-from lacore.mesh_io import load_mesh, save_mesh
+from lacore.io.meshes import load_mesh, save_mesh
 
 JSON_KEYS = {"vertices", "edges", "faces", "max_integrability_violation", "seconds"}
 

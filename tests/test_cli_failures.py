@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from conftest import shared_mesh
 
-import lacore.atomic_io as atomic_io
-import lacore.interpolation as interpolation
-from lacore.atomic_io import atomic_write, npz_path, save_npz_atomic
+import lacore.io.atomic as atomic_io
+import lacore.shapes.interpolation as interpolation
+from lacore.io.atomic import atomic_write, npz_path, save_npz_atomic
 from lacore.cli import main
-from lacore.mesh_io import load_mesh, save_mesh
+from lacore.io.meshes import load_mesh, save_mesh
 
 FINGER0, FINGER1 = "finger/finger0.ply", "finger/finger1.ply"
 
@@ -71,7 +71,7 @@ class _DiskFull(io.RawIOBase):
 
 @pytest.fixture
 def disk_full(monkeypatch):
-    """Patch the one writer (lacore.atomic_io) so that every output fails after 100 bytes."""
+    """Patch the one writer (lacore.io.atomic) so that every output fails after 100 bytes."""
     real = os.fdopen
 
     def fdopen(fd, mode="r", **kw):

@@ -5,10 +5,10 @@ import pytest
 from conftest import shared_mesh
 
 from lacore.errors import InputError, MeshError
-from lacore.mesh_io import load_mesh
+from lacore.io.meshes import load_mesh
 from lacore.multiresolution import coarsen
 from lacore.multiresolution.coarsening import vertex_quadrics
-from lacore.topology import MeshTopology
+from lacore.geometry.topology import MeshTopology
 
 
 def _load(*names):

@@ -1,8 +1,8 @@
 """Regression test: the core maps reproduce frozen reference outputs.
 
 The ``tests/data/core_regression_*.npz`` files were written by the *reference*
-implementation of :mod:`lacore.lengths_angles`, :mod:`lacore.integrability` and
-:mod:`lacore.trigonometry` (commit 344d756, before their performance rewrite),
+implementation of :mod:`lacore.geometry.lengths_angles`, :mod:`lacore.integrability.local` and
+:mod:`lacore.geometry.trigonometry` (commit 344d756, before their performance rewrite),
 by running this file as a script::
 
     PYTHONPATH=. .venv/bin/python tests/test_core_regression.py --regenerate
@@ -31,10 +31,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from lacore import integrability as integ
-from lacore import lengths_angles as la
-from lacore import trigonometry as trig
-from lacore.topology import MeshTopology
+from lacore.integrability import local as integ
+from lacore.geometry import lengths_angles as la
+from lacore.geometry import trigonometry as trig
+from lacore.geometry.topology import MeshTopology
 
 DATA = Path(__file__).resolve().parent / "data"
 

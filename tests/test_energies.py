@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 from lacore.energies import (EnergyInVertices, QuadraticEnergy, ThinShellsEnergy, edge_areas, membrane_density,
                              quadratic_weights)
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.lengths_angles import dihedral_angles, face_areas, lengths_and_angles, lengths_and_angles_jacobian
-from lacore.topology import MeshTopology
+from lacore.geometry.lengths_angles import dihedral_angles, face_areas, lengths_and_angles, lengths_and_angles_jacobian
+from lacore.geometry.topology import MeshTopology
 
 PAIRS = [("plate/plate121.ply", "plate/plate121_rolledA.ply"),
          ("finger/finger0.ply", "finger/finger1.ply"),

@@ -9,9 +9,9 @@ import pytest
 from conftest import REPO
 
 from lacore.cli import main
-from lacore.marker_binding import MarkerBinding, surface_points
+from lacore.markers.binding import MarkerBinding, surface_points
 from lacore.samples.bar import bar_mesh, bar_pose
-from lacore.shape_model import ShapeModel
+from lacore.models.shape_model import ShapeModel
 
 
 @pytest.fixture(scope="module")

@@ -10,18 +10,18 @@ from scipy.sparse import csgraph
 from scipy.spatial.transform import Rotation
 
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.integrability import (edge_frame_angles, integrability_violation, standard_frames,
-                                  transition_rotations)
-from lacore.lengths_angles import face_areas, face_normals, lengths_and_angles
+from lacore.integrability.local import (edge_frame_angles, integrability_violation, standard_frames,
+                                        transition_rotations)
+from lacore.geometry.lengths_angles import face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction.frame_based import (_composition_schedule, _forest_depths, _jump_rounds,
                                                frame_based_reconstruction, propagate_frames)
 from lacore.reconstruction.least_squares import least_squares_reconstruction, nearest_rotations
 from lacore.reconstruction.spanning_trees import (DualSpanningTree, adaptive_edge_weights,
                                                   bfs_tree, default_root_faces, dual_spanning_tree, forest_levels,
                                                   minimal_spanning_tree, preassembled_tree, shortest_path_tree)
-from lacore.rigid import rigid_align
-from lacore.topology import MeshTopology
-from lacore.trigonometry import interior_angles
+from lacore.geometry.rigid import rigid_align
+from lacore.geometry.topology import MeshTopology
+from lacore.geometry.trigonometry import interior_angles
 
 KINDS = ("bfs", "mst", "spt")
 ADMISSIBLE = ["finger/finger1.ply", "plate/plate4SD_rolledA.ply", "sphere/defSphere3.ply",

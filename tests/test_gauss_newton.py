@@ -9,12 +9,12 @@ from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from lacore.projection import project
+from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from lacore.shapes.projection import project
 from lacore.reconstruction import ReconstructionContext, get_context, reconstruct, reconstruction_errors
 from lacore.reconstruction.gauss_newton import gauss_newton_pattern, run_gauss_newton, triangle_frame
-from lacore.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky, available_backends
-from lacore.topology import MeshTopology
+from lacore.linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky, available_backends
+from lacore.geometry.topology import MeshTopology
 
 BACKENDS = available_backends()
 # GOAST (reference implementation of the thesis): Gauss-Newton, W_q with weights (3.20) from finger0, eta = 1e-3,
@@ -341,7 +341,7 @@ def test_context_shares_the_symbolic_factorization_and_warm_starts_are_cheap():
 
 
 def test_nested_dissection_is_a_permutation_with_separators_last():
-    from lacore.sparse_cholesky import nested_dissection
+    from lacore.linalg.sparse_cholesky import nested_dissection
 
     n = 20
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")

@@ -16,12 +16,12 @@ from fd import directional_fd, relative_error
 from lacore.progress import Cancelled
 from lacore.energies import QuadraticEnergy, ThinShellsEnergy
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.geodesics import (_QuadraticPathModel, _SchurKKT, _time_laplacian_inverse, _vertex_path_linearization,
-                              default_energy, discrete_geodesic, linear_path, path_energy, path_energy_profile,
-                              projected_linear_path)
-from lacore.integrability import euler_integrability_jacobian, euler_integrability_map
-from lacore.lengths_angles import lengths_and_angles
-from lacore.topology import MeshTopology
+from lacore.shapes.geodesics import (_QuadraticPathModel, _SchurKKT, _time_laplacian_inverse,
+                                     _vertex_path_linearization, default_energy, discrete_geodesic, linear_path,
+                                     path_energy, path_energy_profile, projected_linear_path)
+from lacore.integrability.local import euler_integrability_jacobian, euler_integrability_map
+from lacore.geometry.lengths_angles import lengths_and_angles
+from lacore.geometry.topology import MeshTopology
 
 N_STEPS = 8
 

@@ -1,16 +1,16 @@
-"""Second derivatives of lengths and dihedral angles (lacore.hessians) and the Newton steps built on them."""
+"""Second derivatives of lengths and dihedral angles (lacore.geometry.hessians) and the Newton steps built on them."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 from fd import directional_fd, relative_error
 
-from lacore.hessians import (ANGLE_PAIRS, LENGTH_PAIRS, dihedral_angle_hessians, length_hessians,
-                             residual_curvature_values)
-from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from lacore.geometry.hessians import (ANGLE_PAIRS, LENGTH_PAIRS, dihedral_angle_hessians, length_hessians,
+                                      residual_curvature_values)
+from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from lacore.reconstruction import GaussNewtonOptions, get_context, reconstruct
 from lacore.samples.simple_deform import box_bar, simple_deform_bend
-from lacore.topology import MeshTopology
+from lacore.geometry.topology import MeshTopology
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +138,7 @@ def test_newton_steps_make_the_hard_bar_blend_converge():
 def test_newton_option_and_unregularized_factorization_errors(bent_bar):
     """An unknown mode is named; a Newton matrix that is not positive definite fails at once (no shift)."""
     from lacore.errors import InputError
-    from lacore.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+    from lacore.linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 
     with pytest.raises(InputError, match="unknown newton mode 'sometimes'; use one of never, auto, always"):
         GaussNewtonOptions(newton="sometimes")

@@ -9,9 +9,9 @@ import pytest
 from conftest import REPO, shared_data_dir
 
 from lacore import MeshTopology, lengths_and_angles
-from lacore.rigid import rigid_rms
+from lacore.geometry.rigid import rigid_rms
 from lacore.samples.human import LIMBS, coarse_body_file, load_human
-from lacore.shape_model import DEFAULT_TANGENT, ShapeModel, wrap_angles
+from lacore.models.shape_model import DEFAULT_TANGENT, ShapeModel, wrap_angles
 
 
 @pytest.fixture(scope="module")

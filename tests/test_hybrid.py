@@ -4,7 +4,7 @@ reaches the energy of full Gauss-Newton on the non-admissible averages of the th
 import pytest
 from conftest import load_topology
 
-from lacore.lengths_angles import lengths_and_angles
+from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.reconstruction import reconstruct
 
 

@@ -11,10 +11,10 @@ from conftest import load_topology, shared_meshes_dir
 from fd import directional_fd, relative_error
 
 from lacore.errors import LengthsAnglesError
-from lacore.integrability import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
-                                  integrability_violation, standard_frames, transition_rotations,
-                                  triangle_inequality_jacobian, triangle_inequality_map)
-from lacore.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from lacore.integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
+                                        integrability_violation, standard_frames, transition_rotations,
+                                        triangle_inequality_jacobian, triangle_inequality_map)
+from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 
 
 def all_shared_meshes():

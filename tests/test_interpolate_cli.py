@@ -10,9 +10,9 @@ from conftest import REPO, shared_mesh
 
 from lacore.cli import SUBCOMMANDS, main
 from lacore.cli.interpolate import frame_times, output_paths
-from lacore.lengths_angles import lengths_and_angles
-from lacore.mesh_io import load_mesh
-from lacore.topology import MeshTopology
+from lacore.geometry.lengths_angles import lengths_and_angles
+from lacore.io.meshes import load_mesh
+from lacore.geometry.topology import MeshTopology
 
 PLATES = [shared_mesh(f"plate/{n}.ply") for n in ("plate121", "plate121_rolledA", "plate121_rolledB")]
 FRAME_KEYS = {"file", "factor", "seconds", "energy", "iterations", "max_length_error", "max_angle_error"}
@@ -158,7 +158,7 @@ def test_module_entry_point(tmp_path):
 def test_a_failed_frame_write_keeps_finished_frames_whole(tmp_path, monkeypatch):
     """Frames are streamed as they finish (each written atomically): a write failure at frame 2 of 3 exits 2,
     keeps frame 0 complete, leaves no frame 1 and no temporary file, and writes nothing after it."""
-    import lacore.mesh_io as mesh_io
+    import lacore.io.meshes as mesh_io
 
     calls = []
     original = mesh_io.atomic_write

@@ -7,11 +7,11 @@ from conftest import load_topology
 from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
-from lacore.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
-                                   split_z)
-from lacore.topology import MeshTopology
-from lacore.trigonometry import (interior_angle_jacobian, interior_angles, triangle_area_gradient, triangle_areas,
-                                 triangle_inequality_margin)
+from lacore.geometry.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles,
+                                            lengths_and_angles_jacobian, split_z)
+from lacore.geometry.topology import MeshTopology
+from lacore.geometry.trigonometry import (interior_angle_jacobian, interior_angles, triangle_area_gradient,
+                                          triangle_areas, triangle_inequality_margin)
 
 MESHES = ["finger/finger1.ply", "plate/plate4SD_rolledA.ply", "sphere/defSphere3.ply",
           "hyperbolic/monkey_saddle_2.ply", "simple/SteffensPolyhedron.ply", "plate/paperCrissCross.ply"]

@@ -5,12 +5,12 @@ import pytest
 from fd import directional_fd, relative_error
 from scipy.spatial.transform import Rotation
 
-from lacore.lengths_angles import face_areas
-from lacore.marker_binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
-                                   surface_points)
-from lacore.marker_fitting import MarkerDataError, _Frame, _joint_step, _Problem, fit_markers
+from lacore.geometry.lengths_angles import face_areas
+from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
+                                    surface_points)
+from lacore.markers.fitting import MarkerDataError, _Frame, _joint_step, _Problem, fit_markers
 from lacore.samples.bar import bar_mesh, bar_pose
-from lacore.shape_model import ShapeModel
+from lacore.models.shape_model import ShapeModel
 
 ROT = Rotation.from_rotvec([0.3, 0.2, 0.1]).as_matrix()
 SHIFT = np.array([1.0, 2.0, 3.0])

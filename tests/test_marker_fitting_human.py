@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 from conftest import shared_data_dir
 
-from lacore.marker_baselines import VertexPCA, fit_markers_vertex_pca
-from lacore.marker_binding import surface_points
-from lacore.marker_fitting import fit_markers
+from lacore.markers.baselines import VertexPCA, fit_markers_vertex_pca
+from lacore.markers.binding import surface_points
+from lacore.markers.fitting import fit_markers
 from lacore.samples.human import load_human
 from lacore.samples.markers import MARKER_SET, observe_markers, place_markers
-from lacore.shape_model import ShapeModel
+from lacore.models.shape_model import ShapeModel
 
 
 @pytest.fixture(scope="module")

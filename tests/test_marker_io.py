@@ -1,4 +1,4 @@
-"""lacore.marker_io on every real C3D file in shared/data/mocap, checked against the files' own
+"""lacore.markers.io on every real C3D file in shared/data/mocap, checked against the files' own
 headers and parameters read independently here with the ``c3d`` package (its per-frame
 ``Reader.read_frames``), plus writer round trips, TRC, and clear errors for bad files.
 
@@ -13,8 +13,8 @@ import pytest
 from conftest import shared_data_dir
 
 from lacore.errors import InputError
-from lacore.marker_io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
-                              read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
+from lacore.markers.io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
+                               read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
 
 pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
 
@@ -394,7 +394,7 @@ def test_dec_float_decoding_matches_the_c3d_package():
     """lacore's DEC F-float decoder is bit-identical to the c3d package's on arbitrary bytes."""
     from c3d.c3d import DEC_to_IEEE_BYTES
 
-    from lacore.marker_io import _dec_to_ieee
+    from lacore.markers.io import _dec_to_ieee
 
     raw = np.random.default_rng(5).integers(0, 256, 4 * 20000, dtype=np.uint8)
     raw[:8] = 0  # DEC zero

@@ -5,12 +5,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lacore.errors import InputError
-from lacore.marker_binding import MarkerBinding, surface_points
-from lacore.marker_fitting import fit_markers
-from lacore.marker_prolongation import NearestKeysProlongation
+from lacore.markers.binding import MarkerBinding, surface_points
+from lacore.markers.fitting import fit_markers
+from lacore.markers.prolongation import NearestKeysProlongation
 from lacore.multiresolution import Prolongation, coarsen
 from lacore.samples.bar import bar_mesh, bar_pose
-from lacore.shape_model import ShapeModel
+from lacore.models.shape_model import ShapeModel
 
 ROT = Rotation.from_rotvec([0.3, 0.2, 0.1]).as_matrix()
 SHIFT = np.array([1.0, 2.0, 3.0])

@@ -9,10 +9,10 @@ import pytest
 from conftest import REPO, shared_mesh
 
 from lacore.cli import SUBCOMMANDS, main
-from lacore.mesh_io import load_mesh, save_mesh
-from lacore.rigid import rigid_rms
+from lacore.io.meshes import load_mesh, save_mesh
+from lacore.geometry.rigid import rigid_rms
 from lacore.samples.bar import bar_family
-from lacore.shape_model import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, ShapeModel
+from lacore.models.shape_model import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, ShapeModel
 
 STAGES = {"mean", "tangent_decomposition", "tangent_solves", "gram", "eigen"}
 

@@ -5,11 +5,11 @@ import pytest
 from conftest import shared_mesh
 
 from lacore.errors import InputError, MeshError
-from lacore.mesh_io import load_mesh
+from lacore.io.meshes import load_mesh
 from lacore.multiresolution import MultiresolutionReconstruction, Prolongation, coarsen, vertex_rotations
 from lacore.reconstruction import reconstruct
-from lacore.rigid import rigid_rms
-from lacore.topology import MeshTopology
+from lacore.geometry.rigid import rigid_rms
+from lacore.geometry.topology import MeshTopology
 
 
 def _group(*names):

@@ -12,14 +12,14 @@ import pymetis  # noqa: F401  (lacore[test] installs it: these tests check the M
 import pytest
 from conftest import REPO
 
-from lacore import sparse_cholesky
+from lacore.linalg import sparse_cholesky
 from lacore.errors import InputError
-from lacore.lengths_angles import lengths_and_angles
+from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.reconstruction import get_context, reconstruct
 from lacore.reconstruction.assembly import coupled_vertex_graph, dof_ordering
 from lacore.samples.simple_deform import box_bar, simple_deform_bend
-from lacore.sparse_cholesky import SparseCholesky, metis_nested_dissection, nested_dissection, vertex_ordering
-from lacore.topology import MeshTopology
+from lacore.linalg.sparse_cholesky import SparseCholesky, metis_nested_dissection, nested_dissection, vertex_ordering
+from lacore.geometry.topology import MeshTopology
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_metis_is_the_default_ordering_and_deterministic(bar, tmp_path):
     # a fresh process (a worker of lacore.parallel) orders the same graph the same way
     np.save(tmp_path / "graph.npy", np.stack(G.nonzero()))
     code = ("import numpy as np, scipy.sparse as sp\n"
-            "from lacore.sparse_cholesky import metis_nested_dissection\n"
+            "from lacore.linalg.sparse_cholesky import metis_nested_dissection\n"
             f"r, c = np.load({str(tmp_path / 'graph.npy')!r})\n"
             f"G = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=({topo.n_vertices}, {topo.n_vertices}))\n"
             "print(','.join(map(str, metis_nested_dissection(G))))\n")

@@ -18,7 +18,7 @@ from lacore import parallel
 from lacore.cache import DerivedCache
 from lacore.cli import main
 from lacore.errors import InputError
-from lacore.interpolation import _project_chain, interpolate
+from lacore.shapes.interpolation import _project_chain, interpolate
 from lacore.parallel import WorkerError, WorkerProcess, check_workers, close_workers, frame_chains
 from lacore.progress import Cancelled
 from lacore.reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings
@@ -157,9 +157,9 @@ def test_a_worker_imports_lacore_under_a_package_prefix(tmp_path):
             module.__path__ = [path]
             sys.modules[name] = module
         import numpy as np
-        from fake_ext.user_default.lengths_angles.lacore.interpolation import interpolate
-        from fake_ext.user_default.lengths_angles.lacore.mesh_io import load_mesh
-        from fake_ext.user_default.lengths_angles.lacore.topology import MeshTopology
+        from fake_ext.user_default.lengths_angles.lacore.shapes.interpolation import interpolate
+        from fake_ext.user_default.lengths_angles.lacore.io.meshes import load_mesh
+        from fake_ext.user_default.lengths_angles.lacore.geometry.topology import MeshTopology
         X0, F = load_mesh({str(shared_mesh("plate/plate121_rolledA.ply"))!r})
         X1, _ = load_mesh({str(shared_mesh("plate/plate121_rolledB.ply"))!r})
         topo = MeshTopology.from_faces(F, n_vertices=len(X0))

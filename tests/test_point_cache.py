@@ -1,9 +1,9 @@
-"""PC2 point caches (lacore.point_cache): header per the format, 12 bytes per vertex per frame, round trip."""
+"""PC2 point caches (lacore.io.point_cache): header per the format, 12 bytes per vertex per frame, round trip."""
 
 import numpy as np
 import pytest
 
-from lacore.point_cache import HEADER_BYTES, PointCacheError, read_pc2, write_pc2
+from lacore.io.point_cache import HEADER_BYTES, PointCacheError, read_pc2, write_pc2
 
 
 def test_round_trip_layout_and_header(tmp_path):

@@ -9,10 +9,10 @@ import pytest
 from conftest import REPO, shared_mesh
 
 from lacore.cli import SUBCOMMANDS, main
-from lacore.lengths_angles import lengths_and_angles
-from lacore.mesh_io import load_mesh, save_mesh
+from lacore.geometry.lengths_angles import lengths_and_angles
+from lacore.io.meshes import load_mesh, save_mesh
 from lacore.reconstruction import reconstruct, reconstruction_errors
-from lacore.topology import MeshTopology
+from lacore.geometry.topology import MeshTopology
 
 JSON_KEYS = {"method", "iterations", "seconds", "energy", "max_length_error", "max_angle_error", "success",
              "message", "weights", "targets", "output"}

@@ -11,14 +11,14 @@ import pytest
 from conftest import load_topology
 
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.lengths_angles import (DEGENERACY_RTOL, check_nondegenerate, degenerate_faces, lengths_and_angles,
-                                   lengths_and_angles_jacobian)
+from lacore.geometry.lengths_angles import (DEGENERACY_RTOL, check_nondegenerate, degenerate_faces, lengths_and_angles,
+                                            lengths_and_angles_jacobian)
 from lacore.reconstruction import (ANGLE_ATOL, LENGTH_RTOL, check_reconstruction, get_context, reconstruct,
                                    reconstruction_errors)
 from lacore.reconstruction.checks import CONVERGED_STATUSES, apply_checks
 from lacore.reconstruction.gauss_newton import gauss_newton_reconstruction
 from lacore.reconstruction.settings import ReconstructionSettings
-from lacore.topology import MeshTopology
+from lacore.geometry.topology import MeshTopology
 
 
 def grid(nx, ny, dx, dy, skip=None):

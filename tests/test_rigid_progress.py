@@ -1,11 +1,11 @@
-"""lacore.rigid (Kabsch) and lacore.progress (callbacks, cancellation)."""
+"""lacore.geometry.rigid (Kabsch) and lacore.progress (callbacks, cancellation)."""
 
 import numpy as np
 import pytest
 
 from lacore.errors import InputError, LengthsAnglesError, MeshError
 from lacore.progress import Cancelled, report
-from lacore.rigid import apply_rigid, rigid_align, rigid_fit, rigid_rms
+from lacore.geometry.rigid import apply_rigid, rigid_align, rigid_fit, rigid_rms
 
 
 def random_rotation(rng):

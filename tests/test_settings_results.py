@@ -9,14 +9,14 @@ import trimesh
 from conftest import shared_mesh
 
 from lacore.errors import InputError, MeshError
-from lacore.lengths_angles import lengths_and_angles
+from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.reconstruction import (GaussNewtonOptions, HybridOptions, ReconstructionResult, ReconstructionSettings,
                                    get_context, reconstruct, tree_kind)
 from lacore.reconstruction.gauss_newton import run_gauss_newton
 from lacore.reconstruction.result import GaussNewtonResult
 from lacore.reconstruction.settings import split_options
 from lacore.result import SolverResult
-from lacore.topology import MeshTopology
+from lacore.geometry.topology import MeshTopology
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Shape models in lengths and angles (thesis 4.3, (4.14)-(4.19)): lacore.shape_model.ShapeModel."""
+"""Shape models in lengths and angles (thesis 4.3, (4.14)-(4.19)): lacore.models.shape_model.ShapeModel."""
 
 import numpy as np
 import pytest
@@ -6,12 +6,12 @@ from scipy.spatial.transform import Rotation
 
 from lacore import MeshTopology, lengths_and_angles
 from lacore.errors import InputError, MeshError
-from lacore.integrability import euler_integrability_jacobian
-from lacore.mesh_io import load_mesh
+from lacore.integrability.local import euler_integrability_jacobian
+from lacore.io.meshes import load_mesh
 from lacore.progress import Cancelled
-from lacore.rigid import apply_rigid, rigid_rms
+from lacore.geometry.rigid import apply_rigid, rigid_rms
 from lacore.samples.bar import articulated_bar_pose, bar_family, bar_mesh, bar_pose
-from lacore.shape_model import ShapeModel, ShapeModelError, TangentProjector
+from lacore.models.shape_model import ShapeModel, ShapeModelError, TangentProjector
 
 # bend x twist grid: one-sided ranges where the bend-twist interaction (the third direction) stays below 0.1 %
 BENDS, TWISTS = np.linspace(0.0, 0.3, 4), np.linspace(0.0, 0.1, 4)
@@ -249,7 +249,7 @@ def test_bad_input_messages(bar, bar_models, tmp_path):
 
 
 def test_angles_straddling_the_branch_cut_are_averaged_on_the_circle():
-    from lacore.shape_model import wrap_angles
+    from lacore.models.shape_model import wrap_angles
 
     X0, faces = bar_mesh(n_along=6, n_side=1)
     topo = MeshTopology.from_faces(faces, n_vertices=len(X0))

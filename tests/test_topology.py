@@ -5,8 +5,8 @@ import pytest
 from conftest import load_mesh
 
 from lacore.errors import MeshError
-from lacore.lengths_angles import check_nondegenerate, lengths_and_angles
-from lacore.topology import MeshTopology, check_vertices
+from lacore.geometry.lengths_angles import check_nondegenerate, lengths_and_angles
+from lacore.geometry.topology import MeshTopology, check_vertices
 
 
 def half_edges(faces):

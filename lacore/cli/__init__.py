@@ -20,7 +20,7 @@ Conventions shared by all subcommands:
   (:data:`EXIT_FAILED_CHECKS`), or 0 with ``--allow-failure``; the JSON has
   ``success`` and ``failure``;
 * results go to ``.npz`` files (``numpy.load``) with documented keys, and every
-  output is written atomically (:mod:`lacore.atomic_io`): a failed write leaves
+  output is written atomically (:mod:`lacore.io.atomic`): a failed write leaves
   an existing file unchanged and no temporary file.
 """
 

@@ -7,9 +7,9 @@ import sys
 import numpy as np
 
 from ..errors import InputError, MeshError
-from ..lengths_angles import check_nondegenerate
-from ..mesh_io import load_mesh
-from ..topology import MeshTopology
+from ..geometry.lengths_angles import check_nondegenerate
+from ..io.meshes import load_mesh
+from ..geometry.topology import MeshTopology
 
 __all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "print_json", "json_float",
            "nonnegative_int", "positive_int", "add_allow_failure", "exit_code", "load_meshes_in_correspondence"]
@@ -73,7 +73,7 @@ def load_meshes_in_correspondence(paths):
     """Vertices of every mesh file and the topology of the first.
 
     Returns ``(shapes, topology)``: a list of ``(V, 3)`` arrays (each checked for
-    degenerate triangles) and the :class:`~lacore.topology.MeshTopology` of the first
+    degenerate triangles) and the :class:`~lacore.geometry.topology.MeshTopology` of the first
     file.  A mesh with another vertex count or other faces than the first raises
     :class:`~lacore.errors.MeshError` ("... is not in dense correspondence with ...").
     """

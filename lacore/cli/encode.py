@@ -4,19 +4,19 @@ Writes (with ``-o``) an ``.npz`` with keys ``vertices, faces, edges, lengths,
 angles, z, integrability_violation`` (``.npz`` is appended to a name without
 it; the name reported is the file written; written atomically); ``--json``
 prints one JSON object with counts, ranges and timings.  Numerically degenerate
-triangles (:func:`lacore.lengths_angles.check_nondegenerate`) exit with code 2.
+triangles (:func:`lacore.geometry.lengths_angles.check_nondegenerate`) exit with code 2.
 """
 
 import time
 
 import numpy as np
 
-from ..atomic_io import save_npz_atomic
+from ..io.atomic import save_npz_atomic
 from ..errors import MeshError, format_indices
-from ..integrability import integrability_violation
-from ..lengths_angles import check_nondegenerate, lengths_and_angles
-from ..mesh_io import load_mesh
-from ..topology import MeshTopology
+from ..integrability.local import integrability_violation
+from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
+from ..io.meshes import load_mesh
+from ..geometry.topology import MeshTopology
 from .common import EXIT_OK, json_float, print_json
 
 __all__ = ["HELP", "configure", "run", "encode_mesh"]

@@ -5,7 +5,7 @@ Usage::
     lacore fit MODEL.npz --markers MARKERS.npz -o OUT.npz [--prior-weight G] [--temporal-weight W] [--json]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
-(:meth:`lacore.shape_model.ShapeModel.save`).  ``MARKERS.npz`` holds
+(:meth:`lacore.models.shape_model.ShapeModel.save`).  ``MARKERS.npz`` holds
 ``positions`` ``(T, M, 3)`` float (NaN where a marker is occluded in a frame)
 and the binding: either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
 ``barycentric`` ``(M, 3)`` float (triangles in the model's face order); optional
@@ -28,11 +28,11 @@ import zipfile
 
 import numpy as np
 
-from ..atomic_io import save_npz_atomic
+from ..io.atomic import save_npz_atomic
 from ..errors import InputError
-from ..marker_binding import MarkerBinding, MarkerBindingError
-from ..marker_fitting import MarkerDataError, fit_markers
-from ..shape_model import ShapeModel
+from ..markers.binding import MarkerBinding, MarkerBindingError
+from ..markers.fitting import MarkerDataError, fit_markers
+from ..models.shape_model import ShapeModel
 from .common import add_allow_failure, exit_code, print_json
 
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
@@ -61,7 +61,7 @@ def configure(parser):
 
 
 def load_marker_file(path, model):
-    """Positions ``(T, M, 3)`` and the :class:`~lacore.marker_binding.MarkerBinding` of a markers file."""
+    """Positions ``(T, M, 3)`` and the :class:`~lacore.markers.binding.MarkerBinding` of a markers file."""
     try:
         npz = np.load(path, allow_pickle=False)
     except FileNotFoundError:

@@ -18,7 +18,7 @@ faces).  They sit at the keyframe times ``--keyframes`` (default ``0, 1, ...``).
 The lengths and angles are interpolated piecewise linearly (or, with
 ``--smooth-spline``, by a natural cubic spline through the keyframes) and
 projected onto the admissible set by reconstruction, see
-:mod:`lacore.interpolation`.  Frames are written in the order given to
+:mod:`lacore.shapes.interpolation`.  Frames are written in the order given to
 ``OUT_PREFIX_000.ply``, ``OUT_PREFIX_001.ply``, ... (at least three digits), all
 in the frame of the reference shape (``--reference``, default the first).
 
@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from ..mesh_io import save_mesh
+from ..io.meshes import save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import SOLVERS, WEIGHTS
 from .common import (CliError, add_allow_failure, exit_code, json_float, load_meshes_in_correspondence, nonnegative_int,
@@ -116,9 +116,9 @@ def _load_shapes(paths):
 
 def run(args):
     """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
-    # imported here on purpose: lacore.interpolation pulls in scipy.interpolate (~0.4 s), which the other
+    # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (~0.4 s), which the other
     # subcommands do not need
-    from ..interpolation import check_keyframes, keyframe_inbetweens
+    from ..shapes.interpolation import check_keyframes, keyframe_inbetweens
 
     start = time.perf_counter()
     shapes, topology = _load_shapes(args.meshes)

@@ -6,7 +6,7 @@ Usage::
                  [--bending-weight ETA] [--reference I] [--localize] [--json]
     lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off] [--json]
 
-``lacore model`` fits a :class:`lacore.shape_model.ShapeModel` (thesis 4.3:
+``lacore model`` fits a :class:`lacore.models.shape_model.ShapeModel` (thesis 4.3:
 extrinsic mean (4.16), tangent vectors (4.18, the default) or (4.17), PCA in the metric of
 ``W_q`` (4.14)) to two or more meshes in dense correspondence and saves it to
 one ``.npz`` (see :meth:`ShapeModel.save`).  ``--json`` prints one object with
@@ -33,9 +33,9 @@ import time
 
 import numpy as np
 
-from ..mesh_io import save_mesh
-from ..shape_model import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModel,
-                           ShapeModelError)
+from ..io.meshes import save_mesh
+from ..models.shape_model import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModel,
+                                  ShapeModelError)
 from .common import EXIT_OK, add_allow_failure, exit_code, load_meshes_in_correspondence, positive_int, print_json
 from .interpolate import output_paths
 
@@ -171,7 +171,7 @@ def run_sweep(args):
     (X, results), t = model.mode_sweep(args.mode, tuple(args.range), args.frames, return_results=True)
     paths = output_paths(args.output, len(t), args.format)
     for path, x in zip(paths, X, strict=True):
-        save_mesh(path, x, model.faces)  # each file atomically (lacore.atomic_io)
+        save_mesh(path, x, model.faces)  # each file atomically (lacore.io.atomic)
     failed = [i for i, r in enumerate(results) if not r.success]
     seconds = time.perf_counter() - start
     outputs = [{"file": p, "t": float(ti), "alpha": float(ti * model.standard_deviations[args.mode]),

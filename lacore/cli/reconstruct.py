@@ -34,13 +34,13 @@ import time
 import numpy as np
 
 from ..errors import MeshError
-from ..lengths_angles import check_nondegenerate, lengths_and_angles
-from ..atomic_io import save_npz_atomic
-from ..mesh_io import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
+from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
+from ..io.atomic import save_npz_atomic
+from ..io.meshes import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
 from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
-from ..topology import MeshTopology
+from ..geometry.topology import MeshTopology
 from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, print_json
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]

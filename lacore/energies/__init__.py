@@ -1,7 +1,7 @@
 """Deformation energies on lengths and angles (thesis section 3.3, Definitions 3.11-3.14).
 
 An energy ``W[z_a, z_b]`` compares two lengths-and-angles vectors ``z = (l, theta)``
-of shape ``(2E,)`` (layout of :mod:`lacore.lengths_angles`: ``z[:E]`` edge lengths,
+of shape ``(2E,)`` (layout of :mod:`lacore.geometry.lengths_angles`: ``z[:E]`` edge lengths,
 ``z[E:]`` signed dihedral angles).  ``z_a`` is the first argument (*argument 0*),
 ``z_b`` the second (*argument 1*); for :class:`ThinShellsEnergy` ``z_a`` is the
 undeformed (reference) and ``z_b`` the deformed configuration.
@@ -29,7 +29,7 @@ mixed block ``d^2 W / dz_a dz_b`` (rows ``z_a``, columns ``z_b``; ``(1, 0)`` is
 its transpose).  Hessians are ``(2E, 2E)`` CSR matrices assembled from small
 per-element blocks (per face, per interior edge); the sparsity pattern and the
 duplicate-summing map are computed once per topology and element type
-(cached on the :class:`~lacore.topology.MeshTopology`), so later calls only
+(cached on the :class:`~lacore.geometry.topology.MeshTopology`), so later calls only
 compute the block values and one ``bincount``.
 
 Membrane energy in squared lengths
@@ -47,7 +47,7 @@ Definition 3.12 becomes::
 (``s`` is Heron's formula (3.3) in squared lengths).  All three are quadratic
 forms in the squared lengths, so gradients and Hessians follow from the chain
 rule through ``(s, t, C)``.  For accuracy ``a_f`` and ``ã_f`` are computed with
-Kahan's formula (:func:`lacore.trigonometry.triangle_areas`) and ``C`` as
+Kahan's formula (:func:`lacore.geometry.trigonometry.triangle_areas`) and ``C`` as
 ``s + p^T M (q - p)``, so that ``W[z, z] = 0`` exactly.
 
 The density is (1.23) rewritten for the metric distortion ``A = G``
@@ -75,7 +75,7 @@ such steps) while ``gradient`` and ``hessian`` raise
 Boundary edges
 --------------
 Dihedral angles of boundary edges are 0 by convention
-(:mod:`lacore.lengths_angles`), so their bending terms carry no information:
+(:mod:`lacore.geometry.lengths_angles`), so their bending terms carry no information:
 their bending weight is 0 in both energies (also for user-given weights).
 """
 

@@ -6,7 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, LengthsAnglesError
-from ..trigonometry import triangle_areas
+from ..geometry.trigonometry import triangle_areas
 
 
 _WEIGHT_SCHEMES = ("frohlich_botsch", "heeren", "uniform")

@@ -3,8 +3,8 @@
 import numpy as np
 
 from ..errors import InputError, MeshError
-from ..lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from ..topology import check_vertices
+from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ..geometry.topology import check_vertices
 from ._common import DeformationEnergy, _as_z, _assemble_blocks, _Blocks, _interior_quads
 from .quadratic import QuadraticEnergy
 
@@ -91,7 +91,7 @@ class EnergyInVertices:
     Notes
     -----
     Gradient: ``grad f = J^T dW/dz`` with the analytic ``J = dZ/dX``
-    (:func:`~lacore.lengths_angles.lengths_and_angles_jacobian`), shape ``(3V,)``,
+    (:func:`~lacore.geometry.lengths_angles.lengths_and_angles_jacobian`), shape ``(3V,)``,
     entry ``3 v + c`` for coordinate ``c`` of vertex ``v``.
 
     Gauss-Newton Hessian: ``J^T H_z J`` dropping the curvature term

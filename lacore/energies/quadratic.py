@@ -4,7 +4,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles
 from ._common import _WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks, _interior_quads, _parse_argument, edge_areas
 
 __all__ = ["QuadraticEnergy", "quadratic_weights"]

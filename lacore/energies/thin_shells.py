@@ -3,7 +3,7 @@
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
+from ..geometry.trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
 from ._common import DeformationEnergy, _Blocks, _interior_quads, _parse_argument, _project_psd, _scatter, edge_areas
 
 __all__ = ["ThinShellsEnergy", "membrane_density"]

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import InputError, MeshError
 from ..progress import report
-from ..topology import MeshTopology, check_faces
+from ..geometry.topology import MeshTopology, check_faces
 
 __all__ = ["Coarsening", "coarsen", "vertex_quadrics"]
 
@@ -100,7 +100,7 @@ class Coarsening:
 
     @property
     def topology(self):
-        """:class:`~lacore.topology.MeshTopology` of the coarse mesh (built once)."""
+        """:class:`~lacore.geometry.topology.MeshTopology` of the coarse mesh (built once)."""
         if self._topology is None:
             self._topology = MeshTopology.from_faces(self.faces, n_vertices=self.n_vertices)
         return self._topology

@@ -68,13 +68,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
-from ..lengths_angles import check_z, lengths_and_angles
+from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..progress import report
 from ..reconstruction import STATUS_MESSAGES, ReconstructionContext, ReconstructionResult, reconstruct
 from ..reconstruction.assembly import dof_ordering
 from ..reconstruction.pcg import preconditioned_cg
-from ..sparse_cholesky import SparseCholesky
-from ..topology import MeshTopology
+from ..linalg.sparse_cholesky import SparseCholesky
+from ..geometry.topology import MeshTopology
 from .coarsening import Coarsening, coarsen
 from .prolongation import Prolongation
 from .two_level import TwoLevelPreconditioner, interpolation_matrix

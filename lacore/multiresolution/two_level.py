@@ -25,7 +25,7 @@ step, its symbolic analysis once.
 import numpy as np
 import scipy.sparse as sp
 
-from ..sparse_cholesky import SparseCholesky
+from ..linalg.sparse_cholesky import SparseCholesky
 
 __all__ = ["interpolation_matrix", "TwoLevelPreconditioner"]
 

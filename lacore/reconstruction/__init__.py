@@ -23,7 +23,7 @@ dispatches to
 Fast smoothing
 --------------
 The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"``
-and one smoothing iteration: :func:`lacore.interpolation.project_targets`
+and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
 gives every in-between the extrapolation through the frames before it
 (continuation along ``t``), so one Gauss-Newton step finishes a frame of a
 smooth motion (README "In-betweens of large meshes").  The least-squares start
@@ -58,9 +58,9 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
-from ..topology import MeshTopology, check_vertices
-from ..trigonometry import triangle_inequality_margin
+from ..geometry.lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
+from ..geometry.topology import MeshTopology, check_vertices
+from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
@@ -112,8 +112,8 @@ def _check_target(z_target, topology, method, energy):
 
     Faces whose target lengths violate the triangle inequality (fewer than half
     of them), or satisfy it only within rounding (relative margin at most
-    :data:`~lacore.lengths_angles.DEGENERACY_RTOL`), are accepted and named in the returned notes: the frame-based
-    methods treat them as in the remark after Algorithm 2, Gauss-Newton with
+    :data:`~lacore.geometry.lengths_angles.DEGENERACY_RTOL`), are accepted and named in the returned
+    notes: the frame-based methods treat them as in the remark after Algorithm 2, Gauss-Newton with
     ``W_q`` minimizes the energy (no immersion reproduces such a target).
     """
     z = check_z(z_target, topology, name="target z")
@@ -143,7 +143,7 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     Parameters
     ----------
     z_target : (2E,) array_like
-        Target lengths and dihedral angles ``z*`` (layout of :mod:`lacore.lengths_angles`).
+        Target lengths and dihedral angles ``z*`` (layout of :mod:`lacore.geometry.lengths_angles`).
     topology : MeshTopology
     reference_vertices : (V, 3) array_like
         Reference mesh: weights (3.20)/(3.21) of ``W_q``, start of Gauss-Newton,

@@ -17,8 +17,8 @@ factorization do not depend on the fixed face.
 import numpy as np
 import scipy.sparse as sp
 
-from ..lengths_angles import jacobian_pattern
-from ..sparse_cholesky import vertex_ordering
+from ..geometry.lengths_angles import jacobian_pattern
+from ..linalg.sparse_cholesky import vertex_ordering
 
 __all__ = ["gauss_newton_pattern", "upper_outer", "dof_ordering", "coupled_vertex_graph"]
 
@@ -36,7 +36,7 @@ def gauss_newton_pattern(topology):
         ``(3V, 3V)`` matrix (sorted rows per column, full diagonal) and the
         column of every entry; ``matrix``: the pattern as a CSC matrix of ones;
         ``local_order``: gather from the CSR data of
-        :func:`~lacore.lengths_angles.lengths_and_angles_jacobian` to the local
+        :func:`~lacore.geometry.lengths_angles.lengths_and_angles_jacobian` to the local
         gradients in component-major layout, ``(6, E)`` (length rows: ``x0, x1``
         times ``xyz``) followed by ``(12, E_int)`` (angle rows: ``x0..x3``);
         ``slots``: position in the value array of every upper-triangle pair
@@ -161,7 +161,7 @@ def upper_outer(g, gw, out):
 def dof_ordering(topology, pattern, vertices, method=None):
     """Fill-reducing ordering of the coordinates, 3 per vertex, from a vertex ordering of the coupled vertices.
 
-    The vertex order is :func:`lacore.sparse_cholesky.vertex_ordering` (``method``: ``"metis"``,
+    The vertex order is :func:`lacore.linalg.sparse_cholesky.vertex_ordering` (``method``: ``"metis"``,
     ``"geometric"``, default METIS when pymetis is importable) of the graph of vertex pairs the pattern
     couples; the geometric one dissects ``vertices``.
 

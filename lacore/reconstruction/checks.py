@@ -48,7 +48,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import format_indices
-from ..lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles
 
 __all__ = ["LENGTH_RTOL", "ANGLE_ATOL", "FOLD_ANGLE", "CONVERGED_STATUSES", "ReconstructionCheck",
            "check_reconstruction", "apply_checks"]

@@ -28,9 +28,9 @@ reference (not on ``z*``) keeps all frames of an animation in one placement.
 Factorization
 -------------
 The symbolic Cholesky factorization of the Gauss-Newton pattern
-(:class:`lacore.sparse_cholesky.SparseCholesky`, CHOLMOD when available) is made
+(:class:`lacore.linalg.sparse_cholesky.SparseCholesky`, CHOLMOD when available) is made
 once per context.  Its fill-reducing ordering is the better (fewer nonzeros) of
-CHOLMOD's AMD and :func:`lacore.sparse_cholesky.vertex_ordering` (METIS nested
+CHOLMOD's AMD and :func:`lacore.linalg.sparse_cholesky.vertex_ordering` (METIS nested
 dissection when pymetis is importable, else a geometric nested dissection of
 the reference mesh).
 """
@@ -40,9 +40,9 @@ from collections import OrderedDict
 import numpy as np
 
 from ..errors import MeshError, format_indices
-from ..lengths_angles import lengths_and_angles
-from ..sparse_cholesky import SparseCholesky, default_backend
-from ..topology import check_vertices
+from ..geometry.lengths_angles import lengths_and_angles
+from ..linalg.sparse_cholesky import SparseCholesky, default_backend
+from ..geometry.topology import check_vertices
 from .assembly import dof_ordering, gauss_newton_pattern
 from .objectives import QuadraticObjective, ShellsObjective, reference_weights
 from .settings import make_settings
@@ -213,7 +213,7 @@ class ReconstructionContext:
 
     @property
     def solver(self):
-        """The :class:`~lacore.sparse_cholesky.SparseCholesky` (symbolic analysis on first use)."""
+        """The :class:`~lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis on first use)."""
         if self._solver is None:
             pat = self.pattern
             ordering = None

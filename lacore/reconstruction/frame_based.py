@@ -5,11 +5,11 @@ Given target lengths and angles ``z* = (l*, theta*)``, a dual spanning tree
 
 1. frames are propagated from the root along the tree, ``F_child = F_parent R``
    with the induced transition rotation (3.10), (3.28).  With the conventions of
-   :mod:`lacore.integrability` (``F_right = F_left R``) this is ``R`` when the
+   :mod:`lacore.integrability.local` (``F_right = F_left R``) this is ``R`` when the
    parent is the left face of the tree edge and ``R^T`` otherwise;
 2. vertices are placed with the edge vectors (3.29): half-edge ``i`` of face
    ``f`` is ``l*[f, i] F_f (cos phi_i, sin phi_i, 0)`` with the angles of
-   :func:`lacore.integrability.edge_frame_angles`.  The root face places its
+   :func:`lacore.integrability.local.edge_frame_angles`.  The root face places its
    three vertices from ``X_0`` (its local vertex 0); every other face places at
    most one vertex, the one opposite its parent edge, if no face earlier in
    the tree's level order (``tree.order``) contains it -- exactly the
@@ -54,9 +54,9 @@ import weakref
 import numpy as np
 
 from ..errors import InputError, MeshError, format_indices
-from ..integrability import standard_frames
-from ..lengths_angles import check_z
-from ..topology import check_vertices
+from ..integrability.local import standard_frames
+from ..geometry.lengths_angles import check_z
+from ..geometry.topology import check_vertices
 from .spanning_trees import DualSpanningTree, half_theta, stable_order, default_root_faces, dual_spanning_tree
 
 __all__ = ["frame_based_reconstruction", "propagate_frames", "rotation_to_quaternion"]
@@ -541,7 +541,7 @@ def _root_quaternions(root_frame, C):
 
 
 def _checked_z(z, topology):
-    """``z`` as float64 ``(2E,)``; the detailed checks of :func:`~lacore.lengths_angles.check_z` only on failure."""
+    """``z`` as float64 ``(2E,)``; :func:`~lacore.geometry.lengths_angles.check_z`'s detailed checks on failure."""
     z = np.asarray(z, dtype=np.float64)
     E = topology.n_edges
     if z.shape == (2 * E,) and E and np.isfinite(z).all() and z[:E].min() > 0:
@@ -569,7 +569,7 @@ def propagate_frames(z, topology, tree=None, kind="bfs", root_face=None, root_fr
 
     ``F_child = F_parent R`` (``R^T`` if the parent is the right face of the tree
     edge).  For admissible ``z`` these are the standard frames
-    (:func:`lacore.integrability.standard_frames`) of the reconstruction.
+    (:func:`lacore.integrability.local.standard_frames`) of the reconstruction.
     Parameters as in :func:`frame_based_reconstruction`.
     """
     z = check_z(z, topology)

@@ -1,7 +1,7 @@
 """Energy-based reconstruction by Gauss-Newton (thesis 3.4.1, eq. 3.26, Def. 3.15).
 
 Given target lengths and angles ``z* = (l*, theta*)`` (shape ``(2E,)``, see
-:mod:`lacore.lengths_angles`), find vertex positions ``X`` minimizing::
+:mod:`lacore.geometry.lengths_angles`), find vertex positions ``X`` minimizing::
 
     W[z*, Z(X)]                                                     (3.26)
 
@@ -69,7 +69,7 @@ Iteration
   linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
   first cut step, or after two full steps in a row whose energy decreases
   shrank by less than a factor of 10, the steps use the full Hessian (per-edge blocks of
-  :mod:`lacore.hessians`, the same sparsity pattern and symbolic
+  :mod:`lacore.geometry.hessians`, the same sparsity pattern and symbolic
   factorization); a Hessian that is not positive definite (its factorization
   fails, no shift is tried) gives a Gauss-Newton step instead, and the next
   step is one too.  The result's ``newton_steps`` counts them.
@@ -109,9 +109,9 @@ from dataclasses import fields, replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError
-from ..lengths_angles import check_z
-from ..sparse_cholesky import NotPositiveDefiniteError
-from ..topology import check_vertices
+from ..geometry.lengths_angles import check_z
+from ..linalg.sparse_cholesky import NotPositiveDefiniteError
+from ..geometry.topology import check_vertices
 from .assembly import gauss_newton_pattern
 from .checks import apply_checks
 from .context import ReconstructionContext, get_context, triangle_frame

@@ -7,7 +7,7 @@ whole mesh:
 * frame energy (3.31)  ``E_F(F) = 1/2 sum_{dual edges (i, j)} w_ij |F_j - F_i R_ij(z*)|_F^2``;
 * edge energy (3.32)   ``E_E(X, F) = 1/2 sum_{faces k} sum_{half-edges a->b of k} w_ab |X_b - X_a - F_k a_ab^k|^2``
   with ``a_ab^k = l*_ab (cos phi, sin phi, 0)`` the half-edge in its face's
-  standard frame (:func:`lacore.integrability.edge_frame_angles`).
+  standard frame (:func:`lacore.integrability.local.edge_frame_angles`).
 
 Two methods:
 
@@ -34,7 +34,7 @@ non-admissible targets the mismatch is spread over the whole mesh instead of
 being concentrated where tree paths meet.  Triangles violating the triangle
 inequality get interior angles 0 as everywhere in lacore.
 
-Sparse solvers: :class:`lacore.sparse_cholesky.SparseCholesky` (CHOLMOD through
+Sparse solvers: :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (CHOLMOD through
 ``cvxopt`` if importable, else SuperLU); the symbolic analysis of the frame
 system and the whole factorization of the position system are cached on the
 topology (at most four weight/root combinations).  The cached frame solver
@@ -48,11 +48,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
-from ..integrability import edge_frame_angles, standard_frames, transition_rotations
-from ..lengths_angles import check_z
-from ..sparse_cholesky import SparseCholesky
-from ..topology import check_vertices
-from ..trigonometry import interior_angles
+from ..integrability.local import edge_frame_angles, standard_frames, transition_rotations
+from ..geometry.lengths_angles import check_z
+from ..linalg.sparse_cholesky import SparseCholesky
+from ..geometry.topology import check_vertices
+from ..geometry.trigonometry import interior_angles
 from .spanning_trees import check_roots_per_component, default_root_faces
 
 __all__ = ["least_squares_reconstruction", "least_squares_frames", "nearest_rotations"]

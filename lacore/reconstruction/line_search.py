@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles
 
 __all__ = ["armijo_line_search"]
 

@@ -11,7 +11,7 @@ in the order of :func:`~lacore.reconstruction.assembly.gauss_newton_pattern`,
     :class:`lacore.energies.QuadraticEnergy`; Gauss-Newton matrix
     ``2 J^T W J`` (``J = dZ/dX``), the full Hessian
     ``2 J^T W J + 2 sum_j w_j r_j d2 Z_j`` (``second_order=True``, per-edge
-    blocks of :mod:`lacore.hessians`, same sparsity pattern) and the right-hand
+    blocks of :mod:`lacore.geometry.hessians`, same sparsity pattern) and the right-hand
     side of the geodesic acceleration (``acceleration_gradient``).
 :class:`ShellsObjective`
     ``W_TS`` (3.25) through :class:`lacore.energies.EnergyInVertices`: matrix
@@ -23,9 +23,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
-from ..hessians import ANGLE_PAIRS, LENGTH_PAIRS, residual_curvature_values
-from ..lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from ..trigonometry import triangle_areas
+from ..geometry.hessians import ANGLE_PAIRS, LENGTH_PAIRS, residual_curvature_values
+from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ..geometry.trigonometry import triangle_areas
 from .assembly import upper_outer
 from .pcg import dot
 

@@ -10,7 +10,7 @@
 :class:`HybridOptions`
     The start and the smoothing budget of ``method="hybrid"``.
 
-:func:`reconstruct`, :func:`~lacore.interpolation.interpolate`, the CLI and
+:func:`reconstruct`, :func:`~lacore.shapes.interpolation.interpolate`, the CLI and
 the Blender add-on take these objects, or the same names as keyword arguments
 (``reconstruct(z, topo, X, energy="shells", max_iterations=20,
 smoothing_iterations=3)``); :func:`split_options` maps such keywords to the
@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..errors import InputError, MeshError
-from ..sparse_cholesky import ORDERINGS
+from ..linalg.sparse_cholesky import ORDERINGS
 
 __all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
            "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
@@ -69,7 +69,7 @@ class ReconstructionSettings:
         Sparse Cholesky backend; ``None``: CHOLMOD if cvxopt is installed.
     ordering : {None, "metis", "geometric"}
         Fill-reducing ordering CHOLMOD tries besides AMD (keeping the one that
-        fills less; :func:`lacore.sparse_cholesky.vertex_ordering`): METIS
+        fills less; :func:`lacore.linalg.sparse_cholesky.vertex_ordering`): METIS
         (needs pymetis) or the geometric nested dissection; ``None``: METIS if
         pymetis is installed.  Changes speed and round-off only.
 
@@ -132,7 +132,7 @@ class GaussNewtonOptions:
         Second-order correction of each exact Gauss-Newton step (``W_q`` only) and the fold safeguard.
     newton : {"auto", "never", "always"}
         When a step uses the full Hessian ``2 J^T W J + 2 sum_j w_j r_j d2 Z_j``
-        (``W_q`` only, :mod:`lacore.hessians`) instead of the Gauss-Newton
+        (``W_q`` only, :mod:`lacore.geometry.hessians`) instead of the Gauss-Newton
         matrix: ``"auto"`` (default) once the line search has cut a step
         (``t < 1``: the Gauss-Newton model overshoots, the sign of large
         residuals, where Gauss-Newton converges slowly or stalls), ``"always"``
@@ -187,7 +187,7 @@ class HybridOptions:
         accumulates the integrability error along the tree, which a few
         smoothing iterations do not remove: README "Reconstruction",
         ``tests/test_hybrid.py``), or the caller's ``initial_vertices`` (e.g. the
-        prediction of :func:`lacore.interpolation.project_targets` from the
+        prediction of :func:`lacore.shapes.interpolation.project_targets` from the
         frames before; the least-squares relaxation when none are given).
     kind : {"mst", "spt", "bfs"}
         Tree of the ``"tree"`` start.
@@ -195,7 +195,7 @@ class HybridOptions:
         At most this many Gauss-Newton iterations (they stop earlier once converged).
     nearest_start_iterations : int or None
         The budget instead of ``smoothing_iterations`` for a frame of
-        :func:`lacore.interpolation.project_targets` whose given start is the
+        :func:`lacore.shapes.interpolation.project_targets` whose given start is the
         nearest known shape rather than an extrapolation through two of them
         (the first in-between after a key: its start is first-order off in the
         frame spacing, an extrapolation second-order); default ``smoothing_iterations``.

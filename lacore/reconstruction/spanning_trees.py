@@ -33,7 +33,7 @@ A central root keeps trees shallow (fewer reconstruction steps, less error
 accumulation); a well-shaped root gives a well-conditioned first frame.
 
 The violation ``|tr I_v(z) - 3|`` behind the weights (3.30) is
-:func:`lacore.integrability.integrability_violation`.
+:func:`lacore.integrability.local.integrability_violation`.
 
 Weights and ties
 ----------------
@@ -53,9 +53,9 @@ from scipy.sparse import csgraph
 
 from ..cache import DerivedCache
 from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
-from ..integrability import integrability_violation
-from ..lengths_angles import check_z
-from ..trigonometry import triangle_inequality_margin
+from ..integrability.local import integrability_violation
+from ..geometry.lengths_angles import check_z
+from ..geometry.trigonometry import triangle_inequality_margin
 
 __all__ = [
     "DualSpanningTree",

@@ -1,6 +1,6 @@
 """A closed box bar bent and twisted by known angles: a shape family of known dimension (2).
 
-Sample data for tests, benchmarks and demos of :mod:`lacore.shape_model`: every
+Sample data for tests, benchmarks and demos of :mod:`lacore.models.shape_model`: every
 pose of :func:`bar_pose` shares the faces of :func:`bar_mesh`, so a grid of
 ``(bend, twist)`` angles is a training set whose lengths and angles lie on a
 two-dimensional surface of ``R^{2E}``.

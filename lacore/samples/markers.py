@@ -1,6 +1,6 @@
 """A standard 41-marker full-body set on the sample human, and simulated motion-capture observations.
 
-Sample data for the marker-fitting tests and benchmark (:mod:`lacore.marker_fitting`):
+Sample data for the marker-fitting tests and benchmark (:mod:`lacore.markers.fitting`):
 
 * :data:`MARKER_SET` -- 41 named landmarks in the spirit of the CMU / Plug-in Gait
   full-body set (4 head, 5 torso, 4 pelvis, 7 per arm, 7 per leg), each given
@@ -19,7 +19,7 @@ Units are the body's: decimetres (8 mm offset = 0.08, 0.5 mm noise = 0.005).
 
 import numpy as np
 
-from ..marker_binding import MarkerBinding, closest_surface_points, surface_points
+from ..markers.binding import MarkerBinding, closest_surface_points, surface_points
 
 __all__ = ["MARKER_SET", "place_markers", "observe_markers"]
 

@@ -32,10 +32,10 @@ def ext():
         mesh_access=importlib.import_module(MODULE + ".addon.mesh_access"),
         storage=importlib.import_module(MODULE + ".addon.storage"),
         panels=importlib.import_module(MODULE + ".addon.panels"),
-        topology=importlib.import_module(MODULE + ".lacore.topology"),
-        lengths_angles=importlib.import_module(MODULE + ".lacore.lengths_angles"),
-        integrability=importlib.import_module(MODULE + ".lacore.integrability"),
-        sparse_cholesky=importlib.import_module(MODULE + ".lacore.sparse_cholesky"),
+        topology=importlib.import_module(MODULE + ".lacore.geometry.topology"),
+        lengths_angles=importlib.import_module(MODULE + ".lacore.geometry.lengths_angles"),
+        integrability=importlib.import_module(MODULE + ".lacore.integrability.local"),
+        sparse_cholesky=importlib.import_module(MODULE + ".lacore.linalg.sparse_cholesky"),
     )
 
 

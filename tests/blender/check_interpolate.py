@@ -396,7 +396,7 @@ def finger_pair():
     import importlib
 
     reset()
-    load_mesh = importlib.import_module(MODULE + ".lacore.mesh_io").load_mesh
+    load_mesh = importlib.import_module(MODULE + ".lacore.io.meshes").load_mesh
     meshes = shared_meshes_dir()
     obj = cases.shared_mesh_pair("Finger", os.path.join(meshes, "finger", "finger0.ply"),
                                  os.path.join(meshes, "finger", "finger1.ply"), "Finger1", load_mesh)
@@ -425,8 +425,8 @@ def failed_checks_warn():
 
     reset()
     ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
-    load_mesh = importlib.import_module(MODULE + ".lacore.mesh_io").load_mesh
-    topology_mod = importlib.import_module(MODULE + ".lacore.topology")
+    load_mesh = importlib.import_module(MODULE + ".lacore.io.meshes").load_mesh
+    topology_mod = importlib.import_module(MODULE + ".lacore.geometry.topology")
     meshes = shared_meshes_dir()
     A, faces = load_mesh(os.path.join(meshes, "finger", "finger0.ply"))
     B, _ = load_mesh(os.path.join(meshes, "finger", "finger1.ply"))

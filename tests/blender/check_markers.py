@@ -3,7 +3,7 @@
 
 usage: BLENDER_USER_RESOURCES=<tmp> python check_markers.py --zip EXT.zip --workdir DIR --result OUT.json
 
-Every imported file is compared with lacore.marker_io's own reading of the same file (tested on
+Every imported file is compared with lacore.markers.io's own reading of the same file (tested on
 its own against the files' headers in tests/test_marker_io.py).  Every case returns the numbers
 it measured; pytest asserts on them.
 """
@@ -150,7 +150,7 @@ def install_and_enable():
 
 def real_files():
     """Every C3D file of shared/data/mocap, default options."""
-    read_markers = ext("lacore.marker_io").read_markers
+    read_markers = ext("lacore.markers.io").read_markers
     out = {}
     files = sorted(glob.glob(os.path.join(MOCAP, "*.c3d")))
     assert files, MOCAP
@@ -172,7 +172,7 @@ def real_files():
 
 def options():
     """Scale, axis conversion, start frame, mapping by time to the scene's rate."""
-    read_markers = ext("lacore.marker_io").read_markers
+    read_markers = ext("lacore.markers.io").read_markers
     path = os.path.join(MOCAP, "Walk1.c3d")
     take = read_markers(path)
     reset()
@@ -191,15 +191,15 @@ def options():
     reset()
     bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
     assert import_markers(path, rate_mode='RESAMPLE') == {"FINISHED"}
-    resampled_take = ext("lacore.marker_io").resample(take, 24.0)
+    resampled_take = ext("lacore.markers.io").resample(take, 24.0)
     resampled = check_take(path, resampled_take, file_take=take)
     resampled["fps_unchanged"] = scene_fps() == 24
     # TRC: the same take written as TRC (mm) imports to the same keys
     reset()
     trc = os.path.join(ARGS.workdir, "Walk1.trc")
-    ext("lacore.marker_io").write_trc(trc, take)
+    ext("lacore.markers.io").write_trc(trc, take)
     assert import_markers(trc) == {"FINISHED"}
-    trc_take = ext("lacore.marker_io").read_markers(trc)
+    trc_take = ext("lacore.markers.io").read_markers(trc)
     trc_res = check_take(trc, trc_take)
     trc_res["labels_equal"] = trc_take.labels == take.labels
     trc_res["max_abs_vs_c3d_take"] = float(np.nanmax(np.abs(trc_take.positions - take.positions)))
@@ -266,7 +266,7 @@ def errors_create_nothing():
 def read_take_cases():
     """read_take: world space through a moved take empty, edited curves, missing empties, wrong object."""
     mod = ext("addon.operators_markers")
-    mio = ext("lacore.marker_io")
+    mio = ext("lacore.markers.io")
     path = os.path.join(MOCAP, "Walk1.c3d")
     take = mio.read_markers(path)
     reset()
@@ -395,14 +395,14 @@ def save_and_reload():
     blend = os.path.join(ARGS.workdir, "markers.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
     bpy.ops.wm.open_mainfile(filepath=blend)
-    take = ext("lacore.marker_io").read_markers(path)
+    take = ext("lacore.markers.io").read_markers(path)
     res = check_take(path, take, verify_depsgraph=False)
     return {"markers": res["markers"], "max_abs_key_error": res["max_abs_key_error"]}
 
 
 def speed():
     """A generated 5,000-frame, 50-marker take (5 % occluded in gaps), written as C3D: import time."""
-    mio = ext("lacore.marker_io")
+    mio = ext("lacore.markers.io")
     rng = np.random.default_rng(7)
     T, M = 5000, 50
     t = np.arange(T)[:, None, None] / 100.0

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
            "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS",

@@ -49,7 +49,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["SparseCholesky", "available_backends", "default_backend", "NotPositiveDefiniteError",
            "nested_dissection", "metis_nested_dissection", "vertex_ordering", "ORDERINGS"]

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError, format_indices
-from .lengths_angles import face_normals
-from .rigid import apply_rigid, rigid_fit
+from ..errors import InputError, format_indices
+from ..geometry.lengths_angles import face_normals
+from ..geometry.rigid import apply_rigid, rigid_fit
 
 __all__ = ["MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
            "surface_point_jacobians"]
@@ -287,7 +287,7 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
 
     The markers (one frame, e.g. a calibration pose, roughly placed on the mesh)
     are moved rigidly onto the mesh by an iterative-closest-point loop (nearest
-    surface points, then :func:`lacore.rigid.rigid_fit`) starting from where they
+    surface points, then :func:`lacore.geometry.rigid.rigid_fit`) starting from where they
     are, then every marker is bound to its nearest surface point.  ICP is a
     local method: start within a few degrees and a fraction of the marker
     offsets of the right placement (ICP cannot tell a marker's offset from a

@@ -18,7 +18,7 @@ import tempfile
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["PointCacheError", "HEADER_BYTES", "write_pc2", "read_pc2"]
 

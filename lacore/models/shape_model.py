@@ -6,7 +6,7 @@ their lengths and angles ``z^i``) :meth:`ShapeModel.fit` learns a
 
 1. **Mean** (4.16): the extrinsic mean ``zbar = P_Z[(1/N) sum_i z^i]``, the
    projection of the linear mean onto the admissible set by reconstruction
-   (:func:`lacore.projection.project`, Gauss-Newton on ``W_q`` by default).
+   (:func:`lacore.shapes.projection.project`, Gauss-Newton on ``W_q`` by default).
    Dihedral angles are averaged on the circle (differences to the reference
    taken modulo ``2 pi``, :func:`wrap_angles`), and every angle difference
    below is wrapped likewise: identical to the thesis unless samples straddle
@@ -54,22 +54,22 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from .atomic_io import atomic_write
-from .energies import QuadraticEnergy
-from .errors import InputError, LengthsAnglesError, MeshError, format_indices
-from .integrability import euler_integrability_jacobian
-from .lengths_angles import check_nondegenerate, check_z, lengths_and_angles
-from .progress import report
-from .projection import project
-from .reconstruction import METHODS, reconstruct
-from .sparse_cholesky import SparseCholesky
-from .topology import MeshTopology, check_vertices
+from ..io.atomic import atomic_write
+from ..energies import QuadraticEnergy
+from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
+from ..integrability.local import euler_integrability_jacobian
+from ..geometry.lengths_angles import check_nondegenerate, check_z, lengths_and_angles
+from ..progress import report
+from ..shapes.projection import project
+from ..reconstruction import METHODS, reconstruct
+from ..linalg.sparse_cholesky import SparseCholesky
+from ..geometry.topology import MeshTopology, check_vertices
 
 __all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS",
            "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
 
 #: Value of the ``format`` entry of a saved model.
-FORMAT = "lacore.shape_model"
+FORMAT = "lacore.models.shape_model"
 #: Version of the ``.npz`` layout written by :meth:`ShapeModel.save`.
 FORMAT_VERSION = 1
 #: Tangent-vector variants: (4.18) and (4.17).
@@ -107,7 +107,7 @@ class TangentProjector:
     shrinks ``|A v|`` by about ``delta / sigma_min^2`` (measured on the 13.4k
     vertex body: ``|A v| / |A u|`` 1.5e-9 after the first solve, 7e-15 after
     one refinement), until ``|A v| <= rtol |A u|`` or no further progress.  The factorization is
-    one :class:`~lacore.sparse_cholesky.SparseCholesky` whose symbolic analysis
+    one :class:`~lacore.linalg.sparse_cholesky.SparseCholesky` whose symbolic analysis
     is cached on the topology.
 
     Parameters

@@ -15,8 +15,8 @@ are in general not admissible.  A projection maps them back onto ``Z``:
 For admissible ``z`` both return ``z`` up to round-off (``P_Z[z] = z``).
 """
 
-from .lengths_angles import lengths_and_angles
-from .reconstruction import reconstruct
+from ..geometry.lengths_angles import lengths_and_angles
+from ..reconstruction import reconstruct
 
 __all__ = ["project"]
 

@@ -1,7 +1,7 @@
 """Discrete geodesics in the space of lengths and angles (thesis 2.2, 4.1, eq. 4.6).
 
 A discrete ``K``-path is a sequence ``z_0, ..., z_K`` of lengths-and-angles
-vectors (shape ``(K+1, 2E)``, see :mod:`lacore.lengths_angles`).  Its discrete
+vectors (shape ``(K+1, 2E)``, see :mod:`lacore.geometry.lengths_angles`).  Its discrete
 path energy (2.7) for a deformation energy ``W`` is::
 
     E^K[z_0..z_K] = K * sum_{i=0}^{K-1} W[z_i, z_{i+1}]
@@ -11,7 +11,7 @@ and a discrete geodesic minimizes ``E^K`` over the interior points
 minimizes over all of ``R^{2E}`` (4.9) -- for the quadratic energy ``W_q`` the
 minimizer is the equidistant linear interpolation -- and then projects every
 point onto the admissible set by reconstruction (4.10), see
-:func:`lacore.interpolation.interpolate`.  This module solves the constrained
+:func:`lacore.shapes.interpolation.interpolate`.  This module solves the constrained
 problem (4.6) itself: the interior points are required to be admissible, i.e. to
 satisfy the Euler integrability conditions ``I~(z_i) = 0`` (3.13) (and the
 triangle inequalities ``T_f(z_i) > 0``, which are checked, not imposed: they
@@ -30,11 +30,11 @@ Two solvers compute the same geodesic:
     points (for ``W_q`` the constant ``H = kron(T, D)``, ``D = diag(2 K w)``,
     ``T = tridiag(-1, 2, -1)`` of size ``K - 1``: block-tridiagonal in time),
     ``A`` the block-diagonal Euler Jacobians
-    (:func:`~lacore.integrability.euler_integrability_jacobian`) and ``c`` the
+    (:func:`~lacore.integrability.local.euler_integrability_jacobian`) and ``c`` the
     stacked Euler maps.  It is solved through the Schur complement
     ``A H^-1 A^T + d I`` (block ``(i, j)`` is ``(T^-1)_ij A_i D^-1 A_j^T``,
     ``(T^-1)_ij = min(i, j) (K - max(i, j)) / K``), factorized by sparse
-    Cholesky (:class:`lacore.sparse_cholesky.SparseCholesky`, symbolic analysis
+    Cholesky (:class:`lacore.linalg.sparse_cholesky.SparseCholesky`, symbolic analysis
     once per solve); ``p = H^-1 (r - A^T dl)`` is a tridiagonal solve in time.
     The small ``d > 0`` is a proximal regularization of the multipliers (the
     fixed point still has ``c = 0``); it keeps the system nonsingular on closed
@@ -49,7 +49,7 @@ Two solvers compute the same geodesic:
     residual ``|g + A^T lambda|_inf <= tol |g|_inf`` (or the predicted merit
     decrease is at round-off level).
     Only lengths and interior dihedral angles are variables; boundary-edge angles
-    are 0 by convention (:mod:`lacore.lengths_angles`) and stay so.
+    are 0 by convention (:mod:`lacore.geometry.lengths_angles`) and stay so.
 
 ``method="vertices"``
     Parametrize every interior point by vertex positions, ``z_i = Z(X_i)``
@@ -93,16 +93,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .energies import QuadraticEnergy
-from .errors import InputError, LengthsAnglesError
-from .integrability import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
+from ..energies import QuadraticEnergy
+from ..errors import InputError, LengthsAnglesError
+from ..integrability.local import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from .interpolation import interpolate
-from .lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
-from .progress import report
-from .reconstruction import ReconstructionSettings, get_context
-from .result import SolverResult
-from .sparse_cholesky import SparseCholesky
-from .topology import check_vertices
+from ..geometry.lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
+from ..progress import report
+from ..reconstruction import ReconstructionSettings, get_context
+from ..result import SolverResult
+from ..linalg.sparse_cholesky import SparseCholesky
+from ..geometry.topology import check_vertices
 
 __all__ = [
     "GeodesicResult",
@@ -127,7 +127,7 @@ class GeodesicResult(SolverResult):
         Immersions of the path points (``method="vertices"``: the optimized
         positions; ``method="sqp"``: reconstructions of the admissible solution,
         if requested), all in the frame of the reference shape (its fixed
-        triangle in place, as in :func:`lacore.interpolation.interpolate`).
+        triangle in place, as in :func:`lacore.shapes.interpolation.interpolate`).
     path_energy : float
         ``E^K = K sum_i W[z_i, z_{i+1}]`` (2.7).
     step_energies : (K,) ndarray
@@ -278,7 +278,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     reference_vertices : (V, 3) array_like, optional
         Reference of the projections; default ``start`` (must then be vertices).
     **projection_kw
-        Options of :func:`lacore.interpolation.interpolate` (method, bending_weight, ...).
+        Options of :func:`lacore.shapes.interpolation.interpolate` (method, bending_weight, ...).
 
     Returns
     -------
@@ -352,7 +352,7 @@ class _SchurKKT:
 
     where block ``(i, j)`` of ``A H^-1 A^T`` is ``(T^-1)_ij A_i D^-1 A_j^T``.  The
     Schur complement is symmetric positive definite (``delta > 0``) and factorized
-    by :class:`lacore.sparse_cholesky.SparseCholesky`, whose symbolic analysis is
+    by :class:`lacore.linalg.sparse_cholesky.SparseCholesky`, whose symbolic analysis is
     done once (the pattern does not change between iterations).
     """
 
@@ -674,7 +674,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         Constrained SQP in ``z`` or Gauss-Newton in vertex positions (module docstring).
     initial : optional
         Starting path: ``None`` (default) for the projected linear path
-        (4.9)-(4.10) of :func:`lacore.interpolation.interpolate`; ``"linear"`` for
+        (4.9)-(4.10) of :func:`lacore.shapes.interpolation.interpolate`; ``"linear"`` for
         the *unprojected* linear path (``"sqp"`` only; it is not admissible); or
         an array of the interior (``K - 1``) or all (``K + 1``) points as lengths
         and angles ``(., 2E)`` or vertices ``(., V, 3)`` (``"vertices"`` needs vertices).
@@ -701,7 +701,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         For ``"sqp"``: reconstruct immersions of the (admissible) solution into
         ``result.vertices`` (Gauss-Newton projections, warm-started along the path).
     projection_kw : dict, optional
-        Extra keyword arguments of the projections (:func:`lacore.interpolation.interpolate`).
+        Extra keyword arguments of the projections (:func:`lacore.shapes.interpolation.interpolate`).
     progress : callable, optional
         ``progress(done, total, message)`` before every iteration (``total`` =
         ``max_iterations``, :mod:`lacore.progress`); returning True stops with

@@ -2,7 +2,7 @@
 
 For every frame ``t`` of a take, :func:`fit_markers` solves (4.23) with the
 data term generalized to surface points with normal offsets
-(:mod:`lacore.marker_binding`) and an optional temporal term::
+(:mod:`lacore.markers.binding`) and an optional temporal term::
 
     minimize  J_t[X, alpha] = sum_{m visible} |p_m(X) - x_m^t|^2                    data (4.20)
                             + gamma W_q[Z[X], zbar + U^T alpha]                      prior (4.21)-(4.23)
@@ -18,7 +18,7 @@ Solver (the thesis' remark on implementation)
 1. **Start.** Frame 0: the model's reference mesh (not the immersion of the
    mean ``zbar``, which can contain slivers: on the 2.5k-vertex coarse human a
    face of the mean pose has 1e-9 of its rest area) moved by a Kabsch fit
-   (:func:`lacore.rigid.rigid_fit`) of its marker points onto the visible
+   (:func:`lacore.geometry.rigid.rigid_fit`) of its marker points onto the visible
    markers; later frames: the previous frame's pose, moved by the Kabsch fit of
    its marker points onto the new markers (the walk), and its coefficients.
 2. **Alternating iterations** (``alternating_iterations``, default 3 in frame 0, 1 in warm-started frames): the
@@ -36,7 +36,7 @@ Solver (the thesis' remark on implementation)
 
    with ``J = dZ/dX`` and ``G_m`` the ``(3, 9)`` Jacobian of marker ``m``'s
    surface point (normal derivative included).  ``A`` is factorized once per
-   iteration by :class:`lacore.sparse_cholesky.SparseCholesky` (symbolic
+   iteration by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic
    analysis once per topology, reused by every iteration and frame); the Schur
    complement ``S = C - B^T A^-1 B`` (J x J) gives ``da = S^-1 (B^T A^-1 g_X - g_a)``
    and ``dX = -A^-1 (g_X + B da)``: ``J + 1`` solves with one factor, never a
@@ -77,7 +77,7 @@ Multiresolution
 Fit the model of a coarse mesh (for the human, the 2.5k-vertex coarse body)
 and give ``prolongation`` (a :class:`lacore.multiresolution.Prolongation` or
 a callable ``(coarse_vertices, coefficients) -> fine vertices``, e.g.
-:class:`lacore.marker_prolongation.NearestKeysProlongation`): every fitted
+:class:`lacore.markers.prolongation.NearestKeysProlongation`): every fitted
 frame is prolonged to the full mesh (``fine_vertices``, timed in
 ``timings["prolongation"]``, thesis 2.3: ~20 ms).  Without it
 ``fine_vertices`` is None and ``timings["prolongation"]`` is 0.
@@ -88,16 +88,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError, format_indices
-from .lengths_angles import face_normals, lengths_and_angles
-from .marker_prolongation import as_fit_prolongation
-from .marker_binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
-from .progress import report
-from .reconstruction.assembly import dof_ordering, gauss_newton_pattern
-from .reconstruction.objectives import QuadraticObjective
-from .result import SolverResult
-from .rigid import apply_rigid, rigid_fit
-from .sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+from ..errors import InputError, format_indices
+from ..geometry.lengths_angles import face_normals, lengths_and_angles
+from .prolongation import as_fit_prolongation
+from .binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
+from ..progress import report
+from ..reconstruction.assembly import dof_ordering, gauss_newton_pattern
+from ..reconstruction.objectives import QuadraticObjective
+from ..result import SolverResult
+from ..geometry.rigid import apply_rigid, rigid_fit
+from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 
 __all__ = ["fit_markers", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers"]
 
@@ -446,7 +446,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
 
     Parameters
     ----------
-    model : lacore.shape_model.ShapeModel
+    model : lacore.models.shape_model.ShapeModel
         The prior: mean ``zbar``, ``g``-orthonormal modes ``U`` (``J`` may be 0:
         the mean-only prior), weights of ``W_q``, reference mesh (start, areas ``abar_f``).
     markers : (T, M, 3) or (M, 3) array_like

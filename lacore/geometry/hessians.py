@@ -1,6 +1,6 @@
 """Second derivatives of the lengths-and-angles map: per-edge Hessians of edge lengths and dihedral angles.
 
-``Z[X]`` (thesis 3.1, eq. 3.5; :mod:`lacore.lengths_angles`) has one length row
+``Z[X]`` (thesis 3.1, eq. 3.5; :mod:`lacore.geometry.lengths_angles`) has one length row
 per edge and one angle row per interior edge.  Each row depends on the
 vertices of its *stencil* only: ``x0, x1`` (the edge) for a length, ``x0, x1,
 x2, x3`` (the edge, the opposite vertex of the left face, the opposite vertex
@@ -12,7 +12,7 @@ of the right face) for an angle, so its Hessian is a small dense block:
 
 * dihedral angle ``theta`` (12 x 12).  With ``e = x1 - x0``, ``a = x2 - x0``,
   ``b = x3 - x0``, ``n0 = e x a``, ``n1 = b x e`` and the gradients of
-  :func:`lacore.lengths_angles.lengths_and_angles_jacobian`
+  :func:`lacore.geometry.lengths_angles.lengths_and_angles_jacobian`
   (``G_a = -l n0 / |n0|^2``, ``G_b = -l n1 / |n1|^2``,
   ``G_e = -t2 G_a - t3 G_b``, ``t2 = <a, e> / l^2``, ``t3 = <b, e> / l^2``),
   the Hessian in the variables ``(e, a, b)`` has the blocks (rows: gradient
@@ -39,7 +39,7 @@ Checked against finite differences of the analytic Jacobian in
 
 import numpy as np
 
-from .cache import scratch
+from ..cache import scratch
 from .lengths_angles import _block_geometry, _coordinates, _edge_blocks
 from .topology import check_vertices
 
@@ -168,7 +168,7 @@ def dihedral_angle_hessians(vertices, topology):
         ``d2 theta_e / dx dx`` for ``e`` in ``topology.interior_edges``, local
         order ``x0, x1, x2, x3`` (edge end points, opposite vertex of the left
         face, of the right face; xyz each), the stencil of
-        :func:`lacore.lengths_angles.jacobian_pattern` (``quad``).
+        :func:`lacore.geometry.lengths_angles.jacobian_pattern` (``quad``).
     """
     X = _check(vertices, topology)
     ie = topology.interior_edges

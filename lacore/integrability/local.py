@@ -5,7 +5,7 @@ Frames and transition rotations
 A frame on face ``f = (p0, p1, p2)`` is a rotation matrix ``F_f = [b1 | b2 | N_f]``
 (columns).  The *standard frame* used here has ``b1`` along the half-edge
 ``p0 -> p1`` and ``b2 = N_f x b1``.  For an interior edge with left face ``i`` and
-right face ``j`` (see :mod:`lacore.topology`) the induced transition rotation
+right face ``j`` (see :mod:`lacore.geometry.topology`) the induced transition rotation
 (3.10) is the change of basis ``F_j = F_i R_ij``::
 
     R_ij = Rz(alpha_i) Rx(theta_e) Rz(-alpha_j)
@@ -28,7 +28,7 @@ equals the identity for admissible ``z``.  The Euler-angle map (3.13) is
 vertex, stacked as ``(3 V_int,)`` in the order of ``topology.interior_vertices``.
 
 Triangles that violate the triangle inequality get interior angles 0
-(:mod:`lacore.trigonometry`); :func:`integrability_violation` reports such
+(:mod:`lacore.geometry.trigonometry`); :func:`integrability_violation` reports such
 vertices as ``invalid`` (default ``inf``), mirroring ``I_v = diag(inf)`` of (3.11).
 
 Implementation
@@ -68,10 +68,10 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import InputError
-from .cache import carve, scratch
-from .lengths_angles import split_z
-from .trigonometry import kahan_angle_factors, kahan_area_rows, margin_rows, interior_angles
+from ..errors import InputError
+from ..cache import carve, scratch
+from ..geometry.lengths_angles import split_z
+from ..geometry.trigonometry import kahan_angle_factors, kahan_area_rows, margin_rows, interior_angles
 
 __all__ = [
     "rotation_x",
@@ -318,11 +318,11 @@ def _half_angle_table(theta, topology):
 def _doubtful_corners(lengths, topology, faces, num, den, S):
     """Exact triangle-inequality treatment of corners whose validity the fast test could not prove.
 
-    Clips ``num, den`` of those corners at 0 (as :func:`~lacore.trigonometry.interior_angles`)
+    Clips ``num, den`` of those corners at 0 (as :func:`~lacore.geometry.trigonometry.interior_angles`)
     and returns ``(zero_angle, zero_derivative)``: entry indices whose face has
     ``T_f <= 0`` (angle 0) resp. Kahan area ``<= 0`` (derivatives 0), computed
-    exactly as :func:`~lacore.trigonometry.triangle_inequality_margin` and
-    :func:`~lacore.trigonometry.triangle_areas` do.
+    exactly as :func:`~lacore.geometry.trigonometry.triangle_inequality_margin` and
+    :func:`~lacore.geometry.trigonometry.triangle_areas` do.
     """
     tol = 1e-14 * S * S
     doubt = np.flatnonzero(~((num > tol) & (den > tol)))

@@ -2,7 +2,7 @@
 
 Shapes ``X_0, ..., X_{K-1}`` in dense correspondence (vertex arrays ``(V, 3)``)
 are encoded as lengths and angles ``z_k = Z[X_k]`` (``(2E,)``, layout of
-:mod:`lacore.lengths_angles`) and placed at increasing *keyframe times*
+:mod:`lacore.geometry.lengths_angles`) and placed at increasing *keyframe times*
 ``k_0 < k_1 < ... < k_{K-1}`` (default ``0, 1, ..., K-1``).  A frame at time
 ``t`` gets the target
 
@@ -63,15 +63,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from .errors import InputError, LengthsAnglesError, MeshError
-from .lengths_angles import check_z, lengths_and_angles
-from .parallel import WorkerProcess, check_workers, frame_chains, raise_worker_error
-from .progress import report
-from .reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from .reconstruction.settings import split_options
-from .reconstruction.spanning_trees import bfs_tree, preassembled_tree
-from .result import SolverResult
-from .topology import MeshTopology, check_vertices
+from ..errors import InputError, LengthsAnglesError, MeshError
+from ..geometry.lengths_angles import check_z, lengths_and_angles
+from ..parallel import WorkerProcess, check_workers, frame_chains, raise_worker_error
+from ..progress import report
+from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
+from ..reconstruction.settings import split_options
+from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
+from ..result import SolverResult
+from ..geometry.topology import MeshTopology, check_vertices
 
 __all__ = [
     "InterpolationResult",

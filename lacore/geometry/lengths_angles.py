@@ -6,7 +6,7 @@ Conventions
 dihedral angles ``theta_e`` in radians, ordered like ``topology.edges``.
 
 The dihedral angle of an interior edge ``e = (a, b)`` (oriented as in
-:mod:`lacore.topology`, left face ``f0`` traversing it from ``a`` to ``b``) is the
+:mod:`lacore.geometry.topology`, left face ``f0`` traversing it from ``a`` to ``b``) is the
 signed angle that rotates the left normal ``N0`` onto the right normal ``N1``
 about the edge direction ``(X_b - X_a) / l_e``::
 
@@ -39,8 +39,8 @@ one ``(18, E)`` buffer that a cached permutation turns into the CSR data.
 import numpy as np
 import scipy.sparse as sp
 
-from .cache import carve, scratch
-from .errors import LengthsAnglesError, MeshError, format_indices
+from ..cache import carve, scratch
+from ..errors import LengthsAnglesError, MeshError, format_indices
 from .topology import check_vertices
 
 __all__ = [

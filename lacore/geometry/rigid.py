@@ -5,7 +5,7 @@ A rigid motion is ``x -> x @ R.T + t`` with ``R`` a rotation (det +1, no reflect
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["rigid_fit", "rigid_align", "apply_rigid", "rigid_rms"]
 

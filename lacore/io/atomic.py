@@ -13,7 +13,7 @@ Usage::
         fh.write(data)
     save_npz_atomic("out.npz", z=z, faces=F)   # numpy.savez, atomically
 
-Every writer of the package (:func:`lacore.mesh_io.save_mesh`, the ``lacore``
+Every writer of the package (:func:`lacore.io.meshes.save_mesh`, the ``lacore``
 subcommands) goes through these two functions.
 """
 

@@ -1,6 +1,6 @@
 """Prolongation of coarse marker fits to the full mesh (thesis 2.3 and 4.3.1: fit coarse, prolong, ~20 ms).
 
-:func:`~lacore.marker_fitting.fit_markers` fits the shape model of a coarse
+:func:`~lacore.markers.fitting.fit_markers` fits the shape model of a coarse
 mesh (:func:`lacore.multiresolution.coarsen`); its ``prolongation`` option
 turns every fitted coarse pose into a pose of the full mesh by
 :class:`lacore.multiresolution.Prolongation` (the removed vertices
@@ -20,8 +20,8 @@ slightly better one (README, marker fitting).
 
 import numpy as np
 
-from .errors import InputError
-from .multiresolution import Prolongation
+from ..errors import InputError
+from ..multiresolution import Prolongation
 
 __all__ = ["NearestKeysProlongation", "as_fit_prolongation"]
 

@@ -2,9 +2,9 @@
 
 :class:`VertexPCA` is linear PCA of training poses after generalized Procrustes
 alignment (each pose rigidly aligned to the current mean by
-:func:`lacore.rigid.rigid_fit`, repeated); :func:`fit_markers_vertex_pca` fits
+:func:`lacore.geometry.rigid.rigid_fit`, repeated); :func:`fit_markers_vertex_pca` fits
 ``X = (mu + sum_k c_k sigma_k P_k) R^T + t`` to the markers with the same data
-term as :func:`lacore.marker_fitting.fit_markers` (surface points with normal
+term as :func:`lacore.markers.fitting.fit_markers` (surface points with normal
 offsets, NaN markers dropped) and a Tikhonov term ``lambda |c|^2`` on the
 whitened coefficients (a Gaussian prior), by Gauss-Newton in ``(c, R, t)``
 (rotation updated by the exponential map), every frame warm-started from the
@@ -16,8 +16,8 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .marker_binding import surface_point_jacobians, surface_points
-from .rigid import apply_rigid, rigid_align, rigid_fit
+from .binding import surface_point_jacobians, surface_points
+from ..geometry.rigid import apply_rigid, rigid_align, rigid_fit
 
 __all__ = ["VertexPCA", "fit_markers_vertex_pca"]
 

@@ -23,8 +23,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from .cache import DerivedCache
-from .errors import MeshError, format_indices
+from ..cache import DerivedCache
+from ..errors import MeshError, format_indices
 
 __all__ = ["MeshTopology", "check_vertices", "check_faces"]
 
@@ -94,7 +94,7 @@ class MeshTopology:
 
     Build with :meth:`from_faces`.  All arrays are read-only views of the
     connectivity; geometry is passed separately to the functions of
-    :mod:`lacore.lengths_angles`.
+    :mod:`lacore.geometry.lengths_angles`.
 
     Attributes
     ----------

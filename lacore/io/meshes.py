@@ -19,8 +19,8 @@ import os
 import numpy as np
 import trimesh
 
-from .atomic_io import atomic_write
-from .errors import MeshError
+from .atomic import atomic_write
+from ..errors import MeshError
 
 __all__ = ["load_mesh", "save_mesh", "SUPPORTED_EXTENSIONS"]
 
@@ -195,7 +195,7 @@ def save_mesh(path, vertices, faces):
     bit-identically.  ``.stl`` (written with trimesh) is lossy: float32, and it
     stores no shared vertices, so reading it back renumbers the vertices.
 
-    The file is written atomically (:func:`lacore.atomic_io.atomic_write`): on
+    The file is written atomically (:func:`lacore.io.atomic.atomic_write`): on
     an error an existing file at ``path`` is left unchanged.
     """
     path = os.fspath(path)

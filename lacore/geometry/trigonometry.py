@@ -1,7 +1,7 @@
 """Triangle areas and interior angles from edge lengths (thesis section 3.1, appendix A.1).
 
 All functions take ``L`` of shape ``(F, 3)`` with ``L[f, i]`` the length of the
-edge of face ``f`` opposite its local vertex ``i`` (see :mod:`lacore.topology`),
+edge of face ``f`` opposite its local vertex ``i`` (see :mod:`lacore.geometry.topology`),
 so interior angle ``i`` is the angle *at* vertex ``i``, opposite ``L[f, i]``.
 
 Formulas are Kahan's numerically stable versions (A.2), (A.6); they stay
@@ -19,7 +19,7 @@ Transcendental functions are only applied to C-contiguous arrays: with
 strided outputs numpy 1.26 can round differently (by an ulp) depending on
 memory alignment, which would make results irreproducible.  The
 row-level building blocks :func:`kahan_angle_factors`, :func:`kahan_area_rows`
-and :func:`margin_rows` are public: :mod:`lacore.integrability` evaluates the
+and :func:`margin_rows` are public: :mod:`lacore.integrability.local` evaluates the
 same formulas on its own (blocked) corner lists.
 """
 

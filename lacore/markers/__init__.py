@@ -1,0 +1,19 @@
+"""Motion-capture markers: reading takes, binding markers to a surface, fitting shape models.
+
+* :mod:`.io` -- :class:`MarkerTake` from C3D and TRC files (units, labels, occlusions),
+  resampling, writing.
+* :mod:`.binding` -- :class:`MarkerBinding`: each marker as a surface point (triangle,
+  barycentric coordinates) plus a normal offset; :func:`bind_markers`.
+* :mod:`.fitting` -- :func:`fit_markers`: per-frame fits of a shape model to the markers
+  (thesis 4.3.1), without skeleton or skinning.
+* :mod:`.prolongation` -- coarse fits prolonged to the full mesh.
+* :mod:`.baselines` -- the vertex-PCA baseline the fits are measured against.
+"""
+
+from .binding import MarkerBinding, MarkerBindingError, bind_markers, closest_surface_points, surface_points
+from .fitting import MarkerDataError, MarkerFitResult, check_markers, fit_markers
+from .io import MarkerError, MarkerFileError, MarkerTake, read_markers, resample, write_c3d, write_trc
+
+__all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "resample", "write_c3d", "write_trc",
+           "MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
+           "MarkerDataError", "MarkerFitResult", "check_markers", "fit_markers"]

@@ -1,0 +1,10 @@
+"""Statistical shape models in lengths and angles (thesis 4.3).
+
+* :mod:`.shape_model` -- :class:`ShapeModel`: PCA and simplified principal geodesic analysis
+  of example poses, synthesis of new poses from coefficients, projection of poses onto the
+  model, save and load.
+"""
+
+from .shape_model import ShapeModel, ShapeModelError
+
+__all__ = ["ShapeModel", "ShapeModelError"]

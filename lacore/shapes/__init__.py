@@ -1,0 +1,26 @@
+"""The shape space: paths and blends between shapes in lengths and angles (thesis chapter 4).
+
+* :mod:`.projection` -- ``P_Z``: lengths and angles to the nearest admissible ones (4.3, 4.4).
+* :mod:`.interpolation` -- in-betweens and keyframed sequences: blend the keys in lengths and
+  angles (linearly or by splines), then project every frame.
+* :mod:`.geodesics` -- discrete geodesics on the admissible set (4.6).
+
+The submodules are imported on first use of their names (the interpolation pulls in
+``scipy.interpolate``).
+"""
+
+import importlib
+
+_LAZY = {"project": "projection",
+         "interpolate": "interpolation", "keyframe_inbetweens": "interpolation", "project_targets": "interpolation",
+         "InterpolationResult": "interpolation", "ChainWorkers": "interpolation",
+         "discrete_geodesic": "geodesics", "path_energy_profile": "geodesics", "GeodesicResult": "geodesics"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY)
