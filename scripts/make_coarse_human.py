@@ -10,7 +10,8 @@ vertices are a subset of the fine ones: skinning weights carry over by index.
 
 Writes ``tests/data/human_coarse.npz`` (``kept_vertices`` = fine vertex ids,
 ``faces`` in coarse indexing, and how they were made: ``seed``, ``n_poses``,
-``target_vertices``, ``base_obj_sha256``) and prints one JSON object.  The
+``target_vertices``, ``base_obj_sha256``) and the coarsening record (``coarsening_*``, see
+:meth:`lacore.multiresolution.Coarsening.to_arrays`), and prints one JSON object.  The
 result is deterministic: re-running with the same arguments reproduces the file
 (``--check`` compares instead of writing).
 
@@ -54,6 +55,7 @@ def main():
     digest = hashlib.sha256((human_data_dir() / "base.obj").read_bytes()).hexdigest()
     data = {"kept_vertices": kept, "faces": faces, "seed": np.array(args.seed), "n_poses": np.array(args.poses),
             "target_vertices": np.array(args.vertices), "base_obj_sha256": np.array(digest)}
+    data.update(result.to_arrays("coarsening_"))  # the record prolongation needs: stored, never recomputed
     summary = {"vertices": int(len(kept)), "faces": int(len(faces)), "edges": int(topo.n_edges),
                "closed": bool(topo.is_closed), "genus": topo.genus().tolist(),
                "poses": args.poses + 1, "seed": args.seed, "coarsening_seconds": round(result.seconds, 3),

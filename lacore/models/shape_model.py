@@ -65,13 +65,15 @@ from ..reconstruction import METHODS, reconstruct
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import MeshTopology, check_vertices
 
-__all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS",
-           "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
+__all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION",
+           "READABLE_VERSIONS", "TANGENTS", "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
 
 #: Value of the ``format`` entry of a saved model.
 FORMAT = "lacore.models.shape_model"
 #: Version of the ``.npz`` layout written by :meth:`ShapeModel.save`.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions :meth:`ShapeModel.load` reads (1: no fine level, no axes or unit).
+READABLE_VERSIONS = (1, 2)
 #: Tangent-vector variants: (4.18) and (4.17).
 TANGENTS = ("ambient", "projected")
 #: Tangent used when none is given (library, CLI and add-on): ``"ambient"``.  On 20 random skinned poses
@@ -294,6 +296,13 @@ class ShapeModel:
         self._projector = None
         self._solver = None
         self.last_clamped_lengths = None
+        #: Optional :class:`lacore.models.fine_level.FineLevel`: prolongation of poses to the fine mesh.
+        self.fine_level = None
+        #: Optional length of one model unit in metres (e.g. 0.1 for decimetres); None if not declared.
+        self.length_unit = None
+        #: Optional up and forward axes of the reference mesh (``"x"``, ``"-y"``...); None if not declared.
+        self.up_axis = None
+        self.forward_axis = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -826,7 +835,9 @@ class ShapeModel:
         ``reference_vertices``, ``mean_z``, ``mean_vertices``, ``linear_mean_z``,
         ``modes``, ``variances``, ``explained_variance_ratio``, ``total_variance``,
         ``training_coefficients``, ``all_eigenvalues``, ``metric_weights``,
-        ``bending_weight``, ``weights``, ``tangent``, ``projection_metric``, ``method``.
+        ``bending_weight``, ``weights``, ``tangent``, ``projection_metric``, ``method``; optional
+        ``length_unit``, ``up_axis``, ``forward_axis`` and the fine level ``fine_*``
+        (:class:`lacore.models.fine_level.FineLevel`).
         """
         path = os.fspath(path)
         data = {
@@ -841,8 +852,15 @@ class ShapeModel:
             "weights": np.array(self.weights), "tangent": np.array(self.tangent),
             "projection_metric": np.array(self.projection_metric), "method": np.array(self.method),
         }
+        if self.length_unit is not None:
+            data["length_unit"] = np.array(float(self.length_unit))
+        for key in ("up_axis", "forward_axis"):
+            if getattr(self, key) is not None:
+                data[key] = np.array(str(getattr(self, key)))
+        if self.fine_level is not None:
+            data.update(self.fine_level.to_arrays())
         with atomic_write(path, "wb") as fh:  # all or nothing
-            np.savez(fh, **data)
+            np.savez_compressed(fh, **data)
 
     @classmethod
     def load(cls, path, faces=None):
@@ -874,17 +892,19 @@ class ShapeModel:
             if "format" not in keys or str(npz["format"]) != FORMAT:
                 raise ShapeModelError(f"{path} is not a lacore shape model (no format entry {FORMAT!r})")
             version = int(npz["format_version"]) if "format_version" in keys else -1
-            if version != FORMAT_VERSION:
-                raise ShapeModelError(f"{path} has shape-model format version {version}; this lacore reads version "
-                                      f"{FORMAT_VERSION}")
+            if version not in READABLE_VERSIONS:
+                raise ShapeModelError(f"{path} has shape-model format version {version}; this lacore reads versions "
+                                      f"{', '.join(map(str, READABLE_VERSIONS))}")
             need = ["faces", "edges", "reference_vertices", "mean_z", "mean_vertices", "linear_mean_z", "modes",
                     "variances", "explained_variance_ratio", "total_variance", "training_coefficients",
                     "metric_weights", "bending_weight", "weights", "tangent", "projection_metric", "method"]
             missing = [k for k in need if k not in keys]
             if missing:
                 raise ShapeModelError(f"{path} is a corrupt shape model: missing {', '.join(missing)}")
+            optional = [k for k in keys if k == "all_eigenvalues" or k in ("length_unit", "up_axis", "forward_axis")
+                        or k.startswith("fine_")]
             try:
-                d = {k: npz[k] for k in need + (["all_eigenvalues"] if "all_eigenvalues" in keys else [])}
+                d = {k: npz[k] for k in need + optional}
             except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
                 raise ShapeModelError(f"{path} is a corrupt shape model ({exc})") from None
         try:
@@ -918,6 +938,19 @@ class ShapeModel:
         if not np.allclose(model.metric_weights, d["metric_weights"], rtol=1e-12, atol=0):
             raise ShapeModelError(f"{path} is a corrupt shape model: its metric weights do not match its reference "
                                   "mesh")
+        if "length_unit" in d:
+            model.length_unit = float(d["length_unit"])
+        model.up_axis = str(d["up_axis"]) if "up_axis" in d else None
+        model.forward_axis = str(d["forward_axis"]) if "forward_axis" in d else None
+        from .fine_level import FineLevel
+        try:
+            model.fine_level = FineLevel.from_arrays(d)
+        except (MeshError, ValueError, KeyError) as exc:
+            raise ShapeModelError(f"{path} is a corrupt shape model: its fine level: {exc}") from None
+        if model.fine_level is not None and (model.fine_level.coarsening.n_vertices != V
+                                             or model.fine_level.key_coefficients.shape[1] != J):
+            raise ShapeModelError(f"{path} is a corrupt shape model: its fine level does not match its "
+                                  f"{V} vertices and {J} modes")
         if faces is not None:
             model.check_mesh(faces=faces)
         return model

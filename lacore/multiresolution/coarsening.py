@@ -105,6 +105,43 @@ class Coarsening:
             self._topology = MeshTopology.from_faces(self.faces, n_vertices=self.n_vertices)
         return self._topology
 
+    #: Arrays of :meth:`to_arrays` (the record prolongation needs; costs and timing are not stored).
+    ARRAY_FIELDS = ("fine_faces", "vertex_indices", "faces", "collapse_sources", "collapse_targets", "parent",
+                    "ring_offsets", "ring_pairs")
+
+    def to_arrays(self, prefix=""):
+        """The record as ``{prefix + name: array}`` (int32 indices) for storing in an ``.npz`` file.
+
+        Store the record instead of recomputing it: the greedy collapse order
+        may differ between machines (floating-point ties), the stored one is
+        what a model was built with.
+        """
+        out = {prefix + "n_fine_vertices": np.array(self.n_fine_vertices, np.int64)}
+        for name in self.ARRAY_FIELDS:
+            out[prefix + name] = np.asarray(getattr(self, name)).astype(np.int32)
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix=""):
+        """Inverse of :meth:`to_arrays` (``arrays``: any mapping, e.g. an open ``NpzFile``); MeshError if corrupt."""
+        try:
+            d = {name: np.asarray(arrays[prefix + name]).astype(np.int64) for name in cls.ARRAY_FIELDS}
+            n_fine = int(arrays[prefix + "n_fine_vertices"])
+        except KeyError as exc:
+            raise MeshError(f"coarsening record incomplete: missing {exc.args[0]}") from None
+        K = n_fine - len(d["vertex_indices"])
+        ok = (d["collapse_sources"].shape == (K,) and d["collapse_targets"].shape == (K,)
+              and d["parent"].shape == (n_fine,) and d["ring_offsets"].shape == (K + 1,)
+              and d["ring_pairs"].ndim == 2 and d["ring_pairs"].shape[1:] == (2,)
+              and (K == 0 or int(d["ring_offsets"][-1]) == len(d["ring_pairs"]))
+              and (d["ring_pairs"].size == 0 or (d["ring_pairs"].min() >= 0 and d["ring_pairs"].max() < n_fine))
+              and d["faces"].ndim == 2 and d["faces"].shape[1] == 3
+              and (d["faces"].size == 0 or d["faces"].max() < len(d["vertex_indices"])))
+        if not ok:
+            raise MeshError("coarsening record inconsistent: array shapes or indices do not match "
+                            f"{n_fine} fine and {len(d['vertex_indices'])} coarse vertices")
+        return cls(n_fine_vertices=n_fine, costs=np.zeros(K), **d)
+
     def restrict(self, vertices):
         """Coarse vertices of fine shapes: ``vertices[..., vertex_indices, :]``.
 

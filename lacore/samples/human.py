@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HumanBody", "load_human", "coarse_human_coarsening", "human_data_dir", "JOINT_DOFS", "LIMBS",
+__all__ = ["HumanBody", "load_human", "coarse_human_coarsening", "human_model", "human_data_dir", "JOINT_DOFS", "LIMBS",
            "N_BODY_VERTICES"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
@@ -421,33 +421,60 @@ def coarse_body_file():
 def coarse_human_coarsening(path=None):
     """The :class:`~lacore.multiresolution.Coarsening` record of the coarse body (needed to prolong to the full one).
 
-    Recomputed deterministically (a few seconds, cached per process) from the
-    inputs stored in :func:`coarse_body_file` (``seed``, ``n_poses``,
-    ``target_vertices``: the rest pose plus ``n_poses`` random poses, as
-    ``scripts/make_coarse_human.py`` makes them) and checked against the
-    committed ``kept_vertices`` and ``faces``.
+    Read from :func:`coarse_body_file` (``coarsening_*``, written by
+    ``scripts/make_coarse_human.py``), never recomputed: the greedy collapse
+    order need not reproduce bit for bit on another machine.  ``path`` (the
+    shared data) is only checked for the full body's vertex count.
 
     Raises
     ------
     MeshError
-        The recomputed coarse mesh differs from the committed one (another
-        base mesh or another coarsening code: re-run the script).
+        The file has no record, or it does not match the stored ``kept_vertices`` and ``faces``.
     """
     from ..errors import MeshError
-    from ..multiresolution import coarsen
+    from ..multiresolution import Coarsening
 
     body = _load_full(str(human_data_dir(path)))
     f = coarse_body_file()
     if not f.is_file():
         raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
     with np.load(f) as d:
+        if "coarsening_vertex_indices" not in d.files:
+            raise MeshError(f"{f} has no coarsening record: run scripts/make_coarse_human.py")
+        c = Coarsening.from_arrays(d, "coarsening_")
         kept, faces = d["kept_vertices"], d["faces"]
-        seed, n_poses, target = int(d["seed"]), int(d["n_poses"]), int(d["target_vertices"])
-    poses, _ = body.random_poses(n_poses, seed=seed)
-    c = coarsen(np.concatenate([body.vertices[None], poses]), body.faces, target)
-    if not (np.array_equal(c.vertex_indices, kept) and np.array_equal(c.faces, faces)):
-        raise MeshError(f"recomputed coarsening does not reproduce {f}: run scripts/make_coarse_human.py")
+    if not (np.array_equal(c.vertex_indices, kept) and np.array_equal(c.faces, faces)
+            and c.n_fine_vertices == body.n_vertices):
+        raise MeshError(f"the coarsening record of {f} does not match its coarse body: re-run "
+                        "scripts/make_coarse_human.py")
     return c
+
+
+def human_model(n_poses=30, seed=0, path=None):
+    """A shape model of the coarse body trained on ``n_poses`` random poses, carrying its fine level.
+
+    The model (:class:`lacore.models.ShapeModel`, ambient tangent, rest pose as
+    reference) declares its unit (decimetres: ``length_unit = 0.1``) and axes (``+y``
+    up, ``+z`` forward) and holds a :class:`lacore.models.FineLevel` (the stored
+    coarsening, the rest pose and the training poses as keys), so
+    :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds;
+    cached per process (treat the result as read-only).
+    """
+    return _human_model(int(n_poses), int(seed), None if path is None else str(path))
+
+
+@functools.lru_cache(maxsize=2)
+def _human_model(n_poses, seed, path):
+    from ..models import FineLevel, ShapeModel
+
+    full = load_human(path)
+    coarse = load_human(path, coarse=True)
+    c = coarse_human_coarsening(path)
+    fine_poses, _ = full.random_poses(n_poses, seed=seed)
+    model = ShapeModel.fit(fine_poses[:, c.vertex_indices], coarse.faces, reference_vertices=coarse.vertices)
+    model.fine_level = FineLevel.build(c, full.vertices, fine_poses, model.training_coefficients)
+    model.length_unit, model.up_axis, model.forward_axis = 0.1, "y", "z"
+    return model
 
 
 def load_human(path=None, coarse=False):
