@@ -203,6 +203,38 @@ def test_save_load_round_trip(bar_models, bar, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name != "model.npz"]  # no temp files left
 
 
+def test_model_file_entries_are_the_field_table_and_files_of_version_1_load(bar_models, tmp_path):
+    import io
+
+    from lacore.models.model_io import FIELDS, FORMAT, FORMAT_ALIASES, FORMAT_VERSION
+
+    model = bar_models["ambient"]
+    buffer = io.BytesIO()
+    model.save(buffer)
+    d = dict(np.load(io.BytesIO(buffer.getvalue())))
+    assert set(d) == {"format", "format_version"} | {f.name for f in FIELDS}
+    assert str(d["format"]) == FORMAT == "lacore.shape_model" and int(d["format_version"]) == FORMAT_VERSION
+    a = model.training_coefficients[3]
+    # a version-1 file of an earlier writer: format named after the module path, no all_eigenvalues entry
+    for fmt in FORMAT_ALIASES:
+        older = dict(d, format=np.array(fmt))
+        del older["all_eigenvalues"]
+        np.savez(tmp_path / "older.npz", **older)
+        loaded = ShapeModel.load(tmp_path / "older.npz", faces=model.faces)
+        assert loaded.all_eigenvalues is None and loaded.n_modes == model.n_modes
+        assert np.abs(loaded.synthesize(a) - model.synthesize(a)).max() < 1e-12
+    np.savez(tmp_path / "nan.npz", **dict(d, variances=np.full_like(d["variances"], np.nan)))
+    with pytest.raises(ShapeModelError, match=r"nan.npz is a corrupt shape model: variances has shape \(3,\), "
+                                              "expected \\(3,\\) with finite entries"):
+        ShapeModel.load(tmp_path / "nan.npz")
+    np.savez(tmp_path / "tangent.npz", **dict(d, tangent=np.array("log")))
+    with pytest.raises(ShapeModelError, match="tangent is 'log'; expected one of ambient, projected"):
+        ShapeModel.load(tmp_path / "tangent.npz")
+    np.savez(tmp_path / "missing.npz", **{k: v for k, v in d.items() if k != "mean_z"})
+    with pytest.raises(ShapeModelError, match="corrupt shape model: missing mean_z"):
+        ShapeModel.load(tmp_path / "missing.npz")
+
+
 def test_bad_input_messages(bar, bar_models, tmp_path):
     poses, topo, _ = bar
     with pytest.raises(ShapeModelError, match="at least 2 training meshes, got 1"):

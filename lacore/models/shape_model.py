@@ -46,17 +46,14 @@ invariant; the mean's vertices are placed in the reference mesh's frame).
 """
 
 import copy
-import os
 import time
-import zipfile
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from ..io.atomic import atomic_write
 from ..energies import QuadraticEnergy
-from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
+from ..errors import LengthsAnglesError, MeshError, format_indices
 from ..integrability.local import euler_integrability_jacobian
 from ..geometry.lengths_angles import check_nondegenerate, check_z, lengths_and_angles
 from ..progress import report
@@ -64,31 +61,14 @@ from ..shapes.projection import project
 from ..reconstruction import METHODS, reconstruct
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import MeshTopology, check_vertices
+from .model_io import FORMAT, FORMAT_VERSION, load_model, save_model
+from .settings import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModelError
 
 __all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS",
            "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
 
-#: Value of the ``format`` entry of a saved model.
-FORMAT = "lacore.models.shape_model"
-#: Version of the ``.npz`` layout written by :meth:`ShapeModel.save`.
-FORMAT_VERSION = 1
-#: Tangent-vector variants: (4.18) and (4.17).
-TANGENTS = ("ambient", "projected")
-#: Tangent used when none is given (library, CLI and add-on): ``"ambient"``.  On 20 random skinned poses
-#: of the coarse human, its first mode reconstructs without folds out to +-2 standard deviations, while the
-#: projected variant folds already at +-1 and even at the training samples' own coefficients (the linear
-#: projection at the mean distorts tangents of large deformations; ``tests/test_human_shape_model.py``).
-DEFAULT_TANGENT = "ambient"
-#: Orthogonality of the tangent projection: the thesis' Euclidean one (default) or ``g``.
-PROJECTION_METRICS = ("euclidean", "g")
-#: Bending weight ``eta`` of ``W_q`` of a model, as in the thesis' experiments.
-DEFAULT_BENDING_WEIGHT = 0.005
 #: Eigenvalues below this fraction of the largest are treated as zero variance.
 _RANK_TOL = 1e-12
-
-
-class ShapeModelError(InputError):
-    """Bad input for a shape model: too few samples, samples not in correspondence, a corrupt model file."""
 
 
 # --------------------------------------------------------------------------- tangent projection
@@ -820,37 +800,19 @@ class ShapeModel:
 
     # ------------------------------------------------------------------ files
     def save(self, path):
-        """Write the model to one ``.npz`` file (atomically: temp file in the same folder, then rename).
+        """Write the model to one ``.npz`` file (atomically) or binary file object (:func:`~.model_io.save_model`).
 
-        Keys: ``format``, ``format_version``, ``faces``, ``edges``,
-        ``reference_vertices``, ``mean_z``, ``mean_vertices``, ``linear_mean_z``,
-        ``modes``, ``variances``, ``explained_variance_ratio``, ``total_variance``,
-        ``training_coefficients``, ``all_eigenvalues``, ``metric_weights``,
-        ``bending_weight``, ``weights``, ``tangent``, ``projection_metric``, ``method``.
+        The entries are the rows of :data:`lacore.models.model_io.FIELDS`.
         """
-        path = os.fspath(path)
-        data = {
-            "format": np.array(FORMAT), "format_version": np.array(FORMAT_VERSION),
-            "faces": self.faces, "edges": self.edges, "reference_vertices": self.reference_vertices,
-            "mean_z": self.mean_z, "mean_vertices": self.mean_vertices, "linear_mean_z": self.linear_mean_z,
-            "modes": self.modes, "variances": self.variances,
-            "explained_variance_ratio": self.explained_variance_ratio,
-            "total_variance": np.array(self.total_variance), "training_coefficients": self.training_coefficients,
-            "all_eigenvalues": (self.all_eigenvalues if self.all_eigenvalues is not None else np.zeros(0)),
-            "metric_weights": self.metric_weights, "bending_weight": np.array(self.bending_weight),
-            "weights": np.array(self.weights), "tangent": np.array(self.tangent),
-            "projection_metric": np.array(self.projection_metric), "method": np.array(self.method),
-        }
-        with atomic_write(path, "wb") as fh:  # all or nothing
-            np.savez(fh, **data)
+        save_model(self, path)
 
     @classmethod
     def load(cls, path, faces=None):
-        """Read a model written by :meth:`save`.
+        """Read a model written by :meth:`save` (:func:`~.model_io.load_model`).
 
         Parameters
         ----------
-        path : str or path-like
+        path : str, path-like or binary file object
         faces : (F, 3) array_like, optional
             If given, the model must have exactly these faces.
 
@@ -861,66 +823,7 @@ class ShapeModel:
             or other faces than ``faces``.
         FileNotFoundError
         """
-        try:
-            npz = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise ShapeModelError(f"{path} is not a readable .npz shape model ({exc})") from None
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise ShapeModelError(f"{path} is not a readable .npz shape model (a single array)")
-        with npz:
-            keys = set(npz.files)
-            if "format" not in keys or str(npz["format"]) != FORMAT:
-                raise ShapeModelError(f"{path} is not a lacore shape model (no format entry {FORMAT!r})")
-            version = int(npz["format_version"]) if "format_version" in keys else -1
-            if version != FORMAT_VERSION:
-                raise ShapeModelError(f"{path} has shape-model format version {version}; this lacore reads version "
-                                      f"{FORMAT_VERSION}")
-            need = ["faces", "edges", "reference_vertices", "mean_z", "mean_vertices", "linear_mean_z", "modes",
-                    "variances", "explained_variance_ratio", "total_variance", "training_coefficients",
-                    "metric_weights", "bending_weight", "weights", "tangent", "projection_metric", "method"]
-            missing = [k for k in need if k not in keys]
-            if missing:
-                raise ShapeModelError(f"{path} is a corrupt shape model: missing {', '.join(missing)}")
-            try:
-                d = {k: npz[k] for k in need + (["all_eigenvalues"] if "all_eigenvalues" in keys else [])}
-            except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-                raise ShapeModelError(f"{path} is a corrupt shape model ({exc})") from None
-        try:
-            topology = MeshTopology.from_faces(d["faces"], edges=d["edges"], n_vertices=len(d["reference_vertices"]))
-        except MeshError as exc:
-            raise ShapeModelError(f"{path} is a corrupt shape model: {exc}") from None
-        E2 = 2 * topology.n_edges
-        V = topology.n_vertices
-        J = d["modes"].shape[0] if d["modes"].ndim == 2 else -1
-        shapes = {"reference_vertices": (V, 3), "mean_vertices": (V, 3), "mean_z": (E2,), "linear_mean_z": (E2,),
-                  "modes": (J, E2), "variances": (J,), "explained_variance_ratio": (J,), "metric_weights": (E2,)}
-        for k, s in shapes.items():
-            if d[k].shape != s or not np.all(np.isfinite(d[k])):
-                raise ShapeModelError(f"{path} is a corrupt shape model: {k} has shape {d[k].shape}, expected {s} "
-                                      "with finite entries")
-        if d["training_coefficients"].ndim != 2 or d["training_coefficients"].shape[1] != J:
-            raise ShapeModelError(f"{path} is a corrupt shape model: training_coefficients has shape "
-                                  f"{d['training_coefficients'].shape}, expected (N, {J})")
-        tangent, pm, method = str(d["tangent"]), str(d["projection_metric"]), str(d["method"])
-        if tangent not in TANGENTS or pm not in PROJECTION_METRICS or method not in METHODS:
-            raise ShapeModelError(f"{path} is a corrupt shape model: unknown settings {tangent!r}, {pm!r}, {method!r}")
-        model = cls(topology=topology, reference_vertices=d["reference_vertices"].astype(float),
-                    mean_z=d["mean_z"].astype(float), mean_vertices=d["mean_vertices"].astype(float),
-                    linear_mean_z=d["linear_mean_z"].astype(float), modes=d["modes"].astype(float),
-                    variances=d["variances"].astype(float),
-                    explained_variance_ratio=d["explained_variance_ratio"].astype(float),
-                    total_variance=float(d["total_variance"]),
-                    training_coefficients=d["training_coefficients"].astype(float), tangent=tangent,
-                    projection_metric=pm, bending_weight=float(d["bending_weight"]), weights=str(d["weights"]),
-                    method=method, all_eigenvalues=d.get("all_eigenvalues"))
-        if not np.allclose(model.metric_weights, d["metric_weights"], rtol=1e-12, atol=0):
-            raise ShapeModelError(f"{path} is a corrupt shape model: its metric weights do not match its reference "
-                                  "mesh")
-        if faces is not None:
-            model.check_mesh(faces=faces)
-        return model
+        return load_model(path, cls, faces=faces)
 
 
 # --------------------------------------------------------------------------- helpers
