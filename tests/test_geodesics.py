@@ -16,7 +16,8 @@ from fd import directional_fd, relative_error
 from lacore.progress import Cancelled
 from lacore.energies import QuadraticEnergy, ThinShellsEnergy
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.shapes.geodesics import (_QuadraticPathModel, _SchurKKT, _time_laplacian_inverse,
+from lacore.reconstruction import ReconstructionSettings
+from lacore.shapes.geodesics import (GeodesicOptions, _QuadraticPathModel, _SchurKKT, _time_laplacian_inverse,
                                      _vertex_path_linearization, default_energy, discrete_geodesic, linear_path,
                                      path_energy, path_energy_profile, projected_linear_path)
 from lacore.integrability.local import euler_integrability_jacobian, euler_integrability_map
@@ -283,7 +284,7 @@ def test_sqp_from_the_unprojected_linear_path(plates):
 
 def test_sqp_reconstructs_vertices(plates):
     topo, XA, XB = plates
-    res = discrete_geodesic(XA, XB, topo, 3, reconstruct_vertices=True)
+    res = discrete_geodesic(XA, XB, topo, 3, options=GeodesicOptions(reconstruct_vertices=True))
     assert res.vertices.shape == (4, topo.n_vertices, 3)
     for X, z in zip(res.vertices, res.z, strict=True):
         assert np.abs(lengths_and_angles(X, topo) - z).max() < 1e-7
@@ -345,7 +346,11 @@ def test_geodesic_errors(plates):
     with pytest.raises(LengthsAnglesError, match="shape"):
         discrete_geodesic(zA, zA[:-2], topo, 3, reference_vertices=XA)
     with pytest.raises(ValueError, match="bending_weight > 0"):
-        discrete_geodesic(XA, XB, topo, 3, bending_weight=0.0)
+        discrete_geodesic(XA, XB, topo, 3, settings=ReconstructionSettings(bending_weight=0.0))
+    with pytest.raises(ValueError, match="need the quadratic energy"):
+        discrete_geodesic(XA, XB, topo, 3, settings=ReconstructionSettings(energy="shells"))
+    with pytest.raises(ValueError, match="max_iterations must be a non-negative integer"):
+        GeodesicOptions(max_iterations=2.5)
     with pytest.raises(TypeError, match="residual_weights"):
         discrete_geodesic(XA, XB, topo, 3, energy=ThinShellsEnergy(topo))
     with pytest.raises(ValueError, match="vertex positions"):
@@ -359,9 +364,10 @@ def test_geodesic_errors(plates):
 def test_progress_is_reported_per_iteration_and_can_cancel(plates):
     topo, XA, XB = plates
     seen = []
-    res = discrete_geodesic(XA, XB, topo, 2, method="vertices", max_iterations=50,
+    res = discrete_geodesic(XA, XB, topo, 2, method="vertices", options=GeodesicOptions(max_iterations=50),
                             progress=lambda d, t, m: seen.append((d, t, m)))
     assert [d for d, _, _ in seen] == list(range(res.iterations)) and all(t == 50 for _, t, _ in seen)
     assert seen[0][2] == "iteration 1 (at most 50)"
     with pytest.raises(Cancelled, match="cancelled after 1 of 50"):
-        discrete_geodesic(XA, XB, topo, 2, method="sqp", max_iterations=50, progress=lambda d, t, m: d >= 1)
+        discrete_geodesic(XA, XB, topo, 2, method="sqp", options=GeodesicOptions(max_iterations=50),
+                          progress=lambda d, t, m: d >= 1)

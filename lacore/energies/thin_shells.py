@@ -4,7 +4,8 @@ import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
 from ..geometry.trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
-from ._common import DeformationEnergy, _Blocks, _interior_quads, _parse_argument, _project_psd, _scatter, edge_areas
+from ._common import (DEFAULT_BENDING_WEIGHT, DeformationEnergy, _Blocks, _interior_quads, _parse_argument,
+                      _project_psd, _scatter, edge_areas)
 
 __all__ = ["ThinShellsEnergy", "membrane_density"]
 
@@ -161,12 +162,12 @@ class ThinShellsEnergy(DeformationEnergy):
     ----------
     topology : MeshTopology
     bending_weight : float
-        ``eta >= 0`` (squared shell thickness).
+        ``eta >= 0`` (squared shell thickness; default :data:`~lacore.energies.DEFAULT_BENDING_WEIGHT`).
     mu, lam : float
         Positive material constants of the membrane density.
     """
 
-    def __init__(self, topology, bending_weight=1e-3, mu=1.0, lam=1.0):
+    def __init__(self, topology, bending_weight=DEFAULT_BENDING_WEIGHT, mu=1.0, lam=1.0):
         super().__init__(topology)
         for name, v in (("mu", mu), ("lam", lam)):
             if not (np.isfinite(v) and v > 0):

@@ -12,9 +12,11 @@ the same rows, so a new entry of the file is one new row:
   ``2E`` (entries of ``z``), ``V`` (vertices), ``J`` (modes), ``N`` (training
   samples) or a number; a new symbol is bound by the first row that uses it;
 * ``role`` says where the value goes: ``"model"`` (a keyword of the
-  :class:`~lacore.models.shape_model.ShapeModel` constructor), ``"topology"``
-  (faces and edges, which make the mesh topology) or ``"derived"`` (written for
-  other readers, recomputed by the model and compared on load).
+  :class:`~lacore.models.shape_model.ShapeModel` constructor), ``"settings"`` (a
+  field of its :class:`~lacore.reconstruction.ReconstructionSettings`),
+  ``"topology"`` (faces and edges, which make the mesh topology) or
+  ``"derived"`` (written for other readers, recomputed by the model and compared
+  on load).
 """
 
 import os
@@ -23,11 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import MeshError
+from ..errors import InputError, MeshError
 from ..geometry.topology import MeshTopology
 from ..io.atomic import atomic_write
 from ..reconstruction import METHODS
-from ..reconstruction.settings import WEIGHTS
+from ..reconstruction.settings import WEIGHTS, ReconstructionSettings
 from .settings import PROJECTION_METRICS, TANGENTS, ShapeModelError
 
 __all__ = ["FORMAT", "FORMAT_ALIASES", "FORMAT_VERSION", "Field", "FIELDS", "save_model", "load_model"]
@@ -56,7 +58,7 @@ class Field:
         Axes as symbols or numbers (arrays only); ``None``: any 1-D array.
     choices : tuple or None
         Allowed values of a string.
-    role : {"model", "topology", "derived"}
+    role : {"model", "settings", "topology", "derived"}
     since : int
         Format version that introduced the entry.
     default : object
@@ -91,8 +93,8 @@ FIELDS = (
     Field("training_coefficients", "float", ("N", "J")),
     Field("all_eigenvalues", "float", None, default=None),
     Field("metric_weights", "float", ("2E",), role="derived"),
-    Field("bending_weight", "scalar"),
-    Field("weights", "str", choices=WEIGHTS),
+    Field("bending_weight", "scalar", role="settings"),
+    Field("weights", "str", choices=WEIGHTS, role="settings"),
     Field("tangent", "str", choices=TANGENTS),
     Field("projection_metric", "str", choices=PROJECTION_METRICS),
     Field("method", "str", choices=METHODS),
@@ -202,7 +204,7 @@ def load_model(path, cls, faces=None):
     path : str, path-like or binary file object
     cls : type
         The model class (:class:`~lacore.models.shape_model.ShapeModel`), called with
-        ``topology`` and the ``"model"`` rows as keywords.
+        ``topology``, ``settings`` and the ``"model"`` rows as keywords.
     faces : (F, 3) array_like, optional
         If given, the model must have exactly these faces.
 
@@ -233,7 +235,11 @@ def load_model(path, cls, faces=None):
                                            n_vertices=len(raw["reference_vertices"]))
     except MeshError as exc:
         raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
-    model = cls(topology=topology, **{f.name: values[f.name] for f in FIELDS if f.role == "model"})
+    try:
+        settings = ReconstructionSettings(**{f.name: values[f.name] for f in FIELDS if f.role == "settings"})
+    except InputError as exc:
+        raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
+    model = cls(topology=topology, settings=settings, **{f.name: values[f.name] for f in FIELDS if f.role == "model"})
     for field in FIELDS:
         if field.role == "derived" and values[field.name] is not None and not np.allclose(
                 getattr(model, field.name), values[field.name], rtol=1e-12, atol=0):

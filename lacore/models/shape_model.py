@@ -47,6 +47,7 @@ invariant; the mean's vertices are placed in the reference mesh's frame).
 
 import copy
 import time
+from dataclasses import replace
 
 import numpy as np
 import scipy.linalg
@@ -62,10 +63,12 @@ from ..reconstruction import METHODS, reconstruct
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import MeshTopology, check_vertices
 from .model_io import FORMAT, FORMAT_VERSION, load_model, save_model
-from .settings import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModelError
+from .settings import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, MIN_LENGTH_RATIO, MODEL_OPTIONS, MODEL_SETTINGS,
+                       PROJECTION_METRICS, TANGENTS, ShapeModelError)
 
 __all__ = ["ShapeModel", "ShapeModelError", "TangentProjector", "wrap_angles", "FORMAT", "FORMAT_VERSION", "TANGENTS",
-           "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT"]
+           "DEFAULT_TANGENT", "PROJECTION_METRICS", "DEFAULT_BENDING_WEIGHT", "MODEL_SETTINGS", "MODEL_OPTIONS",
+           "MIN_LENGTH_RATIO"]
 
 #: Eigenvalues below this fraction of the largest are treated as zero variance.
 _RANK_TOL = 1e-12
@@ -227,10 +230,12 @@ class ShapeModel:
         (4.18) or (4.17).
     projection_metric : {"euclidean", "g"}
         Metric of the tangent projection (``projected`` only).
+    settings : ReconstructionSettings
+        Weights and ``eta`` of ``W_q`` (the metric), fixed face, solver and ordering of the reconstructions.
     bending_weight : float
-        ``eta`` of ``W_q`` (default 0.005, the thesis' value for this application).
+        ``eta`` of ``W_q`` (``settings.bending_weight``; default 0.005, the thesis' value for this application).
     weights : str
-        Weight scheme of ``W_q`` (``"frohlich_botsch"`` = (3.20)).
+        Weight scheme of ``W_q`` (``settings.weights``; ``"frohlich_botsch"`` = (3.20)).
     energy : QuadraticEnergy
         ``W_q`` with weights from the reference.
     metric_weights : (2E,) ndarray
@@ -244,17 +249,19 @@ class ShapeModel:
         ``tangent_solves``, ``gram``, ``eigen``, ``total`` (empty after :meth:`load`).
     mean_result : ReconstructionResult or None
         The reconstruction that projected the linear mean (None after :meth:`load`).
-    last_clamped_lengths : (K,) ndarray or None
-        Lengths raised to their floor per pose in the last :meth:`synthesize`.
     """
 
     def __init__(self, *, topology, reference_vertices, mean_z, mean_vertices, linear_mean_z, modes, variances,
                  explained_variance_ratio, total_variance, training_coefficients, tangent, projection_metric,
-                 bending_weight, weights, method, timings=None, mean_result=None, all_eigenvalues=None):
+                 settings, method, timings=None, mean_result=None, all_eigenvalues=None):
+        if settings.energy != "quadratic":
+            raise ShapeModelError(f"a shape model's metric is the Hessian of W_q: settings.energy must be "
+                                  f"'quadratic', got {settings.energy!r}")
         self.topology = topology
         self.reference_vertices = reference_vertices
-        self.energy = QuadraticEnergy(topology, reference_vertices=reference_vertices, weights=weights,
-                                      bending_weight=bending_weight)
+        self.settings = settings
+        self.energy = QuadraticEnergy(topology, reference_vertices=reference_vertices, weights=settings.weights,
+                                      bending_weight=settings.bending_weight)
         self.mean_z = mean_z
         self.mean_vertices = mean_vertices
         self.linear_mean_z = linear_mean_z
@@ -265,15 +272,11 @@ class ShapeModel:
         self.training_coefficients = training_coefficients
         self.tangent = tangent
         self.projection_metric = projection_metric
-        self.bending_weight = float(bending_weight)
-        self.weights = weights
         self.method = method
         self.timings = dict(timings or {})
         self.mean_result = mean_result
         self.all_eigenvalues = all_eigenvalues
         self._projector = None
-        self._solver = None
-        self.last_clamped_lengths = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -295,6 +298,16 @@ class ShapeModel:
     def n_samples(self):
         """``N``, the number of training samples."""
         return int(self.training_coefficients.shape[0])
+
+    @property
+    def bending_weight(self):
+        """``eta`` of ``W_q`` (``settings.bending_weight``)."""
+        return self.settings.bending_weight
+
+    @property
+    def weights(self):
+        """Weight scheme of ``W_q`` (``settings.weights``)."""
+        return self.settings.weights
 
     @property
     def metric_weights(self):
@@ -348,9 +361,7 @@ class ShapeModel:
 
     @classmethod
     def fit_z(cls, z, topology, reference_vertices, *, n_modes=None, tangent=DEFAULT_TANGENT,
-              projection_metric=PROJECTION_METRICS[0], bending_weight=DEFAULT_BENDING_WEIGHT,
-              weights="frohlich_botsch", method="gn", mean_options=None, solver=None,
-              progress=None):
+              projection_metric=PROJECTION_METRICS[0], method="gn", settings=None, options=None, progress=None):
         """Fit a model to ``N`` lengths-and-angles vectors (4.14)-(4.18).
 
         Parameters
@@ -369,20 +380,18 @@ class ShapeModel:
         projection_metric : {"euclidean", "g"}
             Orthogonality of the tangent projection: the thesis' Euclidean
             ``Id - A^T (A A^T)^-1 A`` (default) or ``g``-orthogonal.
-        bending_weight : float
-            ``eta`` of ``W_q`` (default 0.005, thesis 4.3.2).
-        weights : {"frohlich_botsch", "heeren", "uniform"}
-            Weights of ``W_q``: (3.20) (default), (3.21) or 1.
         method : str
             Reconstruction method of the mean and of :meth:`synthesize`
             (``"gn"``: energy-based projection, Def. 4.3).
-        mean_options : dict, optional
-            Extra keyword arguments of :func:`lacore.reconstruct` for the mean
-            (e.g. tolerances).  Default for Gauss-Newton:
-            ``geodesic_acceleration=False`` (measured on averaged skinned
-            bodies, the accelerated iteration stalls far from the minimum).
-        solver : {"cholmod", "scipy"}, optional
-            Sparse Cholesky backend (reconstruction and tangent projection).
+        settings : ReconstructionSettings, optional
+            ``W_q`` (energy ``"quadratic"``): its weights (3.20) (default), (3.21)
+            or 1 and ``eta`` give the metric; with fixed face, solver and ordering
+            they are the settings of the mean's projection and of :meth:`synthesize`
+            (the solver also of the tangent projection).  Default
+            :data:`~lacore.models.settings.MODEL_SETTINGS` (``eta = 0.005``, thesis 4.3.2).
+        options : GaussNewtonOptions, optional
+            Options of the mean's projection; default
+            :data:`~lacore.models.settings.MODEL_OPTIONS` (no geodesic acceleration).
         progress : callable, optional
             ``progress(done, total, message)`` over the stages (see :mod:`lacore.progress`).
 
@@ -408,6 +417,10 @@ class ShapeModel:
             raise ShapeModelError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
         if not isinstance(topology, MeshTopology):
             raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
+        settings = MODEL_SETTINGS if settings is None else settings
+        if settings.energy != "quadratic":
+            raise ShapeModelError(f"a shape model's metric is the Hessian of W_q: settings.energy must be "
+                                  f"'quadratic', got {settings.energy!r}")
         Z = np.asarray(z, float)
         E2 = 2 * topology.n_edges
         if Z.ndim != 2 or Z.shape[1] != E2:
@@ -435,24 +448,22 @@ class ShapeModel:
         t = time.perf_counter()
         z_ref = lengths_and_angles(X_ref, topology)
         z_lin = wrap_angles(z_ref + wrap_angles(Z - z_ref, topology).mean(axis=0), topology)
-        # Gauss-Newton without geodesic acceleration: on averaged skinned bodies the accelerated steps stall
-        # (energy 46.6 vs 1.46 on the 13.4k body, 30 poses: bench_shape_model.py)
-        opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}
-        opts.update(mean_options or {})
-        mean_z, mean_result = project(z_lin, topology, X_ref, method=method, bending_weight=bending_weight,
-                                      weights=weights, solver=solver, **opts)
+        mean_z, mean_result = project(z_lin, topology, X_ref, method=method, settings=settings,
+                                      options=MODEL_OPTIONS if options is None else options)
         mean_vertices = mean_result.vertices
         t_mean = time.perf_counter() - t
         report(progress, 1, n_stages, "tangent vectors")
 
-        energy = QuadraticEnergy(topology, reference_vertices=X_ref, weights=weights, bending_weight=bending_weight)
+        energy = QuadraticEnergy(topology, reference_vertices=X_ref, weights=settings.weights,
+                                 bending_weight=settings.bending_weight)
         w = energy.residual_weights
         Vt = wrap_angles(Z - mean_z, topology)  # (4.18)
         t_dec = t_solve = 0.0
         projector = None
         if tangent == "projected":  # (4.17)
             t = time.perf_counter()
-            projector = TangentProjector(mean_z, topology, metric_weights=w, metric=projection_metric, solver=solver)
+            projector = TangentProjector(mean_z, topology, metric_weights=w, metric=projection_metric,
+                                         solver=settings.solver)
             t_dec = time.perf_counter() - t
             t = time.perf_counter()
             Vt = projector(Vt)
@@ -494,10 +505,9 @@ class ShapeModel:
                     linear_mean_z=z_lin, modes=modes, variances=lam_J / N,
                     explained_variance_ratio=lam_J / total, total_variance=total / N,
                     training_coefficients=coeffs, tangent=tangent, projection_metric=projection_metric,
-                    bending_weight=bending_weight, weights=weights, method=method, timings=timings,
-                    mean_result=mean_result, all_eigenvalues=lam_all)
+                    settings=settings, method=method, timings=timings, mean_result=mean_result,
+                    all_eigenvalues=lam_all)
         model._projector = projector
-        model._solver = solver
         return model
 
     # ------------------------------------------------------------------ using the model
@@ -505,7 +515,7 @@ class ShapeModel:
         """The :class:`TangentProjector` at the mean (built on first use, e.g. after :meth:`load`)."""
         if self._projector is None:
             self._projector = TangentProjector(self.mean_z, self.topology, metric_weights=self.metric_weights,
-                                               metric=self.projection_metric, solver=self._solver)
+                                               metric=self.projection_metric, solver=self.settings.solver)
         return self._projector
 
     def tangent_vectors(self, z):
@@ -573,32 +583,59 @@ class ShapeModel:
             raise ShapeModelError("coefficients contain NaN or infinite values")
         return a
 
-    def synthesize(self, coefficients, method=None, initial_vertices=None, progress=None, return_results=False,
-                   min_length_ratio=0.01, **reconstruct_options):
+    def synthesis_targets(self, coefficients, min_length_ratio=MIN_LENGTH_RATIO):
+        """The lengths and angles :meth:`synthesize` projects: ``zbar + sum_j alpha_j u_j``, lengths floored.
+
+        Far along a mode (or with extreme coefficients) a length varying strongly
+        over the training set, e.g. in a skin crease, reaches zero or below;
+        lengths below ``min_length_ratio`` times the mean's length of the same
+        edge are raised to that floor.
+
+        Parameters
+        ----------
+        coefficients : (J,) or (K, J) array_like
+        min_length_ratio : float
+            The floor as a fraction of the mean's lengths.
+
+        Returns
+        -------
+        z : (2E,) or (K, 2E) ndarray
+        clamped : (E,) or (K, E) bool ndarray
+            The lengths raised to the floor.
+        """
+        z = self.z_of(coefficients)
+        E = self.topology.n_edges
+        floor = float(min_length_ratio) * self.mean_z[:E]
+        clamped = z[..., :E] < floor
+        z[..., :E] = np.maximum(z[..., :E], floor)
+        return z, clamped
+
+    def synthesize(self, coefficients, *, method=None, options=None, hybrid=None, initial_vertices=None,
+                   min_length_ratio=MIN_LENGTH_RATIO, progress=None, return_results=False):
         """Poses of the model, ``P_Z[zbar + sum_j alpha_j u_j]`` (4.19), as vertices.
+
+        Changes nothing in the model: the same coefficients give the same poses.
 
         Parameters
         ----------
         coefficients : (J,) or (K, J) array_like
         method : str, optional
             Reconstruction method (default :attr:`method`), see :func:`lacore.reconstruct`.
+        options : GaussNewtonOptions, optional
+            Gauss-Newton options; default :data:`~lacore.models.settings.MODEL_OPTIONS`
+            (no geodesic acceleration: at +-2 standard deviations of a body's modes the
+            accelerated iteration stops at higher energies).
+        hybrid : HybridOptions, optional
+            Options of ``method="hybrid"``.
         initial_vertices : (V, 3) array_like, optional
             Gauss-Newton start (default the mean's vertices, for every pose).
+        min_length_ratio : float
+            Floor of the target lengths (:meth:`synthesis_targets`, which also says
+            which were raised); a result's ``notes`` count them.
         progress : callable, optional
             ``progress(done, total, message)`` per pose.
         return_results : bool
             Also return the :class:`~lacore.reconstruction.ReconstructionResult` of every pose.
-        min_length_ratio : float
-            Lengths of ``zbar + sum_j alpha_j u_j`` below this fraction of the
-            mean's length of the same edge are raised to it before the
-            projection (a length varying strongly over the training set, e.g.
-            in a skin crease, becomes negative a few standard deviations out);
-            :attr:`last_clamped_lengths` counts them per pose.
-        **reconstruct_options
-            Passed on to :func:`lacore.reconstruct` (tolerances, ``max_iterations`` ...).
-            Default for Gauss-Newton: ``geodesic_acceleration=False`` (measured: at +-2
-            standard deviations of the body's modes the accelerated iteration stops at 1.5-5x
-            higher energies).
 
         Returns
         -------
@@ -610,23 +647,19 @@ class ShapeModel:
         single = a.ndim == 1
         A = np.atleast_2d(a)
         method = self.method if method is None else method
+        options = MODEL_OPTIONS if options is None else options
         X0 = self.mean_vertices if initial_vertices is None else initial_vertices
+        zs, clamped = self.synthesis_targets(A, min_length_ratio)
         out = np.empty((len(A), self.topology.n_vertices, 3))
         results = []
-        zs = self.z_of(A)
-        # far along a mode (or with extreme coefficients) a length can reach zero or below: clamp it
-        E = self.topology.n_edges
-        floor = float(min_length_ratio) * self.mean_z[:E]
-        clamped = zs[:, :E] < floor
-        zs[:, :E] = np.maximum(zs[:, :E], floor)
-        self.last_clamped_lengths = np.count_nonzero(clamped, axis=1)
-        opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}  # see fit_z
-        opts.update(reconstruct_options)
         for k, zk in enumerate(zs):
             report(progress, k, len(A), f"pose {k + 1} of {len(A)}")
-            res = reconstruct(zk, self.topology, self.reference_vertices, method=method,
-                              bending_weight=self.bending_weight, weights=self.weights, initial_vertices=X0,
-                              solver=self._solver, **opts)
+            res = reconstruct(zk, self.topology, self.reference_vertices, method=method, settings=self.settings,
+                              options=options, hybrid=hybrid, initial_vertices=X0)
+            n = int(np.count_nonzero(clamped[k]))
+            if n:
+                res = replace(res, notes=res.notes + [f"{n} target lengths below {min_length_ratio:g} of the mean's "
+                                                      "were raised to that floor"])
             out[k] = res.vertices
             results.append(res)
         report(progress, len(A), len(A), "done")
@@ -648,10 +681,15 @@ class ShapeModel:
         in_std : bool
             ``t`` in standard deviations of the mode (default; ``alpha_j = t sqrt(variance_j)``)
             or, if False, the raw factor of the ``g``-unit mode (as the thesis' ``t = +-10``).
+        progress : callable, optional
+            ``progress(done, total, message)`` per pose.
+        **synthesize_options
+            Keyword arguments of :meth:`synthesize` (``method``, ``options``, ``return_results`` ...).
 
         Returns
         -------
         vertices : (K, V, 3) ndarray
+            (with ``return_results``: ``(vertices, results)``)
         t : (K,) ndarray
         """
         if int(mode) != mode or not 0 <= mode < self.n_modes:
@@ -852,10 +890,7 @@ def _as_topology(topology, vertices):
 
 def _check_poses(vertices, topology):
     """Training poses as a float ``(N, V, 3)`` array; ShapeModelError / MeshError naming the bad pose."""
-    if isinstance(vertices, np.ndarray) and vertices.ndim == 3:
-        poses = list(vertices)
-    else:
-        poses = list(vertices)
+    poses = list(vertices)
     if len(poses) < 2:
         raise ShapeModelError(f"a shape model needs at least 2 training meshes, got {len(poses)}")
     V = topology.n_vertices

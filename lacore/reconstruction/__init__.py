@@ -67,7 +67,8 @@ from .frame_based import frame_based_reconstruction
 from .gauss_newton import gauss_newton_reconstruction
 from .least_squares import least_squares_reconstruction
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
-from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
+from .settings import (SETTINGS_FIELDS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, ReconstructionSetup,
+                       split_options)
 
 __all__ = [
     "reconstruct",
@@ -78,6 +79,7 @@ __all__ = [
     "ReconstructionSettings",
     "GaussNewtonOptions",
     "HybridOptions",
+    "ReconstructionSetup",
     "get_context",
     "METHODS",
     "STATUS_MESSAGES",
@@ -154,8 +156,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         Energy (``W_q`` (3.19) or ``W_TS`` (3.25), minimized by ``"gn"``/``"hybrid"``,
         reported by all methods), weights, bending weight, fixed face (also the
         root of the frame-based methods), ``fix_triangle_shape``, solver backend.
-        When ``context`` is given, the settings must match it (fields left at
-        their defaults are taken from the context).
+        When ``context`` is given, leave it out (the context's settings apply) or
+        give settings that match the context's (a ``None`` fixed face, solver or
+        ordering matches any).
     options : GaussNewtonOptions, optional
         Iteration and stopping options of ``"gn"`` and of the smoothing of ``"hybrid"``.
     hybrid : HybridOptions, optional
@@ -170,12 +173,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     context : ReconstructionContext, optional
         Shared set-up (weights, fixed face, pattern, symbolic factorization).
     **kwargs
-        The fields of the three objects as keywords, overriding them (the
-        historical signature): ``energy, weights, bending_weight, fixed_face,
-        fix_triangle_shape, solver``; ``max_iterations, ftol, gtol, xtol, atol,
+        Convenience: the fields of the three objects as keywords, overriding
+        them (:func:`~lacore.reconstruction.settings.split_options`):
+        ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
+        solver, ordering``; ``max_iterations, ftol, gtol, xtol, atol,
         reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
-        geodesic_acceleration``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
-        See :mod:`lacore.reconstruction.settings` for their meaning and defaults.
+        geodesic_acceleration, newton, c1, max_backtracks``; ``hybrid_start,
+        hybrid_kind, smoothing_iterations``.  See
+        :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
     -------
@@ -212,7 +217,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
-    settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
+    # what the caller gave ("not given": settings None, a keyword absent); a settings object gives every field
+    given = SETTINGS_FIELDS if settings is not None else SETTINGS_FIELDS & set(kwargs)
+    settings, options, hybrid = split_options(kwargs, settings, options, hybrid)
     scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
     if scaled is not None:
         k, z_s, X_s, X0_s = scaled
@@ -321,7 +328,8 @@ def _rescaled(z_target, topology, reference_vertices, initial_vertices):
 
 
 def _check_context(context, topology, reference_vertices, settings, given):
-    """InputError unless the explicitly given settings (names in ``given``) match the context's."""
+    """InputError unless the given settings (names in ``given``) match the context's; ``None`` matches any
+    fixed face, solver or ordering."""
     if context.topology is not topology:
         raise InputError("the context was made for another topology")
     if reference_vertices is not None:
@@ -329,9 +337,11 @@ def _check_context(context, topology, reference_vertices, settings, given):
         if not np.array_equal(X, context.reference_vertices):
             raise InputError("the context was made for other reference vertices")
     theirs = context.settings
-    for k in sorted(given - {"fixed_face", "solver"}):
+    for k in sorted(given - {"fixed_face", "solver", "ordering"}):
         if getattr(settings, k) != getattr(theirs, k):
             raise InputError(f"{k}={getattr(settings, k)!r} differs from the context's {getattr(theirs, k)!r}")
+    if "ordering" in given and settings.ordering is not None and settings.ordering != theirs.ordering:
+        raise InputError(f"ordering={settings.ordering!r} differs from the context's {theirs.ordering!r}")
     if "solver" in given and settings.solver is not None and settings.solver != context.backend:
         raise InputError(f"solver={settings.solver!r} differs from the context's {context.backend!r}")
     ff = settings.fixed_face

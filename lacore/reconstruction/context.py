@@ -45,7 +45,7 @@ from ..linalg.sparse_cholesky import SparseCholesky, default_backend
 from ..geometry.topology import check_vertices
 from .assembly import dof_ordering, gauss_newton_pattern
 from .objectives import QuadraticObjective, ShellsObjective, reference_weights
-from .settings import make_settings
+from .settings import split_options
 from .spanning_trees import default_root_faces
 
 __all__ = ["ReconstructionContext", "get_context", "triangle_frame", "CONTEXTS_PER_TOPOLOGY"]
@@ -149,7 +149,7 @@ class ReconstructionContext:
     """
 
     def __init__(self, topology, reference_vertices, settings=None, **kwargs):
-        settings = make_settings(settings, caller="ReconstructionContext", **kwargs)
+        settings = split_options(kwargs, settings, caller="ReconstructionContext", accept=("settings",)).settings
         self.settings = settings
         backend = default_backend() if settings.solver is None else settings.solver
         self.topology = topology
@@ -318,7 +318,7 @@ def get_context(topology, reference_vertices, settings=None, **kwargs):
         Fields of :class:`ReconstructionSettings` (override ``settings``).
     """
     X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    settings = make_settings(settings, caller="get_context", **kwargs)
+    settings = split_options(kwargs, settings, caller="get_context", accept=("settings",)).settings
     cache = topology.cache.get((__name__, "contexts"), OrderedDict)
     key = (X.tobytes(), settings)
     ctx = cache.get(key)

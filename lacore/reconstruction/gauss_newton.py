@@ -118,7 +118,7 @@ from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
 from .result import STATUS_MESSAGES, GaussNewtonResult, IterativeResult, ReconstructionResult
-from .settings import GaussNewtonOptions, make_settings
+from .settings import SETTINGS_FIELDS, GaussNewtonOptions, split_options
 
 __all__ = [
     "ReconstructionContext",
@@ -421,7 +421,7 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,
-                                context=None, options=None, method_name="gn", extra_timings=None,
+                                context=None, settings=None, options=None, method_name="gn", extra_timings=None,
                                 success_status=None, started=None, **kwargs):
     """Energy-based reconstruction ``R_W[z*]`` (Def. 3.15) by Gauss-Newton.
 
@@ -438,7 +438,9 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
         frame-based reconstruction); default the reference mesh.  Its rigid
         placement does not matter.
     context : ReconstructionContext, optional
-        Shared set-up; default :func:`get_context` with the settings in ``kwargs``.
+        Shared set-up; default :func:`get_context` with ``settings``.
+    settings : ReconstructionSettings, optional
+        Settings of the context when none is given.
     options : GaussNewtonOptions, optional
     method_name : str
         Reported as :attr:`ReconstructionResult.method`.
@@ -450,8 +452,8 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     started : float, optional
         :func:`time.perf_counter` at the start of the whole call (``timings["total"]``).
     **kwargs
-        Fields of :class:`GaussNewtonOptions` (override ``options``) and, without
-        ``context``, of :class:`~lacore.reconstruction.settings.ReconstructionSettings`.
+        Fields of ``options`` and (without ``context``) of ``settings`` as keywords
+        (:func:`~lacore.reconstruction.settings.split_options`).
 
     Returns
     -------
@@ -461,17 +463,15 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     """
     t_start = time.perf_counter()
     started = t_start if started is None else started
-    gn_kw = {k: kwargs.pop(k) for k in list(kwargs) if k in GaussNewtonOptions.__dataclass_fields__}
-    options = options if options is not None else GaussNewtonOptions()
-    if gn_kw:
-        options = replace(options, **gn_kw)
+    given = sorted(SETTINGS_FIELDS & set(kwargs)) or (["settings"] if settings is not None else [])
+    settings, options, _ = split_options(kwargs, settings, options, caller="gauss_newton_reconstruction",
+                                         accept=("settings", "options"))
     if context is None:
         if reference_vertices is None:
             raise InputError("give reference_vertices or a context")
-        context = get_context(topology, reference_vertices, make_settings(caller="gauss_newton_reconstruction",
-                                                                          **kwargs))
-    elif kwargs:
-        raise InputError(f"settings {sorted(kwargs)} are fixed by the given context")
+        context = get_context(topology, reference_vertices, settings)
+    elif given:
+        raise InputError(f"settings {given} are fixed by the given context")
     z_target = check_z(z_target, topology, name="target z")
     X0 = context.reference_vertices if initial_vertices is None else check_vertices(
         initial_vertices, topology.n_vertices, name="initial vertices")

@@ -99,12 +99,13 @@ from ..integrability.local import euler_integrability_jacobian, euler_integrabil
 from .interpolation import interpolate
 from ..geometry.lengths_angles import check_z, lengths_and_angles, lengths_and_angles_jacobian
 from ..progress import report
-from ..reconstruction import ReconstructionSettings, get_context
+from ..reconstruction import GaussNewtonOptions, ReconstructionSettings, get_context
 from ..result import SolverResult
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import check_vertices
 
 __all__ = [
+    "GeodesicOptions",
     "GeodesicResult",
     "discrete_geodesic",
     "path_energy",
@@ -113,6 +114,57 @@ __all__ = [
     "projected_linear_path",
     "default_energy",
 ]
+
+
+@dataclass(frozen=True)
+class GeodesicOptions:
+    """Iteration and stopping options of :func:`discrete_geodesic`.
+
+    Attributes
+    ----------
+    max_iterations : int
+        Iteration cap (status 1).
+    tol : float
+        ``"sqp"``: relative KKT stationarity ``|g + A^T lambda|_inf <= tol |g|_inf``;
+        ``"vertices"``: step ``<= tol * size`` (bounding-box diagonal of the reference).
+    constraint_tol : float
+        ``max |I~(z_i)|`` required for convergence of ``"sqp"``.
+    regularization : float
+        Proximal multiplier regularization ``delta`` of the SQP KKT system,
+        relative to the largest diagonal entry of ``A H^-1 A^T``.
+    reconstruct_vertices : bool
+        For ``"sqp"``: reconstruct immersions of the (admissible) solution into
+        ``result.vertices`` (Gauss-Newton projections, warm-started along the path).
+    projection : GaussNewtonOptions
+        Options of the Gauss-Newton projections (the projected linear start and
+        ``reconstruct_vertices``).
+
+    Raises
+    ------
+    InputError
+        A negative or non-integer iteration cap, a non-positive tolerance, a negative regularization.
+    """
+
+    max_iterations: int = 200
+    tol: float = 1e-8
+    constraint_tol: float = 1e-10
+    regularization: float = 1e-12
+    reconstruct_vertices: bool = False
+    projection: GaussNewtonOptions = GaussNewtonOptions()
+
+    def __post_init__(self):
+        n = self.max_iterations
+        if isinstance(n, bool) or int(n) != n or n < 0:
+            raise InputError(f"max_iterations must be a non-negative integer, got {n!r}")
+        for name in ("tol", "constraint_tol"):
+            if not float(getattr(self, name)) > 0:
+                raise InputError(f"{name} must be positive, got {getattr(self, name)!r}")
+        if not float(self.regularization) >= 0:
+            raise InputError(f"regularization must be >= 0, got {self.regularization!r}")
+        if not isinstance(self.projection, GaussNewtonOptions):
+            raise InputError(f"projection must be a GaussNewtonOptions, got {type(self.projection).__name__}")
+        object.__setattr__(self, "max_iterations", int(n))
+        object.__setattr__(self, "reconstruct_vertices", bool(self.reconstruct_vertices))
 
 
 @dataclass(kw_only=True, repr=False)
@@ -179,7 +231,7 @@ class GeodesicResult(SolverResult):
 
 
 # --------------------------------------------------------------------------- energies
-def default_energy(topology, reference, bending_weight=1e-3, weights="frohlich_botsch"):
+def default_energy(topology, reference, settings=None):
     """The quadratic energy ``W_q`` (3.19) with weights from ``reference``.
 
     Parameters
@@ -187,19 +239,30 @@ def default_energy(topology, reference, bending_weight=1e-3, weights="frohlich_b
     topology : MeshTopology
     reference : (V, 3) vertices or (2E,) lengths and angles
         Reference configuration of the weights (3.20)/(3.21).
-    bending_weight : float
-        ``eta`` in (3.19).
-    weights : {"frohlich_botsch", "heeren", "uniform"}
+    settings : ReconstructionSettings, optional
+        Its ``weights`` and ``bending_weight`` (``eta`` in (3.19)); default the defaults.
 
     Returns
     -------
     lacore.energies.QuadraticEnergy
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.shapes.geodesics import default_energy
+    >>> X = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2]])
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [2, 1, 3]])
+    >>> W = default_energy(topo, X)
+    >>> W.bending_weight, W.residual_weights.shape
+    (0.001, (10,))
     """
+    settings = settings if settings is not None else ReconstructionSettings()
     reference = np.asarray(reference, float)
+    kw = {"weights": settings.weights, "bending_weight": settings.bending_weight}
     if reference.ndim == 2:
-        return QuadraticEnergy(topology, reference_vertices=reference, weights=weights,
-                               bending_weight=bending_weight)
-    return QuadraticEnergy(topology, reference_z=reference, weights=weights, bending_weight=bending_weight)
+        return QuadraticEnergy(topology, reference_vertices=reference, **kw)
+    return QuadraticEnergy(topology, reference_z=reference, **kw)
 
 
 def _quadratic_weights(energy, dim):
@@ -266,7 +329,7 @@ def _time_laplacian_inverse(m):
     return np.minimum.outer(i, i) * (m + 1 - np.maximum.outer(i, i)) / (m + 1.0)
 
 
-def projected_linear_path(start, end, topology, n_steps, reference_vertices=None, **projection_kw):
+def projected_linear_path(start, end, topology, n_steps, reference_vertices=None, *, settings=None, options=None):
     """The approximate discrete geodesic of section 4.2: linear path in ``z`` (4.9), every point projected (4.10).
 
     Parameters
@@ -277,8 +340,10 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
         ``K >= 1``.
     reference_vertices : (V, 3) array_like, optional
         Reference of the projections; default ``start`` (must then be vertices).
-    **projection_kw
-        Options of :func:`lacore.shapes.interpolation.interpolate` (method, bending_weight, ...).
+    settings : ReconstructionSettings, optional
+        Settings of the projections (:func:`lacore.shapes.interpolation.interpolate`, Gauss-Newton).
+    options : GaussNewtonOptions, optional
+        Their iteration and stopping options.
 
     Returns
     -------
@@ -293,7 +358,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
         raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
     res = interpolate([start, end], topology, np.arange(K + 1) / K, reference_vertices=reference_vertices,
-                      **projection_kw)
+                      settings=settings, options=options)
     X = np.array(res.vertices, float)
     return np.array([lengths_and_angles(x, topology) for x in X]), X
 
@@ -447,14 +512,15 @@ def _euler_max(zs, topology):
     return max(float(np.abs(euler_integrability_map(z, topology)).max()) for z in zs)
 
 
-def _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress=None):
+def _solve_sqp(zs, topology, model, options, progress=None):
     """SQP iterations on the interior points of ``zs`` (modified in place); returns a dict of results."""
+    max_iterations, tol, constraint_tol = options.max_iterations, options.tol, options.constraint_tol
     m = model.m
     E = topology.n_edges
     free = np.r_[np.arange(E), E + topology.interior_edges]            # lengths and interior angles
     nc = 3 * len(topology.interior_vertices)
     d = model.hessian_diagonal(free)
-    kkt = _SchurKKT(model, d, regularization)
+    kkt = _SchurKKT(model, d, options.regularization)
     lam = np.zeros(m * nc)
     rho = 0.0
     mu = 0.0
@@ -590,11 +656,12 @@ def _vertex_path_linearization(Xc, zs, topology, model, cols):
     return model.value(zs), grad, _assemble_normal_matrix(Js, model.K, model.w), Js
 
 
-def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress=None):
+def _solve_vertices(zs, Xc, topology, model, context, options, progress=None):
     """Gauss-Newton in the free vertex coordinates of the interior points; ``zs``/``Xc`` updated in place.
 
     ``Xc (K-1, V, 3)`` are canonical coordinates of ``context`` (fixed coordinates 0).
     """
+    max_iterations, tol = options.max_iterations, options.tol
     K, m = model.K, model.m
     n3 = 3 * topology.n_vertices
     cols = np.setdiff1d(np.arange(n3), context.fixed_dofs)
@@ -648,10 +715,8 @@ def _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progr
 
 
 # --------------------------------------------------------------------------- driver
-def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", initial=None,
-                      reference_vertices=None, bending_weight=1e-3, weights="frohlich_botsch",
-                      max_iterations=200, tol=1e-8, constraint_tol=1e-10, regularization=1e-12,
-                      fixed_face=None, reconstruct_vertices=False, projection_kw=None, progress=None):
+def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=None, initial=None,
+                      reference_vertices=None, settings=None, options=None, progress=None):
     """Discrete geodesic in the space of lengths and angles: solve (4.6).
 
     Minimize ``K sum_{i=0}^{K-1} W[z_i, z_{i+1}]`` over ``z_1..z_{K-1}`` subject to
@@ -664,14 +729,14 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     topology : MeshTopology
     n_steps : int
         ``K >= 1``; the path has ``K + 1`` points (``K = 1`` has no unknowns).
+    method : {"sqp", "vertices"}
+        Constrained SQP in ``z`` or Gauss-Newton in vertex positions (module docstring).
     energy : object, optional
         Quadratic deformation energy with ``value(z_a, z_b)`` and
         ``residual_weights (2E,)`` (:class:`lacore.energies.QuadraticEnergy`); all
         weights of lengths and interior angles must be positive.  Default
-        :func:`default_energy` (``W_q`` (3.19) with ``weights`` from the reference
-        and bending weight ``bending_weight``).
-    method : {"sqp", "vertices"}
-        Constrained SQP in ``z`` or Gauss-Newton in vertex positions (module docstring).
+        :func:`default_energy` (``W_q`` (3.19) with the weights and bending
+        weight of ``settings``, from the reference).
     initial : optional
         Starting path: ``None`` (default) for the projected linear path
         (4.9)-(4.10) of :func:`lacore.shapes.interpolation.interpolate`; ``"linear"`` for
@@ -683,28 +748,16 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         projections (fixed face, output frame).  Defaults to ``start`` if that
         is a vertex array; required otherwise (unless ``energy`` and ``initial``
         are given and no vertices are wanted).
-    bending_weight, weights
-        Parameters of the default energy and of the projections.
-    max_iterations : int
-    tol : float
-        ``"sqp"``: relative KKT stationarity ``|g + A^T lambda|_inf <= tol |g|_inf``;
-        ``"vertices"``: step ``<= tol * size`` (bounding-box diagonal of the reference).
-    constraint_tol : float
-        ``max |I~(z_i)|`` required for convergence of ``"sqp"``.
-    regularization : float
-        Proximal multiplier regularization ``delta`` of the SQP KKT system,
-        relative to the largest diagonal entry of ``A H^-1 A^T``.
-    fixed_face : int, optional
-        Face whose 3-2-1 position fixes the rigid motions (``"vertices"``, and the
-        projections); default the reconstruction's default face.
-    reconstruct_vertices : bool
-        For ``"sqp"``: reconstruct immersions of the (admissible) solution into
-        ``result.vertices`` (Gauss-Newton projections, warm-started along the path).
-    projection_kw : dict, optional
-        Extra keyword arguments of the projections (:func:`lacore.shapes.interpolation.interpolate`).
+    settings : ReconstructionSettings, optional
+        Weights and bending weight of the default energy; settings of the
+        projections and of the gauge of ``"vertices"`` (fixed face, solver).
+        Its energy must be ``"quadratic"``.
+    options : GeodesicOptions, optional
+        Iteration and stopping options, vertices of the ``"sqp"`` solution,
+        options of the projections.
     progress : callable, optional
         ``progress(done, total, message)`` before every iteration (``total`` =
-        ``max_iterations``, :mod:`lacore.progress`); returning True stops with
+        ``options.max_iterations``, :mod:`lacore.progress`); returning True stops with
         :class:`lacore.progress.Cancelled`.
 
     Returns
@@ -716,8 +769,21 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     LengthsAnglesError, MeshError
         Inputs of the wrong size or with NaN entries; a starting path violating
         the triangle inequality.
-    ValueError
-        ``n_steps < 1``, an unknown method, zero weights.
+    InputError
+        ``n_steps < 1``, an unknown method, zero weights, the thin shells energy in ``settings``.
+
+    Examples
+    --------
+    Two steps between a flat and a folded pair of triangles:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, discrete_geodesic
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [2, 1, 3]])
+    >>> flat = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> folded = flat + [[0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0.5]]
+    >>> res = discrete_geodesic(flat, folded, topo, 2)
+    >>> res.success, res.z.shape, bool(res.constraint_violation < 1e-9)
+    (True, (3, 10), True)
     """
     t0 = time.perf_counter()
     if method not in ("sqp", "vertices"):
@@ -731,9 +797,13 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         reference_vertices = check_vertices(reference_vertices, topology.n_vertices, name="reference_vertices")
     elif X0 is not None:
         reference_vertices = X0
+    settings = settings if settings is not None else ReconstructionSettings()
+    options = options if options is not None else GeodesicOptions()
+    if settings.energy != "quadratic":
+        raise InputError(f"the geodesic solvers need the quadratic energy W_q, got settings.energy="
+                         f"{settings.energy!r}")
     if energy is None:
-        energy = default_energy(topology, reference_vertices if reference_vertices is not None else z0,
-                                bending_weight=bending_weight, weights=weights)
+        energy = default_energy(topology, reference_vertices if reference_vertices is not None else z0, settings)
     E = topology.n_edges
     w = _quadratic_weights(energy, 2 * E)
     free = np.r_[np.arange(E), E + topology.interior_edges]
@@ -741,11 +811,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         raise InputError("the geodesic solvers need positive energy weights on all lengths and interior angles "
                          "(bending_weight > 0)")
     model = _QuadraticPathModel(w, K)
-    projection_kw = dict(projection_kw or {})
-    projection_kw.setdefault("bending_weight", bending_weight)
-    projection_kw.setdefault("weights", weights)
-    if fixed_face is not None:
-        projection_kw.setdefault("fixed_face", fixed_face)
+    projection = {"settings": settings, "options": options.projection}
 
     def need_reference(what):
         if reference_vertices is None:
@@ -760,7 +826,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
             need_reference("the projected linear start")
             z_lin, X_lin = projected_linear_path(X0 if X0 is not None else z0, XK if XK is not None else zK,
                                                  topology, K, reference_vertices=reference_vertices,
-                                                 **projection_kw)
+                                                 **projection)
             zs[1:-1], Xs = z_lin[1:-1], X_lin[1:-1]
         elif isinstance(initial, str):
             if initial != "linear":
@@ -777,9 +843,6 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
     context = None
     if method == "vertices" and K >= 2:
         need_reference("method='vertices'")
-        settings = ReconstructionSettings(weights=projection_kw["weights"],
-                                          bending_weight=projection_kw["bending_weight"],
-                                          fixed_face=projection_kw.get("fixed_face"))
         context = get_context(topology, reference_vertices, settings)
 
     if K < 2:
@@ -791,10 +854,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         for i, z in enumerate(zs[1:-1]):
             if _min_margin(z, topology) <= 0:
                 raise LengthsAnglesError(f"initial path point {i + 1} violates the triangle inequality")
-        out = _solve_sqp(zs, topology, model, max_iterations, tol, constraint_tol, regularization, progress)
+        out = _solve_sqp(zs, topology, model, options, progress)
     else:
         Xc = np.array([context.to_canonical(x) for x in Xs])
-        out = _solve_vertices(zs, Xc, topology, model, context, max_iterations, tol, progress)
+        out = _solve_vertices(zs, Xc, topology, model, context, options, progress)
         Xs = np.array([context.from_canonical(x) for x in Xc])
 
     vertices = None
@@ -802,10 +865,10 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
         ends = [context.align(X) if X is not None else None for X in (X0, XK)]
         if ends[0] is not None and ends[1] is not None:
             vertices = np.concatenate([ends[0][None], Xs, ends[1][None]])
-    elif method == "sqp" and reconstruct_vertices:
+    elif method == "sqp" and options.reconstruct_vertices:
         need_reference("reconstruct_vertices")
         proj = interpolate(zs, topology, np.arange(K + 1, dtype=float), reference_vertices=reference_vertices,
-                           **projection_kw)
+                           **projection)
         vertices = np.array(proj.vertices)
 
     profile = path_energy_profile(zs, energy)

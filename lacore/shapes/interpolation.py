@@ -464,7 +464,7 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         The progress callback asked to stop; ``partial`` is None.
     """
     return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
+                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets"),
                     progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame,
                     workers=workers)
 
@@ -591,8 +591,8 @@ class ChainWorkers:
         Frame indices of every chain in processing order (:func:`lacore.parallel.frame_chains`).
     z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree
         As in :func:`project_targets` (all frames; each worker receives its chain's).
-    setup : tuple
-        ``(settings, options, hybrid)`` (:func:`lacore.reconstruction.settings.split_options`).
+    setup : ReconstructionSetup
+        The settings objects (:class:`lacore.reconstruction.settings.ReconstructionSetup`).
 
     Every chain starts from the anchors and continues from its own frames.  :meth:`collect`
     hands finished frames to a callback ``record(index, result, seconds, (max length error,
@@ -762,7 +762,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         violates the triangle inequality at most faces.
     """
     times = _check_times(factors, "factors")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)
 
@@ -805,6 +805,6 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
     times = _check_times(frames, "frames")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)

@@ -21,7 +21,7 @@ from ..reconstruction import reconstruct
 __all__ = ["project"]
 
 
-def project(z, topology, reference_vertices, method="gn", **kwargs):
+def project(z, topology, reference_vertices, method="gn", **reconstruct_kw):
     """Project lengths and angles onto the admissible set, ``P_Z[z~] = Z[R[z~]]`` (4.7), (4.8).
 
     Parameters
@@ -34,9 +34,9 @@ def project(z, topology, reference_vertices, method="gn", **kwargs):
     method : str
         Reconstruction method, see :func:`lacore.reconstruction.reconstruct`;
         ``"gn"`` gives the energy-based projection (Def. 4.3).
-    **kwargs
-        Passed on to :func:`~lacore.reconstruction.reconstruct` (energy,
-        bending_weight, weights, initial_vertices, context, tolerances ...).
+    **reconstruct_kw
+        Keyword arguments of :func:`~lacore.reconstruction.reconstruct`
+        (``settings``, ``options``, ``hybrid``, ``initial_vertices``, ``context`` ...).
 
     Returns
     -------
@@ -45,5 +45,5 @@ def project(z, topology, reference_vertices, method="gn", **kwargs):
     result : ReconstructionResult
         The reconstruction (its ``vertices`` immerse ``z_projected``).
     """
-    result = reconstruct(z, topology, reference_vertices, method=method, **kwargs)
+    result = reconstruct(z, topology, reference_vertices, method=method, **reconstruct_kw)
     return lengths_and_angles(result.vertices, topology), result
