@@ -37,7 +37,7 @@ from .result import SolverResult
 from .geometry.rigid import rigid_align, rigid_fit
 from .geometry.topology import MeshTopology, check_vertices
 
-#: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
+#: Names imported on first use (their modules pull in scipy.interpolate, which is slow to import).
 _LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
          "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.geodesics",
          "ShapeModel": "models.shape_model"}

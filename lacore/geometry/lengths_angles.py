@@ -61,11 +61,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- small helpers
-def _dot(a, b):
-    """Row-wise dot product of two (N, 3) arrays."""
-    return np.einsum("ij,ij->i", a, b)
-
-
 def _cross_rows(u, v, out, tmp):
     """Cross product of component-row arrays: ``out[i] = (u x v)[i]`` for ``u, v, out`` of shape (3, N).
 

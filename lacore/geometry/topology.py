@@ -360,10 +360,6 @@ class MeshTopology:
             return groups
         return self.cache.get((__name__, "vertex_rings"), compute)
 
-    def face_loops(self):
-        """Ordered face loops around interior vertices, ``{n: (vertices (m,), faces (m, n))}``."""
-        return {n: (v, c // 3) for n, (v, c) in self.vertex_rings().items()}
-
     # ------------------------------------------------------------- dual graph
     @property
     def dual_edges(self):

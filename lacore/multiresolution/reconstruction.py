@@ -20,8 +20,8 @@
    ``"exact"`` (default)
        plain Gauss-Newton steps (one numeric factorization each, through
        :func:`lacore.reconstruction.reconstruct`, with its reuse of the
-       factorization near convergence).  From the prolonged start three steps
-       bring the finger average within 6e-7 of the full Gauss-Newton energy.
+       factorization near convergence).  From the prolonged start a few steps
+       reach the full Gauss-Newton energy of smooth blends.
    ``"reference"``
        no fine factorization per target: the fine Gauss-Newton matrix is
        factorized once, at the reference mesh, and every fine step is solved
@@ -31,20 +31,17 @@
        local step of as-rigid-as-possible) between reference and current
        vertices.  ``J^T W J`` transforms exactly like that under a rigid motion
        (``Z`` is rigid-invariant), so for near-isometric poses the rotated
-       reference factor stays a good preconditioner (on an 11k bar the
-       relative residual after 10 PCG iterations is 0.06 with the rotation
-       and 0.72 without).  Measured: good on near-isometric blends (deformed
-       spheres: 1.2e-3 above full Gauss-Newton after 3 steps), poor where the
-       blend bends far from the reference (finger average: 100 % above after
-       3 steps of 20 PCG iterations).
+       reference factor stays a good preconditioner, far better than without
+       the rotation.  Good on near-isometric blends, poor where the blend
+       bends far from the reference.
    ``"two_level"``
        no fine factorization at all: every fine step is solved by conjugate
        gradients preconditioned with a symmetric two-level cycle (block-Jacobi
        smoothing and the coarse Galerkin correction ``P (P^T A P)^-1 P^T``,
        :mod:`.two_level`); only the coarse matrix (``3 Vc`` unknowns) is
-       factorized per step.  Measured: finger average 4.1e-4 above full
-       Gauss-Newton after 5 steps; on the 50k bar 4.0x the optimal energy in
-       6.0 s (3 exact steps: 10.2x in 6.1 s).
+       factorized per step.
+
+   ``benchmarks/bench_multires.py`` compares the three.
 
 Coarse bending weight
 ---------------------
@@ -52,14 +49,12 @@ With the weights (3.20) the membrane part of ``W_q`` sums ``(dl / l)^2`` over
 edges and grows with the number of edges for a given smooth strain, while the
 bending part (``l^2 / d`` times ``dtheta^2``) does not; ``eta E_c / E`` (coarse
 over fine edge count) would make the coarse problem approximate the same
-continuous energy.  Measured, that is not what pays: on the 11k-vertex bar
-bend/twist in-between it halves the RMS distance of the prolonged coarse
-solution to the fine optimum (0.076 % instead of 0.14 % of the bounding-box
-diagonal) but the energy after three fine iterations is the same, and on the
-50k bar the softer coarse problem converges slower and leaves the fine
-iterations 5x further from the optimum.  The default is therefore the
-thesis' choice, the same ``eta`` on both levels (``coarse_bending_weight``
-sets another).
+continuous energy.  That does not pay: it brings the prolonged coarse
+solution nearer to the fine optimum, but the energy after a few fine
+iterations is the same, and on large meshes the softer coarse problem
+converges slower and leaves the fine iterations further from the optimum.
+The default is therefore the thesis' choice, the same ``eta`` on both levels
+(``coarse_bending_weight`` sets another).
 """
 
 import time

@@ -26,12 +26,11 @@ The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"
 and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
 gives every in-between the extrapolation through the frames before it
 (continuation along ``t``), so one Gauss-Newton step finishes a frame of a
-smooth motion (README "In-betweens of large meshes").  The least-squares start
+smooth motion (``benchmarks/bench_continuation.py``).  The least-squares start
 (``hybrid_start="lsq"``) suits a single target with no neighbours: on long
-meshes errors of a tree walk accumulate along the tree (a 50k-vertex bar
-blended from a bend to a twist: edge lengths off by 160 % after the MST walk
-and still after three Gauss-Newton iterations), while the least-squares
-relaxation spreads them (1.4 %).
+meshes the errors of a tree walk accumulate along the tree, and a few
+Gauss-Newton iterations do not remove them, while the least-squares relaxation
+spreads them (``tests/test_hybrid.py``).
 
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,

@@ -24,8 +24,7 @@ gauge in :mod:`~lacore.reconstruction.context`, the objectives in
 :mod:`~lacore.reconstruction.assembly`, the line search in
 :mod:`~lacore.reconstruction.line_search`, PCG in :mod:`~lacore.reconstruction.pcg`,
 the options in :class:`~lacore.reconstruction.settings.GaussNewtonOptions`.
-Timings and iteration counts of the rules below: ``benchmarks/bench_gauss_newton.py``
-and the README.
+``benchmarks/bench_gauss_newton.py`` measures the rules below.
 
 Iteration
 ---------
@@ -60,13 +59,13 @@ Iteration
   straight line overshoots.  With the acceleration on, no trial step (of
   either path) may fold an edge -- its dihedral angle more than ``pi / 2`` off
   the target -- that is not folded at the iteration's start (unless only such
-  a step decreases the energy): on a strongly extrapolated finger target the
-  parabola otherwise led into a folded local minimum.
+  a step decreases the energy): on strongly extrapolated targets the parabola
+  can otherwise lead into a folded local minimum.
 * Newton steps (``newton``, default ``"auto"``, ``W_q`` only): Gauss-Newton
   drops the second-order term ``2 sum_j w_j r_j d2 Z_j`` of the Hessian, which
   is large when the target is far from admissible (a blend of a bend and a
-  twist): its steps then overshoot (the line search cuts them) or converge
-  linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
+  twist): its steps then overshoot (the line search cuts them), converge
+  linearly and slowly, or stall.  After the
   first cut step, or after two full steps in a row whose energy decreases
   shrank by less than a factor of 10, the steps use the full Hessian (per-edge blocks of
   :mod:`lacore.geometry.hessians`, the same sparsity pattern and symbolic

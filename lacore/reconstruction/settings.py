@@ -215,8 +215,8 @@ class HybridOptions:
         The least-squares relaxation (default; no spanning tree is built), the
         frame-based walk along a tree of kind ``kind`` (on long meshes the walk
         accumulates the integrability error along the tree, which a few
-        smoothing iterations do not remove: README "Reconstruction",
-        ``tests/test_hybrid.py``), or the caller's ``initial_vertices`` (e.g. the
+        smoothing iterations do not remove: ``tests/test_hybrid.py``), or the
+        caller's ``initial_vertices`` (e.g. the
         prediction of :func:`lacore.shapes.interpolation.project_targets` from the
         frames before; the least-squares relaxation when none are given).
     kind : {"mst", "spt", "bfs"}

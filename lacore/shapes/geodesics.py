@@ -74,17 +74,15 @@ Energies
 solvers need a quadratic energy -- anything with a ``residual_weights``
 attribute ``w`` of shape ``(2E,)``, ``W = sum_j w_j (z_a - z_b)_j^2``, such as
 :class:`lacore.energies.QuadraticEnergy` (default: ``W_q`` (3.19) with the
-weights (3.20) of the start shape, ``eta = 1e-3``) -- which they use in closed
-form; weights of lengths and interior angles must be positive.
+weights and ``eta`` of the settings, from the start shape) -- which they use in
+closed form; weights of lengths and interior angles must be positive.
 
 Scale
 -----
-Meant for small and medium meshes: on the 121-vertex plates a geodesic with
-``K = 8`` takes about 20 iterations (a few seconds); on the 2046-vertex finger
-with ``K = 4`` both solvers take 5-10 iterations of about a second each.  The
-SQP Schur complement couples all time steps (``(K-1)^2`` sparse blocks), the
-Gauss-Newton matrix only neighbouring ones, so ``"vertices"`` scales better in
-``K``.
+Meant for small and medium meshes: every iteration factorizes a system over
+all ``K - 1`` interior points.  The SQP Schur complement couples all time
+steps (``(K-1)^2`` sparse blocks), the Gauss-Newton matrix only neighbouring
+ones, so ``"vertices"`` scales better in ``K``.
 """
 
 import time

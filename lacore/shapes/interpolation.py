@@ -732,7 +732,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         process computes the first, ``workers - 1`` worker processes the others
         (default 1: all frames here, in increasing time).  Each chain starts
         next to a key and continues from its own frames; each worker builds its
-        own solver (about 4 s and one more solver's memory at 50k vertices),
+        own solver (seconds and one more solver's memory for a large mesh),
         so it pays for long runs of frames of large meshes.
         :func:`lacore.parallel.default_workers` tells how many cores there are.
         A worker that cannot start or dies raises
