@@ -80,6 +80,25 @@ class QuadraticEnergy(DeformationEnergy):
     residual_weights : (2E,) ndarray
         ``w = (w_s, eta w_b)`` so that ``W_q = sum_i w_i (z_a - z_b)_i^2``;
         Gauss-Newton uses the residual ``sqrt(w) (z_a - z_b)``.
+
+    Examples
+    --------
+    ``W_q`` between the rest pose and a bent pose, with the weights (3.20) of the rest pose:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import QuadraticEnergy
+    >>> W = QuadraticEnergy(topo, reference_vertices=X)
+    >>> za, zb = lengths_and_angles(X, topo), lengths_and_angles(bar_pose(X, 0.5, 0.0), topo)
+    >>> W.value(za, za), round(W.value(za, zb), 6)
+    (0.0, 0.034635)
+    >>> g = W.gradient(za, zb)                       # d W / d z_b
+    >>> e = np.zeros_like(zb); e[topo.n_edges + 5] = 1e-6
+    >>> bool(abs((W.value(za, zb + e) - W.value(za, zb - e)) / 2e-6 - g[topo.n_edges + 5]) < 1e-8)
+    True
     """
 
     def __init__(self, topology, reference_vertices=None, reference_z=None, weights=DEFAULT_WEIGHTS,

@@ -248,6 +248,22 @@ class ShapeModel:
         ``tangent_solves``, ``gram``, ``eigen``, ``total`` (empty after :meth:`load`).
     mean_result : ReconstructionResult or None
         The reconstruction that projected the linear mean (None after :meth:`load`).
+
+    Examples
+    --------
+    A model of a bar bent and twisted by nine pairs of angles (two degrees of freedom):
+
+    >>> import numpy as np
+    >>> from lacore import ShapeModel
+    >>> from lacore.samples.bar import bar_family
+    >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+    >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+    >>> model.n_samples, model.n_modes, round(float(model.explained_variance_ratio.sum()), 4)
+    (9, 2, 0.9981)
+    >>> X = model.synthesize(model.training_coefficients[4])       # a training pose back
+    >>> from lacore.geometry.rigid import rigid_rms
+    >>> bool(rigid_rms(X, poses[4]) < 1e-3 * np.linalg.norm(np.ptp(poses[4], axis=0)))
+    True
     """
 
     def __init__(self, *, topology, reference_vertices, mean_z, mean_vertices, linear_mean_z, modes, variances,
@@ -346,6 +362,18 @@ class ShapeModel:
         Returns
         -------
         ShapeModel
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore import ShapeModel
+        >>> from lacore.samples.bar import bar_family
+        >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+        >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+        >>> model
+        ShapeModel(vertices=22, edges=60, samples=9, modes=2, tangent='ambient', explained=0.9981)
+        >>> model.settings.bending_weight, model.tangent
+        (0.005, 'ambient')
         """
         topology = _as_topology(topology, vertices)
         t0 = time.perf_counter()
@@ -558,6 +586,17 @@ class ShapeModel:
         Returns
         -------
         (J,) or (K, J) ndarray
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore import ShapeModel
+        >>> from lacore.samples.bar import bar_family
+        >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+        >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+        >>> a = model.coefficients(poses[4])             # any rigid placement of the pose
+        >>> bool(np.allclose(a, model.training_coefficients[4]))
+        True
         """
         z = self._as_z(x)
         tangent = self.tangent if tangent is None else tangent
@@ -641,6 +680,20 @@ class ShapeModel:
         vertices : (V, 3) or (K, V, 3) ndarray
             In the frame of the reference mesh.
         results : ReconstructionResult or list of them (only with ``return_results``)
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore import ShapeModel
+        >>> from lacore.samples.bar import bar_family
+        >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+        >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+        >>> X, result = model.synthesize(2 * model.standard_deviations * [1, 0], return_results=True)
+        >>> X.shape, result.success
+        ((22, 3), True)
+        >>> poses = model.synthesize(np.eye(2) * model.standard_deviations)   # K = 2 poses at once
+        >>> poses.shape
+        (2, 22, 3)
         """
         a = self._check_coefficients(coefficients)
         single = a.ndim == 1
@@ -840,6 +893,20 @@ class ShapeModel:
         """Write the model to one ``.npz`` file (atomically) or binary file object (:func:`~.model_io.save_model`).
 
         The entries are the rows of :data:`lacore.models.model_io.FIELDS`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore import ShapeModel
+        >>> from lacore.samples.bar import bar_family
+        >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+        >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+        >>> import io
+        >>> buffer = io.BytesIO()                        # or a path ending in .npz
+        >>> model.save(buffer)
+        >>> loaded = ShapeModel.load(io.BytesIO(buffer.getvalue()), faces=faces)
+        >>> bool(np.array_equal(loaded.modes, model.modes)), loaded.bending_weight
+        (True, 0.005)
         """
         save_model(self, path)
 

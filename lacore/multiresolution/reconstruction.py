@@ -144,6 +144,19 @@ class MultiresolutionReconstruction:
     fine_context, coarse_context : ReconstructionContext
     z_keys, z_coarse_keys : (N, 2E), (N, 2E_c) ndarray
     bending_weight, coarse_bending_weight : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.multiresolution import MultiresolutionReconstruction
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=12, n_side=1)
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> mr = MultiresolutionReconstruction([bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)], topo, n_coarse=20)
+    >>> res = mr.reconstruct([0.5, 0.5])              # the in-between at t = 1/2
+    >>> res.method, res.vertices.shape, res.coarse_vertices.shape, bool(res.energy <= res.prolonged_energy)
+    ('multires', (54, 3), (20, 3), True)
     """
 
     def __init__(self, shapes, topology, n_coarse=None, *, reference=0, coarsening=None, settings=None,

@@ -316,6 +316,22 @@ def get_context(topology, reference_vertices, settings=None, **kwargs):
     settings : ReconstructionSettings, optional
     **kwargs
         Fields of :class:`ReconstructionSettings` (override ``settings``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import lengths_and_angles, reconstruct
+    >>> from lacore.reconstruction import get_context
+    >>> context = get_context(topo, X)                # cached per topology, reference and settings
+    >>> context is get_context(topo, X)
+    True
+    >>> res = reconstruct(lengths_and_angles(bar_pose(X, 0.3, 0.0), topo), topo, X, context=context)
+    >>> res.success, res.fixed_face == context.fixed_face
+    (True, True)
     """
     X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
     settings = split_options(kwargs, settings, caller="get_context", accept=("settings",)).settings

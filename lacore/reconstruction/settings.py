@@ -107,6 +107,15 @@ class ReconstructionSettings:
     ------
     InputError
         An unknown energy, weights, solver or ordering, a negative or non-finite bending weight.
+
+    Examples
+    --------
+    >>> from lacore import ReconstructionSettings
+    >>> s = ReconstructionSettings(energy="shells", fixed_face=3)
+    >>> s.energy, s.weights, s.bending_weight, s.fixed_face
+    ('shells', 'frohlich_botsch', 0.001, (3,))
+    >>> s == ReconstructionSettings(energy="shells", fixed_face=(3,))    # frozen, compared by value
+    True
     """
 
     energy: str = "quadratic"
@@ -178,6 +187,16 @@ class GaussNewtonOptions:
     InputError
         ``pcg_rtol`` outside ``(0, 1)``, ``pcg_maxiter`` or ``max_iterations`` not a
         positive (non-negative) integer.
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> from lacore import GaussNewtonOptions
+    >>> options = GaussNewtonOptions(max_iterations=20)
+    >>> options.max_iterations, options.newton, options.geodesic_acceleration
+    (20, 'auto', True)
+    >>> replace(options, newton="never").newton
+    'never'
     """
 
     max_iterations: int = 100
@@ -234,6 +253,13 @@ class HybridOptions:
     ------
     InputError
         An unknown start or kind, a negative or non-integer iteration count.
+
+    Examples
+    --------
+    >>> from lacore import HybridOptions
+    >>> h = HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
+    >>> h.uses_tree, h.smoothing_iterations
+    (True, 3)
     """
 
     start: str = "lsq"
@@ -303,6 +329,13 @@ def split_options(keywords, settings=None, options=None, hybrid=None, *, caller=
         Unknown keywords.
     InputError
         Invalid values.
+
+    Examples
+    --------
+    >>> from lacore.reconstruction.settings import ReconstructionSettings, split_options
+    >>> settings, options, hybrid = split_options({"energy": "shells", "max_iterations": 5, "hybrid_start": "tree"})
+    >>> settings == ReconstructionSettings(energy="shells"), options.max_iterations, hybrid.start
+    (True, 5, 'tree')
     """
     names = {"settings": SETTINGS_FIELDS, "options": _GN_KEYS, "hybrid": frozenset(_HYBRID_KEYS)}
     unknown = sorted(set(keywords).difference(*(names[part] for part in accept)))
