@@ -54,7 +54,7 @@ from .geometry.topology import MeshTopology, check_vertices
 
 #: Names imported on first use (their modules pull in scipy.interpolate, which is slow to import).
 _LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
-         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.geodesics",
+         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.path_energy",
          "ShapeModel": "models.shape_model"}
 
 

@@ -81,7 +81,8 @@ def test_every_default_comes_from_one_place():
     # the consumers above the reconstruction take the settings objects, not their fields
     from lacore.models.shape_model import ShapeModel
     from lacore.multiresolution import MultiresolutionReconstruction
-    from lacore.shapes.geodesics import default_energy, discrete_geodesic, projected_linear_path
+    from lacore.shapes.geodesics import discrete_geodesic, projected_linear_path
+    from lacore.shapes.path_energy import default_energy
 
     for func in (discrete_geodesic, default_energy, projected_linear_path, MultiresolutionReconstruction,
                  ShapeModel.fit_z):
