@@ -157,8 +157,7 @@ def transition_rotations(z, topology, gamma=None):
     >>> import numpy as np
     >>> from lacore import MeshTopology, lengths_and_angles
     >>> from lacore.samples.bar import bar_mesh, bar_pose
-    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
-    >>> topo = MeshTopology.from_faces(faces)
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
     >>> from lacore import transition_rotations
     >>> R = transition_rotations(lengths_and_angles(X, topo), topo)
     >>> R.shape == (len(topo.interior_edges), 3, 3)
@@ -567,8 +566,7 @@ def integrability_map(z, topology, gamma=None):
     >>> import numpy as np
     >>> from lacore import MeshTopology, lengths_and_angles
     >>> from lacore.samples.bar import bar_mesh, bar_pose
-    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
-    >>> topo = MeshTopology.from_faces(faces)
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
     >>> from lacore import integrability_map
     >>> z = lengths_and_angles(bar_pose(X, 0.5, 0.2), topo)
     >>> I = integrability_map(z, topo)
@@ -594,8 +592,7 @@ def euler_integrability_map(z, topology):
     >>> import numpy as np
     >>> from lacore import MeshTopology, lengths_and_angles
     >>> from lacore.samples.bar import bar_mesh, bar_pose
-    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
-    >>> topo = MeshTopology.from_faces(faces)
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
     >>> from lacore import euler_integrability_map
     >>> z = lengths_and_angles(bar_pose(X, 0.5, 0.2), topo)
     >>> bool(np.abs(euler_integrability_map(z, topo)).max() < 1e-12)
@@ -619,8 +616,7 @@ def integrability_violation(z, topology, invalid=np.inf):
     >>> import numpy as np
     >>> from lacore import MeshTopology, lengths_and_angles
     >>> from lacore.samples.bar import bar_mesh, bar_pose
-    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
-    >>> topo = MeshTopology.from_faces(faces)
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
     >>> from lacore import integrability_violation
     >>> z = lengths_and_angles(X, topo)
     >>> bool(integrability_violation(z, topo).max() < 1e-12)
@@ -886,8 +882,7 @@ def euler_integrability_jacobian(z, topology, return_value=False):
     >>> import numpy as np
     >>> from lacore import MeshTopology, lengths_and_angles
     >>> from lacore.samples.bar import bar_mesh, bar_pose
-    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
-    >>> topo = MeshTopology.from_faces(faces)
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
     >>> from lacore import euler_integrability_jacobian, euler_integrability_map
     >>> z = lengths_and_angles(X, topo)
     >>> A = euler_integrability_jacobian(z, topo)
