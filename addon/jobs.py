@@ -169,7 +169,7 @@ class ProjectionJob:
         if remote:
             self._remote_frames = [int(i) for chain in remote for i in chain]
             options = dict(self.method_options)
-            setup = split_options({}, None, options.pop("options", None), options.pop("hybrid", None))[:3]
+            setup = split_options({}, None, options.pop("options", None), options.pop("hybrid", None))
             try:
                 self._remote = ChainWorkers(remote, self.z_targets, self.data.topology, self.key_vertices[0],
                                             self.times, self._anchors, self.method, "secant", None, setup)

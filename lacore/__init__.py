@@ -19,6 +19,21 @@ SolverResult                    base of every solver's result (:mod:`lacore.resu
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.shapes.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.shapes.geodesics`, on first use)
 ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.models.shape_model`, on first use)
+
+Examples
+--------
+Encode a mesh, change its lengths and angles, and reconstruct vertex positions:
+
+>>> import numpy as np
+>>> import lacore
+>>> from lacore.samples.bar import bar_mesh
+>>> X, faces = bar_mesh(n_along=4, n_side=1)          # a closed box bar
+>>> topo = lacore.MeshTopology.from_faces(faces)
+>>> z = lacore.lengths_and_angles(X, topo)            # (2E,): edge lengths, then dihedral angles
+>>> z[:topo.n_edges] *= 2.0                           # the same shape, twice the size
+>>> res = lacore.reconstruct(z, topo, X)
+>>> res.success, round(float(np.ptp(res.vertices[:, 0]) / np.ptp(X[:, 0])), 6)
+(True, 2.0)
 """
 
 import importlib
@@ -37,9 +52,9 @@ from .result import SolverResult
 from .geometry.rigid import rigid_align, rigid_fit
 from .geometry.topology import MeshTopology, check_vertices
 
-#: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
+#: Names imported on first use (their modules pull in scipy.interpolate, which is slow to import).
 _LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
-         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.geodesics",
+         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.path_energy",
          "ShapeModel": "models.shape_model"}
 
 

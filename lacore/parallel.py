@@ -16,8 +16,8 @@ packages are registered as bare namespaces, the add-on itself is never imported,
 so a worker never loads bpy).  Jobs and results cross a pipe as pickles, so lacore
 objects arrive as the same classes; a topology arrives without its cache
 (:class:`lacore.cache.DerivedCache`), and the worker builds its own reconstruction
-context.  Each worker costs the start of an interpreter and the solver set-up
-(pattern, ordering, symbolic factorization: about 4 s at 50k vertices) and the
+context.  Each worker costs the start of an interpreter, the solver set-up
+(pattern, ordering, symbolic factorization: seconds for a large mesh) and the
 memory of one more solver.
 
 :func:`close_workers` ends them all (a cancelled run, the add-on's unregister).

@@ -13,6 +13,7 @@ from lacore.io.meshes import load_mesh, save_mesh
 from lacore.geometry.rigid import rigid_rms
 from lacore.samples.bar import bar_family
 from lacore.models.shape_model import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, ShapeModel
+from lacore.reconstruction import ReconstructionSettings
 
 STAGES = {"mean", "tangent_decomposition", "tangent_solves", "gram", "eigen"}
 
@@ -53,7 +54,8 @@ def test_model_json_and_file(capsys, tmp_path, bar_files, tangent):
     assert STAGES <= set(summary["stages"]) and summary["seconds"] > 0
     assert (summary["stages"]["tangent_solves"] > 0) == (tangent == "projected")
     model = ShapeModel.load(out, faces=faces)
-    direct = ShapeModel.fit(poses, faces, n_modes=3, tangent=tangent, bending_weight=0.01)
+    direct = ShapeModel.fit(poses, faces, n_modes=3, tangent=tangent,
+                            settings=ReconstructionSettings(bending_weight=0.01))
     assert np.abs(model.modes - direct.modes).max() < 1e-9
     np.testing.assert_allclose(model.explained_variance_ratio, ev, rtol=1e-12)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]

@@ -74,7 +74,22 @@ def build_parser():
 
 
 def main(argv=None):
-    """Entry point of the ``lacore`` console script; returns the exit code."""
+    """Entry point of the ``lacore`` console script; returns the exit code.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from lacore.cli import main
+    >>> from lacore.io.meshes import save_mesh
+    >>> from lacore.samples.bar import bar_mesh
+    >>> path = os.path.join(tempfile.mkdtemp(), "bar.ply")
+    >>> save_mesh(path, *bar_mesh(n_along=4, n_side=1))
+    >>> main(["encode", path])                       # prints a summary, returns the exit code
+    /...bar.ply: 22 vertices, 60 edges (0 on the boundary), 40 faces
+      lengths in [0.707107, 1.80278], max |angle| 1.5708 rad, max integrability violation ...
+      ... s
+    0
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     cmd = args._subcommand

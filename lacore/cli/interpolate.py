@@ -116,7 +116,7 @@ def _load_shapes(paths):
 
 def run(args):
     """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
-    # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (~0.4 s), which the other
+    # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (slow to import), which the other
     # subcommands do not need
     from ..shapes.interpolation import check_keyframes, keyframe_inbetweens
 

@@ -30,12 +30,13 @@ Registered in :mod:`lacore.cli` through :func:`register`.
 
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..io.meshes import save_mesh
-from ..models.shape_model import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModel,
-                                  ShapeModelError)
+from ..models.settings import DEFAULT_TANGENT, MODEL_SETTINGS, PROJECTION_METRICS, TANGENTS, ShapeModelError
+from ..models.shape_model import ShapeModel
 from .common import EXIT_OK, add_allow_failure, exit_code, load_meshes_in_correspondence, positive_int, print_json
 from .interpolate import output_paths
 
@@ -65,7 +66,7 @@ def configure_model(parser):
     parser.add_argument("--projection-metric", choices=PROJECTION_METRICS, default=PROJECTION_METRICS[0],
                         help="orthogonality of the tangent projection: Euclidean as in the thesis or g; "
                              "default %(default)s")
-    parser.add_argument("--bending-weight", type=float, default=DEFAULT_BENDING_WEIGHT, metavar="ETA",
+    parser.add_argument("--bending-weight", type=float, default=MODEL_SETTINGS.bending_weight, metavar="ETA",
                         help="bending weight eta of the quadratic energy W_q (default %(default)s)")
     parser.add_argument("--localize", action="store_true",
                         help="rotate the modes toward locality (g-varimax, same subspace; beyond the thesis)")
@@ -117,7 +118,7 @@ def run_model(args):
     t_load = time.perf_counter() - start
     model = ShapeModel.fit(X, topology, reference_vertices=X[args.reference], n_modes=args.modes,
                            tangent=args.tangent, projection_metric=args.projection_metric,
-                           bending_weight=args.bending_weight)
+                           settings=replace(MODEL_SETTINGS, bending_weight=args.bending_weight))
     t_localize = 0.0
     if args.localize:
         t = time.perf_counter()

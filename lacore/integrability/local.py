@@ -151,6 +151,19 @@ def transition_rotations(z, topology, gamma=None):
     topology : MeshTopology
     gamma : (F, 3) array_like, optional
         Interior angles if already computed.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
+    >>> from lacore import transition_rotations
+    >>> R = transition_rotations(lengths_and_angles(X, topo), topo)
+    >>> R.shape == (len(topo.interior_edges), 3, 3)
+    True
+    >>> bool(np.allclose(R @ R.transpose(0, 2, 1), np.eye(3)))
+    True
     """
     lengths, theta = split_z(z, topology)
     if gamma is None:
@@ -194,6 +207,14 @@ def triangle_inequality_map(z, topology):
     """Vector triangle-inequality map (3.7), ``(F, 3)``: ``T[f, i] = l_j + l_k - l_i``.
 
     ``z`` satisfies (T) iff every entry is positive.
+
+    Examples
+    --------
+    >>> from lacore import MeshTopology, lengths_and_angles, triangle_inequality_map
+    >>> topo = MeshTopology.from_faces([[0, 1, 2]])
+    >>> z = lengths_and_angles([[0, 0, 0], [3, 0, 0], [0, 4, 0]], topo)
+    >>> print(triangle_inequality_map(z, topo))
+    [[2. 4. 6.]]
     """
     lengths, _ = split_z(z, topology)
     L = lengths.take(topology.face_edges)
@@ -537,6 +558,22 @@ def integrability_map(z, topology, gamma=None):
     """Holonomy ``I_v(z)`` (3.11) of every interior vertex, ``(V_int, 3, 3)``.
 
     Ordered like ``topology.interior_vertices``; the identity for admissible ``z``.
+
+    Examples
+    --------
+    The lengths and angles of a mesh are admissible: every holonomy is the identity.
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
+    >>> from lacore import integrability_map
+    >>> z = lengths_and_angles(bar_pose(X, 0.5, 0.2), topo)
+    >>> I = integrability_map(z, topo)
+    >>> I.shape == (len(topo.interior_vertices), 3, 3)
+    True
+    >>> bool(np.abs(I - np.eye(3)).max() < 1e-12)
+    True
     """
     q, _ = _holonomies(z, topology, gamma)
     out = np.empty((q.shape[1], 3, 3))
@@ -549,6 +586,20 @@ def euler_integrability_map(z, topology):
     """Modified integrability map (3.13), ``(3 V_int,)``; zero for admissible ``z``.
 
     Entries ``3 r .. 3 r + 2`` belong to vertex ``topology.interior_vertices[r]``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
+    >>> from lacore import euler_integrability_map
+    >>> z = lengths_and_angles(bar_pose(X, 0.5, 0.2), topo)
+    >>> bool(np.abs(euler_integrability_map(z, topo)).max() < 1e-12)
+    True
+    >>> z[topo.n_edges + 3] += 0.1                  # bend one edge more: no mesh has these angles
+    >>> round(float(np.abs(euler_integrability_map(z, topo)).max()), 3)
+    0.1
     """
     q, _ = _holonomies(z, topology)
     return _euler_from_entries(_rotation_entries(q, _EULER_KEYS), np.empty((3, q.shape[1]))).T.ravel()
@@ -559,6 +610,22 @@ def integrability_violation(z, topology, invalid=np.inf):
 
     Boundary vertices get 0.  Vertices with a triangle in their ring that
     violates the triangle inequality get ``invalid``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
+    >>> from lacore import integrability_violation
+    >>> z = lengths_and_angles(X, topo)
+    >>> bool(integrability_violation(z, topo).max() < 1e-12)
+    True
+    >>> z[topo.n_edges + 3] += 0.1
+    >>> print(np.flatnonzero(integrability_violation(z, topo) > 1e-6))   # the edge's end vertices
+    [0 5]
+    >>> topo.edges[3].tolist()
+    [0, 5]
     """
     q, invalid_rows = _holonomies(z, topology)
     w, x, y, zz = q
@@ -809,6 +876,22 @@ def euler_integrability_jacobian(z, topology, return_value=False):
     topology : MeshTopology
     return_value : bool
         Also return the map's value (computed from the same products).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1); topo = MeshTopology.from_faces(faces)   # a closed box bar
+    >>> from lacore import euler_integrability_jacobian, euler_integrability_map
+    >>> z = lengths_and_angles(X, topo)
+    >>> A = euler_integrability_jacobian(z, topo)
+    >>> A.shape == (3 * len(topo.interior_vertices), 2 * topo.n_edges)
+    True
+    >>> dz = 1e-7 * np.random.default_rng(0).standard_normal(z.shape)
+    >>> change = euler_integrability_map(z + dz, topo) - euler_integrability_map(z, topo)
+    >>> bool(np.abs(A @ dz - change).max() < 1e-12)
+    True
     """
     lengths, theta = split_z(z, topology)
     pat = _euler_jacobian_pattern(topology)

@@ -45,6 +45,22 @@ def atomic_write(path, mode="wb", encoding=None):
     OSError
         The directory is missing or not writable, or writing failed (the
         target is unchanged and no temporary file is left).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from lacore.io.atomic import atomic_write
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> with atomic_write(path, "w") as fh:
+    ...     _ = fh.write("complete")
+    >>> try:
+    ...     with atomic_write(path, "w") as fh:
+    ...         _ = fh.write("half")
+    ...         raise RuntimeError("failed mid-write")
+    ... except RuntimeError:
+    ...     pass
+    >>> open(path).read(), os.listdir(os.path.dirname(path))    # the old file, no temporary file
+    ('complete', ['out.txt'])
     """
     if mode not in ("wb", "w"):
         raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")

@@ -42,6 +42,18 @@ def write_pc2(path, vertices, start=0.0, sampling=1.0):
         Positions per sample; stored as float32.
     start, sampling : float
         Header fields: frame of the first sample and frames between samples.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from lacore.io.point_cache import read_pc2, write_pc2
+    >>> frames = np.zeros((3, 4, 3)); frames[:, :, 0] = np.arange(3)[:, None]
+    >>> path = os.path.join(tempfile.mkdtemp(), "take.pc2")
+    >>> write_pc2(path, frames, start=10.0)
+    >>> vertices, start, sampling = read_pc2(path)      # stored as float32
+    >>> vertices[:, 0, 0].tolist(), start, sampling
+    ([0.0, 1.0, 2.0], 10.0, 1.0)
     """
     X = np.asarray(vertices, dtype=np.float64)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 1 or X.shape[1] < 1:
@@ -72,6 +84,17 @@ def read_pc2(path):
     vertices : (T, V, 3) float32 ndarray
     start, sampling : float
         Header fields.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from lacore.io.point_cache import read_pc2, write_pc2
+    >>> path = os.path.join(tempfile.mkdtemp(), "take.pc2")
+    >>> write_pc2(path, np.ones((2, 5, 3)))
+    >>> vertices, start, sampling = read_pc2(path)
+    >>> vertices.shape, vertices.dtype, start, sampling
+    ((2, 5, 3), dtype('float32'), 0.0, 1.0)
     """
     with open(path, "rb") as fh:
         raw = fh.read()

@@ -26,12 +26,11 @@ The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"
 and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
 gives every in-between the extrapolation through the frames before it
 (continuation along ``t``), so one Gauss-Newton step finishes a frame of a
-smooth motion (README "In-betweens of large meshes").  The least-squares start
+smooth motion (``benchmarks/bench_continuation.py``).  The least-squares start
 (``hybrid_start="lsq"``) suits a single target with no neighbours: on long
-meshes errors of a tree walk accumulate along the tree (a 50k-vertex bar
-blended from a bend to a twist: edge lengths off by 160 % after the MST walk
-and still after three Gauss-Newton iterations), while the least-squares
-relaxation spreads them (1.4 %).
+meshes the errors of a tree walk accumulate along the tree, and a few
+Gauss-Newton iterations do not remove them, while the least-squares relaxation
+spreads them (``tests/test_hybrid.py``).
 
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
@@ -67,7 +66,8 @@ from .frame_based import frame_based_reconstruction
 from .gauss_newton import gauss_newton_reconstruction
 from .least_squares import least_squares_reconstruction
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
-from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
+from .settings import (SETTINGS_FIELDS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, ReconstructionSetup,
+                       split_options)
 
 __all__ = [
     "reconstruct",
@@ -78,6 +78,7 @@ __all__ = [
     "ReconstructionSettings",
     "GaussNewtonOptions",
     "HybridOptions",
+    "ReconstructionSetup",
     "get_context",
     "METHODS",
     "STATUS_MESSAGES",
@@ -154,8 +155,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         Energy (``W_q`` (3.19) or ``W_TS`` (3.25), minimized by ``"gn"``/``"hybrid"``,
         reported by all methods), weights, bending weight, fixed face (also the
         root of the frame-based methods), ``fix_triangle_shape``, solver backend.
-        When ``context`` is given, the settings must match it (fields left at
-        their defaults are taken from the context).
+        When ``context`` is given, leave it out (the context's settings apply) or
+        give settings that match the context's (a ``None`` fixed face, solver or
+        ordering matches any).
     options : GaussNewtonOptions, optional
         Iteration and stopping options of ``"gn"`` and of the smoothing of ``"hybrid"``.
     hybrid : HybridOptions, optional
@@ -170,12 +172,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     context : ReconstructionContext, optional
         Shared set-up (weights, fixed face, pattern, symbolic factorization).
     **kwargs
-        The fields of the three objects as keywords, overriding them (the
-        historical signature): ``energy, weights, bending_weight, fixed_face,
-        fix_triangle_shape, solver``; ``max_iterations, ftol, gtol, xtol, atol,
+        Convenience: the fields of the three objects as keywords, overriding
+        them (:func:`~lacore.reconstruction.settings.split_options`):
+        ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
+        solver, ordering``; ``max_iterations, ftol, gtol, xtol, atol,
         reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
-        geodesic_acceleration``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
-        See :mod:`lacore.reconstruction.settings` for their meaning and defaults.
+        geodesic_acceleration, newton, c1, max_backtracks``; ``hybrid_start,
+        hybrid_kind, smoothing_iterations``.  See
+        :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
     -------
@@ -206,13 +210,44 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     they treat violating faces as in Algorithm 2 (see
     :mod:`.frame_based`).  ``"gn"`` with ``W_q`` accepts any positive lengths
     (best effort: the energy is defined for every target, cf. Figure 3.3).
+
+    Examples
+    --------
+    The lengths and angles of a bent bar give the bent bar back, in the frame of the reference:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import reconstruct
+    >>> from lacore.geometry.rigid import rigid_rms
+    >>> bent = bar_pose(X, 0.5, 0.0)
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X)
+    >>> res.success, res.method, res.energy_name
+    (True, 'gn', 'quadratic')
+    >>> bool(rigid_rms(res.vertices, bent) < 1e-9)
+    True
+
+    Settings objects (or the same names as keywords) choose the energy and the solver:
+
+    >>> from lacore import GaussNewtonOptions, ReconstructionSettings
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X, settings=ReconstructionSettings(energy="shells"),
+    ...                   options=GaussNewtonOptions(max_iterations=50))
+    >>> res.success, res.energy_name
+    (True, 'shells')
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X, method="lsq")
+    >>> res.success, res.status
+    (True, 5)
     """
     t_start = time.perf_counter()
     if not isinstance(topology, MeshTopology):
         raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
-    settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
+    # what the caller gave ("not given": settings None, a keyword absent); a settings object gives every field
+    given = SETTINGS_FIELDS if settings is not None else SETTINGS_FIELDS & set(kwargs)
+    settings, options, hybrid = split_options(kwargs, settings, options, hybrid)
     scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
     if scaled is not None:
         k, z_s, X_s, X0_s = scaled
@@ -321,7 +356,8 @@ def _rescaled(z_target, topology, reference_vertices, initial_vertices):
 
 
 def _check_context(context, topology, reference_vertices, settings, given):
-    """InputError unless the explicitly given settings (names in ``given``) match the context's."""
+    """InputError unless the given settings (names in ``given``) match the context's; ``None`` matches any
+    fixed face, solver or ordering."""
     if context.topology is not topology:
         raise InputError("the context was made for another topology")
     if reference_vertices is not None:
@@ -329,9 +365,11 @@ def _check_context(context, topology, reference_vertices, settings, given):
         if not np.array_equal(X, context.reference_vertices):
             raise InputError("the context was made for other reference vertices")
     theirs = context.settings
-    for k in sorted(given - {"fixed_face", "solver"}):
+    for k in sorted(given - {"fixed_face", "solver", "ordering"}):
         if getattr(settings, k) != getattr(theirs, k):
             raise InputError(f"{k}={getattr(settings, k)!r} differs from the context's {getattr(theirs, k)!r}")
+    if "ordering" in given and settings.ordering is not None and settings.ordering != theirs.ordering:
+        raise InputError(f"ordering={settings.ordering!r} differs from the context's {theirs.ordering!r}")
     if "solver" in given and settings.solver is not None and settings.solver != context.backend:
         raise InputError(f"solver={settings.solver!r} differs from the context's {context.backend!r}")
     ff = settings.fixed_face
@@ -356,6 +394,22 @@ def reconstruction_errors(vertices, z_target, topology):
         over the bounding-box diagonal of ``vertices``), ``max_angle_error``
         (radians, interior edges; boundary angles are 0 by convention),
         ``rms_length_error``, ``rms_angle_error``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import reconstruction_errors
+    >>> z = lengths_and_angles(X, topo)
+    >>> errors = reconstruction_errors(X, z, topo)
+    >>> errors["max_length_error"], errors["max_angle_error"]
+    (0.0, 0.0)
+    >>> errors = reconstruction_errors(1.01 * X, z, topo)
+    >>> round(errors["max_relative_length_error"], 6), round(errors["max_angle_error"], 6)
+    (0.01, 0.0)
     """
     X = check_vertices(vertices, topology.n_vertices)
     z_target = check_z(z_target, topology, name="target z")

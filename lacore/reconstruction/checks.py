@@ -37,10 +37,9 @@ so for them success means condition 3's first branch: the target is reproduced.
 On a non-admissible target they report ``success=False`` ("not reproduced"),
 with the errors in the message; use ``"gn"`` or ``"hybrid"`` to project it.
 
-The tolerances are about 1e6 times the errors measured on admissible targets
-(the finger: <= 1e-11 for every method) and still resolve a thin strip's
-dihedral angles of 1e-3 rad; thin triangles (aspect 1e4) lose about
-``aspect * eps`` in the frame-based walks (measured 7e-7).
+The tolerances lie far above the round-off of every method on admissible
+targets and still resolve a thin strip's dihedral angles of 1e-3 rad; thin
+triangles (aspect ``a``) lose about ``a * eps`` in the frame-based walks.
 """
 
 from dataclasses import dataclass, replace

@@ -45,7 +45,7 @@ from ..linalg.sparse_cholesky import SparseCholesky, default_backend
 from ..geometry.topology import check_vertices
 from .assembly import dof_ordering, gauss_newton_pattern
 from .objectives import QuadraticObjective, ShellsObjective, reference_weights
-from .settings import make_settings
+from .settings import split_options
 from .spanning_trees import default_root_faces
 
 __all__ = ["ReconstructionContext", "get_context", "triangle_frame", "CONTEXTS_PER_TOPOLOGY"]
@@ -149,7 +149,7 @@ class ReconstructionContext:
     """
 
     def __init__(self, topology, reference_vertices, settings=None, **kwargs):
-        settings = make_settings(settings, caller="ReconstructionContext", **kwargs)
+        settings = split_options(kwargs, settings, caller="ReconstructionContext", accept=("settings",)).settings
         self.settings = settings
         backend = default_backend() if settings.solver is None else settings.solver
         self.topology = topology
@@ -316,9 +316,25 @@ def get_context(topology, reference_vertices, settings=None, **kwargs):
     settings : ReconstructionSettings, optional
     **kwargs
         Fields of :class:`ReconstructionSettings` (override ``settings``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import lengths_and_angles, reconstruct
+    >>> from lacore.reconstruction import get_context
+    >>> context = get_context(topo, X)                # cached per topology, reference and settings
+    >>> context is get_context(topo, X)
+    True
+    >>> res = reconstruct(lengths_and_angles(bar_pose(X, 0.3, 0.0), topo), topo, X, context=context)
+    >>> res.success, res.fixed_face == context.fixed_face
+    (True, True)
     """
     X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    settings = make_settings(settings, caller="get_context", **kwargs)
+    settings = split_options(kwargs, settings, caller="get_context", accept=("settings",)).settings
     cache = topology.cache.get((__name__, "contexts"), OrderedDict)
     key = (X.tobytes(), settings)
     ctx = cache.get(key)

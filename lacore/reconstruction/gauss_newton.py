@@ -24,8 +24,7 @@ gauge in :mod:`~lacore.reconstruction.context`, the objectives in
 :mod:`~lacore.reconstruction.assembly`, the line search in
 :mod:`~lacore.reconstruction.line_search`, PCG in :mod:`~lacore.reconstruction.pcg`,
 the options in :class:`~lacore.reconstruction.settings.GaussNewtonOptions`.
-Timings and iteration counts of the rules below: ``benchmarks/bench_gauss_newton.py``
-and the README.
+``benchmarks/bench_gauss_newton.py`` measures the rules below.
 
 Iteration
 ---------
@@ -60,13 +59,13 @@ Iteration
   straight line overshoots.  With the acceleration on, no trial step (of
   either path) may fold an edge -- its dihedral angle more than ``pi / 2`` off
   the target -- that is not folded at the iteration's start (unless only such
-  a step decreases the energy): on a strongly extrapolated finger target the
-  parabola otherwise led into a folded local minimum.
+  a step decreases the energy): on strongly extrapolated targets the parabola
+  can otherwise lead into a folded local minimum.
 * Newton steps (``newton``, default ``"auto"``, ``W_q`` only): Gauss-Newton
   drops the second-order term ``2 sum_j w_j r_j d2 Z_j`` of the Hessian, which
   is large when the target is far from admissible (a blend of a bend and a
-  twist): its steps then overshoot (the line search cuts them) or converge
-  linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
+  twist): its steps then overshoot (the line search cuts them), converge
+  linearly and slowly, or stall.  After the
   first cut step, or after two full steps in a row whose energy decreases
   shrank by less than a factor of 10, the steps use the full Hessian (per-edge blocks of
   :mod:`lacore.geometry.hessians`, the same sparsity pattern and symbolic
@@ -118,7 +117,7 @@ from .context import ReconstructionContext, get_context, triangle_frame
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
 from .result import STATUS_MESSAGES, GaussNewtonResult, IterativeResult, ReconstructionResult
-from .settings import GaussNewtonOptions, make_settings
+from .settings import SETTINGS_FIELDS, GaussNewtonOptions, split_options
 
 __all__ = [
     "ReconstructionContext",
@@ -421,7 +420,7 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,
-                                context=None, options=None, method_name="gn", extra_timings=None,
+                                context=None, settings=None, options=None, method_name="gn", extra_timings=None,
                                 success_status=None, started=None, **kwargs):
     """Energy-based reconstruction ``R_W[z*]`` (Def. 3.15) by Gauss-Newton.
 
@@ -438,7 +437,9 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
         frame-based reconstruction); default the reference mesh.  Its rigid
         placement does not matter.
     context : ReconstructionContext, optional
-        Shared set-up; default :func:`get_context` with the settings in ``kwargs``.
+        Shared set-up; default :func:`get_context` with ``settings``.
+    settings : ReconstructionSettings, optional
+        Settings of the context when none is given.
     options : GaussNewtonOptions, optional
     method_name : str
         Reported as :attr:`ReconstructionResult.method`.
@@ -450,8 +451,8 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     started : float, optional
         :func:`time.perf_counter` at the start of the whole call (``timings["total"]``).
     **kwargs
-        Fields of :class:`GaussNewtonOptions` (override ``options``) and, without
-        ``context``, of :class:`~lacore.reconstruction.settings.ReconstructionSettings`.
+        Fields of ``options`` and (without ``context``) of ``settings`` as keywords
+        (:func:`~lacore.reconstruction.settings.split_options`).
 
     Returns
     -------
@@ -461,17 +462,15 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     """
     t_start = time.perf_counter()
     started = t_start if started is None else started
-    gn_kw = {k: kwargs.pop(k) for k in list(kwargs) if k in GaussNewtonOptions.__dataclass_fields__}
-    options = options if options is not None else GaussNewtonOptions()
-    if gn_kw:
-        options = replace(options, **gn_kw)
+    given = sorted(SETTINGS_FIELDS & set(kwargs)) or (["settings"] if settings is not None else [])
+    settings, options, _ = split_options(kwargs, settings, options, caller="gauss_newton_reconstruction",
+                                         accept=("settings", "options"))
     if context is None:
         if reference_vertices is None:
             raise InputError("give reference_vertices or a context")
-        context = get_context(topology, reference_vertices, make_settings(caller="gauss_newton_reconstruction",
-                                                                          **kwargs))
-    elif kwargs:
-        raise InputError(f"settings {sorted(kwargs)} are fixed by the given context")
+        context = get_context(topology, reference_vertices, settings)
+    elif given:
+        raise InputError(f"settings {given} are fixed by the given context")
     z_target = check_z(z_target, topology, name="target z")
     X0 = context.reference_vertices if initial_vertices is None else check_vertices(
         initial_vertices, topology.n_vertices, name="initial vertices")

@@ -9,27 +9,57 @@
     (:func:`~lacore.reconstruction.gauss_newton.run_gauss_newton`).
 :class:`HybridOptions`
     The start and the smoothing budget of ``method="hybrid"``.
+:class:`ReconstructionSetup`
+    The three together, as the projections of many targets pass them on.
 
-:func:`reconstruct`, :func:`~lacore.shapes.interpolation.interpolate`, the CLI and
-the Blender add-on take these objects, or the same names as keyword arguments
-(``reconstruct(z, topo, X, energy="shells", max_iterations=20,
-smoothing_iterations=3)``); :func:`split_options` maps such keywords to the
-three objects.  The keyword names of the hybrid options keep their historical
-prefix: ``hybrid_start``, ``hybrid_kind`` (fields ``start``, ``kind``).
+The defaults are the fields' defaults; the energy's weight scheme and ``eta``
+are :data:`lacore.energies.DEFAULT_WEIGHTS` and
+:data:`lacore.energies.DEFAULT_BENDING_WEIGHT` (an energy built alone has the
+same).  Every consumer -- :func:`~lacore.reconstruction.reconstruct`, the
+projections of :mod:`lacore.shapes`, geodesics, shape models, multiresolution,
+the CLI and the Blender add-on -- takes these objects; shape models use their
+own defaults (:mod:`lacore.models.settings`), stated as objects of these classes.
+
+Settings objects are the canonical form.  As a convenience,
+:func:`~lacore.reconstruction.reconstruct`,
+:func:`~lacore.shapes.interpolation.interpolate`,
+:func:`~lacore.shapes.interpolation.keyframe_inbetweens`,
+:func:`~lacore.shapes.interpolation.project_targets` and the context
+constructors also take the fields as keyword arguments
+(``reconstruct(z, topo, X, energy="shells", max_iterations=20)``);
+:func:`split_options` is the one function that maps them onto the objects.  The
+keyword names of the hybrid options carry a prefix: ``hybrid_start``,
+``hybrid_kind`` (fields ``start``, ``kind``).
+
+"Not given" is ``None`` for a whole object and absence for a keyword: a
+settings object passed explicitly gives every one of its fields, also those at
+their default (a reconstruction with a ``context`` checks them against it).
+
+Examples
+--------
+>>> from lacore.reconstruction.settings import ReconstructionSettings, split_options
+>>> s = ReconstructionSettings(energy="shells")
+>>> s.energy, s.weights, s.bending_weight
+('shells', 'frohlich_botsch', 0.001)
+>>> setup = split_options({"bending_weight": 0.01, "max_iterations": 5}, s)
+>>> setup.settings.bending_weight, setup.options.max_iterations, setup.hybrid.start
+(0.01, 5, 'lsq')
 """
 
 from dataclasses import dataclass, fields, replace
+from typing import NamedTuple
 
 import numpy as np
 
+from ..energies import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES
 from ..errors import InputError, MeshError
 from ..linalg.sparse_cholesky import ORDERINGS
 
-__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
-           "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
+__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "ReconstructionSetup", "split_options",
+           "SETTINGS_FIELDS", "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
 
 ENERGIES = ("quadratic", "shells")
-WEIGHTS = ("frohlich_botsch", "heeren", "uniform")
+WEIGHTS = WEIGHT_SCHEMES
 SOLVERS = ("cholmod", "scipy")
 HYBRID_STARTS = ("lsq", "tree", "given")
 NEWTON_MODES = ("never", "auto", "always")
@@ -53,11 +83,11 @@ class ReconstructionSettings:
     Attributes
     ----------
     energy : {"quadratic", "shells"}
-        ``W_q`` (3.19) or ``W_TS`` (3.25): minimized by Gauss-Newton, reported by all methods.
+        ``W_q`` (3.19) (default) or ``W_TS`` (3.25): minimized by Gauss-Newton, reported by all methods.
     weights : {"frohlich_botsch", "heeren", "uniform"}
-        Weights of ``W_q``: (3.20), (3.21) or 1.
+        Weights of ``W_q``: (3.20) (default), (3.21) or 1.
     bending_weight : float
-        ``eta`` in (3.19)/(3.25).
+        ``eta`` in (3.19)/(3.25), default ``1e-3``.
     fixed_face : None or tuple of int
         Face fixing the rigid motion (one per connected component, components
         not given get a central, well-shaped face of the reference mesh); also
@@ -77,11 +107,20 @@ class ReconstructionSettings:
     ------
     InputError
         An unknown energy, weights, solver or ordering, a negative or non-finite bending weight.
+
+    Examples
+    --------
+    >>> from lacore import ReconstructionSettings
+    >>> s = ReconstructionSettings(energy="shells", fixed_face=3)
+    >>> s.energy, s.weights, s.bending_weight, s.fixed_face
+    ('shells', 'frohlich_botsch', 0.001, (3,))
+    >>> s == ReconstructionSettings(energy="shells", fixed_face=(3,))    # frozen, compared by value
+    True
     """
 
     energy: str = "quadratic"
-    weights: str = "frohlich_botsch"
-    bending_weight: float = 1e-3
+    weights: str = DEFAULT_WEIGHTS
+    bending_weight: float = DEFAULT_BENDING_WEIGHT
     fixed_face: tuple | None = None
     fix_triangle_shape: bool = False
     solver: str | None = None
@@ -148,6 +187,16 @@ class GaussNewtonOptions:
     InputError
         ``pcg_rtol`` outside ``(0, 1)``, ``pcg_maxiter`` or ``max_iterations`` not a
         positive (non-negative) integer.
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> from lacore import GaussNewtonOptions
+    >>> options = GaussNewtonOptions(max_iterations=20)
+    >>> options.max_iterations, options.newton, options.geodesic_acceleration
+    (20, 'auto', True)
+    >>> replace(options, newton="never").newton
+    'never'
     """
 
     max_iterations: int = 100
@@ -185,8 +234,8 @@ class HybridOptions:
         The least-squares relaxation (default; no spanning tree is built), the
         frame-based walk along a tree of kind ``kind`` (on long meshes the walk
         accumulates the integrability error along the tree, which a few
-        smoothing iterations do not remove: README "Reconstruction",
-        ``tests/test_hybrid.py``), or the caller's ``initial_vertices`` (e.g. the
+        smoothing iterations do not remove: ``tests/test_hybrid.py``), or the
+        caller's ``initial_vertices`` (e.g. the
         prediction of :func:`lacore.shapes.interpolation.project_targets` from the
         frames before; the least-squares relaxation when none are given).
     kind : {"mst", "spt", "bfs"}
@@ -204,6 +253,13 @@ class HybridOptions:
     ------
     InputError
         An unknown start or kind, a negative or non-integer iteration count.
+
+    Examples
+    --------
+    >>> from lacore import HybridOptions
+    >>> h = HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
+    >>> h.uses_tree, h.smoothing_iterations
+    (True, 3)
     """
 
     start: str = "lsq"
@@ -230,34 +286,42 @@ class HybridOptions:
         return self.start == "tree"
 
 
-_SETTINGS_KEYS = frozenset(f.name for f in fields(ReconstructionSettings))
+class ReconstructionSetup(NamedTuple):
+    """The three settings objects of a reconstruction, as one value (unpacks as ``settings, options, hybrid``)."""
+
+    settings: ReconstructionSettings = ReconstructionSettings()
+    options: GaussNewtonOptions = GaussNewtonOptions()
+    hybrid: HybridOptions = HybridOptions()
+
+
+#: Names of the :class:`ReconstructionSettings` fields.
+SETTINGS_FIELDS = frozenset(f.name for f in fields(ReconstructionSettings))
 _GN_KEYS = frozenset(f.name for f in fields(GaussNewtonOptions))
 #: keyword name -> field of HybridOptions
 _HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations"}
+_PART_NAMES = {"settings": "settings are", "options": "Gauss-Newton options", "hybrid": "hybrid options"}
 
 
-def split_options(kwargs, settings=None, options=None, hybrid=None, *, caller="reconstruct"):
-    """Map keyword arguments to the three settings objects.
+def split_options(keywords, settings=None, options=None, hybrid=None, *, caller="reconstruct",
+                  accept=("settings", "options", "hybrid")):
+    """The settings objects with the fields named in ``keywords`` replaced: the one reader of flattened keywords.
 
     Parameters
     ----------
-    kwargs : dict
-        Keyword arguments: fields of :class:`ReconstructionSettings` and
-        :class:`GaussNewtonOptions`, ``hybrid_start``, ``hybrid_kind``,
-        ``smoothing_iterations``.  Keywords override the objects' fields.
+    keywords : dict
+        Fields of :class:`ReconstructionSettings` and :class:`GaussNewtonOptions`,
+        ``hybrid_start``, ``hybrid_kind``, ``smoothing_iterations``.  They
+        override the objects' fields.
     settings, options, hybrid : optional
-        Objects to start from (default: the defaults).
+        Objects to start from (``None``: the defaults).
     caller : str
         Named in the error for unknown keywords.
+    accept : tuple of {"settings", "options", "hybrid"}
+        Whose fields are accepted as keywords (the context constructors take settings only).
 
     Returns
     -------
-    settings : ReconstructionSettings
-    options : GaussNewtonOptions
-    hybrid : HybridOptions
-    given : frozenset of str
-        Names of the :class:`ReconstructionSettings` fields set explicitly (keywords,
-        or fields of ``settings`` differing from the defaults).
+    ReconstructionSetup
 
     Raises
     ------
@@ -265,28 +329,25 @@ def split_options(kwargs, settings=None, options=None, hybrid=None, *, caller="r
         Unknown keywords.
     InputError
         Invalid values.
+
+    Examples
+    --------
+    >>> from lacore.reconstruction.settings import ReconstructionSettings, split_options
+    >>> settings, options, hybrid = split_options({"energy": "shells", "max_iterations": 5, "hybrid_start": "tree"})
+    >>> settings == ReconstructionSettings(energy="shells"), options.max_iterations, hybrid.start
+    (True, 5, 'tree')
     """
-    unknown = sorted(set(kwargs) - _SETTINGS_KEYS - _GN_KEYS - set(_HYBRID_KEYS))
+    names = {"settings": SETTINGS_FIELDS, "options": _GN_KEYS, "hybrid": frozenset(_HYBRID_KEYS)}
+    unknown = sorted(set(keywords).difference(*(names[part] for part in accept)))
     if unknown:
-        raise TypeError(f"{caller}() got unknown options {unknown}; Gauss-Newton options are "
-                        f"{sorted(_GN_KEYS)}, settings {sorted(_SETTINGS_KEYS)}, hybrid {sorted(_HYBRID_KEYS)}")
-    base = settings if settings is not None else ReconstructionSettings()
-    s_kw = {k: v for k, v in kwargs.items() if k in _SETTINGS_KEYS}
-    settings = replace(base, **s_kw) if s_kw else base
-    given = {k for k in _SETTINGS_KEYS if getattr(base, k) != getattr(ReconstructionSettings(), k)} | set(s_kw)
-    g_kw = {k: v for k, v in kwargs.items() if k in _GN_KEYS}
-    options = options if options is not None else GaussNewtonOptions()
-    options = replace(options, **g_kw) if g_kw else options
-    h_kw = {_HYBRID_KEYS[k]: v for k, v in kwargs.items() if k in _HYBRID_KEYS}
-    hybrid = hybrid if hybrid is not None else HybridOptions()
-    hybrid = replace(hybrid, **h_kw) if h_kw else hybrid
-    return settings, options, hybrid, frozenset(given)
+        known = "; ".join(f"{_PART_NAMES[part]} {sorted(names[part])}" for part in accept)
+        raise TypeError(f"{caller}() got unknown options {unknown}; {known}")
 
+    def updated(obj, default, changes):
+        obj = obj if obj is not None else default
+        return replace(obj, **changes) if changes else obj
 
-def make_settings(settings=None, caller="ReconstructionSettings", **kwargs):
-    """``settings`` (default: the defaults) with the fields in ``kwargs`` replaced; TypeError for other names."""
-    unknown = sorted(set(kwargs) - _SETTINGS_KEYS)
-    if unknown:
-        raise TypeError(f"{caller}() got unknown settings {unknown}; settings are {sorted(_SETTINGS_KEYS)}")
-    base = settings if settings is not None else ReconstructionSettings()
-    return replace(base, **kwargs) if kwargs else base
+    return ReconstructionSetup(
+        updated(settings, ReconstructionSettings(), {k: v for k, v in keywords.items() if k in SETTINGS_FIELDS}),
+        updated(options, GaussNewtonOptions(), {k: v for k, v in keywords.items() if k in _GN_KEYS}),
+        updated(hybrid, HybridOptions(), {_HYBRID_KEYS[k]: v for k, v in keywords.items() if k in _HYBRID_KEYS}))

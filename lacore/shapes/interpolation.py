@@ -462,9 +462,24 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     ------
     Cancelled
         The progress callback asked to stop; ``partial`` is None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import lengths_and_angles
+    >>> from lacore.shapes.interpolation import project_targets
+    >>> z0, z1 = lengths_and_angles(bar_pose(X, 0.5, 0.0), topo), lengths_and_angles(bar_pose(X, 0.0, 0.5), topo)
+    >>> targets = [(1 - t) * z0 + t * z1 for t in (0.25, 0.5, 0.75)]
+    >>> res = project_targets(targets, topo, X, times=[0.25, 0.5, 0.75], anchors=[(0.0, bar_pose(X, 0.5, 0.0))])
+    >>> bool(res.success), res.warm_start_times.tolist()
+    (True, [0.0, 0.25, 0.5])
     """
     return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
+                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets"),
                     progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame,
                     workers=workers)
 
@@ -591,8 +606,8 @@ class ChainWorkers:
         Frame indices of every chain in processing order (:func:`lacore.parallel.frame_chains`).
     z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree
         As in :func:`project_targets` (all frames; each worker receives its chain's).
-    setup : tuple
-        ``(settings, options, hybrid)`` (:func:`lacore.reconstruction.settings.split_options`).
+    setup : ReconstructionSetup
+        The settings objects (:class:`lacore.reconstruction.settings.ReconstructionSetup`).
 
     Every chain starts from the anchors and continues from its own frames.  :meth:`collect`
     hands finished frames to a callback ``record(index, result, seconds, (max length error,
@@ -732,7 +747,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         process computes the first, ``workers - 1`` worker processes the others
         (default 1: all frames here, in increasing time).  Each chain starts
         next to a key and continues from its own frames; each worker builds its
-        own solver (about 4 s and one more solver's memory at 50k vertices),
+        own solver (seconds and one more solver's memory for a large mesh),
         so it pays for long runs of frames of large meshes.
         :func:`lacore.parallel.default_workers` tells how many cores there are.
         A worker that cannot start or dies raises
@@ -760,9 +775,26 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     LengthsAnglesError
         A target with non-positive lengths (extrapolated too far) or one that
         violates the triangle inequality at most faces.
+
+    Examples
+    --------
+    Half-way between a bent and a twisted bar, and one step beyond the twist:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import interpolate, lengths_and_angles
+    >>> res = interpolate([bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)], topo, [0.5, 1.5])
+    >>> res.vertices.shape, bool(res.success)
+    ((2, 22, 3), True)
+    >>> size = np.linalg.norm(np.ptp(X, axis=0))      # the blend is not admissible: small length errors
+    >>> bool(np.all((0 < res.max_length_error) & (res.max_length_error < 1e-3 * size)))
+    True
     """
     times = _check_times(factors, "factors")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)
 
@@ -797,6 +829,21 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     -------
     InterpolationResult
         ``times`` are the frame numbers.
+
+    Examples
+    --------
+    Shapes keyed at frames 0, 4 and 8, the frames between them by a cubic spline in ``z``:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import keyframe_inbetweens
+    >>> keys = [X, bar_pose(X, 0.5, 0.0), bar_pose(X, 0.5, 0.5)]
+    >>> res = keyframe_inbetweens(keys, topo, [0, 4, 8], smooth=True)
+    >>> res.times.tolist(), res.vertices.shape
+    ([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0], (9, 22, 3))
     """
     if keyframes is None:
         raise InputError("keyframe_inbetweens needs the keyframe numbers of the shapes")
@@ -805,6 +852,6 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
     times = _check_times(frames, "frames")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
+    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)

@@ -21,7 +21,7 @@ from ..reconstruction import reconstruct
 __all__ = ["project"]
 
 
-def project(z, topology, reference_vertices, method="gn", **kwargs):
+def project(z, topology, reference_vertices, method="gn", **reconstruct_kw):
     """Project lengths and angles onto the admissible set, ``P_Z[z~] = Z[R[z~]]`` (4.7), (4.8).
 
     Parameters
@@ -34,9 +34,9 @@ def project(z, topology, reference_vertices, method="gn", **kwargs):
     method : str
         Reconstruction method, see :func:`lacore.reconstruction.reconstruct`;
         ``"gn"`` gives the energy-based projection (Def. 4.3).
-    **kwargs
-        Passed on to :func:`~lacore.reconstruction.reconstruct` (energy,
-        bending_weight, weights, initial_vertices, context, tolerances ...).
+    **reconstruct_kw
+        Keyword arguments of :func:`~lacore.reconstruction.reconstruct`
+        (``settings``, ``options``, ``hybrid``, ``initial_vertices``, ``context`` ...).
 
     Returns
     -------
@@ -44,6 +44,24 @@ def project(z, topology, reference_vertices, method="gn", **kwargs):
         Admissible lengths and angles ``Z[R[z~]]``.
     result : ReconstructionResult
         The reconstruction (its ``vertices`` immerse ``z_projected``).
+
+    Examples
+    --------
+    The average of the lengths and angles of a bent and a twisted bar is no mesh's; its projection is:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import euler_integrability_map, project
+    >>> bent, twisted = bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)
+    >>> z_mid = 0.5 * (lengths_and_angles(bent, topo) + lengths_and_angles(twisted, topo))
+    >>> round(float(np.abs(euler_integrability_map(z_mid, topo)).max()), 4)
+    0.0021
+    >>> z_proj, result = project(z_mid, topo, X)
+    >>> result.success, bool(np.abs(euler_integrability_map(z_proj, topo)).max() < 1e-10)
+    (True, True)
     """
-    result = reconstruct(z, topology, reference_vertices, method=method, **kwargs)
+    result = reconstruct(z, topology, reference_vertices, method=method, **reconstruct_kw)
     return lengths_and_angles(result.vertices, topology), result

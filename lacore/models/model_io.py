@@ -1,0 +1,250 @@
+"""Shape-model files: one ``.npz`` whose entries are listed once, in :data:`FIELDS`.
+
+A file holds ``format`` (:data:`FORMAT`), ``format_version`` and one entry per
+row of :data:`FIELDS`.  :func:`save_model` writes the rows, :func:`load_model`
+reads them and checks presence, shape, finiteness and allowed values against
+the same rows, so a new entry of the file is one new row:
+
+* ``since`` is the :data:`FORMAT_VERSION` that introduced it (raise the
+  version), ``default`` the value files of older versions mean: older files
+  keep loading;
+* ``shape`` names the axes with the symbols ``F`` (faces), ``E`` (edges),
+  ``2E`` (entries of ``z``), ``V`` (vertices), ``J`` (modes), ``N`` (training
+  samples) or a number; a new symbol is bound by the first row that uses it;
+* ``role`` says where the value goes: ``"model"`` (a keyword of the
+  :class:`~lacore.models.shape_model.ShapeModel` constructor), ``"settings"`` (a
+  field of its :class:`~lacore.reconstruction.ReconstructionSettings`),
+  ``"topology"`` (faces and edges, which make the mesh topology) or
+  ``"derived"`` (written for other readers, recomputed by the model and compared
+  on load).
+"""
+
+import os
+import zipfile
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError, MeshError
+from ..geometry.topology import MeshTopology
+from ..io.atomic import atomic_write
+from ..reconstruction import METHODS
+from ..reconstruction.settings import WEIGHTS, ReconstructionSettings
+from .settings import PROJECTION_METRICS, TANGENTS, ShapeModelError
+
+__all__ = ["FORMAT", "FORMAT_ALIASES", "FORMAT_VERSION", "Field", "FIELDS", "save_model", "load_model"]
+
+#: Value of the ``format`` entry of a saved model.
+FORMAT = "lacore.shape_model"
+#: Other ``format`` values read as :data:`FORMAT`.
+FORMAT_ALIASES = ("lacore.models.shape_model",)
+#: Version of the layout written by :func:`save_model`; :func:`load_model` reads versions 1 to this one.
+FORMAT_VERSION = 1
+
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Field:
+    """One entry of a shape-model file (see the module docstring).
+
+    Attributes
+    ----------
+    name : str
+        Key in the ``.npz`` and attribute of the model.
+    kind : {"float", "int", "str", "scalar"}
+        Float array, integer array, string, or float number.
+    shape : tuple or None
+        Axes as symbols or numbers (arrays only); ``None``: any 1-D array.
+    choices : tuple or None
+        Allowed values of a string.
+    role : {"model", "settings", "topology", "derived"}
+    since : int
+        Format version that introduced the entry.
+    default : object
+        Value of a missing entry (files older than ``since``, or an optional entry); none: required.
+    """
+
+    name: str
+    kind: str
+    shape: tuple | None = None
+    choices: tuple | None = None
+    role: str = "model"
+    since: int = 1
+    default: object = _REQUIRED
+
+    def optional_in(self, version):
+        """Whether a file of format ``version`` may lack this entry."""
+        return version < self.since or self.default is not _REQUIRED
+
+
+#: The entries of a shape-model file, in the order they are checked.
+FIELDS = (
+    Field("faces", "int", ("F", 3), role="topology"),
+    Field("edges", "int", ("E", 2), role="topology"),
+    Field("reference_vertices", "float", ("V", 3)),
+    Field("mean_z", "float", ("2E",)),
+    Field("mean_vertices", "float", ("V", 3)),
+    Field("linear_mean_z", "float", ("2E",)),
+    Field("modes", "float", ("J", "2E")),
+    Field("variances", "float", ("J",)),
+    Field("explained_variance_ratio", "float", ("J",)),
+    Field("total_variance", "scalar"),
+    Field("training_coefficients", "float", ("N", "J")),
+    Field("all_eigenvalues", "float", None, default=None),
+    Field("metric_weights", "float", ("2E",), role="derived"),
+    Field("bending_weight", "scalar", role="settings"),
+    Field("weights", "str", choices=WEIGHTS, role="settings"),
+    Field("tangent", "str", choices=TANGENTS),
+    Field("projection_metric", "str", choices=PROJECTION_METRICS),
+    Field("method", "str", choices=METHODS),
+)
+
+
+def _encode(field, value):
+    if field.kind == "str":
+        return np.array(str(value))
+    if field.kind == "scalar":
+        return np.array(float(value))
+    return np.asarray(value)
+
+
+def save_model(model, path):
+    """Write ``model`` (every row of :data:`FIELDS`) to one ``.npz`` file, atomically.
+
+    The file appears complete or not at all (a temporary file in the same
+    folder, then a rename; :func:`lacore.io.atomic.atomic_write`).  Entries whose
+    value is None are left out (they load as their default).
+
+    Parameters
+    ----------
+    model : ShapeModel
+    path : str, path-like or binary file object
+        Written as given (no ``.npz`` appended).
+    """
+    data = {"format": np.array(FORMAT), "format_version": np.array(FORMAT_VERSION)}
+    for field in FIELDS:
+        value = getattr(model, field.name)
+        if value is not None:
+            data[field.name] = _encode(field, value)
+    if not isinstance(path, (str, os.PathLike)):  # a binary file object
+        np.savez(path, **data)
+        return
+    with atomic_write(os.fspath(path), "wb") as fh:
+        np.savez(fh, **data)
+
+
+def _source_name(path):
+    if isinstance(path, (str, os.PathLike)):
+        return os.fspath(path)
+    return getattr(path, "name", None) or "the model data"
+
+
+def _read(path, name):
+    """``(version, {entry: array})`` of the file; ShapeModelError for anything but a readable model file."""
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ShapeModelError(f"{name} is not a readable .npz shape model ({exc})") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise ShapeModelError(f"{name} is not a readable .npz shape model (a single array)")
+    with npz:
+        keys = set(npz.files)
+        if "format" not in keys or str(npz["format"]) not in (FORMAT, *FORMAT_ALIASES):
+            raise ShapeModelError(f"{name} is not a lacore shape model (no format entry {FORMAT!r})")
+        version = int(npz["format_version"]) if "format_version" in keys else -1
+        if not 1 <= version <= FORMAT_VERSION:
+            known = "version 1" if FORMAT_VERSION == 1 else f"versions 1 to {FORMAT_VERSION}"
+            raise ShapeModelError(f"{name} has shape-model format version {version}; this lacore reads {known}")
+        missing = [f.name for f in FIELDS if f.name not in keys and not f.optional_in(version)]
+        if missing:
+            raise ShapeModelError(f"{name} is a corrupt shape model: missing {', '.join(missing)}")
+        try:
+            return version, {f.name: npz[f.name] for f in FIELDS if f.name in keys}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise ShapeModelError(f"{name} is a corrupt shape model ({exc})") from None
+
+
+def _decode(field, raw, dims, name):
+    """The value of one entry, checked against its row; ``dims`` binds the shape symbols."""
+    def corrupt(what):
+        return ShapeModelError(f"{name} is a corrupt shape model: {field.name} {what}")
+
+    if field.kind == "str":
+        value = str(raw)
+        if raw.ndim != 0 or (field.choices is not None and value not in field.choices):
+            raise corrupt(f"is {value!r}; expected one of {', '.join(field.choices or ())}")
+        return value
+    if field.kind == "scalar":
+        if raw.ndim != 0 or not np.issubdtype(raw.dtype, np.number) or not np.isfinite(raw):
+            raise corrupt(f"is {raw!r}, expected a finite number")
+        return float(raw)
+    expected = field.shape if field.shape is not None else (None,)
+    if raw.ndim == len(expected):
+        for axis, symbol in zip(raw.shape, expected, strict=True):
+            if isinstance(symbol, str) and symbol not in dims:
+                dims[symbol] = axis
+    want = tuple(raw.shape[i] if s is None else dims.get(s, s) for i, s in enumerate(expected))
+    if field.kind == "int":
+        if raw.shape != want or not np.issubdtype(raw.dtype, np.integer):
+            raise corrupt(f"has shape {raw.shape} and type {raw.dtype}, expected integers of shape {want}")
+        return raw.astype(np.int64)
+    if raw.shape != want or not np.issubdtype(raw.dtype, np.number) or not np.all(np.isfinite(raw)):
+        raise corrupt(f"has shape {raw.shape}, expected {want} with finite entries")
+    return raw.astype(float)
+
+
+def load_model(path, cls, faces=None):
+    """Read a model written by :func:`save_model` (any format version up to :data:`FORMAT_VERSION`).
+
+    Parameters
+    ----------
+    path : str, path-like or binary file object
+    cls : type
+        The model class (:class:`~lacore.models.shape_model.ShapeModel`), called with
+        ``topology``, ``settings`` and the ``"model"`` rows as keywords.
+    faces : (F, 3) array_like, optional
+        If given, the model must have exactly these faces.
+
+    Returns
+    -------
+    ShapeModel
+
+    Raises
+    ------
+    ShapeModelError
+        Not a shape-model file, another format version, missing, inconsistent or
+        non-finite entries, or other faces than ``faces``.
+    FileNotFoundError
+    """
+    name = _source_name(path)
+    version, raw = _read(path, name)
+    dims = {}
+    values = {}
+    for field in FIELDS:
+        if field.name not in raw:
+            values[field.name] = field.default
+            continue
+        values[field.name] = _decode(field, raw[field.name], dims, name)
+        if "E" in dims:
+            dims.setdefault("2E", 2 * dims["E"])
+    try:
+        topology = MeshTopology.from_faces(values["faces"], edges=values["edges"],
+                                           n_vertices=len(raw["reference_vertices"]))
+    except MeshError as exc:
+        raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
+    try:
+        settings = ReconstructionSettings(**{f.name: values[f.name] for f in FIELDS if f.role == "settings"})
+    except InputError as exc:
+        raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
+    model = cls(topology=topology, settings=settings, **{f.name: values[f.name] for f in FIELDS if f.role == "model"})
+    for field in FIELDS:
+        if field.role == "derived" and values[field.name] is not None and not np.allclose(
+                getattr(model, field.name), values[field.name], rtol=1e-12, atol=0):
+            raise ShapeModelError(f"{name} is a corrupt shape model: its {field.name} do not match its reference "
+                                  "mesh")
+    if faces is not None:
+        model.check_mesh(faces=faces)
+    return model
