@@ -218,6 +218,9 @@ def apply_checks(result, z_target, topology, minimizer):
                                  converged=result.status in CONVERGED_STATUSES)
     if not check.passed:
         message = f"{result.message}; check failed: {check.message}"
+    elif check.outcome == "closest" and result.status == 6:
+        message = (f"{result.message}; an approximation of the closest mesh ({result.iterations} smoothing "
+                   f"iterations): the target is {check.target}")
     elif check.outcome == "closest":
         message = f"{result.message}; the closest mesh: the target is {check.target}"
     elif check.outcome == "minimum":
