@@ -75,7 +75,7 @@ __all__ = ["loop_holonomy", "loop_translation", "global_integrability_map", "glo
 #: Entries per row of the scan layout (a power of two).
 GLOBAL_SCAN_WIDTH = 128
 #: Layouts of at most this many entries are scanned by Hillis-Steele (fewer, larger steps), larger ones by Blelloch.
-_SMALL_SCAN = 4096
+_SMALL_SCAN = 1024
 
 # direction angle of half-edge i in its face's standard frame: const + c0 gamma_0 + c1 gamma_1
 # (edge_frame_angles: pi - gamma_1, pi + gamma_0, 0)

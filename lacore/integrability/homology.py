@@ -166,25 +166,23 @@ def homology_basis(topology):
 def _build(topology):
     V = topology.n_vertices
     n_comp, flab = topology.face_components()
-    vlab = np.zeros(V, np.int64)
-    vlab[topology.faces.ravel()] = np.repeat(flab, 3)
     loops = topology.boundary_loops()
     nl = len(loops)
     genus = np.asarray(topology.genus(), np.int64)
-    loop_comp = np.array([vlab[lp[0]] for lp in loops], np.int64)
+    # the boundary edge leaving every boundary vertex (boundary loops follow their edges' orientation)
+    b_edges = topology.boundary_edges
+    out_edge = np.full(V, -1, np.int64)
+    out_edge[topology.edges[b_edges, 0]] = b_edges
+    loop_comp = np.array([flab[topology.edge_faces[out_edge[lp[0]], 0]] for lp in loops], np.int64)
     nb = np.bincount(loop_comp, minlength=n_comp).astype(np.int64)
     lens = np.array([len(lp) for lp in loops], np.int64)
     ref = np.full(n_comp, -1, np.int64)
     for j in (np.lexsort((np.arange(nl), -lens)) if nl else []):      # the longest loop, ties by index
         if ref[loop_comp[j]] < 0:
             ref[loop_comp[j]] = j
-    # the boundary edge leaving every boundary vertex (boundary loops follow their edges' orientation)
-    b_edges = topology.boundary_edges
-    out_edge = np.full(V, -1, np.int64)
-    out_edge[topology.edges[b_edges, 0]] = b_edges
     cyc_v, cyc_e, comps = [], [], []
     if genus.any():
-        _handle_loops(topology, loops, ref, flab, vlab, out_edge, cyc_v, cyc_e, comps)
+        _handle_loops(topology, loops, ref, flab, genus, out_edge, cyc_v, cyc_e, comps)
     n_handles = len(cyc_v)
     holes = [j for j in range(nl) if ref[loop_comp[j]] != j]
     for j in holes:
@@ -229,6 +227,33 @@ def _bfs_forest(n, a, b, roots):
     return pred, tree
 
 
+def _dual_bfs_forest(topology, blocked, roots):
+    """Breadth-first forest of the dual graph (faces; interior edges not ``blocked``) from ``roots``.
+
+    The graph is the ``(F, 3)`` table of the faces across every face's edges
+    (the face itself across a boundary or blocked edge), so no sorting is
+    needed.  Returns the tree edge of every face (``-1`` at the roots).
+    """
+    F = topology.n_faces
+    fe = topology.face_edges.ravel()
+    left = np.ascontiguousarray(topology.edge_faces[:, 0]).take(fe)
+    right = np.ascontiguousarray(topology.edge_faces[:, 1]).take(fe)
+    other = np.where(topology.face_edge_is_left.ravel(), right, left)   # the face across (-1 at the boundary)
+    cut = (other < 0) | blocked.take(fe)
+    other[cut] = np.flatnonzero(cut) // 3                              # a loop to the face itself
+    indptr = np.r_[np.arange(0, 3 * F + 1, 3), 3 * F + len(roots)]
+    G = sp.csr_matrix((np.ones(3 * F + len(roots)), np.r_[other, roots], indptr), shape=(F + 1, F + 1))
+    _, pred = csgraph.breadth_first_order(G, F, directed=True, return_predecessors=True)
+    pred = pred[:F].astype(np.int64)
+    child = np.flatnonzero((pred >= 0) & (pred < F))
+    p = pred[child]
+    o = other.reshape(F, 3)[child]
+    slot = np.where(o[:, 0] == p, 0, np.where(o[:, 1] == p, 1, 2))
+    tree = np.full(F, -1, np.int64)
+    tree[child] = fe.take(3 * child + slot)
+    return tree
+
+
 def _tree_path(pred, u, w):
     """Nodes of the tree path ``u -> w`` (inclusive); ``pred`` is a list."""
     pu, pw = [u], [w]
@@ -242,7 +267,7 @@ def _tree_path(pred, u, w):
     return pu + pw[-2::-1]
 
 
-def _handle_loops(topology, loops, ref, flab, vlab, out_edge, cyc_v, cyc_e, comps):
+def _handle_loops(topology, loops, ref, flab, genus, out_edge, cyc_v, cyc_e, comps):
     """Tree-cotree handle loops (module docstring), appended to ``cyc_v``, ``cyc_e`` and ``comps``."""
     V, F = topology.n_vertices, topology.n_faces
     n_comp = len(ref)
@@ -259,16 +284,14 @@ def _handle_loops(topology, loops, ref, flab, vlab, out_edge, cyc_v, cyc_e, comp
     na, nb = node[ev[:, 0]], node[ev[:, 1]]
     proper = np.flatnonzero(na != nb)                          # chords of one boundary loop are no tree edges
     pred, tree = _bfs_forest(V + len(loops), na[proper], nb[proper], roots)
-    in_tree = np.zeros(len(ie), bool)
-    in_tree[proper[tree[tree >= 0]]] = True
-    avail = np.flatnonzero(~in_tree)
-    d = topology.edge_faces[ie[avail]]
-    _, ftree = _bfs_forest(F, d[:, 0], d[:, 1], first_face)
-    in_cotree = np.zeros(len(ie), bool)
-    in_cotree[avail[ftree[ftree >= 0]]] = True
-    X = ie[~in_tree & ~in_cotree]
+    in_tree = np.zeros(topology.n_edges, bool)
+    in_tree[ie[proper[tree[tree >= 0]]]] = True
+    ftree = _dual_bfs_forest(topology, in_tree, first_face)
+    in_cotree = np.zeros(topology.n_edges, bool)
+    in_cotree[ftree[ftree >= 0]] = True
+    X = ie[~in_tree[ie] & ~in_cotree[ie]]
     xcomp = flab[topology.edge_faces[X, 0]]
-    if not np.array_equal(np.bincount(xcomp, minlength=n_comp), 2 * np.asarray(topology.genus())):
+    if not np.array_equal(np.bincount(xcomp, minlength=n_comp), 2 * genus):
         raise RuntimeError("tree-cotree decomposition: the leftover edges do not match the genus")
     tree_edge = np.full(len(pred), -1, np.int64)
     has = tree >= 0
@@ -284,7 +307,7 @@ def _handle_loops(topology, loops, ref, flab, vlab, out_edge, cyc_v, cyc_e, comp
             return lp[i + 1:k + 1], out_edge[lp[i:k]]
         return lp[k:i][::-1], out_edge[lp[k:i]][::-1]
 
-    for x in X[np.lexsort((X, xcomp))]:
+    for x, comp in zip(X[np.lexsort((X, xcomp))], np.sort(xcomp), strict=True):
         a, b = int(E_[x, 0]), int(E_[x, 1])
         path = np.array(_tree_path(pred_list, int(node[b]), int(node[a])), np.int64)   # nodes b -> a
         u, w = path[:-1], path[1:]
@@ -307,7 +330,7 @@ def _handle_loops(topology, loops, ref, flab, vlab, out_edge, cyc_v, cyc_e, comp
             es.append(se)
         cyc_v.append(np.concatenate([[a]] + vs)[:-1])            # the cycle ends back at a
         cyc_e.append(np.concatenate(es))
-        comps.append(int(vlab[a]))
+        comps.append(int(comp))
 
 
 def _corner(topology, f, v):
