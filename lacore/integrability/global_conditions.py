@@ -372,6 +372,8 @@ def loop_holonomy(z, topology):
     The product of the transition rotations (3.10) along the loop's corridor,
     in the frame of its first face (module docstring); its norm is the angle
     (radians, ``[0, pi]``) by which the frames fail to close around the loop.
+    Like any chart of SO(3) it is smooth for angles below ``pi`` (its Jacobian
+    uses the inverse left Jacobian of SO(3), singular at ``pi``).
 
     Parameters
     ----------
