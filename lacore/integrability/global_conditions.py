@@ -169,10 +169,13 @@ class _Tables:
         self.e_gather = np.where(before > 0, row_start[el] * W + before, 0)
         # faces whose angles enter: their edges, and per factor / edge the index of its phasor
         self.faces, inv = np.unique(np.r_[A, basis.edge_faces], return_inverse=True)
+        nf = len(self.faces)
         self.face_edges = np.ascontiguousarray(topology.face_edges[self.faces].T)      # (3, nf)
+        self.lengths5 = np.ascontiguousarray(self.face_edges[[0, 1, 2, 0, 1]])          # l0 l1 l2 l0 l1
         self.inv_x, self.inv_e = inv[:N], inv[N:]
-        self.ix0, self.ix1 = 3 * self.inv_x + 1 + c0, 3 * self.inv_x + 1 + c1
-        self.ie0, self.ie1 = 3 * self.inv_e + 1 + e0, 3 * self.inv_e + 1 + e1
+        # phasor table (2 angles, [conj(h), 1, h], nf) flattened: angle a with coefficient c of face k
+        self.ix0, self.ix1 = (1 + c0) * nf + self.inv_x, 3 * nf + (1 + c1) * nf + self.inv_x
+        self.ie0, self.ie1 = (1 + e0) * nf + self.inv_e, 3 * nf + (1 + e1) * nf + self.inv_e
         self.kx, self.ke = np.exp(0.5j * const), np.exp(0.5j * econst)
         self.const, self.c0, self.c1 = const, c0.astype(float), c1.astype(float)
         self.econst, self.e0, self.e1 = econst, e0.astype(float), e1.astype(float)
@@ -186,32 +189,31 @@ class _Tables:
 
     # ------------------------------------------------------------------ evaluation
     def phasors(self, lengths):
-        """Flat ``[conj(h), 1, h]`` per face for ``h = exp(i gamma_0 / 2)`` and ``exp(i gamma_1 / 2)``, and the
-        faces violating the triangle inequality (module docstring)."""
-        l0, l1, l2 = lengths.take(self.face_edges)
-        t0 = np.maximum(l1, l2) - l0 + np.minimum(l1, l2)
-        t1 = np.maximum(l2, l0) - l1 + np.minimum(l2, l0)
-        t2 = np.maximum(l0, l1) - l2 + np.minimum(l0, l1)
-        p = l0 + l1 + l2
-        bad = ~((t0 > 0) & (t1 > 0) & (t2 > 0))
-        H = np.empty((2, len(l0), 3), complex)
+        """The phasor table ``[conj(h), 1, h]`` of ``h = exp(i gamma_0 / 2)`` and of ``h = exp(i gamma_1 / 2)``
+        per face, flat ``(2 * 3 * nf,)``, and the faces violating the triangle inequality (module docstring)."""
+        L = lengths.take(self.lengths5)                       # rows l0 l1 l2 l0 l1
+        t = np.maximum(L[1:4], L[2:5])                        # t_i = (max(l_j, l_k) - l_i) + min(l_j, l_k)
+        t -= L[0:3]
+        t += np.minimum(L[1:4], L[2:5])
+        bad = ~((t[0] > 0) & (t[1] > 0) & (t[2] > 0))
+        nf = L.shape[1]
+        H = np.empty((2, 3, nf), complex)
+        h = H[:, 2]
         with np.errstate(invalid="ignore"):
-            for row, (ti, tj, tk, lj, lk) in enumerate(((t0, t1, t2, l1, l2), (t1, t2, t0, l2, l0))):
-                r = 0.25 / (lj * lk)
-                h = H[row, :, 2]
-                h.real = np.sqrt(p * ti * r)
-                h.imag = np.sqrt(tj * tk * r)
-                if bad.any():
-                    h[bad] = 1.0
-                H[row, :, 0] = np.conj(h)
-                H[row, :, 1] = 1.0
-        return H[0].ravel(), H[1].ravel(), bad
+            r = 0.25 / (L[1:3] * L[2:4])                      # 1 / (4 l_j l_k) for i = 0, 1
+            h.real = np.sqrt((L[0] + L[1] + L[2]) * t[0:2] * r)
+            h.imag = np.sqrt(t[1:3] * t[np.array([2, 0])] * r)
+        if bad.any():
+            h[:, bad] = 1.0
+        np.conj(h, out=H[:, 0])
+        H[:, 1] = 1.0
+        return H.ravel(), bad
 
     def prefixes(self, z):
         """Inclusive prefix products on the flat layout, preceded by the identity (index 0), and the phasors."""
         E, W = self.E, self.W
-        H0, H1, bad = self.phasors(z[:E])
-        ph = self.kx * H0.take(self.ix0) * H1.take(self.ix1)
+        H, bad = self.phasors(z[:E])
+        ph = self.kx * H.take(self.ix0) * H.take(self.ix1)
         half = z[E:].take(self.edge) * self.half_sign
         A = np.ones(1 + self.n_rows * W, complex)
         B = np.zeros(1 + self.n_rows * W, complex)
@@ -229,17 +231,17 @@ class _Tables:
             pa = TA[self.row_loop[lt], self.row_pos[lt] - 1][:, None]
             pb = TB[self.row_loop[lt], self.row_pos[lt] - 1][:, None]
             A2[lt], B2[lt] = _qmul(pa, pb, A2[lt], B2[lt])
-        return A, B, H0, H1, bad
+        return A, B, H, bad
 
     def evaluate(self, z):
         """``(holonomy (n, 3), translation (n, 3), loops touching a triangle-inequality violation (n,) bool)``."""
         n = self.n
         if n == 0:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
-        A, B, H0, H1, bad = self.prefixes(z)
+        A, B, H, bad = self.prefixes(z)
         hol = _log(A.take(1 + self.last), B.take(1 + self.last))
         a, b = A.take(self.e_gather), B.take(self.e_gather)
-        zeta = self.ke * H0.take(self.ie0) * H1.take(self.ie1)
+        zeta = self.ke * H.take(self.ie0) * H.take(self.ie1)
         zeta *= zeta                                          # exp(i delta)
         le = z.take(self.basis.edges)
         zeta *= le
@@ -263,7 +265,7 @@ class _Tables:
         if n == 0:
             return sp.csr_matrix((0, 2 * E)), np.zeros(0)
         hol, tau, _ = self.evaluate(z)
-        A, B, _, _, _ = self.prefixes(z)
+        A, B, _, _ = self.prefixes(z)
         L3 = z[:E].take(self.face_edges).T                    # (nf, 3)
         gamma = interior_angles(L3)
         Jg = interior_angle_jacobian(L3)                       # d gamma_a / d l_b
