@@ -8,7 +8,7 @@ import numpy as np
 from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
-from ..lacore.integrability.local import integrability_violation
+from ..lacore.integrability import check_integrability
 from . import session, storage
 from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
 
@@ -29,13 +29,15 @@ def encode_object(obj):
     topology = data.topology
     z = np.empty((len(data.names), 2 * topology.n_edges), np.float64)
     violations = np.empty(len(data.names), np.float64)
+    integrability = []
     for k, name in enumerate(data.names):
         z[k] = session.key_z(data, name)
         try:
-            v = integrability_violation(z[k], topology)
-        except MeshError as exc:
+            check = check_integrability(z[k], topology)  # all of Theorem 3.2: vertices, holes, handles
+        except InputError as exc:
             raise MeshError(f"Shape key '{name}': {exc}") from exc
-        violations[k] = float(np.max(v)) if len(v) else 0.0
+        violations[k] = check.max_local
+        integrability.append((check.integrable, check.describe(), check.where()))
     return {
         "faces": topology.faces,
         "edges": topology.edges,
@@ -43,6 +45,7 @@ def encode_object(obj):
         "names": data.names,
         "z": z,
         "violations": violations,
+        "integrability": integrability,
         "topology": topology,
         "coords_hashes": data.key_hashes,
         "topology_hash": data.topology_hash,
@@ -91,12 +94,16 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
         storage.write_encoding(mesh, faces=result["faces"], edges=result["edges"],
                                n_mesh_edges=result["n_mesh_edges"], names=result["names"], z=result["z"],
                                violations=result["violations"], coords_hashes=result["coords_hashes"],
-                               topology_hash=result["topology_hash"])
+                               topology_hash=result["topology_hash"], integrability=result["integrability"])
         n = len(result["names"])
         worst = float(result["violations"].max())
-        verdict = "integrable" if storage.is_integrable(worst) else "NOT integrable"
+        failing = [(name, where) for name, (ok, _, where) in zip(result["names"], result["integrability"], strict=True)
+                   if not ok]
+        verdict = ("integrable" if not failing else
+                   f"NOT integrable: '{failing[0][0]}' {failing[0][1]}" + (f" and {len(failing) - 1} more keys"
+                                                                          if len(failing) > 1 else ""))
         self.report({'INFO'}, f"Encoded {n} shape key{'s' if n != 1 else ''} of '{obj.name}' "
-                              f"({result['topology'].n_edges} edges, {verdict}: max violation {worst:.3g}, "
+                              f"({result['topology'].n_edges} edges, {verdict}: max vertex violation {worst:.3g}, "
                               f"{time.perf_counter() - start:.2f} s)")
         return {'FINISHED'}
 

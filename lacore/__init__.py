@@ -12,6 +12,7 @@ MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.geo
 lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.geometry.lengths_angles`)
 euler_integrability_map         admissibility conditions (:mod:`lacore.integrability.local`)
 integrability_violation         |tr I_v - 3| per vertex
+check_integrability             all of Theorem 3.2: vertices, holes, handles (:mod:`lacore.integrability.checks`)
 QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
 reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
 ReconstructionSettings, GaussNewtonOptions, HybridOptions  its settings (:mod:`lacore.reconstruction.settings`)
@@ -42,6 +43,7 @@ from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import InputError, LengthsAnglesError, MeshError
 from .integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
                                   integrability_violation, transition_rotations, triangle_inequality_map)
+from .integrability import check_integrability, homology_basis, loop_holonomy, loop_translation
 from .geometry.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
                                       split_z)
 from .progress import Cancelled
@@ -72,6 +74,7 @@ __all__ = [
     "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",
+    "check_integrability", "homology_basis", "loop_holonomy", "loop_translation",
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
     "ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "SolverResult",
     "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile", "ShapeModel",

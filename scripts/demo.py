@@ -65,7 +65,8 @@ def cli_encode(out_dir):
     return {
         "outputs": ["finger0_encoded.npz", "finger0_encode.json"],
         "text": (f"`lacore encode` finger0.ply: {result['vertices']} vertices, {result['edges']} edges, "
-                 f"{result['faces']} faces; max integrability violation {result['max_integrability_violation']:.2e}; "
+                 f"{result['faces']} faces; max integrability violation "
+                 f"{result['max_integrability_violation']['local']:.2e} (local); "
                  f"{result['seconds']:.2f} s"),
         "result": result,
     }

@@ -98,3 +98,20 @@ def test_multiresolution_method(run):
     assert res["vs_simple_deform_90"]["rms_error_per_diagonal"] < 1e-3
     assert res["objects"] == 1
     assert res["arrays_vs_operator_max_abs"] < 1e-5 and res["array_failures"] == []  # inbetween_shapes (arrays)
+
+
+def test_integrability_of_holes_and_handles(run):
+    """The panel's "integrable" is all of Theorem 3.2: a torus with a hole has two handle loops to close, and the
+    tooltip says so; lengths and angles that fail around a hole are "not integrable" with a tooltip saying where."""
+    res = run["cases"]["integrability_of_holes_and_handles"]
+    assert res["state"] == ["FINISHED"]
+    for key in ("Basis", "Squash"):
+        integrable, where, text = res["stored"][key]
+        assert integrable is True and where == "" and "around the 2 loops of holes and handles" in text
+    assert res["verdicts"] == ["integrable", "integrable"]
+    assert all(tip.startswith("The stored lengths and angles describe a shape. Integrable") for tip in res["tips"])
+    verdict, tip = res["cone"]
+    assert verdict == "not integrable"
+    assert tip.startswith("The stored lengths and angles describe no shape exactly, they fail around a hole.")
+    assert "hole 0 (boundary loop 1, 24 edges): the frames turn by 1.89 rad" in tip
+    assert res["old"][0] == "integrable" and "holes and handles not checked (encode again)" in res["old"][1]

@@ -86,7 +86,8 @@ def main(argv=None):
     >>> save_mesh(path, *bar_mesh(n_along=4, n_side=1))
     >>> main(["encode", path])                       # prints a summary, returns the exit code
     /...bar.ply: 22 vertices, 60 edges (0 on the boundary), 40 faces
-      lengths in [0.707107, 1.80278], max |angle| 1.5708 rad, max integrability violation ...
+      lengths in [0.707107, 1.80278], max |angle| 1.5708 rad
+      integrable: the frames close around every vertex ...
       ... s
     0
     """

@@ -609,7 +609,9 @@ def integrability_violation(z, topology, invalid=np.inf):
     """Scalar violation ``|tr I_v(z) - 3|`` per vertex, ``(V,)`` (used for the weights 3.30).
 
     Boundary vertices get 0.  Vertices with a triangle in their ring that
-    violates the triangle inequality get ``invalid``.
+    violates the triangle inequality get ``invalid``.  This is the local part of
+    Theorem 3.2; :func:`lacore.integrability.check_integrability` adds the
+    conditions around holes and handles and gives one verdict.
 
     Examples
     --------

@@ -17,6 +17,8 @@ seed.  Independent of the rest of lacore (NumPy/SciPy only).
   elbows bend one way); :meth:`HumanBody.pose` composes the bone transforms
   down the hierarchy and skins all frames with one sparse product
   ``W (V, B) @ M (B, 12 T)``.
+* :func:`open_body` -- the body with five openings (eyes, mouth, both wrists):
+  a surface of genus 0 with five boundary loops, posable like the body.
 * :meth:`HumanBody.random_poses` (training sets) and :meth:`HumanBody.take`
   (held-out motion: smooth joint curves reaching beyond the training range,
   plus a walk of the whole body), all from a seed.
@@ -40,7 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HumanBody", "load_human", "coarse_human_coarsening", "human_data_dir", "JOINT_DOFS", "LIMBS",
+__all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_data_dir", "JOINT_DOFS", "LIMBS",
            "N_BODY_VERTICES"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
@@ -473,3 +475,60 @@ def load_human(path=None, coarse=False):
         raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
     with np.load(f) as d:
         return body.restrict(d["kept_vertices"], d["faces"])
+
+
+@functools.lru_cache(maxsize=2)
+def _joint_centres(folder):
+    """Centres of the ``joint-*`` cube groups of ``base.obj`` (eyelids, mouth, ... are not bones)."""
+    vertices, _, groups = _read_obj(Path(folder) / "base.obj")
+    return {name: vertices[idx].mean(axis=0) for name, idx in groups.items()}
+
+
+def open_body(body=None, radius=0.07, path=None):
+    """The full body with five openings: both eyes, the mouth and both wrists (the hands cut off).
+
+    A surface of genus 0 with five boundary loops (about 10k vertices), for
+    the conditions of Theorem 3.2 around holes.  The eye openings are centred
+    at the body vertex nearest to the middle of the eyelid joints, the mouth at
+    the front-most vertex of the mid-plane at the height of the mouth joint
+    (all within ``radius``, decimetres); the hands are cut by the plane through
+    the wrist (the ``LeftHand``/``RightHand`` bone head) normal to the forearm.
+    Faces left at pinched vertices are dropped as well (:func:`lacore.samples.surfaces.open_holes`).
+
+    Parameters
+    ----------
+    body : HumanBody, optional
+        The full body (default :func:`load_human`).
+    radius : float
+    path : str or path-like, optional
+        Data folder, see :func:`human_data_dir`.
+
+    Returns
+    -------
+    HumanBody
+        The opened body (:meth:`HumanBody.restrict`): posable like the full one.
+    """
+    from .surfaces import open_holes
+
+    body = load_human(path) if body is None else body
+    if len(body.vertices) != N_BODY_VERTICES:
+        raise ValueError("open_body needs the full body (load_human(coarse=False))")
+    centres = _joint_centres(str(human_data_dir(path)))
+    X = body.vertices
+    holes = []
+    for side in ("l", "r"):
+        lids = 0.5 * (centres[f"joint-{side}-upperlid"] + centres[f"joint-{side}-lowerlid"])
+        holes.append(X[np.argmin(np.linalg.norm(X - lids, axis=1))])
+    mouth = centres["joint-mouth"]
+    mid = np.flatnonzero((np.abs(X[:, 0] - mouth[0]) < 0.05) & (np.abs(X[:, 1] - mouth[1]) < 0.03))
+    holes.append(X[mid[np.argmax(X[mid, 2])]])
+    keep = np.ones(len(body.faces), bool)
+    index = {name: i for i, name in enumerate(body.bones)}
+    for hand, forearm in (("LeftHand", "LeftForeArm"), ("RightHand", "RightForeArm")):
+        wrist = body.heads[index[hand]]
+        axis = wrist - body.heads[index[forearm]]
+        axis /= np.linalg.norm(axis)
+        cut = ((X - wrist) @ axis > -0.1) & (np.linalg.norm(X - wrist, axis=1) < 1.5)
+        keep &= ~cut[body.faces].any(axis=1)
+    _, faces, kept = open_holes(X, body.faces[keep], holes, radius)
+    return body.restrict(kept, faces)

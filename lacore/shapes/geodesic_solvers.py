@@ -2,9 +2,14 @@
 
 Both minimize the path energy of :mod:`lacore.shapes.path_energy` over the
 interior points ``z_1..z_{K-1}`` of a path with fixed end points, subject to
-admissibility: the Euler integrability conditions ``I~(z_i) = 0`` (3.13) (and
-the triangle inequalities ``T_f(z_i) > 0``, which are checked, not imposed:
-they define an open set and only the line search keeps iterates inside it).
+admissibility: the Euler integrability conditions ``I~(z_i) = 0`` (3.13) and, on
+meshes with holes or handles, the global conditions of Theorem 3.2 (the holonomy
+and accumulated translation of every homology loop vanish,
+:mod:`lacore.integrability.global_conditions`) -- and the triangle inequalities
+``T_f(z_i) > 0``, which are checked, not imposed: they define an open set and
+only the line search keeps iterates inside it.  Without the global conditions
+the interior points of a geodesic on an annulus or a torus would close at every
+vertex but not around the hole or the handles.
 
 Two solvers compute the same geodesic:
 
@@ -18,9 +23,11 @@ Two solvers compute the same geodesic:
     with ``g``, ``H`` the gradient and Hessian of the path energy in the interior
     points (for ``W_q`` the constant ``H = kron(T, D)``, ``D = diag(2 K w)``,
     ``T = tridiag(-1, 2, -1)`` of size ``K - 1``: block-tridiagonal in time),
-    ``A`` the block-diagonal Euler Jacobians
-    (:func:`~lacore.integrability.local.euler_integrability_jacobian`) and ``c`` the
-    stacked Euler maps.  It is solved through the Schur complement
+    ``A`` the block-diagonal constraint Jacobians (Euler,
+    :func:`~lacore.integrability.local.euler_integrability_jacobian`, stacked on the
+    global conditions,
+    :func:`~lacore.integrability.global_conditions.global_integrability_jacobian`)
+    and ``c`` the stacked constraint maps.  It is solved through the Schur complement
     ``A H^-1 A^T + d I`` (block ``(i, j)`` is ``(T^-1)_ij A_i D^-1 A_j^T``,
     ``(T^-1)_ij = min(i, j) (K - max(i, j)) / K``), factorized by sparse
     Cholesky (:class:`lacore.linalg.sparse_cholesky.SparseCholesky`, symbolic analysis
@@ -59,11 +66,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ..integrability.global_conditions import global_integrability_jacobian, global_integrability_map
+from ..integrability.homology import homology_basis
 from ..integrability.local import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..progress import report
 
-__all__ = ["solve_sqp", "solve_vertices", "min_triangle_margin", "max_euler_violation"]
+__all__ = ["solve_sqp", "solve_vertices", "min_triangle_margin", "max_constraint_violation", "constraint_map",
+           "constraint_jacobian"]
 
 
 class _SchurKKT:
@@ -135,10 +145,25 @@ def min_triangle_margin(z, topology):
     return float(triangle_inequality_map(z, topology).min())
 
 
-def max_euler_violation(zs, topology):
-    if len(topology.interior_vertices) == 0 or len(zs) == 0:
+def constraint_map(z, topology):
+    """Euler integrability map (3.13) and the global conditions, ``(3 V_int + 6 n_loops,)``."""
+    return np.concatenate([euler_integrability_map(z, topology), global_integrability_map(z, topology)])
+
+
+def constraint_jacobian(z, topology):
+    """Jacobian and value of :func:`constraint_map`."""
+    J, value = euler_integrability_jacobian(z, topology, return_value=True)
+    if homology_basis(topology).n_loops:
+        Jg, vg = global_integrability_jacobian(z, topology, return_value=True)
+        J, value = sp.vstack([J, Jg], format="csr"), np.concatenate([value, vg])
+    return J, value
+
+
+def max_constraint_violation(zs, topology):
+    """Largest ``|c|`` of :func:`constraint_map` over the points ``zs`` (0 for none)."""
+    if len(zs) == 0:
         return 0.0
-    return max(float(np.abs(euler_integrability_map(z, topology)).max()) for z in zs)
+    return max(float(np.abs(constraint_map(z, topology)).max(initial=0.0)) for z in zs)
 
 
 def solve_sqp(zs, topology, model, options, progress=None):
@@ -147,7 +172,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
     m = model.m
     E = topology.n_edges
     free = np.r_[np.arange(E), E + topology.interior_edges]            # lengths and interior angles
-    nc = 3 * len(topology.interior_vertices)
+    nc = 3 * len(topology.interior_vertices) + 6 * homology_basis(topology).n_loops
     d = model.hessian_diagonal(free)
     kkt = _SchurKKT(model, d, options.regularization)
     lam = np.zeros(m * nc)
@@ -156,7 +181,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
     history = {"path_energy": [], "constraint_violation": [], "stationarity": [], "step": [], "damping": []}
 
     def constraints(Z):
-        return np.concatenate([euler_integrability_map(z, topology) for z in Z])
+        return np.concatenate([constraint_map(z, topology) for z in Z])
 
     def triangles_ok(Z):
         return all(min_triangle_margin(z, topology) > 0 for z in Z)
@@ -170,7 +195,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
         report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         inner = zs[1:-1]
-        lin = [euler_integrability_jacobian(z, topology, return_value=True) for z in inner]
+        lin = [constraint_jacobian(z, topology) for z in inner]
         c = np.concatenate([v for _, v in lin])
         blocks = [J[:, free].tocsr() for J, _ in lin]
         f = model.value(zs)

@@ -13,9 +13,9 @@ minimizer is the equidistant linear interpolation -- and then projects every
 point onto the admissible set by reconstruction (4.10), see
 :func:`lacore.shapes.interpolation.interpolate`.  This module solves the constrained
 problem (4.6) itself: the interior points are required to be admissible, i.e. to
-satisfy the Euler integrability conditions ``I~(z_i) = 0`` (3.13) (and the
-triangle inequalities ``T_f(z_i) > 0``, which are checked, not imposed: they
-define an open set and only the line search keeps iterates inside it).
+satisfy the Euler integrability conditions ``I~(z_i) = 0`` (3.13) and, on meshes
+with holes or handles, the global conditions of Theorem 3.2 -- and the triangle
+inequalities ``T_f(z_i) > 0``, which are checked, not imposed.
 
 The solvers live in :mod:`lacore.shapes.geodesic_solvers`, the path energy in
 :mod:`lacore.shapes.path_energy`; this module holds the entry point
@@ -55,7 +55,7 @@ from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import check_vertices
 from ..reconstruction import GaussNewtonOptions, ReconstructionSettings, get_context
 from ..result import SolverResult
-from .geodesic_solvers import max_euler_violation, min_triangle_margin, solve_sqp, solve_vertices
+from .geodesic_solvers import max_constraint_violation, min_triangle_margin, solve_sqp, solve_vertices
 from .interpolation import interpolate
 from .path_energy import (QuadraticPathModel, default_energy, linear_path, path_energy_profile,
                           quadratic_energy_weights)
@@ -134,11 +134,12 @@ class GeodesicResult(SolverResult):
     initial_path_energy : float
         Path energy of the starting path.
     constraint_violation : float
-        ``max |I~(z_i)|`` over the interior points (0 up to round-off for ``"vertices"``).
+        ``max |I~(z_i)|`` and global conditions (holonomy angles, relative gaps) over the interior
+        points (0 up to round-off for ``"vertices"``).
     min_triangle_margin : float
         ``min T_f(z_i)`` over all faces and path points (3.7); positive iff all
         triangle inequalities hold.
-    multipliers : (K-1, 3 V_int) ndarray or None
+    multipliers : (K-1, 3 V_int + 6 n_loops) ndarray or None
         Lagrange multipliers of the integrability constraints (``"sqp"`` only).
     success : bool
     status : int
@@ -256,7 +257,8 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
     """Discrete geodesic in the space of lengths and angles: solve (4.6).
 
     Minimize ``K sum_{i=0}^{K-1} W[z_i, z_{i+1}]`` over ``z_1..z_{K-1}`` subject to
-    ``I~(z_i) = 0`` (3.13), with ``T_f(z_i) > 0`` (3.7) checked on the whole path.
+    ``I~(z_i) = 0`` (3.13) and, around holes and handles, the global conditions of
+    Theorem 3.2, with ``T_f(z_i) > 0`` (3.7) checked on the whole path.
 
     Parameters
     ----------
@@ -411,7 +413,7 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
 
     profile = path_energy_profile(zs, energy)
     margin = min(min_triangle_margin(z, topology) for z in zs)
-    violation = max_euler_violation(zs[1:-1], topology)
+    violation = max_constraint_violation(zs[1:-1], topology)
     success = out["status"] == 0 and margin > 0
     message = out["message"]
     if margin <= 0:

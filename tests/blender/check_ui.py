@@ -398,9 +398,51 @@ def multires_method():
             "seconds": {m: v["seconds"] for m, v in out.items()}, "objects": session.STATS.get("object_miss", 0)}
 
 
+def integrability_of_holes_and_handles():
+    """A torus with one face removed (genus 1, a hole: two handle loops to check) encodes as integrable and the
+    tooltip says the loops close; a verdict stored by lacore for lengths and angles that fail around a hole (a
+    cone frustum's, all angles 0) gives "not integrable" and a tooltip saying where; an encoding stored without
+    the verdict falls back to the vertex condition and says so."""
+    import bmesh
+    storage, panels = mod("storage"), mod("panels")
+    reset()
+    bpy.ops.mesh.primitive_torus_add(major_segments=24, minor_segments=12)
+    obj = bpy.context.active_object
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bm.faces.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.faces[0]], context='FACES_ONLY')
+    bm.to_mesh(obj.data)
+    bm.free()
+    obj.shape_key_add(name="Basis")
+    squash = obj.shape_key_add(name="Squash")
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    squash.data.foreach_get("co", co)
+    co[2::3] *= 0.5
+    squash.data.foreach_set("co", co)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        state = bpy.ops.lengths_angles.encode()
+    stored = storage.read_encoding(obj.data)["keys"]
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_shape_keys, SimpleNamespace(object=obj))
+    verdicts = [kw.get("text") for name, args, kw in calls
+                if name == "operator" and args[0] == "lengths_angles.integrability_info"]
+    tips = [panels.integrability_text(v, i)[1] for _, _, v, i in storage.key_status(obj.data)]
+    lc = importlib.import_module(MODULE + ".lacore")
+    surfaces = importlib.import_module(MODULE + ".lacore.samples.surfaces")
+    faces, z = surfaces.cone_strip()
+    check = lc.check_integrability(z, lc.MeshTopology.from_faces(faces))
+    bad = panels.integrability_text(check.max_local, {"integrable": check.integrable, "integrability": check.describe(),
+                                                      "integrability_where": check.where()})
+    old = panels.integrability_text(2e-31)
+    return {"state": sorted(state), "stored": {k: [v["integrable"], v["integrability_where"], v["integrability"]]
+                                               for k, v in stored.items()},
+            "verdicts": verdicts, "tips": tips, "cone": list(bad), "old": list(old)}
+
+
 def main():
     run_cases((install_and_enable, multires_method, modal_steps_and_cancel, session_cache, key_pickers_and_texts,
-               bake_dialog_and_playback, clear_bake_after_renames, remove_data_and_messages))
+               bake_dialog_and_playback, clear_bake_after_renames, remove_data_and_messages,
+               integrability_of_holes_and_handles))
 
 
 if __name__ == "__main__":
