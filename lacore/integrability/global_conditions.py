@@ -68,9 +68,10 @@ import scipy.sparse as sp
 from ..geometry.lengths_angles import check_z
 from ..geometry.trigonometry import interior_angle_jacobian, interior_angles
 from .homology import homology_basis
+from .local import euler_integrability_jacobian, euler_integrability_map
 
 __all__ = ["loop_holonomy", "loop_translation", "global_integrability_map", "global_integrability_jacobian",
-           "GLOBAL_SCAN_WIDTH"]
+           "admissibility_map", "admissibility_jacobian", "GLOBAL_SCAN_WIDTH"]
 
 #: Entries per row of the scan layout (a power of two).
 GLOBAL_SCAN_WIDTH = 128
@@ -442,4 +443,50 @@ def global_integrability_jacobian(z, topology, return_value=False):
         Also return the map's value.
     """
     J, value = _tables(topology).jacobian(_z(z, topology))
+    return (J, value) if return_value else J
+
+
+def admissibility_map(z, topology):
+    """All integrability conditions of Theorem 3.2 as one vector, ``(3 V_int + 6 n_loops,)``.
+
+    The Euler integrability map (3.13) of every interior vertex, then
+    :func:`global_integrability_map` (holonomy and scale-free translation of
+    every homology loop).  Zero exactly for admissible ``z`` (with the triangle
+    inequalities, which are not equalities).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.integrability import admissibility_map
+    >>> from lacore.samples.surfaces import flat_torus
+    >>> faces, z = flat_torus()      # closes at every vertex, not around the handles
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> c = admissibility_map(z, topo)
+    >>> bool(np.abs(c[:3 * len(topo.interior_vertices)]).max() < 1e-12), bool(np.abs(c).max() > 0.1)
+    (True, True)
+    """
+    return np.concatenate([euler_integrability_map(z, topology), global_integrability_map(z, topology)])
+
+
+def admissibility_jacobian(z, topology, return_value=False):
+    """Analytic Jacobian of :func:`admissibility_map`, ``(3 V_int + 6 n_loops, 2E)`` CSR.
+
+    The Euler Jacobian (:func:`~lacore.integrability.local.euler_integrability_jacobian`)
+    stacked on :func:`global_integrability_jacobian`; the tangent space of the
+    admissible set (4.4) on a mesh of any genus is its kernel.
+
+    Parameters
+    ----------
+    z : (2E,) array_like
+    topology : MeshTopology
+    return_value : bool
+        Also return the map's value.
+    """
+    J, value = euler_integrability_jacobian(z, topology, return_value=True)
+    if homology_basis(topology).n_loops:
+        Jg, vg = global_integrability_jacobian(z, topology, return_value=True)
+        J, value = sp.vstack([J, Jg], format="csr"), np.concatenate([value, vg])
+    else:
+        J = J.tocsr()
     return (J, value) if return_value else J

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..integrability.local import euler_integrability_jacobian
+from ..integrability.global_conditions import admissibility_jacobian
 from ..linalg.sparse_cholesky import SparseCholesky
 from .settings import PROJECTION_METRICS
 
@@ -40,7 +40,9 @@ class TangentProjector:
     """Linear projection onto the tangent space ``T_z Z = ker D_z Ĩ`` (4.4), (4.17), without an explicit basis.
 
     ``P u = u - C A^T (A C A^T)^-1 A u`` with ``A = D_z Ĩ`` (Jacobian of the
-    Euler integrability map, ``(3 V_int, 2E)``) and ``C = Id`` (Euclidean, the
+    Euler integrability map and, on meshes with holes or handles, of the global
+    conditions: :func:`~lacore.integrability.admissibility_jacobian`,
+    ``(3 V_int + 6 n_loops, 2E)``) and ``C = Id`` (Euclidean, the
     thesis' formula) or ``C = M^-1`` (``g``-orthogonal; entries of zero weight,
     the angles of boundary edges, are held at their value, which is 0).
 
@@ -72,7 +74,7 @@ class TangentProjector:
 
     Attributes
     ----------
-    jacobian : (3 V_int, 2E) sparse matrix
+    jacobian : (3 V_int + 6 n_loops, 2E) sparse matrix
         ``A = D_z Ĩ``.
     timings : dict
         ``jacobian``, ``factorization`` (seconds).
@@ -85,7 +87,7 @@ class TangentProjector:
         if metric not in PROJECTION_METRICS:
             raise ValueError(f"unknown projection metric {metric!r}; use 'euclidean' or 'g'")
         t0 = time.perf_counter()
-        A = euler_integrability_jacobian(z, topology).tocsr()
+        A = admissibility_jacobian(z, topology)
         t1 = time.perf_counter()
         n = 2 * topology.n_edges
         if metric == "g":

@@ -66,14 +66,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from ..integrability.global_conditions import global_integrability_jacobian, global_integrability_map
+from ..integrability.global_conditions import admissibility_jacobian, admissibility_map
 from ..integrability.homology import homology_basis
-from ..integrability.local import euler_integrability_jacobian, euler_integrability_map, triangle_inequality_map
+from ..integrability.local import triangle_inequality_map
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..progress import report
 
-__all__ = ["solve_sqp", "solve_vertices", "min_triangle_margin", "max_constraint_violation", "constraint_map",
-           "constraint_jacobian"]
+__all__ = ["solve_sqp", "solve_vertices", "min_triangle_margin", "max_constraint_violation"]
 
 
 class _SchurKKT:
@@ -145,25 +144,11 @@ def min_triangle_margin(z, topology):
     return float(triangle_inequality_map(z, topology).min())
 
 
-def constraint_map(z, topology):
-    """Euler integrability map (3.13) and the global conditions, ``(3 V_int + 6 n_loops,)``."""
-    return np.concatenate([euler_integrability_map(z, topology), global_integrability_map(z, topology)])
-
-
-def constraint_jacobian(z, topology):
-    """Jacobian and value of :func:`constraint_map`."""
-    J, value = euler_integrability_jacobian(z, topology, return_value=True)
-    if homology_basis(topology).n_loops:
-        Jg, vg = global_integrability_jacobian(z, topology, return_value=True)
-        J, value = sp.vstack([J, Jg], format="csr"), np.concatenate([value, vg])
-    return J, value
-
-
 def max_constraint_violation(zs, topology):
-    """Largest ``|c|`` of :func:`constraint_map` over the points ``zs`` (0 for none)."""
+    """Largest ``|c|`` of :func:`~lacore.integrability.admissibility_map` over the points ``zs`` (0 for none)."""
     if len(zs) == 0:
         return 0.0
-    return max(float(np.abs(constraint_map(z, topology)).max(initial=0.0)) for z in zs)
+    return max(float(np.abs(admissibility_map(z, topology)).max(initial=0.0)) for z in zs)
 
 
 def solve_sqp(zs, topology, model, options, progress=None):
@@ -181,7 +166,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
     history = {"path_energy": [], "constraint_violation": [], "stationarity": [], "step": [], "damping": []}
 
     def constraints(Z):
-        return np.concatenate([constraint_map(z, topology) for z in Z])
+        return np.concatenate([admissibility_map(z, topology) for z in Z])
 
     def triangles_ok(Z):
         return all(min_triangle_margin(z, topology) > 0 for z in Z)
@@ -195,7 +180,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
         report(progress, it - 1, max_iterations, f"iteration {it} (at most {max_iterations})")
         iterations = it
         inner = zs[1:-1]
-        lin = [constraint_jacobian(z, topology) for z in inner]
+        lin = [admissibility_jacobian(z, topology, return_value=True) for z in inner]
         c = np.concatenate([v for _, v in lin])
         blocks = [J[:, free].tocsr() for J, _ in lin]
         f = model.value(zs)
