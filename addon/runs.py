@@ -24,7 +24,9 @@ a model rebuilt, a take's empties deleted ...), naming the change and writing no
 or cancelled run changes nothing.
 
 A new long operator plugs in with a job object (or :class:`.jobs.CallJob` around a lacore call
-taking a ``progress`` callback), a watch and a write function::
+taking a ``progress`` callback), a watch and a write function -- e.g. a calibrate-and-fit of a
+marker take (a job whose steps calibrate, then fit frame by frame) or enabling a live mixer (a job
+whose steps build the reduced-order mixer; the write stores it and installs the handlers)::
 
     class MY_OT_thing(RunOperator, bpy.types.Operator):
         def invoke(self, context, event):
