@@ -46,6 +46,7 @@ def test_session_cache_hits_and_invalidation(run):
 
 def test_key_pickers_texts_and_menu(run):
     res = run["cases"]["key_pickers_and_texts"]
+    assert res["naming_doctests"][0] == 0 and res["naming_doctests"][1] >= 6  # addon/naming.py's examples
     assert res["items"] == [["Basis", 0], ["Bend180", 1], ["SimpleDeform90", 2]]
     assert res["flag_items"] == [["Basis", 1], ["Bend180", 2], ["SimpleDeform90", 4]]
     assert res["default_pair_key"] and res["pair_ref_active"] == ["Basis", "Bend180"]

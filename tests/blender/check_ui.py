@@ -253,7 +253,11 @@ def key_pickers_and_texts():
     pinned = SimpleNamespace(object=obj, active_object=other, scene=bpy.context.scene)
     calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_shape_keys, pinned)
     labels = [kw.get("text") for name, _, kw in calls if name == "label"]
-    return {"items": [(i[0], i[4]) for i in items], "flag_items": [(i[0], i[4]) for i in flags],
+    import doctest
+
+    naming = doctest.testmod(mod("naming"))  # the examples of the names and typed lists (no bpy, in Blender's Python)
+    return {"naming_doctests": [naming.failed, naming.attempted],
+            "items": [(i[0], i[4]) for i in items], "flag_items": [(i[0], i[4]) for i in flags],
             "default_pair_key": default_pair_key, "pair_ref_active": list(pair_ref_active),
             "descriptions": descriptions, "menu_operators": menu_ops, "pinned_labels": labels}
 
