@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore): Encode, Remove Data."""
+"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore): Encode, Remove Data, Integrability."""
 
 import time
 
@@ -9,8 +9,9 @@ from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
-from . import session, storage
-from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
+from . import bake, session, storage
+from .mesh_access import object_mode, require_mesh_object
+from .operators_fit import BINDING_PROP, remove_model
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -54,15 +55,22 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity) and the session cache.  Returns a short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding and the
+    session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
+    short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
         storage.clear_encoding(mesh)
         removed.append("encoding")
-    if BAKE_PROP in mesh or any(bake_identity(obj).values()):
-        n = remove_bake(obj)
+    if bake.has_bake(obj):
+        n = bake.remove_bake(obj)
         removed.append(f"bake ({n} keys)")
+    if remove_model(obj):
+        removed.append("shape model")
+    if BINDING_PROP in obj:
+        del obj[BINDING_PROP]
+        removed.append("marker binding")
     session.clear()
     return ", ".join(removed) if removed else "nothing stored"
 
@@ -114,16 +122,21 @@ class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
     bl_idname = "lengths_angles.remove_data"
     bl_label = "Remove Lengths & Angles Data"
     bl_description = ("Remove everything Lengths & Angles stored on this mesh: the encoding, the bake (its keys "
-                      "and keyframes) and the cached computations")
+                      "and keyframes), the shape model, the marker binding and the cached computations (in-between "
+                      "keys and fitted results stay)")
     bl_options = {'REGISTER', 'UNDO'}
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == 'MESH'
+        return True  # execute() explains what is wrong instead of a greyed-out button
 
     def execute(self, context):
         obj = context.object
+        try:
+            require_mesh_object(obj)
+        except InputError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
         with object_mode(obj):  # removing shape keys in Edit Mode would be undone on leaving it
             removed = remove_data(obj)
             obj.data.update()

@@ -6,9 +6,11 @@ Panel and operators act on ``context.object`` (which follows a pinned Properties
 
 import bpy
 
+from . import operators_fit as fit
 from . import storage
+from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
-from .operators_interpolate import (BAKE_PROP, LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
+from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
 __all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_mocap", "classes", "draw_shape_key_menu",
@@ -112,7 +114,6 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     bl_label = "Lengths & Angles: Model and Markers"
 
     def draw(self, context):
-        from . import operators_fit as fit
         layout = self.layout
         obj = context.object
         layout.operator(fit.LENGTHS_ANGLES_OT_build_model.bl_idname, icon='MOD_DATA_TRANSFER')

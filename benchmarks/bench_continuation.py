@@ -14,7 +14,7 @@ order, one context), by
   ``newton="auto"``): the reference every other row is compared with;
 * ``gauss_newton_before``: the same before this change (``warm_start="nearest"``,
   ``newton="never"``);
-* ``fast``: the add-on's Fast (``addon/operators_interpolate.py``, ``_METHOD_OPTIONS['FAST']``):
+* ``fast``: the add-on's Fast (``addon/operators_interpolate.py``, ``METHOD_OPTIONS['FAST']``):
   the secant prediction and one Gauss-Newton step (a frame started from a
   known shape itself, the first after a key: up to three, ``ftol = 1e-4``);
 * ``fast_geometric_ordering``: ``fast`` with lacore's geometric nested dissection

@@ -1,6 +1,6 @@
 """Worker processes: the frames of one projection computed side by side.
 
-Continuation along ``t`` (:func:`lacore.shapes.interpolation.predicted_start`) makes a
+Continuation along ``t`` (:func:`lacore.shapes.projection.predicted_start`) makes a
 sequence of frames sequential: every frame starts from the ones before it.  The
 frames are therefore split into *chains* of consecutive times (:func:`frame_chains`),
 each starting next to a known shape (a key) and running away from it; the calling

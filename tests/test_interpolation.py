@@ -6,6 +6,7 @@ from conftest import load_mesh
 from scipy.interpolate import CubicSpline
 
 import lacore.shapes.interpolation
+import lacore.shapes.projection
 import lacore.reconstruction.context as reconstruction_context
 from lacore.errors import LengthsAnglesError, MeshError
 from lacore.shapes.interpolation import (check_keyframes, interpolate, keyframe_inbetweens, piecewise_linear_z,
@@ -304,13 +305,13 @@ def test_spline_differs_from_linear_between_keys(plates, plate_keys):
 def test_frame_based_methods_share_one_preassembled_tree(plates, monkeypatch):
     topo, (Xf, XA, _) = plates
     calls = []
-    original = lacore.shapes.interpolation.preassembled_tree
+    original = lacore.shapes.projection.preassembled_tree
 
     def counting(*args, **kwargs):
         calls.append(kwargs.get("kind"))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(lacore.shapes.interpolation, "preassembled_tree", counting)
+    monkeypatch.setattr(lacore.shapes.projection, "preassembled_tree", counting)
     res = interpolate([Xf, XA], topo, [0.0, 0.3, 0.7, 1.0], method="mst")
     assert calls == ["mst"]
     assert res.tree is not None and res.tree.kind == "mst"
@@ -348,7 +349,7 @@ def test_progress_reports_every_frame_and_cancels(plates):
 # --------------------------------------------------------------------------- continuation (warm starts)
 def test_predicted_start_extrapolates_a_linear_path_exactly():
     """The secant through the nearest known shape and the next one beyond it; nearest alone otherwise."""
-    from lacore.shapes.interpolation import MAX_EXTRAPOLATION, predicted_start
+    from lacore.shapes.projection import MAX_EXTRAPOLATION, predicted_start
 
     rng = np.random.default_rng(5)
     A, D = rng.standard_normal((2, 7, 3))

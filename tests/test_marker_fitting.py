@@ -11,6 +11,7 @@ from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_mark
 from lacore.markers.fitting import MarkerDataError, _Frame, _joint_step, _Problem, fit_markers
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
+from lacore.progress import Cancelled
 
 ROT = Rotation.from_rotvec([0.3, 0.2, 0.1]).as_matrix()
 SHIFT = np.array([1.0, 2.0, 3.0])
@@ -155,6 +156,14 @@ def test_bind_markers_recovers_a_binding_after_a_rigid_motion(bar):
     # without the alignment the binding is off by the misplacement
     off, _ = bind_markers(X, F, x, align=False)
     assert np.abs(surface_points(X, F, off) - surface_points(X, F, binding)).max() > 0.05
+    # progress after every ICP iteration (the add-on's progress bar); True cancels
+    seen = []
+    again, _ = bind_markers(X, F, x, iterations=200, progress=lambda done, total, message: seen.append((done, total)))
+    assert seen[0] == (0, 200) and seen[-1] == (200, 200) and len(seen) > 3
+    assert [d for d, _ in seen[1:-1]] == list(range(1, len(seen) - 1))  # one per iteration until convergence
+    assert np.array_equal(again.faces, found.faces)
+    with pytest.raises(Cancelled):
+        bind_markers(X, F, x, progress=lambda done, total, message: done >= 2)
 
 
 def test_bad_input_errors(bar):

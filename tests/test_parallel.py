@@ -17,11 +17,12 @@ from conftest import REPO, load_topology, shared_mesh
 from lacore import parallel
 from lacore.cache import DerivedCache
 from lacore.cli import main
-from lacore.errors import InputError
-from lacore.shapes.interpolation import _project_chain, interpolate
+from lacore.errors import InputError, LengthsAnglesError
+from lacore.shapes.interpolation import interpolate
+from lacore.shapes.projection import ProjectionOptions, ProjectionTargets, project_chain
 from lacore.parallel import WorkerError, WorkerProcess, check_workers, close_workers, frame_chains
 from lacore.progress import Cancelled
-from lacore.reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings
+from lacore.reconstruction.settings import GaussNewtonOptions, HybridOptions
 
 
 def sleeping_job(seconds, *, send):
@@ -111,13 +112,13 @@ def test_cancel_kills_the_workers(finger):
 
 def test_an_error_in_a_worker_is_raised_here_with_its_message(finger):
     shapes, topo = finger
-    setup = (ReconstructionSettings(), GaussNewtonOptions(), HybridOptions())
-    worker = WorkerProcess(_project_chain, (np.zeros((1, 2 * topo.n_edges)), topo, shapes[0], np.array([0.5]), [],
-                                           "bogus", "secant", None, setup))
+    # a worker whose targets are bad (non-positive lengths) fails with the input error, raised here as itself
+    bad = ProjectionTargets(np.zeros((1, 2 * topo.n_edges)), topo, shapes[0], np.array([0.5]), ())
+    worker = WorkerProcess(project_chain, (bad, ProjectionOptions()))
     tag, kind, payload = worker.messages.get(timeout=60)
     worker.close()
-    assert kind == "error" and payload[0] == "InputError"
-    with pytest.raises(InputError, match="unknown projection method 'bogus'"):
+    assert kind == "error" and payload[0] == "LengthsAnglesError"
+    with pytest.raises(LengthsAnglesError, match="target at t = 0.5"):
         parallel.raise_worker_error(payload)
     with pytest.raises(WorkerError, match="ZeroDivisionError: division by zero\n.*Traceback"):
         parallel.raise_worker_error(("ZeroDivisionError", "division by zero", "Traceback (most recent call last)"))
