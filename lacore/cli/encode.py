@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from ..io.atomic import save_npz_atomic
+from ..io.atomic import check_writable, npz_path, save_npz_atomic
 from ..errors import MeshError, format_indices
 from ..integrability.local import integrability_violation
 from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
@@ -56,6 +56,8 @@ def encode_mesh(vertices, faces):
 def run(args):
     """Run ``lacore encode``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
+    if args.output:
+        check_writable(npz_path(args.output))
     vertices, faces = load_mesh(args.mesh)
     t_load = time.perf_counter() - start
     topology, z, violation, timings = encode_mesh(vertices, faces)

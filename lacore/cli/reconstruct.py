@@ -28,20 +28,19 @@ The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :fu
 """
 
 import os
-import sys
 import time
 
 import numpy as np
 
 from ..errors import MeshError
 from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
-from ..io.atomic import save_npz_atomic
+from ..io.atomic import npz_path, save_npz_atomic
 from ..io.meshes import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
 from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
 from ..geometry.topology import MeshTopology
-from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, print_json
+from .common import CliError, add_allow_failure, check_outputs, finish, json_float, nonnegative_int, print_json
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -176,6 +175,7 @@ def run(args):
     if out_ext not in SUPPORTED_EXTENSIONS + (".npz",):
         raise _error(f"{args.output}: unsupported output format {out_ext or '(none)'!r}; use one of "
                      f"{', '.join(SUPPORTED_EXTENSIONS + ('.npz',))}")
+    check_outputs([npz_path(args.output) if out_ext == ".npz" else args.output])
     ref_vertices, ref_faces = load_mesh(args.ref)
     topology = MeshTopology.from_faces(ref_faces, n_vertices=len(ref_vertices))
     ref_vertices = check_nondegenerate(ref_vertices, topology)
@@ -201,9 +201,6 @@ def run(args):
     written = _save(args.output, result.vertices, topology.faces, z_out)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
-    if not result.success:
-        print(f"lacore reconstruct: {'warning' if args.allow_failure else 'failed'}: {result.message}",
-              file=sys.stderr)
     if args.json:
         summary = {
             "command": "reconstruct",
@@ -228,4 +225,4 @@ def run(args):
               f"({result.energy_name})")
         print(f"  max length error {errors['max_length_error']:.3g}, max angle error "
               f"{errors['max_angle_error']:.3g} rad; {seconds:.3f} s")
-    return exit_code(result.success, args)
+    return finish("reconstruct", result.success, result.message, args)

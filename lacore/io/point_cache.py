@@ -14,11 +14,11 @@ i.e. a 32-byte header and 12 bytes per vertex per frame.
 """
 
 import os
-import tempfile
 
 import numpy as np
 
 from ..errors import InputError
+from .atomic import atomic_write
 
 __all__ = ["PointCacheError", "HEADER_BYTES", "write_pc2", "read_pc2"]
 
@@ -33,7 +33,7 @@ class PointCacheError(InputError):
 
 
 def write_pc2(path, vertices, start=0.0, sampling=1.0):
-    """Write vertex positions per frame as a PC2 file, atomically (temp file in the folder, then rename).
+    """Write vertex positions per frame as a PC2 file, atomically (:func:`lacore.io.atomic.atomic_write`).
 
     Parameters
     ----------
@@ -51,17 +51,9 @@ def write_pc2(path, vertices, start=0.0, sampling=1.0):
         raise PointCacheError(f"point cache: frame {t} has non-finite positions")
     header = np.zeros(1, _HEADER)
     header[0] = (_MAGIC, 1, X.shape[1], start, sampling, X.shape[0])
-    path = os.fspath(path)
-    fd, tmp = tempfile.mkstemp(suffix=".pc2", prefix=".tmp-", dir=os.path.dirname(os.path.abspath(path)))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(header.tobytes())
-            fh.write(X.astype("<f4").tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_write(path, "wb") as fh:
+        fh.write(header.tobytes())
+        fh.write(X.astype("<f4").tobytes())
 
 
 def read_pc2(path):

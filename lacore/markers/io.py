@@ -38,10 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import atomic_write
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
-           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS",
-           "UNIT_SCALES"]
+           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "read_marker_arrays",
+           "MODEL_OUTPUT_GROUPS", "UNIT_SCALES"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
@@ -510,17 +511,12 @@ def write_c3d(path, take, units="mm", integer=False):
 
 
 def _atomic_write(path, write):
-    folder = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    """``write(fh)`` into ``path`` through :func:`lacore.io.atomic.atomic_write`; MarkerFileError if it fails."""
     try:
-        with open(tmp, "wb") as fh:
+        with atomic_write(path, "wb") as fh:
             write(fh)
-        os.replace(tmp, path)
     except OSError as exc:
-        raise MarkerFileError(f"{path}: cannot write the file ({exc.strerror or exc})") from None
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+        raise MarkerFileError(str(exc)) from None
 
 
 # ----------------------------------------------------------------------------- TRC
@@ -599,3 +595,70 @@ def write_trc(path, take, units="mm"):
     body = ("\n".join(lines) + "\n" + data).encode()
     _atomic_write(str(path), lambda fh: fh.write(body))
 
+
+
+# ----------------------------------------------------------------------------- marker arrays (.npz)
+def read_marker_arrays(path, mesh_faces, n_vertices=None):
+    """Marker positions and their binding from an ``.npz`` file, every array checked.
+
+    The file holds ``positions`` ``(T, M, 3)`` (NaN where occluded) and the
+    binding: ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
+    ``barycentric`` ``(M, 3)`` (triangles of ``mesh_faces``); optional
+    ``offsets`` ``(M,)`` (distance along the face normal, positive outside).
+    No pickles are read.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    mesh_faces : (F, 3) array_like of int
+        The mesh the markers are bound to (e.g. a shape model's faces).
+    n_vertices : int, optional
+        Its vertex count (default ``mesh_faces.max() + 1``).
+
+    Returns
+    -------
+    positions : (T, M, 3) float64 ndarray
+        As :func:`lacore.markers.fitting.check_markers` returns them.
+    binding : MarkerBinding
+
+    Raises
+    ------
+    FileNotFoundError
+    MarkerFileError
+        Not a readable ``.npz`` file, a missing or wrongly typed array (object,
+        string or complex arrays included).
+    MarkerBindingError, MarkerDataError
+        A binding out of range or to nothing, positions with no frames, no
+        markers, infinite or too large values, or no visible marker at all.
+    """
+    from ..io.npz import open_npz, read_array
+    from .binding import MarkerBinding, MarkerBindingError
+    from .fitting import check_markers
+
+    path = os.fspath(path)
+    what = "markers"
+    with open_npz(path, what, MarkerFileError) as npz:
+        keys = set(npz.files)
+        if "positions" not in keys:
+            raise MarkerFileError(f"{path} has no 'positions' array (T, M, 3)")
+        positions = read_array(npz, "positions", path, what, MarkerFileError, kind="f")
+        offsets = read_array(npz, "offsets", path, what, MarkerFileError, kind="f") if "offsets" in keys else None
+        if "vertices" in keys and "faces" in keys:
+            raise MarkerBindingError(f"{path} has both 'vertices' and 'faces': give one binding")
+        if "vertices" in keys:
+            vertices = read_array(npz, "vertices", path, what, MarkerFileError, kind="i", ndim=1)
+            binding = MarkerBinding.from_vertices(vertices, mesh_faces, n_vertices, offsets)
+        elif "faces" in keys:
+            if "barycentric" not in keys:
+                raise MarkerBindingError(f"{path} has 'faces' but no 'barycentric' (M, 3)")
+            faces = read_array(npz, "faces", path, what, MarkerFileError, kind="i", ndim=1)
+            bary = read_array(npz, "barycentric", path, what, MarkerFileError, kind="f", ndim=2)
+            binding = MarkerBinding.from_surface(faces, bary, offsets)
+        else:
+            raise MarkerBindingError(f"{path} binds the markers to nothing: it needs 'vertices' (M,) or 'faces' (M,) "
+                                     "+ 'barycentric' (M, 3)")
+    binding.check(mesh_faces)
+    try:
+        return check_markers(positions, binding), binding
+    except InputError as exc:
+        raise type(exc)(f"{path}: {exc}") from None

@@ -46,15 +46,14 @@ invariant; the mean's vertices are placed in the reference mesh's frame).
 """
 
 import copy
-import os
 import time
-import zipfile
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from ..io.atomic import atomic_write
+from ..io.atomic import save_npz_atomic
+from ..io.npz import open_npz, read_array
 from ..energies import QuadraticEnergy
 from ..errors import InputError, LengthsAnglesError, MeshError, format_indices
 from ..integrability.local import euler_integrability_jacobian
@@ -62,6 +61,7 @@ from ..geometry.lengths_angles import check_nondegenerate, check_z, lengths_and_
 from ..progress import report
 from ..shapes.projection import project
 from ..reconstruction import METHODS, reconstruct
+from ..reconstruction.settings import WEIGHTS
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import MeshTopology, check_vertices
 
@@ -642,6 +642,14 @@ class ShapeModel:
         self.last_clamped_lengths = np.count_nonzero(clamped, axis=1)
         opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}  # see fit_z
         opts.update(reconstruct_options)
+        L = zs[:, :E][:, self.topology.face_edges]  # (K, F, 3) target lengths per face
+        broken = np.count_nonzero(2.0 * L.max(axis=2) >= L.sum(axis=2), axis=1)
+        far = np.flatnonzero(2 * broken > self.topology.n_faces)
+        if far.size:  # as reconstruct() refuses them, but named as what they are here
+            k = int(far[0])
+            raise ShapeModelError(f"pose {k + 1} of {len(A)} is too far from the training poses: its lengths violate "
+                                  f"the triangle inequality at {broken[k]} of {self.topology.n_faces} faces, no mesh "
+                                  "has them (use coefficients of a few standard deviations)")
         for k, zk in enumerate(zs):
             report(progress, k, len(A), f"pose {k + 1} of {len(A)}")
             res = reconstruct(zk, self.topology, self.reference_vertices, method=method,
@@ -820,15 +828,17 @@ class ShapeModel:
 
     # ------------------------------------------------------------------ files
     def save(self, path):
-        """Write the model to one ``.npz`` file (atomically: temp file in the same folder, then rename).
+        """Write the model to one ``.npz`` file, atomically (:func:`lacore.io.atomic.save_npz_atomic`).
 
-        Keys: ``format``, ``format_version``, ``faces``, ``edges``,
-        ``reference_vertices``, ``mean_z``, ``mean_vertices``, ``linear_mean_z``,
-        ``modes``, ``variances``, ``explained_variance_ratio``, ``total_variance``,
+        ``.npz`` is appended to a name without it (as :func:`numpy.savez`
+        does); the path written is returned.  Keys: ``format``,
+        ``format_version``, ``faces``, ``edges``, ``reference_vertices``,
+        ``mean_z``, ``mean_vertices``, ``linear_mean_z``, ``modes``,
+        ``variances``, ``explained_variance_ratio``, ``total_variance``,
         ``training_coefficients``, ``all_eigenvalues``, ``metric_weights``,
-        ``bending_weight``, ``weights``, ``tangent``, ``projection_metric``, ``method``.
+        ``bending_weight``, ``weights``, ``tangent``, ``projection_metric``,
+        ``method``.
         """
-        path = os.fspath(path)
         data = {
             "format": np.array(FORMAT), "format_version": np.array(FORMAT_VERSION),
             "faces": self.faces, "edges": self.edges, "reference_vertices": self.reference_vertices,
@@ -841,12 +851,15 @@ class ShapeModel:
             "weights": np.array(self.weights), "tangent": np.array(self.tangent),
             "projection_metric": np.array(self.projection_metric), "method": np.array(self.method),
         }
-        with atomic_write(path, "wb") as fh:  # all or nothing
-            np.savez(fh, **data)
+        return save_npz_atomic(path, **data)
 
     @classmethod
     def load(cls, path, faces=None):
         """Read a model written by :meth:`save`.
+
+        Every field is checked (types, shapes, finite values, positive
+        variances, known settings); a file that fails raises one
+        :class:`ShapeModelError` naming the file and the field.
 
         Parameters
         ----------
@@ -857,70 +870,121 @@ class ShapeModel:
         Raises
         ------
         ShapeModelError
-            Not a shape-model file, another format version, inconsistent arrays,
-            or other faces than ``faces``.
+            Not a shape-model file, another format version, invalid or
+            inconsistent fields, or other faces than ``faces``.
         FileNotFoundError
         """
-        try:
-            npz = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise ShapeModelError(f"{path} is not a readable .npz shape model ({exc})") from None
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise ShapeModelError(f"{path} is not a readable .npz shape model (a single array)")
-        with npz:
+        with open_npz(path, "shape model", ShapeModelError) as npz:
             keys = set(npz.files)
-            if "format" not in keys or str(npz["format"]) != FORMAT:
+            fmt = _read_field(npz, "format", path) if "format" in keys else None
+            if fmt is None or fmt.shape != () or fmt.dtype.kind != "U" or str(fmt) != FORMAT:
                 raise ShapeModelError(f"{path} is not a lacore shape model (no format entry {FORMAT!r})")
-            version = int(npz["format_version"]) if "format_version" in keys else -1
-            if version != FORMAT_VERSION:
-                raise ShapeModelError(f"{path} has shape-model format version {version}; this lacore reads version "
-                                      f"{FORMAT_VERSION}")
+            version = _read_field(npz, "format_version", path) if "format_version" in keys else np.array(-1)
+            if version.shape != () or version.dtype.kind not in "iu" or int(version) != FORMAT_VERSION:
+                raise ShapeModelError(f"{path} has shape-model format version {version.tolist()!r}; this lacore reads "
+                                      f"version {FORMAT_VERSION}")
             need = ["faces", "edges", "reference_vertices", "mean_z", "mean_vertices", "linear_mean_z", "modes",
                     "variances", "explained_variance_ratio", "total_variance", "training_coefficients",
                     "metric_weights", "bending_weight", "weights", "tangent", "projection_metric", "method"]
             missing = [k for k in need if k not in keys]
             if missing:
                 raise ShapeModelError(f"{path} is a corrupt shape model: missing {', '.join(missing)}")
-            try:
-                d = {k: npz[k] for k in need + (["all_eigenvalues"] if "all_eigenvalues" in keys else [])}
-            except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-                raise ShapeModelError(f"{path} is a corrupt shape model ({exc})") from None
+            d = {k: _read_field(npz, k, path) for k in need + (["all_eigenvalues"] if "all_eigenvalues" in keys
+                                                                 else [])}
+        d = _check_model_fields(path, d)
         try:
             topology = MeshTopology.from_faces(d["faces"], edges=d["edges"], n_vertices=len(d["reference_vertices"]))
         except MeshError as exc:
             raise ShapeModelError(f"{path} is a corrupt shape model: {exc}") from None
         E2 = 2 * topology.n_edges
         V = topology.n_vertices
-        J = d["modes"].shape[0] if d["modes"].ndim == 2 else -1
+        J = d["modes"].shape[0]
         shapes = {"reference_vertices": (V, 3), "mean_vertices": (V, 3), "mean_z": (E2,), "linear_mean_z": (E2,),
                   "modes": (J, E2), "variances": (J,), "explained_variance_ratio": (J,), "metric_weights": (E2,)}
-        for k, s in shapes.items():
-            if d[k].shape != s or not np.all(np.isfinite(d[k])):
-                raise ShapeModelError(f"{path} is a corrupt shape model: {k} has shape {d[k].shape}, expected {s} "
-                                      "with finite entries")
-        if d["training_coefficients"].ndim != 2 or d["training_coefficients"].shape[1] != J:
+        for k, shape in shapes.items():
+            if d[k].shape != shape:
+                raise ShapeModelError(f"{path} is a corrupt shape model: {k} has shape {d[k].shape}, expected {shape}")
+        if d["training_coefficients"].shape[1] != J:
             raise ShapeModelError(f"{path} is a corrupt shape model: training_coefficients has shape "
                                   f"{d['training_coefficients'].shape}, expected (N, {J})")
-        tangent, pm, method = str(d["tangent"]), str(d["projection_metric"]), str(d["method"])
-        if tangent not in TANGENTS or pm not in PROJECTION_METRICS or method not in METHODS:
-            raise ShapeModelError(f"{path} is a corrupt shape model: unknown settings {tangent!r}, {pm!r}, {method!r}")
-        model = cls(topology=topology, reference_vertices=d["reference_vertices"].astype(float),
-                    mean_z=d["mean_z"].astype(float), mean_vertices=d["mean_vertices"].astype(float),
-                    linear_mean_z=d["linear_mean_z"].astype(float), modes=d["modes"].astype(float),
-                    variances=d["variances"].astype(float),
-                    explained_variance_ratio=d["explained_variance_ratio"].astype(float),
-                    total_variance=float(d["total_variance"]),
-                    training_coefficients=d["training_coefficients"].astype(float), tangent=tangent,
-                    projection_metric=pm, bending_weight=float(d["bending_weight"]), weights=str(d["weights"]),
-                    method=method, all_eigenvalues=d.get("all_eigenvalues"))
+        if np.any(d["mean_z"][:E2 // 2] <= 0):
+            raise ShapeModelError(f"{path} is a corrupt shape model: mean_z has lengths <= 0")
+        try:
+            model = cls(topology=topology, reference_vertices=d["reference_vertices"], mean_z=d["mean_z"],
+                        mean_vertices=d["mean_vertices"], linear_mean_z=d["linear_mean_z"], modes=d["modes"],
+                        variances=d["variances"], explained_variance_ratio=d["explained_variance_ratio"],
+                        total_variance=d["total_variance"], training_coefficients=d["training_coefficients"],
+                        tangent=d["tangent"], projection_metric=d["projection_metric"],
+                        bending_weight=d["bending_weight"], weights=d["weights"], method=d["method"],
+                        all_eigenvalues=d.get("all_eigenvalues"))
+        except InputError as exc:  # e.g. a reference mesh with degenerate triangles
+            raise ShapeModelError(f"{path} is a corrupt shape model: {exc}") from None
         if not np.allclose(model.metric_weights, d["metric_weights"], rtol=1e-12, atol=0):
             raise ShapeModelError(f"{path} is a corrupt shape model: its metric weights do not match its reference "
                                   "mesh")
         if faces is not None:
             model.check_mesh(faces=faces)
         return model
+
+
+def _read_field(npz, key, path):
+    """One array of an open model file; ShapeModelError if it cannot be read (object arrays, a damaged archive)."""
+    return read_array(npz, key, path, "shape model", ShapeModelError)
+
+
+def _check_model_fields(path, d):
+    """Types, ranks and values of the fields of a model file; returns them converted (floats, ints, str).
+
+    One :class:`ShapeModelError` naming the file and the first bad field: integer
+    faces and edges, finite real arrays, positive variances, explained-variance
+    ratios in [0, 1], a positive total variance, a finite non-negative bending
+    weight and known settings.
+    """
+    def bad(key, what):
+        return ShapeModelError(f"{path} is a corrupt shape model: {key} {what}")
+
+    out = {}
+    for key in ("faces", "edges"):
+        a = d[key]
+        if a.dtype.kind not in "iu" or a.ndim != 2:
+            raise bad(key, f"must be a 2-d integer array, got {a.dtype} {a.shape}")
+        out[key] = a.astype(np.int64)
+    ranks = {"reference_vertices": 2, "mean_vertices": 2, "mean_z": 1, "linear_mean_z": 1, "modes": 2,
+             "variances": 1, "explained_variance_ratio": 1, "training_coefficients": 2, "metric_weights": 1,
+             "total_variance": 0, "bending_weight": 0}
+    for key, ndim in ranks.items():
+        a = d[key]
+        if a.dtype.kind not in "fiu" or a.ndim != ndim:
+            raise bad(key, f"must be a {ndim}-d array of real numbers, got {a.dtype} {a.shape}")
+        a = a.astype(float)
+        if not np.all(np.isfinite(a)):
+            raise bad(key, "has NaN or infinite entries")
+        out[key] = a
+    if out["modes"].shape[0] < 1:
+        raise bad("modes", "is empty: the model has no modes")
+    if np.any(out["variances"] <= 0):
+        raise bad("variances", f"must be positive, got {np.min(out['variances']):g}")
+    ratio = out["explained_variance_ratio"]
+    if np.any(ratio < 0) or np.sum(ratio) > 1.0 + 1e-9:
+        raise bad("explained_variance_ratio", "must be in [0, 1] with a sum of at most 1")
+    if out["total_variance"] <= 0:
+        raise bad("total_variance", f"must be positive, got {float(out['total_variance']):g}")
+    if out["bending_weight"] < 0:
+        raise bad("bending_weight", f"must be >= 0, got {float(out['bending_weight']):g}")
+    out["total_variance"] = float(out["total_variance"])
+    out["bending_weight"] = float(out["bending_weight"])
+    for key, known in (("tangent", TANGENTS), ("projection_metric", PROJECTION_METRICS), ("method", METHODS),
+                       ("weights", WEIGHTS)):
+        a = d[key]
+        if a.dtype.kind != "U" or a.shape != () or str(a) not in known:
+            raise bad(key, f"must be one of {', '.join(known)}, got {a.tolist()!r}")
+        out[key] = str(a)
+    if "all_eigenvalues" in d:
+        a = d["all_eigenvalues"]
+        if a.dtype.kind not in "fiu" or a.ndim != 1 or not np.all(np.isfinite(a)):
+            raise bad("all_eigenvalues", "must be a 1-d array of finite numbers")
+        out["all_eigenvalues"] = a.astype(float)
+    return out
 
 
 # --------------------------------------------------------------------------- helpers
