@@ -10,6 +10,9 @@ from lacore.multiresolution import coarsen
 from lacore.multiresolution.coarsening import vertex_quadrics
 from lacore.geometry.topology import MeshTopology
 
+#: Greedy collapse orders: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 
 def _load(*names):
     Xs = [load_mesh(shared_mesh(n))[0] for n in names]

@@ -15,7 +15,7 @@ from ..geometry.topology import MeshTopology
 
 __all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "EXIT_INTERRUPTED", "print_json", "json_float",
            "nonnegative_int", "positive_int", "frame_count", "MAX_FRAMES", "add_allow_failure", "exit_code", "finish",
-           "error_message", "check_outputs", "load_meshes_in_correspondence"]
+           "error_message", "check_outputs", "load_meshes_in_correspondence", "mesh_topology", "checked_vertices"]
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input or usage, same code argparse uses
@@ -124,12 +124,29 @@ def load_meshes_in_correspondence(paths):
     :class:`~lacore.errors.MeshError` ("... is not in dense correspondence with ...").
     """
     X0, faces = load_mesh(paths[0])
-    topology = MeshTopology.from_faces(faces, n_vertices=len(X0))
-    shapes = [check_nondegenerate(X0, topology)]
+    topology = mesh_topology(paths[0], faces, len(X0))
+    shapes = [checked_vertices(paths[0], X0, topology)]
     for path in paths[1:]:
         X, F = load_mesh(path)
         if len(X) != len(X0) or F.shape != faces.shape or not np.array_equal(F, faces):
             raise MeshError(f"{path} ({len(X)} vertices, {len(F)} faces) is not in dense correspondence with "
                             f"{paths[0]} ({len(X0)} vertices, {len(faces)} faces)")
-        shapes.append(check_nondegenerate(X, topology))
+        shapes.append(checked_vertices(path, X, topology))
     return shapes, topology
+
+
+def mesh_topology(path, faces, n_vertices):
+    """:meth:`MeshTopology.from_faces` of a mesh file's faces; its MeshError names the file."""
+    try:
+        return MeshTopology.from_faces(faces, n_vertices=n_vertices)
+    except MeshError as exc:
+        raise MeshError(f"{path}: {exc}") from None
+
+
+def checked_vertices(path, vertices, topology):
+    """:func:`~lacore.geometry.lengths_angles.check_nondegenerate` of a mesh file's vertices; its MeshError names
+    the file."""
+    try:
+        return check_nondegenerate(vertices, topology)
+    except MeshError as exc:
+        raise MeshError(f"{path}: {exc}") from None

@@ -60,7 +60,10 @@ def run(args):
         check_writable(npz_path(args.output))
     vertices, faces = load_mesh(args.mesh)
     t_load = time.perf_counter() - start
-    topology, z, violation, timings = encode_mesh(vertices, faces)
+    try:
+        topology, z, violation, timings = encode_mesh(vertices, faces)
+    except MeshError as exc:
+        raise MeshError(f"{args.mesh}: {exc}") from None
     E = topology.n_edges
     lengths, angles = z[:E], z[E:]
     t_save, written = 0.0, None

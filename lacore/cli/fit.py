@@ -17,9 +17,12 @@ occluded), ``frame_status`` ``(T,)`` and ``frame_rms`` ``(T,)``.  ``--json``
 prints one object with ``frames``, ``seconds``, ``seconds_per_frame``,
 ``marker_rms``, the stage timings and the per-frame status counts.
 
-Bad input prints one line on stderr and exits with code 2; the output is
-written to a temporary file in the target folder and renamed, so a failed run
-leaves nothing behind.  Registered in :mod:`lacore.cli` through :func:`register`.
+Bad input (checked by :func:`lacore.markers.io.read_marker_arrays` and
+:meth:`~lacore.models.shape_model.ShapeModel.load`) prints one line on stderr
+and exits with code 2; the output is written to a temporary file in the target
+folder and renamed, so a failed run leaves nothing behind.  A fit that fails is
+written and reported on one stderr line, exit code 3 (0 with
+``--allow-failure``).  Registered in :mod:`lacore.cli` through :func:`register`.
 """
 
 import time

@@ -21,9 +21,12 @@ evenly spaced from ``T0`` to ``T1`` standard deviations of the mode
 (:meth:`ShapeModel.mode_sweep`), to ``PREFIX_000.ply ...``.
 
 Bad input (fewer than 2 meshes, meshes not in correspondence, ``--modes``
-larger than N - 1, a corrupt model file, a mode out of range) prints one line
-on stderr and exits with code 2; nothing is written then.  Every output file is
-written to a temporary file in its folder and renamed into place.
+larger than N - 1, a corrupt model file, a mode out of range, a ``--range``
+whose poses no mesh can have) prints one line on stderr and exits with code 2;
+nothing is written then (outputs are checked before computing).  Sweep frames
+that fail their checks are written and reported on one stderr line, exit code 3
+(0 with ``--allow-failure``).  Every output file is written to a temporary file
+in its folder and renamed into place.
 
 Registered in :mod:`lacore.cli` through :func:`register`.
 """

@@ -396,12 +396,16 @@ def _read_c3d_bytes(data, path, units):
         file_units = unit_param.string_value.strip().strip("\x00").strip() if unit_param is not None else ""
     except Exception as exc:
         raise MarkerFileError(f"{path}: malformed C3D parameters ({type(exc).__name__}: {exc})") from None
+    # checked here, not left to the c3d package: it checks some of these with assert, which python -O skips
     if not np.isfinite(rate) or rate <= 0:
         raise MarkerFileError(f"{path}: invalid point rate {rate!r} Hz")
     if not np.isfinite(scale) or scale == 0:
         raise MarkerFileError(f"{path}: invalid POINT:SCALE {scale!r}")
-    if used == 0:
-        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is 0)")
+    if used < 1:
+        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is {used})")
+    if analog_used < 0 or (analog_used and not (np.isfinite(analog_rate) and analog_rate >= 0)):
+        raise MarkerFileError(f"{path}: invalid analog channels: ANALOG:USED {analog_used}, ANALOG:RATE "
+                              f"{analog_rate!r} Hz (a damaged file: the rate must be a finite number >= 0)")
     n_frames = last - first + 1
     if n_frames < 1:
         raise MarkerFileError(f"{path}: no frames (first frame {first}, last {last})")
@@ -544,7 +548,7 @@ def _read_trc_text(data, path, units):
         rate = float(header["datarate"])
         n_markers = int(float(header["nummarkers"]))
         file_units = header["units"]
-    except (KeyError, ValueError) as exc:
+    except (KeyError, ValueError, OverflowError) as exc:
         raise MarkerFileError(f"{path}: malformed TRC header (DataRate, NumMarkers, Units): {exc}") from None
     to_metres = unit_scale(units if units is not None else file_units, path)
     names = [s.strip() for s in lines[3].split("\t")[2:]]
@@ -574,6 +578,9 @@ def _read_trc_text(data, path, units):
     frames = numbers[:, 0]
     if np.isnan(frames).any():
         raise MarkerFileError(f"{path}: data row {int(np.flatnonzero(np.isnan(frames))[0]) + 1} has no frame number")
+    if not (np.isfinite(frames[0]) and abs(frames[0]) < 2.0 ** 31 and frames[0] == np.round(frames[0])):
+        raise MarkerFileError(f"{path}: data row 1 has frame number {frames[0]:g}; frame numbers are whole numbers "
+                              "(fix the Frame# column)")
     positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
     return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
