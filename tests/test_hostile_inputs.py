@@ -356,6 +356,21 @@ def test_c3d_with_damaged_analog_rate(tmp_path, optimize):
     assert all(("invalid analog channels" if optimize else "inconsistent analog rate") in line for line in lines)
 
 
+def test_point_caches(tmp_path):
+    from lacore.io.point_cache import PointCacheError, read_pc2, write_pc2
+
+    with pytest.raises(PointCacheError, match="do not fit the float32 numbers of a PC2 file"):
+        write_pc2(tmp_path / "big.pc2", np.full((2, 3, 3), 1e300))
+    with pytest.raises(PointCacheError, match="non-finite"):
+        write_pc2(tmp_path / "nan.pc2", np.full((2, 3, 3), np.nan))
+    assert listing(tmp_path) == []
+    write_pc2(tmp_path / "ok.pc2", np.ones((2, 3, 3)))
+    raw = (tmp_path / "ok.pc2").read_bytes()
+    (tmp_path / "short.pc2").write_bytes(raw[:-5])
+    with pytest.raises(PointCacheError, match="short.pc2: 99 bytes, the header .2 samples of 3 points. needs 104"):
+        read_pc2(tmp_path / "short.pc2")
+
+
 # --------------------------------------------------------------------------- Ctrl-C and worker processes
 def _start(argv, **kw):
     return subprocess.Popen([sys.executable, "-m", "lacore.cli", *map(str, argv)], stdout=subprocess.PIPE,
