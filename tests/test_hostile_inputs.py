@@ -180,6 +180,15 @@ def test_hostile_targets_and_options(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------- shape models
+def test_model_of_meshes_too_large_for_double_precision(tmp_path, capsys):
+    for name in (PLATE, PLATE_A):
+        X, F = load_mesh(shared_mesh(name))
+        save_mesh(tmp_path / name.split("/")[1], X * 1e200, F)
+    fails(capsys, tmp_path, "model", tmp_path / "plate121.ply", tmp_path / "plate121_rolledA.ply", "-o",
+          tmp_path / "m.npz", message="too large or too small for the model's weights and variances in double "
+                                      "precision: scale the meshes toward unit size")
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("variances", lambda a: -a["variances"], "variances must be positive"),
     ("variances", lambda a: a["variances"] * np.nan, "variances has NaN or infinite entries"),
@@ -300,6 +309,15 @@ def test_hostile_marker_files(bar_model, tmp_path, capsys, case, message):
         read_marker_arrays(f, model.faces, model.topology.n_vertices)
     assert message in str(info.value) and "\n" not in str(info.value)
     fails(capsys, tmp_path, "fit", d / "model.npz", "--markers", f, "-o", tmp_path / "out.npz", message=message)
+
+
+def test_markers_far_beyond_the_models_scale_fail_without_a_traceback(bar_model, tmp_path, capsys):
+    """Markers 1e60 times the model's size: every frame's system is not finite; the fit fails and says so (exit 3)
+    instead of a traceback (checking the units is the calibration's job)."""
+    d, model, verts, x = bar_model
+    np.savez(tmp_path / "far.npz", positions=x * 1e60, vertices=verts)
+    code, out, err = run(capsys, "fit", d / "model.npz", "--markers", tmp_path / "far.npz", "-o", tmp_path / "o.npz")
+    assert code == 3 and err == "lacore fit: failed: 3 frames: the linear system could not be solved\n", err
 
 
 def test_a_failed_fit_says_so(bar_model, tmp_path, capsys, monkeypatch):

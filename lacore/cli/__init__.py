@@ -19,6 +19,8 @@ Conventions shared by all subcommands:
   ``lacore <cmd>: failed: ...`` on stderr (:func:`.common.finish`) and exits
   with code 3 (:data:`EXIT_FAILED_CHECKS`), or 0 with ``--allow-failure``
   (then the line says ``warning``); the JSON has ``success`` and ``failure``;
+* NumPy's floating-point RuntimeWarnings are not shown (the checks and the
+  messages say what went wrong);
 * Ctrl-C prints ``lacore <cmd>: interrupted`` and exits with code 130
   (:data:`EXIT_INTERRUPTED`); a closed stdout (``lacore ... --json | head``)
   ends the command quietly;
@@ -30,6 +32,7 @@ Conventions shared by all subcommands:
 import argparse
 import os
 import sys
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -87,7 +90,11 @@ def main(argv=None):
         return EXIT_INTERRUPTED
     cmd = args._subcommand
     try:
-        return int(cmd.run(args) or 0)
+        with warnings.catch_warnings():
+            # NumPy's floating-point warnings (overflow in an extreme input...) are not for the user: the result's
+            # checks or the error message say what went wrong, in one line
+            warnings.filterwarnings("ignore", message=_FLOATING_POINT_WARNINGS, category=RuntimeWarning)
+            return int(cmd.run(args) or 0)
     except KeyboardInterrupt:
         print(f"lacore {cmd.name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -97,6 +104,9 @@ def main(argv=None):
     except (InputError, OSError, MemoryError) as exc:
         print(f"lacore {cmd.name}: error: {error_message(exc)}", file=sys.stderr)
         return EXIT_USAGE
+
+
+_FLOATING_POINT_WARNINGS = r"(overflow|underflow|invalid value|divide by zero) encountered"
 
 
 def _silence_stdout():

@@ -437,6 +437,14 @@ def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
     return 0.0, X, a, E0, None
 
 
+def _factorize(prob, grad, vals):
+    """Factorize the Gauss-Newton matrix; NotPositiveDefiniteError (frame status -2) also when it or the gradient
+    is not finite (e.g. markers so far from the mesh's scale that its lengths lose all precision)."""
+    if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(grad))):
+        raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
+    prob.chol.factorize(vals)
+
+
 def _joint_step(prob, X, a, fr):
     """Gauss-Newton step of the joint problem in ``(X, alpha)`` by the bordered system (Schur complement).
 
@@ -444,7 +452,7 @@ def _joint_step(prob, X, a, fr):
     directional derivative of the energy along the step.
     """
     grad, vals, gn = prob.linearize(X, a, fr)
-    prob.chol.factorize(vals)
+    _factorize(prob, grad, vals)
     if not prob.J:
         dX = -prob.chol.solve(grad)
         return dX, None, float(grad @ dX)
@@ -596,7 +604,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
             E_cur = prob.energy(X, a, fr)[0]
             grad, vals, _ = prob.linearize(X, a, fr)
             try:
-                prob.chol.factorize(vals)
+                _factorize(prob, grad, vals)
             except NotPositiveDefiniteError:
                 st = -2
                 break
