@@ -409,6 +409,19 @@ def test_ctrl_c_stops_a_run_with_workers_in_one_line(tmp_path):
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_a_closed_stdout_ends_the_command_quietly():
+    """`lacore encode ... --json | head -c 0`: the reader is gone; no error message, no traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "lacore.cli", "encode", str(shared_mesh(PLATE)), "--json"],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, cwd=REPO, timeout=120,
+                              env={**os.environ, "PYTHONPATH": str(REPO)})
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141 and proc.stderr == "", proc.stderr
+
+
 def test_a_worker_whose_caller_died_ends_quietly(tmp_path):
     """The caller is killed while its worker still sends messages: the worker ends at the next one, silently."""
     (tmp_path / "slow_job.py").write_text(

@@ -23,7 +23,7 @@ Conventions shared by all subcommands:
   messages say what went wrong);
 * Ctrl-C prints ``lacore <cmd>: interrupted`` and exits with code 130
   (:data:`EXIT_INTERRUPTED`); a closed stdout (``lacore ... --json | head``)
-  ends the command quietly;
+  ends the command quietly with code 141;
 * results go to ``.npz`` files (``numpy.load``) with documented keys, and every
   output is written atomically (:mod:`lacore.io.atomic`): a failed write leaves
   an existing file unchanged and no temporary file.
@@ -100,7 +100,7 @@ def main(argv=None):
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # stdout closed by the reader (`lacore ... --json | head`): nothing left to say
         _silence_stdout()
-        return EXIT_USAGE
+        return 141  # as a shell reports a process ended by SIGPIPE (128 + 13)
     except (InputError, OSError, MemoryError) as exc:
         print(f"lacore {cmd.name}: error: {error_message(exc)}", file=sys.stderr)
         return EXIT_USAGE
