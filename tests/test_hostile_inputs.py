@@ -263,6 +263,8 @@ def test_sweep_failures_are_reported(bar_model, tmp_path, capsys):
     assert code == 0 and err.startswith("lacore model-sweep: warning: 1 of 1 frames failed")
     fails(capsys, tmp_path, *sweep, "50", "50", "-o", tmp_path / "c", message="too far from the training poses")
     fails(capsys, tmp_path, *sweep, "nan", "0", "-o", tmp_path / "c", message="--range must be two finite numbers")
+    fails(capsys, tmp_path, *sweep, "1e300", "1e300", "-o", tmp_path / "c",
+          message="beyond what double precision can reconstruct")
     fails(capsys, tmp_path, "model-sweep", d / "model.npz", "--mode", "7", "-o", tmp_path / "c",
           message="--mode 7 is not a mode")
 

@@ -83,6 +83,8 @@ DEFAULT_TANGENT = "ambient"
 PROJECTION_METRICS = ("euclidean", "g")
 #: Bending weight ``eta`` of ``W_q`` of a model, as in the thesis' experiments.
 DEFAULT_BENDING_WEIGHT = 0.005
+#: Largest ratio of a synthesized length to the mean's: the squared residuals of longer ones overflow.
+_MAX_LENGTH_GROWTH = 1e100
 #: Eigenvalues below this fraction of the largest are treated as zero variance.
 _RANK_TOL = 1e-12
 
@@ -647,6 +649,13 @@ class ShapeModel:
         self.last_clamped_lengths = np.count_nonzero(clamped, axis=1)
         opts = {"geodesic_acceleration": False} if method in ("gn", "hybrid") else {}  # see fit_z
         opts.update(reconstruct_options)
+        growth = np.max(zs[:, :E] / self.mean_z[:E], axis=1)  # NaN for non-finite targets
+        overflow = np.flatnonzero(~(growth < _MAX_LENGTH_GROWTH))
+        if overflow.size:
+            k = int(overflow[0])
+            raise ShapeModelError(f"pose {k + 1} of {len(A)} is too far from the training poses: its lengths reach "
+                                  f"{growth[k]:.3g} times the mean's, beyond what double precision can reconstruct "
+                                  "(use coefficients of a few standard deviations)")
         L = zs[:, :E][:, self.topology.face_edges]  # (K, F, 3) target lengths per face
         broken = np.count_nonzero(2.0 * L.max(axis=2) >= L.sum(axis=2), axis=1)
         far = np.flatnonzero(2 * broken > self.topology.n_faces)
