@@ -36,6 +36,9 @@ from lacore.geometry import lengths_angles as la
 from lacore.geometry import trigonometry as trig
 from lacore.geometry.topology import MeshTopology
 
+#: Frozen numbers written on another machine: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 DATA = Path(__file__).resolve().parent / "data"
 
 #: name of the regression file -> (shared mesh it was generated from, z variants frozen)

@@ -67,7 +67,7 @@ def test_fit_writes_poses_and_json(files, capsys):
     ("range", "out of range"),
     ("nothing", "bound to nothing"),
     ("nobinding", "binds the markers to nothing"),
-    ("shape", "positions must be"),
+    ("shape", "positions must have shape (T, M, 3)"),
     ("weight", "--prior-weight"),
     ("model", "not a readable"),
 ])

@@ -379,6 +379,7 @@ def test_predicted_start_extrapolates_a_linear_path_exactly():
         interpolate([A[:3], A[:3] + D[:3]], tri, [0.5], warm_start="cubic")
 
 
+@pytest.mark.numerics
 def test_secant_starts_save_iterations_on_the_finger(finger):
     """Ten in-betweens: the extrapolated starts need fewer Gauss-Newton iterations and factorizations than
     starts from the nearest frame, for the same minima."""
@@ -388,10 +389,12 @@ def test_secant_starts_save_iterations_on_the_finger(finger):
     nearest = interpolate([X0, X1], topo, ts, warm_start="nearest")
     assert secant.success and nearest.success
     np.testing.assert_allclose(secant.energy, nearest.energy, rtol=1e-6)   # measured 3.5e-8
-    assert secant.total_iterations <= nearest.total_iterations - 6          # measured 35 vs 46
-    assert sum(r.factorizations for r in secant.reconstructions) <= 17     # measured 16 vs 20
+    assert secant.total_iterations <= 0.85 * nearest.total_iterations     # measured 32 vs 46
+    assert (sum(r.factorizations for r in secant.reconstructions)
+            < sum(r.factorizations for r in nearest.reconstructions))         # measured 15 vs 20
 
 
+@pytest.mark.numerics
 def test_fast_continuation_stays_near_gauss_newton(finger):
     """The add-on's Fast (the extrapolated start and one Gauss-Newton step; up to three, ftol 1e-4, for the
     first frame, which starts from the key itself) on ten finger in-betweens: near converged Gauss-Newton's
@@ -407,8 +410,10 @@ def test_fast_continuation_stays_near_gauss_newton(finger):
     excess = fast.energy / gn.energy - 1.0
     assert np.all(excess > -1e-9) and excess.max() < 5e-3                  # measured 1.6e-3 (last frame)
     assert excess[:6].max() < 1e-4                                          # measured 2.9e-5
-    assert fast.iterations.tolist() == [2] + [1] * 9                        # the first from the key: 2 of 3
-    assert [r.factorizations for r in fast.reconstructions] == [2] + [1] * 9
+    # one smoothing step per frame, one factorization each; the first (from the key) up to 3 (measured 2)
+    assert 1 <= fast.iterations[0] <= 3 and fast.iterations[1:].tolist() == [1] * 9
+    factorizations = [r.factorizations for r in fast.reconstructions]
+    assert factorizations[0] <= fast.iterations[0] and factorizations[1:] == [1] * 9
     # without a start to smooth, "given" is the least-squares start
     z = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
     assert reconstruct(z, topo, X0, method="hybrid", hybrid_start="given").method == "hybrid-lsq"

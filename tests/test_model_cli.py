@@ -89,7 +89,7 @@ def test_bad_input_exit_2_without_output(capsys, tmp_path, bar_files):
         (["model", paths[0], "-o", out], "at least 2 training meshes, got 1"),
         (["model", paths[0], shared_mesh("sphere/defSphere0.ply"), "-o", out], "is not in dense correspondence with"),
         (["model", *paths[:3], "-o", out, "--modes", 3], "--modes 3 is larger than N - 1 = 2 for 3 training meshes"),
-        (["model", *paths[:3], "-o", tmp_path / "no" / "m.npz"], "output directory"),
+        (["model", *paths[:3], "-o", tmp_path / "no" / "m.npz"], "m.npz: its folder does not exist"),
         (["model", paths[0], tmp_path / "missing.ply", "-o", out], "missing.ply"),
     ]
     for argv, message in cases:

@@ -227,11 +227,11 @@ def test_model_file_entries_are_the_field_table_and_files_of_version_1_load(bar_
         assert loaded.all_eigenvalues is None and loaded.n_modes == model.n_modes
         assert np.abs(loaded.synthesize(a) - model.synthesize(a)).max() < 1e-12
     np.savez(tmp_path / "nan.npz", **dict(d, variances=np.full_like(d["variances"], np.nan)))
-    with pytest.raises(ShapeModelError, match=r"nan.npz is a corrupt shape model: variances has shape \(3,\), "
-                                              "expected \\(3,\\) with finite entries"):
+    with pytest.raises(ShapeModelError, match=r"nan.npz is a corrupt shape model: variances has NaN or infinite "
+                                              "entries"):
         ShapeModel.load(tmp_path / "nan.npz")
     np.savez(tmp_path / "tangent.npz", **dict(d, tangent=np.array("log")))
-    with pytest.raises(ShapeModelError, match="tangent is 'log'; expected one of ambient, projected"):
+    with pytest.raises(ShapeModelError, match="tangent must be one of ambient, projected, got 'log'"):
         ShapeModel.load(tmp_path / "tangent.npz")
     np.savez(tmp_path / "missing.npz", **{k: v for k, v in d.items() if k != "mean_z"})
     with pytest.raises(ShapeModelError, match="corrupt shape model: missing mean_z"):

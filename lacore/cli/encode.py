@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from ..io.atomic import save_npz_atomic
+from ..io.atomic import check_writable, npz_path, save_npz_atomic
 from ..errors import MeshError, format_indices
 from ..integrability import check_integrability, homology_basis
 from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
@@ -72,9 +72,14 @@ def encode_mesh(vertices, faces):
 def run(args):
     """Run ``lacore encode``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
+    if args.output:
+        check_writable(npz_path(args.output))
     vertices, faces = load_mesh(args.mesh)
     t_load = time.perf_counter() - start
-    topology, z, violation, timings, check = encode_mesh(vertices, faces)
+    try:
+        topology, z, violation, timings, check = encode_mesh(vertices, faces)
+    except MeshError as exc:
+        raise MeshError(f"{args.mesh}: {exc}") from None
     E = topology.n_edges
     lengths, angles = z[:E], z[E:]
     t_save, written = 0.0, None

@@ -35,8 +35,6 @@ are written too, and the exit code is 3 unless ``--allow-failure`` is given.
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
-import os
-import sys
 import time
 
 import numpy as np
@@ -44,8 +42,8 @@ import numpy as np
 from ..io.meshes import save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import SOLVERS, WEIGHTS
-from .common import (CliError, add_allow_failure, exit_code, json_float, load_meshes_in_correspondence, nonnegative_int,
-                     positive_int, print_json)
+from .common import (CliError, add_allow_failure, check_outputs, finish, frame_count, json_float,
+                     load_meshes_in_correspondence, nonnegative_int, positive_int, print_json)
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -63,7 +61,7 @@ def configure(parser):
     when = parser.add_mutually_exclusive_group(required=True)
     when.add_argument("--t", nargs="+", type=float, metavar="T",
                       help="frame times in keyframe units (0 = first mesh, 1 = second, ...; outside extrapolates)")
-    when.add_argument("--frames", type=positive_int, metavar="N",
+    when.add_argument("--frames", type=frame_count, metavar="N",
                       help="N evenly spaced frames from the first to the last keyframe (inclusive)")
     parser.add_argument("--keyframes", nargs="+", type=float, metavar="K",
                         help="strictly increasing keyframe times of the meshes (default 0 1 2 ...)")
@@ -129,12 +127,12 @@ def run(args):
         times, mode = frame_times(keyframes, args.frames), "frame"
     if not 0 <= args.reference < len(shapes):
         raise CliError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
-    out_dir = os.path.dirname(args.output)
-    if out_dir and not os.path.isdir(out_dir):
-        raise FileNotFoundError(f"output directory {out_dir} does not exist")
+    if not np.all(np.isfinite(times)):
+        raise CliError("--t takes finite numbers (keyframe times), got " + " ".join(f"{t:g}" for t in times))
+    paths = output_paths(args.output, len(times), args.format)
+    check_outputs(paths)
     t_load = time.perf_counter() - start
 
-    paths = output_paths(args.output, len(times), args.format)
     t_save = 0.0
 
     def write_frame(i, res):  # stream: every frame is on disk as soon as it is projected
@@ -150,9 +148,6 @@ def run(args):
                                  options=GaussNewtonOptions(max_iterations=args.max_iterations),
                                  on_frame=write_frame, workers=args.workers)
     seconds = time.perf_counter() - start
-    if not result.success:
-        print(f"lacore interpolate: {'warning' if args.allow_failure else 'failed'}: {result.message}",
-              file=sys.stderr)
 
     outputs = []
     for i, path in enumerate(paths):
@@ -202,4 +197,4 @@ def run(args):
                   f"{result.energy[i]:.4g}, max length error {result.max_length_error[i]:.3g}, "
                   f"max angle error {result.max_angle_error[i]:.3g} rad, {item['seconds']:.3f} s")
         print(f"  total {seconds:.3f} s")
-    return exit_code(result.success, args)
+    return finish("interpolate", result.success, result.message, args)

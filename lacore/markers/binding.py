@@ -103,7 +103,7 @@ class MarkerBinding:
     def from_surface(cls, faces, barycentric, offsets=None):
         """Markers on surface points ``(face, barycentric)``; checks shapes and finiteness (not the mesh)."""
         f = _as_index_array(faces, "face index")
-        b = np.asarray(barycentric, float)
+        b = _as_reals(barycentric, "barycentric coordinates")
         if b.shape != (len(f), 3):
             raise MarkerBindingError(f"barycentric must have shape ({len(f)}, 3) for {len(f)} bound faces, "
                                      f"got {b.shape}")
@@ -126,8 +126,18 @@ class MarkerBinding:
         return np.asarray(mesh_faces, np.int64)[self.faces]
 
 
+def _as_reals(a, what):
+    """``a`` as a float array; MarkerBindingError unless it holds real numbers."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "fiu":
+        raise MarkerBindingError(f"{what} must be real numbers, got {arr.dtype} values")
+    return arr.astype(float)
+
+
 def _as_index_array(a, what):
     arr = np.asarray(a)
+    if arr.dtype.kind not in "fiu":
+        raise MarkerBindingError(f"{what}es must be integers, got {arr.dtype} values")
     if arr.ndim != 1:
         raise MarkerBindingError(f"{what}es must be a 1-D array (one per marker), got shape {arr.shape}")
     if arr.size and not np.issubdtype(arr.dtype, np.integer):
@@ -150,7 +160,7 @@ def _check_range(idx, n, what):
 def _as_offsets(offsets, m):
     if offsets is None:
         return np.zeros(m)
-    o = np.asarray(offsets, float)
+    o = _as_reals(offsets, "offsets")
     if o.ndim == 0:
         o = np.full(m, float(o))
     if o.shape != (m,) or not np.all(np.isfinite(o)):

@@ -99,7 +99,8 @@ from ..result import SolverResult
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 
-__all__ = ["fit_markers", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers"]
+__all__ = ["fit_markers", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers",
+           "MAX_MARKER_COORDINATE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -114,20 +115,35 @@ _I9, _J9 = np.triu_indices(9)
 
 
 class MarkerDataError(InputError):
-    """Marker positions of a wrong shape or with infinite values."""
+    """Marker positions of a wrong shape or type, infinite, too large, or with nothing to fit."""
+
+
+#: Largest marker coordinate magnitude: squared distances of larger ones overflow double precision.
+MAX_MARKER_COORDINATE = 1e150
 
 
 def check_markers(markers, binding):
     """Marker positions as float ``(T, M, 3)`` (a single frame ``(M, 3)`` becomes ``T = 1``).
 
-    NaN marks an occluded marker (a row with any NaN counts as occluded); infinite
-    values and a marker count other than the binding's raise :class:`MarkerDataError`.
+    NaN marks an occluded marker (a row with any NaN counts as occluded).
+    :class:`MarkerDataError` (one line: the problem and what to do) for values
+    that are not real numbers, no frames, no markers, infinite values,
+    coordinates beyond :data:`MAX_MARKER_COORDINATE` in magnitude, or no
+    visible marker in any frame (nothing to fit); :class:`MarkerBindingError`
+    for a marker count other than the binding's.
     """
-    x = np.asarray(markers, float)
+    a = np.asarray(markers)
+    if a.dtype.kind not in "fiu":
+        raise MarkerDataError(f"marker positions must be real numbers, got {a.dtype} values")
+    x = a.astype(float)
     if x.ndim == 2:
         x = x[None]
     if x.ndim != 3 or x.shape[2] != 3:
         raise MarkerDataError(f"marker positions must have shape (T, M, 3), got {np.shape(markers)}")
+    if x.shape[0] == 0:
+        raise MarkerDataError("the marker data has no frames (positions of shape (0, M, 3)): nothing to fit")
+    if x.shape[1] == 0:
+        raise MarkerDataError("the marker data has no markers (positions of shape (T, 0, 3)): nothing to fit")
     if x.shape[1] != binding.n_markers:
         raise MarkerBindingError(f"the marker data has {x.shape[1]} markers, the binding {binding.n_markers}")
     bad = np.isinf(x).any(2)
@@ -135,6 +151,13 @@ def check_markers(markers, binding):
         t, m = np.nonzero(bad)
         where = format_indices(zip(t, m, strict=True))
         raise MarkerDataError(f"marker positions are infinite at (frame, marker) {where}")
+    finite = np.isfinite(x)
+    if not finite.any():
+        raise MarkerDataError("no marker is visible in any frame (all positions are NaN): nothing to fit")
+    peak = float(np.max(np.abs(x[finite])))
+    if peak > MAX_MARKER_COORDINATE:
+        raise MarkerDataError(f"marker positions reach {peak:.3g}, beyond {MAX_MARKER_COORDINATE:g} (their squares "
+                              "overflow): give them in the length unit of the model")
     x = x.copy()
     x[np.isnan(x).any(2)] = np.nan
     return x
@@ -414,6 +437,14 @@ def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
     return 0.0, X, a, E0, None
 
 
+def _factorize(prob, grad, vals):
+    """Factorize the Gauss-Newton matrix; NotPositiveDefiniteError (frame status -2) also when it or the gradient
+    is not finite (e.g. markers so far from the mesh's scale that its lengths lose all precision)."""
+    if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(grad))):
+        raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
+    prob.chol.factorize(vals)
+
+
 def _joint_step(prob, X, a, fr):
     """Gauss-Newton step of the joint problem in ``(X, alpha)`` by the bordered system (Schur complement).
 
@@ -421,7 +452,7 @@ def _joint_step(prob, X, a, fr):
     directional derivative of the energy along the step.
     """
     grad, vals, gn = prob.linearize(X, a, fr)
-    prob.chol.factorize(vals)
+    _factorize(prob, grad, vals)
     if not prob.J:
         dX = -prob.chol.solve(grad)
         return dX, None, float(grad @ dX)
@@ -573,7 +604,7 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
             E_cur = prob.energy(X, a, fr)[0]
             grad, vals, _ = prob.linearize(X, a, fr)
             try:
-                prob.chol.factorize(vals)
+                _factorize(prob, grad, vals)
             except NotPositiveDefiniteError:
                 st = -2
                 break

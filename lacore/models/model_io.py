@@ -20,14 +20,14 @@ the same rows, so a new entry of the file is one new row:
 """
 
 import os
-import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InputError, MeshError
 from ..geometry.topology import MeshTopology
-from ..io.atomic import atomic_write
+from ..io.atomic import save_npz_atomic
+from ..io.npz import open_npz, read_array
 from ..reconstruction import METHODS
 from ..reconstruction.settings import WEIGHTS, ReconstructionSettings
 from .settings import PROJECTION_METRICS, TANGENTS, ShapeModelError
@@ -63,6 +63,8 @@ class Field:
         Format version that introduced the entry.
     default : object
         Value of a missing entry (files older than ``since``, or an optional entry); none: required.
+    nonempty : bool
+        An array with a zero-length axis is refused.
     """
 
     name: str
@@ -72,6 +74,7 @@ class Field:
     role: str = "model"
     since: int = 1
     default: object = _REQUIRED
+    nonempty: bool = False
 
     def optional_in(self, version):
         """Whether a file of format ``version`` may lack this entry."""
@@ -86,7 +89,7 @@ FIELDS = (
     Field("mean_z", "float", ("2E",)),
     Field("mean_vertices", "float", ("V", 3)),
     Field("linear_mean_z", "float", ("2E",)),
-    Field("modes", "float", ("J", "2E")),
+    Field("modes", "float", ("J", "2E"), nonempty=True),
     Field("variances", "float", ("J",)),
     Field("explained_variance_ratio", "float", ("J",)),
     Field("total_variance", "scalar"),
@@ -120,7 +123,12 @@ def save_model(model, path):
     ----------
     model : ShapeModel
     path : str, path-like or binary file object
-        Written as given (no ``.npz`` appended).
+        ``.npz`` is appended to a file name without it (as :func:`numpy.savez` does).
+
+    Returns
+    -------
+    str or None
+        The path written (None for a file object).
     """
     data = {"format": np.array(FORMAT), "format_version": np.array(FORMAT_VERSION)}
     for field in FIELDS:
@@ -129,9 +137,8 @@ def save_model(model, path):
             data[field.name] = _encode(field, value)
     if not isinstance(path, (str, os.PathLike)):  # a binary file object
         np.savez(path, **data)
-        return
-    with atomic_write(os.fspath(path), "wb") as fh:
-        np.savez(fh, **data)
+        return None
+    return save_npz_atomic(path, **data)
 
 
 def _source_name(path):
@@ -142,29 +149,25 @@ def _source_name(path):
 
 def _read(path, name):
     """``(version, {entry: array})`` of the file; ShapeModelError for anything but a readable model file."""
-    try:
-        npz = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ShapeModelError(f"{name} is not a readable .npz shape model ({exc})") from None
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise ShapeModelError(f"{name} is not a readable .npz shape model (a single array)")
-    with npz:
+    def read(key):  # one array; object arrays and damaged members are refused naming the file
+        return read_array(npz, key, name, "shape model", ShapeModelError)
+
+    with open_npz(path if not isinstance(path, os.PathLike) else os.fspath(path), "shape model",
+                  ShapeModelError) as npz:
         keys = set(npz.files)
-        if "format" not in keys or str(npz["format"]) not in (FORMAT, *FORMAT_ALIASES):
+        fmt = read("format") if "format" in keys else None
+        if fmt is None or fmt.shape != () or fmt.dtype.kind != "U" or str(fmt) not in (FORMAT, *FORMAT_ALIASES):
             raise ShapeModelError(f"{name} is not a lacore shape model (no format entry {FORMAT!r})")
-        version = int(npz["format_version"]) if "format_version" in keys else -1
-        if not 1 <= version <= FORMAT_VERSION:
+        version = read("format_version") if "format_version" in keys else np.array(-1)
+        if version.shape != () or version.dtype.kind not in "iu" or not 1 <= int(version) <= FORMAT_VERSION:
             known = "version 1" if FORMAT_VERSION == 1 else f"versions 1 to {FORMAT_VERSION}"
-            raise ShapeModelError(f"{name} has shape-model format version {version}; this lacore reads {known}")
+            raise ShapeModelError(f"{name} has shape-model format version {version.tolist()!r}; this lacore reads "
+                                  f"{known}")
+        version = int(version)
         missing = [f.name for f in FIELDS if f.name not in keys and not f.optional_in(version)]
         if missing:
             raise ShapeModelError(f"{name} is a corrupt shape model: missing {', '.join(missing)}")
-        try:
-            return version, {f.name: npz[f.name] for f in FIELDS if f.name in keys}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise ShapeModelError(f"{name} is a corrupt shape model ({exc})") from None
+        return version, {f.name: read(f.name) for f in FIELDS if f.name in keys}
 
 
 def _decode(field, raw, dims, name):
@@ -173,27 +176,50 @@ def _decode(field, raw, dims, name):
         return ShapeModelError(f"{name} is a corrupt shape model: {field.name} {what}")
 
     if field.kind == "str":
-        value = str(raw)
-        if raw.ndim != 0 or (field.choices is not None and value not in field.choices):
-            raise corrupt(f"is {value!r}; expected one of {', '.join(field.choices or ())}")
+        value = str(raw) if raw.ndim == 0 else raw.tolist()
+        if raw.ndim != 0 or raw.dtype.kind != "U" or (field.choices is not None and value not in field.choices):
+            raise corrupt(f"must be one of {', '.join(field.choices or ())}, got {value!r}")
         return value
     if field.kind == "scalar":
-        if raw.ndim != 0 or not np.issubdtype(raw.dtype, np.number) or not np.isfinite(raw):
-            raise corrupt(f"is {raw!r}, expected a finite number")
+        if raw.ndim != 0 or raw.dtype.kind not in "fiu" or not np.isfinite(raw):
+            raise corrupt(f"must be a finite number, got {raw.tolist()!r}")
         return float(raw)
+    if raw.dtype.kind not in ("iu" if field.kind == "int" else "fiu"):
+        raise corrupt(f"must hold {'integers' if field.kind == 'int' else 'real numbers'}, got {raw.dtype} values")
     expected = field.shape if field.shape is not None else (None,)
     if raw.ndim == len(expected):
         for axis, symbol in zip(raw.shape, expected, strict=True):
             if isinstance(symbol, str) and symbol not in dims:
                 dims[symbol] = axis
-    want = tuple(raw.shape[i] if s is None else dims.get(s, s) for i, s in enumerate(expected))
+    want = tuple(raw.shape[i] if i < raw.ndim and s is None else dims.get(s, s) for i, s in enumerate(expected))
+    if raw.shape != want:
+        raise corrupt(f"has shape {raw.shape}, expected {want}")
+    if field.nonempty and raw.size == 0:
+        raise corrupt("is empty: the model has no modes" if field.name == "modes" else "is empty")
     if field.kind == "int":
-        if raw.shape != want or not np.issubdtype(raw.dtype, np.integer):
-            raise corrupt(f"has shape {raw.shape} and type {raw.dtype}, expected integers of shape {want}")
         return raw.astype(np.int64)
-    if raw.shape != want or not np.issubdtype(raw.dtype, np.number) or not np.all(np.isfinite(raw)):
-        raise corrupt(f"has shape {raw.shape}, expected {want} with finite entries")
+    if not np.all(np.isfinite(raw)):
+        raise corrupt("has NaN or infinite entries")
     return raw.astype(float)
+
+
+def _check_values(values, name):
+    """The values a model needs beyond its fields' shapes: modes, positive variances and lengths, ratios in [0, 1]."""
+    def corrupt(key, what):
+        return ShapeModelError(f"{name} is a corrupt shape model: {key} {what}")
+
+    if np.any(values["variances"] <= 0):
+        raise corrupt("variances", f"must be positive, got {np.min(values['variances']):g}")
+    ratio = values["explained_variance_ratio"]
+    if np.any(ratio < 0) or np.sum(ratio) > 1.0 + 1e-9:
+        raise corrupt("explained_variance_ratio", "must be in [0, 1] with a sum of at most 1")
+    if values["total_variance"] <= 0:
+        raise corrupt("total_variance", f"must be positive, got {values['total_variance']:g}")
+    if values["bending_weight"] < 0:
+        raise corrupt("bending_weight", f"must be >= 0, got {values['bending_weight']:g}")
+    E = len(values["edges"])
+    if np.any(values["mean_z"][:E] <= 0):
+        raise corrupt("mean_z", "has lengths <= 0")
 
 
 def load_model(path, cls, faces=None):
@@ -230,6 +256,7 @@ def load_model(path, cls, faces=None):
         values[field.name] = _decode(field, raw[field.name], dims, name)
         if "E" in dims:
             dims.setdefault("2E", 2 * dims["E"])
+    _check_values(values, name)
     try:
         topology = MeshTopology.from_faces(values["faces"], edges=values["edges"],
                                            n_vertices=len(raw["reference_vertices"]))
@@ -239,7 +266,11 @@ def load_model(path, cls, faces=None):
         settings = ReconstructionSettings(**{f.name: values[f.name] for f in FIELDS if f.role == "settings"})
     except InputError as exc:
         raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
-    model = cls(topology=topology, settings=settings, **{f.name: values[f.name] for f in FIELDS if f.role == "model"})
+    try:
+        model = cls(topology=topology, settings=settings,
+                    **{f.name: values[f.name] for f in FIELDS if f.role == "model"})
+    except InputError as exc:  # e.g. a reference mesh with degenerate triangles
+        raise ShapeModelError(f"{name} is a corrupt shape model: {exc}") from None
     for field in FIELDS:
         if field.role == "derived" and values[field.name] is not None and not np.allclose(
                 getattr(model, field.name), values[field.name], rtol=1e-12, atol=0):

@@ -336,7 +336,8 @@ class ShapeModel:
     def save(self, path):
         """Write the model to one ``.npz`` file (atomically) or binary file object (:func:`~.model_io.save_model`).
 
-        The entries are the rows of :data:`lacore.models.model_io.FIELDS`.
+        The entries are the rows of :data:`lacore.models.model_io.FIELDS`; ``.npz`` is appended to a file
+        name without it and the path written is returned.
 
         Examples
         --------
@@ -352,7 +353,7 @@ class ShapeModel:
         >>> bool(np.array_equal(loaded.modes, model.modes)), loaded.bending_weight
         (True, 0.005)
         """
-        save_model(self, path)
+        return save_model(self, path)
 
     @classmethod
     def load(cls, path, faces=None):

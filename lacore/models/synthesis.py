@@ -15,6 +15,30 @@ from .settings import MIN_LENGTH_RATIO, MODEL_OPTIONS, ShapeModelError
 
 __all__ = ["synthesize", "synthesis_targets", "mode_sweep"]
 
+#: Largest ratio of a synthesized length to the mean's: the squared residuals of longer ones overflow.
+_MAX_LENGTH_GROWTH = 1e100
+
+
+def _check_reachable(model, zs):
+    """ShapeModelError naming the first target (``zs (K, 2E)``) that no reconstruction can reach: lengths beyond
+    double precision's reach, or the triangle inequality broken at most faces (as :func:`reconstruct` refuses)."""
+    E = model.topology.n_edges
+    growth = np.max(zs[:, :E] / model.mean_z[:E], axis=1)  # NaN for non-finite targets
+    overflow = np.flatnonzero(~(growth < _MAX_LENGTH_GROWTH))
+    if overflow.size:
+        k = int(overflow[0])
+        raise ShapeModelError(f"pose {k + 1} of {len(zs)} is too far from the training poses: its lengths reach "
+                              f"{growth[k]:.3g} times the mean's, beyond what double precision can reconstruct "
+                              "(use coefficients of a few standard deviations)")
+    L = zs[:, :E][:, model.topology.face_edges]  # (K, F, 3) target lengths per face
+    broken = np.count_nonzero(2.0 * L.max(axis=2) >= L.sum(axis=2), axis=1)
+    far = np.flatnonzero(2 * broken > model.topology.n_faces)
+    if far.size:
+        k = int(far[0])
+        raise ShapeModelError(f"pose {k + 1} of {len(zs)} is too far from the training poses: its lengths violate "
+                              f"the triangle inequality at {broken[k]} of {model.topology.n_faces} faces, no mesh "
+                              "has them (use coefficients of a few standard deviations)")
+
 
 def synthesis_targets(model, coefficients, min_length_ratio=MIN_LENGTH_RATIO):
     """The lengths and angles :meth:`synthesize` projects: ``zbar + sum_j alpha_j u_j``, lengths floored.
@@ -98,6 +122,7 @@ def synthesize(model, coefficients, *, method=None, options=None, hybrid=None, i
     options = MODEL_OPTIONS if options is None else options
     X0 = model.mean_vertices if initial_vertices is None else initial_vertices
     zs, clamped = synthesis_targets(model, A, min_length_ratio)
+    _check_reachable(model, zs)
     out = np.empty((len(A), model.topology.n_vertices, 3))
     results = []
     for k, zk in enumerate(zs):

@@ -183,6 +183,11 @@ def fit_z(cls, z, topology, reference_vertices, *, n_modes=None, tangent=DEFAULT
     VW = Vt * w
     K = VW @ Vt.T
     K = 0.5 * (K + K.T)
+    if not np.all(np.isfinite(K)):
+        L = Z[:, :topology.n_edges]
+        raise ShapeModelError(f"the training meshes' edge lengths ({np.min(L):.3g} to {np.max(L):.3g}) are too "
+                              "large or too small for the model's weights and variances in double precision: "
+                              "scale the meshes toward unit size")
     t_gram = time.perf_counter() - t
     report(progress, 3, n_stages, "eigendecomposition")
     t = time.perf_counter()

@@ -415,40 +415,43 @@ def _load_full(folder):
 
 
 def coarse_body_file():
-    """Path of the committed coarse-body file (kept vertex ids and faces), ``tests/data/human_coarse.npz``."""
+    """Path of the committed coarse-body record, ``tests/data/human_coarse.npz``.
+
+    It holds the :class:`~lacore.multiresolution.Coarsening` of the body
+    (:meth:`~lacore.multiresolution.Coarsening.to_arrays`: kept vertices,
+    coarse faces and every collapse, so prolongation to the full body works
+    on any machine) and how it was made (``seed``, ``n_poses``,
+    ``target_vertices``, ``base_obj_sha256``).
+    """
     return Path(__file__).resolve().parents[2] / "tests" / "data" / "human_coarse.npz"
 
 
 @functools.lru_cache(maxsize=2)
 def coarse_human_coarsening(path=None):
-    """The :class:`~lacore.multiresolution.Coarsening` record of the coarse body (needed to prolong to the full one).
+    """The :class:`~lacore.multiresolution.Coarsening` of the coarse body (needed to prolong to the full one).
 
-    Recomputed deterministically (a few seconds, cached per process) from the
-    inputs stored in :func:`coarse_body_file` (``seed``, ``n_poses``,
-    ``target_vertices``: the rest pose plus ``n_poses`` random poses, as
-    ``scripts/make_coarse_human.py`` makes them) and checked against the
-    committed ``kept_vertices`` and ``faces``.
+    Read from :func:`coarse_body_file` (stored, not recomputed: a greedy
+    coarsening recomputed on another CPU can pick other, equally good
+    collapses) and checked against the full body's faces.
 
     Raises
     ------
-    MeshError
-        The recomputed coarse mesh differs from the committed one (another
-        base mesh or another coarsening code: re-run the script).
+    FileNotFoundError
+        No record (run ``scripts/make_coarse_human.py``).
+    InputError
+        The record is unreadable, or was made from another base mesh.
     """
     from ..errors import MeshError
-    from ..multiresolution import coarsen
+    from ..multiresolution import Coarsening
 
     body = _load_full(str(human_data_dir(path)))
     f = coarse_body_file()
     if not f.is_file():
         raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
-    with np.load(f) as d:
-        kept, faces = d["kept_vertices"], d["faces"]
-        seed, n_poses, target = int(d["seed"]), int(d["n_poses"]), int(d["target_vertices"])
-    poses, _ = body.random_poses(n_poses, seed=seed)
-    c = coarsen(np.concatenate([body.vertices[None], poses]), body.faces, target)
-    if not (np.array_equal(c.vertex_indices, kept) and np.array_equal(c.faces, faces)):
-        raise MeshError(f"recomputed coarsening does not reproduce {f}: run scripts/make_coarse_human.py")
+    c = Coarsening.load(f)
+    if c.n_fine_vertices != body.n_vertices or not np.array_equal(c.fine_faces, body.faces):
+        raise MeshError(f"{f} was made from another base mesh than {human_data_dir(path) / 'base.obj'}: "
+                        "run scripts/make_coarse_human.py")
     return c
 
 
@@ -470,11 +473,8 @@ def load_human(path=None, coarse=False):
     body = _load_full(str(human_data_dir(path)))
     if not coarse:
         return body
-    f = coarse_body_file()
-    if not f.is_file():
-        raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
-    with np.load(f) as d:
-        return body.restrict(d["kept_vertices"], d["faces"])
+    c = coarse_human_coarsening(path)
+    return body.restrict(c.vertex_indices, c.faces)
 
 
 @functools.lru_cache(maxsize=2)
