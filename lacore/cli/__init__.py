@@ -31,6 +31,7 @@ Conventions shared by all subcommands:
 
 import argparse
 import os
+import signal
 import sys
 import warnings
 from collections.abc import Callable
@@ -102,6 +103,7 @@ def main(argv=None):
     try:
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
+        _ignore_further_interrupts(owns_process=argv is None)
         print("lacore: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     cmd = args._subcommand
@@ -112,6 +114,7 @@ def main(argv=None):
             warnings.filterwarnings("ignore", message=_FLOATING_POINT_WARNINGS, category=RuntimeWarning)
             return int(cmd.run(args) or 0)
     except KeyboardInterrupt:
+        _ignore_further_interrupts(owns_process=argv is None)
         print(f"lacore {cmd.name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # stdout closed by the reader (`lacore ... --json | head`): nothing left to say
@@ -123,6 +126,18 @@ def main(argv=None):
 
 
 _FLOATING_POINT_WARNINGS = r"(overflow|underflow|invalid value|divide by zero) encountered"
+
+
+def _ignore_further_interrupts(owns_process):
+    """After the first Ctrl-C the command only cleans up and exits 130: a second one must not turn that into a
+    traceback or a death by signal.  Only when :func:`main` runs as the process's program (``argv`` not given:
+    the console script, ``python -m lacore.cli``), never for a caller that goes on after it returns."""
+    if not owns_process:
+        return
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread (main() called from a thread)
+        pass
 
 
 def _silence_stdout():
