@@ -58,7 +58,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..geometry.lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
+from ..geometry.lengths_angles import DEGENERACY_RTOL, check_z, lengths_and_angles
 from ..geometry.topology import MeshTopology, check_vertices
 from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
@@ -198,9 +198,10 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     Notes
     -----
-    Reference coordinates of magnitude outside ``2^-200 .. 2^200`` (about
-    1e-60 .. 1e60) are scaled internally by an exact power of two and the
-    output scaled back (a note says so).
+    Reference coordinates of magnitude outside ``2^-100 .. 2^100`` (about
+    1e-30 .. 1e30) are computed in units of an exact power of two by the
+    context (:mod:`.context`, "Units"); vertices and energies are in the input's
+    units, and a note says so.
 
     Frame-based methods need the triangle inequality only where they walk;
     they treat violating faces as in Algorithm 2 (see
@@ -213,20 +214,13 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
     settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
-    scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
-    if scaled is not None:
-        k, z_s, X_s, X0_s = scaled
-        res = reconstruct(z_s, topology, X_s, method, settings=settings, options=options, hybrid=hybrid,
-                          initial_vertices=X0_s, tree=tree)
-        return replace(res, vertices=np.ldexp(res.vertices, k),
-                       notes=res.notes + [f"coordinates of magnitude 2^{k} are outside the safe range "
-                                          f"2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: reconstructed scaled by 2^{-k} "
-                                          "(exact), the output scaled back; energies are the scaled problem's"])
     if context is None:
         context = get_context(topology, reference_vertices, settings)
     else:
         _check_context(context, topology, reference_vertices, settings, given)
     z, notes = _check_target(z_target, topology, method, context.energy_name)
+    if context.units_note:
+        notes.append(context.units_note)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
@@ -261,15 +255,16 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 def _direct(z, topology, context, kind, tree=None):
     """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
+    zi = context.internal_z(z)  # in the context's units (exact; the walks multiply lengths)
     if kind is None:
-        X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
-                                         reference_vertices=context.reference_vertices)
+        X = least_squares_reconstruction(zi, topology, root_face=context.fixed_faces,
+                                         reference_vertices=context.internal_reference)
     else:
-        X = frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
-                                       reference_vertices=context.reference_vertices)
+        X = frame_based_reconstruction(zi, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
+                                       reference_vertices=context.internal_reference)
     # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
     # inequality there) keeps the method's placement
-    X = context.align(X, keep_degenerate=True)
+    X = context.align(context.external_vertices(X), keep_degenerate=True)
     return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
 
 
@@ -300,26 +295,6 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
                    notes=best.notes + [note + ("" if best is second else ", which was worse")])
 
 
-def _rescaled(z_target, topology, reference_vertices, initial_vertices):
-    """``(k, z, X_ref, X_init)`` scaled by ``2^-k`` into the safe range, or None when already inside it.
-
-    Products of three coordinates (normals times edges, triangle frames) overflow
-    or become subnormal far outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``; a
-    power-of-two scaling is exact, angles are invariant and lengths scale.
-    """
-    if reference_vertices is None:
-        return None
-    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    k = safe_scale_exponent(X)
-    if not k:
-        return None
-    z = np.array(z_target, dtype=float)
-    if z.shape == (2 * topology.n_edges,):
-        z[: topology.n_edges] = np.ldexp(z[: topology.n_edges], -k)
-    X0 = None if initial_vertices is None else np.ldexp(np.asarray(initial_vertices, float), -k)
-    return k, z, np.ldexp(X, -k), X0
-
-
 def _check_context(context, topology, reference_vertices, settings, given):
     """InputError unless the explicitly given settings (names in ``given``) match the context's."""
     if context.topology is not topology:
@@ -337,6 +312,12 @@ def _check_context(context, topology, reference_vertices, settings, given):
     ff = settings.fixed_face
     if "fixed_face" in given and ff is not None and not np.all(np.isin(ff, context.fixed_faces)):
         raise InputError(f"fixed_face {list(ff)!r} differs from the context's {context.fixed_faces.tolist()}")
+
+
+def _rms(x):
+    """Root mean square of ``x >= 0`` without overflow or underflow of the squares (any scale)."""
+    m = float(x.max()) if x.size else 0.0
+    return m * float(np.sqrt(np.mean((x / m) ** 2))) if m > 0 and np.isfinite(m) else m
 
 
 def reconstruction_errors(vertices, z_target, topology):
@@ -370,7 +351,7 @@ def reconstruction_errors(vertices, z_target, topology):
         "max_relative_length_error": float(np.max(dl / z_target[:E])),
         "length_error_per_size": float(dl.max() / size),
         "max_angle_error": float(da.max()) if da.size else 0.0,
-        "rms_length_error": float(np.sqrt(np.mean(dl**2))),
+        "rms_length_error": _rms(dl),
         "rms_angle_error": float(np.sqrt(np.mean(da**2))) if da.size else 0.0,
     }
 
