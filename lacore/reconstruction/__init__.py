@@ -39,8 +39,12 @@ see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
 the chosen energy, so all methods are comparable.  Its ``success`` is decided
 the same way for every method by :mod:`.checks` (finite, no folded edge, and
 the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
-minimizer); ``failure`` names a failed check.  A ``"gn"`` run that stalls
-(status -1 or -3) is restarted once from the least-squares relaxation.
+minimizer); ``failure`` names a failed check.  Gauss-Newton (``"gn"``, and
+``"hybrid"`` from a given or tree start) checks its start
+(``start_check``, :mod:`.gauss_newton`): when the first step gets less than
+halfway, it continues from the least-squares relaxation if that is 1000 times
+better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
+from the relaxation is restarted once from it.
 
 Reuse
 -----
@@ -64,8 +68,8 @@ from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
-from .gauss_newton import gauss_newton_reconstruction
-from .least_squares import least_squares_reconstruction
+from .gauss_newton import SWITCH_NOTE, gauss_newton_reconstruction
+from .least_squares import least_squares_start
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
 from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
 
@@ -174,7 +178,7 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         historical signature): ``energy, weights, bending_weight, fixed_face,
         fix_triangle_shape, solver``; ``max_iterations, ftol, gtol, xtol, atol,
         reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
-        geodesic_acceleration``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
+        geodesic_acceleration, newton, start_check``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
         See :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
@@ -226,8 +230,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     if method == "gn":
         res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                          options=options, started=t_start)  # checked there
-        if res.status in _STALLED and not res.success:
+                                          options=options, started=t_start,
+                                          start_check=options.start_check)  # checked there
+        if res.status in _STALLED and not res.success and not any(SWITCH_NOTE in n for n in res.notes):
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
@@ -242,8 +247,8 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         res = gauss_newton_reconstruction(
             z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
             method_name=f"hybrid-{name}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"))
-        return replace(res, notes=notes)
+            success_status=(6, f"{n} smoothing iterations done"), start_check=options.start_check and name != "lsq")
+        return replace(res, notes=notes + res.notes)
     energy_value = context.energy(z, X)
     res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
                                energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
@@ -255,16 +260,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 def _direct(z, topology, context, kind, tree=None):
     """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
-    zi = context.internal_z(z)  # in the context's units (exact; the walks multiply lengths)
     if kind is None:
-        X = least_squares_reconstruction(zi, topology, root_face=context.fixed_faces,
-                                         reference_vertices=context.internal_reference)
-    else:
-        X = frame_based_reconstruction(zi, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
-                                       reference_vertices=context.internal_reference)
-    # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
-    # inequality there) keeps the method's placement
-    X = context.align(context.external_vertices(X), keep_degenerate=True)
+        X = least_squares_start(z, topology, context)
+    else:  # in the context's units (exact; the walk multiplies lengths)
+        X = frame_based_reconstruction(context.internal_z(z), topology, tree=tree, kind=kind,
+                                       root_face=context.fixed_faces, reference_vertices=context.internal_reference)
+        # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
+        # inequality there) keeps the method's placement
+        X = context.align(context.external_vertices(X), keep_degenerate=True)
     return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
 
 

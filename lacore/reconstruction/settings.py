@@ -138,6 +138,12 @@ class GaussNewtonOptions:
         residuals, where Gauss-Newton converges slowly or stalls), ``"always"``
         from the first step, ``"never"``.  A Hessian that is not positive
         definite gives a Gauss-Newton step instead (and the next step is one too).
+    start_check : bool
+        :func:`~lacore.reconstruction.reconstruct` with ``"gn"`` (and ``"hybrid"``
+        from a given or tree start): when the first step removes less than half of
+        the energy (or none), compute the least-squares relaxation once and
+        continue from it if its energy is below 1e-3 of the energy reached
+        (:mod:`lacore.reconstruction.gauss_newton`, "Start check").  Default on.
     c1 : float
         Armijo constant of the line search.
     max_backtracks : int
@@ -160,6 +166,7 @@ class GaussNewtonOptions:
     pcg_maxiter: int = 6
     reuse_near_convergence: bool = True
     geodesic_acceleration: bool = True
+    start_check: bool = True
     c1: float = 1e-4
     max_backtracks: int = 40
     newton: str = "auto"
