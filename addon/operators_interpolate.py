@@ -58,7 +58,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
 from ..lacore.parallel import close_workers
-from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
+from ..lacore.reconstruction.settings import FAST
 from . import compat, jobs, mesh_access, session
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "classes", "parse_factors",
@@ -102,7 +102,7 @@ PLAYBACK_ITEMS = [
                          "motion blur, retimed playback); identical to Stepped on whole frames"),
 ]
 _INTERPOLATION = {'STEPPED': 0, 'SMOOTH': 1}  # keyframe interpolation enum values: CONSTANT, LINEAR
-_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
+_LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': FAST.method, 'GAUSS_NEWTON': "gn", 'MULTIRES': jobs.MULTIRES}
 # FAST: continuation along t (lacore.shapes.interpolation.predicted_start: the secant through the two nearest
 # computed in-betweens or keys, kept when its energy is lower than the nearest one's) and one Gauss-Newton
 # step; a frame starting from a known shape itself (the first after a key) gets up to three, stopping once
@@ -112,8 +112,7 @@ _LACORE_METHOD = {'PREVIEW': "lsq", 'FAST': "hybrid", 'GAUSS_NEWTON': "gn", 'MUL
 # factorizations across frames) left 35-40 % on every other frame; on a bend -> twist bar blend it drifts
 # from Gauss-Newton's minima mid-blend (use Gauss-Newton there).
 _METHOD_OPTIONS = {'PREVIEW': {},
-                   'FAST': {"hybrid": HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3),
-                            "options": GaussNewtonOptions(ftol=1e-4)},
+                   'FAST': {"hybrid": FAST.hybrid, "options": FAST.options},  # lacore's preset (the CLI's default)
                    'GAUSS_NEWTON': {},
                    'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"}}
 

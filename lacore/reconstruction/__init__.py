@@ -41,9 +41,9 @@ the same way for every method by :mod:`.checks` (finite, no folded edge, and
 the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
 minimizer); ``failure`` names a failed check.  Gauss-Newton (``"gn"``, and
 ``"hybrid"`` from a given or tree start) checks its start
-(``start_check``, :mod:`.gauss_newton`): when the first step gets less than
-halfway, it continues from the least-squares relaxation if that is 1000 times
-better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
+(``start_check``, :mod:`.gauss_newton`): when its first damped step gets less
+than halfway, it continues from the least-squares relaxation if that is 1000
+times better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
 from the relaxation is restarted once from it.
 
 Reuse
@@ -244,10 +244,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method == "hybrid":
         n = hybrid.smoothing_iterations
         name = "given" if given_start else (tree_kind(method, hybrid) or "lsq")
+        extend = hybrid.extend_smoothing
         res = gauss_newton_reconstruction(
-            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"), start_check=options.start_check and name != "lsq")
+            z, topology, initial_vertices=X, context=context,
+            options=replace(options, max_iterations=max(n, options.max_iterations) if extend else n),
+            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start, budget=n, extend_budget=extend,
+            success_status=(6, f"{n} smoothing iterations done" + (" (until a step agreed with its model)"
+                                                                    if extend else "")),
+            start_check=options.start_check and name != "lsq")
         return replace(res, notes=notes + res.notes)
     energy_value = context.energy(z, X)
     res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,

@@ -97,14 +97,23 @@ Iteration
   rule 4: a line search that only finds tiny steps is stalling, not converged.
   Statuses 1-4 are "converged"; whether the result is a success is decided by
   :mod:`lacore.reconstruction.checks`.
+* Budget (``budget``, the hybrid method's smoothing iterations): the loop stops
+  with status 6 after that many iterations; with ``extend_budget``
+  (:attr:`~lacore.reconstruction.settings.HybridOptions.extend_smoothing`, the
+  preset Fast) only if every step agreed with its quadratic model (full,
+  unshifted, energy decrease within 5 % of the prediction), else it iterates on
+  under the rules above: one step per in-between of a smooth motion, Gauss-Newton
+  where the continuation is not enough.
 * Start check (``alternative_start``; :func:`gauss_newton_reconstruction` with
   ``start_check``, on by default in :func:`lacore.reconstruction.reconstruct`):
-  when the first step removes less than half of the energy (or none), the
-  start is far from the target in a way the linearization does not describe,
-  and another start is computed once -- the least-squares relaxation of the
-  frame-based method, which integrates the target's rotations directly -- and
-  the iteration continues from it when its energy is below 1e-3 of the energy
-  reached (the iteration budget counted from there).  Rolling a flat plate or
+  when the first damped step (partial or shifted) removes less than half of
+  the energy, or the line search finds no decrease, the start is far from the
+  target in a way the linearization does not describe, and another start is
+  computed once -- the least-squares relaxation of the frame-based method,
+  which integrates the target's rotations directly -- and the iteration
+  continues from it when its energy is below 1e-3 of the energy reached (the
+  iteration budgets counted from there).  (A full step that removes little is
+  close to a minimum of a non-admissible target: no check.)  Rolling a flat plate or
   strip is such a way: the bending is isometric, but a Gauss-Newton step is
   linear in the positions, so it stretches the edges to second order, the
   stiff membrane term cuts the step to a sliver (the plate4SD rolled up: 268
@@ -180,7 +189,7 @@ _NEAR_MAXITER = 8
 _STALL_WINDOW = 10
 _STALL_DECREASE = 0.01
 
-#: Start check (``alternative_start``): a first step that leaves more than this fraction of the energy makes the
+#: Start check (``alternative_start``): a first damped step that leaves more than this fraction of the energy makes the
 #: loop try the alternative start once ...
 _START_CHECK_FRACTION = 0.5
 #: ... and continue from it if its energy is below this fraction of the energy it is compared with.
@@ -223,7 +232,9 @@ class _State:
         self.budget_from = 0
         self.alternative = None   # energy of the alternative start once tried ...
         self.switched = False     # ... and whether the iteration continued from it
-        self.checked_energy = np.nan  # the energy it was compared with
+        self.checked_energy = np.nan  # the energy it was compared with, after this many iterations
+        self.checked_iteration = -1
+        self.agreed = True        # every step since the start agreed with its quadratic model (extend_budget)
 
     def restart(self, X, newton):
         """Continue from ``X`` as from a new start (counters and history kept)."""
@@ -232,6 +243,7 @@ class _State:
         self.prev_energy = self.prev_decrease = np.inf
         self.newton, self.newton_pause = newton, 0
         self.model_ratio = np.nan
+        self.agreed = True
         self.start, self.budget_from = len(self.steps), self.iterations
 
     def add_time(self, phase, t0):
@@ -343,7 +355,7 @@ def _try_alternative(state, objective, alternative_start, energy, newton):
     t0 = time.perf_counter()
     X = alternative_start()
     state.timings["alternative_start"] = time.perf_counter() - t0
-    state.checked_energy = float(energy)
+    state.checked_energy, state.checked_iteration = float(energy), state.iterations
     if X is None:
         state.alternative = np.nan
         return False
@@ -358,7 +370,8 @@ def _try_alternative(state, objective, alternative_start, energy, newton):
     return True
 
 
-def run_gauss_newton(objective, Xc, context, options=None, alternative_start=None, **kwargs):
+def run_gauss_newton(objective, Xc, context, options=None, alternative_start=None, budget=None, extend_budget=False,
+                     **kwargs):
     """Gauss-Newton iterations in canonical coordinates (see the module docstring for the rules).
 
     Parameters
@@ -375,10 +388,19 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         Iteration and stopping options (default: the defaults).
     alternative_start : callable, optional
         ``() -> (V, 3)`` canonical coordinates (or None) of another start, tried
-        once when the first step leaves more than half of the energy or finds no
-        decrease (the start check of the module docstring); the iteration
-        continues from it when its energy is lower, with the iteration budget
-        counted from there.
+        once when the first damped step leaves more than half of the energy or
+        no decrease is found (the start check of the module docstring); the iteration
+        continues from it when its energy is far lower, with the iteration
+        budgets counted from there.
+    budget : int, optional
+        Stop with status 6 after this many iterations (the smoothing budget of
+        the hybrid method) ...
+    extend_budget : bool
+        ... but with ``extend_budget`` only if every step so far agreed with its
+        quadratic model (full, unshifted, energy decrease within 5 % of the
+        model's prediction: the linearization held over it); otherwise iterate
+        on until the stopping rules of the module docstring stop the loop
+        (``options.max_iterations`` the cap, status 0).
     **kwargs
         Fields of :class:`GaussNewtonOptions` (override ``options``).
 
@@ -417,7 +439,11 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         if gnorm * size <= options.gtol * energy:
             status = 3
             break
-        if state.iterations - state.budget_from >= options.max_iterations:
+        done = state.iterations - state.budget_from
+        if budget is not None and done >= budget and (not extend_budget or state.agreed):
+            status = 6
+            break
+        if done >= options.max_iterations:
             status = 0
             break
         # Gauss-Newton (or Newton) direction: PCG with the held factorization, or an exact step with a fresh one
@@ -451,7 +477,9 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
             accel = _acceleration(state, objective, context, d, matrix)
         t, X_new, E_new = _search(state, objective, d, accel, energy, slope, matrix, options, accelerate)
         untried = alternative_start is not None and state.alternative is None
-        check_start = untried and state.iterations == 0
+        # the start check: after the first damped step (partial or shifted; a full step that removes little is
+        # close to a minimum of a non-admissible target, where the relaxation cannot be far better)
+        check_start = untried and (t < 1.0 or shifted)
         if t == 0.0:
             if energy > 1e6 * atol and untried and _try_alternative(state, objective, alternative_start, energy,
                                                                     newton_always):
@@ -466,6 +494,7 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         state.history.append(E_new)
         decrease = energy - E_new
         state.model_ratio = decrease / (-0.5 * slope) if t == 1.0 else np.nan
+        state.agreed &= t == 1.0 and not shifted and abs(state.model_ratio - 1.0) <= _MODEL_AGREEMENT
         state.prev_energy = energy
         step_norm = float(np.max(np.abs(X_new - state.X)))
         state.drift += step_norm
@@ -474,7 +503,7 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
             continue  # status 1 after evaluating the final gradient
         if (check_start and E_new > _START_CHECK_FRACTION * state.history[-2]
                 and _try_alternative(state, objective, alternative_start, E_new, newton_always)):
-            continue  # the first step did not get far: continue from the alternative start
+            continue  # the damped step did not get far: continue from the alternative start
         # linear convergence with full steps: the remaining decrease is about dec r / (1 - r), r = dec / dec_prev
         # (estimated with a safety factor 10)
         damped = state.damped[state.start:]
@@ -507,12 +536,13 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         function_evaluations=state.evaluations, factorizations=state.factorizations,
         pcg_iterations=state.pcg_its, newton_steps=state.newton_steps,
         alternative_energy=np.nan if state.alternative is None else float(state.alternative),
-        checked_energy=state.checked_energy, switched=state.switched)
+        checked_energy=state.checked_energy, checked_iteration=state.checked_iteration, switched=state.switched)
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,
                                 context=None, options=None, method_name="gn", extra_timings=None,
-                                success_status=None, started=None, start_check=False, **kwargs):
+                                success_status=None, started=None, start_check=False, budget=None,
+                                extend_budget=False, **kwargs):
     """Energy-based reconstruction ``R_W[z*]`` (Def. 3.15) by Gauss-Newton.
 
     Parameters
@@ -535,15 +565,17 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     extra_timings : dict, optional
         Timings of work done before (e.g. the start of the hybrid method), added to the result's.
     success_status : (int, str), optional
-        Status and message replacing status 0 (iteration limit) when that limit is the
-        intended budget (the hybrid method's smoothing iterations).
+        Status and message of a stop by ``budget`` (without ``budget``: replacing
+        status 0, the iteration limit, when that limit is the intended budget).
+    budget, extend_budget : optional
+        The hybrid method's smoothing budget (:func:`run_gauss_newton`).
     started : float, optional
         :func:`time.perf_counter` at the start of the whole call (``timings["total"]``).
     start_check : bool
-        When the first step leaves more than half of the energy (or finds no
-        decrease), compute the least-squares relaxation once and continue from it
-        if its energy is lower (module docstring, "Start check"); the result's
-        ``timings["least_squares"]`` and a note say so.
+        When the first damped step leaves more than half of the energy (or no
+        decrease is found), compute the least-squares relaxation once and
+        continue from it if its energy is 1000 times lower (module docstring,
+        "Start check"); the result's ``timings["least_squares"]`` and a note say so.
     **kwargs
         Fields of :class:`GaussNewtonOptions` (override ``options``) and, without
         ``context``, of :class:`~lacore.reconstruction.settings.ReconstructionSettings`.
@@ -581,20 +613,21 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
             return None
         return context.to_canonical(X) if np.all(np.isfinite(X)) else None
 
-    out = run_gauss_newton(objective, Xc, context, options, alternative_start=relaxation if start_check else None)
+    out = run_gauss_newton(objective, Xc, context, options, alternative_start=relaxation if start_check else None,
+                           budget=budget, extend_budget=extend_budget)
     vertices = context.from_canonical(out.x)
     timings = dict(out.timings)
     timings["initialization"] = t_init
     notes = []
     if "alternative_start" in timings:
         timings["least_squares"] = timings.pop("alternative_start")
-        notes.append(f"start check: the first Gauss-Newton step got less than halfway (energy "
-                     f"{out.initial_energy:.6g} -> {out.checked_energy:.6g}); the least-squares relaxation has "
-                     f"energy {out.alternative_energy:.6g}: "
+        notes.append(f"start check: a damped Gauss-Newton step got less than halfway (energy {out.initial_energy:.6g} "
+                     f"at the start, {out.checked_energy:.6g} after {out.checked_iteration} iterations); the "
+                     f"least-squares relaxation has energy {out.alternative_energy:.6g}: "
                      + (SWITCH_NOTE if out.switched else "kept the given start"))
     timings.update(extra_timings or {})
     status, message = out.status, out.message
-    if status == 0 and success_status is not None:
+    if success_status is not None and status == (6 if budget is not None else 0):
         status, message = success_status
     timings["total"] = time.perf_counter() - started
     counters = {f.name: getattr(out, f.name) for f in fields(IterativeResult)}

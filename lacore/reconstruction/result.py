@@ -80,7 +80,9 @@ class GaussNewtonResult(IterativeResult):
     alternative_energy, checked_energy : float
         When the start check tried the alternative start
         (``run_gauss_newton(alternative_start=...)``): its energy and the energy
-        it was compared with (after the first step); else ``nan``.
+        it was compared with; else ``nan``.
+    checked_iteration : int
+        Iterations done when the start check tried it (``-1``: not tried).
     switched : bool
         The iteration continued from the alternative start.
     """
@@ -88,6 +90,7 @@ class GaussNewtonResult(IterativeResult):
     x: np.ndarray
     alternative_energy: float = float("nan")
     checked_energy: float = float("nan")
+    checked_iteration: int = -1
     switched: bool = False
 
     _summary_exclude = ("x",)

@@ -278,7 +278,8 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     reference_vertices : (V, 3) array_like, optional
         Reference of the projections; default ``start`` (must then be vertices).
     **projection_kw
-        Options of :func:`lacore.shapes.interpolation.interpolate` (method, bending_weight, ...).
+        Options of :func:`lacore.shapes.interpolation.interpolate` (method -- default ``"gn"``,
+        the projection run to convergence --, bending_weight, ...).
 
     Returns
     -------
@@ -292,6 +293,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
         raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
+    projection_kw.setdefault("method", "gn")  # the projection P_Z itself: Gauss-Newton run to convergence
     res = interpolate([start, end], topology, np.arange(K + 1) / K, reference_vertices=reference_vertices,
                       **projection_kw)
     X = np.array(res.vertices, float)
@@ -742,6 +744,7 @@ def discrete_geodesic(start, end, topology, n_steps, energy=None, method="sqp", 
                          "(bending_weight > 0)")
     model = _QuadraticPathModel(w, K)
     projection_kw = dict(projection_kw or {})
+    projection_kw.setdefault("method", "gn")  # the projection P_Z itself: Gauss-Newton run to convergence
     projection_kw.setdefault("bending_weight", bending_weight)
     projection_kw.setdefault("weights", weights)
     if fixed_face is not None:

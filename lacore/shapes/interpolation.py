@@ -23,8 +23,12 @@ are encoded as lengths and angles ``z_k = Z[X_k]`` (``(2E,)``, layout of
   interpolation.
 
 Then every target is projected onto the admissible set by reconstruction
-(4.10), ``P_Z[z~] = Z[R[z~]]`` (:func:`lacore.reconstruction.reconstruct`; the
-default ``method="gn"`` is the energy-based projection of Definition 4.3).
+(4.10), ``P_Z[z~] = Z[R[z~]]`` (:func:`lacore.reconstruction.reconstruct`;
+``method="gn"`` is the energy-based projection of Definition 4.3 run to
+convergence).  Without a method the projection is
+:data:`lacore.reconstruction.settings.DEFAULT_PROJECTION` (the preset ``"fast"``:
+continuation and one Gauss-Newton step per frame), the default of the CLI and
+the Blender add-on too.
 
 Sharing work between frames
 ---------------------------
@@ -68,7 +72,7 @@ from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..parallel import WorkerProcess, check_workers, frame_chains, raise_worker_error
 from ..progress import report
 from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import split_options
+from ..reconstruction.settings import projection_preset, split_options
 from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
 from ..result import SolverResult
 from ..geometry.topology import MeshTopology, check_vertices
@@ -407,7 +411,7 @@ def _frame_tree(method, hybrid, z_keys, topology, context, tree):
     return preassembled_tree(z_keys, topology, root_face=context.fixed_faces, kind=kind)
 
 
-def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
+def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method=None,
                     warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
                     progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
@@ -424,8 +428,11 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         default ``0..N-1``.
     anchors : sequence of (time, (V, 3) vertices), optional
         Known shapes (e.g. the input keyframes) usable as warm starts.
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Reconstruction method (:func:`lacore.reconstruction.reconstruct`) or the
+        name of a :class:`~lacore.reconstruction.settings.ProjectionPreset`
+        (``"fast"``; its options where ``options`` / ``hybrid`` are not given);
+        None: :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`.
     warm_start : {True, "secant", "nearest", False}
         Start every Gauss-Newton projection from a prediction through the known
         neighbours in time (``True`` / ``"secant"``, :func:`predicted_start`), from
@@ -463,6 +470,7 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     Cancelled
         The progress callback asked to stop; ``partial`` is None.
     """
+    method, options, hybrid = projection_preset(method, options, hybrid)
     return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
                     split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
                     progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame,
@@ -680,7 +688,7 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference,
                     keyframes=k, smooth=smooth, t_start=t_start, on_frame=on_frame, workers=workers)
 
 
-def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
+def interpolate(shapes, topology, factors, keyframes=None, method=None, reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
                 on_frame=None, workers=1, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
@@ -698,10 +706,13 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         linear in ``z`` and extended linearly beyond the end keyframes.
     keyframes : (K,) array_like, optional
         Strictly increasing times of the shapes (default ``0..K-1``).
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Projection by reconstruction; ``"gn"`` (default) is the energy-based
-        projection (Def. 4.3) and benefits from warm starts, the frame-based
-        methods share one preassembled spanning tree.
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Projection by reconstruction (as in :func:`project_targets`); None (default):
+        :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`, the preset
+        ``"fast"`` (continuation along ``t``, one Gauss-Newton step per frame);
+        ``"gn"`` is the energy-based projection (Def. 4.3) run to convergence from
+        the same warm starts; the frame-based methods share one preassembled
+        spanning tree.
     reference : int
         Index of the shape defining the weights of ``W_q``, the fixed triangle and
         the output frame (default 0).
@@ -762,12 +773,13 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         violates the triangle inequality at most faces.
     """
     times = _check_times(factors, "factors")
+    method, options, hybrid = projection_preset(method, options, hybrid)
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
     return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)
 
 
-def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
+def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method=None,
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
                         options=None, hybrid=None, progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
@@ -805,6 +817,7 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
     times = _check_times(frames, "frames")
+    method, options, hybrid = projection_preset(method, options, hybrid)
     setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
                 warm_start, tree, setup, progress, on_frame, workers)
