@@ -352,7 +352,9 @@ def reconstruction_errors(vertices, z_target, topology):
     dl = np.abs(z[:E] - z_target[:E])
     ie = topology.interior_edges
     da = np.abs(z[E:][ie] - z_target[E:][ie])
-    size = float(np.linalg.norm(X.max(0) - X.min(0))) or 1.0
+    extent = X.max(0) - X.min(0)
+    m = float(np.max(np.abs(extent)))
+    size = m * float(np.linalg.norm(extent / m)) if m > 0 else 1.0  # no overflow of the squares at any scale
     return {
         "max_length_error": float(dl.max()),
         "max_relative_length_error": float(np.max(dl / z_target[:E])),
