@@ -291,10 +291,11 @@ class ProjectionPreset:
 #: extrapolation through the two computed frames or keys before it
 #: (:func:`lacore.shapes.interpolation.predicted_start`, error second order in the frame spacing) and takes one
 #: step; a frame that starts from a key itself (the first after a key) takes up to three, stopping once the
-#: predicted decrease is below ``ftol = 1e-4`` of the energy.  One factorization per in-between; within 2e-6
-#: (body) to 1.3e-5 (bent bar) of converged Gauss-Newton's energy on smooth motions at 50k vertices in 0.6x its
-#: time (``benchmarks/bench_continuation.py``); on strongly mixed blends (a bend into a twist) it drifts from
-#: Gauss-Newton's minima mid-blend: use :data:`GAUSS_NEWTON` there.
+#: predicted decrease is below ``ftol = 1e-4`` of the energy; where a step does not agree with its quadratic
+#: model, more (``extend_smoothing``).  On smooth motions at 50k vertices one factorization per in-between,
+#: within 1.8e-6 (a body) and 1.3e-5 (a bent bar) of converged Gauss-Newton's energy in about half its time
+#: (``benchmarks/bench_continuation.py``); on a bend blended into a twist up to 10x Gauss-Newton's energy (65x
+#: without the extension) in 0.3x its time: use :data:`GAUSS_NEWTON` there.
 FAST = ProjectionPreset("fast", "hybrid", GaussNewtonOptions(ftol=1e-4),
                         HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3,
                                       extend_smoothing=True))
