@@ -4,7 +4,11 @@ Writes (with ``-o``) an ``.npz`` with keys ``vertices, faces, edges, lengths,
 angles, z, integrability_violation`` (``.npz`` is appended to a name without
 it; the name reported is the file written; written atomically); ``--json``
 prints one JSON object with counts, ranges and timings.  Numerically degenerate
-triangles (:func:`lacore.geometry.lengths_angles.check_nondegenerate`) exit with code 2.
+triangles (:func:`lacore.geometry.lengths_angles.check_nondegenerate`) and coordinates
+that float64 cannot hold faithfully (subnormal, or edge lengths beyond its range:
+:func:`lacore.geometry.lengths_angles.check_float_range`) exit with code 2.  Lengths,
+angles and the integrability violation are computed scale-free (any other magnitude of
+coordinates works: :func:`lacore.geometry.lengths_angles.safe_scaled`).
 """
 
 import time

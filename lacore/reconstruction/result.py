@@ -156,8 +156,8 @@ class ReconstructionResult(IterativeResult):
         Seconds spent in ``assembly`` (Jacobian, gradient, Gauss-Newton matrix),
         ``factorization``, ``solve``, ``line_search``, ``acceleration`` (geodesic
         acceleration of Gauss-Newton steps), ``initialization`` (set-up),
-        ``frame_based`` / ``least_squares`` (a direct method or the hybrid
-        start) and ``total``.
+        ``frame_based`` / ``least_squares`` (a direct method, the hybrid
+        start, or the relaxation the start check computed) and ``total``.
     fixed_face : int
         The face fixing the rigid motion (and the root face of frame-based methods).
     backend : str
