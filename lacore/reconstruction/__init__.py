@@ -22,11 +22,14 @@ dispatches to
 
 Fast smoothing
 --------------
-The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"``
-and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
-gives every in-between the extrapolation through the frames before it
-(continuation along ``t``), so one Gauss-Newton step finishes a frame of a
-smooth motion (README "In-betweens of large meshes").  The least-squares start
+The preset :data:`~lacore.reconstruction.settings.FAST` (the default projection
+of ``lacore interpolate``, of :mod:`lacore.shapes.interpolation` and the Blender
+operators' 'FAST') is ``"hybrid"`` with ``hybrid_start="given"`` and one
+smoothing iteration, extended where a step does not agree with its quadratic
+model: :func:`lacore.shapes.interpolation.project_targets` gives every
+in-between the extrapolation through the frames before it (continuation along
+``t``), so one Gauss-Newton step finishes a frame of a smooth motion (README
+"In-betweens of large meshes").  The least-squares start
 (``hybrid_start="lsq"``) suits a single target with no neighbours: on long
 meshes errors of a tree walk accumulate along the tree (a 50k-vertex bar
 blended from a bend to a twist: edge lengths off by 160 % after the MST walk
