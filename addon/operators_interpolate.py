@@ -39,7 +39,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
-from ..lacore.reconstruction import GaussNewtonOptions, HybridOptions
+from ..lacore.reconstruction.settings import FAST
 from ..lacore.shapes.projection import ProjectionOptions
 from . import bake, jobs, mesh_access, session
 from .naming import (OperatorInputError, inbetween_key_name, is_own_key, parse_factors, parse_frames,
@@ -57,22 +57,20 @@ METHOD_ITEMS = [
     ('PREVIEW', "Preview", "Least-squares relaxation of the frame-based reconstruction only (one linear solve "
                            "over the whole mesh): quickest, edge lengths within ~1.5 % on strong blends"),
     ('FAST', "Fast", "Each in-between starts from the extrapolation of the ones before it and takes one "
-                     "Gauss-Newton step: the exact projection on smooth motions at one solve per in-between "
-                     "(strongly mixed blends, such as a bend into a twist, need Gauss-Newton)"),
+                     "Gauss-Newton step, more where the step does not behave as predicted: the exact projection "
+                     "on smooth motions at one solve per in-between (strongly mixed blends, such as a bend into a "
+                     "twist, are closer with Gauss-Newton)"),
     ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
 ]
 #: How each Method item computes its frames: lacore's projection options, or (``'MULTIRES'``, not offered in the
 #: UI: coarse solve, prolongation, three fine Gauss-Newton steps, the hierarchy built once per keys) the keywords of
-#: :meth:`lacore.multiresolution.MultiresolutionReconstruction.reconstruct`.  FAST continues along t
-#: (:func:`lacore.shapes.projection.predicted_start`: the secant through the two nearest computed in-betweens or
-#: keys, kept when its energy is lower than the nearest one's) with one Gauss-Newton step; a frame starting from a
-#: known shape itself (the first after a key) gets up to three, stopping once the predicted decrease is below
-#: ``ftol = 1e-4`` of the energy (benchmarks/bench_continuation.py).
+#: :meth:`lacore.multiresolution.MultiresolutionReconstruction.reconstruct`.  FAST is lacore's preset
+#: :data:`lacore.reconstruction.settings.FAST` (also the CLI's and the library's default): continuation along t
+#: and one Gauss-Newton step per in-between, more where a step does not agree with its quadratic model.
 METHOD_OPTIONS = {
     'PREVIEW': ProjectionOptions(method="lsq"),
-    'FAST': ProjectionOptions(method="hybrid", options=GaussNewtonOptions(ftol=1e-4),
-                              hybrid=HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3)),
+    'FAST': ProjectionOptions(FAST.name),
     'GAUSS_NEWTON': ProjectionOptions(method="gn"),
     'MULTIRES': {"fine_iterations": 3, "fine_solver": "exact"},
 }

@@ -502,7 +502,8 @@ def test_reused_factorization_reproduces_admissible_targets_exactly():
     assert first.factorizations >= 1 and first.pcg_iterations[0] == 0  # nothing to reuse yet
     zm = 0.5 * (z0 + z1)
     res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=0.05, pcg_maxiter=20,
-                      initial_vertices=reconstruct(zm, topo, X0, method="lsq", context=ctx).vertices)
+                      initial_vertices=reconstruct(zm, topo, X0, method="lsq", context=ctx).vertices,
+                      start_check=False)
     assert res.success and res.status in (1, 2), res.message
     assert sum(k > 0 for k in res.pcg_iterations) >= 1  # some steps by PCG only
     assert res.factorizations < res.iterations
@@ -517,7 +518,7 @@ def test_reused_factorization_refactorizes_when_pcg_stalls():
     ctx = ReconstructionContext(topo, X0)
     reconstruct(z0, topo, X0, context=ctx, max_iterations=1)  # a factor at the reference
     res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1e-6, pcg_maxiter=1,
-                      max_iterations=3, geodesic_acceleration=False)
+                      max_iterations=3, geodesic_acceleration=False, start_check=False)
     # one PCG iteration from a far pose cannot reduce the residual 2x: every step refactorizes
     # (plain steps: with the geodesic acceleration the third step starts close enough for one PCG iteration)
     assert res.factorizations == res.iterations == 3 and res.pcg_iterations == [0, 0, 0]
@@ -583,13 +584,15 @@ def test_reuse_near_convergence_refactorizes_when_pcg_misses_its_tolerance(monke
 
 
 def test_geodesic_acceleration_saves_iterations_and_keeps_the_minimizers():
-    """The accelerated path (default) reaches the same energies as plain Gauss-Newton in fewer iterations."""
+    """The accelerated path (default) reaches the same energies as plain Gauss-Newton in fewer iterations
+    (from the reference: plain Gauss-Newton's first step to finger1 gets less than halfway, and the start check
+    would continue from the least-squares relaxation)."""
     topo, X0, X1, z0, z1 = finger()
     za = 0.5 * (z0 + z1)
     ctx = ReconstructionContext(topo, X0)
     for z in (z1, za):
-        plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False)
-        fast = reconstruct(z, topo, X0, context=ctx)
+        plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False, start_check=False)
+        fast = reconstruct(z, topo, X0, context=ctx, start_check=False)
         assert fast.success and fast.status == plain.status, fast.message
         # measured 6/4 vs 10/7 (finger1), 5/2 vs 8/6 (average)
         assert fast.iterations < plain.iterations and fast.factorizations < plain.factorizations

@@ -22,7 +22,6 @@ from lacore.shapes.interpolation import interpolate
 from lacore.shapes.projection import ProjectionOptions, ProjectionTargets, project_chain
 from lacore.parallel import WorkerError, WorkerProcess, check_workers, close_workers, frame_chains
 from lacore.progress import Cancelled
-from lacore.reconstruction.settings import GaussNewtonOptions, HybridOptions
 
 
 def sleeping_job(seconds, *, send):
@@ -74,9 +73,9 @@ def finger():
 def test_two_workers_give_the_frames_of_one_process(finger):
     shapes, topo = finger
     t = np.linspace(0.05, 0.95, 8)
-    one = interpolate(shapes, topo, t)
+    one = interpolate(shapes, topo, t, method="gn")
     seen, progress = [], []
-    two = interpolate(shapes, topo, t, workers=2, on_frame=lambda i, res: seen.append(i),
+    two = interpolate(shapes, topo, t, method="gn", workers=2, on_frame=lambda i, res: seen.append(i),
                       progress=lambda done, total, message: progress.append((done, total)))
     assert two.workers == 2 and one.workers == 1
     assert two.order.tolist() == [0, 1, 2, 3, 7, 6, 5, 4]
@@ -94,11 +93,8 @@ def test_two_workers_give_the_frames_of_one_process(finger):
 def test_fast_with_workers_matches_within_its_tolerance(finger):
     shapes, topo = finger
     t = np.arange(1, 7) / 7.0
-    fast = {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1,
-                                                        nearest_start_iterations=3),
-            "options": GaussNewtonOptions(ftol=1e-4)}
-    ref = interpolate(shapes, topo, t)
-    two = interpolate(shapes, topo, t, workers=2, **fast)
+    ref = interpolate(shapes, topo, t, method="gn")
+    two = interpolate(shapes, topo, t, workers=2)  # the default projection, Fast
     assert np.max(two.energy / ref.energy - 1) < 2e-3   # measured 3.5e-4 (the goal: 0.5 %)
 
 

@@ -37,13 +37,15 @@ def finger():
 
 
 def sequence(finger, **kwargs):
+    """The finger's frames, by converged Gauss-Newton unless other options are given."""
     topo, X0, X1, targets = finger
+    kwargs.setdefault("options", ProjectionOptions("gn"))
     return SequenceProjection(targets, topo, X0, T, [(0.0, X0), (1.0, X1)], **kwargs)
 
 
 def test_steps_give_the_frames_of_interpolate_one_per_step(finger):
     topo, X0, X1, _ = finger
-    reference = interpolate([X0, X1], topo, T)
+    reference = interpolate([X0, X1], topo, T, method="gn")
     run = sequence(finger)
     assert (run.done, run.total, run.finished, run.chains) == (0, 6, False, None)  # nothing computed yet
     steps = []
@@ -78,7 +80,8 @@ def test_anchors_in_any_placement_give_the_same_frames(finger):
     """Known shapes may come rigidly moved (the add-on passes frames placed on the keys' blend)."""
     topo, X0, X1, targets = finger
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    moved = SequenceProjection(targets, topo, X0, T, [(0.0, X0 @ R.T + 3.0), (1.0, X1 @ R.T - 1.0)]).run()
+    moved = SequenceProjection(targets, topo, X0, T, [(0.0, X0 @ R.T + 3.0), (1.0, X1 @ R.T - 1.0)],
+                               options=ProjectionOptions("gn")).run()
     plain = sequence(finger).run()
     diag = np.linalg.norm(np.ptp(X0, axis=0))
     diff = max(np.abs(a.result.vertices - b.result.vertices).max() for a, b in zip(moved.frames, plain.frames,
@@ -153,7 +156,7 @@ def test_options_and_targets_are_checked_before_any_work(finger):
 
 def test_project_targets_is_the_same_loop(finger):
     topo, X0, X1, targets = finger
-    res = project_targets(targets, topo, X0, times=T, anchors=[(0.0, X0), (1.0, X1)])
+    res = project_targets(targets, topo, X0, times=T, anchors=[(0.0, X0), (1.0, X1)], method="gn")
     run = sequence(finger).run()
     assert np.array_equal(res.vertices, [f.result.vertices for f in run.frames])
     assert res.workers == 1 and res.order.tolist() == list(range(6)) and res.success

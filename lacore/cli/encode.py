@@ -13,7 +13,11 @@ length), their ``integrability_tolerances``, ``genus`` and ``boundary_loops``
 per component, and ``loops``: every loop of the homology basis (its label,
 kind, boundary loop, edge count, holonomy, translation and whether it closes).
 Numerically degenerate triangles
-(:func:`lacore.geometry.lengths_angles.check_nondegenerate`) exit with code 2.
+(:func:`lacore.geometry.lengths_angles.check_nondegenerate`) and coordinates
+that float64 cannot hold faithfully (subnormal, or edge lengths beyond its range:
+:func:`lacore.geometry.lengths_angles.check_float_range`) exit with code 2.  Lengths,
+angles and the integrability checks are computed scale-free (any other magnitude of
+coordinates works: :func:`lacore.geometry.lengths_angles.safe_scaled`).
 """
 
 import time

@@ -122,7 +122,7 @@ class QuadraticEnergy(DeformationEnergy):
         elif need_reference:
             raise InputError(f"weights={weights!r} need a reference configuration: pass reference_vertices or "
                              "reference_z (or custom membrane_weights and bending_weights)")
-        if need_reference:
+        if need_reference or weights == "uniform":
             w_s, w_b = quadratic_weights(lbar, topology, weights)
         else:
             w_s = w_b = None

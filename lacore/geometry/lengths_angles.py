@@ -53,9 +53,11 @@ __all__ = [
     "split_z",
     "check_z",
     "check_nondegenerate",
+    "check_float_range",
     "degenerate_faces",
     "DEGENERACY_RTOL",
     "safe_scale_exponent",
+    "safe_scaled",
     "jacobian_pattern",
 ]
 
@@ -156,6 +158,30 @@ def degenerate_faces(vertices, topology, rtol=DEGENERACY_RTOL):
     return np.flatnonzero(~(margin > rtol * perimeter))
 
 
+def check_float_range(vertices, topology):
+    """:class:`~lacore.errors.MeshError` when float64 cannot represent the mesh's geometry.
+
+    Every computation in lacore is scale-free (:func:`safe_scaled`), so any
+    magnitude of coordinates works, except coordinates that are all subnormal
+    (below 2.2e-308: they carry fewer than 53 significant bits, the shape was
+    rounded when it was stored) and edges longer than the largest float64
+    (1.8e308, between coordinates of opposite signs).
+    """
+    X = np.asarray(vertices, float)
+    m = float(np.max(np.abs(X))) if X.size else 0.0
+    tiny = np.finfo(float).tiny
+    if 0.0 < m < tiny:
+        bits = int(np.floor(np.log2(m))) + 1074
+        raise MeshError(f"the coordinates are subnormal float64 numbers (largest |x| = {m:.3g}, below the normal "
+                        f"range that starts at {tiny:.3g}): they keep only {bits} significant bits, so the shape "
+                        "was rounded when it was stored; export the mesh in a smaller unit (scaled up)")
+    with np.errstate(over="ignore"):
+        overflow = m > 0.0 and not np.all(np.isfinite(edge_lengths(X, topology)))
+    if overflow:
+        raise MeshError(f"edge lengths exceed the largest float64 number (coordinates up to |x| = {m:.3g}): "
+                        "export the mesh in a larger unit (scaled down)")
+
+
 def check_nondegenerate(vertices, topology, rtol=DEGENERACY_RTOL):
     """Validated vertices; :class:`~lacore.errors.MeshError` naming (numerically) degenerate triangles.
 
@@ -163,9 +189,11 @@ def check_nondegenerate(vertices, topology, rtol=DEGENERACY_RTOL):
     numbers, satisfy the triangle inequality with a relative margin of at most
     ``rtol`` (zero-area triangles, and needles so thin that rounding the
     lengths breaks the inequality), see :func:`degenerate_faces`.  The result
-    is the same for the mesh scaled by any factor.
+    is the same for the mesh scaled by any factor.  Coordinates that float64 cannot
+    hold faithfully are named first (:func:`check_float_range`).
     """
     X = check_vertices(vertices, topology.n_vertices)
+    check_float_range(X, topology)
     bad = degenerate_faces(X, topology, rtol)
     if bad.size:
         raise MeshError(f"degenerate triangles (zero area, or edge lengths violating the triangle inequality "
@@ -291,10 +319,13 @@ def dihedral_angles(vertices, topology):
     return _z_of_vertices(X, topology)[topology.n_edges:]
 
 
-#: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-60 .. 1e60) are scaled by a
-#: power of two (exact) into that range before the lengths-and-angles map and its Jacobian: products of
-#: three coordinates (unnormalized normals times edges) then neither overflow nor become subnormal.
-SAFE_EXPONENT = 200
+#: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-30 .. 1e30) are scaled by a
+#: power of two (exact) into that range before any computation that multiplies them: the lengths-and-angles
+#: map and its Jacobian (products of three coordinates), interior angles and the integrability map (products of
+#: lengths), and every reconstruction (:class:`lacore.reconstruction.ReconstructionContext`: weights ``1 /
+#: l^2``, the thin shells energy's squared areas, products of eight coordinates) then neither overflow nor
+#: become subnormal.
+SAFE_EXPONENT = 100
 
 
 def safe_scale_exponent(X):
@@ -307,6 +338,23 @@ def safe_scale_exponent(X):
     if m == 0.0 or not np.isfinite(m) or 2.0**-SAFE_EXPONENT <= m <= 2.0**SAFE_EXPONENT:
         return 0
     return int(np.frexp(m)[1])
+
+
+def safe_scaled(values):
+    """``(values 2^-k, k)`` with ``k = safe_scale_exponent(values)``: the array itself when ``k = 0``.
+
+    The one scaling of lacore's scale-free computations: angles (dihedral,
+    interior) and the integrability map are invariant under it, lengths scale
+    by exactly ``2^k``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> safe_scaled(np.array([1.0, 2.0]))[1], safe_scaled(np.array([1e-160, 3e-160]))[1]
+    (0, -529)
+    """
+    k = safe_scale_exponent(values)
+    return (np.ldexp(values, -k), k) if k else (values, 0)
 
 
 def _z_of_vertices(X, topology, angles=True):

@@ -65,7 +65,7 @@ triangle gets interior angles 0.
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry.lengths_angles import check_z
+from ..geometry.lengths_angles import check_z, safe_scaled
 from ..geometry.trigonometry import interior_angle_jacobian, interior_angles
 from .homology import homology_basis
 from .local import euler_integrability_jacobian, euler_integrability_map
@@ -234,11 +234,17 @@ class _Tables:
             A2[lt], B2[lt] = _qmul(pa, pb, A2[lt], B2[lt])
         return A, B, H, bad
 
+    def _scaled(self, z):
+        """``(z, k)``: the lengths scaled by ``2^-k`` into the safe range (both conditions are scale-invariant)."""
+        lengths, k = safe_scaled(z[:self.E])
+        return (np.concatenate([lengths, z[self.E:]]), k) if k else (z, 0)
+
     def evaluate(self, z):
         """``(holonomy (n, 3), translation (n, 3), loops touching a triangle-inequality violation (n,) bool)``."""
         n = self.n
         if n == 0:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
+        z, _ = self._scaled(z)
         A, B, H, bad = self.prefixes(z)
         hol = _log(A.take(1 + self.last), B.take(1 + self.last))
         a, b = A.take(self.e_gather), B.take(self.e_gather)
@@ -265,6 +271,7 @@ class _Tables:
         n, E = self.n, self.E
         if n == 0:
             return sp.csr_matrix((0, 2 * E)), np.zeros(0)
+        z, k = self._scaled(z)  # length derivatives of the scaled problem scale by 2^-k
         hol, tau, _ = self.evaluate(z)
         A, B, _, _ = self.prefixes(z)
         L3 = z[:E].take(self.face_edges).T                    # (nf, 3)
@@ -317,7 +324,10 @@ class _Tables:
         add(3 * n, xl, theta_cols, dt_p, self.sign)
         add(3 * n, el, cols_e, dt_d, dd_dl)
         add(3 * n, el, self.basis.edges, direct, np.ones(len(el)))
-        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * n, 2 * E))
+        cols, vals = np.concatenate(cols), np.concatenate(vals)
+        if k:
+            vals[cols < E] = np.ldexp(vals[cols < E], -k)
+        J = sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(6 * n, 2 * E))
         return J, np.concatenate([hol.ravel(), tau.ravel()])
 
 

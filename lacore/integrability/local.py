@@ -31,6 +31,11 @@ Triangles that violate the triangle inequality get interior angles 0
 (:mod:`lacore.geometry.trigonometry`); :func:`integrability_violation` reports such
 vertices as ``invalid`` (default ``inf``), mirroring ``I_v = diag(inf)`` of (3.11).
 
+The map depends on the lengths only through the interior angles: lengths
+outside ``2^-100 .. 2^100`` are scaled by an exact power of two first
+(:func:`lacore.geometry.lengths_angles.safe_scaled`), so the results are the same for
+a mesh and its scaled copy.
+
 Implementation
 --------------
 The ring products are evaluated with unit quaternions.  The factor
@@ -70,7 +75,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from ..cache import carve, scratch
-from ..geometry.lengths_angles import split_z
+from ..geometry.lengths_angles import safe_scaled, split_z
 from ..geometry.trigonometry import kahan_angle_factors, kahan_area_rows, margin_rows, interior_angles
 
 __all__ = [
@@ -496,6 +501,7 @@ def _holonomies(z, topology, gamma=None):
         Rows of vertices with a face violating the triangle inequality in their ring.
     """
     lengths, theta = split_z(z, topology)
+    lengths, _ = safe_scaled(lengths)  # scale-invariant; Kahan's factors multiply lengths
     if gamma is not None:
         gamma = np.asarray(gamma, float)
         if gamma.shape != (topology.n_faces, 3):
@@ -896,6 +902,7 @@ def euler_integrability_jacobian(z, topology, return_value=False):
     True
     """
     lengths, theta = split_z(z, topology)
+    lengths, k = safe_scaled(lengths)  # the map is scale-invariant, its length derivatives scale by 2^-k
     pat = _euler_jacobian_pattern(topology)
     blocks = _ring_blocks(topology)
     data = np.empty(len(pat["indices"]))
@@ -906,6 +913,9 @@ def euler_integrability_jacobian(z, topology, return_value=False):
         for blk, gather, rng in zip(blocks, pat["gathers"], pat["ranges"], strict=True):
             V = _block_euler_jacobian(lengths, cs, topology, blk, ws, euler)
             np.take(V.reshape(-1), gather, out=data[rng], mode="wrap")
+    if k:
+        length_entries = pat["indices"] < topology.n_edges
+        data[length_entries] = np.ldexp(data[length_entries], -k)
     J = sp.csr_matrix((data, pat["indices"], pat["indptr"]), shape=pat["shape"])
     J.has_canonical_format = True
     if return_value:

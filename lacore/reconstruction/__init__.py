@@ -22,11 +22,14 @@ dispatches to
 
 Fast smoothing
 --------------
-The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"``
-and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
-gives every in-between the extrapolation through the frames before it
-(continuation along ``t``), so one Gauss-Newton step finishes a frame of a
-smooth motion (``benchmarks/bench_continuation.py``).  The least-squares start
+The preset :data:`~lacore.reconstruction.settings.FAST` (the default projection
+of ``lacore interpolate``, of :mod:`lacore.shapes.interpolation` and the Blender
+operators' 'FAST') is ``"hybrid"`` with ``hybrid_start="given"`` and one
+smoothing iteration, extended where a step does not agree with its quadratic
+model: :func:`lacore.shapes.interpolation.project_targets` gives every
+in-between the extrapolation through the frames before it (continuation along
+``t``), so one Gauss-Newton step finishes a frame of a smooth motion
+(``benchmarks/bench_continuation.py``).  The least-squares start
 (``hybrid_start="lsq"``) suits a single target with no neighbours: on long
 meshes the errors of a tree walk accumulate along the tree, and a few
 Gauss-Newton iterations do not remove them, while the least-squares relaxation
@@ -38,8 +41,12 @@ see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
 the chosen energy, so all methods are comparable.  Its ``success`` is decided
 the same way for every method by :mod:`.checks` (finite, no folded edge, and
 the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
-minimizer); ``failure`` names a failed check.  A ``"gn"`` run that stalls
-(status -1 or -3) is restarted once from the least-squares relaxation.
+minimizer); ``failure`` names a failed check.  Gauss-Newton (``"gn"``, and
+``"hybrid"`` from a given or tree start) checks its start
+(``start_check``, :mod:`.gauss_newton`): when its first damped step gets less
+than halfway, it continues from the least-squares relaxation if that is 1000
+times better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
+from the relaxation is restarted once from it.
 
 Reuse
 -----
@@ -57,14 +64,14 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..geometry.lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
+from ..geometry.lengths_angles import DEGENERACY_RTOL, check_z, lengths_and_angles
 from ..geometry.topology import MeshTopology, check_vertices
 from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
-from .gauss_newton import gauss_newton_reconstruction
-from .least_squares import least_squares_reconstruction
+from .gauss_newton import SWITCH_NOTE, gauss_newton_reconstruction
+from .least_squares import least_squares_start
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
 from .settings import (SETTINGS_FIELDS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, ReconstructionSetup,
                        split_options)
@@ -177,8 +184,8 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
         solver, ordering``; ``max_iterations, ftol, gtol, xtol, atol,
         reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
-        geodesic_acceleration, newton, c1, max_backtracks``; ``hybrid_start,
-        hybrid_kind, smoothing_iterations``.  See
+        geodesic_acceleration, newton, start_check, c1, max_backtracks``; ``hybrid_start,
+        hybrid_kind, smoothing_iterations, extend_smoothing``.  See
         :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
@@ -202,9 +209,10 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     Notes
     -----
-    Reference coordinates of magnitude outside ``2^-200 .. 2^200`` (about
-    1e-60 .. 1e60) are scaled internally by an exact power of two and the
-    output scaled back (a note says so).
+    Reference coordinates of magnitude outside ``2^-100 .. 2^100`` (about
+    1e-30 .. 1e30) are computed in units of an exact power of two by the
+    context (:mod:`.context`, "Units"); vertices and energies are in the input's
+    units, and a note says so.
 
     Frame-based methods need the triangle inequality only where they walk;
     they treat violating faces as in Algorithm 2 (see
@@ -248,27 +256,21 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     # what the caller gave ("not given": settings None, a keyword absent); a settings object gives every field
     given = SETTINGS_FIELDS if settings is not None else SETTINGS_FIELDS & set(kwargs)
     settings, options, hybrid = split_options(kwargs, settings, options, hybrid)
-    scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
-    if scaled is not None:
-        k, z_s, X_s, X0_s = scaled
-        res = reconstruct(z_s, topology, X_s, method, settings=settings, options=options, hybrid=hybrid,
-                          initial_vertices=X0_s, tree=tree)
-        return replace(res, vertices=np.ldexp(res.vertices, k),
-                       notes=res.notes + [f"coordinates of magnitude 2^{k} are outside the safe range "
-                                          f"2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: reconstructed scaled by 2^{-k} "
-                                          "(exact), the output scaled back; energies are the scaled problem's"])
     if context is None:
         context = get_context(topology, reference_vertices, settings)
     else:
         _check_context(context, topology, reference_vertices, settings, given)
     z, notes = _check_target(z_target, topology, method, context.energy_name)
+    if context.units_note:
+        notes.append(context.units_note)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
         res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                          options=options, started=t_start)  # checked there
-        if res.status in _STALLED and not res.success:
+                                          options=options, started=t_start,
+                                          start_check=options.start_check)  # checked there
+        if res.status in _STALLED and not res.success and not any(SWITCH_NOTE in n for n in res.notes):
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
@@ -280,11 +282,15 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method == "hybrid":
         n = hybrid.smoothing_iterations
         name = "given" if given_start else (tree_kind(method, hybrid) or "lsq")
+        extend = hybrid.extend_smoothing
         res = gauss_newton_reconstruction(
-            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"))
-        return replace(res, notes=notes)
+            z, topology, initial_vertices=X, context=context,
+            options=replace(options, max_iterations=max(n, options.max_iterations) if extend else n),
+            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start, budget=n, extend_budget=extend,
+            success_status=(6, f"{n} smoothing iterations done" + (" (until a step agreed with its model)"
+                                                                    if extend else "")),
+            start_check=options.start_check and name != "lsq")
+        return replace(res, notes=notes + res.notes)
     energy_value = context.energy(z, X)
     res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
                                energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
@@ -297,14 +303,13 @@ def _direct(z, topology, context, kind, tree=None):
     """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
     if kind is None:
-        X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
-                                         reference_vertices=context.reference_vertices)
-    else:
-        X = frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
-                                       reference_vertices=context.reference_vertices)
-    # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
-    # inequality there) keeps the method's placement
-    X = context.align(X, keep_degenerate=True)
+        X = least_squares_start(z, topology, context)
+    else:  # in the context's units (exact; the walk multiplies lengths)
+        X = frame_based_reconstruction(context.internal_z(z), topology, tree=tree, kind=kind,
+                                       root_face=context.fixed_faces, reference_vertices=context.internal_reference)
+        # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
+        # inequality there) keeps the method's placement
+        X = context.align(context.external_vertices(X), keep_degenerate=True)
     return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
 
 
@@ -335,26 +340,6 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
                    notes=best.notes + [note + ("" if best is second else ", which was worse")])
 
 
-def _rescaled(z_target, topology, reference_vertices, initial_vertices):
-    """``(k, z, X_ref, X_init)`` scaled by ``2^-k`` into the safe range, or None when already inside it.
-
-    Products of three coordinates (normals times edges, triangle frames) overflow
-    or become subnormal far outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``; a
-    power-of-two scaling is exact, angles are invariant and lengths scale.
-    """
-    if reference_vertices is None:
-        return None
-    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    k = safe_scale_exponent(X)
-    if not k:
-        return None
-    z = np.array(z_target, dtype=float)
-    if z.shape == (2 * topology.n_edges,):
-        z[: topology.n_edges] = np.ldexp(z[: topology.n_edges], -k)
-    X0 = None if initial_vertices is None else np.ldexp(np.asarray(initial_vertices, float), -k)
-    return k, z, np.ldexp(X, -k), X0
-
-
 def _check_context(context, topology, reference_vertices, settings, given):
     """InputError unless the given settings (names in ``given``) match the context's; ``None`` matches any
     fixed face, solver or ordering."""
@@ -375,6 +360,12 @@ def _check_context(context, topology, reference_vertices, settings, given):
     ff = settings.fixed_face
     if "fixed_face" in given and ff is not None and not np.all(np.isin(ff, context.fixed_faces)):
         raise InputError(f"fixed_face {list(ff)!r} differs from the context's {context.fixed_faces.tolist()}")
+
+
+def _rms(x):
+    """Root mean square of ``x >= 0`` without overflow or underflow of the squares (any scale)."""
+    m = float(x.max()) if x.size else 0.0
+    return m * float(np.sqrt(np.mean((x / m) ** 2))) if m > 0 and np.isfinite(m) else m
 
 
 def reconstruction_errors(vertices, z_target, topology):
@@ -418,13 +409,15 @@ def reconstruction_errors(vertices, z_target, topology):
     dl = np.abs(z[:E] - z_target[:E])
     ie = topology.interior_edges
     da = np.abs(z[E:][ie] - z_target[E:][ie])
-    size = float(np.linalg.norm(X.max(0) - X.min(0))) or 1.0
+    extent = X.max(0) - X.min(0)
+    m = float(np.max(np.abs(extent)))
+    size = m * float(np.linalg.norm(extent / m)) if m > 0 else 1.0  # no overflow of the squares at any scale
     return {
         "max_length_error": float(dl.max()),
         "max_relative_length_error": float(np.max(dl / z_target[:E])),
         "length_error_per_size": float(dl.max() / size),
         "max_angle_error": float(da.max()) if da.size else 0.0,
-        "rms_length_error": float(np.sqrt(np.mean(dl**2))),
+        "rms_length_error": _rms(dl),
         "rms_angle_error": float(np.sqrt(np.mean(da**2))) if da.size else 0.0,
     }
 

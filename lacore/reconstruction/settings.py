@@ -11,6 +11,12 @@
     The start and the smoothing budget of ``method="hybrid"``.
 :class:`ReconstructionSetup`
     The three together, as the projections of many targets pass them on.
+:class:`ProjectionPreset`
+    A named method with its options for projecting many targets (in-betweens):
+    :data:`FAST`, :data:`GAUSS_NEWTON`; :data:`DEFAULT_PROJECTION` is the one
+    ``lacore interpolate``, :func:`lacore.shapes.interpolation.interpolate` (and
+    ``keyframe_inbetweens``, ``project_targets``) use when no method is given, and
+    the Blender add-on's default method Fast.
 
 The defaults are the fields' defaults; the energy's weight scheme and ``eta``
 are :data:`lacore.energies.DEFAULT_WEIGHTS` and
@@ -55,8 +61,9 @@ from ..energies import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES
 from ..errors import InputError, MeshError
 from ..linalg.sparse_cholesky import ORDERINGS
 
-__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "ReconstructionSetup", "split_options",
-           "SETTINGS_FIELDS", "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
+__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "ReconstructionSetup", "ProjectionPreset",
+           "split_options", "projection_preset", "SETTINGS_FIELDS", "FAST", "GAUSS_NEWTON", "PROJECTION_PRESETS",
+           "DEFAULT_PROJECTION", "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
 
 ENERGIES = ("quadratic", "shells")
 WEIGHTS = WEIGHT_SCHEMES
@@ -177,6 +184,13 @@ class GaussNewtonOptions:
         residuals, where Gauss-Newton converges slowly or stalls), ``"always"``
         from the first step, ``"never"``.  A Hessian that is not positive
         definite gives a Gauss-Newton step instead (and the next step is one too).
+    start_check : bool
+        :func:`~lacore.reconstruction.reconstruct` with ``"gn"`` (and ``"hybrid"``
+        from a given or tree start): when the first damped step (partial or
+        shifted) removes less than half of the energy (or none), compute the
+        least-squares relaxation once and continue from it if its energy is below
+        1e-3 of the energy reached
+        (:mod:`lacore.reconstruction.gauss_newton`, "Start check").  Default on.
     c1 : float
         Armijo constant of the line search.
     max_backtracks : int
@@ -209,6 +223,7 @@ class GaussNewtonOptions:
     pcg_maxiter: int = 6
     reuse_near_convergence: bool = True
     geodesic_acceleration: bool = True
+    start_check: bool = True
     c1: float = 1e-4
     max_backtracks: int = 40
     newton: str = "auto"
@@ -248,6 +263,16 @@ class HybridOptions:
         nearest known shape rather than an extrapolation through two of them
         (the first in-between after a key: its start is first-order off in the
         frame spacing, an extrapolation second-order); default ``smoothing_iterations``.
+    extend_smoothing : bool
+        The budget ends the iteration only if every step agreed with its
+        quadratic model (full, unshifted, energy decrease within 5 % of the
+        prediction: the linearization held over it); otherwise Gauss-Newton
+        iterates on until its own stopping rules (``GaussNewtonOptions.ftol``,
+        at most ``max_iterations``).  On a smooth motion the budgeted step agrees
+        (one step per in-between); on a blend far from admissible (a plate rolled
+        one way into the other way) the steps recover only 40 % of what the
+        model predicts, and stopping after them left frames at 49x Gauss-Newton's
+        energy.
 
     Raises
     ------
@@ -266,6 +291,7 @@ class HybridOptions:
     kind: str = "mst"
     smoothing_iterations: int = 10
     nearest_start_iterations: int | None = None
+    extend_smoothing: bool = False
 
     def __post_init__(self):
         if self.start not in HYBRID_STARTS:
@@ -279,11 +305,75 @@ class HybridOptions:
             if int(n) != n or n < 0:
                 raise InputError(f"{name} must be a non-negative integer, got {n!r}")
             object.__setattr__(self, name, int(n))
+        object.__setattr__(self, "extend_smoothing", bool(self.extend_smoothing))
 
     @property
     def uses_tree(self):
         """Whether the start walks a spanning tree (only ``start="tree"``)."""
         return self.start == "tree"
+
+
+@dataclass(frozen=True)
+class ProjectionPreset:
+    """A named projection method with its options, for sequences of targets (thesis 4.2, eq. 4.10).
+
+    Attributes
+    ----------
+    name : str
+        What the CLI's ``--method`` and the library's ``method=`` call it.
+    method : str
+        The reconstruction method (:data:`lacore.reconstruction.METHODS`).
+    options : GaussNewtonOptions
+    hybrid : HybridOptions
+
+    Examples
+    --------
+    >>> from lacore.reconstruction.settings import DEFAULT_PROJECTION
+    >>> DEFAULT_PROJECTION.name, DEFAULT_PROJECTION.method, DEFAULT_PROJECTION.hybrid.start
+    ('fast', 'hybrid', 'given')
+    """
+
+    name: str
+    method: str
+    options: GaussNewtonOptions = GaussNewtonOptions()
+    hybrid: HybridOptions = HybridOptions()
+
+    def keywords(self):
+        """``{"method", "options", "hybrid"}`` for :func:`lacore.shapes.interpolation.project_targets` and friends."""
+        return {"method": self.method, "options": self.options, "hybrid": self.hybrid}
+
+
+#: Continuation along ``t`` and one Gauss-Newton step per in-between: every frame starts from the
+#: extrapolation through the two computed frames or keys before it
+#: (:func:`lacore.shapes.projection.predicted_start`, error second order in the frame spacing) and takes one
+#: step; a frame that starts from a key itself (the first after a key) takes up to three, stopping once the
+#: predicted decrease is below ``ftol = 1e-4`` of the energy; where a step does not agree with its quadratic
+#: model, more (``extend_smoothing``).  Exact on smooth motions at one factorization per in-between; strongly
+#: mixed blends (a bend blended into a twist) stay above Gauss-Newton's energy: use :data:`GAUSS_NEWTON` there
+#: (``benchmarks/bench_continuation.py`` measures both).
+FAST = ProjectionPreset("fast", "hybrid", GaussNewtonOptions(ftol=1e-4),
+                        HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3,
+                                      extend_smoothing=True))
+#: Gauss-Newton run to convergence from the same continuation starts, with Newton steps where it converges slowly.
+GAUSS_NEWTON = ProjectionPreset("gn", "gn")
+#: Presets by name (``method=`` of the interpolation functions, ``lacore interpolate --method``).
+PROJECTION_PRESETS = {"fast": FAST}
+#: The projection used when none is chosen: ``lacore interpolate``, the interpolation functions of
+#: :mod:`lacore.shapes.interpolation`, and the add-on's default method (Fast).
+DEFAULT_PROJECTION = FAST
+
+
+def projection_preset(method, options=None, hybrid=None):
+    """``(method, options, hybrid)`` for a method name or preset name (None: :data:`DEFAULT_PROJECTION`).
+
+    A preset's options and hybrid options are used where ``options`` / ``hybrid``
+    are not given; a plain method name is returned as it is.
+    """
+    preset = DEFAULT_PROJECTION if method is None else PROJECTION_PRESETS.get(method)
+    if preset is None:
+        return method, options, hybrid
+    return (preset.method, preset.options if options is None else options,
+            preset.hybrid if hybrid is None else hybrid)
 
 
 class ReconstructionSetup(NamedTuple):
@@ -298,7 +388,8 @@ class ReconstructionSetup(NamedTuple):
 SETTINGS_FIELDS = frozenset(f.name for f in fields(ReconstructionSettings))
 _GN_KEYS = frozenset(f.name for f in fields(GaussNewtonOptions))
 #: keyword name -> field of HybridOptions
-_HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations"}
+_HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations",
+                "extend_smoothing": "extend_smoothing"}
 _PART_NAMES = {"settings": "settings are", "options": "Gauss-Newton options", "hybrid": "hybrid options"}
 
 

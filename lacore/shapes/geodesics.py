@@ -217,8 +217,9 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
         raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
     K = int(n_steps)
-    res = interpolate([start, end], topology, np.arange(K + 1) / K, reference_vertices=reference_vertices,
-                      settings=settings, options=options)
+    # the projection P_Z itself: Gauss-Newton run to convergence (not the in-betweens' default preset)
+    res = interpolate([start, end], topology, np.arange(K + 1) / K, method="gn",
+                      reference_vertices=reference_vertices, settings=settings, options=options)
     X = np.array(res.vertices, float)
     return np.array([lengths_and_angles(x, topology) for x in X]), X
 
@@ -407,8 +408,8 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
             vertices = np.concatenate([ends[0][None], Xs, ends[1][None]])
     elif method == "sqp" and options.reconstruct_vertices:
         need_reference("reconstruct_vertices")
-        proj = interpolate(zs, topology, np.arange(K + 1, dtype=float), reference_vertices=reference_vertices,
-                           **projection)
+        proj = interpolate(zs, topology, np.arange(K + 1, dtype=float), method="gn",  # P_Z itself: converged GN
+                           reference_vertices=reference_vertices, **projection)
         vertices = np.array(proj.vertices)
 
     profile = path_energy_profile(zs, energy)

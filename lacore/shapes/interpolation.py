@@ -24,8 +24,11 @@ are encoded as lengths and angles ``z_k = Z[X_k]`` (``(2E,)``, layout of
 
 Then every target is projected onto the admissible set by reconstruction
 (4.10), ``P_Z[z~] = Z[R[z~]]``, frame by frame in
-:class:`lacore.shapes.projection.SequenceProjection` (the default ``method="gn"`` is
-the energy-based projection of Definition 4.3): one shared set-up, warm starts
+:class:`lacore.shapes.projection.SequenceProjection`.  Without a method the projection is
+:data:`lacore.reconstruction.settings.DEFAULT_PROJECTION` (the preset ``"fast"``:
+continuation along ``t`` and one Gauss-Newton step per frame, the default of the CLI
+and the Blender add-on too); ``method="gn"`` is the energy-based projection of
+Definition 4.3 run to convergence.  One shared set-up, warm starts
 continuing along ``t`` from the input shapes given as vertices (at their keyframe
 times) and the computed frames (``warm_start="secant"``, the default, also ``True``;
 ``"nearest"``; ``False``: cold starts), chains of frames side by side in worker
@@ -47,7 +50,7 @@ from scipy.interpolate import CubicSpline
 from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import MeshTopology, check_vertices
-from ..reconstruction.settings import split_options
+from ..reconstruction.settings import projection_preset, split_options
 from ..result import SolverResult
 from .projection import ProjectionOptions, SequenceProjection, check_times
 
@@ -296,7 +299,7 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
 
 
 # --------------------------------------------------------------------------- projection of many frames
-def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
+def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method=None,
                     warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
                     progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
@@ -316,8 +319,11 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         default ``0..N-1``.
     anchors : sequence of (time, (V, 3) vertices), optional
         Known shapes (e.g. the input keyframes) usable as warm starts.
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Reconstruction method (:func:`lacore.reconstruction.reconstruct`) or the
+        name of a :class:`~lacore.reconstruction.settings.ProjectionPreset`
+        (``"fast"``; its options where ``options`` / ``hybrid`` are not given);
+        None: :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`.
     warm_start : {True, "secant", "nearest", False}
         Start every Gauss-Newton projection from a prediction through the known
         neighbours in time (``True`` / ``"secant"``, :func:`~lacore.shapes.projection.predicted_start`), from
@@ -377,7 +383,7 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     return sequence_result(run.run(progress, on_frame), t_start)
 
 
-def projection_options(method="gn", warm_start=True, tree=None, settings=None, options=None, hybrid=None,
+def projection_options(method=None, warm_start=True, tree=None, settings=None, options=None, hybrid=None,
                        keywords=None, caller="project_targets"):
     """The :class:`~lacore.shapes.projection.ProjectionOptions` of the entry points' arguments: ``keywords`` are
     the flattened fields of ``settings``, ``options`` and ``hybrid``
@@ -388,6 +394,7 @@ def projection_options(method="gn", warm_start=True, tree=None, settings=None, o
     >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
     2
     """
+    method, options, hybrid = projection_preset(method, options, hybrid)
     settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
     return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
                              hybrid=hybrid)
@@ -461,7 +468,7 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, referen
     return sequence_result(run.run(progress, on_frame), t_start, keyframes=k, smooth=smooth)
 
 
-def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
+def interpolate(shapes, topology, factors, keyframes=None, method=None, reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
                 on_frame=None, workers=1, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
@@ -479,10 +486,13 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         linear in ``z`` and extended linearly beyond the end keyframes.
     keyframes : (K,) array_like, optional
         Strictly increasing times of the shapes (default ``0..K-1``).
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Projection by reconstruction; ``"gn"`` (default) is the energy-based
-        projection (Def. 4.3) and benefits from warm starts, the frame-based
-        methods share one preassembled spanning tree.
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Projection by reconstruction (as in :func:`project_targets`); None (default):
+        :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`, the preset
+        ``"fast"`` (continuation along ``t``, one Gauss-Newton step per frame);
+        ``"gn"`` is the energy-based projection (Def. 4.3) run to convergence from
+        the same warm starts; the frame-based methods share one preassembled
+        spanning tree.
     reference : int
         Index of the shape defining the weights of ``W_q``, the fixed triangle and
         the output frame (default 0).
@@ -565,7 +575,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
                 on_frame, workers)
 
 
-def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
+def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method=None,
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
                         options=None, hybrid=None, progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.

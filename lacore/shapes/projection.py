@@ -53,7 +53,7 @@ from ..geometry.topology import check_vertices
 from ..parallel import WorkerError, WorkerProcess, check_workers, frame_chains, raise_worker_error
 from ..progress import Cancelled, report
 from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings
+from ..reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, projection_preset
 from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
 
 __all__ = ["project", "ProjectionOptions", "ProjectionTargets", "ProjectedFrame", "SequenceProjection",
@@ -129,8 +129,12 @@ class ProjectionOptions:
 
     Attributes
     ----------
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
+    method : {"fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Reconstruction method (:func:`lacore.reconstruction.reconstruct`), or the name of a
+        :class:`~lacore.reconstruction.settings.ProjectionPreset` (``"fast"``), whose options
+        fill ``options`` and ``hybrid`` where they are not given.  Not given:
+        :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION` (also the default of the
+        interpolation functions, the CLI and the add-on).  Stored as the reconstruction method.
     warm_start : {"secant", "nearest", None}
         Start of a Gauss-Newton projection: :func:`predicted_start` through the
         known shapes (``"secant"``, also given as True), the nearest known shape
@@ -140,7 +144,9 @@ class ProjectionOptions:
     settings : ReconstructionSettings
         Defines the shared context.
     options : GaussNewtonOptions
+        Default: the preset's, else the fields' defaults.
     hybrid : HybridOptions
+        Default: the preset's, else the fields' defaults.
 
     Examples
     --------
@@ -149,16 +155,23 @@ class ProjectionOptions:
     True
     >>> ProjectionOptions(warm_start=True).warm_start
     'secant'
+    >>> fast = ProjectionOptions()                     # the default projection: the preset "fast"
+    >>> fast.method, fast.hybrid.smoothing_iterations, ProjectionOptions("gn").options.ftol == 1e-9
+    ('hybrid', 1, True)
     """
 
-    method: str = "gn"
+    method: str | None = None
     warm_start: object = "secant"
     tree: object = None
     settings: ReconstructionSettings = field(default_factory=ReconstructionSettings)
-    options: GaussNewtonOptions = field(default_factory=GaussNewtonOptions)
-    hybrid: HybridOptions = field(default_factory=HybridOptions)
+    options: GaussNewtonOptions | None = None
+    hybrid: HybridOptions | None = None
 
     def __post_init__(self):
+        method, options, hybrid = projection_preset(self.method, self.options, self.hybrid)
+        object.__setattr__(self, "method", method)
+        object.__setattr__(self, "options", GaussNewtonOptions() if options is None else options)
+        object.__setattr__(self, "hybrid", HybridOptions() if hybrid is None else hybrid)
         if self.method not in METHODS:
             raise InputError(f"unknown projection method {self.method!r}; use one of {', '.join(METHODS)}")
         object.__setattr__(self, "warm_start", _warm_start_kind(self.warm_start))

@@ -117,6 +117,12 @@ def install_and_enable():
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
     assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON"]
     assert props["method"].default == "FAST"
+    import importlib
+    ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    preset = importlib.import_module(MODULE + ".lacore.reconstruction.settings").DEFAULT_PROJECTION
+    # Fast is lacore's default projection (the CLI's and the library's), not a table of its own
+    fast = ops_mod.METHOD_OPTIONS["FAST"]
+    assert (fast.method, fast.options, fast.hybrid) == (preset.method, preset.options, preset.hybrid)
     assert props["interactive"].is_hidden and not props["interactive"].default  # scripts run synchronously
     bake_props = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
     assert {"keys", "frames", "smooth", "method"} <= set(bake_props.keys()), bake_props.keys()
