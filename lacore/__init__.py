@@ -42,7 +42,8 @@ import importlib
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import InputError, LengthsAnglesError, MeshError
 from .integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
-                                  integrability_violation, transition_rotations, triangle_inequality_map)
+                                  integrability_violation)
+from .integrability.transitions import transition_rotations, triangle_inequality_map
 from .integrability import check_integrability, homology_basis, loop_holonomy, loop_translation
 from .geometry.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
                                       split_z)

@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from lacore.integrability import local as integ
+import lacore.integrability as integ
 from lacore.geometry import lengths_angles as la
 from lacore.geometry import trigonometry as trig
 from lacore.geometry.topology import MeshTopology

@@ -32,7 +32,8 @@ import numpy as np
 
 from .global_conditions import _tables, _z
 from .homology import HomologyBasis
-from .local import integrability_violation, triangle_inequality_map
+from .local import integrability_violation
+from .transitions import triangle_inequality_map
 
 __all__ = ["IntegrabilityCheck", "check_integrability", "LOCAL_TOLERANCE", "HOLONOMY_TOLERANCE",
            "TRANSLATION_TOLERANCE"]

@@ -48,7 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
-from ..integrability.local import edge_frame_angles, standard_frames, transition_rotations
+from ..integrability.transitions import edge_frame_angles, standard_frames, transition_rotations
 from ..geometry.lengths_angles import check_z
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import check_vertices

@@ -68,7 +68,7 @@ import scipy.sparse as sp
 from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ..integrability.global_conditions import admissibility_jacobian, admissibility_map
 from ..integrability.homology import homology_basis
-from ..integrability.local import triangle_inequality_map
+from ..integrability.transitions import triangle_inequality_map
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..progress import report
 
