@@ -62,7 +62,7 @@ def write_pc2(path, vertices, start=0.0, sampling=1.0):
         t = int(np.flatnonzero(~np.isfinite(X).all(axis=(1, 2)))[0])
         raise PointCacheError(f"point cache: frame {t} has non-finite positions")
     peak = float(np.abs(X).max())
-    if peak > np.finfo(np.float32).max:
+    if peak > float(np.finfo(np.float32).max):
         raise PointCacheError(f"point cache: positions up to {peak:.3g} do not fit the float32 numbers of a PC2 file "
                               f"(at most {np.finfo(np.float32).max:.3g}): scale the mesh down")
     header = np.zeros(1, _HEADER)
