@@ -26,14 +26,15 @@ STAMP_BLENDER42 := $(VENV_BLENDER42)/.stamp-$(BPY42)-$(NUMPY_BLENDER42)
 STAMP_BLENDER52 := $(VENV_BLENDER52)/.stamp-$(BPY52)
 BLENDER_PYTHONS := 4.2=$(abspath $(VENV_BLENDER42))/bin/python:5.2=$(abspath $(VENV_BLENDER52))/bin/python
 
-.PHONY: help venv venv-np2 venv-blender demo test test-np2 extension extension-split extension-validate samples bench clean distclean lint
+.PHONY: help venv venv-np2 venv-blender demo test test-np2 test-kernels extension extension-split extension-validate samples bench clean distclean lint
 
 help:
 	@echo "make venv       create $(VENV) (Python 3.11, NumPy 1.26) and install lacore[test] in editable mode"
 	@echo "make venv-np2   create $(VENV_NP2) (Python 3.13, NumPy 2.5) with lacore[test]"
 	@echo "make venv-blender  create $(VENV_BLENDER42) ($(BPY42)) and $(VENV_BLENDER52) ($(BPY52)), bpy only"
 	@echo "make demo       encode a shared mesh (CLI) and a generated Blender scene (add-on, bpy 5.2) into demo_output/"
-	@echo "make test       the whole suite: lacore under NumPy 1.26 and 2.5, wheel tags, Blender checks on bpy 4.2 and 5.2"
+	@echo "make test       the whole suite: lacore under NumPy 1.26 and 2.5, wheel tags, Blender checks on bpy 4.2 and 5.2,"
+	@echo "                and the numerically sensitive tests again on other SIMD/BLAS kernels (make test-kernels)"
 	@echo "make extension  download the bundled wheels (4 platforms) and build dist/lengths_angles-*.zip"
 	@echo "make extension-split  one smaller zip per platform (each with only its wheels)"
 	@echo "make samples    generate the sample .blend files into blend_samples/"
@@ -85,12 +86,19 @@ demo: venv venv-np2 $(STAMP_BLENDER52)
 
 # 1. everything (lacore under NumPy 1.26, wheel-tag check, Blender checks on bpy 4.2 AND 5.2: a missing one fails)
 # 2. the lacore tests again under NumPy 2.5 (Python 3.13)
+# 3. the numerically sensitive tests (marker `numerics`) again on other SIMD and BLAS kernels (~1-2 min)
 test: venv venv-np2 venv-blender
 	LACORE_REQUIRE_BLENDERS=1 LACORE_BLENDER_PYTHONS="$(BLENDER_PYTHONS)" $(PY) -m pytest -q
 	$(MAKE) --no-print-directory test-np2
+	$(MAKE) --no-print-directory test-kernels
 
 test-np2: venv-np2
 	$(PY_NP2) -m pytest -q --ignore-glob="tests/test_blender_*"
+
+# NPY_DISABLE_CPU_FEATURES (every SIMD feature NumPy dispatches to on this CPU) and an older OPENBLAS_CORETYPE,
+# computed at run time by scripts/other_kernels.py: a result that depends on the CPU fails here, not on the next one.
+test-kernels: venv
+	$(PY) scripts/other_kernels.py $(PY) -m pytest -q -m numerics --ignore-glob="tests/test_blender_*"
 
 lint: venv
 	$(PY) -m ruff check .

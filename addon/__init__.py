@@ -6,7 +6,7 @@ All mathematics lives in the sibling package ``lacore`` (imported relatively).
 
 import bpy
 
-from . import operators, operators_fit, operators_interpolate, operators_markers, panels
+from . import operators, operators_fit, operators_interpolate, operators_markers, panels, runs
 
 classes = (*operators.classes, *operators_interpolate.classes, *operators_markers.classes,
            *operators_fit.classes, *panels.classes)
@@ -24,7 +24,7 @@ def register():
 def unregister():
     operators_markers.unregister_menu()
     bpy.types.MESH_MT_shape_key_context_menu.remove(panels.draw_shape_key_menu)
-    operators_interpolate.shutdown_worker()
+    runs.shutdown()
     operators_fit.unregister_properties()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

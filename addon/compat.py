@@ -12,16 +12,27 @@ collection: the channelbag where slotted actions exist, else the Action itself;
 both have the same ``.fcurves`` collection API (``find``, ``new``, ``remove``,
 iteration, ``len``).
 
+File paths
+----------
+Blender 5.x warns when a ``//`` (blend-relative) path is given to a file-path property that does
+not declare ``PATH_SUPPORTS_BLEND_RELATIVE`` (:data:`BLEND_RELATIVE_PATH`); 4.2 has no such option.
+
 Tested headless with bpy 4.2.23 and 5.2.3 (``make test``: tests/blender/check_compat.py and
 the bake checks), and by hand with bpy 4.2.0, 4.5.15 and 5.0.1.
 """
 
 import bpy
 
-__all__ = ["HAS_SLOTTED_ACTIONS", "animation_channels", "ensure_animation_channels", "id_fcurves", "fcurve_group"]
+__all__ = ["HAS_SLOTTED_ACTIONS", "BLEND_RELATIVE_PATH", "animation_channels", "ensure_animation_channels",
+           "id_fcurves", "fcurve_group"]
 
 
 HAS_SLOTTED_ACTIONS = bpy.app.version >= (4, 4, 0)
+
+#: ``options`` of a file-path property that takes ``//`` paths (relative to the .blend): newer Blenders warn
+#: when such a path is given to a property without ``PATH_SUPPORTS_BLEND_RELATIVE``, which 4.2 does not know.
+BLEND_RELATIVE_PATH = ({'PATH_SUPPORTS_BLEND_RELATIVE'}
+                       if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties else set())
 
 
 def _channelbag(action, slot, ensure=False):

@@ -1,8 +1,9 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Fast, vectorized access to Blender mesh data (no mathematics here).
 
-* :func:`read_shape_keys` / :func:`write_shape_key` move shape-key coordinates
-  between Blender and ``(K, V, 3)`` float64 arrays with ``foreach_get``/``foreach_set``.
+* :func:`read_shape_keys` / :func:`write_shape_key` / :func:`set_shape_key` move shape-key
+  coordinates between Blender and ``(K, V, 3)`` float64 arrays with ``foreach_get``/``foreach_set``;
+  :func:`object_mode` makes writes of shape keys stick in Edit Mode.
 * :func:`triangulate` builds a FIXED triangulation of the polygons: a fan from each
   polygon's first loop vertex.  It depends only on connectivity (unlike
   ``mesh.loop_triangles``, which follows vertex positions for quads), so all shape
@@ -10,6 +11,7 @@
   followed by the fan diagonals.
 """
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +19,7 @@ import numpy as np
 from ..lacore.errors import InputError
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "write_shape_key",
-           "key_names", "require_mesh_object"]
+           "set_shape_key", "key_names", "require_mesh_object", "object_mode", "mesh_counts"]
 
 
 class MeshAccessError(InputError):
@@ -202,3 +204,39 @@ def write_shape_key(mesh, name, coords):
         raise MeshAccessError(f"Shape key '{name}': expected coordinates of shape ({V}, 3), got {coords.shape}")
     mesh.shape_keys.key_blocks[name].points.foreach_set("co", coords.astype(np.float32).ravel())
     mesh.update()
+
+
+def set_shape_key(obj, name, coords):
+    """Create the shape key ``name`` of ``obj`` (relative to the reference key, value 0) or overwrite its
+    coordinates ``(V, 3)`` (the value and settings of an existing key stay)."""
+    mesh = obj.data
+    if mesh.shape_keys is None or name not in mesh.shape_keys.key_blocks:
+        kb = obj.shape_key_add(name=name, from_mix=False)
+        kb.value = 0.0
+        kb.relative_key = mesh.shape_keys.reference_key
+        if kb.name != name:  # pragma: no cover - names are fitted to Blender's limit beforehand
+            raise RuntimeError(f"Blender renamed the new key '{name}' to '{kb.name}'")
+    mesh.shape_keys.key_blocks[name].points.foreach_set("co", np.asarray(coords, np.float32).ravel())
+
+
+@contextmanager
+def object_mode(obj):
+    """Shape keys written in Edit Mode would be overwritten on leaving it: write in Object Mode (and return
+    to Edit Mode afterwards)."""
+    if obj.mode != 'EDIT':
+        yield
+        return
+    import bpy
+
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    try:
+        yield
+    finally:
+        with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+            bpy.ops.object.mode_set(mode='EDIT')
+
+
+def mesh_counts(mesh):
+    """``{"vertices": .., "edges": .., "faces": ..}`` of ``mesh``."""
+    return {"vertices": len(mesh.vertices), "edges": len(mesh.edges), "faces": len(mesh.polygons)}

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore): Encode, Remove Data."""
+"""Operators of the Lengths & Angles add-on (glue: Blender data <-> lacore): Encode, Remove Data, Integrability."""
 
 import time
 
@@ -8,9 +8,10 @@ import numpy as np
 from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
-from ..lacore.integrability.local import integrability_violation
-from . import session, storage
-from .operators_interpolate import BAKE_PROP, bake_identity, object_mode, remove_bake
+from ..lacore.integrability import check_integrability
+from . import bake, session, storage
+from .mesh_access import object_mode, require_mesh_object
+from .operators_fit import BINDING_PROP, remove_model
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -29,13 +30,15 @@ def encode_object(obj):
     topology = data.topology
     z = np.empty((len(data.names), 2 * topology.n_edges), np.float64)
     violations = np.empty(len(data.names), np.float64)
+    integrability = []
     for k, name in enumerate(data.names):
         z[k] = session.key_z(data, name)
         try:
-            v = integrability_violation(z[k], topology)
-        except MeshError as exc:
+            check = check_integrability(z[k], topology)  # all of Theorem 3.2: vertices, holes, handles
+        except InputError as exc:
             raise MeshError(f"Shape key '{name}': {exc}") from exc
-        violations[k] = float(np.max(v)) if len(v) else 0.0
+        violations[k] = check.max_local
+        integrability.append((check.integrable, check.describe(), check.where()))
     return {
         "faces": topology.faces,
         "edges": topology.edges,
@@ -43,6 +46,7 @@ def encode_object(obj):
         "names": data.names,
         "z": z,
         "violations": violations,
+        "integrability": integrability,
         "topology": topology,
         "coords_hashes": data.key_hashes,
         "topology_hash": data.topology_hash,
@@ -51,15 +55,22 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity) and the session cache.  Returns a short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding and the
+    session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
+    short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
         storage.clear_encoding(mesh)
         removed.append("encoding")
-    if BAKE_PROP in mesh or any(bake_identity(obj).values()):
-        n = remove_bake(obj)
+    if bake.has_bake(obj):
+        n = bake.remove_bake(obj)
         removed.append(f"bake ({n} keys)")
+    if remove_model(obj):
+        removed.append("shape model")
+    if BINDING_PROP in obj:
+        del obj[BINDING_PROP]
+        removed.append("marker binding")
     session.clear()
     return ", ".join(removed) if removed else "nothing stored"
 
@@ -91,12 +102,16 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
         storage.write_encoding(mesh, faces=result["faces"], edges=result["edges"],
                                n_mesh_edges=result["n_mesh_edges"], names=result["names"], z=result["z"],
                                violations=result["violations"], coords_hashes=result["coords_hashes"],
-                               topology_hash=result["topology_hash"])
+                               topology_hash=result["topology_hash"], integrability=result["integrability"])
         n = len(result["names"])
         worst = float(result["violations"].max())
-        verdict = "integrable" if storage.is_integrable(worst) else "NOT integrable"
+        failing = [(name, where) for name, (ok, _, where) in zip(result["names"], result["integrability"], strict=True)
+                   if not ok]
+        verdict = ("integrable" if not failing else
+                   f"NOT integrable: '{failing[0][0]}' {failing[0][1]}" + (f" and {len(failing) - 1} more keys"
+                                                                          if len(failing) > 1 else ""))
         self.report({'INFO'}, f"Encoded {n} shape key{'s' if n != 1 else ''} of '{obj.name}' "
-                              f"({result['topology'].n_edges} edges, {verdict}: max violation {worst:.3g}, "
+                              f"({result['topology'].n_edges} edges, {verdict}: max vertex violation {worst:.3g}, "
                               f"{time.perf_counter() - start:.2f} s)")
         return {'FINISHED'}
 
@@ -107,16 +122,21 @@ class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
     bl_idname = "lengths_angles.remove_data"
     bl_label = "Remove Lengths & Angles Data"
     bl_description = ("Remove everything Lengths & Angles stored on this mesh: the encoding, the bake (its keys "
-                      "and keyframes) and the cached computations")
+                      "and keyframes), the shape model, the marker binding and the cached computations (in-between "
+                      "keys and fitted results stay)")
     bl_options = {'REGISTER', 'UNDO'}
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == 'MESH'
+        return True  # execute() explains what is wrong instead of a greyed-out button
 
     def execute(self, context):
         obj = context.object
+        try:
+            require_mesh_object(obj)
+        except InputError as exc:
+            self.report({'ERROR'}, str(exc))
+            return {'CANCELLED'}
         with object_mode(obj):  # removing shape keys in Edit Mode would be undone on leaving it
             removed = remove_data(obj)
             obj.data.update()

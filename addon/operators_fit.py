@@ -5,102 +5,127 @@ Operators
 ---------
 ``lengths_angles.build_model``
     Builds a :class:`..lacore.models.shape_model.ShapeModel` from the active mesh's shape
-    keys (default all but the basis; ``keys`` a comma-separated list chooses), on the
-    fan triangulation of :func:`.mesh_access.triangulate`.  The model is stored IN
-    THE .blend: ``mesh["lengths_angles_model"]`` holds the model's ``.npz``
-    (:meth:`ShapeModel.save`) base64-encoded in a string ID property, plus the key
-    names and vertex count; it survives save/reload and is read back by
-    :func:`read_model`.
+    keys (default all but the basis and the add-on's own ``"LA ..."`` keys; ``keys`` a
+    comma-separated list chooses), on the fan triangulation of :func:`.mesh_access.triangulate`.
+    The model is stored IN THE .blend: ``mesh["lengths_angles_model"]`` holds the model's
+    ``.npz`` (:meth:`ShapeModel.save`) base64-encoded in a string ID property, plus the key
+    names and vertex count; it survives save/reload and is read back by :func:`read_model`.
 Mode sliders
     Dragging a slider previews its pose: at most every :data:`PREVIEW_INTERVAL` seconds (a timer) the
     pose is synthesized (:meth:`ShapeModel.synthesize`, one reconstruction) into the shape key
-    :data:`PREVIEW_KEY` at value 1 (keys named ``"LA ..."`` are never training keys).
+    :data:`.naming.PREVIEW_KEY` at value 1.
 ``lengths_angles.model_pose_to_shape_key``
     Writes the pose of the mode sliders (``object.lengths_angles_mode_weights``, in
-    standard deviations; the panel shows one slider per mode) as a new shape key,
-    synthesized by :meth:`ShapeModel.synthesize`.
+    standard deviations; the panel shows one slider per mode) as a new shape key.
 ``lengths_angles.bind_markers``
     Binds the take's marker empties (the active/selected take empty, or the selected
     marker empties) to the active mesh at the current frame: each marker to the
     nearest surface point of the evaluated mesh with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
-    markers are where the mesh is).  Stored on the object in
-    ``obj["lengths_angles_binding"]`` (take, labels, empties, triangles of the fan
-    triangulation, barycentric coordinates, offsets, distances); the panel lists
-    each marker with its offset and warns about markers farther than
-    ``warn_distance`` from the surface.
+    markers are where the mesh is; *Align* runs ICP first).  Stored on the object in
+    ``obj["lengths_angles_binding"]``; the panel lists each marker with its offset and the
+    operator warns about markers farther than ``warn_distance`` from the surface.
 ``lengths_angles.fit_markers``
     Fits the frame range.  Marker positions are read from the empties' F-curves in
     bulk (:func:`.operators_markers.read_take`, no ``frame_set``), mapped into the
-    object's space and passed to :func:`..lacore.markers.fitting.fit_markers`.
-    Interactively it runs MODAL: the fit runs in a worker thread (only lacore, no
-    bpy), a timer updates the progress bar and Esc cancels through lacore's progress
-    callback.  In background mode (``blender -b``) it runs synchronously.
-    Output (``output``):
+    object's space and passed to :func:`..lacore.markers.fitting.fit_markers`.  Output:
 
-    * ``'PC2'`` (default, any length): a PC2 point cache ``//<object>_<take>.pc2``
-      next to the .blend (the blend must be saved) played by a Mesh Cache modifier
-      named ``"LA Fit"`` with ``frame_start`` = the first fitted frame and
-      ``frame_scale`` 1, so scene frame ``f`` shows fitted frame ``f`` (the modifier is added last in
-      the stack: move it first if other modifiers change the vertex count);
+    * ``'PC2'`` (default, any length): a PC2 point cache (default ``//<object>_<take>.pc2``
+      next to the .blend, which must be saved; ``//`` paths are relative to the .blend)
+      played by a Mesh Cache modifier :data:`.naming.FIT_MODIFIER` with ``frame_start`` =
+      the first fitted frame and ``frame_scale`` 1, so scene frame ``f`` shows fitted frame
+      ``f`` (the modifier is added last in the stack);
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
       shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
 
-    The object's mesh data is untouched by the PC2 output.  A failed or cancelled
-    fit changes nothing: no file, no modifier, no key (frames fitted before a cancel
-    are discarded).
+Build, Bind and Fit run through the one background-run mechanism (:mod:`.runs`): from the UI
+modal with a progress bar (model stages, ICP iterations, frames) and Esc; from scripts and in
+background mode synchronously.  Before anything is written the object (mode, mesh, keys) and
+what the run read (stored model, binding, take, posed mesh) are checked for changes.  A failed
+or cancelled run changes nothing: no file, no modifier, no key, no stored model or binding.
 """
 
 import base64
+import hashlib
 import io
 import os
 import tempfile
-import threading
 
 import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
+from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
 from ..lacore.markers.fitting import fit_markers
-from ..lacore.io.point_cache import write_pc2
-from ..lacore.progress import Cancelled
 from ..lacore.models.shape_model import ShapeModel
-from .compat import ensure_animation_channels
+from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels
+from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
+from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_own_key, parse_key_list
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
+from .runs import ObjectWatch, Run, RunOperator, object_state
 
-__all__ = ["MODEL_PROP", "BINDING_PROP", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "MODIFIER_NAME", "build_model",
-           "store_model", "read_model", "read_binding", "bind", "FitJob", "classes"]
+__all__ = ["MODEL_PROP", "BINDING_PROP", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run", "bind_run", "fit_run",
+           "fit_inputs", "store_model", "read_model", "read_binding", "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
 BINDING_PROP = "lengths_angles_binding"
 MAX_MODES = 32
 MAX_SHAPE_KEY_FRAMES = 100
-MODIFIER_NAME = "LA Fit"
 
 
 class FitSetupError(InputError):
     """Input of the Blender fitting operators that cannot be used (no model, no binding, ...)."""
 
 
+def _digest(text):
+    return hashlib.blake2b(str(text).encode(), digest_size=16).hexdigest()
+
+
+def _prop_state(object_name, prop, on_mesh):
+    """Getter of a digest of the ID property ``prop`` of an object (or of its mesh): a watch extra."""
+    def state():
+        obj = bpy.data.objects.get(object_name)
+        owner = None if obj is None else (obj.data if on_mesh else obj)
+        value = None if owner is None else owner.get(prop)
+        return None if value is None else _digest(value.to_dict() if hasattr(value, "to_dict") else value)
+    return state
+
+
 # ---------------------------------------------------------------------------------------------- model
-def build_model(obj, keys=None, n_modes=None):
-    """A ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but the basis)."""
+def model_run(obj, keys=None, n_modes=None):
+    """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
+    the basis and the add-on's own keys) and storing it (validated; raises InputError subclasses)."""
     mesh = require_mesh_object(obj)
+    if obj.mode == 'EDIT':
+        obj.update_from_editmode()
     names, coords = read_shape_keys(mesh)
-    if keys is None:  # all but the basis and the add-on's own keys ("LA model preview", "LA fit <f>")
-        keys = [k for k in names[1:] if not k.startswith("LA ")]
+    if keys is None:
+        keys = [k for k in names[1:] if not is_own_key(k)]
     missing = [k for k in keys if k not in names]
     if missing:
         raise FitSetupError(f"mesh '{mesh.name}' has no shape key(s) {', '.join(map(repr, missing))}")
     if len(keys) < 2:
         raise FitSetupError(f"mesh '{mesh.name}': a model needs at least 2 training shape keys, got {len(keys)}")
-    tri = triangulate(mesh)
+    n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
+    if n_modes > len(keys) - 1:
+        raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
+    faces = triangulate(mesh).faces
     poses = coords[[names.index(k) for k in keys]]
-    model = ShapeModel.fit(poses, tri.faces, reference_vertices=coords[0], n_modes=n_modes)
-    return model, list(keys)
+    reference = coords[0]
+    job = CallJob(lambda progress: ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=n_modes,
+                                                  progress=progress), "shape model", total=4)
+    keys = list(keys)
+
+    def write(obj, job):
+        store_model(obj.data, job.result, keys)
+        _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
+        obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
+        _PENDING_PREVIEWS.discard(obj.name)
+        return f"shape model of {len(keys)} keys, {job.result.n_modes} modes"
+    return Run(job, ObjectWatch(obj, [names[0], *keys]), write, what="model")
 
 
 def store_model(mesh, model, keys):
@@ -112,6 +137,19 @@ def store_model(mesh, model, keys):
             data = base64.b64encode(fh.read()).decode("ascii")
     mesh[MODEL_PROP] = {"npz_base64": data, "keys": list(keys), "n_vertices": len(mesh.vertices),
                         "n_modes": int(model.n_modes)}
+
+
+def remove_model(obj):
+    """Remove the stored model of ``obj``'s mesh, its preview key and the slider values; True if there was one."""
+    mesh = obj.data
+    had = MODEL_PROP in mesh
+    if had:
+        del mesh[MODEL_PROP]
+    kb = mesh.shape_keys.key_blocks.get(PREVIEW_KEY) if mesh.shape_keys is not None else None
+    if kb is not None:
+        obj.shape_key_remove(kb)
+    obj.property_unset("lengths_angles_mode_weights")  # back to the defaults, nothing stored (no preview either)
+    return had
 
 
 _MODEL_CACHE = {}
@@ -154,7 +192,6 @@ def _mesh_vertices(obj, depsgraph):
 
 
 # -------------------------------------------------------------------------------------------- preview
-PREVIEW_KEY = "LA model preview"
 PREVIEW_INTERVAL = 0.2  # seconds: the slider preview is recomputed at most this often
 _PENDING_PREVIEWS = set()
 
@@ -209,9 +246,31 @@ def _take_of(objects):
     return take, labels
 
 
-def bind(context, obj, take, labels=None, align=False):
-    """Bind markers of ``take`` (``labels`` or all) to ``obj`` at the current frame; stores the binding."""
-    mesh = require_mesh_object(obj)
+def _take_state(take_name):
+    """Getter of the take's identity and its marker empties' (a watch extra)."""
+    def state():
+        take = bpy.data.objects.get(take_name)
+        if take is None:
+            return None
+        return (take.as_pointer(), tuple(sorted(object_state(c.name) for c in take.children if MARKER_PROP in c)))
+    return state
+
+
+def _posed_mesh_state(obj_name):
+    """Getter of a digest of the evaluated mesh at the current frame (a watch extra of Bind)."""
+    def state():
+        obj = bpy.data.objects.get(obj_name)
+        if obj is None:
+            return None
+        X = _mesh_vertices(obj, bpy.context.evaluated_depsgraph_get())
+        return bpy.context.scene.frame_current, hashlib.blake2b(X.tobytes(), digest_size=16).hexdigest()
+    return state
+
+
+def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
+    """A :class:`.runs.Run` binding markers of ``take`` (``labels`` or all) to ``obj`` at the current frame and
+    storing the binding (validated; raises InputError subclasses)."""
+    require_mesh_object(obj)
     model = read_model(obj)
     all_labels = [lb for lb, _ in marker_objects(take)]
     labels = all_labels if labels is None else [lb for lb in all_labels if lb in labels]
@@ -225,14 +284,29 @@ def bind(context, obj, take, labels=None, align=False):
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     local = world @ inv[:3, :3].T + inv[:3, 3]
     X = _mesh_vertices(obj, context.evaluated_depsgraph_get())
-    binding, info = bind_markers(X, model.faces, local, align=align)
+    faces = model.faces
+    iterations = 100
+    job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
+                                                progress=progress), "binding", total=iterations if align else 1)
     empties = {lb: o.name for lb, o in marker_objects(take)}
-    obj[BINDING_PROP] = {
-        "take": take.name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
-        "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
-        "offsets": binding.offsets.tolist(), "n_vertices": len(mesh.vertices),
-    }
-    return binding, info
+    take_name = take.name
+
+    def write(obj, job):
+        binding, _info = job.result
+        obj[BINDING_PROP] = {
+            "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
+            "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
+            "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+        }
+        far = np.flatnonzero(np.abs(binding.offsets) > warn_distance)
+        if far.size:
+            job.notes.append(f"{far.size} markers are farther than {warn_distance:g} from the surface: "
+                             + ", ".join(labels[i] for i in far[:8]))
+        return f"bound {binding.n_markers} markers"
+    extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
+              f"The take '{take_name}' or its marker empties": _take_state(take_name),
+              f"The posed mesh of '{obj.name}' (frame, shape keys, modifiers)": _posed_mesh_state(obj.name)}
+    return Run(job, ObjectWatch(obj, extras=extras), write, what="binding")
 
 
 def read_binding(obj):
@@ -243,7 +317,7 @@ def read_binding(obj):
     take = bpy.data.objects.get(meta["take"])
     if take is None or TAKE_PROP not in take:
         raise FitSetupError(f"object '{obj.name}': the bound take '{meta['take']}' is gone: bind again")
-    present = {lb for lb, _ in _marker_pairs(take)}
+    present = {c[MARKER_PROP] for c in take.children if MARKER_PROP in c}
     labels = list(meta["labels"])
     missing = [lb for lb, name in zip(labels, meta["empties"], strict=True)
                if lb not in present or name not in bpy.data.objects]
@@ -256,127 +330,126 @@ def read_binding(obj):
     return binding, take, labels
 
 
-def _marker_pairs(take):
-    return [(c[MARKER_PROP], c) for c in take.children if MARKER_PROP in c]
-
-
 # ------------------------------------------------------------------------------------------------ fit
-class FitJob:
-    """One marker fit: set up in the main thread (reads Blender), solved by :meth:`run` (lacore only,
-    any thread), written back by :meth:`finish` (main thread).  ``progress`` is ``(done, total)``;
-    setting ``cancel`` stops :meth:`run` at the next frame (lacore.progress.Cancelled)."""
+def _pc2_path(filepath, obj, take):
+    """``(path as given, absolute path)`` of the point cache; ``//`` is relative to the saved .blend."""
+    if not filepath:
+        if not bpy.data.filepath:
+            raise FitSetupError("save the .blend first: the point cache is written next to it")
+        filepath = f"//{bpy.path.clean_name(obj.name)}_{bpy.path.clean_name(take.name)}.pc2"
+    if filepath.startswith("//") and not bpy.data.filepath:
+        raise FitSetupError(f"Cache File '{filepath}' is relative to the .blend ('//'): save the .blend first or "
+                            "give an absolute path")
+    path = os.path.abspath(bpy.path.abspath(filepath))
+    if os.path.isdir(path):
+        raise FitSetupError(f"Cache File '{filepath}' is a folder: give a file name, e.g. '//fit.pc2'")
+    folder = os.path.dirname(path)
+    if not os.path.isdir(folder):
+        raise FitSetupError(f"Cache File '{filepath}': the folder {folder} does not exist")
+    return filepath, path
 
-    def __init__(self, context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0, temporal_weight=0.0,
-                 filepath=""):
-        self.obj = obj
-        mesh = require_mesh_object(obj)
-        self.model = read_model(obj)
-        binding, take, labels = read_binding(obj)
-        self.binding = binding
-        frame_start, frame_end = int(frame_start), int(frame_end)
-        if frame_end < frame_start:
-            raise FitSetupError(f"empty frame range {frame_start}..{frame_end}")
-        if output == 'SHAPE_KEYS' and frame_end - frame_start + 1 > MAX_SHAPE_KEY_FRAMES:
-            raise FitSetupError(f"{frame_end - frame_start + 1} frames: shape keys are for clips of at most "
-                                f"{MAX_SHAPE_KEY_FRAMES} frames, use the PC2 output")
-        meta = take[TAKE_PROP]
-        first = float(meta["frame_start"])
-        last = first + (int(meta["keyed_samples"]) - 1) * float(meta["frame_step"])
-        if frame_start < first - 1e-6 or frame_end > last + 1e-6:
-            raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, fewer than the range "
-                                f"{frame_start}..{frame_end}: set the frame range inside the take")
-        self.frames = np.arange(frame_start, frame_end + 1)
-        if output == 'PC2':
-            if not filepath:
-                if not bpy.data.filepath:
-                    raise FitSetupError("save the .blend first: the point cache is written next to it")
-                filepath = f"//{bpy.path.clean_name(obj.name)}_{bpy.path.clean_name(take.name)}.pc2"
-            self.filepath = filepath
-        all_labels = [lb for lb, _ in marker_objects(take)]
-        world = read_take(take, frames=self.frames).positions[:, [all_labels.index(lb) for lb in labels]]
-        inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
-        self.markers = world @ inv[:3, :3].T + inv[:3, 3]
-        self.output = output
-        self.options = {"prior_weight": prior_weight, "temporal_weight": temporal_weight}
-        self.n_vertices = len(mesh.vertices)
-        self.progress = (0, len(self.frames))
-        self.cancel = False
-        self.result = None
-        self.error = None
 
-    def _progress(self, done, total, message=""):
-        self.progress = (done, total)
-        return self.cancel
+def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
+    """What a fit reads from Blender (validated): ``dict(model, binding, take, markers (T, M, 3) in the object's
+    space, frames, filepath, path)``."""
+    require_mesh_object(obj)
+    model = read_model(obj)
+    binding, take, labels = read_binding(obj)
+    frame_start, frame_end = int(frame_start), int(frame_end)
+    if frame_end < frame_start:
+        raise FitSetupError(f"empty frame range {frame_start}..{frame_end}")
+    if output == 'SHAPE_KEYS' and frame_end - frame_start + 1 > MAX_SHAPE_KEY_FRAMES:
+        raise FitSetupError(f"{frame_end - frame_start + 1} frames: shape keys are for clips of at most "
+                            f"{MAX_SHAPE_KEY_FRAMES} frames, use the PC2 output")
+    meta = take[TAKE_PROP]
+    first = float(meta["frame_start"])
+    last = first + (int(meta["keyed_samples"]) - 1) * float(meta["frame_step"])
+    if frame_start < first - 1e-6 or frame_end > last + 1e-6:
+        raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, fewer than the range "
+                            f"{frame_start}..{frame_end}: set the frame range inside the take")
+    frames = np.arange(frame_start, frame_end + 1)
+    filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
+    all_labels = [lb for lb, _ in marker_objects(take)]
+    world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
+    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    return {"model": model, "binding": binding, "take": take, "markers": world @ inv[:3, :3].T + inv[:3, 3],
+            "frames": frames, "filepath": filepath, "path": path}
 
-    def run(self):
-        """Solve (lacore only); errors and cancellation end up in ``self.error``."""
-        try:
-            self.result = fit_markers(self.model, self.markers, self.binding, progress=self._progress,
-                                      **self.options)
-        except Cancelled:
-            self.error = "cancelled"
-        except Exception as exc:  # reported by the operator, nothing written
-            self.error = f"{type(exc).__name__}: {exc}"
 
-    def finish(self, context):
-        """Write the result to Blender (PC2 + Mesh Cache modifier, or shape keys); returns a message."""
-        X = self.result.vertices
-        obj = self.obj
-        if self.output == 'PC2':
-            path = bpy.path.abspath(self.filepath)
-            write_pc2(path, X, start=float(self.frames[0]), sampling=1.0)
-            mod = obj.modifiers.get(MODIFIER_NAME) or obj.modifiers.new(MODIFIER_NAME, 'MESH_CACHE')
-            mod.cache_format = 'PC2'
-            mod.filepath = self.filepath
-            mod.time_mode = 'FRAME'
-            mod.play_mode = 'SCENE'
-            mod.frame_start = float(self.frames[0])  # scene frame f shows sample f - frame_start
-            mod.frame_scale = 1.0
-            mod.deform_mode = 'OVERWRITE'
-            mod.interpolation = 'NONE'
-            return f"fitted {len(self.frames)} frames to {self.filepath}"
-        mesh = obj.data
-        if mesh.shape_keys is None:
-            obj.shape_key_add(name="Basis", from_mix=False)
-        owner, _ = ensure_animation_channels(mesh.shape_keys, f"{obj.name} LA fit")
-        for t, f in enumerate(self.frames):
-            kb = obj.shape_key_add(name=f"LA fit {int(f)}", from_mix=False)
-            kb.data.foreach_set("co", X[t].astype(np.float32).ravel())
-            fc = owner.fcurves.new(f'key_blocks["{kb.name}"].value')
-            kf = [(f - 1, 0.0), (f, 1.0), (f + 1, 0.0)]
-            fc.keyframe_points.add(len(kf))
-            fc.keyframe_points.foreach_set("co", np.array(kf, np.float32).ravel())
-            for k in fc.keyframe_points:
-                k.interpolation = 'CONSTANT'
-        return f"fitted {len(self.frames)} frames as shape keys"
+def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0, temporal_weight=0.0, filepath=""):
+    """A :class:`.runs.Run` fitting the shape model to the bound markers over the frame range and writing the
+    PC2 + Mesh Cache modifier or the shape keys (validated; raises InputError subclasses)."""
+    inputs = fit_inputs(context, obj, frame_start, frame_end, output, filepath)
+    model, markers, binding, frames = inputs["model"], inputs["markers"], inputs["binding"], inputs["frames"]
+    job = CallJob(lambda progress: fit_markers(model, markers, binding, prior_weight=prior_weight,
+                                               temporal_weight=temporal_weight, progress=progress),
+                  "marker fit", total=len(frames))
+    job.inputs = inputs
+
+    def write(obj, job):
+        return _write_fit(obj, job.result.vertices, frames, output, inputs["filepath"], inputs["path"])
+    take_name = inputs["take"].name
+    extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
+              f"The marker binding of '{obj.name}'": _prop_state(obj.name, BINDING_PROP, on_mesh=False),
+              f"The take '{take_name}' or its marker empties": _take_state(take_name)}
+    return Run(job, ObjectWatch(obj, extras=extras), write, what="fitted frame")
+
+
+def _write_fit(obj, X, frames, output, filepath, path):
+    """Write the fitted frames: PC2 + Mesh Cache modifier, or one keyed shape key per frame."""
+    if output == 'PC2':
+        write_pc2(path, X, start=float(frames[0]), sampling=1.0)
+        mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+        mod.cache_format = 'PC2'
+        mod.filepath = filepath
+        mod.time_mode = 'FRAME'
+        mod.play_mode = 'SCENE'
+        mod.frame_start = float(frames[0])  # scene frame f shows sample f - frame_start
+        mod.frame_scale = 1.0
+        mod.deform_mode = 'OVERWRITE'
+        mod.interpolation = 'NONE'
+        return f"fitted {len(frames)} frames to {filepath}"
+    mesh = obj.data
+    if mesh.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    owner, _ = ensure_animation_channels(mesh.shape_keys, f"{obj.name} LA fit")
+    for t, f in enumerate(frames):
+        kb = obj.shape_key_add(name=fit_key_name(f), from_mix=False)
+        kb.data.foreach_set("co", X[t].astype(np.float32).ravel())
+        fc = owner.fcurves.new(f'key_blocks["{kb.name}"].value')
+        kf = [(f - 1, 0.0), (f, 1.0), (f + 1, 0.0)]
+        fc.keyframe_points.add(len(kf))
+        fc.keyframe_points.foreach_set("co", np.array(kf, np.float32).ravel())
+        for k in fc.keyframe_points:
+            k.interpolation = 'CONSTANT'
+    return f"fitted {len(frames)} frames as shape keys"
 
 
 # ---------------------------------------------------------------------------------------------- operators
-class LENGTHS_ANGLES_OT_build_model(bpy.types.Operator):
+class _Interactive:
+    """From the UI (a button): modal with progress and Esc; ``execute`` alone (scripts) runs at once."""
+
+    def invoke(self, context, event):
+        self.interactive = True
+        return self.execute(context)
+
+
+class LENGTHS_ANGLES_OT_build_model(_Interactive, RunOperator, bpy.types.Operator):
     """Build a shape model (lengths-and-angles PCA) from the mesh's shape keys and store it in the .blend"""
     bl_idname = "lengths_angles.build_model"
     bl_label = "Build Shape Model"
     bl_options = {'REGISTER', 'UNDO'}
 
-    keys: StringProperty(name="Shape Keys", description="Comma-separated training keys; empty: all but the basis")
-    n_modes: IntProperty(name="Modes", default=0, min=0, max=MAX_MODES, description="0: all (at most 32)")
+    keys: StringProperty(name="Shape Keys", description="Training shape keys separated by commas; empty: every key "
+                                                        "but the basis and the add-on's own 'LA ...' keys")
+    n_modes: IntProperty(name="Modes", default=0, min=0, max=MAX_MODES,
+                         description=f"Modes of variation to keep; 0: as many as the keys allow (at most {MAX_MODES})")
 
     def execute(self, context):
-        obj = context.active_object
-        try:
-            keys = [k.strip() for k in self.keys.split(",") if k.strip()] or None
-            model, keys = build_model(obj, keys, n_modes=(self.n_modes or None))
-            if model.n_modes > MAX_MODES:
-                model, keys = build_model(obj, keys, n_modes=MAX_MODES)
-            store_model(obj.data, model, keys)
-        except InputError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
-        _PENDING_PREVIEWS.add(obj.name)
-        obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
-        _PENDING_PREVIEWS.discard(obj.name)
-        self.report({'INFO'}, f"shape model of {len(keys)} keys, {model.n_modes} modes")
-        return {'FINISHED'}
+        def make(context):
+            keys = parse_key_list(self.keys) if self.keys.strip() else None
+            return model_run(context.active_object, keys, self.n_modes or None)
+        return self.start_run(context, make)
 
 
 class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
@@ -385,7 +458,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
     bl_label = "Model Pose to Shape Key"
     bl_options = {'REGISTER', 'UNDO'}
 
-    name: StringProperty(name="Name", default="Model pose")
+    name: StringProperty(name="Name", default="Model pose", description="Name of the new shape key")
 
     def execute(self, context):
         obj = context.active_object
@@ -404,112 +477,60 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         return {'FINISHED'}
 
 
-class LENGTHS_ANGLES_OT_bind_markers(bpy.types.Operator):
+class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operator):
     """Bind the selected take's markers to the nearest surface points of the active mesh at this frame"""
     bl_idname = "lengths_angles.bind_markers"
     bl_label = "Bind Markers"
     bl_options = {'REGISTER', 'UNDO'}
 
-    align: BoolProperty(name="Align", default=False, description="Rigidly align the markers to the mesh first (ICP)")
+    align: BoolProperty(name="Align", default=False,
+                        description="Rigidly align the markers to the mesh first (iterative closest points, up to "
+                                    "100 iterations); off: bind them where they are")
     warn_distance: FloatProperty(name="Warn Distance", default=0.05, min=0.0, subtype='DISTANCE',
-                                 description="Warn about markers farther than this from the surface")
+                                 description="Warn about markers farther than this from the surface (in the "
+                                             "mesh's units)")
 
     def execute(self, context):
-        obj = context.active_object
-        try:
+        def make(context):
             take, labels = _take_of(list(context.selected_objects))
-            binding, info = bind(context, obj, take, labels, align=self.align)
-        except InputError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
-        far = np.flatnonzero(np.abs(binding.offsets) > self.warn_distance)
-        names = obj[BINDING_PROP]["labels"]
-        if far.size:
-            self.report({'WARNING'}, f"{far.size} markers are farther than {self.warn_distance:g} from the surface: "
-                        + ", ".join(names[i] for i in far[:8]))
-        else:
-            self.report({'INFO'}, f"bound {binding.n_markers} markers")
-        return {'FINISHED'}
+            return bind_run(context, context.active_object, take, labels, align=self.align,
+                            warn_distance=self.warn_distance)
+        return self.start_run(context, make)
 
 
-class LENGTHS_ANGLES_OT_fit_markers(bpy.types.Operator):
+class LENGTHS_ANGLES_OT_fit_markers(_Interactive, RunOperator, bpy.types.Operator):
     """Fit the shape model to the bound markers over the frame range (Esc cancels)"""
     bl_idname = "lengths_angles.fit_markers"
     bl_label = "Fit to Markers"
     bl_options = {'REGISTER', 'UNDO'}
 
-    output: EnumProperty(name="Output", default='PC2', items=[
+    output: EnumProperty(name="Output", default='PC2', description="Where the fitted frames go", items=[
         ('PC2', "Point Cache", "PC2 file next to the .blend played by a Mesh Cache modifier (any length)"),
         ('SHAPE_KEYS', "Shape Keys", f"One keyed shape key per frame (at most {MAX_SHAPE_KEY_FRAMES} frames)")])
-    use_scene_range: BoolProperty(name="Scene Frame Range", default=True)
-    frame_start: IntProperty(name="Start", default=1)
-    frame_end: IntProperty(name="End", default=250)
-    prior_weight: FloatProperty(name="Prior Weight", default=1.0, min=1e-9)
-    temporal_weight: FloatProperty(name="Temporal Weight", default=0.0, min=0.0)
-    filepath: StringProperty(name="Cache File", default="", subtype='FILE_PATH',
-                             description="Empty: //<object>_<take>.pc2 next to the .blend")
-
-    _timer = None
-    _thread = None
-    _job = None
-
-    def _make_job(self, context):
-        scene = context.scene
-        start, end = ((scene.frame_start, scene.frame_end) if self.use_scene_range
-                      else (self.frame_start, self.frame_end))
-        return FitJob(context, context.active_object, start, end, output=self.output,
-                      prior_weight=self.prior_weight, temporal_weight=self.temporal_weight, filepath=self.filepath)
-
-    def _finish(self, context, job):
-        if job.error is not None:
-            self.report({'WARNING'} if job.error == "cancelled" else {'ERROR'},
-                        f"fit {job.error}: nothing changed")
-            return {'CANCELLED'}
-        try:
-            self.report({'INFO'}, job.finish(context))
-        except InputError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
-        return {'FINISHED'}
+    use_scene_range: BoolProperty(name="Scene Frame Range", default=True,
+                                  description="Fit the scene's frame range (off: Start to End)")
+    frame_start: IntProperty(name="Start", default=1, description="First frame to fit (without Scene Frame Range)")
+    frame_end: IntProperty(name="End", default=250, description="Last frame to fit (without Scene Frame Range)")
+    prior_weight: FloatProperty(name="Prior Weight", default=1.0, min=1e-9,
+                                description="How strongly poses are held to the shape model against the marker "
+                                            "distances (squared, in the mesh's units): larger gives more model-like "
+                                            "poses; it scales with the square of the unit (0.01 suits decimetres)")
+    temporal_weight: FloatProperty(name="Temporal Weight", default=0.0, min=0.0,
+                                   description="Damps the change of the model coefficients from frame to frame "
+                                               "(0: none, each frame starts from the previous one)")
+    filepath: StringProperty(name="Cache File", default="", subtype='FILE_PATH', options=BLEND_RELATIVE_PATH,
+                             description="Point cache to write ('//' is the folder of the .blend); empty: "
+                                         "//<object>_<take>.pc2 next to the .blend")
 
     def execute(self, context):
-        try:
-            job = self._make_job(context)
-        except InputError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
-        job.run()
-        return self._finish(context, job)
-
-    def invoke(self, context, event):
-        if bpy.app.background:
-            return self.execute(context)
-        try:
-            self._job = self._make_job(context)
-        except InputError as exc:
-            self.report({'ERROR'}, str(exc))
-            return {'CANCELLED'}
-        self._thread = threading.Thread(target=self._job.run, daemon=True)
-        self._thread.start()
-        wm = context.window_manager
-        wm.progress_begin(0, self._job.progress[1])
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.modal_handler_add(self)
-        return {'RUNNING_MODAL'}
-
-    def modal(self, context, event):
-        wm = context.window_manager
-        if event.type == 'ESC':
-            self._job.cancel = True
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        wm.progress_update(self._job.progress[0])
-        if self._thread.is_alive():
-            return {'RUNNING_MODAL'}
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        return self._finish(context, self._job)
+        def make(context):
+            scene = context.scene
+            start, end = ((scene.frame_start, scene.frame_end) if self.use_scene_range
+                          else (self.frame_start, self.frame_end))
+            return fit_run(context, context.active_object, start, end, output=self.output,
+                           prior_weight=self.prior_weight, temporal_weight=self.temporal_weight,
+                           filepath=self.filepath)
+        return self.start_run(context, make)
 
 
 classes = (LENGTHS_ANGLES_OT_build_model, LENGTHS_ANGLES_OT_model_pose_to_shape_key, LENGTHS_ANGLES_OT_bind_markers,

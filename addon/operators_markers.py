@@ -345,6 +345,8 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
 
     bl_idname = "lengths_angles.import_markers"
     bl_label = "Import Motion Capture Markers"
+    bl_description = ("Import motion-capture markers (C3D or TRC) as animated empties parented to one take empty; "
+                      "occluded samples stay unkeyed")
     bl_options = {'REGISTER', 'UNDO'}
 
     filename_ext = ".c3d"
@@ -356,7 +358,7 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
                          default=1.0, min=1e-6, max=1e6, soft_min=1e-3, soft_max=1e3)
     frame_start: IntProperty(name="Start Frame", description="Frame of the take's first sample", default=1)
     rate_mode: EnumProperty(
-        name="Frame Rate",
+        name="Frame Rate", description="How the take's samples map to the scene's frames",
         items=[('SCENE', "Set Scene Rate", "Set the scene's frame rate to the take's: one sample per frame"),
                ('RETIME', "Map by Time", "Keep the scene's frame rate; key every sample at its time "
                                          "(fractional frames, no sample dropped)"),
@@ -417,6 +419,18 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
                               f"'{os.path.basename(paths[0])}' ({occluded} occluded samples{resampled}, "
                               f"{seconds:.2f} s)")
         return {'FINISHED'}
+
+
+def _describe(cls, name, description):
+    """Give the property ``name`` that a decorator added to ``cls`` (Blender's axis pickers) a tooltip."""
+    prop = cls.__annotations__[name]
+    cls.__annotations__[name] = prop.function(**{**prop.keywords, "description": description})
+
+
+_describe(LENGTHS_ANGLES_OT_import_markers, "axis_forward", "Axis of the file that points forward in Blender (C3D: "
+          "usually Y)")
+_describe(LENGTHS_ANGLES_OT_import_markers, "axis_up", "Axis of the file that points up in Blender (C3D: usually Z; "
+          "some labs record Y up)")
 
 
 class LENGTHS_ANGLES_FH_markers(bpy.types.FileHandler):

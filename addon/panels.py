@@ -6,21 +6,35 @@ Panel and operators act on ``context.object`` (which follows a pinned Properties
 
 import bpy
 
+from . import operators_fit as fit
 from . import storage
+from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
-from .operators_interpolate import (BAKE_PROP, LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
+from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
 __all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_mocap", "classes", "draw_shape_key_menu",
            "integrability_text"]
 
 
-def integrability_text(violation):
-    """``("integrable" | "not integrable", tooltip with the number)`` for a key's max violation."""
-    verdict = "integrable" if storage.is_integrable(violation) else "not integrable"
-    return verdict, (f"Largest per-vertex integrability violation |tr I - 3| = {violation:.3g} (integrable up to "
-                     f"{storage.INTEGRABLE_TOLERANCE:g}): the stored lengths and angles "
-                     + ("describe a shape" if verdict == "integrable" else "describe no shape exactly"))
+def integrability_text(violation, integrability=None):
+    """``("integrable" | "not integrable", tooltip)`` for an encoded key.
+
+    With the stored verdict of lacore (``integrability``: ``integrable``, ``integrability``, ``integrability_where``,
+    see :func:`storage.key_status`) "integrable" means all of Theorem 3.2 and the tooltip says which part fails
+    (at a vertex, around a hole, around a handle); without it (older encodings) the vertices' largest violation.
+    """
+    integrable = None if integrability is None else integrability.get("integrable")
+    verdict = "integrable" if storage.is_integrable(violation, integrable) else "not integrable"
+    shape = "describe a shape" if verdict == "integrable" else "describe no shape exactly"
+    if integrable is None:
+        return verdict, (f"Largest per-vertex integrability violation |tr I - 3| = {violation:.3g} (integrable up to "
+                         f"{storage.INTEGRABLE_TOLERANCE:g}): the stored lengths and angles {shape}; holes and "
+                         "handles not checked (encode again)")
+    text = integrability.get("integrability", "")
+    where = integrability.get("integrability_where", "")
+    head = "The stored lengths and angles " + shape + (f", they fail {where}" if where else "")
+    return verdict, f"{head}. {text[:1].upper()}{text[1:]}"
 
 
 class _ShapeKeysSubpanel:
@@ -56,13 +70,13 @@ class LENGTHS_ANGLES_PT_shape_keys(_ShapeKeysSubpanel, bpy.types.Panel):
         if changed:
             layout.label(text=f"Mesh changed since encoding ({changed}): encode again", icon='ERROR')
         col = layout.column(align=True)
-        for name, encoded, violation in rows:
+        for name, encoded, violation, integrability in rows:
             row = col.row()
             row.label(text=name, icon='CHECKMARK' if encoded else 'X')
             if not encoded:
                 row.label(text="not encoded")
                 continue
-            verdict, tip = integrability_text(violation)
+            verdict, tip = integrability_text(violation, integrability)
             op = row.operator(LENGTHS_ANGLES_OT_integrability_info.bl_idname, text=verdict, emboss=False,
                               icon='NONE' if verdict == "integrable" else 'ERROR')
             op.detail = tip
@@ -100,7 +114,6 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     bl_label = "Lengths & Angles: Model and Markers"
 
     def draw(self, context):
-        from . import operators_fit as fit
         layout = self.layout
         obj = context.object
         layout.operator(fit.LENGTHS_ANGLES_OT_build_model.bl_idname, icon='MOD_DATA_TRANSFER')

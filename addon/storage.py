@@ -12,7 +12,11 @@ Layout of ``mesh["lengths_angles"]`` (an ID property group, saved in the .blend)
     edges            int32 array, flattened (E, 2) as oriented by lacore
     keys             group: shape-key name -> group
         z                               float64 array (2E,) = (lengths, angles)
-        max_integrability_violation     float
+        max_integrability_violation     float (largest |tr I_v - 3| at a vertex)
+        integrable                      int 1 / 0: all of Theorem 3.2 (vertices, holes, handles); absent in
+                                        encodings made before the global conditions were checked
+        integrability                   str: lacore's IntegrabilityCheck.describe()
+        integrability_where             str: "" or where it fails ("at a vertex, around a hole", ...)
         key_index                       int (position in the key list when encoded)
         coords_hash                     str :func:`..session.coords_hash` of the key's coordinates
 
@@ -24,24 +28,33 @@ ID properties cannot be attached to shape-key blocks, hence the Mesh.
 
 import numpy as np
 
+from ..lacore.integrability.checks import LOCAL_TOLERANCE
+
 __all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "write_encoding", "read_encoding",
            "key_status", "clear_encoding", "encoding_mismatch"]
 
 PROP = "lengths_angles"
 FORMAT_VERSION = 1
-#: Largest per-vertex violation ``|tr I_v - 3|`` (lacore.integrability.local) shown as "integrable": round-off of
-#: lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
-INTEGRABLE_TOLERANCE = 1e-8
+#: Largest per-vertex violation ``|tr I_v - 3|`` counted as closing (lacore.integrability.checks.LOCAL_TOLERANCE):
+#: round-off of lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
+INTEGRABLE_TOLERANCE = LOCAL_TOLERANCE
 
 
-def is_integrable(violation):
-    """Whether a key's largest violation counts as "integrable" (:data:`INTEGRABLE_TOLERANCE`)."""
+def is_integrable(violation, integrable=None):
+    """Whether a key counts as "integrable": the stored verdict on all of Theorem 3.2 if there is one, else
+    (encodings made before it was stored) its largest vertex violation (:data:`INTEGRABLE_TOLERANCE`)."""
+    if integrable is not None:
+        return bool(integrable)
     return float(violation) <= INTEGRABLE_TOLERANCE
 
 
 def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations, coords_hashes=None,
-                   topology_hash=""):
-    """Replace ``mesh[PROP]`` by a new encoding (all inputs already computed and valid)."""
+                   topology_hash="", integrability=None):
+    """Replace ``mesh[PROP]`` by a new encoding (all inputs already computed and valid).
+
+    ``integrability``: per key, ``(integrable, describe, where)`` of lacore's
+    :class:`~lacore.integrability.checks.IntegrabilityCheck`.
+    """
     z = np.asarray(z, dtype=np.float64)
     keys = {
         name: {
@@ -52,6 +65,9 @@ def write_encoding(mesh, *, faces, edges, n_mesh_edges, names, z, violations, co
         }
         for k, name in enumerate(names)
     }
+    for k, name in enumerate(names if integrability is not None else ()):
+        integrable, text, where = integrability[k]
+        keys[name].update(integrable=int(bool(integrable)), integrability=str(text), integrability_where=str(where))
     mesh[PROP] = {
         "format_version": FORMAT_VERSION,
         "n_vertices": len(mesh.vertices),
@@ -74,7 +90,8 @@ def read_encoding(mesh):
 
     Returns a dict with ``faces`` (F, 3) int64, ``edges`` (E, 2) int64,
     ``n_vertices``, ``n_mesh_edges``, ``format_version`` and ``keys``:
-    name -> {``z`` (2E,) float64, ``max_integrability_violation``, ``key_index``}.
+    name -> {``z`` (2E,) float64, ``max_integrability_violation``, ``key_index``, ``integrable`` (bool, or None
+    for encodings without it), ``integrability`` and ``integrability_where`` (str)}.
     """
     group = mesh.get(PROP)
     if group is None:
@@ -85,6 +102,7 @@ def read_encoding(mesh):
             "z": np.array(item["z"], dtype=np.float64),
             "max_integrability_violation": float(item["max_integrability_violation"]),
             "key_index": int(item["key_index"]),
+            **_integrability(item),
         }
     return {
         "format_version": int(group["format_version"]),
@@ -108,8 +126,18 @@ def encoding_mismatch(mesh):
     return ", ".join(changed) if changed else None
 
 
+def _integrability(item):
+    """The stored verdict of a key: ``integrable`` (None if not stored), ``integrability``, ``integrability_where``."""
+    integrable = item.get("integrable")
+    return {"integrable": None if integrable is None else bool(integrable),
+            "integrability": str(item.get("integrability", "")),
+            "integrability_where": str(item.get("integrability_where", ""))}
+
+
 def key_status(mesh):
-    """Per shape key ``(name, encoded, max_violation or None)`` for the UI.
+    """Per shape key ``(name, encoded, max_violation or None, integrability or None)`` for the UI.
+
+    ``integrability`` is the dict of :func:`_integrability` (the stored verdict on all of Theorem 3.2).
 
     A key counts as encoded if an encoding for its name exists and the mesh
     still has the vertex and edge counts it was encoded with.
@@ -121,5 +149,6 @@ def key_status(mesh):
     rows = []
     for name in names:
         item = stored.get(name)
-        rows.append((name, item is not None, None if item is None else float(item["max_integrability_violation"])))
+        rows.append((name, item is not None, None if item is None else float(item["max_integrability_violation"]),
+                     None if item is None else _integrability(item)))
     return rows

@@ -12,7 +12,7 @@ shape key.  Timed:
 * ``redo_seconds``: the operator again with the same options (a redo-panel re-run: every frame
   comes from the session cache, addon/session.py);
 * ``steps_*``: the modal path's units of work with the operator's own runner
-  (``interpolate_runner``): validation, one ``tick()`` per in-between, ``finish()`` (checks +
+  (``inbetween_run``): validation, one ``tick()`` per in-between, ``finish()`` (checks +
   writing the keys).  In the UI the ticks run in the worker thread while Blender keeps
   responding; the main thread blocks only for validation and finish.  The computed frames are
   dropped from the session cache first (the topology, the keys' lengths and angles and, for
@@ -139,7 +139,7 @@ def main(argv=None):
                                                               count=args.count, method=method,
                                                               processes=args.processes) == {'FINISHED'}
             else:  # not offered in the UI (MULTIRES): the operator's own runner, synchronously
-                runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=args.processes)
+                runner = ops.inbetween_run(obj, "Basis", "Bend180", factors, method, workers=args.processes)
                 runner.run()
                 runner.finish()
             return round(time.perf_counter() - t, 3)
@@ -153,8 +153,8 @@ def main(argv=None):
         #    from the session cache first, the topology and the keys' lengths and angles stay cached
         session.clear_results()
         t0 = time.perf_counter()
-        runner = ops.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=args.processes)
-        runner.job.all_in_workers = True  # as the modal operator (_ModalRun._begin_modal)
+        runner = ops.inbetween_run(obj, "Basis", "Bend180", factors, method, workers=args.processes)
+        runner.job.all_in_workers = True  # as the modal operator (runs.RunOperator._begin_modal)
         t1 = time.perf_counter()
         ticks = []
 

@@ -49,8 +49,8 @@ for _p in (ROOT, ROOT / "benchmarks"):
 from bench_common import cpu_model  # noqa: E402
 from meshes import benchmark_mesh  # noqa: E402
 
-from lacore.integrability.local import (euler_integrability_jacobian, euler_integrability_map,  # noqa: E402
-                                        integrability_violation)
+from lacore.integrability.local import (  # noqa: E402
+    euler_integrability_jacobian, euler_integrability_map, integrability_violation)
 from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian  # noqa: E402
 from lacore.geometry.topology import MeshTopology  # noqa: E402
 

@@ -43,7 +43,7 @@ from bench_common import machine_info
 from lacore.markers.baselines import VertexPCA, fit_markers_vertex_pca
 from lacore.markers.fitting import fit_markers
 from lacore.markers.prolongation import NearestKeysProlongation
-from lacore.multiresolution import Prolongation
+from lacore.multiresolution import Coarsening, Prolongation
 from lacore.samples.human import HumanBody, coarse_human_coarsening, load_human
 from lacore.samples.markers import observe_markers, place_markers
 from lacore.models.shape_model import ShapeModel
@@ -52,12 +52,11 @@ MM = 100.0  # decimetres -> millimetres
 
 
 def coarse_body(coarse_file=None):
-    """The coarse body, or (development) the body restricted to a given ``kept_vertices`` / ``faces`` file."""
+    """The coarse body, or (development) the body restricted to another stored coarsening record."""
     if coarse_file is None:
         return load_human(coarse=True)
-    full = load_human()
-    with np.load(coarse_file) as d:
-        return HumanBody.restrict(full, d["kept_vertices"], d["faces"])
+    c = Coarsening.load(coarse_file)
+    return HumanBody.restrict(load_human(), c.vertex_indices, c.faces)
 
 
 def setup(body, n_train=30, n_modes=None, seed=0):

@@ -48,10 +48,10 @@ for p in (REPO, HERE):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from bench_common import machine_info  # noqa: E402
+from bench_common import machine_info, shared_meshes_dir  # noqa: E402
 from bench_interpolation import box_bar, simple_deform_bend  # noqa: E402
 
-HUMAN = os.path.join(REPO, "..", "shared", "data", "human", "base.obj")
+HUMAN = os.path.join(os.path.dirname(shared_meshes_dir()), "human", "base.obj")  # LACORE_SHARED_DATA applies
 
 
 def twist(X, angle, axis=0):

@@ -22,6 +22,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -33,6 +34,7 @@ from bench_common import machine_info  # noqa: E402
 
 from lacore import MeshTopology  # noqa: E402
 from lacore.samples.human import coarse_body_file, load_human  # noqa: E402
+from lacore.models.settings import MODEL_OPTIONS  # noqa: E402
 from lacore.models.shape_model import ShapeModel  # noqa: E402
 
 STAGES = ("encode", "mean", "tangent_decomposition", "tangent_solves", "gram", "eigen", "total")
@@ -61,8 +63,8 @@ def fit_case(body, n_samples, n_modes, tangent, sweep=True):
         from lacore.shapes.projection import project
 
         t = time.perf_counter()
-        _, res = project(model.linear_mean_z, topo, body.vertices, bending_weight=model.bending_weight,
-                         geodesic_acceleration=True)
+        _, res = project(model.linear_mean_z, topo, body.vertices, settings=model.settings,
+                         options=replace(MODEL_OPTIONS, geodesic_acceleration=True))
         out["mean_with_geodesic_acceleration"] = {"energy": float(res.energy), "iterations": int(res.iterations),
                                                   "seconds": round(time.perf_counter() - t, 4)}
         if body.n_vertices < 5000:  # +-2 standard deviations of modes 0 and 1, both ways (coarse body only)
@@ -70,7 +72,8 @@ def fit_case(body, n_samples, n_modes, tangent, sweep=True):
             A[[0, 1], 0] = np.array([-2, 2]) * model.standard_deviations[0]
             A[[2, 3], 1] = np.array([-2, 2]) * model.standard_deviations[1]
             for acc in (False, True):
-                _, rs = model.synthesize(A, return_results=True, geodesic_acceleration=acc)
+                _, rs = model.synthesize(A, return_results=True,
+                                         options=replace(MODEL_OPTIONS, geodesic_acceleration=acc))
                 out[f"synthesis_2sd_energies_acceleration_{acc}"] = [round(float(r.energy), 4) for r in rs]
         P = model.tangent_projector()
         out["max_integrability_residual_of_modes"] = float(P.residual(model.modes).max())

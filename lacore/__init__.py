@@ -12,6 +12,7 @@ MeshTopology                    connectivity, edges, one-rings (:mod:`lacore.geo
 lengths_and_angles              X -> z, and its Jacobian (:mod:`lacore.geometry.lengths_angles`)
 euler_integrability_map         admissibility conditions (:mod:`lacore.integrability.local`)
 integrability_violation         |tr I_v - 3| per vertex
+check_integrability             all of Theorem 3.2: vertices, holes, handles (:mod:`lacore.integrability.checks`)
 QuadraticEnergy, ThinShellsEnergy  deformation energies (:mod:`lacore.energies`)
 reconstruct                     vertex positions from z (:mod:`lacore.reconstruction`)
 ReconstructionSettings, GaussNewtonOptions, HybridOptions  its settings (:mod:`lacore.reconstruction.settings`)
@@ -19,6 +20,21 @@ SolverResult                    base of every solver's result (:mod:`lacore.resu
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.shapes.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.shapes.geodesics`, on first use)
 ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.models.shape_model`, on first use)
+
+Examples
+--------
+Encode a mesh, change its lengths and angles, and reconstruct vertex positions:
+
+>>> import numpy as np
+>>> import lacore
+>>> from lacore.samples.bar import bar_mesh
+>>> X, faces = bar_mesh(n_along=4, n_side=1)          # a closed box bar
+>>> topo = lacore.MeshTopology.from_faces(faces)
+>>> z = lacore.lengths_and_angles(X, topo)            # (2E,): edge lengths, then dihedral angles
+>>> z[:topo.n_edges] *= 2.0                           # the same shape, twice the size
+>>> res = lacore.reconstruct(z, topo, X)
+>>> res.success, round(float(np.ptp(res.vertices[:, 0]) / np.ptp(X[:, 0])), 6)
+(True, 2.0)
 """
 
 import importlib
@@ -26,7 +42,9 @@ import importlib
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from .errors import InputError, LengthsAnglesError, MeshError
 from .integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
-                                  integrability_violation, transition_rotations, triangle_inequality_map)
+                                  integrability_violation)
+from .integrability.transitions import transition_rotations, triangle_inequality_map
+from .integrability import check_integrability, homology_basis, loop_holonomy, loop_translation
 from .geometry.lengths_angles import (dihedral_angles, edge_lengths, lengths_and_angles, lengths_and_angles_jacobian,
                                       split_z)
 from .progress import Cancelled
@@ -37,9 +55,9 @@ from .result import SolverResult
 from .geometry.rigid import rigid_align, rigid_fit
 from .geometry.topology import MeshTopology, check_vertices
 
-#: Names imported on first use (their modules pull in scipy.interpolate, ~0.4 s).
+#: Names imported on first use (their modules pull in scipy.interpolate, which is slow to import).
 _LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
-         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.geodesics",
+         "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.path_energy",
          "ShapeModel": "models.shape_model"}
 
 
@@ -57,6 +75,7 @@ __all__ = [
     "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",
     "transition_rotations", "triangle_inequality_map",
+    "check_integrability", "homology_basis", "loop_holonomy", "loop_translation",
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
     "ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "SolverResult",
     "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile", "ShapeModel",

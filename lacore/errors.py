@@ -9,18 +9,56 @@ __all__ = ["InputError", "MeshError", "LengthsAnglesError", "format_indices"]
 
 
 class InputError(ValueError):
-    """Bad input from the user: a file, an array, an option.  The message says what and where."""
+    """Bad input from the user: a file, an array, an option.  The message says what and where.
+
+    Examples
+    --------
+    Every error of bad input is an InputError; its message says what to do:
+
+    >>> from lacore import InputError, ReconstructionSettings
+    >>> try:
+    ...     ReconstructionSettings(energy="elastic")
+    ... except InputError as exc:
+    ...     print(exc)
+    unknown energy 'elastic'; use 'quadratic' or 'shells'
+    >>> from lacore import MeshTopology
+    >>> try:
+    ...     MeshTopology.from_faces([[0, 1, 1]])
+    ... except InputError as exc:
+    ...     print(type(exc).__name__, "is an InputError:", isinstance(exc, InputError))
+    MeshError is an InputError: True
+    """
 
 
 class MeshError(InputError):
     """The mesh (connectivity or coordinates) is not valid for lacore.
 
     The message names the offending elements (edges, vertices or faces).
+
+    Examples
+    --------
+    >>> from lacore import MeshError, check_vertices
+    >>> try:
+    ...     check_vertices([[0.0, 0.0, float("nan")]], 1)
+    ... except MeshError as exc:
+    ...     print(exc)
+    vertices has NaN or infinite coordinates at vertices 0
     """
 
 
 class LengthsAnglesError(InputError):
-    """A lengths-and-angles vector ``z`` does not fit the mesh or is not finite."""
+    """A lengths-and-angles vector ``z`` does not fit the mesh or is not finite.
+
+    Examples
+    --------
+    >>> from lacore import LengthsAnglesError, MeshTopology, reconstruct
+    >>> topo = MeshTopology.from_faces([[0, 1, 2]])
+    >>> try:
+    ...     reconstruct([1.0, 1.0], topo, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    ... except LengthsAnglesError as exc:
+    ...     print(exc)
+    target z must have shape (6,) = 2 x 3 edges, got (2,)
+    """
 
 
 def format_indices(indices, limit=8):

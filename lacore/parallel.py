@@ -1,6 +1,6 @@
 """Worker processes: the frames of one projection computed side by side.
 
-Continuation along ``t`` (:func:`lacore.shapes.interpolation.predicted_start`) makes a
+Continuation along ``t`` (:func:`lacore.shapes.projection.predicted_start`) makes a
 sequence of frames sequential: every frame starts from the ones before it.  The
 frames are therefore split into *chains* of consecutive times (:func:`frame_chains`),
 each starting next to a known shape (a key) and running away from it; the calling
@@ -16,13 +16,14 @@ packages are registered as bare namespaces, the add-on itself is never imported,
 so a worker never loads bpy).  Jobs and results cross a pipe as pickles, so lacore
 objects arrive as the same classes; a topology arrives without its cache
 (:class:`lacore.cache.DerivedCache`), and the worker builds its own reconstruction
-context.  Each worker costs the start of an interpreter and the solver set-up
-(pattern, ordering, symbolic factorization: about 4 s at 50k vertices) and the
+context.  Each worker costs the start of an interpreter, the solver set-up
+(pattern, ordering, symbolic factorization: seconds for a large mesh) and the
 memory of one more solver.
 
 :func:`close_workers` ends them all (a cancelled run, the add-on's unregister).
 """
 
+import contextlib
 import os
 import pickle
 import queue
@@ -40,13 +41,18 @@ __all__ = ["frame_chains", "WorkerProcess", "WorkerError", "check_workers", "clo
 _LACORE_PACKAGE = __package__  # "lacore", or "bl_ext.<repository>.<extension>.lacore" inside Blender
 _LACORE_DIR = os.path.dirname(os.path.abspath(__file__))
 
-# The worker's main program.  It reads the header pickle (only built-in types, so it unpickles before any
-# import), makes the caller's lacore importable under its package name and hands the pipe to serve().
+# The worker's main program.  It ignores Ctrl-C (the caller stops its workers), reads the header pickle (only
+# built-in types, so it unpickles before any import; a caller gone already ends it quietly), makes the caller's
+# lacore importable under its package name and hands the pipe to serve().
 _BOOTSTRAP = r"""
-import importlib, os, pickle, sys, types
+import importlib, os, pickle, signal, sys, types
+signal.signal(signal.SIGINT, signal.SIG_IGN)
 channel_in, channel_out = sys.stdin.buffer, sys.stdout.buffer
 sys.stdout = sys.stderr
-header = pickle.load(channel_in)
+try:
+    header = pickle.load(channel_in)
+except EOFError:
+    os._exit(0)
 sys.path[:] = header["sys_path"]
 for name, path in header["parents"]:
     if name not in sys.modules:
@@ -246,15 +252,39 @@ def close_workers():
 
 
 def serve(channel_in, channel_out):
-    """The worker's side (called by the bootstrap): run one job, sending its messages back."""
+    """The worker's side (called by the bootstrap): run one job, sending its messages back.
+
+    Ctrl-C is left to the caller (which closes its workers); when the caller is
+    gone (killed, or exited: its end of the pipe is closed), the worker ends at
+    its next message, silently.
+    """
     def send(kind, payload):
         pickle.dump((kind, payload), channel_out, protocol=pickle.HIGHEST_PROTOCOL)
         channel_out.flush()
 
     try:
-        function, args = pickle.load(channel_in)
-        value = function(*args, send=lambda message: send("message", message))
-    except BaseException as exc:  # every failure goes back to the caller, named
-        send("error", (type(exc).__name__, str(exc), traceback.format_exc()))
-        return
-    send("done", value)
+        try:
+            function, args = pickle.load(channel_in)
+        except EOFError:  # the caller went away before sending the job
+            _exit_quietly()
+        try:
+            value = function(*args, send=lambda message: send("message", message))
+        except _CALLER_GONE:
+            raise
+        except BaseException as exc:  # every failure goes back to the caller, named
+            send("error", (type(exc).__name__, str(exc), traceback.format_exc()))
+            return
+        send("done", value)
+    except _CALLER_GONE:
+        _exit_quietly()
+
+
+#: What writing to the caller raises once it is gone.
+_CALLER_GONE = (BrokenPipeError, ConnectionResetError)
+
+
+def _exit_quietly():
+    """End this worker at once: no traceback, no flush of the dead pipe at interpreter exit."""
+    with contextlib.suppress(OSError, ValueError):
+        sys.stderr.flush()
+    os._exit(0)

@@ -28,6 +28,18 @@ class Cancelled(Exception):
 
     ``partial`` holds whatever the entry point documents as its partial
     result (``None`` if it keeps nothing).
+
+    Examples
+    --------
+    A progress callback that returns True stops the computation:
+
+    >>> from lacore import Cancelled
+    >>> from lacore.progress import report
+    >>> try:
+    ...     report(lambda done, total, message: True, 1, 4, "frame 2")
+    ... except Cancelled as exc:
+    ...     print(exc)
+    cancelled after 1 of 4 (frame 2)
     """
 
     def __init__(self, message="cancelled", partial=None):

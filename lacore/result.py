@@ -53,6 +53,23 @@ class SolverResult:
         Iterations (per item for batch results).
     timings : dict
         Seconds per phase (``"total"``: the whole call).
+
+    Examples
+    --------
+    Every solver's result reads like a :class:`scipy.optimize.OptimizeResult` and has a JSON summary:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import SolverResult, reconstruct
+    >>> res = reconstruct(lengths_and_angles(bar_pose(X, 0.5, 0.0), topo), topo, X)
+    >>> isinstance(res, SolverResult), res["success"] == res.success
+    (True, True)
+    >>> summary = res.summary()                      # JSON-ready: no vertex arrays
+    >>> "vertices" in summary, summary["status"]
+    (False, 1)
     """
 
     success: bool

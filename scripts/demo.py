@@ -33,6 +33,7 @@ Steps now:
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -54,6 +55,22 @@ def run(cmd, **kwargs):
     return subprocess.run(cmd, check=True, cwd=REPO, **kwargs)
 
 
+# Blender's GPU set-up tries EGL configurations one after another on a machine without a display; the
+# configurations it rejects print this line (three per process) although the render then succeeds.
+_EGL_PROBE = re.compile(r"^EGL Error \(0x3009\): EGL_BAD_MATCH\b")
+
+
+def run_blender(cmd, env, stdout=None):
+    """Run a Blender script (bpy) like :func:`run`, its stderr passed on without the EGL probing lines."""
+    print("+", " ".join(cmd), flush=True)
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:
+        if not _EGL_PROBE.match(line):
+            sys.stderr.write(line)
+    if proc.wait() != 0:
+        raise subprocess.CalledProcessError(proc.returncode, cmd)
+
+
 def cli_encode(out_dir):
     mesh = os.path.join(shared_meshes_dir(), "finger", "finger0.ply")
     out = os.path.join(out_dir, "finger0_encoded.npz")
@@ -65,7 +82,8 @@ def cli_encode(out_dir):
     return {
         "outputs": ["finger0_encoded.npz", "finger0_encode.json"],
         "text": (f"`lacore encode` finger0.ply: {result['vertices']} vertices, {result['edges']} edges, "
-                 f"{result['faces']} faces; max integrability violation {result['max_integrability_violation']:.2e}; "
+                 f"{result['faces']} faces; max integrability violation "
+                 f"{result['max_integrability_violation']['local']:.2e} (local); "
                  f"{result['seconds']:.2f} s"),
         "result": result,
     }
@@ -85,7 +103,7 @@ def blender_env(user_dir):
 
 def blender_encode(out_dir):
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        run([BLENDER_PYTHON, os.path.join(HERE, "demo_blender.py"), out_dir], env=blender_env(user_dir))
+        run_blender([BLENDER_PYTHON, os.path.join(HERE, "demo_blender.py"), out_dir], env=blender_env(user_dir))
     with open(os.path.join(out_dir, "demo_scene.json")) as fh:
         result = json.load(fh)
     parts = []
@@ -109,8 +127,8 @@ def blender_interpolate(out_dir):
     blend = os.path.join(out_dir, "bar_inbetweens.blend")
     numbers = os.path.join(out_dir, "bar_blend_comparison.json")
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        run([BLENDER_PYTHON, os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
-             "--json", numbers, "--bake"], env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+        run_blender([BLENDER_PYTHON, os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
+                     "--json", numbers, "--bake"], env=blender_env(user_dir), stdout=subprocess.DEVNULL)
     with open(numbers) as fh:
         result = json.load(fh)
     la, lin = result["lengths_and_angles"], result["linear_blend"]
@@ -266,8 +284,8 @@ def blender_mocap_fit(out_dir):
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
         inputs = os.path.join(user_dir, "inputs.npz")
         np.savez(inputs, faces=body.faces, basis=body.vertices, training=train, true=take)
-        run([BLENDER_PYTHON, os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d],
-            env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+        run_blender([BLENDER_PYTHON, os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d],
+                    env=blender_env(user_dir), stdout=subprocess.DEVNULL)
     with open(os.path.join(out_dir, "human_mocap_fit.json")) as fh:
         result = json.load(fh)
     s = result["seconds"]

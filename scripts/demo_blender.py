@@ -106,6 +106,7 @@ def main(out_dir, render=True):
     storage = pkg.addon.storage
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = blender_samples.build_demo_scene()
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups next to the outputs
     summary, arrays = {}, {}
     for obj in objects:
         t = time.perf_counter()

@@ -63,6 +63,7 @@ def main(out_dir, inputs_path, c3d_path):
     T = len(true)
     bpy.ops.wm.read_homefile(use_empty=True)
     blend = os.path.join(out_dir, "human_mocap_fit.blend")
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups next to the outputs
     bpy.ops.wm.save_as_mainfile(filepath=blend)  # the point cache is written next to the .blend
     scene = bpy.context.scene
     obj = make_body(inputs["faces"], inputs["basis"], inputs["training"])

@@ -167,6 +167,7 @@ def main(argv=None):
 
     load_addon()
     bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups next to the outputs
     bar, coords, numbers = compare(bpy, cases, args.method)
     bar.hide_render = True  # in the saved .blend the bar stays visible in the viewport, below the comparison
     bar.location = (0.0, -9.0, 0.0)

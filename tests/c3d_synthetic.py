@@ -55,11 +55,13 @@ def _chars(strings, width):
 
 
 def write_c3d_file(path, positions_mm, labels, rate, proc="intel", storage="float", first_frame=1,
-                   model_outputs=(), units="mm"):
+                   model_outputs=(), units="mm", analog=None):
     """Write ``positions_mm`` (T, M, 3; NaN = invalid) with ``labels`` as a C3D file.
 
     ``storage``: ``"float"`` (POINT:SCALE = -scale) or ``"int"`` (int16 times scale); ``model_outputs``
-    are labels also listed in POINT:ANGLES.  Returns the scale used (quantum of integer storage).
+    are labels also listed in POINT:ANGLES; ``analog=(used, rate)`` writes ANALOG:USED and ANALOG:RATE as given
+    (no analog samples: for files with damaged analog parameters).  Returns the scale used (quantum of integer
+    storage).
     """
     pos = np.asarray(positions_mm, np.float64)
     T, M, _ = pos.shape
@@ -81,7 +83,10 @@ def write_c3d_file(path, positions_mm, labels, rate, proc="intel", storage="floa
         w = max(len(s) for s in model_outputs)
         params.append(_param(proc, 1, "ANGLES", -1, [w, len(model_outputs)], _chars(model_outputs, w)))
     # ANALOG:RATE left out (no analog data): the c3d package decodes a DEC 0.0 as -1.7e38
-    params += [_param(proc, 2, "USED", 2, [], _int16(proc, [0]), last=True)]  # offset 0: the end
+    if analog is not None:
+        params.append(_param(proc, 2, "RATE", 4, [], _float32(proc, [analog[1]])))
+    params += [_param(proc, 2, "USED", 2, [], _int16(proc, [0 if analog is None else analog[0]]),
+                      last=True)]  # offset 0: the end
     body_len = 4 + sum(len(p) for p in params) + 32  # + DATA_START (inserted below)
     n_blocks = -(-body_len // 512)
     data_block = 2 + n_blocks

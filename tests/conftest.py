@@ -199,3 +199,9 @@ def pytest_make_collect_report(collector):
                            "bpy venvs through run_blender_check / the extension_zip fixture, so do not import or "
                            "importorskip bpy in the test module")
     return report
+
+
+def pytest_report_header(config):
+    """Name the compute kernels chosen by the environment (scripts/other_kernels.py) in the run's header."""
+    chosen = [f"{k}={os.environ[k]}" for k in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE") if k in os.environ]
+    return f"kernels: {' '.join(chosen)}" if chosen else None

@@ -130,16 +130,52 @@ def test_bad_input_changes_nothing(run, case, words):
     assert res["result"] == ["CANCELLED"] and words in res["message"] and res["unchanged"], res
 
 
-def test_cancel_changes_nothing(run):
-    res = run["cases"]["fit_job_cancel"]
-    assert res["error"] == "cancelled" and res["unchanged"]
-    assert res["progress_seen"][-1] == 2
+@pytest.mark.parametrize("name", ["build_model", "bind_markers", "fit_markers"])
+def test_runs_show_progress_and_cancel_without_changes(run, name):
+    """The one run mechanism (addon/runs.py) for Build / Bind (with ICP) / Fit: modal steps in the worker thread
+    report progress (model stages, ICP iterations, frames); Esc while the step computes ends it inside lacore
+    (Cancelled) and leaves the scene exactly as it was (snapshot with the files next to the .blend)."""
+    res = run["cases"]["runs_progress_and_cancel"][name]
+    assert res["running"] == ["RUNNING_MODAL"] and res["cancel"] == ["CANCELLED"] and res["unchanged"], res
+    assert res["reports"] == [["WARNING", "Cancelled: nothing was changed"]]
+    done, total = res["seen_before_cancel"]
+    assert 0 < done < total and total == {"build_model": 4, "bind_markers": 100, "fit_markers": 8}[name]
+    assert res["step_raised"] == "Cancelled"
+    full = res["full"]
+    assert full["state"] == ["FINISHED"] and set(full["reports"]) <= {"INFO", "WARNING"}
+    assert not full["interactive_after"]  # a redo runs synchronously
+    assert full["seen"][-1][0] == full["seen"][-1][1]  # the progress bar ends full
 
 
-def test_modal_operator_steps(run):
-    """Esc (before the worker starts) cancels with nothing changed; otherwise the timer steps end in FINISHED."""
-    res = run["cases"]["modal_steps"]
-    assert res["esc"]["first"] == ["PASS_THROUGH"] and res["esc"]["last"] == ["CANCELLED"]
-    assert res["esc"]["reports"] == [["WARNING"]] and res["esc"]["unchanged"]
-    assert res["complete"]["last"] == ["FINISHED"] and res["complete"]["reports"] == [["INFO"]]
-    assert res["complete"]["modifier"] and res["complete"]["progress"] == [8, 8]
+def test_fit_run_writes_the_modifier(run):
+    assert run["cases"]["runs_progress_and_cancel"]["fit_markers"]["full"]["modifier"]
+
+
+@pytest.mark.parametrize("case, words", [
+    ("build_key_edited", "Shape key 'train03' was edited"), ("build_edit_mode", "from Object Mode to Edit Mode"),
+    ("bind_other_frame", "The posed mesh of 'Body'"), ("bind_marker_deleted", "The take 'take' or its marker"),
+    ("fit_mesh_edited", "The mesh of 'Body' changed while computing (vertices 2500 -> 2499"),
+    ("fit_model_rebuilt", "The shape model of 'Body' changed"),
+    ("fit_marker_deleted", "The take 'take' or its marker empties changed"),
+    ("fit_object_deleted", "Object 'Body' was deleted or renamed")])
+def test_a_change_while_computing_writes_nothing(run, case, words):
+    res = run["cases"]["runs_object_changed"][case]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"], res
+    assert words in res["message"] and "nothing was written: run again" in res["message"], res["message"]
+
+
+def test_cache_file_paths_and_remove_data(run):
+    res = run["cases"]["script_defaults_and_paths"]
+    # '//' is relative to the .blend: no "does not support blend relative" warning, the file is next to it
+    assert res["result"] == ["FINISHED"] and res["exists"] and res["warnings"] == []
+    assert res["modifier_path"] == "//caches/custom.pc2"
+    assert res["mode"] == res["expected_mode"]  # like any new file (the umask), not 0600
+    messages = res["messages"]
+    assert "the folder" in messages["missing_folder"]["message"] and messages["missing_folder"]["unchanged"]
+    assert "save the .blend first" in messages["unsaved_relative"]["message"]
+    assert "'//x.pc2' is relative to the .blend" in messages["unsaved_relative"]["message"]
+    assert "save the .blend first" in messages["unsaved_default"]["message"]
+    assert messages["unsaved_relative"]["unchanged"] and messages["unsaved_default"]["unchanged"]
+    after = res["after_remove_data"]  # "Remove everything": the model, its preview key and sliders, the binding
+    assert after["mesh_props"] == [] and after["object_props"] == [] and not after["preview_key"]
+    assert after["sliders"] == 0.0

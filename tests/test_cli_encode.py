@@ -13,7 +13,8 @@ from lacore.cli import SUBCOMMANDS, Subcommand, main
 from lacore.errors import MeshError
 from lacore.io.meshes import load_mesh, save_mesh
 
-JSON_KEYS = {"vertices", "edges", "faces", "max_integrability_violation", "seconds"}
+JSON_KEYS = {"vertices", "edges", "faces", "integrable", "max_integrability_violation", "integrability_tolerances",
+             "genus", "boundary_loops", "loops", "seconds"}
 
 MESHES = [
     "simple/square4.ply",
@@ -68,8 +69,10 @@ def test_encode_npz_and_json(relative, tmp_path, capsys):
     boundary = np.array([counts[tuple(sorted(e))] == 1 for e in data["edges"].tolist()])
     assert np.all(data["angles"][boundary] == 0.0)
     assert summary["boundary_edges"] == int(boundary.sum())
-    # an embedded mesh is integrable: tr I_v = 3 up to round-off
-    assert summary["max_integrability_violation"] < 1e-8
+    # an embedded mesh is integrable: tr I_v = 3 up to round-off; the shared meshes have no holes or handles to check
+    assert summary["integrable"] is True and summary["loops"] == []
+    violation = summary["max_integrability_violation"]
+    assert violation["local"] < 1e-8 and violation["holonomy"] == violation["translation"] == 0
     assert summary["seconds"] > 0
 
 
@@ -85,6 +88,24 @@ def test_known_values(tmp_path, capsys):
     _code, stdout, _ = run_main(capsys, "encode", shared_mesh("finger/finger0.ply"), "--json")
     s = json.loads(stdout)
     assert s["vertices"] - s["edges"] + s["faces"] == 2 and s["boundary_edges"] == 0
+
+
+def test_encode_lists_the_loops_of_holes_and_handles(tmp_path, capsys):
+    """A torus with two holes: two handle loops and one hole loop, each closing to round-off."""
+    from lacore.samples.surfaces import pretzel_with_holes
+    X, F = pretzel_with_holes(1, 2)
+    save_mesh(tmp_path / "torus.ply", X, F)
+    code, stdout, stderr = run_main(capsys, "encode", tmp_path / "torus.ply", "--json")
+    assert code == 0, stderr
+    s = json.loads(stdout)
+    assert s["integrable"] is True and s["genus"] == [1] and s["boundary_loops"] == [2]
+    assert [loop["kind"] for loop in s["loops"]] == ["handle", "handle", "hole"]
+    assert all(loop["closes"] and loop["holonomy"] < 1e-13 and loop["translation"] < 1e-14 for loop in s["loops"])
+    violation = s["max_integrability_violation"]
+    assert violation["local"] < 1e-28 and violation["holonomy"] < 1e-13 and violation["translation"] < 1e-14
+    assert s["integrability_tolerances"] == {"local": 1e-8, "holonomy": 1e-4, "translation": 1e-4}
+    code, stdout, _ = run_main(capsys, "encode", tmp_path / "torus.ply")
+    assert code == 0 and "integrable: the frames close around every vertex" in stdout and "3 loops" in stdout
 
 
 def test_octa_meshes_are_not_in_correspondence(capsys):

@@ -14,6 +14,7 @@ from conftest import shared_mesh
 
 import lacore.io.atomic as atomic_io
 import lacore.shapes.interpolation as interpolation
+import lacore.shapes.projection as projection
 from lacore.io.atomic import atomic_write, npz_path, save_npz_atomic
 from lacore.cli import main
 from lacore.io.meshes import load_mesh, save_mesh
@@ -183,8 +184,8 @@ def test_interpolate_exit_3_and_per_frame_failures(tmp_path, capsys):
 
 
 def test_interpolate_streams_frames(tmp_path, capsys, monkeypatch):
-    """Frames are on disk as soon as they are projected: a run stopped at the third frame keeps two."""
-    real, calls = interpolation.reconstruct, []
+    """Frames are on disk as soon as they are projected: a run stopped (Ctrl-C) at the third frame keeps two."""
+    real, calls = projection.reconstruct, []
 
     def stopping(*args, **kwargs):
         calls.append(1)
@@ -192,10 +193,10 @@ def test_interpolate_streams_frames(tmp_path, capsys, monkeypatch):
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(interpolation, "reconstruct", stopping)
-    with pytest.raises(KeyboardInterrupt):
-        main([str(a) for a in ("interpolate", shared_mesh(FINGER0), shared_mesh(FINGER1), "--t", "0", "0.5", "1",
-                               "-o", tmp_path / "f")])
+    monkeypatch.setattr(projection, "reconstruct", stopping)
+    code, out, err = run_main(capsys, "interpolate", shared_mesh(FINGER0), shared_mesh(FINGER1), "--t", "0", "0.5",
+                              "1", "-o", tmp_path / "f")
+    assert code == 130 and err == "lacore interpolate: interrupted\n"  # Ctrl-C: one line, no traceback
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_000.ply", "f_001.ply"]
     X, _ = load_mesh(tmp_path / "f_001.ply")
     assert np.all(np.isfinite(X)) and len(X) == 2046

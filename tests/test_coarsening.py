@@ -10,6 +10,9 @@ from lacore.multiresolution import coarsen
 from lacore.multiresolution.coarsening import vertex_quadrics
 from lacore.geometry.topology import MeshTopology
 
+#: Greedy collapse orders: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 
 def _load(*names):
     Xs = [load_mesh(shared_mesh(n))[0] for n in names]
@@ -140,3 +143,80 @@ def test_progress_and_cancel():
     assert calls[-1] == (546, 546) and len(calls) > 10
     with pytest.raises(Cancelled):
         coarsen(S, F, 1500, progress=lambda d, t, m: d > 100)
+
+
+# --------------------------------------------------------------------------- stored records
+def test_record_round_trip_prolongs_bit_identically(tmp_path):
+    """A stored coarsening (and prolongation) is used as stored: no recomputation, same prolongation."""
+    from lacore.multiresolution import Coarsening, Prolongation
+    from lacore.multiresolution.coarsening import RECORD_FORMAT, RECORD_VERSION
+
+    S, F = _load("finger/finger0.ply", "finger/finger1.ply")
+    c = coarsen(S, F, 200)
+    arrays = c.to_arrays("coarsening_")
+    assert arrays["coarsening_format"] == RECORD_FORMAT and arrays["coarsening_format_version"] == RECORD_VERSION
+    assert all(a.dtype != object for a in arrays.values())
+    same = Coarsening.from_arrays(arrays, "coarsening_")
+    for name in ("vertex_indices", "faces", "collapse_sources", "collapse_targets", "parent", "ring_offsets",
+                 "ring_pairs", "costs", "fine_faces"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(c, name), err_msg=name)
+    assert same.n_fine_vertices == c.n_fine_vertices
+    written = c.save(tmp_path / "record")
+    assert written == str(tmp_path / "record.npz")
+    loaded = Coarsening.load(written)
+    np.testing.assert_array_equal(loaded.parent, c.parent)
+    p = Prolongation(c, S)
+    p.save(tmp_path / "prolongation.npz")
+    q = Prolongation.load(tmp_path / "prolongation.npz")
+    Xc = c.restrict(S[1])
+    np.testing.assert_array_equal(q(Xc, weights=[0.0, 1.0]), p(Xc, weights=[0.0, 1.0]))
+    np.testing.assert_allclose(q(Xc, weights=[0.0, 1.0]), S[1], atol=1e-12 * np.ptp(S[1]))  # exact for a key
+    assert [len(k) for k in q.levels] == [len(k) for k in p.levels]
+
+
+def _corrupt(arrays, **changes):
+    out = dict(arrays)
+    out.update(changes)
+    return out
+
+
+def test_invalid_records_are_rejected_with_one_line(tmp_path):
+    from lacore.multiresolution import Coarsening, Prolongation
+
+    S, F = _load("finger/finger0.ply")
+    c = coarsen(S, F, 300)
+    a = c.to_arrays()
+    src = c.collapse_sources
+    cases = {
+        "not a coarsening record": {k: v for k, v in a.items() if k != "format"},
+        "version 7; this lacore reads version 1": _corrupt(a, format_version=np.array(7)),
+        "'collapse_sources' must be \\(K,\\) integers": _corrupt(a, collapse_sources=src.astype(float)),
+        "vertex indices outside": _corrupt(a, collapse_targets=np.full_like(src, c.n_fine_vertices)),
+        "removed by two collapses": _corrupt(a, collapse_sources=np.r_[src[:-1], src[0]]),
+        "refers to a vertex removed before it": _corrupt(a, collapse_targets=np.r_[c.collapse_targets[:1],
+                                                                                   src[:1], c.collapse_targets[2:]]),
+        "non-empty rings": _corrupt(a, ring_offsets=c.ring_offsets[::-1].copy()),
+        "must index the 300 coarse vertices": _corrupt(a, faces=c.faces + 300),
+        "inconsistent sizes": _corrupt(a, n_fine_vertices=np.array(len(src) + 3)),
+    }
+    for message, arrays in cases.items():
+        with pytest.raises(InputError, match=message) as info:
+            Coarsening.from_arrays(arrays, source="x.npz")
+        assert str(info.value).startswith("x.npz: ") and "\n" not in str(info.value)
+    with pytest.raises(InputError, match="without prolongation"):
+        Prolongation.from_arrays(a)
+    with pytest.raises(InputError, match="must be finite"):
+        Prolongation.from_arrays({**a, "prolongation_alpha": np.full((1, len(src), 3), np.nan)})
+    (tmp_path / "text.npz").write_text("hello")
+    with pytest.raises(InputError, match="text.npz is not a readable .npz coarsening record file"):
+        Coarsening.load(tmp_path / "text.npz")
+    with pytest.raises(InputError, match="is a folder, not a coarsening record file"):
+        Coarsening.load(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no such coarsening record file"):
+        Coarsening.load(tmp_path / "missing.npz")
+    np.save(tmp_path / "single.npy", np.zeros(3))
+    with pytest.raises(InputError, match="single array"):
+        Coarsening.load(tmp_path / "single.npy")
+    np.savez(tmp_path / "objects.npz", format=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(InputError, match="cannot read 'format'"):
+        Coarsening.load(tmp_path / "objects.npz")

@@ -10,8 +10,8 @@ from scipy.sparse import csgraph
 from scipy.spatial.transform import Rotation
 
 from lacore.errors import LengthsAnglesError, MeshError
-from lacore.integrability.local import (edge_frame_angles, integrability_violation, standard_frames,
-                                        transition_rotations)
+from lacore.integrability.local import integrability_violation
+from lacore.integrability.transitions import edge_frame_angles, standard_frames, transition_rotations
 from lacore.geometry.lengths_angles import face_areas, face_normals, lengths_and_angles
 from lacore.reconstruction.frame_based import (_composition_schedule, _forest_depths, _jump_rounds,
                                                frame_based_reconstruction, propagate_frames)

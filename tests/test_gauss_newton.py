@@ -16,6 +16,9 @@ from lacore.reconstruction.gauss_newton import gauss_newton_pattern, run_gauss_n
 from lacore.linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky, available_backends
 from lacore.geometry.topology import MeshTopology
 
+#: Iteration counts, stopping rules and converged energies: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 BACKENDS = available_backends()
 # GOAST (reference implementation of the thesis): Gauss-Newton, W_q with weights (3.20) from finger0, eta = 1e-3,
 # start finger0: 14 iterations to finger1, 12 iterations to the average with final energy 9.2149e-4.
@@ -169,7 +172,7 @@ def test_admissible_target_from_perturbed_start_is_reproduced():
     err = reconstruction_errors(res.vertices, z1, topo)
     assert err["max_length_error"] < 1e-10 * size(X1)
     assert err["max_angle_error"] < 1e-9
-    assert res.iterations <= 6
+    assert res.iterations <= 8  # measured 5: Newton-like convergence (without it, tens of iterations)
     assert np.all(np.diff(res.energy_history) < 0)
 
 
@@ -177,7 +180,7 @@ def test_finger0_to_finger1_like_goast():
     topo, X0, X1, z0, z1 = finger()
     res = reconstruct(z1, topo, X0)
     assert res.success and res.status == 1, res.message
-    assert res.iterations <= GOAST_ITERATIONS["finger1"]  # measured: 8
+    assert res.iterations <= GOAST_ITERATIONS["finger1"]  # measured: 6
     err = reconstruction_errors(res.vertices, z1, topo)
     assert err["max_length_error"] < 1e-10 * size(X1) and err["max_angle_error"] < 1e-9
     assert res.energy < 1e-24
@@ -189,7 +192,7 @@ def test_finger0_to_average_reaches_goast_energy():
     za = 0.5 * (z0 + z1)
     res = reconstruct(za, topo, X0)
     assert res.success and res.status in (2, 3, 4), res.message
-    assert res.iterations <= GOAST_ITERATIONS["average"]  # measured: 6
+    assert res.iterations <= GOAST_ITERATIONS["average"]  # measured: 5
     # GOAST prints 5 digits of E/2: agree to its rounding (measured E/2 = 9.21486e-4)
     assert abs(res.energy / 2 - GOAST_AVERAGE_ENERGY) <= 0.5e-8
     assert res.energy == res.energy_history[-1]
@@ -204,7 +207,7 @@ def test_plate_rolled_average_converges():
     topo, XA, XB, zA, zB = plate()
     za = 0.5 * (zA + zB)
     res = reconstruct(za, topo, XA, max_iterations=300)
-    assert res.success and res.status == 2, res.message
+    assert res.success and res.status in (2, 3, 4), res.message  # converged (which test fires first is round-off)
     assert res.energy == pytest.approx(1.792805e-2, rel=1e-5)  # measured
     assert res.energy < 0.3 * res.initial_energy
     assert np.all(np.isfinite(res.vertices))
@@ -224,7 +227,7 @@ def test_thin_shells_energy_decreases_and_converges_on_the_plate():
     za = 0.5 * (zA + zB)
     res = reconstruct(za, topo, XA, energy="shells")
     assert res.energy_name == "shells"
-    assert res.success and res.status == 2, res.message
+    assert res.success and res.status in (2, 3, 4), res.message
     assert np.all(np.diff(res.energy_history) < 0)
     assert res.energy < 0.25 * res.initial_energy  # measured 0.01136 from 0.0534
     from lacore.energies import ThinShellsEnergy
@@ -332,8 +335,10 @@ def test_context_shares_the_symbolic_factorization_and_warm_starts_are_cheap():
     solver = ctx.solver
     second = reconstruct(zs[1], topo, None, context=ctx, initial_vertices=first.vertices)
     assert ctx.solver is solver  # symbolic analysis done once
-    assert second.success and second.iterations <= 4 < first.iterations
     cold = reconstruct(zs[1], topo, X0)
+    # the warm start is close (initial energy measured 1.9e-3 of the cold start's) and costs no more iterations
+    assert second.success and second.initial_energy < 1e-2 * cold.initial_energy
+    assert second.iterations <= cold.iterations  # measured 4 vs 5
     assert second.energy == pytest.approx(cold.energy, rel=1e-7)
     # without a context, reconstruct() finds the cached one for the same reference and settings
     assert get_context(topo, X0) is get_context(topo, X0.copy())
@@ -497,7 +502,8 @@ def test_reused_factorization_reproduces_admissible_targets_exactly():
     assert first.factorizations >= 1 and first.pcg_iterations[0] == 0  # nothing to reuse yet
     zm = 0.5 * (z0 + z1)
     res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=0.05, pcg_maxiter=20,
-                      initial_vertices=reconstruct(zm, topo, X0, method="lsq", context=ctx).vertices)
+                      initial_vertices=reconstruct(zm, topo, X0, method="lsq", context=ctx).vertices,
+                      start_check=False)
     assert res.success and res.status in (1, 2), res.message
     assert sum(k > 0 for k in res.pcg_iterations) >= 1  # some steps by PCG only
     assert res.factorizations < res.iterations
@@ -512,7 +518,7 @@ def test_reused_factorization_refactorizes_when_pcg_stalls():
     ctx = ReconstructionContext(topo, X0)
     reconstruct(z0, topo, X0, context=ctx, max_iterations=1)  # a factor at the reference
     res = reconstruct(z1, topo, X0, context=ctx, reuse_factorization=True, pcg_rtol=1e-6, pcg_maxiter=1,
-                      max_iterations=3, geodesic_acceleration=False)
+                      max_iterations=3, geodesic_acceleration=False, start_check=False)
     # one PCG iteration from a far pose cannot reduce the residual 2x: every step refactorizes
     # (plain steps: with the geodesic acceleration the third step starts close enough for one PCG iteration)
     assert res.factorizations == res.iterations == 3 and res.pcg_iterations == [0, 0, 0]
@@ -549,7 +555,7 @@ def test_reuse_near_convergence_replaces_only_the_last_factorizations():
         res = reconstruct(z, topo, X0, context=ctx)  # the context holds a factor from the run above: not reused
         # PCG once the steps are full and small, or full and matching the quadratic model's decrease
         assert res.pcg_iterations[0] == 0 and res.factorizations >= 2  # measured 4 (finger1), 2 (average)
-        assert 1 <= res.iterations - res.factorizations <= 3  # measured: 2 (finger1), 3 (average)
+        assert 1 <= res.iterations - res.factorizations <= 5  # measured: 2 (finger1), 3 (average)
         k = res.factorizations
         assert res.pcg_iterations[:k] == [0] * k and all(0 < n <= 8 for n in res.pcg_iterations[k:])
         assert all(t == 1.0 for t in res.step_sizes[k - 2:])  # reuse only after full, model-conforming steps
@@ -578,15 +584,18 @@ def test_reuse_near_convergence_refactorizes_when_pcg_misses_its_tolerance(monke
 
 
 def test_geodesic_acceleration_saves_iterations_and_keeps_the_minimizers():
-    """The accelerated path (default) reaches the same energies as plain Gauss-Newton in fewer iterations."""
+    """The accelerated path (default) reaches the same energies as plain Gauss-Newton in fewer iterations
+    (from the reference: plain Gauss-Newton's first step to finger1 gets less than halfway, and the start check
+    would continue from the least-squares relaxation)."""
     topo, X0, X1, z0, z1 = finger()
     za = 0.5 * (z0 + z1)
     ctx = ReconstructionContext(topo, X0)
     for z in (z1, za):
-        plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False)
-        fast = reconstruct(z, topo, X0, context=ctx)
+        plain = reconstruct(z, topo, X0, context=ctx, geodesic_acceleration=False, start_check=False)
+        fast = reconstruct(z, topo, X0, context=ctx, start_check=False)
         assert fast.success and fast.status == plain.status, fast.message
-        assert fast.iterations < plain.iterations and fast.factorizations < plain.factorizations  # 5/4 vs 8/6
+        # measured 6/4 vs 10/7 (finger1), 5/2 vs 8/6 (average)
+        assert fast.iterations < plain.iterations and fast.factorizations < plain.factorizations
         assert fast.timings["acceleration"] > 0 and np.all(np.diff(fast.energy_history) < 0)
         if z is z1:
             assert fast.energy < 1e-24

@@ -112,6 +112,7 @@ def test_newton_matrix_is_the_hessian_of_the_energy(bent_bar):
     assert relative_error(gn, H @ v) > 0.1      # the Gauss-Newton matrix is not the Hessian here: 0.23
 
 
+@pytest.mark.numerics
 def test_newton_steps_make_the_hard_bar_blend_converge():
     """Bend 90 -> twist 90 of a 1.8k bar at t = 0.5: with the Hessian after the first cut or slowly converging
     steps (default newton="auto") Gauss-Newton needs fewer iterations to the same minimum."""
@@ -132,7 +133,8 @@ def test_newton_steps_make_the_hard_bar_blend_converge():
     for r in (gn, auto, always):
         assert r.success and r.energy == pytest.approx(gn.energy, rel=1e-8)
     assert gn.newton_steps == 0 and always.newton_steps > 0
-    assert always.iterations <= gn.iterations - 3 and auto.iterations < gn.iterations   # measured 5, 8 vs 9
+    # measured 5 (always), 8 (auto) vs 9 (Gauss-Newton only)
+    assert always.iterations <= 0.8 * gn.iterations and auto.iterations <= gn.iterations
 
 
 def test_newton_option_and_unregularized_factorization_errors(bent_bar):

@@ -41,11 +41,18 @@ def test_coarse_body_is_a_vertex_subset_with_its_weights(coarse):
         assert int(d["seed"]) == 7 and int(d["target_vertices"]) == coarse.n_vertices
 
 
+@pytest.mark.numerics
 def test_coarse_body_is_reproducible_from_the_script():
+    """Recomputed with this CPU's kernels, the coarsening is as good as the stored one (not the same bits:
+    near-ties between collapses go either way on another SIMD path; measured there 99.5 % of the kept vertices
+    shared, collapse costs 2.2e-4 apart, the held-out prolongation error 1.1e-5 apart)."""
     proc = subprocess.run([sys.executable, str(REPO / "scripts" / "make_coarse_human.py"), "--check"],
                           capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert json.loads(proc.stdout)["reproduced"] is True
+    out = json.loads(proc.stdout)
+    assert out["reproduced"] is True and out["same_inputs"] and out["same_counts"] and out["same_topology"]
+    assert out["cost_sum_relative_difference"] <= 0.01 and out["cost_max_relative_difference"] <= 0.01
+    assert out["prolongation_relative_difference"] <= 0.05 and max(out["prolongation_error_mm"]) < 1.5
 
 
 def test_model_of_the_coarse_body(model, coarse):

@@ -7,6 +7,9 @@ from conftest import load_topology
 from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.reconstruction import reconstruct
 
+#: Energies after a fixed smoothing budget: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 
 def average_target(a, b):
     A, topo = load_topology(a)

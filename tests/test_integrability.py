@@ -12,8 +12,9 @@ from fd import directional_fd, relative_error
 
 from lacore.errors import LengthsAnglesError
 from lacore.integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
-                                        integrability_violation, standard_frames, transition_rotations,
-                                        triangle_inequality_jacobian, triangle_inequality_map)
+                                       integrability_violation)
+from lacore.integrability.transitions import (standard_frames, transition_rotations, triangle_inequality_jacobian,
+                                             triangle_inequality_map)
 from lacore.geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 
 

@@ -6,6 +6,7 @@ from conftest import load_mesh
 from scipy.interpolate import CubicSpline
 
 import lacore.shapes.interpolation
+import lacore.shapes.projection
 import lacore.reconstruction.context as reconstruction_context
 from lacore.errors import LengthsAnglesError, MeshError
 from lacore.shapes.interpolation import (check_keyframes, interpolate, keyframe_inbetweens, piecewise_linear_z,
@@ -147,7 +148,8 @@ def test_end_points_are_reproduced(finger, finger_runs):
 
 
 def test_average_is_a_valid_mesh_with_the_energy_of_a_direct_reconstruction(finger, finger_runs):
-    """t = 0.5 of finger0/finger1: a non-admissible average (thesis 3.4.3) projected as by reconstruct()."""
+    """t = 0.5 of finger0/finger1: a non-admissible average (thesis 3.4.3) projected as by reconstruct() (the
+    default projection, Fast: one Gauss-Newton step from the extrapolation through t = 0 and 0.25)."""
     topo, X0, X1 = finger
     warm, _ = finger_runs
     i = int(np.flatnonzero(warm.times == 0.5)[0])
@@ -157,7 +159,7 @@ def test_average_is_a_valid_mesh_with_the_energy_of_a_direct_reconstruction(fing
     print(f"\nfinger t=0.5: energy {warm.energy[i]:.10g} ({warm.iterations[i]} it, warm from t="
           f"{warm.warm_start_times[i]}), direct reconstruct {direct.energy:.10g} ({direct.iterations} it)")
     assert warm.energy[i] > 1e-4                               # not admissible
-    assert warm.energy[i] == pytest.approx(direct.energy, rel=1e-6)
+    assert warm.energy[i] == pytest.approx(direct.energy, rel=1e-4)  # measured 3.2e-5 (method "gn": 1e-6)
     assert rigid_rms(warm.vertices[i], direct.vertices) < 1e-4
     X = warm.vertices[i]
     assert np.all(np.isfinite(X))
@@ -205,8 +207,10 @@ def test_frames_are_placed_in_the_reference_frame(finger, finger_runs):
         assert abs((X[c] - X[a]) @ n) < 1e-12                                   # in the reference plane
 
 
-def test_warm_start_saves_iterations(finger_runs):
-    warm, cold = finger_runs
+def test_warm_start_saves_iterations(finger):
+    topo, X0, X1 = finger
+    warm = interpolate([X0, X1], topo, FINGER_T, method="gn")
+    cold = interpolate([X0, X1], topo, FINGER_T, method="gn", warm_start=False)
     print(f"\nfinger {len(FINGER_T)} frames: warm start {warm.total_iterations} Gauss-Newton iterations "
           f"({warm.iterations.tolist()}), cold start {cold.total_iterations} ({cold.iterations.tolist()})")
     assert warm.total_iterations <= cold.total_iterations
@@ -304,13 +308,13 @@ def test_spline_differs_from_linear_between_keys(plates, plate_keys):
 def test_frame_based_methods_share_one_preassembled_tree(plates, monkeypatch):
     topo, (Xf, XA, _) = plates
     calls = []
-    original = lacore.shapes.interpolation.preassembled_tree
+    original = lacore.shapes.projection.preassembled_tree
 
     def counting(*args, **kwargs):
         calls.append(kwargs.get("kind"))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(lacore.shapes.interpolation, "preassembled_tree", counting)
+    monkeypatch.setattr(lacore.shapes.projection, "preassembled_tree", counting)
     res = interpolate([Xf, XA], topo, [0.0, 0.3, 0.7, 1.0], method="mst")
     assert calls == ["mst"]
     assert res.tree is not None and res.tree.kind == "mst"
@@ -348,7 +352,7 @@ def test_progress_reports_every_frame_and_cancels(plates):
 # --------------------------------------------------------------------------- continuation (warm starts)
 def test_predicted_start_extrapolates_a_linear_path_exactly():
     """The secant through the nearest known shape and the next one beyond it; nearest alone otherwise."""
-    from lacore.shapes.interpolation import MAX_EXTRAPOLATION, predicted_start
+    from lacore.shapes.projection import MAX_EXTRAPOLATION, predicted_start
 
     rng = np.random.default_rng(5)
     A, D = rng.standard_normal((2, 7, 3))
@@ -378,36 +382,40 @@ def test_predicted_start_extrapolates_a_linear_path_exactly():
         interpolate([A[:3], A[:3] + D[:3]], tri, [0.5], warm_start="cubic")
 
 
+@pytest.mark.numerics
 def test_secant_starts_save_iterations_on_the_finger(finger):
     """Ten in-betweens: the extrapolated starts need fewer Gauss-Newton iterations and factorizations than
     starts from the nearest frame, for the same minima."""
     topo, X0, X1 = finger
     ts = np.arange(1, 11) / 11
-    secant = interpolate([X0, X1], topo, ts)
-    nearest = interpolate([X0, X1], topo, ts, warm_start="nearest")
+    secant = interpolate([X0, X1], topo, ts, method="gn")
+    nearest = interpolate([X0, X1], topo, ts, method="gn", warm_start="nearest")
     assert secant.success and nearest.success
     np.testing.assert_allclose(secant.energy, nearest.energy, rtol=1e-6)   # measured 3.5e-8
-    assert secant.total_iterations <= nearest.total_iterations - 6          # measured 35 vs 46
-    assert sum(r.factorizations for r in secant.reconstructions) <= 17     # measured 16 vs 20
+    assert secant.total_iterations <= 0.85 * nearest.total_iterations     # measured 32 vs 46
+    assert (sum(r.factorizations for r in secant.reconstructions)
+            < sum(r.factorizations for r in nearest.reconstructions))         # measured 15 vs 20
 
 
+@pytest.mark.numerics
 def test_fast_continuation_stays_near_gauss_newton(finger):
-    """The add-on's Fast (the extrapolated start and one Gauss-Newton step; up to three, ftol 1e-4, for the
-    first frame, which starts from the key itself) on ten finger in-betweens: near converged Gauss-Newton's
-    energies with one factorization per frame after the first."""
-    from lacore.reconstruction import GaussNewtonOptions, HybridOptions
-
+    """The default projection, the preset Fast (the extrapolated start and one Gauss-Newton step; up to three,
+    ftol 1e-4, for the first frame, which starts from the key itself; more only where a step did not agree with
+    its model), on ten finger in-betweens: near converged Gauss-Newton's energies with one factorization per
+    frame after the first."""
     topo, X0, X1 = finger
     ts = np.arange(1, 11) / 11
-    gn = interpolate([X0, X1], topo, ts)
-    fast = interpolate([X0, X1], topo, ts, method="hybrid", options=GaussNewtonOptions(ftol=1e-4),
-                       hybrid=HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3))
+    gn = interpolate([X0, X1], topo, ts, method="gn")
+    fast = interpolate([X0, X1], topo, ts)
+    assert fast.method == "hybrid" and interpolate([X0, X1], topo, ts[:1], method="fast").energy[0] == fast.energy[0]
     assert fast.success and all(r.method == "hybrid-given" for r in fast.reconstructions)
     excess = fast.energy / gn.energy - 1.0
     assert np.all(excess > -1e-9) and excess.max() < 5e-3                  # measured 1.6e-3 (last frame)
     assert excess[:6].max() < 1e-4                                          # measured 2.9e-5
-    assert fast.iterations.tolist() == [2] + [1] * 9                        # the first from the key: 2 of 3
-    assert [r.factorizations for r in fast.reconstructions] == [2] + [1] * 9
+    # one smoothing step per frame, one factorization each; the first (from the key) up to 3 (measured 2)
+    assert 1 <= fast.iterations[0] <= 3 and fast.iterations[1:].tolist() == [1] * 9
+    factorizations = [r.factorizations for r in fast.reconstructions]
+    assert factorizations[0] <= fast.iterations[0] and factorizations[1:] == [1] * 9
     # without a start to smooth, "given" is the least-squares start
     z = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
     assert reconstruct(z, topo, X0, method="hybrid", hybrid_start="given").method == "hybrid-lsq"

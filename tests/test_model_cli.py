@@ -13,6 +13,7 @@ from lacore.io.meshes import load_mesh, save_mesh
 from lacore.geometry.rigid import rigid_rms
 from lacore.samples.bar import bar_family
 from lacore.models.shape_model import DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, ShapeModel
+from lacore.reconstruction import ReconstructionSettings
 
 STAGES = {"mean", "tangent_decomposition", "tangent_solves", "gram", "eigen"}
 
@@ -53,7 +54,8 @@ def test_model_json_and_file(capsys, tmp_path, bar_files, tangent):
     assert STAGES <= set(summary["stages"]) and summary["seconds"] > 0
     assert (summary["stages"]["tangent_solves"] > 0) == (tangent == "projected")
     model = ShapeModel.load(out, faces=faces)
-    direct = ShapeModel.fit(poses, faces, n_modes=3, tangent=tangent, bending_weight=0.01)
+    direct = ShapeModel.fit(poses, faces, n_modes=3, tangent=tangent,
+                            settings=ReconstructionSettings(bending_weight=0.01))
     assert np.abs(model.modes - direct.modes).max() < 1e-9
     np.testing.assert_allclose(model.explained_variance_ratio, ev, rtol=1e-12)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
@@ -87,7 +89,7 @@ def test_bad_input_exit_2_without_output(capsys, tmp_path, bar_files):
         (["model", paths[0], "-o", out], "at least 2 training meshes, got 1"),
         (["model", paths[0], shared_mesh("sphere/defSphere0.ply"), "-o", out], "is not in dense correspondence with"),
         (["model", *paths[:3], "-o", out, "--modes", 3], "--modes 3 is larger than N - 1 = 2 for 3 training meshes"),
-        (["model", *paths[:3], "-o", tmp_path / "no" / "m.npz"], "output directory"),
+        (["model", *paths[:3], "-o", tmp_path / "no" / "m.npz"], "m.npz: its folder does not exist"),
         (["model", paths[0], tmp_path / "missing.ply", "-o", out], "missing.ply"),
     ]
     for argv, message in cases:

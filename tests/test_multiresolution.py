@@ -11,6 +11,9 @@ from lacore.reconstruction import reconstruct
 from lacore.geometry.rigid import rigid_rms
 from lacore.geometry.topology import MeshTopology
 
+#: Greedy coarsening, prolongation and counts: run again on other kernels (scripts/other_kernels.py).
+pytestmark = pytest.mark.numerics
+
 
 def _group(*names):
     S = np.stack([load_mesh(shared_mesh(n))[0] for n in names])
@@ -92,7 +95,7 @@ def test_average_close_to_full_gauss_newton(finger, fine_solver, bound):
     else:
         # the rotated reference factorization: no fine factorization, energy goes down a lot from the prolonged
         # start (measured 389x the optimum) but the finger average bends far from the reference
-        assert res.factorizations == 0 and len(res.pcg_iterations) == 3
+        assert res.factorizations == 0 and 1 <= len(res.pcg_iterations) <= 3
         assert res.energy < 0.02 * res.prolonged_energy
 
 

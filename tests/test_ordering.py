@@ -97,6 +97,7 @@ def test_factor_column_counts_of_both_backends(bar):
         assert counts.shape == (n,) and counts.min() >= 1 and counts.sum() > pat["nnz"]  # the diagonal, plus fill
 
 
+@pytest.mark.numerics
 def test_ordering_setting_changes_round_off_only(bar):
     topo, B, _, _, _ = bar
     z = lengths_and_angles(simple_deform_bend(B, np.pi / 3), topo)
@@ -106,8 +107,9 @@ def test_ordering_setting_changes_round_off_only(bar):
         results[ordering] = reconstruct(z, topo, B, context=ctx)
         assert ctx.ordering == ordering
     a, b = results["metis"], results["geometric"]
-    assert a.success and b.success and a.iterations == b.iterations
-    assert np.abs(a.vertices - b.vertices).max() < 1e-12  # measured 6e-16 (the bar is 4 long)
+    # another elimination order rounds differently: the same minimum (an extra step at most)
+    assert a.success and b.success and abs(a.iterations - b.iterations) <= 1
+    assert np.abs(a.vertices - b.vertices).max() < 1e-10  # measured 6e-16 (the bar is 4 long)
     assert get_context(topo, B).solver is not None and get_context(topo, B).ordering == "metis"  # the default
     with pytest.raises(InputError, match="unknown ordering 'amd'"):
         get_context(topo, B, ordering="amd")

@@ -17,11 +17,11 @@ from conftest import REPO, load_topology, shared_mesh
 from lacore import parallel
 from lacore.cache import DerivedCache
 from lacore.cli import main
-from lacore.errors import InputError
-from lacore.shapes.interpolation import _project_chain, interpolate
+from lacore.errors import InputError, LengthsAnglesError
+from lacore.shapes.interpolation import interpolate
+from lacore.shapes.projection import ProjectionOptions, ProjectionTargets, project_chain
 from lacore.parallel import WorkerError, WorkerProcess, check_workers, close_workers, frame_chains
 from lacore.progress import Cancelled
-from lacore.reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings
 
 
 def sleeping_job(seconds, *, send):
@@ -73,9 +73,9 @@ def finger():
 def test_two_workers_give_the_frames_of_one_process(finger):
     shapes, topo = finger
     t = np.linspace(0.05, 0.95, 8)
-    one = interpolate(shapes, topo, t)
+    one = interpolate(shapes, topo, t, method="gn")
     seen, progress = [], []
-    two = interpolate(shapes, topo, t, workers=2, on_frame=lambda i, res: seen.append(i),
+    two = interpolate(shapes, topo, t, method="gn", workers=2, on_frame=lambda i, res: seen.append(i),
                       progress=lambda done, total, message: progress.append((done, total)))
     assert two.workers == 2 and one.workers == 1
     assert two.order.tolist() == [0, 1, 2, 3, 7, 6, 5, 4]
@@ -93,11 +93,8 @@ def test_two_workers_give_the_frames_of_one_process(finger):
 def test_fast_with_workers_matches_within_its_tolerance(finger):
     shapes, topo = finger
     t = np.arange(1, 7) / 7.0
-    fast = {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1,
-                                                        nearest_start_iterations=3),
-            "options": GaussNewtonOptions(ftol=1e-4)}
-    ref = interpolate(shapes, topo, t)
-    two = interpolate(shapes, topo, t, workers=2, **fast)
+    ref = interpolate(shapes, topo, t, method="gn")
+    two = interpolate(shapes, topo, t, workers=2)  # the default projection, Fast
     assert np.max(two.energy / ref.energy - 1) < 2e-3   # measured 3.5e-4 (the goal: 0.5 %)
 
 
@@ -111,13 +108,13 @@ def test_cancel_kills_the_workers(finger):
 
 def test_an_error_in_a_worker_is_raised_here_with_its_message(finger):
     shapes, topo = finger
-    setup = (ReconstructionSettings(), GaussNewtonOptions(), HybridOptions())
-    worker = WorkerProcess(_project_chain, (np.zeros((1, 2 * topo.n_edges)), topo, shapes[0], np.array([0.5]), [],
-                                           "bogus", "secant", None, setup))
+    # a worker whose targets are bad (non-positive lengths) fails with the input error, raised here as itself
+    bad = ProjectionTargets(np.zeros((1, 2 * topo.n_edges)), topo, shapes[0], np.array([0.5]), ())
+    worker = WorkerProcess(project_chain, (bad, ProjectionOptions()))
     tag, kind, payload = worker.messages.get(timeout=60)
     worker.close()
-    assert kind == "error" and payload[0] == "InputError"
-    with pytest.raises(InputError, match="unknown projection method 'bogus'"):
+    assert kind == "error" and payload[0] == "LengthsAnglesError"
+    with pytest.raises(LengthsAnglesError, match="target at t = 0.5"):
         parallel.raise_worker_error(payload)
     with pytest.raises(WorkerError, match="ZeroDivisionError: division by zero\n.*Traceback"):
         parallel.raise_worker_error(("ZeroDivisionError", "division by zero", "Traceback (most recent call last)"))

@@ -1,5 +1,8 @@
 """PC2 point caches (lacore.io.point_cache): header per the format, 12 bytes per vertex per frame, round trip."""
 
+import os
+import stat
+
 import numpy as np
 import pytest
 
@@ -22,6 +25,11 @@ def test_round_trip_layout_and_header(tmp_path):
     # sample t, vertex v at byte 32 + 12 (t V + v)
     assert np.frombuffer(raw[32 + 12 * (3 * 5 + 2):32 + 12 * (3 * 5 + 3)], "<f4").tolist() == \
         X[3, 2].astype(np.float32).tolist()
+    # written by the one atomic writer: the permissions of any new file (the umask), no temporary file left
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o666 & ~umask
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["take.pc2"]
 
 
 def test_bad_input(tmp_path):

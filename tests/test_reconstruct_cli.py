@@ -159,3 +159,29 @@ def test_console_entry_point_in_a_subprocess(tmp_path):
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["success"] and summary["max_length_error"] < 1e-12 and summary["max_angle_error"] < 1e-10
+
+
+def test_cone_frustum_target_is_the_closest_mesh(tmp_path, capsys):
+    """A cone frustum strip's lengths with all angles 0 (no mesh's): Gauss-Newton's success is reported as the
+    closest mesh, with the reason; a tree walk fails and names the hole its frames do not close around."""
+    from lacore.samples.surfaces import cone_strip
+    faces, z = cone_strip()
+    topo = MeshTopology.from_faces(faces)
+    phi = 2 * np.pi * np.arange(24) / 24
+    X = np.concatenate([np.stack([r * np.cos(phi + 0.5 * t), r * np.sin(phi + 0.5 * t), np.full(24, t)], 1)
+                        for t, r in ((0.0, 1.0), (1.0, 2.0))])
+    save_mesh(tmp_path / "cone.ply", X, faces)
+    E = topo.n_edges
+    np.savez(tmp_path / "flat.npz", faces=faces, edges=topo.edges, lengths=z[:E], angles=z[E:])
+    code, stdout, stderr = run_main(capsys, "reconstruct", "--ref", tmp_path / "cone.ply", "--target",
+                                    tmp_path / "flat.npz", "-o", tmp_path / "out.ply", "--json")
+    s = json.loads(stdout)
+    assert code == 0 and s["success"] and s["checks"]["outcome"] == "closest", stderr
+    assert s["checks"]["target_integrable"] is False and "around a hole" in s["checks"]["target"]
+    assert "the closest mesh: the target is not integrable around a hole" in s["message"]
+    code, stdout, _ = run_main(capsys, "reconstruct", "--ref", tmp_path / "cone.ply", "--target",
+                               tmp_path / "flat.npz", "-o", tmp_path / "out.ply")
+    assert code == 0 and "the closest mesh" in stdout
+    code, stdout, stderr = run_main(capsys, "reconstruct", "--ref", tmp_path / "cone.ply", "--target",
+                                    tmp_path / "flat.npz", "--method", "bfs", "-o", tmp_path / "bfs.ply")
+    assert code == 3 and "hole 0 (boundary loop 1, 24 edges): the frames turn by 1.89 rad" in stderr

@@ -14,7 +14,7 @@ from lacore.reconstruction import (GaussNewtonOptions, HybridOptions, Reconstruc
                                    get_context, reconstruct, tree_kind)
 from lacore.reconstruction.gauss_newton import run_gauss_newton
 from lacore.reconstruction.result import GaussNewtonResult
-from lacore.reconstruction.settings import split_options
+from lacore.reconstruction.settings import ReconstructionSetup, split_options
 from lacore.result import SolverResult
 from lacore.geometry.topology import MeshTopology
 
@@ -47,18 +47,70 @@ def test_settings_are_frozen_validated_and_hashable():
         HybridOptions(smoothing_iterations=-1)
 
 
-def test_split_options_maps_the_historical_keywords():
-    s, o, h, given = split_options({"energy": "shells", "max_iterations": 7, "hybrid_start": "tree",
-                                    "hybrid_kind": "spt", "smoothing_iterations": 3})
-    assert s == ReconstructionSettings(energy="shells") and given == {"energy"}
-    assert o == GaussNewtonOptions(max_iterations=7)
-    assert h == HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
-    # keywords override the objects' fields; non-default fields of a settings object count as given
-    s, o, h, given = split_options({"ftol": 1e-3}, ReconstructionSettings(bending_weight=0.1),
-                                   GaussNewtonOptions(max_iterations=5))
-    assert o == GaussNewtonOptions(max_iterations=5, ftol=1e-3) and given == {"bending_weight"}
+def test_split_options_maps_the_keywords_to_one_named_bundle():
+    setup = split_options({"energy": "shells", "max_iterations": 7, "hybrid_start": "tree", "hybrid_kind": "spt",
+                           "smoothing_iterations": 3})
+    assert isinstance(setup, ReconstructionSetup)
+    assert setup.settings == ReconstructionSettings(energy="shells")
+    assert setup.options == GaussNewtonOptions(max_iterations=7)
+    assert setup.hybrid == HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
+    settings, options, hybrid = setup  # unpacks in field order
+    assert (settings, options, hybrid) == (setup.settings, setup.options, setup.hybrid)
+    assert ReconstructionSetup() == (ReconstructionSettings(), GaussNewtonOptions(), HybridOptions())
+    # keywords override the objects' fields
+    setup = split_options({"ftol": 1e-3}, ReconstructionSettings(bending_weight=0.1),
+                          GaussNewtonOptions(max_iterations=5))
+    assert setup.options == GaussNewtonOptions(max_iterations=5, ftol=1e-3) and setup.settings.bending_weight == 0.1
     with pytest.raises(TypeError, match=r"unknown options \['tolerance'\]"):
         split_options({"tolerance": 1})
+
+
+def test_every_default_comes_from_one_place():
+    import inspect
+
+    from lacore.energies import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, QuadraticEnergy, ThinShellsEnergy, \
+        quadratic_weights
+
+    s = ReconstructionSettings()
+    assert (s.weights, s.bending_weight) == (DEFAULT_WEIGHTS, DEFAULT_BENDING_WEIGHT)
+    for func, name, value in [(QuadraticEnergy, "weights", DEFAULT_WEIGHTS),
+                              (QuadraticEnergy, "bending_weight", DEFAULT_BENDING_WEIGHT),
+                              (ThinShellsEnergy, "bending_weight", DEFAULT_BENDING_WEIGHT),
+                              (quadratic_weights, "scheme", DEFAULT_WEIGHTS)]:
+        assert inspect.signature(func).parameters[name].default is value
+    # the consumers above the reconstruction take the settings objects, not their fields
+    from lacore.models.shape_model import ShapeModel
+    from lacore.multiresolution import MultiresolutionReconstruction
+    from lacore.shapes.geodesics import discrete_geodesic, projected_linear_path
+    from lacore.shapes.path_energy import default_energy
+
+    for func in (discrete_geodesic, default_energy, projected_linear_path, MultiresolutionReconstruction,
+                 ShapeModel.fit_z):
+        params = inspect.signature(func).parameters
+        assert "settings" in params and not {"bending_weight", "weights", "solver"} & set(params), func
+    params = inspect.signature(ShapeModel.synthesize).parameters  # the model's own settings, options objects
+    assert "options" in params and all(p.kind != p.VAR_KEYWORD for p in params.values())
+
+
+def test_an_explicitly_given_default_counts_as_given(plates):
+    topo, XA, XB = plates
+    z = lengths_and_angles(XB, topo)
+    ctx = get_context(topo, XA, ReconstructionSettings(bending_weight=1e-2))
+    # a settings object gives all its fields, also those at their default
+    with pytest.raises(InputError, match="bending_weight=0.001 differs from the context's 0.01"):
+        reconstruct(z, topo, XA, context=ctx, settings=ReconstructionSettings())
+    with pytest.raises(InputError, match="bending_weight=0.001 differs from the context's 0.01"):
+        reconstruct(z, topo, XA, context=ctx, bending_weight=1e-3)
+    shells = get_context(topo, XA, ReconstructionSettings(energy="shells", bending_weight=1e-2))
+    with pytest.raises(InputError, match="energy='quadratic' differs from the context's 'shells'"):
+        reconstruct(z, topo, XA, context=shells, settings=ReconstructionSettings(bending_weight=1e-2))
+    # settings that match, with automatic fixed face and solver, are accepted; none given: the context's
+    same = ReconstructionSettings(bending_weight=1e-2)
+    a = reconstruct(z, topo, XA, context=ctx, settings=same, max_iterations=2)
+    b = reconstruct(z, topo, XA, context=ctx, max_iterations=2)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    with pytest.raises(TypeError, match=r"get_context\(\) got unknown options \['ftol'\]; settings are"):
+        get_context(topo, XA, ftol=1e-3)
 
 
 def test_tree_kind_builds_no_tree_for_the_least_squares_hybrid():
@@ -89,7 +141,11 @@ def test_hybrid_result_is_complete_and_consistent(plates):
     z = 0.5 * (lengths_and_angles(XA, topo) + lengths_and_angles(XB, topo))
     res = reconstruct(z, topo, XA, method="hybrid", hybrid=HybridOptions(smoothing_iterations=2))
     assert isinstance(res, ReconstructionResult) and isinstance(res, SolverResult)
-    assert res.iterations == 2 and res.status == 6 and res.success and res.message == "2 smoothing iterations done"
+    assert res.iterations == 2 and res.status == 6 and res.success
+    # an average of two shapes is no mesh's lengths and angles: the result approximates the closest mesh
+    assert res.message.startswith("2 smoothing iterations done; an approximation of the closest mesh (2 smoothing "
+                                  "iterations): the target is not integrable at a vertex")
+    assert res.checks["outcome"] == "closest" and res.checks["target_integrable"] is False
     assert res.method == "hybrid-lsq" and {"least_squares", "total", "initialization"} <= set(res.timings)
     assert res.timings["total"] >= res.timings["least_squares"] + res.timings["factorization"]
     summary = res.summary()

@@ -1,5 +1,7 @@
 """Shape models in lengths and angles (thesis 4.3, (4.14)-(4.19)): lacore.models.shape_model.ShapeModel."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -11,6 +13,7 @@ from lacore.io.meshes import load_mesh
 from lacore.progress import Cancelled
 from lacore.geometry.rigid import apply_rigid, rigid_rms
 from lacore.samples.bar import articulated_bar_pose, bar_family, bar_mesh, bar_pose
+from lacore.models.settings import MODEL_OPTIONS
 from lacore.models.shape_model import ShapeModel, ShapeModelError, TangentProjector
 
 # bend x twist grid: one-sided ranges where the bend-twist interaction (the third direction) stays below 0.1 %
@@ -203,6 +206,38 @@ def test_save_load_round_trip(bar_models, bar, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name != "model.npz"]  # no temp files left
 
 
+def test_model_file_entries_are_the_field_table_and_files_of_version_1_load(bar_models, tmp_path):
+    import io
+
+    from lacore.models.model_io import FIELDS, FORMAT, FORMAT_ALIASES, FORMAT_VERSION
+
+    model = bar_models["ambient"]
+    buffer = io.BytesIO()
+    model.save(buffer)
+    d = dict(np.load(io.BytesIO(buffer.getvalue())))
+    assert set(d) == {"format", "format_version"} | {f.name for f in FIELDS if getattr(model, f.name) is not None}
+    assert str(d["format"]) == FORMAT == "lacore.shape_model" and int(d["format_version"]) == FORMAT_VERSION
+    a = model.training_coefficients[3]
+    # a version-1 file of an earlier writer: format named after the module path, no all_eigenvalues entry
+    for fmt in FORMAT_ALIASES:
+        older = dict(d, format=np.array(fmt))
+        del older["all_eigenvalues"]
+        np.savez(tmp_path / "older.npz", **older)
+        loaded = ShapeModel.load(tmp_path / "older.npz", faces=model.faces)
+        assert loaded.all_eigenvalues is None and loaded.n_modes == model.n_modes
+        assert np.abs(loaded.synthesize(a) - model.synthesize(a)).max() < 1e-12
+    np.savez(tmp_path / "nan.npz", **dict(d, variances=np.full_like(d["variances"], np.nan)))
+    with pytest.raises(ShapeModelError, match=r"nan.npz is a corrupt shape model: variances has NaN or infinite "
+                                              "entries"):
+        ShapeModel.load(tmp_path / "nan.npz")
+    np.savez(tmp_path / "tangent.npz", **dict(d, tangent=np.array("log")))
+    with pytest.raises(ShapeModelError, match="tangent must be one of ambient, projected, got 'log'"):
+        ShapeModel.load(tmp_path / "tangent.npz")
+    np.savez(tmp_path / "missing.npz", **{k: v for k, v in d.items() if k != "mean_z"})
+    with pytest.raises(ShapeModelError, match="corrupt shape model: missing mean_z"):
+        ShapeModel.load(tmp_path / "missing.npz")
+
+
 def test_bad_input_messages(bar, bar_models, tmp_path):
     poses, topo, _ = bar
     with pytest.raises(ShapeModelError, match="at least 2 training meshes, got 1"):
@@ -234,8 +269,8 @@ def test_bad_input_messages(bar, bar_models, tmp_path):
         ShapeModel.load(tmp_path / "other.npz")
     model.save(tmp_path / "m.npz")
     d = dict(np.load(tmp_path / "m.npz"))
-    np.savez(tmp_path / "v2.npz", **dict(d, format_version=np.array(2)))
-    with pytest.raises(ShapeModelError, match="format version 2; this lacore reads version 1"):
+    np.savez(tmp_path / "v2.npz", **dict(d, format_version=np.array(3)))
+    with pytest.raises(ShapeModelError, match="format version 3; this lacore reads versions 1 to 2"):
         ShapeModel.load(tmp_path / "v2.npz")
     np.savez(tmp_path / "cut.npz", **dict(d, modes=d["modes"][:, :-3]))
     with pytest.raises(ShapeModelError, match="corrupt shape model: modes has shape"):
@@ -262,7 +297,7 @@ def test_angles_straddling_the_branch_cut_are_averaged_on_the_circle():
     # samples whose angle at one edge is +(pi - 0.05) and -(pi - 0.05): the mean sits at pi, not at 0
     Z = np.stack([z, z, z])
     Z[:, E] = [np.pi - 0.05, -(np.pi - 0.05), np.pi - 0.05]
-    m = ShapeModel.fit_z(Z, topo, X0, n_modes=1, mean_options={"max_iterations": 0})
+    m = ShapeModel.fit_z(Z, topo, X0, n_modes=1, options=replace(MODEL_OPTIONS, max_iterations=0))
     assert abs(abs(m.linear_mean_z[E]) - (np.pi - 0.05 / 3)) < 1e-12
     v = m.tangent_vectors(Z)
     assert np.abs(v[:, E]).max() < 0.2 + np.pi - abs(m.mean_z[E])
@@ -303,10 +338,17 @@ def test_synthesis_far_out_clamps_lengths(bar_models):
     a[1, 0] = 1.2 * np.min(lbar[u < 0] / -u[u < 0])  # far enough out that one length turns negative
     z = model.z_of(a)
     assert np.count_nonzero(z[1, :E] <= 0) > 0  # the linear combination has non-positive lengths
-    X = model.synthesize(a, max_iterations=5)
-    assert model.last_clamped_lengths[0] == 0 and model.last_clamped_lengths[1] == np.count_nonzero(
-        z[1, :E] < 0.01 * model.mean_z[:E])
+    state = dict(vars(model))
+    X, results = model.synthesize(a, options=replace(MODEL_OPTIONS, max_iterations=5), return_results=True)
     assert np.all(np.isfinite(X))
+    # side-effect free: the model is unchanged; what was clamped comes from synthesis_targets and the notes
+    assert vars(model).keys() == state.keys() and all(vars(model)[k] is v for k, v in state.items())
+    targets, clamped = model.synthesis_targets(a)
+    n = np.count_nonzero(z[1, :E] < 0.01 * model.mean_z[:E])
+    assert clamped.shape == (2, E) and clamped[0].sum() == 0 and clamped[1].sum() == n > 0
+    np.testing.assert_array_equal(targets[1, :E][clamped[1]], 0.01 * model.mean_z[:E][clamped[1]])
+    assert not any("floor" in note for note in results[0].notes)
+    assert f"{n} target lengths below 0.01 of the mean's were raised to that floor" in results[1].notes
 
 
 def test_fit_progress_and_selectable_synthesis_method(bar):

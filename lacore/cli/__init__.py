@@ -10,32 +10,40 @@ Conventions shared by all subcommands:
 
 * ``--json`` prints exactly ONE JSON object on stdout (nothing else on stdout);
 * bad input -- a :class:`lacore.errors.InputError` (invalid mesh, target,
-  option; :class:`CliError` is one) or an ``OSError`` (missing, unreadable or
-  unwritable file) -- prints ``lacore <cmd>: error: ...`` on stderr and exits
-  with code 2, without a traceback; any other exception is a bug and shows its
-  traceback;
+  option; :class:`CliError` is one), an ``OSError`` (missing, unreadable or
+  unwritable file) or a ``MemoryError`` -- prints ONE line
+  ``lacore <cmd>: error: ...`` on stderr and exits with code 2, without a
+  traceback; any other exception is a bug and shows its traceback;
 * a command that ran but whose result failed its checks
   (:mod:`lacore.reconstruction.checks`) writes its output, prints
-  ``lacore <cmd>: failed: ...`` on stderr and exits with code 3
-  (:data:`EXIT_FAILED_CHECKS`), or 0 with ``--allow-failure``; the JSON has
-  ``success`` and ``failure``;
+  ``lacore <cmd>: failed: ...`` on stderr (:func:`.common.finish`) and exits
+  with code 3 (:data:`EXIT_FAILED_CHECKS`), or 0 with ``--allow-failure``
+  (then the line says ``warning``); the JSON has ``success`` and ``failure``;
+* NumPy's floating-point RuntimeWarnings are not shown (the checks and the
+  messages say what went wrong);
+* Ctrl-C prints ``lacore <cmd>: interrupted`` and exits with code 130
+  (:data:`EXIT_INTERRUPTED`); a closed stdout (``lacore ... --json | head``)
+  ends the command quietly with code 141;
 * results go to ``.npz`` files (``numpy.load``) with documented keys, and every
   output is written atomically (:mod:`lacore.io.atomic`): a failed write leaves
   an existing file unchanged and no temporary file.
 """
 
 import argparse
+import os
+import signal
 import sys
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..errors import InputError
 from . import encode, fit, interpolate, model, reconstruct
-from .common import EXIT_FAILED_CHECKS, EXIT_OK, EXIT_USAGE, CliError
+from .common import EXIT_FAILED_CHECKS, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, CliError, error_message
 from .encode import encode_mesh
 
 __all__ = ["main", "Subcommand", "SUBCOMMANDS", "register_subcommand", "CliError", "encode_mesh", "EXIT_OK",
-           "EXIT_USAGE", "EXIT_FAILED_CHECKS"]
+           "EXIT_USAGE", "EXIT_FAILED_CHECKS", "EXIT_INTERRUPTED"]
 
 
 @dataclass(frozen=True)
@@ -74,12 +82,68 @@ def build_parser():
 
 
 def main(argv=None):
-    """Entry point of the ``lacore`` console script; returns the exit code."""
+    """Entry point of the ``lacore`` console script; returns the exit code.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from lacore.cli import main
+    >>> from lacore.io.meshes import save_mesh
+    >>> from lacore.samples.bar import bar_mesh
+    >>> path = os.path.join(tempfile.mkdtemp(), "bar.ply")
+    >>> save_mesh(path, *bar_mesh(n_along=4, n_side=1))
+    >>> main(["encode", path])                       # prints a summary, returns the exit code
+    /...bar.ply: 22 vertices, 60 edges (0 on the boundary), 40 faces
+      lengths in [0.707107, 1.80278], max |angle| 1.5708 rad
+      integrable: the frames close around every vertex ...
+      ... s
+    0
+    """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        _ignore_further_interrupts(owns_process=argv is None)
+        print("lacore: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     cmd = args._subcommand
     try:
-        return int(cmd.run(args) or 0)
-    except (InputError, OSError) as exc:
-        print(f"lacore {cmd.name}: error: {exc}", file=sys.stderr)
+        with warnings.catch_warnings():
+            # NumPy's floating-point warnings (overflow in an extreme input...) are not for the user: the result's
+            # checks or the error message say what went wrong, in one line
+            warnings.filterwarnings("ignore", message=_FLOATING_POINT_WARNINGS, category=RuntimeWarning)
+            return int(cmd.run(args) or 0)
+    except KeyboardInterrupt:
+        _ignore_further_interrupts(owns_process=argv is None)
+        print(f"lacore {cmd.name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # stdout closed by the reader (`lacore ... --json | head`): nothing left to say
+        _silence_stdout()
+        return 141  # as a shell reports a process ended by SIGPIPE (128 + 13)
+    except (InputError, OSError, MemoryError) as exc:
+        print(f"lacore {cmd.name}: error: {error_message(exc)}", file=sys.stderr)
         return EXIT_USAGE
+
+
+_FLOATING_POINT_WARNINGS = r"(overflow|underflow|invalid value|divide by zero) encountered"
+
+
+def _ignore_further_interrupts(owns_process):
+    """After the first Ctrl-C the command only cleans up and exits 130: a second one must not turn that into a
+    traceback or a death by signal.  Only when :func:`main` runs as the process's program (``argv`` not given:
+    the console script, ``python -m lacore.cli``), never for a caller that goes on after it returns."""
+    if not owns_process:
+        return
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread (main() called from a thread)
+        pass
+
+
+def _silence_stdout():
+    """Point stdout at the null device, so that the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass

@@ -12,28 +12,29 @@ and the binding: either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
 ``offsets`` ``(M,)`` (distance along the face normal, positive outside).
 
 ``OUT.npz`` gets ``vertices`` ``(T, V, 3)``, ``faces`` ``(F, 3)``,
-``coefficients`` ``(T, J)``, ``marker_residuals`` ``(T, M)`` (NaN where
+``coefficients`` ``(T, J)``, ``marker_residuals`` ``(T, M, 3)`` (NaN where
 occluded), ``frame_status`` ``(T,)`` and ``frame_rms`` ``(T,)``.  ``--json``
 prints one object with ``frames``, ``seconds``, ``seconds_per_frame``,
 ``marker_rms``, the stage timings and the per-frame status counts.
 
-Bad input prints one line on stderr and exits with code 2; the output is
-written to a temporary file in the target folder and renamed, so a failed run
-leaves nothing behind.  Registered in :mod:`lacore.cli` through :func:`register`.
+Bad input (checked by :func:`lacore.markers.io.read_marker_arrays` and
+:meth:`~lacore.models.shape_model.ShapeModel.load`) prints one line on stderr
+and exits with code 2; the output is written to a temporary file in the target
+folder and renamed, so a failed run leaves nothing behind.  A fit that fails is
+written and reported on one stderr line, exit code 3 (0 with
+``--allow-failure``).  Registered in :mod:`lacore.cli` through :func:`register`.
 """
 
-import os
 import time
-import zipfile
 
 import numpy as np
 
-from ..io.atomic import save_npz_atomic
 from ..errors import InputError
-from ..markers.binding import MarkerBinding, MarkerBindingError
-from ..markers.fitting import MarkerDataError, fit_markers
+from ..io.atomic import check_writable, save_npz_atomic
+from ..markers.fitting import fit_markers
+from ..markers.io import read_marker_arrays
 from ..models.shape_model import ShapeModel
-from .common import add_allow_failure, exit_code, print_json
+from .common import add_allow_failure, finish, print_json
 
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
 
@@ -61,34 +62,8 @@ def configure(parser):
 
 
 def load_marker_file(path, model):
-    """Positions ``(T, M, 3)`` and the :class:`~lacore.markers.binding.MarkerBinding` of a markers file."""
-    try:
-        npz = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise MarkerDataError(f"{path} is not a readable .npz markers file ({exc})") from None
-    with npz:
-        keys = set(npz.files)
-        if "positions" not in keys:
-            raise MarkerDataError(f"{path} has no 'positions' array (T, M, 3)")
-        x = np.asarray(npz["positions"])
-        if x.ndim != 3 or x.shape[2] != 3 or not np.issubdtype(x.dtype, np.floating):
-            raise MarkerDataError(f"{path}: positions must be a float array (T, M, 3), got {x.dtype} {x.shape}")
-        offsets = npz["offsets"] if "offsets" in keys else None
-        if "vertices" in keys and "faces" in keys:
-            raise MarkerBindingError(f"{path} has both 'vertices' and 'faces': give one binding")
-        if "vertices" in keys:
-            binding = MarkerBinding.from_vertices(npz["vertices"], model.faces, model.topology.n_vertices, offsets)
-        elif "faces" in keys:
-            if "barycentric" not in keys:
-                raise MarkerBindingError(f"{path} has 'faces' but no 'barycentric' (M, 3)")
-            binding = MarkerBinding.from_surface(npz["faces"], npz["barycentric"], offsets)
-        else:
-            raise MarkerBindingError(f"{path} binds the markers to nothing: it needs 'vertices' (M,) or 'faces' (M,) "
-                                     "+ 'barycentric' (M, 3)")
-    binding.check(model.faces, n_markers=x.shape[1])
-    return x.astype(float), binding
+    """Positions ``(T, M, 3)`` and the binding of a markers file (:func:`lacore.markers.io.read_marker_arrays`)."""
+    return read_marker_arrays(path, model.faces, model.topology.n_vertices)
 
 
 def run(args):
@@ -96,9 +71,7 @@ def run(args):
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise InputError(f"the output file must end in .npz, got {args.output}")
-    folder = os.path.dirname(os.path.abspath(args.output))
-    if not os.path.isdir(folder):
-        raise FileNotFoundError(f"output directory {os.path.dirname(args.output) or '.'} does not exist")
+    check_writable(args.output)
     for name, v in (("--prior-weight", args.prior_weight), ("--temporal-weight", args.temporal_weight)):
         if not np.isfinite(v) or v < 0 or (name == "--prior-weight" and v == 0):
             raise InputError(f"{name} must be a finite number {'> 0' if name == '--prior-weight' else '>= 0'}, "
@@ -132,4 +105,4 @@ def run(args):
               f"{binding.n_markers} markers): marker RMS {rms}, {summary['seconds_per_frame'] or 0:.3f} s per frame")
         print(f"  {res.message}")
         print(f"  wrote {args.output} in {seconds:.3f} s")
-    return exit_code(res.success, args)
+    return finish("fit", res.success, res.message, args)

@@ -3,7 +3,7 @@
 Usage::
 
     lacore interpolate A.ply B.ply [C.ply ...] (--t T [T ...] | --frames N)
-                       [--keyframes K1 K2 ...] [--smooth-spline] [--method gn|hybrid|bfs|mst|spt|lsq]
+                       [--keyframes K1 K2 ...] [--smooth-spline] [--method fast|gn|hybrid|bfs|mst|spt|lsq]
                        -o OUT_PREFIX [--format ply|obj|off|stl] [--json]
 
 The input meshes must be in dense correspondence (same vertex count and
@@ -18,7 +18,10 @@ faces).  They sit at the keyframe times ``--keyframes`` (default ``0, 1, ...``).
 The lengths and angles are interpolated piecewise linearly (or, with
 ``--smooth-spline``, by a natural cubic spline through the keyframes) and
 projected onto the admissible set by reconstruction, see
-:mod:`lacore.shapes.interpolation`.  Frames are written in the order given to
+:mod:`lacore.shapes.interpolation`; by default with
+:data:`lacore.reconstruction.settings.DEFAULT_PROJECTION` (``fast``: continuation
+along ``t`` and one Gauss-Newton step per frame, the add-on's Fast), ``--method gn``
+runs Gauss-Newton to convergence from the same starts.  Frames are written in the order given to
 ``OUT_PREFIX_000.ply``, ``OUT_PREFIX_001.ply``, ... (at least three digits), all
 in the frame of the reference shape (``--reference``, default the first).
 
@@ -35,17 +38,17 @@ are written too, and the exit code is 3 unless ``--allow-failure`` is given.
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
-import os
-import sys
 import time
 
 import numpy as np
 
+from dataclasses import replace
+
 from ..io.meshes import save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
-from ..reconstruction.settings import SOLVERS, WEIGHTS
-from .common import (CliError, add_allow_failure, exit_code, json_float, load_meshes_in_correspondence, nonnegative_int,
-                     positive_int, print_json)
+from ..reconstruction.settings import DEFAULT_PROJECTION, PROJECTION_PRESETS, SOLVERS, WEIGHTS, projection_preset
+from .common import (CliError, add_allow_failure, check_outputs, finish, frame_count, json_float,
+                     load_meshes_in_correspondence, nonnegative_int, positive_int, print_json)
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
@@ -63,23 +66,25 @@ def configure(parser):
     when = parser.add_mutually_exclusive_group(required=True)
     when.add_argument("--t", nargs="+", type=float, metavar="T",
                       help="frame times in keyframe units (0 = first mesh, 1 = second, ...; outside extrapolates)")
-    when.add_argument("--frames", type=positive_int, metavar="N",
+    when.add_argument("--frames", type=frame_count, metavar="N",
                       help="N evenly spaced frames from the first to the last keyframe (inclusive)")
     parser.add_argument("--keyframes", nargs="+", type=float, metavar="K",
                         help="strictly increasing keyframe times of the meshes (default 0 1 2 ...)")
     parser.add_argument("--smooth-spline", action="store_true",
                         help="natural cubic spline in lengths and angles through the keyframes (default: linear)")
-    parser.add_argument("--method", choices=METHODS, default="gn",
-                        help="projection by reconstruction: gn (Gauss-Newton, default, warm-started), hybrid, "
-                             "bfs/mst/spt (frame-based, one preassembled tree), lsq")
+    parser.add_argument("--method", choices=(*PROJECTION_PRESETS, *METHODS), default=DEFAULT_PROJECTION.name,
+                        help=f"projection by reconstruction: fast (continuation along t and one Gauss-Newton step "
+                             f"per frame, the add-on's Fast), gn (Gauss-Newton to convergence from the same "
+                             f"starts), hybrid (least-squares start + smoothing), bfs/mst/spt (frame-based, one "
+                             f"preassembled tree), lsq (default {DEFAULT_PROJECTION.name})")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
                         help="index of the mesh giving the energy weights and the output frame (default 0)")
     parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
                         help=f"bending weight eta of W_q (default {settings.bending_weight:g})")
     parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
                         help="weights of W_q: (3.20) (default), (3.21) or 1")
-    parser.add_argument("--max-iterations", type=nonnegative_int, default=gn.max_iterations, metavar="N",
-                        help=f"Gauss-Newton iteration limit per frame (default {gn.max_iterations})")
+    parser.add_argument("--max-iterations", type=nonnegative_int, metavar="N",
+                        help=f"Gauss-Newton iteration limit per frame of --method gn (default {gn.max_iterations})")
     parser.add_argument("--no-warm-start", action="store_true",
                         help="start every Gauss-Newton projection from the reference mesh")
     parser.add_argument("--solver", choices=SOLVERS,
@@ -116,7 +121,7 @@ def _load_shapes(paths):
 
 def run(args):
     """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
-    # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (~0.4 s), which the other
+    # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (slow to import), which the other
     # subcommands do not need
     from ..shapes.interpolation import check_keyframes, keyframe_inbetweens
 
@@ -129,12 +134,15 @@ def run(args):
         times, mode = frame_times(keyframes, args.frames), "frame"
     if not 0 <= args.reference < len(shapes):
         raise CliError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
-    out_dir = os.path.dirname(args.output)
-    if out_dir and not os.path.isdir(out_dir):
-        raise FileNotFoundError(f"output directory {out_dir} does not exist")
-    t_load = time.perf_counter() - start
-
+    if not np.all(np.isfinite(times)):
+        raise CliError("--t takes finite numbers (keyframe times), got " + " ".join(f"{t:g}" for t in times))
     paths = output_paths(args.output, len(times), args.format)
+    check_outputs(paths)
+    t_load = time.perf_counter() - start
+    method, options, hybrid = projection_preset(args.method)
+    if args.max_iterations is not None:
+        options = replace(options or GaussNewtonOptions(), max_iterations=args.max_iterations)
+
     t_save = 0.0
 
     def write_frame(i, res):  # stream: every frame is on disk as soon as it is projected
@@ -144,15 +152,11 @@ def run(args):
         t_save += time.perf_counter() - t
 
     result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
-                                 method=args.method, reference=args.reference, warm_start=not args.no_warm_start,
+                                 method=method, reference=args.reference, warm_start=not args.no_warm_start,
                                  settings=ReconstructionSettings(bending_weight=args.bending_weight,
                                                                  weights=args.energy_weights, solver=args.solver),
-                                 options=GaussNewtonOptions(max_iterations=args.max_iterations),
-                                 on_frame=write_frame, workers=args.workers)
+                                 options=options, hybrid=hybrid, on_frame=write_frame, workers=args.workers)
     seconds = time.perf_counter() - start
-    if not result.success:
-        print(f"lacore interpolate: {'warning' if args.allow_failure else 'failed'}: {result.message}",
-              file=sys.stderr)
 
     outputs = []
     for i, path in enumerate(paths):
@@ -202,4 +206,4 @@ def run(args):
                   f"{result.energy[i]:.4g}, max length error {result.max_length_error[i]:.3g}, "
                   f"max angle error {result.max_angle_error[i]:.3g} rad, {item['seconds']:.3f} s")
         print(f"  total {seconds:.3f} s")
-    return exit_code(result.success, args)
+    return finish("interpolate", result.success, result.message, args)

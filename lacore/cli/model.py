@@ -21,22 +21,26 @@ evenly spaced from ``T0`` to ``T1`` standard deviations of the mode
 (:meth:`ShapeModel.mode_sweep`), to ``PREFIX_000.ply ...``.
 
 Bad input (fewer than 2 meshes, meshes not in correspondence, ``--modes``
-larger than N - 1, a corrupt model file, a mode out of range) prints one line
-on stderr and exits with code 2; nothing is written then.  Every output file is
-written to a temporary file in its folder and renamed into place.
+larger than N - 1, a corrupt model file, a mode out of range, a ``--range``
+whose poses no mesh can have) prints one line on stderr and exits with code 2;
+nothing is written then (outputs are checked before computing).  Sweep frames
+that fail their checks are written and reported on one stderr line, exit code 3
+(0 with ``--allow-failure``).  Every output file is written to a temporary file
+in its folder and renamed into place.
 
 Registered in :mod:`lacore.cli` through :func:`register`.
 """
 
-import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..io.meshes import save_mesh
-from ..models.shape_model import (DEFAULT_BENDING_WEIGHT, DEFAULT_TANGENT, PROJECTION_METRICS, TANGENTS, ShapeModel,
-                                  ShapeModelError)
-from .common import EXIT_OK, add_allow_failure, exit_code, load_meshes_in_correspondence, positive_int, print_json
+from ..models.settings import DEFAULT_TANGENT, MODEL_SETTINGS, PROJECTION_METRICS, TANGENTS, ShapeModelError
+from ..models.shape_model import ShapeModel
+from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, frame_count, load_meshes_in_correspondence,
+                     positive_int, print_json)
 from .interpolate import output_paths
 
 __all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
@@ -65,7 +69,7 @@ def configure_model(parser):
     parser.add_argument("--projection-metric", choices=PROJECTION_METRICS, default=PROJECTION_METRICS[0],
                         help="orthogonality of the tangent projection: Euclidean as in the thesis or g; "
                              "default %(default)s")
-    parser.add_argument("--bending-weight", type=float, default=DEFAULT_BENDING_WEIGHT, metavar="ETA",
+    parser.add_argument("--bending-weight", type=float, default=MODEL_SETTINGS.bending_weight, metavar="ETA",
                         help="bending weight eta of the quadratic energy W_q (default %(default)s)")
     parser.add_argument("--localize", action="store_true",
                         help="rotate the modes toward locality (g-varimax, same subspace; beyond the thesis)")
@@ -80,19 +84,13 @@ def configure_sweep(parser):
     parser.add_argument("--mode", type=int, required=True, metavar="J", help="mode index, 0-based")
     parser.add_argument("--range", type=float, nargs=2, default=(-2.0, 2.0), metavar=("T0", "T1"),
                         help="first and last t in standard deviations of the mode (default -2 2)")
-    parser.add_argument("--frames", type=positive_int, default=5, metavar="K", help="number of meshes (default 5)")
+    parser.add_argument("--frames", type=frame_count, default=5, metavar="K", help="number of meshes (default 5)")
     parser.add_argument("-o", "--output", required=True, metavar="PREFIX",
                         help="writes PREFIX_000.ply, PREFIX_001.ply, ...")
     parser.add_argument("--format", choices=("ply", "obj", "off"), default="ply", help="mesh format (default ply)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
-
-def _check_output_dir(path):
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise FileNotFoundError(f"output directory {os.path.dirname(path) or '.'} does not exist")
-    return folder
 
 
 def _load_training(paths):
@@ -107,7 +105,7 @@ def run_model(args):
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise ShapeModelError(f"the model file must end in .npz, got {args.output}")
-    _check_output_dir(args.output)
+    check_outputs([args.output])
     X, topology = _load_training(args.meshes)
     N = len(X)
     if args.modes is not None and args.modes > N - 1:
@@ -117,7 +115,7 @@ def run_model(args):
     t_load = time.perf_counter() - start
     model = ShapeModel.fit(X, topology, reference_vertices=X[args.reference], n_modes=args.modes,
                            tangent=args.tangent, projection_metric=args.projection_metric,
-                           bending_weight=args.bending_weight)
+                           settings=replace(MODEL_SETTINGS, bending_weight=args.bending_weight))
     t_localize = 0.0
     if args.localize:
         t = time.perf_counter()
@@ -164,12 +162,18 @@ def run_model(args):
 def run_sweep(args):
     """Run ``lacore model-sweep``; returns the exit code."""
     start = time.perf_counter()
-    _check_output_dir(args.output)
+    if not np.all(np.isfinite(args.range)):
+        raise ShapeModelError(f"--range must be two finite numbers (standard deviations), got "
+                              f"{args.range[0]:g} {args.range[1]:g}")
+    paths = output_paths(args.output, args.frames, args.format)
+    check_outputs(paths)
     model = ShapeModel.load(args.model)
     if not 0 <= args.mode < model.n_modes:
         raise ShapeModelError(f"--mode {args.mode} is not a mode of the model (0 to {model.n_modes - 1})")
-    (X, results), t = model.mode_sweep(args.mode, tuple(args.range), args.frames, return_results=True)
-    paths = output_paths(args.output, len(t), args.format)
+    try:
+        (X, results), t = model.mode_sweep(args.mode, tuple(args.range), args.frames, return_results=True)
+    except ShapeModelError as exc:
+        raise ShapeModelError(f"--range {args.range[0]:g} {args.range[1]:g}: {exc}; try a smaller --range") from None
     for path, x in zip(paths, X, strict=True):
         save_mesh(path, x, model.faces)  # each file atomically (lacore.io.atomic)
     failed = [i for i, r in enumerate(results) if not r.success]
@@ -190,6 +194,10 @@ def run_sweep(args):
         for o in outputs:
             print(f"  {o['file']}: t {o['t']:g} sd, {o['iterations']} iterations, energy {o['energy']:.4g}")
         print(f"  total {seconds:.3f} s")
-        if failed:
-            print(f"  frames {failed} failed their checks (see lacore.reconstruction.checks)")
-    return exit_code(not failed, args)
+    message = ""
+    if failed:
+        first = results[failed[0]]
+        reason = getattr(first, "failure", "") or first.message
+        message = (f"{len(failed)} of {len(t)} frames failed their checks (frames {failed}; frame {failed[0]}: "
+                   f"{reason}); sweeps far out along a mode are hard to reconstruct: try a smaller --range")
+    return finish("model-sweep", not failed, message, args)

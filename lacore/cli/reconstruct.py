@@ -28,20 +28,20 @@ The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :fu
 """
 
 import os
-import sys
 import time
 
 import numpy as np
 
 from ..errors import MeshError
-from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
-from ..io.atomic import save_npz_atomic
+from ..geometry.lengths_angles import lengths_and_angles
+from ..io.atomic import npz_path, save_npz_atomic
 from ..io.meshes import SUPPORTED_EXTENSIONS, load_mesh, save_mesh
+from ..io.npz import open_npz, read_array
 from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, reconstruct,
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
-from ..geometry.topology import MeshTopology
-from .common import CliError, add_allow_failure, exit_code, json_float, nonnegative_int, print_json
+from .common import (CliError, add_allow_failure, check_outputs, checked_vertices, finish, json_float, mesh_topology,
+                     nonnegative_int, print_json)
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -97,17 +97,15 @@ def load_target(path, reference_faces, topology):
     if not os.path.exists(path):
         raise FileNotFoundError(f"{path}: no such file")
     if path.lower().endswith(".npz"):
-        try:
-            data = np.load(path, allow_pickle=False)
+        what = "'lacore encode'"
+        with open_npz(path, what, MeshError) as data:
             missing = [k for k in ("faces", "edges", "lengths", "angles") if k not in data.files]
             if missing:
                 raise _error(f"{path}: not a 'lacore encode' file (missing keys {', '.join(missing)})")
-            faces, edges = np.asarray(data["faces"]), np.asarray(data["edges"])
-            lengths, angles = np.asarray(data["lengths"], float), np.asarray(data["angles"], float)
-        except (OSError, ValueError) as exc:
-            if isinstance(exc, MeshError):
-                raise
-            raise _error(f"{path}: cannot read .npz ({exc})") from exc
+            faces = read_array(data, "faces", path, what, MeshError, kind="i", ndim=2)
+            edges = read_array(data, "edges", path, what, MeshError, kind="i", ndim=2)
+            lengths = read_array(data, "lengths", path, what, MeshError, kind="f", ndim=1)
+            angles = read_array(data, "angles", path, what, MeshError, kind="f", ndim=1)
         _check_faces(path, faces, reference_faces)
         return _edge_order(path, edges, lengths, angles, topology)
     vertices, faces = load_mesh(path)
@@ -115,7 +113,7 @@ def load_target(path, reference_faces, topology):
         raise _error(f"{path} has {len(vertices)} vertices but the reference has {topology.n_vertices}: "
                      "the meshes are not in correspondence")
     _check_faces(path, faces, reference_faces)
-    vertices = check_nondegenerate(vertices, topology)
+    vertices = checked_vertices(path, vertices, topology)
     return lengths_and_angles(vertices, topology)
 
 
@@ -176,9 +174,10 @@ def run(args):
     if out_ext not in SUPPORTED_EXTENSIONS + (".npz",):
         raise _error(f"{args.output}: unsupported output format {out_ext or '(none)'!r}; use one of "
                      f"{', '.join(SUPPORTED_EXTENSIONS + ('.npz',))}")
+    check_outputs([npz_path(args.output) if out_ext == ".npz" else args.output])
     ref_vertices, ref_faces = load_mesh(args.ref)
-    topology = MeshTopology.from_faces(ref_faces, n_vertices=len(ref_vertices))
-    ref_vertices = check_nondegenerate(ref_vertices, topology)
+    topology = mesh_topology(args.ref, ref_faces, len(ref_vertices))
+    ref_vertices = checked_vertices(args.ref, ref_vertices, topology)
     zs = [load_target(t, topology.faces, topology) for t in args.target]
     z_target, weights = combine_targets(zs, args.weights)
     t_load = time.perf_counter() - start
@@ -201,9 +200,6 @@ def run(args):
     written = _save(args.output, result.vertices, topology.faces, z_out)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
-    if not result.success:
-        print(f"lacore reconstruct: {'warning' if args.allow_failure else 'failed'}: {result.message}",
-              file=sys.stderr)
     if args.json:
         summary = {
             "command": "reconstruct",
@@ -228,4 +224,4 @@ def run(args):
               f"({result.energy_name})")
         print(f"  max length error {errors['max_length_error']:.3g}, max angle error "
               f"{errors['max_angle_error']:.3g} rad; {seconds:.3f} s")
-    return exit_code(result.success, args)
+    return finish("reconstruct", result.success, result.message, args)

@@ -21,6 +21,13 @@ Energies
     ``J^T dW/dz`` and a positive semi-definite Gauss-Newton Hessian in vertex
     coordinates, plus the residual form ``r = sqrt(w) (Z[X] - z_fixed)`` of ``W_q``.
 
+Defaults
+--------
+:data:`DEFAULT_WEIGHTS` and :data:`DEFAULT_BENDING_WEIGHT` are the weight scheme and
+``eta`` of every energy built without them, and the defaults of
+:class:`lacore.reconstruction.ReconstructionSettings`, which every other part of
+lacore takes them from.
+
 Derivatives
 -----------
 Every energy has ``value``, ``gradient`` and ``hessian``; ``argument`` selects
@@ -79,7 +86,7 @@ Dihedral angles of boundary edges are 0 by convention
 their bending weight is 0 in both energies (also for user-given weights).
 """
 
-from ._common import DeformationEnergy, edge_areas
+from ._common import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES, DeformationEnergy, edge_areas
 from .in_vertices import EnergyInVertices
 from .quadratic import QuadraticEnergy, quadratic_weights
 from .thin_shells import ThinShellsEnergy, membrane_density
@@ -92,4 +99,7 @@ __all__ = [
     "quadratic_weights",
     "edge_areas",
     "membrane_density",
+    "WEIGHT_SCHEMES",
+    "DEFAULT_WEIGHTS",
+    "DEFAULT_BENDING_WEIGHT",
 ]

@@ -9,7 +9,13 @@ from ..errors import InputError, LengthsAnglesError
 from ..geometry.trigonometry import triangle_areas
 
 
-_WEIGHT_SCHEMES = ("frohlich_botsch", "heeren", "uniform")
+#: Weight schemes of ``W_q``: (3.20) of [FB11], (3.21) of [HRS+16], all ones.
+WEIGHT_SCHEMES = ("frohlich_botsch", "heeren", "uniform")
+#: Weight scheme used when none is given: (3.20).  Every default of ``weights`` in lacore is this one.
+DEFAULT_WEIGHTS = "frohlich_botsch"
+#: ``eta`` of ``W_q`` (3.19) and ``W_TS`` (3.25) when none is given.  Every default of ``bending_weight``
+#: in lacore except the shape models' (:data:`lacore.models.settings.DEFAULT_BENDING_WEIGHT`) is this one.
+DEFAULT_BENDING_WEIGHT = 1e-3
 
 
 # --------------------------------------------------------------------------- helpers

@@ -102,6 +102,23 @@ class EnergyInVertices:
     so the result is symmetric positive semi-definite.  The ``X``-blocks
     ``J_e^T H_e J_e`` are formed per element and summed with a cached sparsity
     pattern.
+
+    Examples
+    --------
+    ``X -> W_q[z*, Z(X)]``, the objective of the Gauss-Newton reconstruction (3.26):
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import EnergyInVertices, QuadraticEnergy
+    >>> target = lengths_and_angles(bar_pose(X, 0.5, 0.0), topo)
+    >>> f = EnergyInVertices(QuadraticEnergy(topo, reference_vertices=X), target)
+    >>> round(f.value(X), 6), f.gradient(X).shape
+    (0.034635, (66,))
+    >>> f.value(bar_pose(X, 0.5, 0.0)) < 1e-20
+    True
     """
 
     def __init__(self, energy, z_fixed, topology=None, argument=1):

@@ -5,12 +5,13 @@ import scipy.sparse as sp
 
 from ..errors import InputError, LengthsAnglesError, format_indices
 from ..geometry.lengths_angles import lengths_and_angles
-from ._common import _WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks, _interior_quads, _parse_argument, edge_areas
+from ._common import (DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks,
+                      _interior_quads, _parse_argument, edge_areas)
 
 __all__ = ["QuadraticEnergy", "quadratic_weights"]
 
 
-def quadratic_weights(reference_lengths, topology, scheme="frohlich_botsch"):
+def quadratic_weights(reference_lengths, topology, scheme=DEFAULT_WEIGHTS):
     """Per-edge weights ``(w_s, w_b)`` of the quadratic energy (3.19).
 
     Parameters
@@ -19,6 +20,7 @@ def quadratic_weights(reference_lengths, topology, scheme="frohlich_botsch"):
         Edge lengths ``lbar`` of the reference configuration.
     topology : MeshTopology
     scheme : {"frohlich_botsch", "heeren", "uniform"}
+        Default :data:`~lacore.energies.DEFAULT_WEIGHTS`.
         ``"frohlich_botsch"`` (3.20): ``w_s = 1 / lbar^2``, ``w_b = lbar^2 / dbar``;
         ``"heeren"`` (3.21): ``w_s = dbar / lbar^2``, ``w_b = lbar^2 / dbar``;
         ``"uniform"``: ``w_s = w_b = 1``.  ``dbar`` from :func:`edge_areas`.
@@ -28,8 +30,8 @@ def quadratic_weights(reference_lengths, topology, scheme="frohlich_botsch"):
     w_s, w_b : (E,) ndarray
         ``w_b`` is 0 on boundary edges (their angle is 0 by convention).
     """
-    if scheme not in _WEIGHT_SCHEMES:
-        raise InputError(f"unknown weight scheme {scheme!r}; use one of {_WEIGHT_SCHEMES}")
+    if scheme not in WEIGHT_SCHEMES:
+        raise InputError(f"unknown weight scheme {scheme!r}; use one of {WEIGHT_SCHEMES}")
     E = topology.n_edges
     if scheme == "uniform":
         w_s, w_b = np.ones(E), np.ones(E)
@@ -64,12 +66,12 @@ class QuadraticEnergy(DeformationEnergy):
         Give at most one of the two; none is needed for ``weights="uniform"`` or
         when both weight arrays are given.
     weights : {"frohlich_botsch", "heeren", "uniform"}
-        Weight scheme, see :func:`quadratic_weights`.
+        Weight scheme, see :func:`quadratic_weights` (default :data:`~lacore.energies.DEFAULT_WEIGHTS`).
     membrane_weights, bending_weights : (E,) array_like, optional
         Custom ``w_s`` / ``w_b`` overriding the scheme (non-negative, finite).
         Bending weights of boundary edges are set to 0 (angle 0 by convention).
     bending_weight : float
-        ``eta >= 0``.
+        ``eta >= 0`` (default :data:`~lacore.energies.DEFAULT_BENDING_WEIGHT`).
 
     Attributes
     ----------
@@ -78,13 +80,32 @@ class QuadraticEnergy(DeformationEnergy):
     residual_weights : (2E,) ndarray
         ``w = (w_s, eta w_b)`` so that ``W_q = sum_i w_i (z_a - z_b)_i^2``;
         Gauss-Newton uses the residual ``sqrt(w) (z_a - z_b)``.
+
+    Examples
+    --------
+    ``W_q`` between the rest pose and a bent pose, with the weights (3.20) of the rest pose:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import QuadraticEnergy
+    >>> W = QuadraticEnergy(topo, reference_vertices=X)
+    >>> za, zb = lengths_and_angles(X, topo), lengths_and_angles(bar_pose(X, 0.5, 0.0), topo)
+    >>> W.value(za, za), round(W.value(za, zb), 6)
+    (0.0, 0.034635)
+    >>> g = W.gradient(za, zb)                       # d W / d z_b
+    >>> e = np.zeros_like(zb); e[topo.n_edges + 5] = 1e-6
+    >>> bool(abs((W.value(za, zb + e) - W.value(za, zb - e)) / 2e-6 - g[topo.n_edges + 5]) < 1e-8)
+    True
     """
 
-    def __init__(self, topology, reference_vertices=None, reference_z=None, weights="frohlich_botsch",
-                 membrane_weights=None, bending_weights=None, bending_weight=1e-3):
+    def __init__(self, topology, reference_vertices=None, reference_z=None, weights=DEFAULT_WEIGHTS,
+                 membrane_weights=None, bending_weights=None, bending_weight=DEFAULT_BENDING_WEIGHT):
         super().__init__(topology)
-        if weights not in _WEIGHT_SCHEMES:
-            raise InputError(f"unknown weight scheme {weights!r}; use one of {_WEIGHT_SCHEMES}")
+        if weights not in WEIGHT_SCHEMES:
+            raise InputError(f"unknown weight scheme {weights!r}; use one of {WEIGHT_SCHEMES}")
         if not (np.isfinite(bending_weight) and bending_weight >= 0):
             raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         if reference_vertices is not None and reference_z is not None:
@@ -101,7 +122,7 @@ class QuadraticEnergy(DeformationEnergy):
         elif need_reference:
             raise InputError(f"weights={weights!r} need a reference configuration: pass reference_vertices or "
                              "reference_z (or custom membrane_weights and bending_weights)")
-        if need_reference:
+        if need_reference or weights == "uniform":
             w_s, w_b = quadratic_weights(lbar, topology, weights)
         else:
             w_s = w_b = None

@@ -4,7 +4,8 @@ import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
 from ..geometry.trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
-from ._common import DeformationEnergy, _Blocks, _interior_quads, _parse_argument, _project_psd, _scatter, edge_areas
+from ._common import (DEFAULT_BENDING_WEIGHT, DeformationEnergy, _Blocks, _interior_quads, _parse_argument,
+                      _project_psd, _scatter, edge_areas)
 
 __all__ = ["ThinShellsEnergy", "membrane_density"]
 
@@ -161,12 +162,28 @@ class ThinShellsEnergy(DeformationEnergy):
     ----------
     topology : MeshTopology
     bending_weight : float
-        ``eta >= 0`` (squared shell thickness).
+        ``eta >= 0`` (squared shell thickness; default :data:`~lacore.energies.DEFAULT_BENDING_WEIGHT`).
     mu, lam : float
         Positive material constants of the membrane density.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import ThinShellsEnergy
+    >>> W = ThinShellsEnergy(topo)
+    >>> za, zb = lengths_and_angles(X, topo), lengths_and_angles(bar_pose(X, 0.5, 0.0), topo)
+    >>> W.value(za, za), round(W.value(za, zb), 6)
+    (0.0, 0.086207)
+    >>> stretched = za.copy(); stretched[:topo.n_edges] *= 1.01
+    >>> round(W.membrane_value(za, stretched), 6)
+    0.0104
     """
 
-    def __init__(self, topology, bending_weight=1e-3, mu=1.0, lam=1.0):
+    def __init__(self, topology, bending_weight=DEFAULT_BENDING_WEIGHT, mu=1.0, lam=1.0):
         super().__init__(topology)
         for name, v in (("mu", mu), ("lam", lam)):
             if not (np.isfinite(v) and v > 0):

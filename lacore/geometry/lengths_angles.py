@@ -53,19 +53,16 @@ __all__ = [
     "split_z",
     "check_z",
     "check_nondegenerate",
+    "check_float_range",
     "degenerate_faces",
     "DEGENERACY_RTOL",
     "safe_scale_exponent",
+    "safe_scaled",
     "jacobian_pattern",
 ]
 
 
 # --------------------------------------------------------------------------- small helpers
-def _dot(a, b):
-    """Row-wise dot product of two (N, 3) arrays."""
-    return np.einsum("ij,ij->i", a, b)
-
-
 def _cross_rows(u, v, out, tmp):
     """Cross product of component-row arrays: ``out[i] = (u x v)[i]`` for ``u, v, out`` of shape (3, N).
 
@@ -161,6 +158,30 @@ def degenerate_faces(vertices, topology, rtol=DEGENERACY_RTOL):
     return np.flatnonzero(~(margin > rtol * perimeter))
 
 
+def check_float_range(vertices, topology):
+    """:class:`~lacore.errors.MeshError` when float64 cannot represent the mesh's geometry.
+
+    Every computation in lacore is scale-free (:func:`safe_scaled`), so any
+    magnitude of coordinates works, except coordinates that are all subnormal
+    (below 2.2e-308: they carry fewer than 53 significant bits, the shape was
+    rounded when it was stored) and edges longer than the largest float64
+    (1.8e308, between coordinates of opposite signs).
+    """
+    X = np.asarray(vertices, float)
+    m = float(np.max(np.abs(X))) if X.size else 0.0
+    tiny = np.finfo(float).tiny
+    if 0.0 < m < tiny:
+        bits = int(np.floor(np.log2(m))) + 1074
+        raise MeshError(f"the coordinates are subnormal float64 numbers (largest |x| = {m:.3g}, below the normal "
+                        f"range that starts at {tiny:.3g}): they keep only {bits} significant bits, so the shape "
+                        "was rounded when it was stored; export the mesh in a smaller unit (scaled up)")
+    with np.errstate(over="ignore"):
+        overflow = m > 0.0 and not np.all(np.isfinite(edge_lengths(X, topology)))
+    if overflow:
+        raise MeshError(f"edge lengths exceed the largest float64 number (coordinates up to |x| = {m:.3g}): "
+                        "export the mesh in a larger unit (scaled down)")
+
+
 def check_nondegenerate(vertices, topology, rtol=DEGENERACY_RTOL):
     """Validated vertices; :class:`~lacore.errors.MeshError` naming (numerically) degenerate triangles.
 
@@ -168,9 +189,11 @@ def check_nondegenerate(vertices, topology, rtol=DEGENERACY_RTOL):
     numbers, satisfy the triangle inequality with a relative margin of at most
     ``rtol`` (zero-area triangles, and needles so thin that rounding the
     lengths breaks the inequality), see :func:`degenerate_faces`.  The result
-    is the same for the mesh scaled by any factor.
+    is the same for the mesh scaled by any factor.  Coordinates that float64 cannot
+    hold faithfully are named first (:func:`check_float_range`).
     """
     X = check_vertices(vertices, topology.n_vertices)
+    check_float_range(X, topology)
     bad = degenerate_faces(X, topology, rtol)
     if bad.size:
         raise MeshError(f"degenerate triangles (zero area, or edge lengths violating the triangle inequality "
@@ -259,21 +282,50 @@ def _coordinates(X):
 
 
 def edge_lengths(vertices, topology):
-    """Edge lengths ``(E,)``."""
+    """Edge lengths ``(E,)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, edge_lengths
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [2, 1, 3]])
+    >>> X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> print(np.round(edge_lengths(X, topo), 4))
+    [1.     1.     1.4142 1.     1.    ]
+    """
     X = np.asarray(vertices, float)
     return _z_of_vertices(X, topology, angles=False)
 
 
 def dihedral_angles(vertices, topology):
-    """Signed dihedral angles ``(E,)`` in radians (0 on boundary edges); see the module docstring."""
+    """Signed dihedral angles ``(E,)`` in radians (0 on boundary edges); see the module docstring.
+
+    Examples
+    --------
+    Folding the second triangle of a unit square up by 90 degrees about the diagonal
+    (angles are signed: this fold is negative):
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, dihedral_angles
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [2, 1, 3]])
+    >>> X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, 0.5, np.sqrt(0.5)]])
+    >>> theta = dihedral_angles(X, topo)
+    >>> print(np.round(np.degrees(theta[topo.interior_edges]), 6))
+    [-90.]
+    >>> print(theta[topo.is_boundary_edge])          # boundary edges: 0 by convention
+    [0. 0. 0. 0.]
+    """
     X = np.asarray(vertices, float)
     return _z_of_vertices(X, topology)[topology.n_edges:]
 
 
-#: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-60 .. 1e60) are scaled by a
-#: power of two (exact) into that range before the lengths-and-angles map and its Jacobian: products of
-#: three coordinates (unnormalized normals times edges) then neither overflow nor become subnormal.
-SAFE_EXPONENT = 200
+#: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-30 .. 1e30) are scaled by a
+#: power of two (exact) into that range before any computation that multiplies them: the lengths-and-angles
+#: map and its Jacobian (products of three coordinates), interior angles and the integrability map (products of
+#: lengths), and every reconstruction (:class:`lacore.reconstruction.ReconstructionContext`: weights ``1 /
+#: l^2``, the thin shells energy's squared areas, products of eight coordinates) then neither overflow nor
+#: become subnormal.
+SAFE_EXPONENT = 100
 
 
 def safe_scale_exponent(X):
@@ -286,6 +338,23 @@ def safe_scale_exponent(X):
     if m == 0.0 or not np.isfinite(m) or 2.0**-SAFE_EXPONENT <= m <= 2.0**SAFE_EXPONENT:
         return 0
     return int(np.frexp(m)[1])
+
+
+def safe_scaled(values):
+    """``(values 2^-k, k)`` with ``k = safe_scale_exponent(values)``: the array itself when ``k = 0``.
+
+    The one scaling of lacore's scale-free computations: angles (dihedral,
+    interior) and the integrability map are invariant under it, lengths scale
+    by exactly ``2^k``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> safe_scaled(np.array([1.0, 2.0]))[1], safe_scaled(np.array([1e-160, 3e-160]))[1]
+    (0, -529)
+    """
+    k = safe_scale_exponent(values)
+    return (np.ldexp(values, -k), k) if k else (values, 0)
 
 
 def _z_of_vertices(X, topology, angles=True):
@@ -331,13 +400,37 @@ def lengths_and_angles(vertices, topology, check=True):
     -------
     z : (2E,) ndarray
         ``(l_1..l_E, theta_1..theta_E)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> z = lengths_and_angles(X, topo)
+    >>> z.shape == (2 * topo.n_edges,)
+    True
+    >>> lengths, angles = z[:topo.n_edges], z[topo.n_edges:]
+    >>> round(float(lengths.min()), 4), round(float(np.degrees(angles).max()), 4)
+    (0.7071, 90.0)
     """
     X = _as_vertices(vertices, topology.n_vertices) if check else np.asarray(vertices, float)
     return _z_of_vertices(X, topology)
 
 
 def split_z(z, topology):
-    """Split ``z`` into ``(lengths (E,), angles (E,))`` views after checking its size."""
+    """Split ``z`` into ``(lengths (E,), angles (E,))`` views after checking its size.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles, split_z
+    >>> topo = MeshTopology.from_faces([[0, 1, 2]])
+    >>> lengths, angles = split_z(lengths_and_angles([[0, 0, 0], [3, 0, 0], [0, 4, 0]], topo), topo)
+    >>> print(np.sort(lengths), angles)
+    [3. 4. 5.] [0. 0. 0.]
+    """
     z = np.asarray(z, float)
     E = topology.n_edges
     if z.shape != (2 * E,):
@@ -477,6 +570,21 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     -------
     J : scipy.sparse.csr_matrix, shape (2E, 3V)
     z : (2E,) ndarray, only if ``return_z``
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> J = lengths_and_angles_jacobian(X, topo)
+    >>> J.shape
+    (120, 66)
+    >>> dX = 1e-7 * np.random.default_rng(0).standard_normal(X.shape)
+    >>> dz = lengths_and_angles(X + dX, topo) - lengths_and_angles(X, topo)
+    >>> bool(np.abs(J @ dX.ravel() - dz).max() < 1e-12)
+    True
     """
     X = np.asarray(vertices, float)
     k = safe_scale_exponent(X)

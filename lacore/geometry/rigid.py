@@ -34,6 +34,20 @@ def rigid_fit(source, target, weights=None):
         Shapes differ, or fewer than one usable point.  With one or two usable
         points the rotation is not unique; the minimal-norm rotation given by
         the SVD is returned (exact fit of the points themselves).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import rigid_fit
+    >>> P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> Rz = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])   # a quarter turn about z
+    >>> R, t = rigid_fit(P, P @ Rz.T + [1, 2, 3])
+    >>> print(np.round(R, 6) + 0.0)
+    [[ 0. -1.  0.]
+     [ 1.  0.  0.]
+     [ 0.  0.  1.]]
+    >>> print(np.round(t, 6) + 0.0)
+    [1. 2. 3.]
     """
     P = np.asarray(source, dtype=float)
     Q = np.asarray(target, dtype=float)
@@ -61,7 +75,17 @@ def apply_rigid(points, R, t):
 
 
 def rigid_align(source, target, weights=None):
-    """``source`` moved by :func:`rigid_fit` onto ``target``; shape (N, 3)."""
+    """``source`` moved by :func:`rigid_fit` onto ``target``; shape (N, 3).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import rigid_align
+    >>> P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> Q = P @ np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]).T + [1, 2, 3]
+    >>> bool(np.allclose(rigid_align(P, Q), Q))
+    True
+    """
     R, t = rigid_fit(source, target, weights)
     return apply_rigid(source, R, t)
 

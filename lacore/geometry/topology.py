@@ -73,6 +73,12 @@ def check_vertices(vertices, n_vertices=None, name="vertices"):
     MeshError
         For a wrong shape, a vertex count different from ``n_vertices`` or
         NaN/inf coordinates.
+
+    Examples
+    --------
+    >>> from lacore import check_vertices
+    >>> check_vertices([[0, 0, 0], [1, 0, 0], [0, 1, 0]], 3).dtype
+    dtype('float64')
     """
     X = np.asarray(vertices, dtype=np.float64)
     if X.ndim == 1 and X.size % 3 == 0 and n_vertices is not None and X.size == 3 * n_vertices:
@@ -116,6 +122,19 @@ class MeshTopology:
     cache : lacore.cache.DerivedCache
         Data derived from the connectivity by lacore's modules (patterns,
         stencils, trees, contexts), keyed ``(owner module, name, *params)``.
+
+    Examples
+    --------
+    Two triangles sharing the edge (1, 2):
+
+    >>> from lacore import MeshTopology
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [2, 1, 3]])
+    >>> topo.n_vertices, topo.n_edges, topo.n_faces
+    (4, 5, 2)
+    >>> topo.edges[topo.interior_edges].tolist()
+    [[1, 2]]
+    >>> topo.is_closed
+    False
     """
 
     n_vertices: int
@@ -359,10 +378,6 @@ class MeshTopology:
                 groups[int(n)] = (inner[sel], corners)
             return groups
         return self.cache.get((__name__, "vertex_rings"), compute)
-
-    def face_loops(self):
-        """Ordered face loops around interior vertices, ``{n: (vertices (m,), faces (m, n))}``."""
-        return {n: (v, c // 3) for n, (v, c) in self.vertex_rings().items()}
 
     # ------------------------------------------------------------- dual graph
     @property

@@ -10,6 +10,11 @@ inequality (``T_f <= 0``, eq. 3.6) get area 0 and interior angles 0, the
 convention of the remark after Algorithm 2 ("interior angles 0, visited last");
 their derivatives are set to 0.
 
+Lengths outside ``2^-100 .. 2^100`` are first scaled by an exact power of two
+(:func:`lacore.geometry.lengths_angles.safe_scaled`; the formulas multiply lengths),
+the results scaled back by their degree (angles 0, areas 2): a mesh and its
+scaled copy give the same angles.
+
 Implementation
 --------------
 The functions work on the three length columns as contiguous rows
@@ -24,6 +29,8 @@ same formulas on its own (blocked) corner lists.
 """
 
 import numpy as np
+
+from .lengths_angles import safe_scaled
 
 __all__ = [
     "face_edge_lengths",
@@ -46,6 +53,13 @@ def face_edge_lengths(lengths, topology):
 def _rows(L):
     """The three length columns of ``L (F, 3)`` as a contiguous ``(3, F)`` array."""
     return np.ascontiguousarray(np.asarray(L, float).T)
+
+
+def _scaled_rows(L):
+    """``(_rows(L 2^-k), k)``: lengths moved into the safe range by an exact power of two (products of lengths
+    neither overflow nor underflow; :func:`lacore.geometry.lengths_angles.safe_scaled`)."""
+    R, k = safe_scaled(np.asarray(L, float))
+    return _rows(R), k
 
 
 def margin_rows(l0, l1, l2, out=None):
@@ -174,8 +188,9 @@ def triangle_areas(L):
     (F,) ndarray
         Areas; 0 where the triangle inequality is violated.
     """
-    R = _rows(L)
-    return kahan_area_rows(R[0], R[1], R[2])
+    R, k = _scaled_rows(L)
+    A = kahan_area_rows(R[0], R[1], R[2])
+    return np.ldexp(A, 2 * k) if k else A
 
 
 def triangle_area_gradient(L, areas=None):
@@ -183,8 +198,12 @@ def triangle_area_gradient(L, areas=None):
 
     ``dA/dl_i = l_i (l_j^2 + l_k^2 - l_i^2) / (8 A)`` (appendix A.1); 0 for invalid triangles.
     """
-    R = _rows(L)
-    A = kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    R, k = _scaled_rows(L)
+    if areas is None:
+        A = kahan_area_rows(R[0], R[1], R[2])
+    else:
+        A = np.asarray(areas, float)
+        A = np.ldexp(A, -2 * k) if k else A
     sq = R * R
     tot = sq[0] + sq[1]
     tot += sq[2]
@@ -196,7 +215,7 @@ def triangle_area_gradient(L, areas=None):
     with np.errstate(divide="ignore", invalid="ignore"):
         gt /= 8.0 * A
     g[~(A > 0)] = 0.0
-    return g
+    return np.ldexp(g, k) if k else g
 
 
 def interior_angles(L):
@@ -212,7 +231,7 @@ def interior_angles(L):
         ``gamma[f, i]``, the angle at local vertex ``i`` (opposite ``L[f, i]``);
         all three are 0 for a triangle with ``T_f <= 0``.
     """
-    R5 = _rolled_rows(_rows(L))
+    R5 = _rolled_rows(_scaled_rows(L)[0])   # scale-invariant
     F = R5.shape[1]
     num, den, _, _ = kahan_angle_factors(R5[0:3], R5[1:4], R5[2:5], np.empty((4, 3, F)))
     out = _angle_rows(num, den, np.empty((3, F))).T.copy()
@@ -227,9 +246,13 @@ def interior_angle_jacobian(L, areas=None):
     ``-(l_i^2 + l_j^2 - l_k^2) / (4 l_j A)`` otherwise, ``k`` the third index
     (appendix A.1).  Zero for invalid triangles.
     """
-    R = _rows(L)
+    R, k = _scaled_rows(L)   # derivatives of scale-invariant angles scale by 2^-k
     F = R.shape[1]
-    A = kahan_area_rows(R[0], R[1], R[2]) if areas is None else np.asarray(areas, float)
+    if areas is None:
+        A = kahan_area_rows(R[0], R[1], R[2])
+    else:
+        A = np.asarray(areas, float)
+        A = np.ldexp(A, -2 * k) if k else A
     R5 = _rolled_rows(R)
     S5 = R5 * R5
     J = np.empty((F, 3, 3))
@@ -247,4 +270,4 @@ def interior_angle_jacobian(L, areas=None):
             t /= 2.0 * R5[shift:shift + 3]
             J9[rows] = t
     J[~(A > 0)] = 0.0
-    return J
+    return np.ldexp(J, -k) if k else J

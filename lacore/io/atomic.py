@@ -14,17 +14,66 @@ Usage::
     save_npz_atomic("out.npz", z=z, faces=F)   # numpy.savez, atomically
 
 Every writer of the package (:func:`lacore.io.meshes.save_mesh`, the ``lacore``
-subcommands) goes through these two functions.
+subcommands, shape models, marker files, point caches) goes through these two
+functions.  A failed write raises an :class:`OSError` whose message names the
+file that was asked for (never the temporary file) and what to do, e.g.
+``cannot write out/x.ply: permission denied: choose a folder you can write to``.
 """
 
 import contextlib
+import errno
 import os
 import tempfile
 import zipfile
 
 import numpy as np
 
-__all__ = ["atomic_write", "save_npz_atomic", "npz_path"]
+__all__ = ["atomic_write", "save_npz_atomic", "npz_path", "check_writable", "write_error"]
+
+#: What a failed write means for the user, by ``errno``.
+_WRITE_REASONS = {
+    errno.ENOENT: "its folder does not exist",
+    errno.ENOTDIR: "a part of its folder path is not a folder",
+    errno.EACCES: "permission denied: choose a folder you can write to",
+    errno.EPERM: "permission denied: choose a folder you can write to",
+    errno.EROFS: "the file system is read-only: choose another folder",
+    errno.ENOSPC: "No space left on device: free some space or write elsewhere",
+    errno.EDQUOT: "disk quota exceeded: free some space or write elsewhere",
+    errno.EISDIR: "it is a folder: give a file name",
+    errno.ENAMETOOLONG: "the name is too long",
+    errno.EFBIG: "the file is too large for this file system",
+}
+
+
+def write_error(exc, path):
+    """``exc`` (an OSError of a failed write) as an OSError of the same type whose message names ``path``.
+
+    The message is ``cannot write <path>: <reason>`` (the reason says what to
+    do where it can); ``errno`` is kept.
+    """
+    reason = _WRITE_REASONS.get(exc.errno) or exc.strerror or str(exc)
+    out = type(exc)(f"cannot write {os.fspath(path)}: {reason}")
+    out.errno = exc.errno
+    return out
+
+
+def check_writable(path):
+    """Raise the OSError of :func:`write_error` unless a file can be written at ``path``.
+
+    Checks, without touching an existing file, that ``path`` is not a folder
+    and that its folder exists and takes a new file (one is created and
+    removed).  For commands that compute before they write: fail first.
+    """
+    path = os.fspath(path)
+    if not os.path.basename(path) or os.path.isdir(path):
+        raise write_error(IsADirectoryError(errno.EISDIR, "Is a directory"), path)
+    directory = os.path.dirname(os.path.abspath(path))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".lacore-check.", suffix=".tmp", dir=directory)
+    except OSError as exc:
+        raise write_error(exc, path) from None
+    os.close(fd)
+    os.unlink(tmp)
 
 
 @contextlib.contextmanager
@@ -43,14 +92,36 @@ def atomic_write(path, mode="wb", encoding=None):
     Raises
     ------
     OSError
-        The directory is missing or not writable, or writing failed (the
-        target is unchanged and no temporary file is left).
+        The directory is missing or not writable, ``path`` is a folder, or
+        writing failed (the target is unchanged and no temporary file is
+        left); the message names ``path`` (:func:`write_error`).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from lacore.io.atomic import atomic_write
+    >>> path = os.path.join(tempfile.mkdtemp(), "out.txt")
+    >>> with atomic_write(path, "w") as fh:
+    ...     _ = fh.write("complete")
+    >>> try:
+    ...     with atomic_write(path, "w") as fh:
+    ...         _ = fh.write("half")
+    ...         raise RuntimeError("failed mid-write")
+    ... except RuntimeError:
+    ...     pass
+    >>> open(path).read(), os.listdir(os.path.dirname(path))    # the old file, no temporary file
+    ('complete', ['out.txt'])
     """
     if mode not in ("wb", "w"):
         raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
     path = os.fspath(path)
+    if not os.path.basename(path) or os.path.isdir(path):
+        raise write_error(IsADirectoryError(errno.EISDIR, "Is a directory"), path)
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path)[:64] + ".", suffix=".tmp", dir=directory)
+    except OSError as exc:
+        raise write_error(exc, path) from None
     try:
         kw = {} if mode == "wb" else {"encoding": encoding or "utf-8", "newline": ""}
         with os.fdopen(fd, mode, **kw) as fh:
@@ -64,15 +135,23 @@ def atomic_write(path, mode="wb", encoding=None):
         except OSError:
             pass
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise write_error(exc, path) from None
         raise
 
 
 def npz_path(path):
-    """The path :func:`numpy.savez` writes for ``path``: ``.npz`` appended unless it ends so."""
+    """The path :func:`numpy.savez` writes for ``path``: ``.npz`` appended unless it ends so.
+
+    A path that names a folder (an existing one, or ending in a separator)
+    raises the OSError of :func:`write_error` instead of becoming ``folder/.npz``.
+    """
     path = os.fspath(path)
+    if not os.path.basename(path) or os.path.isdir(path):
+        raise write_error(IsADirectoryError(errno.EISDIR, "Is a directory"), path)
     return path if path.endswith(".npz") else path + ".npz"
 
 

@@ -57,9 +57,23 @@ def load_mesh(path):
     MeshError
         For an unsupported format, an unreadable file, polygons that are not
         triangles, an empty mesh or out-of-range face indices.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from lacore.io.meshes import load_mesh, save_mesh
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> path = os.path.join(tempfile.mkdtemp(), "bar.ply")
+    >>> save_mesh(path, X, faces)
+    >>> X2, faces2 = load_mesh(path)
+    >>> bool((X2 == X).all() and (faces2 == faces).all())
+    True
     """
     path = os.fspath(path)
     ext = _extension(path)
+    if os.path.isdir(path):
+        raise MeshError(f"{path} is a folder, not a mesh file")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such mesh file")
     try:
@@ -73,9 +87,27 @@ def load_mesh(path):
             vertices, faces = _load_stl(path)
     except MeshError:
         raise
-    except (ValueError, IndexError, KeyError, TypeError, UnicodeDecodeError, AttributeError) as exc:
-        raise MeshError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+    except (ValueError, IndexError, KeyError, TypeError, UnicodeDecodeError, AttributeError, OverflowError) as exc:
+        raise MeshError(f"{path}: cannot read mesh ({type(exc).__name__}: {_one_line(exc)}): is it a valid "
+                        f"{ext[1:].upper()} file?") from None
     return _finish(path, vertices, faces)
+
+
+def _one_line(exc):
+    return " ".join(str(exc).split())[:200] or type(exc).__name__
+
+
+def _trimesh_load(path, ext, counts=None):
+    """``trimesh.load`` of a PLY or STL file; any failure of the parser becomes a MeshError naming the file."""
+    try:
+        return trimesh.load(path, process=False, maintain_order=True, force="mesh")
+    except Exception as exc:  # a third-party parser on arbitrary bytes: any exception means "cannot read it"
+        if counts:
+            announced = ", ".join(f"{n} {'vertices' if k == 'vertex' else k + 's'}" for k, n in counts.items())
+            raise MeshError(f"{path}: the file does not hold what its header announces ({announced}): it is "
+                            f"truncated or damaged ({type(exc).__name__}: {_one_line(exc)})") from None
+        raise MeshError(f"{path}: cannot read mesh ({type(exc).__name__}: {_one_line(exc)}): is it a valid "
+                        f"{ext[1:].upper()} file?") from None
 
 
 def _finish(path, vertices, faces):
@@ -156,26 +188,32 @@ def _ply_header_counts(path):
                 break
             parts = line.split()
             if len(parts) == 3 and parts[0] == "element":
-                counts[parts[1]] = int(parts[2])
+                try:
+                    counts[parts[1]] = int(parts[2])
+                except ValueError:
+                    raise MeshError(f"{path}: malformed PLY header line {line!r}") from None
+                if counts[parts[1]] < 0:
+                    raise MeshError(f"{path}: malformed PLY header: {line!r} announces a negative count")
     return counts
 
 
 def _load_ply(path):
     counts = _ply_header_counts(path)
-    mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
+    mesh = _trimesh_load(path, ".ply", counts)
     vertices = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.faces)
     n_v, n_f = counts.get("vertex", len(vertices)), counts.get("face", len(faces))
+    if n_v != len(vertices) or len(faces) < n_f:
+        raise MeshError(f"{path}: the header announces {n_v} vertices and {n_f} faces but the file holds "
+                        f"{len(vertices)} vertices and {len(faces)} faces: it is truncated or damaged")
     if n_f and len(faces) != n_f:
         raise MeshError(f"{path}: the header announces {n_f} faces but they triangulate to {len(faces)} "
                         "triangles: only triangle meshes are supported (triangulate the mesh first)")
-    if n_v != len(vertices):
-        raise MeshError(f"{path}: the header announces {n_v} vertices but {len(vertices)} were read")
     return vertices, faces
 
 
 def _load_stl(path):
-    mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
+    mesh = _trimesh_load(path, ".stl")
     soup = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].reshape(-1, 3)
     if len(soup) == 0:
         raise MeshError(f"{path}: the mesh has no faces")
@@ -197,6 +235,22 @@ def save_mesh(path, vertices, faces):
 
     The file is written atomically (:func:`lacore.io.atomic.atomic_write`): on
     an error an existing file at ``path`` is left unchanged.
+
+    Examples
+    --------
+    Every format but STL reloads bit-identically:
+
+    >>> import os, tempfile
+    >>> from lacore.io.meshes import load_mesh, save_mesh
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> folder = tempfile.mkdtemp()
+    >>> for ext in ("ply", "obj", "off"):
+    ...     save_mesh(os.path.join(folder, "bar." + ext), X, faces)
+    ...     print(ext, bool((load_mesh(os.path.join(folder, "bar." + ext))[0] == X).all()))
+    ply True
+    obj True
+    off True
     """
     path = os.fspath(path)
     ext = _extension(path)

@@ -14,11 +14,11 @@ i.e. a 32-byte header and 12 bytes per vertex per frame.
 """
 
 import os
-import tempfile
 
 import numpy as np
 
 from ..errors import InputError
+from .atomic import atomic_write
 
 __all__ = ["PointCacheError", "HEADER_BYTES", "write_pc2", "read_pc2"]
 
@@ -33,7 +33,7 @@ class PointCacheError(InputError):
 
 
 def write_pc2(path, vertices, start=0.0, sampling=1.0):
-    """Write vertex positions per frame as a PC2 file, atomically (temp file in the folder, then rename).
+    """Write vertex positions per frame as a PC2 file, atomically (:func:`lacore.io.atomic.atomic_write`).
 
     Parameters
     ----------
@@ -42,6 +42,18 @@ def write_pc2(path, vertices, start=0.0, sampling=1.0):
         Positions per sample; stored as float32.
     start, sampling : float
         Header fields: frame of the first sample and frames between samples.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from lacore.io.point_cache import read_pc2, write_pc2
+    >>> frames = np.zeros((3, 4, 3)); frames[:, :, 0] = np.arange(3)[:, None]
+    >>> path = os.path.join(tempfile.mkdtemp(), "take.pc2")
+    >>> write_pc2(path, frames, start=10.0)
+    >>> vertices, start, sampling = read_pc2(path)      # stored as float32
+    >>> vertices[:, 0, 0].tolist(), start, sampling
+    ([0.0, 1.0, 2.0], 10.0, 1.0)
     """
     X = np.asarray(vertices, dtype=np.float64)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 1 or X.shape[1] < 1:
@@ -49,19 +61,15 @@ def write_pc2(path, vertices, start=0.0, sampling=1.0):
     if not np.all(np.isfinite(X)):
         t = int(np.flatnonzero(~np.isfinite(X).all(axis=(1, 2)))[0])
         raise PointCacheError(f"point cache: frame {t} has non-finite positions")
+    peak = float(np.abs(X).max())
+    if peak > float(np.finfo(np.float32).max):
+        raise PointCacheError(f"point cache: positions up to {peak:.3g} do not fit the float32 numbers of a PC2 file "
+                              f"(at most {np.finfo(np.float32).max:.3g}): scale the mesh down")
     header = np.zeros(1, _HEADER)
     header[0] = (_MAGIC, 1, X.shape[1], start, sampling, X.shape[0])
-    path = os.fspath(path)
-    fd, tmp = tempfile.mkstemp(suffix=".pc2", prefix=".tmp-", dir=os.path.dirname(os.path.abspath(path)))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(header.tobytes())
-            fh.write(X.astype("<f4").tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_write(path, "wb") as fh:
+        fh.write(header.tobytes())
+        fh.write(X.astype("<f4").tobytes())
 
 
 def read_pc2(path):
@@ -72,6 +80,17 @@ def read_pc2(path):
     vertices : (T, V, 3) float32 ndarray
     start, sampling : float
         Header fields.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from lacore.io.point_cache import read_pc2, write_pc2
+    >>> path = os.path.join(tempfile.mkdtemp(), "take.pc2")
+    >>> write_pc2(path, np.ones((2, 5, 3)))
+    >>> vertices, start, sampling = read_pc2(path)
+    >>> vertices.shape, vertices.dtype, start, sampling
+    ((2, 5, 3), dtype('float32'), 0.0, 1.0)
     """
     with open(path, "rb") as fh:
         raw = fh.read()

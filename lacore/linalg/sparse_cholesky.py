@@ -14,7 +14,7 @@ Backends
     ordering computed once in :class:`SparseCholesky` and reused by every
     :meth:`SparseCholesky.factorize`.  This is the default: on the
     Gauss-Newton systems it is several times faster than the SciPy fallback
-    (figures: ``benchmarks/bench_gauss_newton.py``, README "Benchmarks").
+    (``benchmarks/bench_gauss_newton.py``).
 ``"scipy"``
     SciPy's SuperLU (:func:`scipy.sparse.linalg.splu`) in symmetric mode with a
     minimum-degree ordering of ``A + A^T`` and diagonal pivoting, i.e. an
@@ -29,11 +29,9 @@ fewer nonzeros in the factor (cvxopt's CHOLMOD is built without METIS).
 (:func:`metis_nested_dissection`, the optional dependency pymetis) when it is
 importable, else :func:`nested_dissection`, a geometric nested dissection from
 coordinates (recursive bisection at the median along the principal axis, the
-smaller one-sided vertex separator numbered last).  On the 50k-vertex
-Gauss-Newton systems (``benchmarks/bench_ordering.py``) METIS needs 38 % fewer
-flops than the geometric ordering on a box bar (numeric factorization 1.5-1.6 s
-instead of 2.3-2.4 s) and 10 % fewer than AMD on a body (where AMD beats the
-geometric ordering by 5x).
+smaller one-sided vertex separator numbered last).  On large Gauss-Newton
+systems METIS fills less than both the geometric ordering and AMD
+(``benchmarks/bench_ordering.py`` compares them).
 
 Positive definiteness
 ---------------------
@@ -119,6 +117,21 @@ class SparseCholesky:
     One instance holds one numeric factorization; it is not thread-safe.  Use
     one instance per thread (the symbolic analysis is cheap compared to a
     Gauss-Newton solve).
+
+    Examples
+    --------
+    One symbolic analysis, then any number of numeric factorizations with the same pattern:
+
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> from lacore.linalg.sparse_cholesky import SparseCholesky
+    >>> A = sp.diags([-np.ones(4), 2 * np.ones(5), -np.ones(4)], [-1, 0, 1], format="csc")
+    >>> chol = SparseCholesky(A)
+    >>> for scale in (1.0, 2.0):
+    ...     _ = chol.factorize(scale * A)
+    ...     print(np.round(chol.solve(np.ones(5)), 6) + 0.0)
+    [2.5 4.  4.5 4.  2.5]
+    [1.25 2.   2.25 2.   1.25]
     """
 
     def __init__(self, pattern, backend=None, shift_start=1e-10, max_shift_tries=12, ordering=None):

@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import InputError, format_indices
 from ..geometry.lengths_angles import face_normals
 from ..geometry.rigid import apply_rigid, rigid_fit
+from ..progress import report
 
 __all__ = ["MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
            "surface_point_jacobians"]
@@ -102,7 +103,7 @@ class MarkerBinding:
     def from_surface(cls, faces, barycentric, offsets=None):
         """Markers on surface points ``(face, barycentric)``; checks shapes and finiteness (not the mesh)."""
         f = _as_index_array(faces, "face index")
-        b = np.asarray(barycentric, float)
+        b = _as_reals(barycentric, "barycentric coordinates")
         if b.shape != (len(f), 3):
             raise MarkerBindingError(f"barycentric must have shape ({len(f)}, 3) for {len(f)} bound faces, "
                                      f"got {b.shape}")
@@ -125,8 +126,18 @@ class MarkerBinding:
         return np.asarray(mesh_faces, np.int64)[self.faces]
 
 
+def _as_reals(a, what):
+    """``a`` as a float array; MarkerBindingError unless it holds real numbers."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "fiu":
+        raise MarkerBindingError(f"{what} must be real numbers, got {arr.dtype} values")
+    return arr.astype(float)
+
+
 def _as_index_array(a, what):
     arr = np.asarray(a)
+    if arr.dtype.kind not in "fiu":
+        raise MarkerBindingError(f"{what}es must be integers, got {arr.dtype} values")
     if arr.ndim != 1:
         raise MarkerBindingError(f"{what}es must be a 1-D array (one per marker), got shape {arr.shape}")
     if arr.size and not np.issubdtype(arr.dtype, np.integer):
@@ -149,7 +160,7 @@ def _check_range(idx, n, what):
 def _as_offsets(offsets, m):
     if offsets is None:
         return np.zeros(m)
-    o = np.asarray(offsets, float)
+    o = _as_reals(offsets, "offsets")
     if o.ndim == 0:
         o = np.full(m, float(o))
     if o.shape != (m,) or not np.all(np.isfinite(o)):
@@ -282,7 +293,8 @@ def closest_surface_points(vertices, mesh_faces, points, chunk=2_000_000):
 
 
 # --------------------------------------------------------------------------- binding helper
-def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iterations=100, offsets="signed"):
+def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iterations=100, offsets="signed",
+                 progress=None):
     """Bind markers to the nearest surface points of a mesh pose, after a rigid alignment.
 
     The markers (one frame, e.g. a calibration pose, roughly placed on the mesh)
@@ -309,6 +321,9 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     offsets : {"signed", "zero"}
         ``"signed"``: offset = signed distance of the (aligned) marker from its
         surface point along the face normal (positive outside); ``"zero"``: 0.
+    progress : callable, optional
+        ``progress(done, total, message)`` after every ICP iteration (``total`` =
+        ``iterations``) and when bound (:mod:`lacore.progress`; True cancels).
 
     Returns
     -------
@@ -328,8 +343,10 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     if bad.size:
         raise MarkerBindingError(f"markers {format_indices(bad)} have no finite position: cannot bind them")
     R, t = np.eye(3), np.zeros(3)
+    total = int(iterations) if align else 1
+    report(progress, 0, total, "aligning the markers" if align else "binding")
     if align:
-        for _ in range(int(iterations)):
+        for it in range(int(iterations)):
             y = apply_rigid(x, R, t)
             q, tri, _ = closest_surface_points(X, F, y)
             n = face_normals(X, F[tri])
@@ -339,6 +356,7 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
                 R, t = R_new, t_new
                 break
             R, t = R_new, t_new
+            report(progress, it + 1, total, f"ICP iteration {it + 1}")
     y = apply_rigid(x, R, t)
     q, tri, bary = closest_surface_points(X, F, y)
     n = face_normals(X, F[tri])
@@ -347,4 +365,5 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     o = signed if offsets == "signed" else np.zeros(len(x))
     binding = MarkerBinding.from_surface(tri, bary, o)
     tangential = np.linalg.norm(d - signed[:, None] * n, axis=1)
+    report(progress, total, total, "bound")
     return binding, {"rotation": R, "translation": t, "offsets": o, "tangential": tangential}

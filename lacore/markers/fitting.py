@@ -29,8 +29,7 @@ Solver
     Gauss-Newton on the bordered system in ``(X, alpha)``: the sparse block ``A`` is
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; the factor
-    is kept for further steps of a frame until a step fails (chord steps), then
-    refreshed.  Armijo backtracking.  A frame has converged when a step moved no marker's
+    is refactorized every step (reusing it only added failed steps).  Armijo backtracking.  A frame has converged when a step moved no marker's
     surface point by more than :attr:`FitOptions.marker_tolerance` times ``l`` (after two
     steps), or the energy decreased by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
@@ -47,7 +46,7 @@ Multiresolution
 """
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -63,7 +62,7 @@ from .binding import MarkerBinding, MarkerBindingError, surface_point_jacobians,
 from .prolongation import as_fit_prolongation
 
 __all__ = ["fit_markers", "FitOptions", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers",
-           "FIT_DEFAULTS", "FrameSolver", "mean_edge_length", "marker_statistics"]
+           "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length", "marker_statistics", "MAX_MARKER_COORDINATE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -72,6 +71,10 @@ FRAME_STATUS = {
     1: "iteration limit reached",
     2: "fewer than 3 usable (visible, non-collinear) markers: pose from the prior and the temporal term",
 }
+#: Least temporal weight of a frame with fewer than 3 usable markers (its pose stays at the prediction).
+ANCHOR_WEIGHT = 1.0
+#: A first frame started from the reference mesh may take this many times ``max_iterations`` steps.
+COLD_START_FACTOR = 4
 _SEVERITY = {-2: 5, 1: 2, 2: 3, 0: 0}
 _I9, _J9 = np.triu_indices(9)
 
@@ -137,21 +140,51 @@ class FitOptions:
 FIT_DEFAULTS = FitOptions()
 
 
+def fit_options(options=None, allow_auto=False, **settings):
+    """``options`` (default :data:`FIT_DEFAULTS`) with the fields ``settings`` replaced, checked.
+
+    Raises TypeError for a name that is not a field of :class:`FitOptions`, InputError for a bad value.
+    """
+    options = FIT_DEFAULTS if options is None else options
+    if not isinstance(options, FitOptions):
+        raise InputError(f"options must be a FitOptions, got {type(options).__name__}")
+    unknown = sorted(set(settings) - {f.name for f in fields(FitOptions)})
+    if unknown:
+        raise TypeError(f"unknown fit setting(s) {', '.join(unknown)}; FitOptions has "
+                        f"{', '.join(f.name for f in fields(FitOptions))}")
+    return replace(options, **settings).check(allow_auto=allow_auto) if settings else options.check(allow_auto)
+
+
 class MarkerDataError(InputError):
     """Marker positions of a wrong shape or with infinite values."""
+
+
+#: Largest marker coordinate magnitude: squared distances of larger ones overflow double precision.
+MAX_MARKER_COORDINATE = 1e150
 
 
 def check_markers(markers, binding):
     """Marker positions as float ``(T, M, 3)`` (a single frame ``(M, 3)`` becomes ``T = 1``).
 
-    NaN marks an occluded marker (a row with any NaN counts as occluded); infinite
-    values and a marker count other than the binding's raise :class:`MarkerDataError`.
+    NaN marks an occluded marker (a row with any NaN counts as occluded).
+    :class:`MarkerDataError` (one line: the problem and what to do) for values
+    that are not real numbers, no frames, no markers, infinite values,
+    coordinates beyond :data:`MAX_MARKER_COORDINATE` in magnitude, or no
+    visible marker in any frame (nothing to fit); :class:`MarkerBindingError`
+    for a marker count other than the binding's.
     """
-    x = np.asarray(markers, float)
+    a = np.asarray(markers)
+    if a.dtype.kind not in "fiu":
+        raise MarkerDataError(f"marker positions must be real numbers, got {a.dtype} values")
+    x = a.astype(float)
     if x.ndim == 2:
         x = x[None]
     if x.ndim != 3 or x.shape[2] != 3:
         raise MarkerDataError(f"marker positions must have shape (T, M, 3), got {np.shape(markers)}")
+    if x.shape[0] == 0:
+        raise MarkerDataError("the marker data has no frames (positions of shape (0, M, 3)): nothing to fit")
+    if x.shape[1] == 0:
+        raise MarkerDataError("the marker data has no markers (positions of shape (T, 0, 3)): nothing to fit")
     if x.shape[1] != binding.n_markers:
         raise MarkerBindingError(f"the marker data has {x.shape[1]} markers, the binding {binding.n_markers}")
     bad = np.isinf(x).any(2)
@@ -159,6 +192,13 @@ def check_markers(markers, binding):
         t, m = np.nonzero(bad)
         where = format_indices(zip(t, m, strict=True))
         raise MarkerDataError(f"marker positions are infinite at (frame, marker) {where}")
+    finite = np.isfinite(x)
+    if not finite.any():
+        raise MarkerDataError("no marker is visible in any frame (all positions are NaN): nothing to fit")
+    peak = float(np.max(np.abs(x[finite])))
+    if peak > MAX_MARKER_COORDINATE:
+        raise MarkerDataError(f"marker positions reach {peak:.3g}, beyond {MAX_MARKER_COORDINATE:g} (their squares "
+                              "overflow): give them in the length unit of the model")
     x = x.copy()
     x[np.isnan(x).any(2)] = np.nan
     return x
@@ -197,6 +237,10 @@ class MarkerFitResult(SolverResult):
     prior_weight, temporal_weight : float
         ``gamma`` and the temporal weight used (before the rate scaling).
     fine_vertices : (T, V_fine, 3) ndarray or None
+    regularized_frames : list of int
+        Frames with fewer than 3 usable markers (status 2): pose from the prior and the temporal term.
+    z : (T, 2E) ndarray
+        Lengths and angles of ``vertices`` (a property, computed when read).
     """
 
     vertices: np.ndarray
@@ -215,12 +259,41 @@ class MarkerFitResult(SolverResult):
     prior_weight: float = 1.0
     temporal_weight: float = 0.0
     fine_vertices: np.ndarray = None
+    regularized_frames: list = field(default_factory=list)
+    topology: object = None
     _summary_exclude = ("vertices", "coefficients", "marker_residuals", "marker_distances", "fine_vertices",
-                        "frame_messages")
+                        "frame_messages", "topology")
 
     @property
     def n_frames(self):
+        """``T``."""
         return int(self.vertices.shape[0])
+
+    def summary(self):
+        """A JSON-serializable dict of the scalar fields and per-frame statistics (no vertex arrays)."""
+        def f(x):
+            x = float(x)
+            return x if np.isfinite(x) else None
+        T = self.n_frames
+        total = float(self.timings.get("total", 0.0))
+        return {
+            "success": bool(self.success), "status": int(self.status), "message": self.message,
+            "frames": T, "iterations": int(self.iterations),
+            "timings": {k: float(v) for k, v in self.timings.items()},
+            "seconds": total, "seconds_per_frame": total / T if T else None,
+            "marker_rms": f(self.marker_rms),
+            "max_frame_rms": f(np.nanmax(self.frame_rms)) if np.isfinite(self.frame_rms).any() else None,
+            "frame_status_counts": {str(int(s)): int(np.sum(self.frame_status == s))
+                                    for s in np.unique(self.frame_status)},
+            "mean_iterations": float(np.mean(self.frame_iterations)) if T else 0.0,
+            "prior_weight": float(self.prior_weight), "temporal_weight": float(self.temporal_weight),
+            "regularized_frames": [int(t) for t in self.regularized_frames],
+        }
+
+    @property
+    def z(self):
+        """Lengths and angles ``(T, 2E)`` of the fitted poses."""
+        return np.stack([lengths_and_angles(X, self.topology, check=False) for X in self.vertices])
 
 
 # ----------------------------------------------------------------------------- one frame
@@ -379,6 +452,9 @@ class FrameSolver:
     def factorize(self, X, a, y, vis):
         """Gauss-Newton matrix at ``(X, a)``: sparse factor and Schur complement; returns the gradients."""
         gX, ga, vals, B = self.gradient(X, a, y, vis, matrix=True)
+        if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(gX)) and np.all(np.isfinite(B))):
+            # e.g. markers so far from the mesh's scale that its lengths lose all precision (frame status -2)
+            raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
         self.chol.factorize(vals)
         if self.J:
             self.Y = self.chol.solve(B)
@@ -395,16 +471,20 @@ class FrameSolver:
         da = np.linalg.solve(self.S.T, np.linalg.solve(self.S, self.B.T @ u - ga))
         return -(u + self.Y @ da), da
 
-    def solve_frame(self, X, a, y):
-        """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``."""
+    def solve_frame(self, X, a, y, max_iterations=None):
+        """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``.
+
+        ``max_iterations`` overrides the options' bound (a cold start needs more steps).
+        """
         o = self.options
+        limit = o.max_iterations if max_iterations is None else int(max_iterations)
         vis = np.flatnonzero(np.isfinite(y[:, 0]))
         E0 = self.energy(X, a, y, vis)[0]
         tol = o.marker_tolerance * self.length
         need, fresh = True, False
         P0 = surface_points(X, self.faces, self._sub(vis))
         it, status = 0, 1
-        while it < o.max_iterations:
+        while it < limit:
             try:
                 if need:
                     gX, ga = self.factorize(X, a, y, vis)
@@ -433,6 +513,7 @@ class FrameSolver:
                 continue
             dec = E0 - Et
             X, a, E0, fresh = Xt, at, Et, False
+            need = True                        # full Gauss-Newton: a stale factor only adds failed steps
             P1 = surface_points(X, self.faces, self._sub(vis))
             move = float(np.sqrt(np.max(np.sum((P1 - P0) ** 2, 1)))) if len(vis) else 0.0
             P0 = P1
@@ -451,7 +532,7 @@ def _usable(x_vis):
 
 
 def fit_markers(model, markers, binding, options=None, *, rate=None, initial_vertices=None,
-                initial_coefficients=None, prolongation=None, progress=None):
+                initial_coefficients=None, prolongation=None, progress=None, **settings):
     """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23), module docstring).
 
     Parameters
@@ -462,6 +543,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     binding : MarkerBinding
     options : FitOptions, optional
         Default :data:`FIT_DEFAULTS`.
+    **settings
+        Fields of :class:`FitOptions` overriding ``options`` (``prior_weight=0.5``...).
     rate : float, optional
         Frames per second (scales the temporal weight); default the options' ``reference_rate``.
     initial_vertices : (V, 3) array_like, optional
@@ -482,7 +565,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     >>> res.success, res.marker_rms                                                 # doctest: +SKIP
     """
     t_start = time.perf_counter()
-    options = (options or FIT_DEFAULTS).check()
+    options = fit_options(options, **settings)
     if not isinstance(binding, MarkerBinding):
         raise MarkerBindingError(f"binding must be a MarkerBinding, got {type(binding).__name__}")
     binding.check(model.faces)
@@ -521,7 +604,9 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         elif t == 0 and len(vis) and initial_vertices is None:
             Xs = Xs + (y[vis].mean(0) - surface_points(Xs, solver.faces, solver._sub(vis)).mean(0))
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
-        Xn, an, st, it, E = solver.solve_frame(Xs, as_, y)
+        solver.kappa = kappa if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
+        cold = t == 0 and initial_vertices is None        # from the rest pose: a longer way to go
+        Xn, an, st, it, E = solver.solve_frame(Xs, as_, y, options.max_iterations * (COLD_START_FACTOR if cold else 1))
         if st >= 0 and not usable:
             st = 2
         X_prev, a_prev = (X, a) if t > 0 else (None, None)
@@ -532,6 +617,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
             tp = time.perf_counter()
             fine = np.asarray(prolong(X, a), float)
             if out_fine is None:
+                if fine.ndim != 2 or fine.shape[1] != 3:
+                    raise InputError(f"prolongation must return (V_fine, 3) vertices, got {fine.shape}")
                 out_fine = np.empty((T,) + fine.shape)
             out_fine[t] = fine
             timings["prolongation"] += time.perf_counter() - tp
@@ -552,10 +639,10 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         frame_status=status, frame_messages=[FRAME_STATUS[int(s)] for s in status], frame_iterations=iters,
         frame_seconds=seconds, frame_energy=energy, visible=np.isfinite(x_all[:, :, 0]).sum(1),
         success=bool(fitted and np.all((status == 0) | (status == 2))),
-        status=int(worst), message=message if fitted else "no frame was fitted to markers" + (
-            f" ({message})" if message else ""), iterations=int(iters.sum()), timings=timings,
+        status=int(worst), message=message if (fitted or message) else "no frame was fitted to markers", iterations=int(iters.sum()), timings=timings,
         prior_weight=float(options.prior_weight), temporal_weight=float(options.temporal_weight),
-        fine_vertices=out_fine)
+        fine_vertices=out_fine, regularized_frames=[int(t) for t in np.flatnonzero(status == 2)],
+        topology=model.topology)
 
 
 def marker_statistics(distances):

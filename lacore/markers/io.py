@@ -38,10 +38,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import atomic_write
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
-           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "MODEL_OUTPUT_GROUPS",
-           "UNIT_SCALES", "NON_MARKER_GROUPS", "drop_non_markers", "read_take", "select_markers"]
+           "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "read_marker_arrays",
+           "MODEL_OUTPUT_GROUPS", "UNIT_SCALES", "NON_MARKER_GROUPS", "drop_non_markers", "read_take",
+           "select_markers"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
@@ -418,12 +420,16 @@ def _read_c3d_bytes(data, path, units):
         file_units = unit_param.string_value.strip().strip("\x00").strip() if unit_param is not None else ""
     except Exception as exc:
         raise MarkerFileError(f"{path}: malformed C3D parameters ({type(exc).__name__}: {exc})") from None
+    # checked here, not left to the c3d package: it checks some of these with assert, which python -O skips
     if not np.isfinite(rate) or rate <= 0:
         raise MarkerFileError(f"{path}: invalid point rate {rate!r} Hz")
     if not np.isfinite(scale) or scale == 0:
         raise MarkerFileError(f"{path}: invalid POINT:SCALE {scale!r}")
-    if used == 0:
-        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is 0)")
+    if used < 1:
+        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is {used})")
+    if analog_used < 0 or (analog_used and not (np.isfinite(analog_rate) and analog_rate >= 0)):
+        raise MarkerFileError(f"{path}: invalid analog channels: ANALOG:USED {analog_used}, ANALOG:RATE "
+                              f"{analog_rate!r} Hz (a damaged file: the rate must be a finite number >= 0)")
     n_frames = last - first + 1
     if n_frames < 1:
         raise MarkerFileError(f"{path}: no frames (first frame {first}, last {last})")
@@ -546,17 +552,12 @@ def write_c3d(path, take, units="mm", integer=False):
 
 
 def _atomic_write(path, write):
-    folder = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    """``write(fh)`` into ``path`` through :func:`lacore.io.atomic.atomic_write`; MarkerFileError if it fails."""
     try:
-        with open(tmp, "wb") as fh:
+        with atomic_write(path, "wb") as fh:
             write(fh)
-        os.replace(tmp, path)
     except OSError as exc:
-        raise MarkerFileError(f"{path}: cannot write the file ({exc.strerror or exc})") from None
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+        raise MarkerFileError(str(exc)) from None
 
 
 # ----------------------------------------------------------------------------- TRC
@@ -584,7 +585,7 @@ def _read_trc_text(data, path, units):
         rate = float(header["datarate"])
         n_markers = int(float(header["nummarkers"]))
         file_units = header["units"]
-    except (KeyError, ValueError) as exc:
+    except (KeyError, ValueError, OverflowError) as exc:
         raise MarkerFileError(f"{path}: malformed TRC header (DataRate, NumMarkers, Units): {exc}") from None
     to_metres = unit_scale(units if units is not None else file_units, path)
     names = [s.strip() for s in lines[3].split("\t")[2:]]
@@ -614,6 +615,9 @@ def _read_trc_text(data, path, units):
     frames = numbers[:, 0]
     if np.isnan(frames).any():
         raise MarkerFileError(f"{path}: data row {int(np.flatnonzero(np.isnan(frames))[0]) + 1} has no frame number")
+    if not (np.isfinite(frames[0]) and abs(frames[0]) < 2.0 ** 31 and frames[0] == np.round(frames[0])):
+        raise MarkerFileError(f"{path}: data row 1 has frame number {frames[0]:g}; frame numbers are whole numbers "
+                              "(fix the Frame# column)")
     positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
     return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
@@ -724,3 +728,70 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
 def read_take(path, units=None):
     """:func:`read_markers` followed by :func:`drop_non_markers`: the skin markers of a file, drops noted."""
     return drop_non_markers(read_markers(path, units=units))
+
+
+# ----------------------------------------------------------------------------- marker arrays (.npz)
+def read_marker_arrays(path, mesh_faces, n_vertices=None):
+    """Marker positions and their binding from an ``.npz`` file, every array checked.
+
+    The file holds ``positions`` ``(T, M, 3)`` (NaN where occluded) and the
+    binding: ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
+    ``barycentric`` ``(M, 3)`` (triangles of ``mesh_faces``); optional
+    ``offsets`` ``(M,)`` (distance along the face normal, positive outside).
+    No pickles are read.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    mesh_faces : (F, 3) array_like of int
+        The mesh the markers are bound to (e.g. a shape model's faces).
+    n_vertices : int, optional
+        Its vertex count (default ``mesh_faces.max() + 1``).
+
+    Returns
+    -------
+    positions : (T, M, 3) float64 ndarray
+        As :func:`lacore.markers.fitting.check_markers` returns them.
+    binding : MarkerBinding
+
+    Raises
+    ------
+    FileNotFoundError
+    MarkerFileError
+        Not a readable ``.npz`` file, a missing or wrongly typed array (object,
+        string or complex arrays included).
+    MarkerBindingError, MarkerDataError
+        A binding out of range or to nothing, positions with no frames, no
+        markers, infinite or too large values, or no visible marker at all.
+    """
+    from ..io.npz import open_npz, read_array
+    from .binding import MarkerBinding, MarkerBindingError
+    from .fitting import check_markers
+
+    path = os.fspath(path)
+    what = "markers"
+    with open_npz(path, what, MarkerFileError) as npz:
+        keys = set(npz.files)
+        if "positions" not in keys:
+            raise MarkerFileError(f"{path} has no 'positions' array (T, M, 3)")
+        positions = read_array(npz, "positions", path, what, MarkerFileError, kind="f")
+        offsets = read_array(npz, "offsets", path, what, MarkerFileError, kind="f") if "offsets" in keys else None
+        if "vertices" in keys and "faces" in keys:
+            raise MarkerBindingError(f"{path} has both 'vertices' and 'faces': give one binding")
+        if "vertices" in keys:
+            vertices = read_array(npz, "vertices", path, what, MarkerFileError, kind="i", ndim=1)
+            binding = MarkerBinding.from_vertices(vertices, mesh_faces, n_vertices, offsets)
+        elif "faces" in keys:
+            if "barycentric" not in keys:
+                raise MarkerBindingError(f"{path} has 'faces' but no 'barycentric' (M, 3)")
+            faces = read_array(npz, "faces", path, what, MarkerFileError, kind="i", ndim=1)
+            bary = read_array(npz, "barycentric", path, what, MarkerFileError, kind="f", ndim=2)
+            binding = MarkerBinding.from_surface(faces, bary, offsets)
+        else:
+            raise MarkerBindingError(f"{path} binds the markers to nothing: it needs 'vertices' (M,) or 'faces' (M,) "
+                                     "+ 'barycentric' (M, 3)")
+    binding.check(mesh_faces)
+    try:
+        return check_markers(positions, binding), binding
+    except InputError as exc:
+        raise type(exc)(f"{path}: {exc}") from None

@@ -33,22 +33,47 @@ Validity (checked for every collapse, in every shape)
 If the queue empties before the target count, the geometric thresholds are
 relaxed (quality halved, normal angle widened towards 90 degrees) and the
 remaining candidates are retried; flips and topology are never relaxed.
+
+Storing a coarsening
+--------------------
+The collapse order is greedy: a tie between two equally cheap collapses, or
+costs equal up to rounding, is decided by the last bits of floating-point sums,
+which differ between CPUs (SIMD paths, BLAS kernels).  Recomputing a coarsening
+on another machine can therefore give another (equally good) coarse mesh.
+Whatever must be reproduced -- a coarse mesh that fits were made on, the
+prolongation back to the fine mesh -- is stored instead:
+:meth:`Coarsening.to_arrays` / :meth:`Coarsening.from_arrays` give a versioned
+set of plain arrays (integers and the collapse costs) to embed in any ``.npz``,
+:meth:`Coarsening.save` / :meth:`Coarsening.load` a file of its own.
 """
 
 import heapq
+import os
 import time
+import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputError, MeshError
-from ..progress import report
 from ..geometry.topology import MeshTopology, check_faces
+from ..io.atomic import save_npz_atomic
+from ..io.npz import open_npz
+from ..progress import report
 
-__all__ = ["Coarsening", "coarsen", "vertex_quadrics"]
+__all__ = ["Coarsening", "coarsen", "vertex_quadrics", "RECORD_FORMAT", "RECORD_VERSION"]
 
 #: A candidate rejected for its geometry is retried (after changes around it) at most this often per round.
 _MAX_RETRIES = 3
+
+#: ``format`` entry of a stored coarsening (:meth:`Coarsening.to_arrays`).
+RECORD_FORMAT = "lacore.multiresolution.coarsening"
+#: Version of the stored layout; :meth:`Coarsening.from_arrays` reads this version.
+RECORD_VERSION = 1
+#: Arrays of a stored coarsening besides ``format``, ``format_version`` and ``n_fine_vertices``
+#: (``vertex_indices`` and ``parent`` follow from the collapses).
+_RECORD_ARRAYS = ("fine_faces", "faces", "collapse_sources", "collapse_targets", "ring_offsets", "ring_pairs",
+                  "costs")
 
 
 @dataclass
@@ -105,42 +130,141 @@ class Coarsening:
             self._topology = MeshTopology.from_faces(self.faces, n_vertices=self.n_vertices)
         return self._topology
 
-    #: Arrays of :meth:`to_arrays` (the record prolongation needs; costs and timing are not stored).
-    ARRAY_FIELDS = ("fine_faces", "vertex_indices", "faces", "collapse_sources", "collapse_targets", "parent",
-                    "ring_offsets", "ring_pairs")
-
+    # ------------------------------------------------------------------ storage
     def to_arrays(self, prefix=""):
-        """The record as ``{prefix + name: array}`` (int32 indices) for storing in an ``.npz`` file.
+        """The coarsening as plain arrays, to store in an ``.npz`` (alone or beside other data).
 
-        Store the record instead of recomputing it: the greedy collapse order
-        may differ between machines (floating-point ties), the stored one is
-        what a model was built with.
+        Parameters
+        ----------
+        prefix : str
+            Prepended to every key (e.g. ``"coarsening_"`` inside another file's arrays).
+
+        Returns
+        -------
+        dict of str -> ndarray
+            ``format`` (:data:`RECORD_FORMAT`), ``format_version``
+            (:data:`RECORD_VERSION`), ``n_fine_vertices``, ``fine_faces``,
+            ``faces``, ``collapse_sources``, ``collapse_targets``,
+            ``ring_offsets``, ``ring_pairs`` (integers) and ``costs``.  No
+            object arrays: :func:`numpy.load` reads them with
+            ``allow_pickle=False``.
+
+        Examples
+        --------
+        A record stored inside another file's arrays, under a prefix:
+
+        >>> import numpy as np
+        >>> from lacore.multiresolution import Coarsening, coarsen
+        >>> from lacore.samples.bar import bar_mesh, bar_pose
+        >>> X, faces = bar_mesh(n_along=12, n_side=1)
+        >>> coarsening = coarsen([X, bar_pose(X, 0.5, 0.0)], faces, 20)
+        >>> arrays = {"weights": np.ones(3), **coarsening.to_arrays("coarsening_")}
+        >>> same = Coarsening.from_arrays(arrays, "coarsening_")
+        >>> same.n_vertices, bool(np.array_equal(same.faces, coarsening.faces))
+        (20, True)
         """
-        out = {prefix + "n_fine_vertices": np.array(self.n_fine_vertices, np.int64)}
-        for name in self.ARRAY_FIELDS:
-            out[prefix + name] = np.asarray(getattr(self, name)).astype(np.int32)
+        out = {prefix + "format": np.array(RECORD_FORMAT), prefix + "format_version": np.array(RECORD_VERSION),
+               prefix + "n_fine_vertices": np.array(self.n_fine_vertices, np.int64)}
+        for name in _RECORD_ARRAYS:
+            out[prefix + name] = np.asarray(getattr(self, name))
         return out
 
     @classmethod
-    def from_arrays(cls, arrays, prefix=""):
-        """Inverse of :meth:`to_arrays` (``arrays``: any mapping, e.g. an open ``NpzFile``); MeshError if corrupt."""
-        try:
-            d = {name: np.asarray(arrays[prefix + name]).astype(np.int64) for name in cls.ARRAY_FIELDS}
-            n_fine = int(arrays[prefix + "n_fine_vertices"])
-        except KeyError as exc:
-            raise MeshError(f"coarsening record incomplete: missing {exc.args[0]}") from None
-        K = n_fine - len(d["vertex_indices"])
-        ok = (d["collapse_sources"].shape == (K,) and d["collapse_targets"].shape == (K,)
-              and d["parent"].shape == (n_fine,) and d["ring_offsets"].shape == (K + 1,)
-              and d["ring_pairs"].ndim == 2 and d["ring_pairs"].shape[1:] == (2,)
-              and (K == 0 or int(d["ring_offsets"][-1]) == len(d["ring_pairs"]))
-              and (d["ring_pairs"].size == 0 or (d["ring_pairs"].min() >= 0 and d["ring_pairs"].max() < n_fine))
-              and d["faces"].ndim == 2 and d["faces"].shape[1] == 3
-              and (d["faces"].size == 0 or d["faces"].max() < len(d["vertex_indices"])))
-        if not ok:
-            raise MeshError("coarsening record inconsistent: array shapes or indices do not match "
-                            f"{n_fine} fine and {len(d['vertex_indices'])} coarse vertices")
-        return cls(n_fine_vertices=n_fine, costs=np.zeros(K), **d)
+    def from_arrays(cls, arrays, prefix="", source="coarsening record"):
+        """A :class:`Coarsening` from the arrays of :meth:`to_arrays`, checked for consistency.
+
+        Parameters
+        ----------
+        arrays : mapping of str -> array_like
+            E.g. a dict or an open :class:`numpy.lib.npyio.NpzFile`.
+        prefix : str
+            The prefix given to :meth:`to_arrays`.
+        source : str
+            Named in error messages (a file name).
+
+        Raises
+        ------
+        InputError
+            Missing or unknown format, another version, arrays of the wrong
+            type or shape, or collapses that do not form a valid coarsening
+            (an index out of range, a vertex removed twice or used after its
+            removal).  The message names ``source`` and the problem.
+        """
+        def fail(msg):
+            return InputError(f"{source}: {msg}")
+
+        def get(name):
+            key = prefix + name
+            try:
+                present = key in arrays
+            except TypeError:
+                present = False
+            if not present:
+                raise fail(f"not a coarsening record (no '{key}' array)")
+            try:
+                return np.asarray(arrays[key])
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise fail(f"cannot read '{key}' ({exc})") from None
+
+        fmt, version = get("format"), get("format_version")
+        if fmt.shape != () or fmt.dtype.kind != "U" or str(fmt) != RECORD_FORMAT:
+            raise fail(f"not a coarsening record (format is not {RECORD_FORMAT!r})")
+        if version.shape != () or version.dtype.kind not in "iu" or int(version) != RECORD_VERSION:
+            raise fail(f"coarsening record version {version.tolist()!r}; this lacore reads version {RECORD_VERSION}")
+        ints = {}
+        for name, ndim in (("n_fine_vertices", 0), ("fine_faces", 2), ("faces", 2), ("collapse_sources", 1),
+                           ("collapse_targets", 1), ("ring_offsets", 1), ("ring_pairs", 2)):
+            a = get(name)
+            if a.dtype.kind not in "iu" or a.ndim != ndim or (ndim == 2 and a.shape[1] != (3 if "faces" in name
+                                                                                         else 2)):
+                want = {0: "an integer", 1: "(K,) integers"}.get(ndim, "(n, 3) integers" if "faces" in name
+                                                                 else "(n, 2) integers")
+                raise fail(f"'{prefix}{name}' must be {want}, got {a.dtype} {a.shape}")
+            ints[name] = a.astype(np.int64)
+        costs = get("costs")
+        V = int(ints["n_fine_vertices"])
+        src, dst = ints["collapse_sources"], ints["collapse_targets"]
+        off, pairs = ints["ring_offsets"], ints["ring_pairs"]
+        K = len(src)
+        if costs.dtype.kind != "f" or costs.shape != (K,):
+            raise fail(f"'{prefix}costs' must be ({K},) floats, got {costs.dtype} {costs.shape}")
+        if not 4 <= V - K <= V or dst.shape != (K,) or off.shape != (K + 1,):
+            raise fail(f"inconsistent sizes: {V} fine vertices, {K} collapses, {len(dst)} targets, "
+                       f"{len(off)} ring offsets")
+        for name in ("fine_faces", "collapse_sources", "collapse_targets", "ring_pairs"):
+            a = ints[name]
+            if a.size and (a.min() < 0 or a.max() >= V):
+                raise fail(f"'{prefix}{name}' has vertex indices outside 0..{V - 1}")
+        if len(np.unique(src)) != K:
+            raise fail("a vertex is removed by two collapses")
+        if off[0] != 0 or off[-1] != len(pairs) or np.any(np.diff(off) < 1):
+            raise fail("the ring offsets do not split the ring pairs into non-empty rings")
+        # every vertex a collapse refers to (its target, its ring) is still there at that collapse
+        removed_at = np.full(V, K, np.int64)
+        removed_at[src] = np.arange(K)
+        step = np.repeat(np.arange(K), np.diff(off))
+        if np.any(removed_at[dst] <= np.arange(K)) or np.any(removed_at[pairs] <= step[:, None]):
+            raise fail("a collapse refers to a vertex removed before it")
+        keep = np.flatnonzero(removed_at == K)
+        faces = ints["faces"]
+        if faces.size == 0 or faces.min() < 0 or faces.max() >= len(keep):
+            raise fail(f"'{prefix}faces' must index the {len(keep)} coarse vertices")
+        return cls(n_fine_vertices=V, fine_faces=ints["fine_faces"], vertex_indices=keep, faces=faces,
+                   collapse_sources=src, collapse_targets=dst, parent=_parents(V, keep, src, dst),
+                   ring_offsets=off, ring_pairs=pairs, costs=costs.astype(float))
+
+    def save(self, path):
+        """Write :meth:`to_arrays` to a compressed ``.npz`` file, atomically; returns the path written.
+
+        ``.npz`` is appended to a name without it (as :func:`numpy.savez` does).
+        """
+        return save_npz_atomic(path, compressed=True, **self.to_arrays())
+
+    @classmethod
+    def load(cls, path):
+        """Read a file written by :meth:`save` (see :meth:`from_arrays` for the checks)."""
+        with open_npz(path, "coarsening record") as npz:
+            return cls.from_arrays(npz, source=os.fspath(path))
 
     def restrict(self, vertices):
         """Coarse vertices of fine shapes: ``vertices[..., vertex_indices, :]``.
@@ -157,6 +281,15 @@ class Coarsening:
         if X.shape[-2:] != (self.n_fine_vertices, 3):
             raise MeshError(f"expected (..., {self.n_fine_vertices}, 3) fine vertices, got {X.shape}")
         return X[..., self.vertex_indices, :]
+
+
+def _parents(V, keep, sources, targets):
+    """Coarse index of the vertex that finally absorbed each fine vertex (see :attr:`Coarsening.parent`)."""
+    parent = np.full(V, -1, np.int64)
+    parent[keep] = np.arange(len(keep))
+    for a, b in zip(sources[::-1].tolist(), targets[::-1].tolist(), strict=True):
+        parent[a] = parent[b]
+    return parent
 
 
 def _face_planes(P, faces):
@@ -276,6 +409,17 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     InputError
         A target count that cannot be reached without breaking the topology
         (the message says how far it got).
+
+    Examples
+    --------
+    >>> from lacore.multiresolution import coarsen
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=12, n_side=1)
+    >>> c = coarsen([X, bar_pose(X, 0.5, 0.0)], faces, 20)   # both shapes decide every collapse
+    >>> c.n_fine_vertices, c.n_vertices, c.faces.shape
+    (54, 20, (36, 3))
+    >>> bool((c.restrict(X) == X[c.vertex_indices]).all())     # the coarse shape: kept fine vertices
+    True
     """
     t0 = time.perf_counter()
     P, faces = _check_shapes(shapes, faces)
@@ -450,9 +594,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     cfaces = new_index[fcur[falive]]
     sources = np.asarray(sources, np.int64)
     targets = np.asarray(targets, np.int64)
-    parent = new_index.copy()
-    for a, b in zip(sources[::-1].tolist(), targets[::-1].tolist(), strict=True):
-        parent[a] = parent[b]
+    parent = _parents(V, keep, sources, targets)
     sizes = np.array([len(c) for c in ring_chunks], np.int64)
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     pairs = np.array([pq for c in ring_chunks for pq in c], np.int64).reshape(-1, 2)

@@ -24,11 +24,20 @@ Vertices re-inserted independently of each other are processed together
 (levels: a vertex's level is one more than the highest level of its ring
 vertices, coarse vertices have level 0), so the work is a few dozen
 vectorized steps.
+
+A prolongation is stored as its coarsening record plus the local coordinates
+``alpha`` (:meth:`Prolongation.to_arrays`, :meth:`Prolongation.save`): loaded,
+it prolongs exactly as the original, on any machine, without the key shapes.
 """
+
+import os
 
 import numpy as np
 
-from ..errors import MeshError
+from ..errors import InputError, MeshError
+from ..io.atomic import save_npz_atomic
+from ..io.npz import open_npz
+from .coarsening import Coarsening
 
 __all__ = ["Prolongation"]
 
@@ -63,6 +72,61 @@ class Prolongation:
             P = P[None]
         if P.ndim != 3 or P.shape[1:] != (c.n_fine_vertices, 3):
             raise MeshError(f"shapes must be (N, {c.n_fine_vertices}, 3), got {np.shape(shapes)}")
+        self._set_levels(c)
+        K = len(c.collapse_sources)
+        self.alpha = np.zeros((len(P), K, 3))
+        for s in range(len(P)):
+            for ks, u, v, pr, seg, sizes in self._level_data:
+                F = self._frames(P[s], v, pr, seg, sizes)
+                self.alpha[s, ks] = np.einsum("kij,kj->ki", F[1], P[s][u] - F[0])
+
+    @classmethod
+    def from_coordinates(cls, coarsening, alpha):
+        """A prolongation from stored local coordinates ``alpha`` ``(N, K, 3)`` (no key shapes needed)."""
+        alpha = np.asarray(alpha)
+        K = len(coarsening.collapse_sources)
+        if alpha.dtype.kind != "f" or alpha.ndim != 3 or alpha.shape[0] < 1 or alpha.shape[1:] != (K, 3):
+            raise InputError(f"local coordinates must be (N, {K}, 3) floats, got {alpha.dtype} {alpha.shape}")
+        if not np.all(np.isfinite(alpha)):
+            raise InputError("local coordinates must be finite")
+        out = cls.__new__(cls)
+        out._set_levels(coarsening)
+        out.alpha = alpha.astype(float)
+        return out
+
+    def to_arrays(self, prefix=""):
+        """The coarsening record (:meth:`Coarsening.to_arrays`) plus ``prolongation_alpha`` ``(N, K, 3)``.
+
+        ``prefix`` is prepended to every key, as for :meth:`Coarsening.to_arrays`.
+        """
+        out = self.coarsening.to_arrays(prefix)
+        out[prefix + "prolongation_alpha"] = self.alpha
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix="", source="prolongation record"):
+        """A :class:`Prolongation` from the arrays of :meth:`to_arrays`; InputError naming ``source`` if invalid."""
+        c = Coarsening.from_arrays(arrays, prefix, source)
+        key = prefix + "prolongation_alpha"
+        if key not in arrays:
+            raise InputError(f"{source}: a coarsening record without prolongation ('{key}' is missing)")
+        try:
+            return cls.from_coordinates(c, np.asarray(arrays[key]))
+        except InputError as exc:
+            raise InputError(f"{source}: '{key}': {exc}") from None
+
+    def save(self, path):
+        """Write :meth:`to_arrays` to a compressed ``.npz`` file, atomically; returns the path written."""
+        return save_npz_atomic(path, compressed=True, **self.to_arrays())
+
+    @classmethod
+    def load(cls, path):
+        """Read a file written by :meth:`save`."""
+        with open_npz(path, "prolongation record") as npz:
+            return cls.from_arrays(npz, source=os.fspath(path))
+
+    def _set_levels(self, c):
+        """Insertion levels and the ring data of every level (integers only)."""
         self.coarsening = c
         K = len(c.collapse_sources)
         # insertion levels, by one pass over the collapses in reverse order
@@ -89,11 +153,6 @@ class Prolongation:
             idx = np.repeat(c.ring_offsets[ks] - np.r_[0, np.cumsum(sizes)[:-1]], sizes) + np.arange(sizes.sum())
             seg = np.r_[0, np.cumsum(sizes)]
             self._level_data.append((ks, c.collapse_sources[ks], c.collapse_targets[ks], pairs[idx], seg, sizes))
-        self.alpha = np.zeros((len(P), K, 3))
-        for s in range(len(P)):
-            for ks, u, v, pr, seg, sizes in self._level_data:
-                F = self._frames(P[s], v, pr, seg, sizes)
-                self.alpha[s, ks] = np.einsum("kij,kj->ki", F[1], P[s][u] - F[0])
 
     @classmethod
     def from_local_coordinates(cls, coarsening, alpha):

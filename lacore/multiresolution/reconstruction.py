@@ -20,8 +20,8 @@
    ``"exact"`` (default)
        plain Gauss-Newton steps (one numeric factorization each, through
        :func:`lacore.reconstruction.reconstruct`, with its reuse of the
-       factorization near convergence).  From the prolonged start three steps
-       bring the finger average within 6e-7 of the full Gauss-Newton energy.
+       factorization near convergence).  From the prolonged start a few steps
+       reach the full Gauss-Newton energy of smooth blends.
    ``"reference"``
        no fine factorization per target: the fine Gauss-Newton matrix is
        factorized once, at the reference mesh, and every fine step is solved
@@ -31,20 +31,17 @@
        local step of as-rigid-as-possible) between reference and current
        vertices.  ``J^T W J`` transforms exactly like that under a rigid motion
        (``Z`` is rigid-invariant), so for near-isometric poses the rotated
-       reference factor stays a good preconditioner (on an 11k bar the
-       relative residual after 10 PCG iterations is 0.06 with the rotation
-       and 0.72 without).  Measured: good on near-isometric blends (deformed
-       spheres: 1.2e-3 above full Gauss-Newton after 3 steps), poor where the
-       blend bends far from the reference (finger average: 100 % above after
-       3 steps of 20 PCG iterations).
+       reference factor stays a good preconditioner, far better than without
+       the rotation.  Good on near-isometric blends, poor where the blend
+       bends far from the reference.
    ``"two_level"``
        no fine factorization at all: every fine step is solved by conjugate
        gradients preconditioned with a symmetric two-level cycle (block-Jacobi
        smoothing and the coarse Galerkin correction ``P (P^T A P)^-1 P^T``,
        :mod:`.two_level`); only the coarse matrix (``3 Vc`` unknowns) is
-       factorized per step.  Measured: finger average 4.1e-4 above full
-       Gauss-Newton after 5 steps; on the 50k bar 4.0x the optimal energy in
-       6.0 s (3 exact steps: 10.2x in 6.1 s).
+       factorized per step.
+
+   ``benchmarks/bench_multires.py`` compares the three.
 
 Coarse bending weight
 ---------------------
@@ -52,17 +49,16 @@ With the weights (3.20) the membrane part of ``W_q`` sums ``(dl / l)^2`` over
 edges and grows with the number of edges for a given smooth strain, while the
 bending part (``l^2 / d`` times ``dtheta^2``) does not; ``eta E_c / E`` (coarse
 over fine edge count) would make the coarse problem approximate the same
-continuous energy.  Measured, that is not what pays: on the 11k-vertex bar
-bend/twist in-between it halves the RMS distance of the prolonged coarse
-solution to the fine optimum (0.076 % instead of 0.14 % of the bounding-box
-diagonal) but the energy after three fine iterations is the same, and on the
-50k bar the softer coarse problem converges slower and leaves the fine
-iterations 5x further from the optimum.  The default is therefore the
-thesis' choice, the same ``eta`` on both levels (``coarse_bending_weight``
-sets another).
+continuous energy.  That does not pay: it brings the prolonged coarse
+solution nearer to the fine optimum, but the energy after a few fine
+iterations is the same, and on large meshes the softer coarse problem
+converges slower and leaves the fine iterations further from the optimum.
+The default is therefore the thesis' choice, the same ``eta`` on both levels
+(``coarse_bending_weight`` sets another).
 """
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -70,7 +66,8 @@ import scipy.sparse as sp
 from ..errors import InputError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..progress import report
-from ..reconstruction import STATUS_MESSAGES, ReconstructionContext, ReconstructionResult, reconstruct
+from ..reconstruction import (STATUS_MESSAGES, GaussNewtonOptions, ReconstructionContext, ReconstructionResult,
+                              ReconstructionSettings, reconstruct)
 from ..reconstruction.assembly import dof_ordering
 from ..reconstruction.pcg import preconditioned_cg
 from ..linalg.sparse_cholesky import SparseCholesky
@@ -131,14 +128,12 @@ class MultiresolutionReconstruction:
         factorization (default 0).
     coarsening : Coarsening, optional
         A precomputed coarsening of these shapes (``n_coarse`` is then unused).
-    bending_weight : float
-        ``eta`` of the fine problem (default 1e-3).
+    settings : ReconstructionSettings, optional
+        Settings of the fine problem (default the defaults): ``W_q`` with the
+        weights (3.20) or (3.21), ``eta``, fixed face, solver and ordering; the
+        coarse problem has the same but its own fixed face and ``eta``.
     coarse_bending_weight : float, optional
-        ``eta`` of the coarse problem (default ``bending_weight``, see the module docstring).
-    weights : {"frohlich_botsch", "heeren"}
-        Weights of ``W_q`` (3.20) / (3.21).
-    solver : {"cholmod", "scipy"}, optional
-        Sparse Cholesky backend.
+        ``eta`` of the coarse problem (default the fine one, see the module docstring).
     progress : callable, optional
         ``progress(done, total, message)`` during the set-up (coarsening).
 
@@ -148,11 +143,24 @@ class MultiresolutionReconstruction:
     prolongation : Prolongation
     fine_context, coarse_context : ReconstructionContext
     z_keys, z_coarse_keys : (N, 2E), (N, 2E_c) ndarray
-    coarse_bending_weight : float
+    bending_weight, coarse_bending_weight : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.multiresolution import MultiresolutionReconstruction
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=12, n_side=1)
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> mr = MultiresolutionReconstruction([bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)], topo, n_coarse=20)
+    >>> res = mr.reconstruct([0.5, 0.5])              # the in-between at t = 1/2
+    >>> res.method, res.vertices.shape, res.coarse_vertices.shape, bool(res.energy <= res.prolonged_energy)
+    ('multires', (54, 3), (20, 3), True)
     """
 
-    def __init__(self, shapes, topology, n_coarse=None, *, reference=0, coarsening=None, bending_weight=1e-3,
-                 coarse_bending_weight=None, weights="frohlich_botsch", solver=None, progress=None):
+    def __init__(self, shapes, topology, n_coarse=None, *, reference=0, coarsening=None, settings=None,
+                 coarse_bending_weight=None, progress=None):
         t0 = time.perf_counter()
         if not isinstance(topology, MeshTopology):
             raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
@@ -161,8 +169,10 @@ class MultiresolutionReconstruction:
             S = S[None]
         if S.ndim != 3 or S.shape[1:] != (topology.n_vertices, 3):
             raise MeshError(f"shapes must be (N, {topology.n_vertices}, 3), got {np.shape(shapes)}")
-        if weights not in ("frohlich_botsch", "heeren"):
-            raise ValueError(f"multiresolution supports weights 'frohlich_botsch' or 'heeren', got {weights!r}")
+        settings = settings if settings is not None else ReconstructionSettings()
+        if settings.energy != "quadratic" or settings.weights not in ("frohlich_botsch", "heeren"):
+            raise InputError(f"multiresolution supports the quadratic energy with weights 'frohlich_botsch' or "
+                             f"'heeren', got energy={settings.energy!r}, weights={settings.weights!r}")
         if not 0 <= int(reference) < len(S):
             raise InputError(f"reference must index one of the {len(S)} shapes, got {reference!r}")
         self.shapes = S
@@ -181,13 +191,13 @@ class MultiresolutionReconstruction:
         self.coarse_shapes = coarsening.restrict(S)
         self.z_keys = np.stack([lengths_and_angles(X, topology) for X in S])
         self.z_coarse_keys = np.stack([lengths_and_angles(X, ct) for X in self.coarse_shapes])
-        self.bending_weight = float(bending_weight)
-        self.coarse_bending_weight = float(bending_weight if coarse_bending_weight is None else coarse_bending_weight)
-        ref = S[self.reference]
-        self.fine_context = ReconstructionContext(topology, ref, weights=weights, bending_weight=bending_weight,
-                                                  solver=solver)
-        self.coarse_context = ReconstructionContext(ct, self.coarse_shapes[self.reference], weights=weights,
-                                                    bending_weight=self.coarse_bending_weight, solver=solver)
+        self.bending_weight = settings.bending_weight
+        coarse = replace(settings, fixed_face=None, fix_triangle_shape=False,
+                         bending_weight=settings.bending_weight if coarse_bending_weight is None
+                         else coarse_bending_weight)
+        self.coarse_bending_weight = coarse.bending_weight
+        self.fine_context = ReconstructionContext(topology, S[self.reference], settings)
+        self.coarse_context = ReconstructionContext(ct, self.coarse_shapes[self.reference], coarse)
         self._reference_factor = None
         self._reference_canonical = None
         self._two_level = None
@@ -261,8 +271,8 @@ class MultiresolutionReconstruction:
         ftol : float
             Stop the fine iterations when one decreases the energy by less than
             ``ftol`` times its value.
-        coarse_options : dict, optional
-            Gauss-Newton options of the coarse solve (default: converge).
+        coarse_options : GaussNewtonOptions, optional
+            Options of the coarse Gauss-Newton solve (default: the defaults, converge).
 
         Returns
         -------
@@ -284,8 +294,7 @@ class MultiresolutionReconstruction:
             initial_coarse = self.coarse_shapes[int(np.argmax(w))]
         t0 = time.perf_counter()
         coarse = reconstruct(self.coarse_target(w), self.coarse_topology, None, method="gn",
-                             context=self.coarse_context, initial_vertices=initial_coarse,
-                             **(coarse_options or {}))
+                             context=self.coarse_context, initial_vertices=initial_coarse, options=coarse_options)
         timings["coarse"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         ctx = self.fine_context
@@ -295,7 +304,7 @@ class MultiresolutionReconstruction:
         timings["reference_factorization"] = 0.0
         if fine_iterations and fine_solver == "exact":
             res = reconstruct(z, self.topology, None, method="gn", context=ctx, initial_vertices=X,
-                              max_iterations=int(fine_iterations), ftol=ftol)
+                              options=GaussNewtonOptions(max_iterations=int(fine_iterations), ftol=ftol))
             res.method = "multires"
             res.success = res.status >= 0
             hist, factorizations, pcg_its, status = res.energy_history, res.factorizations, res.pcg_iterations, \

@@ -44,7 +44,7 @@ def interpolation_matrix(coarsening, levels, max_row_entries=4):
         1) after each level: the recursive ring means spread over ~27 coarse
         vertices per row on a bar, which makes ``P^T A P`` dense; with 4 the
         Galerkin product and the coarse factorization are several times
-        cheaper (measured on an 11k bar).
+        cheaper.
 
     Returns
     -------

@@ -22,16 +22,18 @@ dispatches to
 
 Fast smoothing
 --------------
-The Blender operator's 'FAST' method is ``"hybrid"`` with ``hybrid_start="given"``
-and one smoothing iteration: :func:`lacore.shapes.interpolation.project_targets`
-gives every in-between the extrapolation through the frames before it
-(continuation along ``t``), so one Gauss-Newton step finishes a frame of a
-smooth motion (README "In-betweens of large meshes").  The least-squares start
+The preset :data:`~lacore.reconstruction.settings.FAST` (the default projection
+of ``lacore interpolate``, of :mod:`lacore.shapes.interpolation` and the Blender
+operators' 'FAST') is ``"hybrid"`` with ``hybrid_start="given"`` and one
+smoothing iteration, extended where a step does not agree with its quadratic
+model: :func:`lacore.shapes.interpolation.project_targets` gives every
+in-between the extrapolation through the frames before it (continuation along
+``t``), so one Gauss-Newton step finishes a frame of a smooth motion
+(``benchmarks/bench_continuation.py``).  The least-squares start
 (``hybrid_start="lsq"``) suits a single target with no neighbours: on long
-meshes errors of a tree walk accumulate along the tree (a 50k-vertex bar
-blended from a bend to a twist: edge lengths off by 160 % after the MST walk
-and still after three Gauss-Newton iterations), while the least-squares
-relaxation spreads them (1.4 %).
+meshes the errors of a tree walk accumulate along the tree, and a few
+Gauss-Newton iterations do not remove them, while the least-squares relaxation
+spreads them (``tests/test_hybrid.py``).
 
 Every method returns a :class:`ReconstructionResult` whose ``vertices`` lie in
 the frame of the reference mesh (the fixed face placed as the reference has it,
@@ -39,8 +41,12 @@ see :mod:`.context`) and whose ``energy`` is ``W[z*, Z(vertices)]`` under
 the chosen energy, so all methods are comparable.  Its ``success`` is decided
 the same way for every method by :mod:`.checks` (finite, no folded edge, and
 the target reproduced within ``LENGTH_RTOL`` / ``ANGLE_ATOL`` or a converged
-minimizer); ``failure`` names a failed check.  A ``"gn"`` run that stalls
-(status -1 or -3) is restarted once from the least-squares relaxation.
+minimizer); ``failure`` names a failed check.  Gauss-Newton (``"gn"``, and
+``"hybrid"`` from a given or tree start) checks its start
+(``start_check``, :mod:`.gauss_newton`): when its first damped step gets less
+than halfway, it continues from the least-squares relaxation if that is 1000
+times better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
+from the relaxation is restarted once from it.
 
 Reuse
 -----
@@ -58,16 +64,17 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..geometry.lengths_angles import DEGENERACY_RTOL, SAFE_EXPONENT, check_z, lengths_and_angles, safe_scale_exponent
+from ..geometry.lengths_angles import DEGENERACY_RTOL, check_z, lengths_and_angles
 from ..geometry.topology import MeshTopology, check_vertices
 from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
 from .context import ReconstructionContext, get_context
 from .frame_based import frame_based_reconstruction
-from .gauss_newton import gauss_newton_reconstruction
-from .least_squares import least_squares_reconstruction
+from .gauss_newton import SWITCH_NOTE, gauss_newton_reconstruction
+from .least_squares import least_squares_start
 from .result import STATUS_MESSAGES, GaussNewtonResult, ReconstructionResult
-from .settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, split_options
+from .settings import (SETTINGS_FIELDS, GaussNewtonOptions, HybridOptions, ReconstructionSettings, ReconstructionSetup,
+                       split_options)
 
 __all__ = [
     "reconstruct",
@@ -78,6 +85,7 @@ __all__ = [
     "ReconstructionSettings",
     "GaussNewtonOptions",
     "HybridOptions",
+    "ReconstructionSetup",
     "get_context",
     "METHODS",
     "STATUS_MESSAGES",
@@ -154,8 +162,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         Energy (``W_q`` (3.19) or ``W_TS`` (3.25), minimized by ``"gn"``/``"hybrid"``,
         reported by all methods), weights, bending weight, fixed face (also the
         root of the frame-based methods), ``fix_triangle_shape``, solver backend.
-        When ``context`` is given, the settings must match it (fields left at
-        their defaults are taken from the context).
+        When ``context`` is given, leave it out (the context's settings apply) or
+        give settings that match the context's (a ``None`` fixed face, solver or
+        ordering matches any).
     options : GaussNewtonOptions, optional
         Iteration and stopping options of ``"gn"`` and of the smoothing of ``"hybrid"``.
     hybrid : HybridOptions, optional
@@ -170,12 +179,14 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     context : ReconstructionContext, optional
         Shared set-up (weights, fixed face, pattern, symbolic factorization).
     **kwargs
-        The fields of the three objects as keywords, overriding them (the
-        historical signature): ``energy, weights, bending_weight, fixed_face,
-        fix_triangle_shape, solver``; ``max_iterations, ftol, gtol, xtol, atol,
+        Convenience: the fields of the three objects as keywords, overriding
+        them (:func:`~lacore.reconstruction.settings.split_options`):
+        ``energy, weights, bending_weight, fixed_face, fix_triangle_shape,
+        solver, ordering``; ``max_iterations, ftol, gtol, xtol, atol,
         reuse_factorization, pcg_rtol, pcg_maxiter, reuse_near_convergence,
-        geodesic_acceleration``; ``hybrid_start, hybrid_kind, smoothing_iterations``.
-        See :mod:`lacore.reconstruction.settings` for their meaning and defaults.
+        geodesic_acceleration, newton, start_check, c1, max_backtracks``; ``hybrid_start,
+        hybrid_kind, smoothing_iterations, extend_smoothing``.  See
+        :mod:`lacore.reconstruction.settings` for their meaning and defaults.
 
     Returns
     -------
@@ -198,42 +209,68 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
 
     Notes
     -----
-    Reference coordinates of magnitude outside ``2^-200 .. 2^200`` (about
-    1e-60 .. 1e60) are scaled internally by an exact power of two and the
-    output scaled back (a note says so).
+    Reference coordinates of magnitude outside ``2^-100 .. 2^100`` (about
+    1e-30 .. 1e30) are computed in units of an exact power of two by the
+    context (:mod:`.context`, "Units"); vertices and energies are in the input's
+    units, and a note says so.
 
     Frame-based methods need the triangle inequality only where they walk;
     they treat violating faces as in Algorithm 2 (see
     :mod:`.frame_based`).  ``"gn"`` with ``W_q`` accepts any positive lengths
     (best effort: the energy is defined for every target, cf. Figure 3.3).
+
+    Examples
+    --------
+    The lengths and angles of a bent bar give the bent bar back, in the frame of the reference:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import reconstruct
+    >>> from lacore.geometry.rigid import rigid_rms
+    >>> bent = bar_pose(X, 0.5, 0.0)
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X)
+    >>> res.success, res.method, res.energy_name
+    (True, 'gn', 'quadratic')
+    >>> bool(rigid_rms(res.vertices, bent) < 1e-9)
+    True
+
+    Settings objects (or the same names as keywords) choose the energy and the solver:
+
+    >>> from lacore import GaussNewtonOptions, ReconstructionSettings
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X, settings=ReconstructionSettings(energy="shells"),
+    ...                   options=GaussNewtonOptions(max_iterations=50))
+    >>> res.success, res.energy_name
+    (True, 'shells')
+    >>> res = reconstruct(lengths_and_angles(bent, topo), topo, X, method="lsq")
+    >>> res.success, res.status
+    (True, 5)
     """
     t_start = time.perf_counter()
     if not isinstance(topology, MeshTopology):
         raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
     if method not in METHODS:
         raise InputError(f"unknown reconstruction method {method!r}; use one of {', '.join(METHODS)}")
-    settings, options, hybrid, given = split_options(kwargs, settings, options, hybrid)
-    scaled = _rescaled(z_target, topology, reference_vertices, initial_vertices) if context is None else None
-    if scaled is not None:
-        k, z_s, X_s, X0_s = scaled
-        res = reconstruct(z_s, topology, X_s, method, settings=settings, options=options, hybrid=hybrid,
-                          initial_vertices=X0_s, tree=tree)
-        return replace(res, vertices=np.ldexp(res.vertices, k),
-                       notes=res.notes + [f"coordinates of magnitude 2^{k} are outside the safe range "
-                                          f"2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: reconstructed scaled by 2^{-k} "
-                                          "(exact), the output scaled back; energies are the scaled problem's"])
+    # what the caller gave ("not given": settings None, a keyword absent); a settings object gives every field
+    given = SETTINGS_FIELDS if settings is not None else SETTINGS_FIELDS & set(kwargs)
+    settings, options, hybrid = split_options(kwargs, settings, options, hybrid)
     if context is None:
         context = get_context(topology, reference_vertices, settings)
     else:
         _check_context(context, topology, reference_vertices, settings, given)
     z, notes = _check_target(z_target, topology, method, context.energy_name)
+    if context.units_note:
+        notes.append(context.units_note)
     if initial_vertices is not None:
         initial_vertices = check_vertices(initial_vertices, topology.n_vertices, name="initial vertices")
 
     if method == "gn":
         res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
-                                          options=options, started=t_start)  # checked there
-        if res.status in _STALLED and not res.success:
+                                          options=options, started=t_start,
+                                          start_check=options.start_check)  # checked there
+        if res.status in _STALLED and not res.success and not any(SWITCH_NOTE in n for n in res.notes):
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
@@ -245,11 +282,15 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
     if method == "hybrid":
         n = hybrid.smoothing_iterations
         name = "given" if given_start else (tree_kind(method, hybrid) or "lsq")
+        extend = hybrid.extend_smoothing
         res = gauss_newton_reconstruction(
-            z, topology, initial_vertices=X, context=context, options=replace(options, max_iterations=n),
-            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start,
-            success_status=(6, f"{n} smoothing iterations done"))
-        return replace(res, notes=notes)
+            z, topology, initial_vertices=X, context=context,
+            options=replace(options, max_iterations=max(n, options.max_iterations) if extend else n),
+            method_name=f"hybrid-{name}", extra_timings=direct, started=t_start, budget=n, extend_budget=extend,
+            success_status=(6, f"{n} smoothing iterations done" + (" (until a step agreed with its model)"
+                                                                    if extend else "")),
+            start_check=options.start_check and name != "lsq")
+        return replace(res, notes=notes + res.notes)
     energy_value = context.energy(z, X)
     res = ReconstructionResult(vertices=X, success=True, status=5, message=STATUS_MESSAGES[5], method=method,
                                energy=energy_value, energy_name=context.energy_name, energy_history=[energy_value],
@@ -262,14 +303,13 @@ def _direct(z, topology, context, kind, tree=None):
     """Frame-based (``kind`` a tree kind) or least-squares (``kind=None``) vertices in the context's frame."""
     t0 = time.perf_counter()
     if kind is None:
-        X = least_squares_reconstruction(z, topology, root_face=context.fixed_faces,
-                                         reference_vertices=context.reference_vertices)
-    else:
-        X = frame_based_reconstruction(z, topology, tree=tree, kind=kind, root_face=context.fixed_faces,
-                                       reference_vertices=context.reference_vertices)
-    # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
-    # inequality there) keeps the method's placement
-    X = context.align(X, keep_degenerate=True)
+        X = least_squares_start(z, topology, context)
+    else:  # in the context's units (exact; the walk multiplies lengths)
+        X = frame_based_reconstruction(context.internal_z(z), topology, tree=tree, kind=kind,
+                                       root_face=context.fixed_faces, reference_vertices=context.internal_reference)
+        # the fixed face placed exactly as for Gauss-Newton; a degenerate one (the target violates the triangle
+        # inequality there) keeps the method's placement
+        X = context.align(context.external_vertices(X), keep_degenerate=True)
     return X, {"frame_based" if kind is not None else "least_squares": time.perf_counter() - t0}
 
 
@@ -300,28 +340,9 @@ def _restart_from_least_squares(first, z, topology, context, options, t_start):
                    notes=best.notes + [note + ("" if best is second else ", which was worse")])
 
 
-def _rescaled(z_target, topology, reference_vertices, initial_vertices):
-    """``(k, z, X_ref, X_init)`` scaled by ``2^-k`` into the safe range, or None when already inside it.
-
-    Products of three coordinates (normals times edges, triangle frames) overflow
-    or become subnormal far outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``; a
-    power-of-two scaling is exact, angles are invariant and lengths scale.
-    """
-    if reference_vertices is None:
-        return None
-    X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    k = safe_scale_exponent(X)
-    if not k:
-        return None
-    z = np.array(z_target, dtype=float)
-    if z.shape == (2 * topology.n_edges,):
-        z[: topology.n_edges] = np.ldexp(z[: topology.n_edges], -k)
-    X0 = None if initial_vertices is None else np.ldexp(np.asarray(initial_vertices, float), -k)
-    return k, z, np.ldexp(X, -k), X0
-
-
 def _check_context(context, topology, reference_vertices, settings, given):
-    """InputError unless the explicitly given settings (names in ``given``) match the context's."""
+    """InputError unless the given settings (names in ``given``) match the context's; ``None`` matches any
+    fixed face, solver or ordering."""
     if context.topology is not topology:
         raise InputError("the context was made for another topology")
     if reference_vertices is not None:
@@ -329,14 +350,22 @@ def _check_context(context, topology, reference_vertices, settings, given):
         if not np.array_equal(X, context.reference_vertices):
             raise InputError("the context was made for other reference vertices")
     theirs = context.settings
-    for k in sorted(given - {"fixed_face", "solver"}):
+    for k in sorted(given - {"fixed_face", "solver", "ordering"}):
         if getattr(settings, k) != getattr(theirs, k):
             raise InputError(f"{k}={getattr(settings, k)!r} differs from the context's {getattr(theirs, k)!r}")
+    if "ordering" in given and settings.ordering is not None and settings.ordering != theirs.ordering:
+        raise InputError(f"ordering={settings.ordering!r} differs from the context's {theirs.ordering!r}")
     if "solver" in given and settings.solver is not None and settings.solver != context.backend:
         raise InputError(f"solver={settings.solver!r} differs from the context's {context.backend!r}")
     ff = settings.fixed_face
     if "fixed_face" in given and ff is not None and not np.all(np.isin(ff, context.fixed_faces)):
         raise InputError(f"fixed_face {list(ff)!r} differs from the context's {context.fixed_faces.tolist()}")
+
+
+def _rms(x):
+    """Root mean square of ``x >= 0`` without overflow or underflow of the squares (any scale)."""
+    m = float(x.max()) if x.size else 0.0
+    return m * float(np.sqrt(np.mean((x / m) ** 2))) if m > 0 and np.isfinite(m) else m
 
 
 def reconstruction_errors(vertices, z_target, topology):
@@ -356,6 +385,22 @@ def reconstruction_errors(vertices, z_target, topology):
         over the bounding-box diagonal of ``vertices``), ``max_angle_error``
         (radians, interior edges; boundary angles are 0 by convention),
         ``rms_length_error``, ``rms_angle_error``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology, lengths_and_angles
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import reconstruction_errors
+    >>> z = lengths_and_angles(X, topo)
+    >>> errors = reconstruction_errors(X, z, topo)
+    >>> errors["max_length_error"], errors["max_angle_error"]
+    (0.0, 0.0)
+    >>> errors = reconstruction_errors(1.01 * X, z, topo)
+    >>> round(errors["max_relative_length_error"], 6), round(errors["max_angle_error"], 6)
+    (0.01, 0.0)
     """
     X = check_vertices(vertices, topology.n_vertices)
     z_target = check_z(z_target, topology, name="target z")
@@ -364,13 +409,15 @@ def reconstruction_errors(vertices, z_target, topology):
     dl = np.abs(z[:E] - z_target[:E])
     ie = topology.interior_edges
     da = np.abs(z[E:][ie] - z_target[E:][ie])
-    size = float(np.linalg.norm(X.max(0) - X.min(0))) or 1.0
+    extent = X.max(0) - X.min(0)
+    m = float(np.max(np.abs(extent)))
+    size = m * float(np.linalg.norm(extent / m)) if m > 0 else 1.0  # no overflow of the squares at any scale
     return {
         "max_length_error": float(dl.max()),
         "max_relative_length_error": float(np.max(dl / z_target[:E])),
         "length_error_per_size": float(dl.max() / size),
         "max_angle_error": float(da.max()) if da.size else 0.0,
-        "rms_length_error": float(np.sqrt(np.mean(dl**2))),
+        "rms_length_error": _rms(dl),
         "rms_angle_error": float(np.sqrt(np.mean(da**2))) if da.size else 0.0,
     }
 

@@ -7,7 +7,7 @@ lower-triangular CSC value array are computed once per topology
 (:func:`gauss_newton_pattern`).  An iteration forms the outer products
 component-major (contiguous over all edges, :func:`upper_outer`) and sums them
 with one :func:`numpy.bincount`, directly in the factorization's value order
-(timings: ``benchmarks/bench_gauss_newton.py``, README "Reconstruction").
+(timed by ``benchmarks/bench_gauss_newton.py``).
 
 The fixed coordinates keep their rows and columns in the pattern (set to the
 identity by the Gauss-Newton loop), so the pattern and its symbolic Cholesky

@@ -37,10 +37,22 @@ so for them success means condition 3's first branch: the target is reproduced.
 On a non-admissible target they report ``success=False`` ("not reproduced"),
 with the errors in the message; use ``"gn"`` or ``"hybrid"`` to project it.
 
-The tolerances are about 1e6 times the errors measured on admissible targets
-(the finger: <= 1e-11 for every method) and still resolve a thin strip's
-dihedral angles of 1e-3 rad; thin triangles (aspect 1e4) lose about
-``aspect * eps`` in the frame-based walks (measured 7e-7).
+Integrability of the target
+---------------------------
+A result that passes without reproducing its target is named by what the
+target is (:func:`lacore.integrability.check_integrability`, all of Theorem 3.2:
+every vertex, hole and handle): for a target that is not integrable it is
+**the closest mesh** (``checks["outcome"] == "closest"``, and the message says
+why the target is no mesh's lengths and angles), for an integrable one a
+**minimum** of the energy that does not reproduce it (``"minimum"``).  A direct
+method that fails on a non-integrable target says where the target does not
+close (a frame-based walk leaves a seam there).  The target is checked only
+when it is not reproduced (a reproduced target is integrable within the
+tolerances): ``checks["target_integrable"]`` is None, True or False.
+
+The tolerances lie far above the round-off of every method on admissible
+targets and still resolve a thin strip's dihedral angles of 1e-3 rad; thin
+triangles (aspect ``a``) lose about ``a * eps`` in the frame-based walks.
 """
 
 from dataclasses import dataclass, replace
@@ -49,6 +61,7 @@ import numpy as np
 
 from ..errors import format_indices
 from ..geometry.lengths_angles import lengths_and_angles
+from ..integrability.checks import check_integrability
 
 __all__ = ["LENGTH_RTOL", "ANGLE_ATOL", "FOLD_ANGLE", "CONVERGED_STATUSES", "ReconstructionCheck",
            "check_reconstruction", "apply_checks"]
@@ -87,6 +100,14 @@ class ReconstructionCheck:
         Edges farther than :data:`FOLD_ANGLE` from their target angle.
     folded_faces : (m,) ndarray of int
         Faces incident to a folded edge.
+    target_integrable : bool or None
+        Whether the target satisfies all of Theorem 3.2 (checked when it is not
+        reproduced; None when it is).
+    target : str
+        :meth:`~lacore.integrability.checks.IntegrabilityCheck.describe` of the target (when checked).
+    outcome : str
+        ``"reproduced"``, ``"closest"`` (passed without reproducing a target that is not integrable: the
+        closest mesh), ``"minimum"`` (passed without reproducing an integrable target) or ``"failed"``.
     """
 
     passed: bool
@@ -97,6 +118,9 @@ class ReconstructionCheck:
     max_angle_error: float
     folded_edges: np.ndarray
     folded_faces: np.ndarray
+    target_integrable: object = None
+    target: str = ""
+    outcome: str = ""
 
     def summary(self):
         """JSON-friendly dict (counts instead of index arrays)."""
@@ -106,7 +130,8 @@ class ReconstructionCheck:
                 "max_relative_length_error": num(self.max_relative_length_error),
                 "max_angle_error": num(self.max_angle_error), "folded_edges": int(self.folded_edges.size),
                 "folded_faces": int(self.folded_faces.size),
-                "length_rtol": LENGTH_RTOL, "angle_atol": ANGLE_ATOL}
+                "length_rtol": LENGTH_RTOL, "angle_atol": ANGLE_ATOL, "outcome": self.outcome,
+                "target_integrable": self.target_integrable, "target": self.target}
 
 
 def check_reconstruction(vertices, z_target, topology, *, minimizer=False, converged=False,
@@ -137,7 +162,7 @@ def check_reconstruction(vertices, z_target, topology, *, minimizer=False, conve
     if not np.all(np.isfinite(X)):
         bad = np.flatnonzero(~np.all(np.isfinite(X), axis=1))
         return ReconstructionCheck(False, "non_finite", f"non-finite coordinates at vertices {format_indices(bad)}",
-                                   False, np.inf, np.inf, empty, empty)
+                                   False, np.inf, np.inf, empty, empty, outcome="failed")
     z = lengths_and_angles(X, topology, check=False)
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = np.abs(z[:E] - z_target[:E]) / z_target[:E]
@@ -147,36 +172,58 @@ def check_reconstruction(vertices, z_target, topology, *, minimizer=False, conve
     max_ang = float(np.max(dang)) if dang.size else 0.0
     if not (np.isfinite(max_rel) and np.isfinite(max_ang)):
         return ReconstructionCheck(False, "non_finite", "the output has degenerate triangles (undefined angles)",
-                                   False, max_rel, max_ang, empty, empty)
+                                   False, max_rel, max_ang, empty, empty, outcome="failed")
     folded_edges = np.asarray(ie)[dang > FOLD_ANGLE]
     folded_faces = np.unique(topology.edge_faces[folded_edges].ravel()) if folded_edges.size else empty
     folded_faces = folded_faces[folded_faces >= 0]
     reproduced = max_rel <= length_rtol and max_ang <= angle_atol
     errors = f"max relative length error {max_rel:.3g}, max angle error {max_ang:.3g} rad"
+    target, why = {}, ""
+    if not reproduced:
+        tc = check_integrability(z_target, topology)
+        target = {"target_integrable": tc.integrable, "target": tc.describe()}
+        if not tc.integrable:
+            why = f"; the target is {target['target']} (no mesh has these lengths and angles)"
     if folded_edges.size:
         return ReconstructionCheck(
             False, "folded", f"{folded_faces.size} folded faces (edges {format_indices(folded_edges)} more than "
-            f"pi/2 off their target angle); {errors}", reproduced, max_rel, max_ang, folded_edges, folded_faces)
-    if reproduced or (minimizer and converged):
-        return ReconstructionCheck(True, "", "", reproduced, max_rel, max_ang, empty, empty)
+            f"pi/2 off their target angle); {errors}{why}", reproduced, max_rel, max_ang, folded_edges, folded_faces,
+            outcome="failed", **target)
+    if reproduced:
+        return ReconstructionCheck(True, "", "", True, max_rel, max_ang, empty, empty, outcome="reproduced")
+    if minimizer and converged:
+        outcome = "minimum" if target["target_integrable"] else "closest"
+        return ReconstructionCheck(True, "", "", False, max_rel, max_ang, empty, empty, outcome=outcome, **target)
     if minimizer:
         return ReconstructionCheck(
-            False, "not_converged", f"neither converged nor reproduced the target ({errors})", False, max_rel,
-            max_ang, empty, empty)
+            False, "not_converged", f"neither converged nor reproduced the target ({errors}){why}", False, max_rel,
+            max_ang, empty, empty, outcome="failed", **target)
     return ReconstructionCheck(
         False, "not_reproduced", f"the target is not reproduced ({errors} > tolerances {length_rtol:g}, "
-        f"{angle_atol:g}); a non-admissible target needs method 'gn' or 'hybrid'", False, max_rel, max_ang,
-        empty, empty)
+        f"{angle_atol:g}){why}; a non-admissible target needs method 'gn' or 'hybrid' (the closest mesh)", False,
+        max_rel, max_ang, empty, empty, outcome="failed", **target)
 
 
 def apply_checks(result, z_target, topology, minimizer):
     """``result`` (a :class:`~lacore.reconstruction.result.ReconstructionResult`) with the checks applied.
 
-    ``success``, ``failure``, ``checks`` and -- on failure -- ``message`` (the
-    solver's reason followed by the failed check) are set; ``status`` keeps
-    the solver's stopping reason.
+    ``success``, ``failure``, ``checks`` and ``message`` are set: on failure the
+    solver's reason followed by the failed check; for the closest mesh to a
+    target that is not integrable the solver's reason followed by
+    ``"; the closest mesh: the target is not integrable ..."``.  ``status``
+    keeps the solver's stopping reason.
     """
     check = check_reconstruction(result.vertices, z_target, topology, minimizer=minimizer,
                                  converged=result.status in CONVERGED_STATUSES)
-    message = result.message if check.passed else f"{result.message}; check failed: {check.message}"
+    if not check.passed:
+        message = f"{result.message}; check failed: {check.message}"
+    elif check.outcome == "closest" and result.status == 6:
+        message = (f"{result.message}; an approximation of the closest mesh ({result.iterations} smoothing "
+                   f"iterations): the target is {check.target}")
+    elif check.outcome == "closest":
+        message = f"{result.message}; the closest mesh: the target is {check.target}"
+    elif check.outcome == "minimum":
+        message = f"{result.message}; a minimum of the energy that does not reproduce the (integrable) target"
+    else:
+        message = result.message
     return replace(result, success=check.passed, failure=check.failure, message=message, checks=check.summary())

@@ -25,6 +25,23 @@ reference mesh (:func:`lacore.reconstruction.spanning_trees.default_root_faces`)
 the same face that roots the frame-based reconstructions; choosing it on the
 reference (not on ``z*``) keeps all frames of an animation in one placement.
 
+Units
+-----
+A context computes in units of ``2^k`` of the caller's length unit
+(:attr:`ReconstructionContext.scale_exponent`, ``k = 0`` unless the reference's
+coordinates lie outside ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT``, about
+1e-30 .. 1e30, :func:`lacore.geometry.lengths_angles.safe_scale_exponent`):
+canonical coordinates, the objective's target lengths and the Gauss-Newton
+matrix are those of the mesh scaled by ``2^-k``, which is exact.  Everything
+the context takes and returns -- vertices, targets, energies -- is in the
+caller's units, so a mesh and its scaled copy give the same result up to the
+scale on every path that uses a context (:func:`lacore.reconstruction.reconstruct`,
+:func:`lacore.shapes.interpolation.interpolate`, the CLI, the add-on).  The
+weights (3.20) and ``W_q`` with them are scale-free; for the weights (3.21) and
+``"uniform"`` and the thin shells energy, whose membrane term has units of
+length squared, the context multiplies that term by ``4^k`` so that the energy
+(and its minimizer) is the one in the caller's units.
+
 Factorization
 -------------
 The symbolic Cholesky factorization of the Gauss-Newton pattern
@@ -39,16 +56,21 @@ from collections import OrderedDict
 
 import numpy as np
 
-from ..errors import MeshError, format_indices
-from ..geometry.lengths_angles import lengths_and_angles
+from ..errors import InputError, MeshError, format_indices
+from ..geometry.lengths_angles import SAFE_EXPONENT, lengths_and_angles, safe_scale_exponent
 from ..linalg.sparse_cholesky import SparseCholesky, default_backend
 from ..geometry.topology import check_vertices
 from .assembly import dof_ordering, gauss_newton_pattern
 from .objectives import QuadraticObjective, ShellsObjective, reference_weights
-from .settings import make_settings
+from .settings import split_options
 from .spanning_trees import default_root_faces
 
 __all__ = ["ReconstructionContext", "get_context", "triangle_frame", "CONTEXTS_PER_TOPOLOGY"]
+
+#: A unit-dependent energy in a scaled context is multiplied by ``4^k`` (module docstring, "Units"): at most
+#: ``2^1000``, leaving float64's exponent range (``2^+-1022``) room for the energy's own magnitude.
+_MAX_ENERGY_EXPONENT = 1000
+
 
 def triangle_frame(vertices, face):
     """3-2-1 frame of a triangle: origin ``X_a`` and rotation ``Q`` (rows: x, y, z axes).
@@ -145,29 +167,39 @@ class ReconstructionContext:
         For reference vertices that do not fit the topology, a bad or degenerate
         fixed face.
     InputError
-        Invalid settings (unknown energy, weights or solver, negative bending weight).
+        Invalid settings (unknown energy, weights or solver, negative bending weight);
+        a unit-dependent energy (thin shells, weights (3.21) or uniform) at coordinates
+        so large or small that its value does not fit float64 (module docstring, "Units").
     """
 
     def __init__(self, topology, reference_vertices, settings=None, **kwargs):
-        settings = make_settings(settings, caller="ReconstructionContext", **kwargs)
+        settings = split_options(kwargs, settings, caller="ReconstructionContext", accept=("settings",)).settings
         self.settings = settings
         backend = default_backend() if settings.solver is None else settings.solver
         self.topology = topology
         X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices").copy()
         X.setflags(write=False)
         self.reference_vertices = X
+        #: the context computes in units of ``2^scale_exponent`` (module docstring, "Units")
+        self.scale_exponent = safe_scale_exponent(X)
+        Xi = self.internal_vertices(X)
+        Xi.setflags(write=False)
+        #: the reference in the context's units
+        self.internal_reference = Xi
+        self._check_units()
         self.backend = backend
-        self.fixed_faces = _fixed_faces(topology, X, settings.fixed_face)
+        self.fixed_faces = _fixed_faces(topology, Xi, settings.fixed_face)
         self.fixed_face = int(self.fixed_faces[0])
         self._face_vertices = topology.faces[self.fixed_faces]  # (C, 3)
-        frames = [triangle_frame(X, f) for f in self._face_vertices]
+        frames = [triangle_frame(Xi, f) for f in self._face_vertices]
         self._origins = np.array([o for o, _ in frames])
         self._Qs = np.array([Q for _, Q in frames])
         labels = topology.face_components()[1]
         self._vertex_component = np.zeros(topology.n_vertices, np.int64)
         self._vertex_component[topology.faces.ravel()] = np.repeat(labels, 3)
         self.fixed_dofs = _gauge_dofs(self._face_vertices, self.fix_triangle_shape)
-        self.size = float(np.linalg.norm(X.max(0) - X.min(0))) or 1.0
+        #: bounding-box diagonal of the reference, in the context's units
+        self.size = float(np.linalg.norm(Xi.max(0) - Xi.min(0))) or 1.0
         self._residual_weights = None
         self._solver = None
         self._buffer = None
@@ -175,6 +207,48 @@ class ReconstructionContext:
         #: the ordering method given to CHOLMOD ("metis" / "geometric"; None until :attr:`solver` is built,
         #: and with the SciPy backend, whose SuperLU orders by itself)
         self.ordering = None
+
+    # units
+    def _check_units(self):
+        """InputError when the energy's membrane factor ``4^k`` (module docstring) does not fit float64."""
+        k = self.scale_exponent
+        unit_dependent = self.energy_name == "shells" or self.weights_kind != "frohlich_botsch"
+        if unit_dependent and abs(2 * k) > _MAX_ENERGY_EXPONENT:
+            what = ("the thin shells energy" if self.energy_name == "shells"
+                    else f"W_q with weights {self.weights_kind!r}")
+            raise InputError(f"{what} depends on the unit of length (its membrane term is in length units "
+                             f"squared), and at coordinates of magnitude 2^{k} that term does not fit a float64 "
+                             "number: scale the mesh (e.g. to metres), or use energy 'quadratic' with weights "
+                             "'frohlich_botsch', which are scale-free")
+
+    def internal_vertices(self, vertices):
+        """Vertices in the context's units (``X 2^-k``, exact; the array itself when ``k = 0``)."""
+        X = np.asarray(vertices, float)
+        return np.ldexp(X, -self.scale_exponent) if self.scale_exponent else X
+
+    def internal_z(self, z):
+        """Lengths and angles in the context's units (lengths ``2^-k``, exact; ``z`` itself when ``k = 0``)."""
+        z = np.asarray(z, float)
+        if not self.scale_exponent:
+            return z
+        out = z.copy()
+        E = self.topology.n_edges
+        out[:E] = np.ldexp(z[:E], -self.scale_exponent)
+        return out
+
+    def external_vertices(self, vertices):
+        """Vertices in the context's units -> the caller's units (``X 2^k``)."""
+        X = np.asarray(vertices, float)
+        return np.ldexp(X, self.scale_exponent) if self.scale_exponent else X
+
+    @property
+    def units_note(self):
+        """A note for results computed in scaled units, or None when ``k = 0``."""
+        k = self.scale_exponent
+        if not k:
+            return None
+        return (f"coordinates of magnitude 2^{k} are outside 2^-{SAFE_EXPONENT}..2^{SAFE_EXPONENT}: computed in "
+                f"units of 2^{k} (an exact scaling); vertices and energies are in the input's units")
 
     # the settings, under the names used throughout lacore
     @property
@@ -206,7 +280,12 @@ class ReconstructionContext:
     def residual_weights(self):
         """``(2E,)`` weights of ``W_q`` (lengths: ``w_s``, angles: ``eta w_b``)."""
         if self._residual_weights is None:
-            w = reference_weights(self.reference_vertices, self.topology, self.weights_kind, self.bending_weight)
+            w = reference_weights(self.internal_reference, self.topology, self.weights_kind, self.bending_weight)
+            if self.scale_exponent and self.weights_kind != "frohlich_botsch":
+                # (3.21) and uniform length weights are scale-invariant; the length residuals in the context's
+                # units are 2^-k times the caller's: 4^k keeps the energy (units, module docstring)
+                E = self.topology.n_edges
+                w[:E] = np.ldexp(w[:E], 2 * self.scale_exponent)
             w.setflags(write=False)
             self._residual_weights = w
         return self._residual_weights
@@ -218,7 +297,7 @@ class ReconstructionContext:
             pat = self.pattern
             ordering = None
             if self.backend == "cholmod":
-                ordering, self.ordering = dof_ordering(self.topology, pat, self.reference_vertices,
+                ordering, self.ordering = dof_ordering(self.topology, pat, self.internal_reference,
                                                        self.settings.ordering)
             s = SparseCholesky(pat["matrix"], backend=self.backend, ordering=ordering)
             if not (np.array_equal(s.indptr, pat["indptr"]) and np.array_equal(s.indices, pat["indices"])):
@@ -250,9 +329,10 @@ class ReconstructionContext:
     def to_canonical(self, vertices):
         """Rigidly move every component so that its fixed face sits in the 3-2-1 position.
 
-        Returns ``(V, 3)`` coordinates whose fixed coordinates are exactly 0.
+        Takes vertices in the caller's units; returns ``(V, 3)`` coordinates in the
+        context's units whose fixed coordinates are exactly 0.
         """
-        X = np.asarray(vertices, float)
+        X = self.internal_vertices(vertices)
         frames = [triangle_frame(X, f) for f in self._face_vertices]
         origins = np.array([o for o, _ in frames])
         Qs = np.array([Q for _, Q in frames])
@@ -265,9 +345,9 @@ class ReconstructionContext:
         return Xc
 
     def from_canonical(self, Xc):
-        """Canonical coordinates -> the reference mesh's frame (see module docstring)."""
+        """Canonical coordinates -> the reference mesh's frame, in the caller's units (see module docstring)."""
         comp = self._vertex_component
-        return np.einsum("vji,vj->vi", self._Qs[comp], Xc) + self._origins[comp]
+        return self.external_vertices(np.einsum("vji,vj->vi", self._Qs[comp], Xc) + self._origins[comp])
 
     def align(self, vertices, keep_degenerate=False):
         """Rigidly move ``vertices`` (per component) into the output frame of this context.
@@ -284,16 +364,23 @@ class ReconstructionContext:
             return np.asarray(vertices, float)
 
     def objective(self, z_target):
-        """The energy ``X -> W[z*, Z(X)]`` for a target (``z*`` already validated)."""
+        """The energy ``X -> W[z*, Z(X)]`` of canonical coordinates for a target (``z*`` already validated).
+
+        ``z_target`` is in the caller's units; the objective's ``z_target`` and
+        coordinates are in the context's, its values in the caller's.
+        """
+        z = self.internal_z(z_target)
         if self.energy_name == "quadratic":
             if self._buffer is None:  # outer-product values, reused by all targets of this context
                 self._buffer = np.empty(len(self.pattern["slots"]))
-            return QuadraticObjective(z_target, self.residual_weights, self.topology, self.pattern, self._buffer)
-        return ShellsObjective(z_target, self.topology, self.bending_weight, self.solver, self.pattern)
+            return QuadraticObjective(z, self.residual_weights, self.topology, self.pattern, self._buffer)
+        k = self.scale_exponent  # W_TS = 4^k (membrane + eta 4^-k bending) in the context's units
+        return ShellsObjective(z, self.topology, np.ldexp(self.bending_weight, -2 * k), self.solver, self.pattern,
+                               value_exponent=2 * k)
 
     def energy(self, z_target, vertices):
-        """``W[z*, Z(vertices)]`` under this context's energy."""
-        z = lengths_and_angles(vertices, self.topology)
+        """``W[z*, Z(vertices)]`` under this context's energy (both in the caller's units)."""
+        z = lengths_and_angles(self.internal_vertices(vertices), self.topology)
         return self.objective(np.asarray(z_target, float)).value_z(z)
 
 
@@ -316,9 +403,25 @@ def get_context(topology, reference_vertices, settings=None, **kwargs):
     settings : ReconstructionSettings, optional
     **kwargs
         Fields of :class:`ReconstructionSettings` (override ``settings``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import lengths_and_angles, reconstruct
+    >>> from lacore.reconstruction import get_context
+    >>> context = get_context(topo, X)                # cached per topology, reference and settings
+    >>> context is get_context(topo, X)
+    True
+    >>> res = reconstruct(lengths_and_angles(bar_pose(X, 0.3, 0.0), topo), topo, X, context=context)
+    >>> res.success, res.fixed_face == context.fixed_face
+    (True, True)
     """
     X = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    settings = make_settings(settings, caller="get_context", **kwargs)
+    settings = split_options(kwargs, settings, caller="get_context", accept=("settings",)).settings
     cache = topology.cache.get((__name__, "contexts"), OrderedDict)
     key = (X.tobytes(), settings)
     ctx = cache.get(key)

@@ -54,7 +54,7 @@ import weakref
 import numpy as np
 
 from ..errors import InputError, MeshError, format_indices
-from ..integrability.local import standard_frames
+from ..integrability.transitions import standard_frames
 from ..geometry.lengths_angles import check_z
 from ..geometry.topology import check_vertices
 from .spanning_trees import DualSpanningTree, half_theta, stable_order, default_root_faces, dual_spanning_tree

@@ -24,8 +24,7 @@ gauge in :mod:`~lacore.reconstruction.context`, the objectives in
 :mod:`~lacore.reconstruction.assembly`, the line search in
 :mod:`~lacore.reconstruction.line_search`, PCG in :mod:`~lacore.reconstruction.pcg`,
 the options in :class:`~lacore.reconstruction.settings.GaussNewtonOptions`.
-Timings and iteration counts of the rules below: ``benchmarks/bench_gauss_newton.py``
-and the README.
+``benchmarks/bench_gauss_newton.py`` measures the rules below.
 
 Iteration
 ---------
@@ -60,13 +59,13 @@ Iteration
   straight line overshoots.  With the acceleration on, no trial step (of
   either path) may fold an edge -- its dihedral angle more than ``pi / 2`` off
   the target -- that is not folded at the iteration's start (unless only such
-  a step decreases the energy): on a strongly extrapolated finger target the
-  parabola otherwise led into a folded local minimum.
+  a step decreases the energy): on strongly extrapolated targets the parabola
+  can otherwise lead into a folded local minimum.
 * Newton steps (``newton``, default ``"auto"``, ``W_q`` only): Gauss-Newton
   drops the second-order term ``2 sum_j w_j r_j d2 Z_j`` of the Hessian, which
   is large when the target is far from admissible (a blend of a bend and a
-  twist): its steps then overshoot (the line search cuts them) or converge
-  linearly and slowly, and on a 50k-vertex bar blend it stalls.  After the
+  twist): its steps then overshoot (the line search cuts them), converge
+  linearly and slowly, or stall.  After the
   first cut step, or after two full steps in a row whose energy decreases
   shrank by less than a factor of 10, the steps use the full Hessian (per-edge blocks of
   :mod:`lacore.geometry.hessians`, the same sparsity pattern and symbolic
@@ -89,14 +88,44 @@ Iteration
   ``|g|_inf * size <= gtol * W`` (3); step ``|t d|_inf <= xtol * size`` (4);
   ``size`` = bounding-box diagonal of the reference mesh.  The iteration cap
   gives status 0, a line search without decrease status -1, ten iterations
-  with partial steps (``t < 1``) that together decreased the energy by less
-  than 1 % status -3 (a stall: on
+  with damped steps (partial, ``t < 1``, or solved with a diagonal shift) that
+  together decreased the energy by less than 1 % status -3 (a stall: on
   a flat strip of triangles of aspect 1e4 the Gauss-Newton matrix needs a
   diagonal shift far above its bending block, and each step moves almost
   nothing).  Only a full step (``t = 1``) may stop by rule 2's decrease or
   rule 4: a line search that only finds tiny steps is stalling, not converged.
   Statuses 1-4 are "converged"; whether the result is a success is decided by
   :mod:`lacore.reconstruction.checks`.
+* Budget (``budget``, the hybrid method's smoothing iterations): the loop stops
+  with status 6 after that many iterations; with ``extend_budget``
+  (:attr:`~lacore.reconstruction.settings.HybridOptions.extend_smoothing`, the
+  preset Fast) only if every step agreed with its quadratic model (full,
+  unshifted, energy decrease within 5 % of the prediction), else it iterates on
+  under the rules above: one step per in-between of a smooth motion, Gauss-Newton
+  where the continuation is not enough.
+* Start check (``alternative_start``; :func:`gauss_newton_reconstruction` with
+  ``start_check``, on by default in :func:`lacore.reconstruction.reconstruct`):
+  when the first damped step (partial or shifted) removes less than half of
+  the energy, or the line search finds no decrease, the start is far from the
+  target in a way the linearization does not describe, and another start is
+  computed once -- the least-squares relaxation of the frame-based method,
+  which integrates the target's rotations directly -- and the iteration
+  continues from it when its energy is below 1e-3 of the energy reached (the
+  iteration budgets counted from there).  (A full step that removes little is
+  close to a minimum of a non-admissible target: no check.)  Rolling a flat plate or
+  strip is such a way: the bending is isometric, but a Gauss-Newton step is
+  linear in the positions, so it stretches the edges to second order, the
+  stiff membrane term cuts the step to a sliver (the plate4SD rolled up: 268
+  iterations from the flat plate, 2 from the relaxation); on triangles of
+  aspect 1e4 the Gauss-Newton matrix is moreover numerically singular
+  (condition ~ aspect^4 with the weights (3.20): the bending of the short
+  edges is ~1e-20 of the largest entry, below its round-off), so the diagonal
+  shift of the factorization suppresses exactly the bending that is needed
+  and nothing moves.  The relaxation of such a (nearly) admissible target is
+  exact to round-off; the 1e-3 keeps the given start for non-admissible
+  targets, whose relaxation may lie in a worse basin (an extrapolated finger:
+  5.7 against 26.7 after the first step, but Gauss-Newton from the reference
+  reaches 0.067 and from the relaxation stalls at 4.6).
 
 Angle residuals are not wrapped: ``theta`` lies in ``(-pi, pi]`` and a target
 angle near ``+-pi`` whose reconstruction crosses the branch cut is penalized by
@@ -108,17 +137,18 @@ from dataclasses import fields, replace
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError
 from ..geometry.topology import check_vertices
 from .assembly import gauss_newton_pattern
 from .checks import apply_checks
 from .context import ReconstructionContext, get_context, triangle_frame
+from .least_squares import least_squares_start
 from .line_search import armijo_line_search
 from .pcg import dot, preconditioned_cg
 from .result import STATUS_MESSAGES, GaussNewtonResult, IterativeResult, ReconstructionResult
-from .settings import GaussNewtonOptions, make_settings
+from .settings import SETTINGS_FIELDS, GaussNewtonOptions, split_options
 
 __all__ = [
     "ReconstructionContext",
@@ -131,6 +161,7 @@ __all__ = [
     "GaussNewtonOptions",
     "GaussNewtonResult",
     "GN_OPTIONS",
+    "SWITCH_NOTE",
 ]
 
 #: The defaults of :class:`GaussNewtonOptions` as a dict (derived from the dataclass, for code that wants a dict).
@@ -152,10 +183,18 @@ _MODEL_AGREEMENT = 0.05
 _NEAR_RTOL_MIN = 1e-12
 _NEAR_MAXITER = 8
 
-#: Stall: ``_STALL_WINDOW`` iterations, all with partial steps (``t < 1``), decreased the energy by less than
-#: ``_STALL_DECREASE`` of it (status -3).
+#: Stall: ``_STALL_WINDOW`` iterations, all with damped steps (partial, ``t < 1``, or solved with a diagonal
+#: shift), decreased the energy by less than ``_STALL_DECREASE`` of it (status -3).
 _STALL_WINDOW = 10
 _STALL_DECREASE = 0.01
+
+#: Start check (``alternative_start``): a first damped step that leaves more than this fraction of the energy makes the
+#: loop try the alternative start once ...
+_START_CHECK_FRACTION = 0.5
+#: ... and continue from it if its energy is below this fraction of the energy it is compared with.
+_START_SWITCH_RATIO = 1e-3
+#: The note of a run that continued from the least-squares relaxation (:func:`gauss_newton_reconstruction`).
+SWITCH_NOTE = "continued from the least-squares relaxation"
 
 #: ``newton="auto"``: Newton steps after a cut step or after two full steps in a row whose energy decreases have
 #: a ratio (later / earlier) of at least this (linear convergence of Gauss-Newton at large residuals).
@@ -187,6 +226,24 @@ class _State:
         self.newton_pause = 0     # ... except for this many steps after a Hessian that was not positive definite
         self.newton_steps = 0
         self.model_ratio = np.nan  # energy decrease of the last full step / the decrease its quadratic model predicted
+        self.damped = []          # per step: partial (t < 1) or solved with a diagonal shift
+        self.start = 0            # steps before this index (and their iterations) belong to an abandoned start
+        self.budget_from = 0
+        self.alternative = None   # energy of the alternative start once tried ...
+        self.switched = False     # ... and whether the iteration continued from it
+        self.checked_energy = np.nan  # the energy it was compared with, after this many iterations
+        self.checked_iteration = -1
+        self.agreed = True        # every step since the start agreed with its quadratic model (extend_budget)
+
+    def restart(self, X, newton):
+        """Continue from ``X`` as from a new start (counters and history kept)."""
+        self.X = X
+        self.own_factor, self.drift = False, np.inf
+        self.prev_energy = self.prev_decrease = np.inf
+        self.newton, self.newton_pause = newton, 0
+        self.model_ratio = np.nan
+        self.agreed = True
+        self.start, self.budget_from = len(self.steps), self.iterations
 
     def add_time(self, phase, t0):
         t1 = time.perf_counter()
@@ -292,7 +349,28 @@ def _search(state, objective, d, accel, energy, slope, matrix, options, fold_gua
     return t, X_new, E_new
 
 
-def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
+def _try_alternative(state, objective, alternative_start, energy, newton):
+    """The start check: continue from ``alternative_start()`` if its energy is far below ``energy``; True if so."""
+    t0 = time.perf_counter()
+    X = alternative_start()
+    state.timings["alternative_start"] = time.perf_counter() - t0
+    state.checked_energy, state.checked_iteration = float(energy), state.iterations
+    if X is None:
+        state.alternative = np.nan
+        return False
+    E_alt = objective.energy(X)
+    state.evaluations += 1
+    state.alternative = E_alt
+    if not (np.isfinite(E_alt) and E_alt < _START_SWITCH_RATIO * energy):
+        return False
+    state.restart(np.array(X, dtype=float), newton)
+    state.history.append(E_alt)
+    state.switched = True
+    return True
+
+
+def run_gauss_newton(objective, Xc, context, options=None, alternative_start=None, budget=None, extend_budget=False,
+                     **kwargs):
     """Gauss-Newton iterations in canonical coordinates (see the module docstring for the rules).
 
     Parameters
@@ -307,6 +385,21 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
     context : ReconstructionContext
     options : GaussNewtonOptions, optional
         Iteration and stopping options (default: the defaults).
+    alternative_start : callable, optional
+        ``() -> (V, 3)`` canonical coordinates (or None) of another start, tried
+        once when the first damped step leaves more than half of the energy or
+        no decrease is found (the start check of the module docstring); the iteration
+        continues from it when its energy is far lower, with the iteration
+        budgets counted from there.
+    budget : int, optional
+        Stop with status 6 after this many iterations (the smoothing budget of
+        the hybrid method) ...
+    extend_budget : bool
+        ... but with ``extend_budget`` only if every step so far agreed with its
+        quadratic model (full, unshifted, energy decrease within 5 % of the
+        model's prediction: the linearization held over it); otherwise iterate
+        on until the stopping rules of the module docstring stop the loop
+        (``options.max_iterations`` the cap, status 0).
     **kwargs
         Fields of :class:`GaussNewtonOptions` (override ``options``).
 
@@ -314,7 +407,9 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
     -------
     GaussNewtonResult
         ``x`` (canonical coordinates), ``status`` (:data:`STATUS_MESSAGES`),
-        ``success = status > 0``, energies, history, counters and timings.
+        ``success = status > 0``, energies, history (with the alternative
+        start's energy when the iteration switched to it), counters and timings
+        (``alternative_start``: seconds spent computing it, when it was tried).
     """
     options = options if options is not None else GaussNewtonOptions()
     if kwargs:
@@ -327,7 +422,8 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
     max_drift = _NEAR_DRIFT * edge
     accelerate = options.geodesic_acceleration and hasattr(objective, "acceleration_gradient")
     newton_possible = options.newton != "never" and getattr(objective, "second_order", False)
-    state.newton = newton_possible and options.newton == "always"
+    newton_always = newton_possible and options.newton == "always"
+    state.newton = newton_always
     while True:
         energy, grad, matrix = _linearize(objective, state, fixed)
         gnorm = float(np.max(np.abs(grad)))
@@ -342,7 +438,11 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         if gnorm * size <= options.gtol * energy:
             status = 3
             break
-        if state.iterations >= options.max_iterations:
+        done = state.iterations - state.budget_from
+        if budget is not None and done >= budget and (not extend_budget or state.agreed):
+            status = 6
+            break
+        if done >= options.max_iterations:
             status = 0
             break
         # Gauss-Newton (or Newton) direction: PCG with the held factorization, or an exact step with a fresh one
@@ -364,7 +464,10 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         if not slope < 0:
             status = -1
             break
-        if -0.5 * slope <= options.ftol * energy:  # predicted Gauss-Newton decrease negligible
+        # a direction solved with a diagonal shift (a numerically singular matrix) understates the Gauss-Newton
+        # decrease: it is a damped step, whose small predicted or actual decrease is no sign of convergence
+        shifted = fresh and context.solver.shift > 0.0
+        if not shifted and -0.5 * slope <= options.ftol * energy:  # predicted Gauss-Newton decrease negligible
             status = 2
             break
         # geodesic acceleration: second-order correction of the path with the same factorization
@@ -372,38 +475,51 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         if accelerate and fresh and not newton and float(np.max(np.abs(d))) > _ACCEL_MIN_STEP * edge:
             accel = _acceleration(state, objective, context, d, matrix)
         t, X_new, E_new = _search(state, objective, d, accel, energy, slope, matrix, options, accelerate)
+        untried = alternative_start is not None and state.alternative is None
+        # the start check: after the first damped step (partial or shifted; a full step that removes little is
+        # close to a minimum of a non-admissible target, where the relaxation cannot be far better)
+        check_start = untried and (t < 1.0 or shifted)
         if t == 0.0:
+            if energy > 1e6 * atol and untried and _try_alternative(state, objective, alternative_start, energy,
+                                                                    newton_always):
+                continue
             status = 1 if energy <= 1e6 * atol else -1
             break
         state.iterations += 1
         state.steps.append(t)
+        state.damped.append(t < 1.0 or shifted)
         if t < 1.0 and newton_possible:  # the Gauss-Newton model overshoots: large residuals, use the Hessian
             state.newton = True
         state.history.append(E_new)
         decrease = energy - E_new
         state.model_ratio = decrease / (-0.5 * slope) if t == 1.0 else np.nan
+        state.agreed &= t == 1.0 and not shifted and abs(state.model_ratio - 1.0) <= _MODEL_AGREEMENT
         state.prev_energy = energy
         step_norm = float(np.max(np.abs(X_new - state.X)))
         state.drift += step_norm
         state.X = X_new
         if E_new <= atol:
             continue  # status 1 after evaluating the final gradient
+        if (check_start and E_new > _START_CHECK_FRACTION * state.history[-2]
+                and _try_alternative(state, objective, alternative_start, E_new, newton_always)):
+            continue  # the damped step did not get far: continue from the alternative start
         # linear convergence with full steps: the remaining decrease is about dec r / (1 - r), r = dec / dec_prev
         # (estimated with a safety factor 10)
-        steps = state.steps
-        rate = decrease / state.prev_decrease if len(steps) > 1 and t == 1.0 and steps[-2] == 1.0 else 1.0
+        damped = state.damped[state.start:]
+        full = not damped[-1]
+        rate = decrease / state.prev_decrease if len(damped) > 1 and full and not damped[-2] else 1.0
         state.prev_decrease = decrease
         if newton_possible and _NEWTON_RATE <= rate < 1.0:  # slow linear convergence of Gauss-Newton
             state.newton = True
-        # a partial step (t < 1) that decreases little is a stalling line search, not convergence: only full
-        # steps may stop by the decrease or the step size; a stall is detected by the next iteration's
-        # predicted decrease (scale-free stationarity) or by _STALL_WINDOW iterations without progress
-        if t == 1.0 and (decrease <= options.ftol * energy or (
+        # a damped step (partial, t < 1, or shifted) that decreases little is a stall, not convergence: only
+        # full, unshifted steps may stop by the decrease or the step size; a stall is detected by the next
+        # iteration's predicted decrease (scale-free stationarity) or by _STALL_WINDOW iterations without progress
+        if full and (decrease <= options.ftol * energy or (
                 rate < 0.5 and 10.0 * decrease * rate / (1.0 - rate) <= options.ftol * E_new)):
             status = 2
-        elif t == 1.0 and step_norm <= options.xtol * size:
+        elif full and step_norm <= options.xtol * size:
             status = 4
-        elif (len(steps) >= _STALL_WINDOW and max(steps[-_STALL_WINDOW:]) < 1.0
+        elif (len(damped) >= _STALL_WINDOW and all(damped[-_STALL_WINDOW:])
               and state.history[-1 - _STALL_WINDOW] - E_new < _STALL_DECREASE * E_new):
             status = -3
         else:
@@ -417,12 +533,15 @@ def run_gauss_newton(objective, Xc, context, options=None, **kwargs):
         iterations=state.iterations, timings=state.timings, energy=float(energy), initial_energy=state.history[0],
         energy_history=state.history, gradient_norm=gnorm, step_sizes=state.steps, regularization=state.shifts,
         function_evaluations=state.evaluations, factorizations=state.factorizations,
-        pcg_iterations=state.pcg_its, newton_steps=state.newton_steps)
+        pcg_iterations=state.pcg_its, newton_steps=state.newton_steps,
+        alternative_energy=np.nan if state.alternative is None else float(state.alternative),
+        checked_energy=state.checked_energy, checked_iteration=state.checked_iteration, switched=state.switched)
 
 
 def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, initial_vertices=None,
-                                context=None, options=None, method_name="gn", extra_timings=None,
-                                success_status=None, started=None, **kwargs):
+                                context=None, settings=None, options=None, method_name="gn", extra_timings=None,
+                                success_status=None, started=None, start_check=False, budget=None,
+                                extend_budget=False, **kwargs):
     """Energy-based reconstruction ``R_W[z*]`` (Def. 3.15) by Gauss-Newton.
 
     Parameters
@@ -438,20 +557,29 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
         frame-based reconstruction); default the reference mesh.  Its rigid
         placement does not matter.
     context : ReconstructionContext, optional
-        Shared set-up; default :func:`get_context` with the settings in ``kwargs``.
+        Shared set-up; default :func:`get_context` with ``settings``.
+    settings : ReconstructionSettings, optional
+        Settings of the context when none is given.
     options : GaussNewtonOptions, optional
     method_name : str
         Reported as :attr:`ReconstructionResult.method`.
     extra_timings : dict, optional
         Timings of work done before (e.g. the start of the hybrid method), added to the result's.
     success_status : (int, str), optional
-        Status and message replacing status 0 (iteration limit) when that limit is the
-        intended budget (the hybrid method's smoothing iterations).
+        Status and message of a stop by ``budget`` (without ``budget``: replacing
+        status 0, the iteration limit, when that limit is the intended budget).
+    budget, extend_budget : optional
+        The hybrid method's smoothing budget (:func:`run_gauss_newton`).
     started : float, optional
         :func:`time.perf_counter` at the start of the whole call (``timings["total"]``).
+    start_check : bool
+        When the first damped step leaves more than half of the energy (or no
+        decrease is found), compute the least-squares relaxation once and
+        continue from it if its energy is 1000 times lower (module docstring,
+        "Start check"); the result's ``timings["least_squares"]`` and a note say so.
     **kwargs
-        Fields of :class:`GaussNewtonOptions` (override ``options``) and, without
-        ``context``, of :class:`~lacore.reconstruction.settings.ReconstructionSettings`.
+        Fields of ``options`` and (without ``context``) of ``settings`` as keywords
+        (:func:`~lacore.reconstruction.settings.split_options`).
 
     Returns
     -------
@@ -461,34 +589,48 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     """
     t_start = time.perf_counter()
     started = t_start if started is None else started
-    gn_kw = {k: kwargs.pop(k) for k in list(kwargs) if k in GaussNewtonOptions.__dataclass_fields__}
-    options = options if options is not None else GaussNewtonOptions()
-    if gn_kw:
-        options = replace(options, **gn_kw)
+    given = sorted(SETTINGS_FIELDS & set(kwargs)) or (["settings"] if settings is not None else [])
+    settings, options, _ = split_options(kwargs, settings, options, caller="gauss_newton_reconstruction",
+                                         accept=("settings", "options"))
     if context is None:
         if reference_vertices is None:
             raise InputError("give reference_vertices or a context")
-        context = get_context(topology, reference_vertices, make_settings(caller="gauss_newton_reconstruction",
-                                                                          **kwargs))
-    elif kwargs:
-        raise InputError(f"settings {sorted(kwargs)} are fixed by the given context")
+        context = get_context(topology, reference_vertices, settings)
+    elif given:
+        raise InputError(f"settings {given} are fixed by the given context")
     z_target = check_z(z_target, topology, name="target z")
     X0 = context.reference_vertices if initial_vertices is None else check_vertices(
         initial_vertices, topology.n_vertices, name="initial vertices")
     objective = context.objective(z_target)
     Xc = context.to_canonical(X0)
     t_init = time.perf_counter() - t_start
-    out = run_gauss_newton(objective, Xc, context, options)
+
+    def relaxation():
+        try:
+            X = least_squares_start(z_target, topology, context)
+        except (InputError, MeshError, np.linalg.LinAlgError):
+            return None
+        return context.to_canonical(X) if np.all(np.isfinite(X)) else None
+
+    out = run_gauss_newton(objective, Xc, context, options, alternative_start=relaxation if start_check else None,
+                           budget=budget, extend_budget=extend_budget)
     vertices = context.from_canonical(out.x)
     timings = dict(out.timings)
     timings["initialization"] = t_init
+    notes = []
+    if "alternative_start" in timings:
+        timings["least_squares"] = timings.pop("alternative_start")
+        notes.append(f"start check: a damped Gauss-Newton step got less than halfway (energy {out.initial_energy:.6g} "
+                     f"at the start, {out.checked_energy:.6g} after {out.checked_iteration} iterations); the "
+                     f"least-squares relaxation has energy {out.alternative_energy:.6g}: "
+                     + (SWITCH_NOTE if out.switched else "kept the given start"))
     timings.update(extra_timings or {})
     status, message = out.status, out.message
-    if status == 0 and success_status is not None:
+    if success_status is not None and status == (6 if budget is not None else 0):
         status, message = success_status
     timings["total"] = time.perf_counter() - started
     counters = {f.name: getattr(out, f.name) for f in fields(IterativeResult)}
     counters.update(success=status > 0, status=status, message=message, timings=timings)
     result = ReconstructionResult(vertices=vertices, method=method_name, energy_name=objective.name,
-                                  fixed_face=context.fixed_face, backend=context.backend, **counters)
+                                  fixed_face=context.fixed_face, backend=context.backend, notes=notes, **counters)
     return apply_checks(result, z_target, topology, minimizer=True)

@@ -48,14 +48,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
-from ..integrability.local import edge_frame_angles, standard_frames, transition_rotations
+from ..integrability.transitions import edge_frame_angles, standard_frames, transition_rotations
 from ..geometry.lengths_angles import check_z
 from ..linalg.sparse_cholesky import SparseCholesky
 from ..geometry.topology import check_vertices
 from ..geometry.trigonometry import interior_angles
 from .spanning_trees import check_roots_per_component, default_root_faces
 
-__all__ = ["least_squares_reconstruction", "least_squares_frames", "nearest_rotations"]
+__all__ = ["least_squares_reconstruction", "least_squares_start", "least_squares_frames", "nearest_rotations"]
 
 _MAX_CACHED_FACTORS = 4
 
@@ -270,6 +270,27 @@ def nearest_rotations(M, tol=1e-15, max_iter=30):
         u[flip, :, 2] *= -1.0
         out[bad] = u @ vt
     return out
+
+
+def least_squares_start(z, topology, context):
+    """The relaxation of ``z`` as a reconstruction with ``context``: its fixed faces and units, its output frame.
+
+    Parameters
+    ----------
+    z : (2E,) ndarray
+        Validated target (the caller's units).
+    topology : MeshTopology
+    context : ReconstructionContext
+
+    Returns
+    -------
+    (V, 3) ndarray
+        In the caller's units, the fixed faces placed as the reference has them
+        (a fixed face that is degenerate here keeps the relaxation's placement).
+    """
+    X = least_squares_reconstruction(context.internal_z(z), topology, root_face=context.fixed_faces,
+                                     reference_vertices=context.internal_reference)
+    return context.align(context.external_vertices(X), keep_degenerate=True)
 
 
 def least_squares_reconstruction(z, topology, frame_weight=1.0, edge_weights=None, root_face=None,

@@ -184,11 +184,16 @@ class AssembledGNMatrix:
 
 
 class ShellsObjective:
-    """``W_TS[z*, Z(X)]`` through :class:`lacore.energies.EnergyInVertices`."""
+    """``W_TS[z*, Z(X)]`` through :class:`lacore.energies.EnergyInVertices`.
+
+    ``value_exponent`` ``e``: values, gradients and matrices are those of the
+    energy times ``2^e`` (exact), the units of a scaled context
+    (:mod:`lacore.reconstruction.context`, "Units").
+    """
 
     name = "shells"
 
-    def __init__(self, z_target, topology, bending_weight, solver, pattern):
+    def __init__(self, z_target, topology, bending_weight, solver, pattern, value_exponent=0):
 
         self.shells = ThinShellsEnergy(topology, bending_weight=bending_weight)
         self.model = EnergyInVertices(self.shells, z_target, topology)
@@ -196,9 +201,13 @@ class ShellsObjective:
         self.topology = topology
         self.solver = solver
         self.pattern = pattern
+        self.value_exponent = int(value_exponent)
+
+    def _scaled(self, x):
+        return np.ldexp(x, self.value_exponent) if self.value_exponent else x
 
     def value_z(self, z):
-        return float(self.shells.value(self.z_target, z))
+        return float(self._scaled(float(self.shells.value(self.z_target, z))))
 
     def energy(self, X):
         return self.value_z(lengths_and_angles(X, self.topology, check=False))
@@ -207,8 +216,9 @@ class ShellsObjective:
         value, grad = self.model.value_and_gradient(X)
 
         def values():
-            return self.solver.values_from_matrix(self.model.gauss_newton_hessian(X))
-        return float(value), np.asarray(grad, float).ravel(), AssembledGNMatrix(values, self.pattern)
+            return self._scaled(self.solver.values_from_matrix(self.model.gauss_newton_hessian(X)))
+        return (float(self._scaled(float(value))), self._scaled(np.asarray(grad, float).ravel()),
+                AssembledGNMatrix(values, self.pattern))
 
     def noise_floor(self):
         """Round-off level of ``W_TS`` near ``z*``: ``16 eps (mu + lam) * total area``.
@@ -218,5 +228,5 @@ class ShellsObjective:
         """
 
         area = float(np.sum(triangle_areas(self.z_target[: self.topology.n_edges][self.topology.face_edges])))
-        return 16 * _EPS * (self.shells.mu + self.shells.lam) * area
+        return float(self._scaled(16 * _EPS * (self.shells.mu + self.shells.lam) * area))
 

@@ -10,7 +10,7 @@ __all__ = ["ReconstructionResult", "GaussNewtonResult", "IterativeResult", "STAT
 
 #: Meaning of :attr:`ReconstructionResult.status` (and :attr:`GaussNewtonResult.status`).
 STATUS_MESSAGES = {
-    -3: "the iteration stalled (10 partial steps decreased the energy by less than 1 %)",
+    -3: "the iteration stalled (10 damped steps -- partial or regularized -- decreased the energy by less than 1 %)",
     -2: "the linear system could not be solved (not positive definite even after regularization)",
     -1: "the line search found no step that decreases the energy",
     0: "the iteration limit was reached",
@@ -77,9 +77,21 @@ class GaussNewtonResult(IterativeResult):
         ``assembly, factorization, solve, line_search, acceleration``.
     energy, energy_history, step_sizes, factorizations, ...
         The counters of :class:`IterativeResult`.
+    alternative_energy, checked_energy : float
+        When the start check tried the alternative start
+        (``run_gauss_newton(alternative_start=...)``): its energy and the energy
+        it was compared with; else ``nan``.
+    checked_iteration : int
+        Iterations done when the start check tried it (``-1``: not tried).
+    switched : bool
+        The iteration continued from the alternative start.
     """
 
     x: np.ndarray
+    alternative_energy: float = float("nan")
+    checked_energy: float = float("nan")
+    checked_iteration: int = -1
+    switched: bool = False
 
     _summary_exclude = ("x",)
 
@@ -144,8 +156,8 @@ class ReconstructionResult(IterativeResult):
         Seconds spent in ``assembly`` (Jacobian, gradient, Gauss-Newton matrix),
         ``factorization``, ``solve``, ``line_search``, ``acceleration`` (geodesic
         acceleration of Gauss-Newton steps), ``initialization`` (set-up),
-        ``frame_based`` / ``least_squares`` (a direct method or the hybrid
-        start) and ``total``.
+        ``frame_based`` / ``least_squares`` (a direct method, the hybrid
+        start, or the relaxation the start check computed) and ``total``.
     fixed_face : int
         The face fixing the rigid motion (and the root face of frame-based methods).
     backend : str

@@ -9,27 +9,64 @@
     (:func:`~lacore.reconstruction.gauss_newton.run_gauss_newton`).
 :class:`HybridOptions`
     The start and the smoothing budget of ``method="hybrid"``.
+:class:`ReconstructionSetup`
+    The three together, as the projections of many targets pass them on.
+:class:`ProjectionPreset`
+    A named method with its options for projecting many targets (in-betweens):
+    :data:`FAST`, :data:`GAUSS_NEWTON`; :data:`DEFAULT_PROJECTION` is the one
+    ``lacore interpolate``, :func:`lacore.shapes.interpolation.interpolate` (and
+    ``keyframe_inbetweens``, ``project_targets``) use when no method is given, and
+    the Blender add-on's default method Fast.
 
-:func:`reconstruct`, :func:`~lacore.shapes.interpolation.interpolate`, the CLI and
-the Blender add-on take these objects, or the same names as keyword arguments
-(``reconstruct(z, topo, X, energy="shells", max_iterations=20,
-smoothing_iterations=3)``); :func:`split_options` maps such keywords to the
-three objects.  The keyword names of the hybrid options keep their historical
-prefix: ``hybrid_start``, ``hybrid_kind`` (fields ``start``, ``kind``).
+The defaults are the fields' defaults; the energy's weight scheme and ``eta``
+are :data:`lacore.energies.DEFAULT_WEIGHTS` and
+:data:`lacore.energies.DEFAULT_BENDING_WEIGHT` (an energy built alone has the
+same).  Every consumer -- :func:`~lacore.reconstruction.reconstruct`, the
+projections of :mod:`lacore.shapes`, geodesics, shape models, multiresolution,
+the CLI and the Blender add-on -- takes these objects; shape models use their
+own defaults (:mod:`lacore.models.settings`), stated as objects of these classes.
+
+Settings objects are the canonical form.  As a convenience,
+:func:`~lacore.reconstruction.reconstruct`,
+:func:`~lacore.shapes.interpolation.interpolate`,
+:func:`~lacore.shapes.interpolation.keyframe_inbetweens`,
+:func:`~lacore.shapes.interpolation.project_targets` and the context
+constructors also take the fields as keyword arguments
+(``reconstruct(z, topo, X, energy="shells", max_iterations=20)``);
+:func:`split_options` is the one function that maps them onto the objects.  The
+keyword names of the hybrid options carry a prefix: ``hybrid_start``,
+``hybrid_kind`` (fields ``start``, ``kind``).
+
+"Not given" is ``None`` for a whole object and absence for a keyword: a
+settings object passed explicitly gives every one of its fields, also those at
+their default (a reconstruction with a ``context`` checks them against it).
+
+Examples
+--------
+>>> from lacore.reconstruction.settings import ReconstructionSettings, split_options
+>>> s = ReconstructionSettings(energy="shells")
+>>> s.energy, s.weights, s.bending_weight
+('shells', 'frohlich_botsch', 0.001)
+>>> setup = split_options({"bending_weight": 0.01, "max_iterations": 5}, s)
+>>> setup.settings.bending_weight, setup.options.max_iterations, setup.hybrid.start
+(0.01, 5, 'lsq')
 """
 
 from dataclasses import dataclass, fields, replace
+from typing import NamedTuple
 
 import numpy as np
 
+from ..energies import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES
 from ..errors import InputError, MeshError
 from ..linalg.sparse_cholesky import ORDERINGS
 
-__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "split_options", "make_settings",
-           "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
+__all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "ReconstructionSetup", "ProjectionPreset",
+           "split_options", "projection_preset", "SETTINGS_FIELDS", "FAST", "GAUSS_NEWTON", "PROJECTION_PRESETS",
+           "DEFAULT_PROJECTION", "ENERGIES", "WEIGHTS", "SOLVERS", "HYBRID_STARTS", "FRAME_KINDS", "NEWTON_MODES"]
 
 ENERGIES = ("quadratic", "shells")
-WEIGHTS = ("frohlich_botsch", "heeren", "uniform")
+WEIGHTS = WEIGHT_SCHEMES
 SOLVERS = ("cholmod", "scipy")
 HYBRID_STARTS = ("lsq", "tree", "given")
 NEWTON_MODES = ("never", "auto", "always")
@@ -53,11 +90,11 @@ class ReconstructionSettings:
     Attributes
     ----------
     energy : {"quadratic", "shells"}
-        ``W_q`` (3.19) or ``W_TS`` (3.25): minimized by Gauss-Newton, reported by all methods.
+        ``W_q`` (3.19) (default) or ``W_TS`` (3.25): minimized by Gauss-Newton, reported by all methods.
     weights : {"frohlich_botsch", "heeren", "uniform"}
-        Weights of ``W_q``: (3.20), (3.21) or 1.
+        Weights of ``W_q``: (3.20) (default), (3.21) or 1.
     bending_weight : float
-        ``eta`` in (3.19)/(3.25).
+        ``eta`` in (3.19)/(3.25), default ``1e-3``.
     fixed_face : None or tuple of int
         Face fixing the rigid motion (one per connected component, components
         not given get a central, well-shaped face of the reference mesh); also
@@ -77,11 +114,20 @@ class ReconstructionSettings:
     ------
     InputError
         An unknown energy, weights, solver or ordering, a negative or non-finite bending weight.
+
+    Examples
+    --------
+    >>> from lacore import ReconstructionSettings
+    >>> s = ReconstructionSettings(energy="shells", fixed_face=3)
+    >>> s.energy, s.weights, s.bending_weight, s.fixed_face
+    ('shells', 'frohlich_botsch', 0.001, (3,))
+    >>> s == ReconstructionSettings(energy="shells", fixed_face=(3,))    # frozen, compared by value
+    True
     """
 
     energy: str = "quadratic"
-    weights: str = "frohlich_botsch"
-    bending_weight: float = 1e-3
+    weights: str = DEFAULT_WEIGHTS
+    bending_weight: float = DEFAULT_BENDING_WEIGHT
     fixed_face: tuple | None = None
     fix_triangle_shape: bool = False
     solver: str | None = None
@@ -138,6 +184,13 @@ class GaussNewtonOptions:
         residuals, where Gauss-Newton converges slowly or stalls), ``"always"``
         from the first step, ``"never"``.  A Hessian that is not positive
         definite gives a Gauss-Newton step instead (and the next step is one too).
+    start_check : bool
+        :func:`~lacore.reconstruction.reconstruct` with ``"gn"`` (and ``"hybrid"``
+        from a given or tree start): when the first damped step (partial or
+        shifted) removes less than half of the energy (or none), compute the
+        least-squares relaxation once and continue from it if its energy is below
+        1e-3 of the energy reached
+        (:mod:`lacore.reconstruction.gauss_newton`, "Start check").  Default on.
     c1 : float
         Armijo constant of the line search.
     max_backtracks : int
@@ -148,6 +201,16 @@ class GaussNewtonOptions:
     InputError
         ``pcg_rtol`` outside ``(0, 1)``, ``pcg_maxiter`` or ``max_iterations`` not a
         positive (non-negative) integer.
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> from lacore import GaussNewtonOptions
+    >>> options = GaussNewtonOptions(max_iterations=20)
+    >>> options.max_iterations, options.newton, options.geodesic_acceleration
+    (20, 'auto', True)
+    >>> replace(options, newton="never").newton
+    'never'
     """
 
     max_iterations: int = 100
@@ -160,6 +223,7 @@ class GaussNewtonOptions:
     pcg_maxiter: int = 6
     reuse_near_convergence: bool = True
     geodesic_acceleration: bool = True
+    start_check: bool = True
     c1: float = 1e-4
     max_backtracks: int = 40
     newton: str = "auto"
@@ -185,8 +249,8 @@ class HybridOptions:
         The least-squares relaxation (default; no spanning tree is built), the
         frame-based walk along a tree of kind ``kind`` (on long meshes the walk
         accumulates the integrability error along the tree, which a few
-        smoothing iterations do not remove: README "Reconstruction",
-        ``tests/test_hybrid.py``), or the caller's ``initial_vertices`` (e.g. the
+        smoothing iterations do not remove: ``tests/test_hybrid.py``), or the
+        caller's ``initial_vertices`` (e.g. the
         prediction of :func:`lacore.shapes.interpolation.project_targets` from the
         frames before; the least-squares relaxation when none are given).
     kind : {"mst", "spt", "bfs"}
@@ -199,17 +263,35 @@ class HybridOptions:
         nearest known shape rather than an extrapolation through two of them
         (the first in-between after a key: its start is first-order off in the
         frame spacing, an extrapolation second-order); default ``smoothing_iterations``.
+    extend_smoothing : bool
+        The budget ends the iteration only if every step agreed with its
+        quadratic model (full, unshifted, energy decrease within 5 % of the
+        prediction: the linearization held over it); otherwise Gauss-Newton
+        iterates on until its own stopping rules (``GaussNewtonOptions.ftol``,
+        at most ``max_iterations``).  On a smooth motion the budgeted step agrees
+        (one step per in-between); on a blend far from admissible (a plate rolled
+        one way into the other way) the steps recover only 40 % of what the
+        model predicts, and stopping after them left frames at 49x Gauss-Newton's
+        energy.
 
     Raises
     ------
     InputError
         An unknown start or kind, a negative or non-integer iteration count.
+
+    Examples
+    --------
+    >>> from lacore import HybridOptions
+    >>> h = HybridOptions(start="tree", kind="spt", smoothing_iterations=3)
+    >>> h.uses_tree, h.smoothing_iterations
+    (True, 3)
     """
 
     start: str = "lsq"
     kind: str = "mst"
     smoothing_iterations: int = 10
     nearest_start_iterations: int | None = None
+    extend_smoothing: bool = False
 
     def __post_init__(self):
         if self.start not in HYBRID_STARTS:
@@ -223,6 +305,7 @@ class HybridOptions:
             if int(n) != n or n < 0:
                 raise InputError(f"{name} must be a non-negative integer, got {n!r}")
             object.__setattr__(self, name, int(n))
+        object.__setattr__(self, "extend_smoothing", bool(self.extend_smoothing))
 
     @property
     def uses_tree(self):
@@ -230,34 +313,106 @@ class HybridOptions:
         return self.start == "tree"
 
 
-_SETTINGS_KEYS = frozenset(f.name for f in fields(ReconstructionSettings))
+@dataclass(frozen=True)
+class ProjectionPreset:
+    """A named projection method with its options, for sequences of targets (thesis 4.2, eq. 4.10).
+
+    Attributes
+    ----------
+    name : str
+        What the CLI's ``--method`` and the library's ``method=`` call it.
+    method : str
+        The reconstruction method (:data:`lacore.reconstruction.METHODS`).
+    options : GaussNewtonOptions
+    hybrid : HybridOptions
+
+    Examples
+    --------
+    >>> from lacore.reconstruction.settings import DEFAULT_PROJECTION
+    >>> DEFAULT_PROJECTION.name, DEFAULT_PROJECTION.method, DEFAULT_PROJECTION.hybrid.start
+    ('fast', 'hybrid', 'given')
+    """
+
+    name: str
+    method: str
+    options: GaussNewtonOptions = GaussNewtonOptions()
+    hybrid: HybridOptions = HybridOptions()
+
+    def keywords(self):
+        """``{"method", "options", "hybrid"}`` for :func:`lacore.shapes.interpolation.project_targets` and friends."""
+        return {"method": self.method, "options": self.options, "hybrid": self.hybrid}
+
+
+#: Continuation along ``t`` and one Gauss-Newton step per in-between: every frame starts from the
+#: extrapolation through the two computed frames or keys before it
+#: (:func:`lacore.shapes.projection.predicted_start`, error second order in the frame spacing) and takes one
+#: step; a frame that starts from a key itself (the first after a key) takes up to three, stopping once the
+#: predicted decrease is below ``ftol = 1e-4`` of the energy; where a step does not agree with its quadratic
+#: model, more (``extend_smoothing``).  Exact on smooth motions at one factorization per in-between; strongly
+#: mixed blends (a bend blended into a twist) stay above Gauss-Newton's energy: use :data:`GAUSS_NEWTON` there
+#: (``benchmarks/bench_continuation.py`` measures both).
+FAST = ProjectionPreset("fast", "hybrid", GaussNewtonOptions(ftol=1e-4),
+                        HybridOptions(start="given", smoothing_iterations=1, nearest_start_iterations=3,
+                                      extend_smoothing=True))
+#: Gauss-Newton run to convergence from the same continuation starts, with Newton steps where it converges slowly.
+GAUSS_NEWTON = ProjectionPreset("gn", "gn")
+#: Presets by name (``method=`` of the interpolation functions, ``lacore interpolate --method``).
+PROJECTION_PRESETS = {"fast": FAST}
+#: The projection used when none is chosen: ``lacore interpolate``, the interpolation functions of
+#: :mod:`lacore.shapes.interpolation`, and the add-on's default method (Fast).
+DEFAULT_PROJECTION = FAST
+
+
+def projection_preset(method, options=None, hybrid=None):
+    """``(method, options, hybrid)`` for a method name or preset name (None: :data:`DEFAULT_PROJECTION`).
+
+    A preset's options and hybrid options are used where ``options`` / ``hybrid``
+    are not given; a plain method name is returned as it is.
+    """
+    preset = DEFAULT_PROJECTION if method is None else PROJECTION_PRESETS.get(method)
+    if preset is None:
+        return method, options, hybrid
+    return (preset.method, preset.options if options is None else options,
+            preset.hybrid if hybrid is None else hybrid)
+
+
+class ReconstructionSetup(NamedTuple):
+    """The three settings objects of a reconstruction, as one value (unpacks as ``settings, options, hybrid``)."""
+
+    settings: ReconstructionSettings = ReconstructionSettings()
+    options: GaussNewtonOptions = GaussNewtonOptions()
+    hybrid: HybridOptions = HybridOptions()
+
+
+#: Names of the :class:`ReconstructionSettings` fields.
+SETTINGS_FIELDS = frozenset(f.name for f in fields(ReconstructionSettings))
 _GN_KEYS = frozenset(f.name for f in fields(GaussNewtonOptions))
 #: keyword name -> field of HybridOptions
-_HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations"}
+_HYBRID_KEYS = {"hybrid_start": "start", "hybrid_kind": "kind", "smoothing_iterations": "smoothing_iterations",
+                "extend_smoothing": "extend_smoothing"}
+_PART_NAMES = {"settings": "settings are", "options": "Gauss-Newton options", "hybrid": "hybrid options"}
 
 
-def split_options(kwargs, settings=None, options=None, hybrid=None, *, caller="reconstruct"):
-    """Map keyword arguments to the three settings objects.
+def split_options(keywords, settings=None, options=None, hybrid=None, *, caller="reconstruct",
+                  accept=("settings", "options", "hybrid")):
+    """The settings objects with the fields named in ``keywords`` replaced: the one reader of flattened keywords.
 
     Parameters
     ----------
-    kwargs : dict
-        Keyword arguments: fields of :class:`ReconstructionSettings` and
-        :class:`GaussNewtonOptions`, ``hybrid_start``, ``hybrid_kind``,
-        ``smoothing_iterations``.  Keywords override the objects' fields.
+    keywords : dict
+        Fields of :class:`ReconstructionSettings` and :class:`GaussNewtonOptions`,
+        ``hybrid_start``, ``hybrid_kind``, ``smoothing_iterations``.  They
+        override the objects' fields.
     settings, options, hybrid : optional
-        Objects to start from (default: the defaults).
+        Objects to start from (``None``: the defaults).
     caller : str
         Named in the error for unknown keywords.
+    accept : tuple of {"settings", "options", "hybrid"}
+        Whose fields are accepted as keywords (the context constructors take settings only).
 
     Returns
     -------
-    settings : ReconstructionSettings
-    options : GaussNewtonOptions
-    hybrid : HybridOptions
-    given : frozenset of str
-        Names of the :class:`ReconstructionSettings` fields set explicitly (keywords,
-        or fields of ``settings`` differing from the defaults).
+    ReconstructionSetup
 
     Raises
     ------
@@ -265,28 +420,25 @@ def split_options(kwargs, settings=None, options=None, hybrid=None, *, caller="r
         Unknown keywords.
     InputError
         Invalid values.
+
+    Examples
+    --------
+    >>> from lacore.reconstruction.settings import ReconstructionSettings, split_options
+    >>> settings, options, hybrid = split_options({"energy": "shells", "max_iterations": 5, "hybrid_start": "tree"})
+    >>> settings == ReconstructionSettings(energy="shells"), options.max_iterations, hybrid.start
+    (True, 5, 'tree')
     """
-    unknown = sorted(set(kwargs) - _SETTINGS_KEYS - _GN_KEYS - set(_HYBRID_KEYS))
+    names = {"settings": SETTINGS_FIELDS, "options": _GN_KEYS, "hybrid": frozenset(_HYBRID_KEYS)}
+    unknown = sorted(set(keywords).difference(*(names[part] for part in accept)))
     if unknown:
-        raise TypeError(f"{caller}() got unknown options {unknown}; Gauss-Newton options are "
-                        f"{sorted(_GN_KEYS)}, settings {sorted(_SETTINGS_KEYS)}, hybrid {sorted(_HYBRID_KEYS)}")
-    base = settings if settings is not None else ReconstructionSettings()
-    s_kw = {k: v for k, v in kwargs.items() if k in _SETTINGS_KEYS}
-    settings = replace(base, **s_kw) if s_kw else base
-    given = {k for k in _SETTINGS_KEYS if getattr(base, k) != getattr(ReconstructionSettings(), k)} | set(s_kw)
-    g_kw = {k: v for k, v in kwargs.items() if k in _GN_KEYS}
-    options = options if options is not None else GaussNewtonOptions()
-    options = replace(options, **g_kw) if g_kw else options
-    h_kw = {_HYBRID_KEYS[k]: v for k, v in kwargs.items() if k in _HYBRID_KEYS}
-    hybrid = hybrid if hybrid is not None else HybridOptions()
-    hybrid = replace(hybrid, **h_kw) if h_kw else hybrid
-    return settings, options, hybrid, frozenset(given)
+        known = "; ".join(f"{_PART_NAMES[part]} {sorted(names[part])}" for part in accept)
+        raise TypeError(f"{caller}() got unknown options {unknown}; {known}")
 
+    def updated(obj, default, changes):
+        obj = obj if obj is not None else default
+        return replace(obj, **changes) if changes else obj
 
-def make_settings(settings=None, caller="ReconstructionSettings", **kwargs):
-    """``settings`` (default: the defaults) with the fields in ``kwargs`` replaced; TypeError for other names."""
-    unknown = sorted(set(kwargs) - _SETTINGS_KEYS)
-    if unknown:
-        raise TypeError(f"{caller}() got unknown settings {unknown}; settings are {sorted(_SETTINGS_KEYS)}")
-    base = settings if settings is not None else ReconstructionSettings()
-    return replace(base, **kwargs) if kwargs else base
+    return ReconstructionSetup(
+        updated(settings, ReconstructionSettings(), {k: v for k, v in keywords.items() if k in SETTINGS_FIELDS}),
+        updated(options, GaussNewtonOptions(), {k: v for k, v in keywords.items() if k in _GN_KEYS}),
+        updated(hybrid, HybridOptions(), {_HYBRID_KEYS[k]: v for k, v in keywords.items() if k in _HYBRID_KEYS}))

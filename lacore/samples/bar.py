@@ -19,6 +19,14 @@ def bar_mesh(n_along=24, n_side=2, length=6.0, width=1.0):
     ``x = 0`` to ``x = length``; each end is closed by a fan around a centre
     vertex.  ``V = 4 n_side (n_along + 1) + 2``; closed, genus 0, outward
     oriented.
+
+    Examples
+    --------
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> X.shape, faces.shape, MeshTopology.from_faces(faces).is_closed
+    ((22, 3), (40, 3), True)
     """
     n_ring = 4 * n_side
     s = np.linspace(-0.5, 0.5, n_side + 1)[:-1] * width
@@ -69,6 +77,18 @@ def bar_pose(vertices, bend, twist, length=None):
     Returns
     -------
     (V, 3) ndarray
+
+    Examples
+    --------
+    The axis keeps its length:
+
+    >>> import numpy as np
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> bent = bar_pose(X, np.pi, 0.0)               # a half circle
+    >>> ends = bent[-2:]                              # the centres of the two end caps
+    >>> round(float(np.linalg.norm(ends[1] - ends[0])), 6), round(6.0 * 2 / np.pi, 6)
+    (3.819719, 3.819719)
     """
     X = np.asarray(vertices, float)
     L = float(X[:, 0].max()) if length is None else float(length)

@@ -17,6 +17,8 @@ seed.  Independent of the rest of lacore (NumPy/SciPy only).
   elbows bend one way); :meth:`HumanBody.pose` composes the bone transforms
   down the hierarchy and skins all frames with one sparse product
   ``W (V, B) @ M (B, 12 T)``.
+* :func:`open_body` -- the body with five openings (eyes, mouth, both wrists):
+  a surface of genus 0 with five boundary loops, posable like the body.
 * :meth:`HumanBody.random_poses` (training sets) and :meth:`HumanBody.take`
   (held-out motion: smooth joint curves reaching beyond the training range,
   plus a walk of the whole body), all from a seed.
@@ -40,7 +42,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HumanBody", "load_human", "coarse_human_coarsening", "human_model", "human_data_dir", "JOINT_DOFS", "LIMBS",
+__all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_model", "human_data_dir",
+           "JOINT_DOFS", "LIMBS",
            "N_BODY_VERTICES"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
@@ -413,23 +416,31 @@ def _load_full(folder):
 
 
 def coarse_body_file():
-    """Path of the committed coarse-body file (kept vertex ids and faces), ``tests/data/human_coarse.npz``."""
+    """Path of the committed coarse-body record, ``tests/data/human_coarse.npz``.
+
+    It holds the :class:`~lacore.multiresolution.Coarsening` of the body
+    (:meth:`~lacore.multiresolution.Coarsening.to_arrays`: kept vertices,
+    coarse faces and every collapse, so prolongation to the full body works
+    on any machine) and how it was made (``seed``, ``n_poses``,
+    ``target_vertices``, ``base_obj_sha256``).
+    """
     return Path(__file__).resolve().parents[2] / "tests" / "data" / "human_coarse.npz"
 
 
 @functools.lru_cache(maxsize=2)
 def coarse_human_coarsening(path=None):
-    """The :class:`~lacore.multiresolution.Coarsening` record of the coarse body (needed to prolong to the full one).
+    """The :class:`~lacore.multiresolution.Coarsening` of the coarse body (needed to prolong to the full one).
 
-    Read from :func:`coarse_body_file` (``coarsening_*``, written by
-    ``scripts/make_coarse_human.py``), never recomputed: the greedy collapse
-    order need not reproduce bit for bit on another machine.  ``path`` (the
-    shared data) is only checked for the full body's vertex count.
+    Read from :func:`coarse_body_file` (stored, not recomputed: a greedy
+    coarsening recomputed on another CPU can pick other, equally good
+    collapses) and checked against the full body's faces.
 
     Raises
     ------
-    MeshError
-        The file has no record, or it does not match the stored ``kept_vertices`` and ``faces``.
+    FileNotFoundError
+        No record (run ``scripts/make_coarse_human.py``).
+    InputError
+        The record is unreadable, or was made from another base mesh.
     """
     from ..errors import MeshError
     from ..multiresolution import Coarsening
@@ -438,15 +449,10 @@ def coarse_human_coarsening(path=None):
     f = coarse_body_file()
     if not f.is_file():
         raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
-    with np.load(f) as d:
-        if "coarsening_vertex_indices" not in d.files:
-            raise MeshError(f"{f} has no coarsening record: run scripts/make_coarse_human.py")
-        c = Coarsening.from_arrays(d, "coarsening_")
-        kept, faces = d["kept_vertices"], d["faces"]
-    if not (np.array_equal(c.vertex_indices, kept) and np.array_equal(c.faces, faces)
-            and c.n_fine_vertices == body.n_vertices):
-        raise MeshError(f"the coarsening record of {f} does not match its coarse body: re-run "
-                        "scripts/make_coarse_human.py")
+    c = Coarsening.load(f)
+    if c.n_fine_vertices != body.n_vertices or not np.array_equal(c.fine_faces, body.faces):
+        raise MeshError(f"{f} was made from another base mesh than {human_data_dir(path) / 'base.obj'}: "
+                        "run scripts/make_coarse_human.py")
     return c
 
 
@@ -459,6 +465,13 @@ def human_model(n_poses=30, seed=0, path=None):
     coarsening, the rest pose and the training poses as keys), so
     :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds;
     cached per process (treat the result as read-only).
+
+    Examples
+    --------
+    >>> from lacore.samples.human import human_model
+    >>> model = human_model(n_poses=30)                 # doctest: +SKIP
+    >>> model.length_unit, model.up_axis, model.fine_level.n_fine_vertices  # doctest: +SKIP
+    (0.1, 'y', 13380)
     """
     return _human_model(int(n_poses), int(seed), None if path is None else str(path))
 
@@ -495,8 +508,62 @@ def load_human(path=None, coarse=False):
     body = _load_full(str(human_data_dir(path)))
     if not coarse:
         return body
-    f = coarse_body_file()
-    if not f.is_file():
-        raise FileNotFoundError(f"{f} not found: run scripts/make_coarse_human.py")
-    with np.load(f) as d:
-        return body.restrict(d["kept_vertices"], d["faces"])
+    c = coarse_human_coarsening(path)
+    return body.restrict(c.vertex_indices, c.faces)
+
+
+@functools.lru_cache(maxsize=2)
+def _joint_centres(folder):
+    """Centres of the ``joint-*`` cube groups of ``base.obj`` (eyelids, mouth, ... are not bones)."""
+    vertices, _, groups = _read_obj(Path(folder) / "base.obj")
+    return {name: vertices[idx].mean(axis=0) for name, idx in groups.items()}
+
+
+def open_body(body=None, radius=0.07, path=None):
+    """The full body with five openings: both eyes, the mouth and both wrists (the hands cut off).
+
+    A surface of genus 0 with five boundary loops (about 10k vertices), for
+    the conditions of Theorem 3.2 around holes.  The eye openings are centred
+    at the body vertex nearest to the middle of the eyelid joints, the mouth at
+    the front-most vertex of the mid-plane at the height of the mouth joint
+    (all within ``radius``, decimetres); the hands are cut by the plane through
+    the wrist (the ``LeftHand``/``RightHand`` bone head) normal to the forearm.
+    Faces left at pinched vertices are dropped as well (:func:`lacore.samples.surfaces.open_holes`).
+
+    Parameters
+    ----------
+    body : HumanBody, optional
+        The full body (default :func:`load_human`).
+    radius : float
+    path : str or path-like, optional
+        Data folder, see :func:`human_data_dir`.
+
+    Returns
+    -------
+    HumanBody
+        The opened body (:meth:`HumanBody.restrict`): posable like the full one.
+    """
+    from .surfaces import open_holes
+
+    body = load_human(path) if body is None else body
+    if len(body.vertices) != N_BODY_VERTICES:
+        raise ValueError("open_body needs the full body (load_human(coarse=False))")
+    centres = _joint_centres(str(human_data_dir(path)))
+    X = body.vertices
+    holes = []
+    for side in ("l", "r"):
+        lids = 0.5 * (centres[f"joint-{side}-upperlid"] + centres[f"joint-{side}-lowerlid"])
+        holes.append(X[np.argmin(np.linalg.norm(X - lids, axis=1))])
+    mouth = centres["joint-mouth"]
+    mid = np.flatnonzero((np.abs(X[:, 0] - mouth[0]) < 0.05) & (np.abs(X[:, 1] - mouth[1]) < 0.03))
+    holes.append(X[mid[np.argmax(X[mid, 2])]])
+    keep = np.ones(len(body.faces), bool)
+    index = {name: i for i, name in enumerate(body.bones)}
+    for hand, forearm in (("LeftHand", "LeftForeArm"), ("RightHand", "RightForeArm")):
+        wrist = body.heads[index[hand]]
+        axis = wrist - body.heads[index[forearm]]
+        axis /= np.linalg.norm(axis)
+        cut = ((X - wrist) @ axis > -0.1) & (np.linalg.norm(X - wrist, axis=1) < 1.5)
+        keep &= ~cut[body.faces].any(axis=1)
+    _, faces, kept = open_holes(X, body.faces[keep], holes, radius)
+    return body.restrict(kept, faces)

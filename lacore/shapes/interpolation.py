@@ -23,75 +23,50 @@ are encoded as lengths and angles ``z_k = Z[X_k]`` (``(2E,)``, layout of
   interpolation.
 
 Then every target is projected onto the admissible set by reconstruction
-(4.10), ``P_Z[z~] = Z[R[z~]]`` (:func:`lacore.reconstruction.reconstruct`; the
-default ``method="gn"`` is the energy-based projection of Definition 4.3).
+(4.10), ``P_Z[z~] = Z[R[z~]]``, frame by frame in
+:class:`lacore.shapes.projection.SequenceProjection`.  Without a method the projection is
+:data:`lacore.reconstruction.settings.DEFAULT_PROJECTION` (the preset ``"fast"``:
+continuation along ``t`` and one Gauss-Newton step per frame, the default of the CLI
+and the Blender add-on too); ``method="gn"`` is the energy-based projection of
+Definition 4.3 run to convergence.  One shared set-up, warm starts
+continuing along ``t`` from the input shapes given as vertices (at their keyframe
+times) and the computed frames (``warm_start="secant"``, the default, also ``True``;
+``"nearest"``; ``False``: cold starts), chains of frames side by side in worker
+processes (``workers``), and for the frame-based methods one spanning tree
+preassembled from the keyframe samples ``z_k``.
 
-Sharing work between frames
----------------------------
-* One :class:`~lacore.reconstruction.ReconstructionContext` (weights, fixed
-  face, Gauss-Newton sparsity pattern and symbolic Cholesky factorization) is
-  made for the reference shape and passed to every frame, so all frames share
-  one symbolic factorization (``result.context``).
-* Frames are processed in order of ``t``; with warm starts (default) each
-  Gauss-Newton projection (``"gn"``, and ``"hybrid"`` with
-  ``hybrid_start="given"``) starts from a prediction made of the already known
-  shapes: input shapes given as vertices (at their keyframe times) and the
-  computed frames.  ``warm_start="secant"`` (default, also ``True``)
-  extrapolates linearly through the nearest known shape and the next one on the
-  same side (:func:`predicted_start`, continuation along ``t``: the error of
-  the start is second order in the frame spacing, so one or two Gauss-Newton
-  steps finish a frame) and keeps that prediction if its energy for the frame's
-  target is below the nearest shape's (a linear extrapolation of positions
-  shrinks rotating parts: across a whole bend it is worse than the key);
-  ``"nearest"`` starts from the nearest known shape.
-* Frame-based methods (``"bfs"``, ``"mst"``, ``"spt"``, ``"hybrid"``) use one
-  spanning tree for all frames, preassembled from the keyframe samples ``z_k``
-  (remark after Algorithm 2, :func:`~lacore.reconstruction.spanning_trees.preassembled_tree`).
-
-Output placement
-----------------
 All frames are returned in the frame of the reference shape (``reference``,
 default the first): the fixed triangle of the reconstruction sits exactly
 where the reference shape has it, so an animation made of the frames does not
 jump.
 """
 
-import queue
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles
-from ..parallel import WorkerProcess, check_workers, frame_chains, raise_worker_error
-from ..progress import report
-from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import split_options
-from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
-from ..result import SolverResult
 from ..geometry.topology import MeshTopology, check_vertices
+from ..reconstruction.settings import projection_preset, split_options
+from ..result import SolverResult
+from .projection import ProjectionOptions, SequenceProjection, check_times
 
 __all__ = [
     "InterpolationResult",
-    "ChainWorkers",
     "interpolate",
     "keyframe_inbetweens",
     "project_targets",
+    "projection_options",
+    "sequence_result",
     "shapes_to_z",
     "check_keyframes",
+    "keyframe_targets",
     "piecewise_linear_z",
     "spline_z",
-    "predicted_start",
-    "WARM_STARTS",
 ]
-
-#: Values of ``warm_start`` (besides ``True`` = ``"secant"`` and ``False`` = cold starts from the reference).
-WARM_STARTS = ("secant", "nearest")
-
-#: The secant prediction extrapolates at most this many times the spacing of the two shapes it goes through.
-MAX_EXTRAPOLATION = 1.0
 
 
 @dataclass(kw_only=True, repr=False)
@@ -255,16 +230,6 @@ def check_keyframes(keyframes, n_shapes):
     return k
 
 
-def _check_times(times, name="factors"):
-    t = np.atleast_1d(np.asarray(times, dtype=float))
-    if t.ndim != 1 or t.size == 0:
-        raise InputError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise InputError(f"{name} must be finite; entries {bad.tolist()} are NaN or infinite")
-    return t
-
-
 # --------------------------------------------------------------------------- targets
 def piecewise_linear_z(z_keys, keyframes, times):
     """Piecewise linear interpolation in ``z`` with linear extension of the end segments.
@@ -333,84 +298,14 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
     return out
 
 
-# --------------------------------------------------------------------------- warm starts
-def _warm_start_kind(warm_start):
-    if warm_start is True:
-        return "secant"
-    if warm_start is False or warm_start is None:
-        return None
-    if warm_start not in WARM_STARTS:
-        raise InputError(f"warm_start must be True, False or one of {', '.join(WARM_STARTS)}, got {warm_start!r}")
-    return warm_start
-
-
-def predicted_start(t, known_times, known_vertices, kind="secant", place=None):
-    """Starting vertices for the frame at ``t`` from shapes known at other times.
-
-    Parameters
-    ----------
-    t : float
-    known_times : (K,) array_like
-        Times of the known shapes (K >= 1).
-    known_vertices : sequence of K (V, 3) arrays
-        The known shapes.
-    place : callable, optional
-        ``X -> X`` moving a shape into one common placement (e.g.
-        :meth:`~lacore.reconstruction.ReconstructionContext.align`), applied to
-        the two shapes a secant combines; default: they already share one.
-    kind : {"secant", "nearest"}
-        ``"nearest"``: the known shape ``X_j`` nearest in time (the first one on
-        ties).  ``"secant"``: ``X_j + r (X_j - X_k)``, ``r = (t - t_j) / (t_j - t_k)``,
-        with ``X_k`` the known shape nearest to ``t_j`` on the other side of
-        ``t_j`` than ``t`` (linear extrapolation of the path ``t -> X(t)``, error
-        ``O(h^2)`` for a frame spacing ``h``); ``X_j`` alone when there is no such
-        shape or ``r > MAX_EXTRAPOLATION``.
-
-    Returns
-    -------
-    vertices : (V, 3) ndarray
-    source_time : float
-        ``t_j``.
-    """
-    kt = np.asarray(known_times, float)
-    dist = np.abs(kt - t)
-    j = int(np.argmin(dist))
-    Xj = np.asarray(known_vertices[j], float)
-    if kind == "nearest" or dist[j] == 0.0:
-        return Xj, float(kt[j])
-    side = (kt - kt[j]) * (t - kt[j]) < 0.0   # beyond t_j, away from t
-    if not np.any(side):
-        return Xj, float(kt[j])
-    cand = np.flatnonzero(side)
-    k = int(cand[np.argmin(np.abs(kt[cand] - kt[j]))])
-    r = (t - kt[j]) / (kt[j] - kt[k])
-    if r > MAX_EXTRAPOLATION * (1.0 + 1e-9):  # (equal spacings give r = 1 only up to round-off)
-        return Xj, float(kt[j])
-    Xk = np.asarray(known_vertices[k], float)
-    if place is not None:
-        Xj, Xk = place(Xj), place(Xk)
-    return Xj + r * (Xj - Xk), float(kt[j])
-
-
 # --------------------------------------------------------------------------- projection of many frames
-def _frame_tree(method, hybrid, z_keys, topology, context, tree):
-    """The shared spanning tree of the frame-based methods; None for methods that walk no tree.
-
-    ``"gn"``, ``"lsq"`` and the (default) least-squares start of ``"hybrid"`` use no tree
-    (:func:`lacore.reconstruction.tree_kind`), so none is built for them.
-    """
-    kind = tree_kind(method, hybrid)
-    if tree is not None or kind is None:
-        return tree if kind is not None else None
-    if kind == "bfs":
-        return bfs_tree(topology, context.fixed_faces)
-    return preassembled_tree(z_keys, topology, root_face=context.fixed_faces, kind=kind)
-
-
-def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method="gn",
+def project_targets(z_targets, topology, reference_vertices, times=None, anchors=None, method=None,
                     warm_start=True, tree=None, z_keys=None, *, settings=None, options=None, hybrid=None,
                     progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """Project many targets onto the admissible set with shared set-up and warm starts (4.10).
+
+    Runs :class:`lacore.shapes.projection.SequenceProjection` to the end (step that object
+    yourself to compute one frame at a time, e.g. from an event loop).
 
     Parameters
     ----------
@@ -424,11 +319,14 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
         default ``0..N-1``.
     anchors : sequence of (time, (V, 3) vertices), optional
         Known shapes (e.g. the input keyframes) usable as warm starts.
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Reconstruction method (:func:`lacore.reconstruction.reconstruct`).
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Reconstruction method (:func:`lacore.reconstruction.reconstruct`) or the
+        name of a :class:`~lacore.reconstruction.settings.ProjectionPreset`
+        (``"fast"``; its options where ``options`` / ``hybrid`` are not given);
+        None: :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`.
     warm_start : {True, "secant", "nearest", False}
         Start every Gauss-Newton projection from a prediction through the known
-        neighbours in time (``True`` / ``"secant"``, :func:`predicted_start`), from
+        neighbours in time (``True`` / ``"secant"``, :func:`~lacore.shapes.projection.predicted_start`), from
         the nearest one (``"nearest"``), or from the reference shape (``False``).
     tree : DualSpanningTree, optional
         Spanning tree for frame-based methods; default preassembled from ``z_keys``.
@@ -462,195 +360,75 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     ------
     Cancelled
         The progress callback asked to stop; ``partial`` is None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import lengths_and_angles
+    >>> from lacore.shapes.interpolation import project_targets
+    >>> z0, z1 = lengths_and_angles(bar_pose(X, 0.5, 0.0), topo), lengths_and_angles(bar_pose(X, 0.0, 0.5), topo)
+    >>> targets = [(1 - t) * z0 + t * z1 for t in (0.25, 0.5, 0.75)]
+    >>> res = project_targets(targets, topo, X, times=[0.25, 0.5, 0.75], anchors=[(0.0, bar_pose(X, 0.5, 0.0))])
+    >>> bool(res.success), res.warm_start_times.tolist()
+    (True, [0.0, 0.25, 0.5])
     """
-    return _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-                    split_options(reconstruct_kw, settings, options, hybrid, caller="project_targets")[:3],
-                    progress, keyframes=None, smooth=False, t_start=time.perf_counter(), on_frame=on_frame,
-                    workers=workers)
+    t_start = time.perf_counter()
+    opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "project_targets")
+    run = SequenceProjection(z_targets, topology, reference_vertices, times, anchors, opts, samples=z_keys,
+                             workers=workers)
+    return sequence_result(run.run(progress, on_frame), t_start)
 
 
-def _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, z_keys,
-             setup, progress, keyframes, smooth, t_start, on_frame=None, workers=1, order=None, send=None):
-    """Project the targets (see :func:`project_targets`).
+def projection_options(method=None, warm_start=True, tree=None, settings=None, options=None, hybrid=None,
+                       keywords=None, caller="project_targets"):
+    """The :class:`~lacore.shapes.projection.ProjectionOptions` of the entry points' arguments: ``keywords`` are
+    the flattened fields of ``settings``, ``options`` and ``hybrid``
+    (:func:`lacore.reconstruction.settings.split_options`; ``caller`` is named for unknown ones).
 
-    The frames are split into ``workers`` chains (:func:`lacore.parallel.frame_chains`); this process
-    computes the first, a :class:`lacore.parallel.WorkerProcess` each other one (running this function on
-    its chain with ``order`` = the chain's processing order and ``send`` = the pipe back).  Every chain
-    starts from the anchors and its own frames only, so the result does not depend on timing.
+    Examples
+    --------
+    >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
+    2
     """
-    settings, options, hybrid = setup
-    if method not in METHODS:
-        raise InputError(f"unknown projection method {method!r}; use one of {', '.join(METHODS)}")
-    warm_start = _warm_start_kind(warm_start)
-    workers = check_workers(workers)
-    takes_start = method == "gn" or (method == "hybrid" and hybrid.start == "given")
-    Zt = np.asarray(z_targets, float)
-    if Zt.ndim != 2 or Zt.shape[1] != 2 * topology.n_edges:
-        raise LengthsAnglesError(f"targets must have shape (N, {2 * topology.n_edges}), got {Zt.shape}")
-    N = len(Zt)
-    times = np.arange(N, dtype=float) if times is None else _check_times(times, "times")
-    if len(times) != N:
-        raise InputError(f"{len(times)} times for {N} targets")
-    if send is None:
-        for i in np.argsort(times, kind="stable"):  # fail before any work, naming the frame
-            check_z(Zt[i], topology, name=f"target at t = {times[i]:g} (extrapolated too far?)")
-    X_ref = check_vertices(reference_vertices, topology.n_vertices, name="reference vertices")
-    context = get_context(topology, X_ref, settings)
-    tree = _frame_tree(method, hybrid, Zt if z_keys is None else np.asarray(z_keys, float), topology, context, tree)
-    anchors = [(float(t), np.asarray(X, float)) for t, X in (anchors or [])]
-    known_t = [t for t, _ in anchors]
-    known_X = [X for _, X in anchors]
-    chains = [np.asarray(order)] if order is not None else frame_chains(times, known_t, workers)
+    method, options, hybrid = projection_preset(method, options, hybrid)
+    settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
+    return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
+                             hybrid=hybrid)
 
-    V = topology.n_vertices
+
+def sequence_result(run, t_start, keyframes=None, smooth=False):
+    """The :class:`InterpolationResult` of a finished :class:`~lacore.shapes.projection.SequenceProjection`
+    (``t_start``: :func:`time.perf_counter` when the call began)."""
+    tg = run.targets
+    N, V = run.total, tg.topology.n_vertices
     vertices = np.empty((N, V, 3))
     energy, seconds = np.empty(N), np.empty(N)
     iterations, status = np.zeros(N, np.int64), np.zeros(N, np.int64)
-    max_len, max_ang = np.empty(N), np.empty(N)
-    warm_times = np.full(N, np.nan)
-    results = [None] * N
-    done = 0
-
-    def record(i, res, sec, errors, warm_time):
-        nonlocal done
+    max_len, max_ang, warm_times = np.empty(N), np.empty(N), np.full(N, np.nan)
+    results = []
+    for i, frame in enumerate(run.frames):
+        res = frame.result
         vertices[i] = res.vertices
-        results[i], energy[i], seconds[i] = res, res.energy, sec
-        iterations[i], status[i] = res.iterations, res.status
-        max_len[i], max_ang[i] = errors
-        warm_times[i] = warm_time
-        if send is not None:
-            send((int(i), res, sec, errors, warm_time))
-        if on_frame is not None:
-            on_frame(int(i), res)
-        done += 1
-        report(progress, done, N, f"frame {done} of {N} (t = {times[i]:g})")
-
-    pool = ChainWorkers(chains[1:], Zt, topology, X_ref, times, anchors, method, warm_start, tree, setup)
-    try:
-        report(progress, 0, N, "projecting frames")
-        for i in chains[0]:
-            t = float(times[i])
-            initial, frame_hybrid, warm_time = None, hybrid, np.nan
-            if warm_start and takes_start and known_t:  # anchors (listed first) win ties
-                initial, warm_time = predicted_start(t, known_t, known_X, "nearest")
-                predicted = False
-                if warm_start == "secant":
-                    guess, _ = predicted_start(t, known_t, known_X, "secant",
-                                               place=lambda X: context.align(X, keep_degenerate=True))
-                    if guess is not initial and context.energy(Zt[i], guess) < context.energy(Zt[i], initial):
-                        initial, predicted = guess, True
-                if not predicted and hybrid.nearest_start_iterations is not None:
-                    frame_hybrid = replace(hybrid, smoothing_iterations=hybrid.nearest_start_iterations)
-            t0 = time.perf_counter()
-            try:
-                res = reconstruct(Zt[i], topology, X_ref, method=method, context=context, initial_vertices=initial,
-                                  tree=tree, options=options, hybrid=frame_hybrid)
-            except LengthsAnglesError as exc:
-                raise LengthsAnglesError(f"frame at t = {t:g}: {exc}") from exc
-            sec = time.perf_counter() - t0
-            X = np.asarray(res.vertices, float)
-            errors = (np.nan, np.nan)
-            if np.all(np.isfinite(X)):
-                err = reconstruction_errors(X, Zt[i], topology)
-                errors = (err["max_length_error"], err["max_angle_error"])
-                known_t.append(t)  # usable as a warm start
-                known_X.append(X)
-            record(i, res, sec, errors, warm_time)
-            pool.collect(record, block=False)
-        pool.collect(record, block=True)
-    finally:
-        pool.close()
+        energy[i], seconds[i], iterations[i], status[i] = res.energy, frame.seconds, res.iterations, res.status
+        max_len[i], max_ang[i], warm_times[i] = frame.max_length_error, frame.max_angle_error, frame.warm_start_time
+        results.append(res)
     success = all(r.success for r in results)
-    failed = [float(times[i]) for i in range(N) if not results[i].success]
+    failed = [float(tg.times[i]) for i in range(N) if not results[i].success]
     first = next((r for r in results if not r.success), None)
     message = "all frames projected" if success else (f"projection failed its checks at t = {failed} "
                                                       f"(first: {first.failure}: {first.message})")
     total = time.perf_counter() - t_start
     return InterpolationResult(
-        vertices=vertices, times=times, z_targets=Zt, energy=energy, iterations=iterations, seconds=seconds,
-        max_length_error=max_len, max_angle_error=max_ang, status=status, warm_start_times=warm_times,
-        order=np.concatenate(chains), reconstructions=results, context=context, tree=tree, method=method,
-        success=bool(success), message=message, keyframes=keyframes, smooth=bool(smooth), timings={"total": total},
-        total_seconds=total, total_iterations=int(iterations.sum()), workers=len(chains))
-
-
-def _project_chain(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, setup, *,
-                   send):
-    """A worker's job (:class:`lacore.parallel.WorkerProcess`): one chain of frames, in the given order,
-    every frame sent back as it finishes."""
-    _project(z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree, None, setup, None,
-             keyframes=None, smooth=False, t_start=time.perf_counter(), order=np.arange(len(times)), send=send)
-
-
-class ChainWorkers:
-    """Chains of frames computed in worker processes (:mod:`lacore.parallel`), one process per chain.
-
-    Parameters
-    ----------
-    chains : list of int arrays
-        Frame indices of every chain in processing order (:func:`lacore.parallel.frame_chains`).
-    z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree
-        As in :func:`project_targets` (all frames; each worker receives its chain's).
-    setup : tuple
-        ``(settings, options, hybrid)`` (:func:`lacore.reconstruction.settings.split_options`).
-
-    Every chain starts from the anchors and continues from its own frames.  :meth:`collect`
-    hands finished frames to a callback ``record(index, result, seconds, (max length error,
-    max angle error), warm-start time)``; :meth:`close` kills the processes still running
-    (cancel, error).
-    """
-
-    def __init__(self, chains, z_targets, topology, reference_vertices, times, anchors, method, warm_start, tree,
-                 setup):
-        self._chains = [np.asarray(c) for c in chains]
-        self._messages = queue.Queue()
-        self._open = set()
-        self._workers = []
-        Zt, times = np.asarray(z_targets, float), np.asarray(times, float)
-        anchors = [(float(t), np.asarray(X, float)) for t, X in (anchors or [])]
-        try:
-            for tag, chain in enumerate(self._chains):
-                job = (Zt[chain], topology, reference_vertices, times[chain], anchors, method, warm_start, tree, setup)
-                self._workers.append(WorkerProcess(_project_chain, job, tag=tag, messages=self._messages))
-                self._open.add(tag)
-        except BaseException:
-            self.close()
-            raise
-
-    @property
-    def finished(self):
-        """Whether every worker has sent all its frames."""
-        return not self._open
-
-    def collect(self, record, block, limit=None):
-        """Record the frames the workers sent; returns how many.
-
-        ``block=False``: only those already there; ``block=True``: wait until every
-        worker is done, or until ``limit`` frames were recorded.  A worker's error is
-        raised here (:func:`lacore.parallel.raise_worker_error`) after closing all.
-        """
-        count = 0
-        while self._open and (limit is None or count < limit):
-            try:
-                tag, kind, payload = self._messages.get(block=block)
-            except queue.Empty:
-                break
-            if kind == "message":
-                j, res, sec, errors, warm_time = payload
-                record(int(self._chains[tag][j]), res, sec, errors, warm_time)
-                count += 1
-            elif kind == "done":
-                self._open.discard(tag)
-            else:
-                self.close()
-                raise_worker_error(payload)
-        return count
-
-    def close(self):
-        """Kill the worker processes still running (idempotent)."""
-        for worker in self._workers:
-            worker.close()
-        self._open.clear()
+        vertices=vertices, times=tg.times, z_targets=tg.z_targets, energy=energy, iterations=iterations,
+        seconds=seconds, max_length_error=max_len, max_angle_error=max_ang, status=status,
+        warm_start_times=warm_times, order=run.order, reconstructions=results, context=run.context, tree=run.tree,
+        method=run.options.method, success=bool(success), message=message, keyframes=keyframes, smooth=bool(smooth),
+        timings={"total": total}, total_seconds=total, total_iterations=int(iterations.sum()),
+        workers=len(run.chains) if run.chains is not None else 1)
 
 
 def _reference(Xs, reference, reference_vertices, topology):
@@ -665,22 +443,32 @@ def _reference(Xs, reference, reference_vertices, topology):
     return X
 
 
-def _run(shapes, topology, times, keyframes, smooth, bc_type, method, reference, reference_vertices, warm_start,
-         tree, setup, progress, on_frame=None, workers=1):
+def keyframe_targets(z_keys, keyframes, times, smooth=False, bc_type="natural"):
+    """Targets ``z~(t)`` at ``times``: :func:`spline_z` (``smooth``) or :func:`piecewise_linear_z` of the keys.
+
+    Examples
+    --------
+    >>> keyframe_targets([[1.0, 0.0], [3.0, 2.0]], [0.0, 1.0], [0.5, 2.0]).tolist()
+    [[2.0, 1.0], [5.0, 4.0]]
+    """
+    if smooth:
+        return spline_z(z_keys, keyframes, times, bc_type=bc_type)
+    return piecewise_linear_z(z_keys, keyframes, times)
+
+
+def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, reference_vertices, opts, progress,
+         on_frame, workers):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
-    if smooth:
-        targets = spline_z(z_keys, k, times, bc_type=bc_type)
-    else:
-        targets = piecewise_linear_z(z_keys, k, times)
+    targets = keyframe_targets(z_keys, k, times, smooth, bc_type)
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
-    return _project(targets, topology, X_ref, times, anchors, method, warm_start, tree, z_keys, setup, progress,
-                    keyframes=k, smooth=smooth, t_start=t_start, on_frame=on_frame, workers=workers)
+    run = SequenceProjection(targets, topology, X_ref, times, anchors, opts, samples=z_keys, workers=workers)
+    return sequence_result(run.run(progress, on_frame), t_start, keyframes=k, smooth=smooth)
 
 
-def interpolate(shapes, topology, factors, keyframes=None, method="gn", reference=0, reference_vertices=None,
+def interpolate(shapes, topology, factors, keyframes=None, method=None, reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
                 on_frame=None, workers=1, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
@@ -698,10 +486,13 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         linear in ``z`` and extended linearly beyond the end keyframes.
     keyframes : (K,) array_like, optional
         Strictly increasing times of the shapes (default ``0..K-1``).
-    method : {"gn", "hybrid", "bfs", "mst", "spt", "lsq"}
-        Projection by reconstruction; ``"gn"`` (default) is the energy-based
-        projection (Def. 4.3) and benefits from warm starts, the frame-based
-        methods share one preassembled spanning tree.
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+        Projection by reconstruction (as in :func:`project_targets`); None (default):
+        :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`, the preset
+        ``"fast"`` (continuation along ``t``, one Gauss-Newton step per frame);
+        ``"gn"`` is the energy-based projection (Def. 4.3) run to convergence from
+        the same warm starts; the frame-based methods share one preassembled
+        spanning tree.
     reference : int
         Index of the shape defining the weights of ``W_q``, the fixed triangle and
         the output frame (default 0).
@@ -710,7 +501,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     warm_start : {True, "secant", "nearest", False}
         Warm-start every Gauss-Newton projection from the extrapolation through
         the two nearest known shapes on one side (``True`` = ``"secant"``,
-        :func:`predicted_start`), from the nearest known shape (``"nearest"``),
+        :func:`~lacore.shapes.projection.predicted_start`), from the nearest known shape (``"nearest"``),
         or (False) from the reference shape (see the module docstring).
     tree : DualSpanningTree, optional
         Spanning tree for the frame-based methods (default preassembled from the shapes).
@@ -732,7 +523,7 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
         process computes the first, ``workers - 1`` worker processes the others
         (default 1: all frames here, in increasing time).  Each chain starts
         next to a key and continues from its own frames; each worker builds its
-        own solver (about 4 s and one more solver's memory at 50k vertices),
+        own solver (seconds and one more solver's memory for a large mesh),
         so it pays for long runs of frames of large meshes.
         :func:`lacore.parallel.default_workers` tells how many cores there are.
         A worker that cannot start or dies raises
@@ -760,14 +551,31 @@ def interpolate(shapes, topology, factors, keyframes=None, method="gn", referenc
     LengthsAnglesError
         A target with non-positive lengths (extrapolated too far) or one that
         violates the triangle inequality at most faces.
+
+    Examples
+    --------
+    Half-way between a bent and a twisted bar, and one step beyond the twist:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import interpolate, lengths_and_angles
+    >>> res = interpolate([bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)], topo, [0.5, 1.5])
+    >>> res.vertices.shape, bool(res.success)
+    ((2, 22, 3), True)
+    >>> size = np.linalg.norm(np.ptp(X, axis=0))      # the blend is not admissible: small length errors
+    >>> bool(np.all((0 < res.max_length_error) & (res.max_length_error < 1e-3 * size)))
+    True
     """
-    times = _check_times(factors, "factors")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="interpolate")[:3]
-    return _run(shapes, topology, times, keyframes, False, None, method, reference, reference_vertices,
-                warm_start, tree, setup, progress, on_frame, workers)
+    times = check_times(factors, "factors")
+    opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate")
+    return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, opts, progress,
+                on_frame, workers)
 
 
-def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method="gn",
+def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method=None,
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
                         options=None, hybrid=None, progress=None, on_frame=None, workers=1, **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
@@ -797,6 +605,21 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     -------
     InterpolationResult
         ``times`` are the frame numbers.
+
+    Examples
+    --------
+    Shapes keyed at frames 0, 4 and 8, the frames between them by a cubic spline in ``z``:
+
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)   # a closed box bar, 22 vertices
+    >>> topo = MeshTopology.from_faces(faces)
+    >>> from lacore import keyframe_inbetweens
+    >>> keys = [X, bar_pose(X, 0.5, 0.0), bar_pose(X, 0.5, 0.5)]
+    >>> res = keyframe_inbetweens(keys, topo, [0, 4, 8], smooth=True)
+    >>> res.times.tolist(), res.vertices.shape
+    ([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0], (9, 22, 3))
     """
     if keyframes is None:
         raise InputError("keyframe_inbetweens needs the keyframe numbers of the shapes")
@@ -804,7 +627,8 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     if frames is None:
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
-    times = _check_times(frames, "frames")
-    setup = split_options(reconstruct_kw, settings, options, hybrid, caller="keyframe_inbetweens")[:3]
-    return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, method, reference, reference_vertices,
-                warm_start, tree, setup, progress, on_frame, workers)
+    times = check_times(frames, "frames")
+    opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw,
+                              "keyframe_inbetweens")
+    return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, opts,
+                progress, on_frame, workers)

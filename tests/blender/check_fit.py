@@ -239,57 +239,217 @@ def bad_input():
     return out
 
 
-def fit_job_cancel():
-    """The modal operator's worker: cancelling through the progress callback changes nothing."""
+class FakeOperator:
+    """A long operator's run logic (the runs.RunOperator mixin) on a plain object: modal() driven by the test."""
+
+    def __init__(self):
+        self.reports = []
+        self.interactive = True
+
+    def report(self, kind, text):
+        self.reports.append((sorted(kind)[0], text))
+
+
+def fake_operator():
+    return type("Fake", (FakeOperator, ext("addon.runs").RunOperator), {})()
+
+
+def timer(op):
+    from types import SimpleNamespace
+    return SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)
+
+
+def esc():
+    from types import SimpleNamespace
+    return SimpleNamespace(type='ESC', value='PRESS', timer=None)
+
+
+def drive(op, run, until=None, timeout=300.0):
+    """Timer events to the operator's modal() every 5 ms until it returns something other than RUNNING_MODAL
+    or ``until(run)``; returns (state, [(done, total) seen while running])."""
+    seen, end = [], time.perf_counter() + timeout
+    while time.perf_counter() < end:
+        state = op.modal(bpy.context, timer(op))
+        seen.append((run.done, run.total))
+        if state != {'RUNNING_MODAL'} or (until is not None and until(run)):
+            return state, seen
+        time.sleep(0.005)
+    raise AssertionError(f"the modal run did not progress ({run.done} of {run.total})")
+
+
+def make_runs(context, obj, take):
+    """Build model (all keys), Bind (with ICP: one progress unit per iteration) and Fit (one per frame) runs."""
+    fit = ext("addon.operators_fit")
+    T = INPUTS["true"].shape[0]
+    return {"build_model": lambda: fit.model_run(obj),
+            "bind_markers": lambda: fit.bind_run(context, obj, take, align=True),
+            "fit_markers": lambda: fit.fit_run(context, obj, 1, T)}
+
+
+def runs_progress_and_cancel():
+    """Each long operator of the model/marker panel through the one run mechanism: modal steps in the worker
+    thread with progress; Esc while a step computes cancels it (lacore raises Cancelled inside the step) and
+    changes nothing; a full modal run writes what the synchronous operator writes."""
+    runs = ext("addon.runs")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    select_only(obj)
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    out = {}
+    for name, make in make_runs(bpy.context, obj, take).items():
+        before = state(obj)
+        op, run = fake_operator(), make()
+        op._begin_modal(bpy.context, run)
+        # Esc once the job has reported progress (or its step has ended)
+        state_, seen = drive(op, run, until=lambda r, op=op: r.done > 0 or (op._future is not None
+                                                                              and op._future.done()))
+        future = op._future
+        cancelled = op.modal(bpy.context, esc())
+        runs.wait_for_worker_thread()
+        try:
+            future.result()
+            raised = None
+        except Exception as exc:  # the cancelled step's exception type is what is checked
+            raised = type(exc).__name__
+        out[name] = {"running": sorted(state_), "cancel": sorted(cancelled), "reports": op.reports,
+                     "step_raised": raised, "seen_before_cancel": seen[-1], "unchanged": state(obj) == before,
+                     "total": run.total}
+    # full modal runs (bind without ICP, as its default): FINISHED, written, progress seen along the way
+    for name, make in (("build_model", lambda: ext("addon.operators_fit").model_run(obj)),
+                       ("bind_markers", lambda: ext("addon.operators_fit").bind_run(bpy.context, obj, take)),
+                       ("fit_markers", make_runs(bpy.context, obj, take)["fit_markers"])):
+        op, run = fake_operator(), make()
+        op._begin_modal(bpy.context, run)
+        final, seen = drive(op, run)
+        out[name]["full"] = {"state": sorted(final), "reports": [r[0] for r in op.reports], "seen": seen,
+                             "interactive_after": op.interactive}
+    out["fit_markers"]["full"]["modifier"] = "LA Fit" in obj.modifiers
+    return out
+
+
+def runs_object_changed():
+    """What a run read changes before it writes: the run writes nothing and names the change (each of
+    Build / Bind / Fit; the run is computed synchronously, the scene changed, then finished)."""
+    import bmesh
+
+    fit = ext("addon.operators_fit")
+    out = {}
+
+    def attempt(label, make, change):
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+        obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+        select_only(obj)
+        bpy.context.scene.frame_set(1)
+        run = make(bpy.context, obj, take)
+        run.run()
+        change(obj, take)
+        obj = bpy.data.objects.get("Body")
+        changed = state(obj) if obj is not None else None
+        op = fake_operator()
+        result = op._finish_run(run)
+        out[label] = {"result": sorted(result), "message": op.reports[-1][1],
+                      "unchanged": (state(obj) if obj is not None else None) == changed}
+
+    def edit_key(obj, take):
+        kb = obj.data.shape_keys.key_blocks["train03"]
+        kb.data[0].co.x += 0.1
+
+    def edit_mode(obj, take):
+        with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+            bpy.ops.object.mode_set(mode='EDIT')
+
+    def delete_vertex(obj, take):
+        bm = bmesh.new()
+        bm.from_mesh(obj.data)
+        bm.verts.ensure_lookup_table()
+        bmesh.ops.delete(bm, geom=[bm.verts[0]], context='VERTS')
+        bm.to_mesh(obj.data)
+        bm.free()
+
+    def other_frame(obj, take):
+        bpy.context.scene.frame_set(2)
+
+    def delete_marker(obj, take):
+        bpy.data.objects.remove(next(c for c in take.children if "lengths_angles_marker" in c))
+
+    def rebuild_model(obj, take):
+        with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+            assert bpy.ops.lengths_angles.build_model(n_modes=2) == {'FINISHED'}
+
+    def delete_object(obj, take):
+        bpy.data.objects.remove(obj)
+
+    # small runs (4 training keys, 2 frames): the check is about what happens after them
+    build = lambda context, obj, take: fit.model_run(obj, [f"train{k:02d}" for k in range(4)])  # noqa: E731
+    bind = lambda context, obj, take: fit.bind_run(context, obj, take)  # noqa: E731
+    fit_ = lambda context, obj, take: fit.fit_run(context, obj, 1, 2)  # noqa: E731
+    attempt("build_key_edited", build, edit_key)
+    attempt("build_edit_mode", build, edit_mode)
+    attempt("bind_other_frame", bind, other_frame)
+    attempt("bind_marker_deleted", bind, delete_marker)
+    attempt("fit_mesh_edited", fit_, delete_vertex)
+    attempt("fit_model_rebuilt", fit_, rebuild_model)
+    attempt("fit_marker_deleted", fit_, delete_marker)
+    attempt("fit_object_deleted", fit_, delete_object)
+    return out
+
+
+def script_defaults_and_paths():
+    """Fit's Cache File takes '//' paths (no warning, written next to the .blend with the permissions of any
+    new file); an unsaved .blend and a missing folder are named; Remove Data removes the model and binding."""
+    import stat
+    import warnings
+
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj = bpy.data.objects["Body"]
     select_only(obj)
-    os.remove(bpy.path.abspath(obj.modifiers["LA Fit"].filepath))
-    obj.modifiers.remove(obj.modifiers["LA Fit"])
-    before = state(obj)
-    job = ext("addon.operators_fit").FitJob(bpy.context, obj, 1, INPUTS["true"].shape[0])
-    seen = []
-
-    def cancel_after_two(done, total, message=""):
-        seen.append(done)
-        job.progress = (done, total)
-        return done >= 2
-    job._progress = cancel_after_two
-    job.run()
-    return {"error": job.error, "progress_seen": seen, "unchanged": state(obj) == before}
-
-
-def modal_steps():
-    """The modal operator's steps with a worker thread: Esc cancels, nothing changes; then a full run."""
-    import threading
-    from types import SimpleNamespace
-
-    fit = ext("addon.operators_fit")
-    op_cls = fit.LENGTHS_ANGLES_OT_fit_markers
-    obj = bpy.data.objects["Body"]
-    out = {}
-    for name, esc in (("esc", True), ("complete", False)):
+    os.makedirs(os.path.join(ARGS.workdir, "caches"), exist_ok=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = bpy.ops.lengths_angles.fit_markers(filepath="//caches/custom.pc2")
+    path = os.path.join(ARGS.workdir, "caches", "custom.pc2")
+    umask = os.umask(0)
+    os.umask(umask)
+    mode = stat.S_IMODE(os.stat(path).st_mode)
+    out = {"result": sorted(result), "warnings": [str(w.message) for w in caught], "exists": os.path.isfile(path),
+           "modifier_path": obj.modifiers["LA Fit"].filepath, "mode": oct(mode), "expected_mode": oct(0o666 & ~umask)}
+    messages = {}
+    for label, filepath in (("missing_folder", "//no/such/folder/x.pc2"),):
         before = state(obj)
-        job = fit.FitJob(bpy.context, obj, 1, INPUTS["true"].shape[0])
-        reports = []
-        op = SimpleNamespace(_job=job, _timer=None, report=lambda kind, msg, r=reports: r.append(sorted(kind)))
-        op._finish = lambda context, j, op=op: op_cls._finish(op, context, j)
-        if esc:
-            job.cancel = True  # Esc arrives before the worker starts: cancelled at the first frame
-        op._thread = threading.Thread(target=job.run, daemon=True)
-        op._thread.start()
-        steps = [sorted(op_cls.modal(op, bpy.context, SimpleNamespace(type='ESC' if esc else 'MOUSEMOVE')))]
-        while True:
-            r = op_cls.modal(op, bpy.context, SimpleNamespace(type='TIMER'))
-            if r != {'RUNNING_MODAL'}:
-                steps.append(sorted(r))
-                break
-            time.sleep(0.05)
-        out[name] = {"first": steps[0], "last": steps[-1], "reports": reports, "unchanged": state(obj) == before,
-                     "progress": list(job.progress)}
-    out["complete"]["modifier"] = "LA Fit" in obj.modifiers
+        try:
+            bpy.ops.lengths_angles.fit_markers(filepath=filepath)
+        except RuntimeError as exc:
+            messages[label] = {"message": str(exc), "unchanged": state(obj) == before}
+    # Remove Data: encoding, model (and its preview key, sliders) and binding
+    obj.lengths_angles_mode_weights[0] = 0.5
+    ext("addon.operators_fit").update_previews()
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        assert bpy.ops.lengths_angles.remove_data() == {'FINISHED'}
+    out["after_remove_data"] = {"mesh_props": sorted(obj.data.keys()), "object_props": sorted(obj.keys()),
+                                "preview_key": "LA model preview" in obj.data.shape_keys.key_blocks,
+                                "sliders": max(abs(v) for v in obj.lengths_angles_mode_weights)}
+    # an unsaved .blend (the objects appended into a new file): '//' paths have nothing to be relative to
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with bpy.data.libraries.load(os.path.join(ARGS.workdir, "fit.blend"), link=False) as (src, dst):
+        dst.objects = list(src.objects)
+    for o in dst.objects:
+        bpy.context.scene.collection.objects.link(o)
+    obj = bpy.data.objects["Body"]
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, INPUTS["true"].shape[0]
+    select_only(obj)
+    assert bpy.data.filepath == ""
+    for label, filepath in (("unsaved_relative", "//x.pc2"), ("unsaved_default", "")):
+        before = state(obj)
+        try:
+            bpy.ops.lengths_angles.fit_markers(filepath=filepath)
+        except RuntimeError as exc:
+            messages[label] = {"message": str(exc), "unchanged": state(obj) == before}
+    out["messages"] = messages
     return out
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, fit_job_cancel, modal_steps])
+    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, runs_progress_and_cancel,
+               runs_object_changed, script_defaults_and_paths])

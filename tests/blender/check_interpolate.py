@@ -117,6 +117,12 @@ def install_and_enable():
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
     assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON"]
     assert props["method"].default == "FAST"
+    import importlib
+    ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    preset = importlib.import_module(MODULE + ".lacore.reconstruction.settings").DEFAULT_PROJECTION
+    # Fast is lacore's default projection (the CLI's and the library's), not a table of its own
+    fast = ops_mod.METHOD_OPTIONS["FAST"]
+    assert (fast.method, fast.options, fast.hybrid) == (preset.method, preset.options, preset.hybrid)
     assert props["interactive"].is_hidden and not props["interactive"].default  # scripts run synchronously
     bake_props = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
     assert {"keys", "frames", "smooth", "method"} <= set(bake_props.keys()), bake_props.keys()
@@ -425,6 +431,7 @@ def failed_checks_warn():
 
     reset()
     ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    runs_mod = importlib.import_module(MODULE + ".addon.runs")
     load_mesh = importlib.import_module(MODULE + ".lacore.io.meshes").load_mesh
     topology_mod = importlib.import_module(MODULE + ".lacore.geometry.topology")
     meshes = shared_meshes_dir()
@@ -435,9 +442,9 @@ def failed_checks_warn():
     ops_mod.inbetween_shapes(topo, A, B, [0.5, 1.25], 'FAST', failures=fast)
     preview = []
     ops_mod.inbetween_shapes(topo, A, B, [0.5, 1.25], 'PREVIEW', failures=preview)
-    warning = ops_mod.failure_warning(preview)
+    warning = runs_mod.failure_warning(preview)
     assert len(preview) == 1 and preview[0].startswith("t = 1.25: folded"), preview
-    assert fast == [] and ops_mod.failure_warning(fast) is None, fast
+    assert fast == [] and runs_mod.failure_warning(fast) is None, fast
     obj = cases.shared_mesh_pair("Finger", os.path.join(meshes, "finger", "finger0.ply"),
                                  os.path.join(meshes, "finger", "finger1.ply"), "Finger1", load_mesh)
     status = interpolate(obj, key_from="Basis", key_to="Finger1", factors="1.25", method='PREVIEW')
@@ -479,7 +486,7 @@ def processes_side_by_side():
     for method in ("GAUSS_NEWTON", "FAST"):
         for n in (1, 2):
             session.clear_results()
-            runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, method, workers=n)
+            runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, method, workers=n)
             runner.run()
             runs[method, n] = (runner.job.processes, np.array(runner.job.results))
     differences = {m: float(np.abs(runs[m, 1][1] - runs[m, 2][1]).max() / diag) for m in ("GAUSS_NEWTON", "FAST")}
@@ -493,21 +500,21 @@ def processes_side_by_side():
     # the modal path: one tick (starts the worker process, computes this process's first frame), then Esc
     parallel = importlib.import_module(MODULE + ".lacore.parallel")
     session.clear_results()
-    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
     runner.tick()
     running_after_tick = len(parallel._RUNNING)
     runner.cancel()
     running_after_cancel = len(parallel._RUNNING)
     # the modal operators: every chain in a worker process, Blender's process only collects
     session.clear_results()
-    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
     runner.job.all_in_workers = True
     runner.run()
     all_in_workers = {"processes": runner.job.processes, "local_frames": runner.job.local_frames,
                       "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max()
                                           / diag)}
     session.clear_results()
-    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
     runner.job.all_in_workers = True
     runner.tick()  # waits for the first frame of a worker
     runner.cancel()
@@ -519,14 +526,14 @@ def processes_side_by_side():
     session.clear_results()
     sys.executable = os.path.join(ARGS.workdir, "no-such-python")
     try:
-        runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+        runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
         runner.run()
     finally:
         sys.executable = executable
     no_start = {"processes": runner.job.processes, "notes": list(runner.notes),
                 "difference": float(np.abs(np.array(runner.job.results) - runs["GAUSS_NEWTON", 1][1]).max() / diag)}
     session.clear_results()
-    runner = ops_mod.interpolate_runner(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
+    runner = ops_mod.inbetween_run(obj, "Basis", "Bend180", factors, "GAUSS_NEWTON", workers=2)
     runner.tick()
     for worker in list(parallel._RUNNING):
         worker._process.kill()

@@ -29,7 +29,7 @@ def install_and_enable():
 
 
 class FakeOperator:
-    """The operators' run logic (the _ModalRun mixin) on a plain object: modal() driven by the test."""
+    """The operators' run logic (the runs.RunOperator mixin) on a plain object: modal() driven by the test."""
 
     def __init__(self):
         self.reports = []
@@ -40,8 +40,12 @@ class FakeOperator:
 
 
 def fake_operator():
-    ops = mod("operators_interpolate")
-    return type("Fake", (FakeOperator, ops._ModalRun), {})()
+    return type("Fake", (FakeOperator, mod("runs").RunOperator), {})()
+
+
+def wait_for_worker_thread():
+    """The step running in the modal runs' worker thread (if any) has ended."""
+    mod("runs").wait_for_worker_thread()
 
 
 def timer_event(op):
@@ -73,7 +77,7 @@ def modal_steps_and_cancel():
     before = snapshot(obj)
     # cancel after 2 of 4 frames (Esc)
     op = fake_operator()
-    runner = ops.interpolate_runner(obj, "Basis", "Bend180", [0.2, 0.4, 0.6, 0.8], 'FAST')
+    runner = ops.inbetween_run(obj, "Basis", "Bend180", [0.2, 0.4, 0.6, 0.8], 'FAST')
     op._begin_modal(ctx, runner)
     state, _ = drive(op, ctx, runner, until_done=2)
     assert state == {'RUNNING_MODAL'} and 2 <= runner.done < 4, (state, runner.done)
@@ -81,14 +85,14 @@ def modal_steps_and_cancel():
     assert other == {'PASS_THROUGH'}, other
     assert op.modal(ctx, SimpleNamespace(type='ESC', value='PRESS', timer=None)) == {'CANCELLED'}
     assert op._timer is None and runner.cancelled
-    ops._worker().submit(lambda: None).result()  # the frame being computed when Esc came has ended
+    wait_for_worker_thread()  # the frame being computed when Esc came has ended
     assert snapshot(obj) == before, "cancel changed the object"
     cancel_reports = list(op.reports)
 
     # a full run: RUNNING_MODAL while frames are computed, then FINISHED and the keys written
     session.clear()
     op = fake_operator()
-    runner = ops.interpolate_runner(obj, "Basis", "Bend180", [0.2, 0.4, 0.6, 0.8], 'FAST')
+    runner = ops.inbetween_run(obj, "Basis", "Bend180", [0.2, 0.4, 0.6, 0.8], 'FAST')
     op._begin_modal(ctx, runner)
     state, events = drive(op, ctx, runner)
     assert state == {'FINISHED'} and runner.done == 4, (state, runner.done)
@@ -107,7 +111,7 @@ def modal_steps_and_cancel():
     # the mesh edited between frames: finish writes nothing and says what changed
     session.clear()
     op = fake_operator()
-    runner = ops.interpolate_runner(obj, "Basis", "Bend180", [0.3, 0.7], 'PREVIEW')
+    runner = ops.inbetween_run(obj, "Basis", "Bend180", [0.3, 0.7], 'PREVIEW')
     op._begin_modal(ctx, runner)
     drive(op, ctx, runner, until_done=1)
     kb = obj.data.shape_keys.key_blocks["Bend180"]
@@ -124,25 +128,37 @@ def modal_steps_and_cancel():
     session.clear()
     before = snapshot(obj)
     op = fake_operator()
-    runner = ops.bake_runner(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
+    runner = ops.bake_run(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
     op._begin_modal(ctx, runner)
     drive(op, ctx, runner, until_done=1)
     assert op.modal(ctx, SimpleNamespace(type='RIGHTMOUSE', value='PRESS', timer=None)) == {'CANCELLED'}
-    ops._worker().submit(lambda: None).result()
+    wait_for_worker_thread()
     assert snapshot(obj) == before, "cancelling the bake changed the object"
     op = fake_operator()
-    runner = ops.bake_runner(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
+    runner = ops.bake_run(obj, ["Basis", "Bend180"], [1, 6], playback='SMOOTH')
     op._begin_modal(ctx, runner)
     bake_state, _ = drive(op, ctx, runner)
     modal_bake = snapshot(obj)
-    session.clear()  # the same bake synchronously from a clean cache: it replaces the modal one identically
+    session.clear()  # the same bake synchronously from a clean cache: it replaces the modal one
     with ops_context(obj):
         assert bpy.ops.lengths_angles.bake_keyframes(keys="Basis, Bend180", frames="1 6", playback='SMOOTH') \
             == {'FINISHED'}
-    bake_same = modal_bake == snapshot(obj)
+    bake_same, bake_diff = compare_snapshots(modal_bake, snapshot(obj))
     return {"cancel_reports": cancel_reports, "events_full_run": events, "bake_state": sorted(bake_state),
             "bake_keys": [n for n in key_names(obj) if n.startswith("LA bake")], "modal_bake_equals_sync": bake_same,
-            "modal_vs_sync_max_abs": diff, "edited_while_running": edit_message}
+            "modal_vs_sync_bake_max_abs": bake_diff, "modal_vs_sync_max_abs": diff,
+            "edited_while_running": edit_message}
+
+
+def compare_snapshots(a, b):
+    """``(everything but the key coordinates equal, largest coordinate difference)`` of two snapshots."""
+    import json
+
+    a, b = json.loads(a), json.loads(b)
+    coords_a, coords_b = [k.pop(3) for k in a["keys"]], [k.pop(3) for k in b["keys"]]
+    if a != b or len(coords_a) != len(coords_b):
+        return False, None
+    return True, max(float(np.abs(np.subtract(x, y)).max()) for x, y in zip(coords_a, coords_b, strict=True))
 
 
 def session_cache():
@@ -191,6 +207,13 @@ def session_cache():
     return out
 
 
+# properties of Blender's file browser (ImportHelper) that the import operator inherits
+IMPORT_HELPER = {("import_markers", "filepath"), ("import_markers", "filter_glob"), ("import_markers", "files"),
+                 ("import_markers", "directory")}
+# enum items that are names (shape keys) or axes (X, -Y ...): no description of their own
+SELF_EXPLAINING_ITEMS = ("key_from", "key_to", "axis_forward", "axis_up")
+
+
 def key_pickers_and_texts():
     """Key enums from the mesh's key list, default From/To, enum item descriptions, one-line tooltips,
     Shape Keys menu entries."""
@@ -205,16 +228,17 @@ def key_pickers_and_texts():
         assert bpy.ops.lengths_angles.interpolate(factors="0.5", method='PREVIEW') == {'FINISHED'}
     default_pair_key = "LA Basis>Bend180 0.500" in key_names(obj)
     obj.active_shape_key_index = 0  # the reference key active: To = the first other key
-    pair_ref_active = ops._default_pair(obj)
+    pair_ref_active = ops.default_pair(obj)
     descriptions = {}
-    for op_name in ("interpolate", "bake_keyframes", "clear_bake", "encode", "remove_data"):
+    operators = sorted(n for n in dir(bpy.ops.lengths_angles) if not n.startswith("_"))
+    for op_name in operators:  # every operator of the add-on: every property has a tooltip
         rna = getattr(bpy.ops.lengths_angles, op_name).get_rna_type()
         descriptions[op_name] = rna.description
         for prop in rna.properties:
-            if prop.identifier == "rna_type" or prop.is_hidden:
+            if prop.identifier == "rna_type" or prop.is_hidden or (op_name, prop.identifier) in IMPORT_HELPER:
                 continue
             assert prop.description and "\n" not in prop.description, (op_name, prop.identifier)
-            if prop.type == 'ENUM' and not prop.is_enum_flag and prop.identifier not in ("key_from", "key_to"):
+            if prop.type == 'ENUM' and not prop.is_enum_flag and prop.identifier not in SELF_EXPLAINING_ITEMS:
                 for item in prop.enum_items:
                     assert len(item.description) > 20, (op_name, prop.identifier, item.identifier)
     for op_name, text in descriptions.items():
@@ -229,7 +253,11 @@ def key_pickers_and_texts():
     pinned = SimpleNamespace(object=obj, active_object=other, scene=bpy.context.scene)
     calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_shape_keys, pinned)
     labels = [kw.get("text") for name, _, kw in calls if name == "label"]
-    return {"items": [(i[0], i[4]) for i in items], "flag_items": [(i[0], i[4]) for i in flags],
+    import doctest
+
+    naming = doctest.testmod(mod("naming"))  # the examples of the names and typed lists (no bpy, in Blender's Python)
+    return {"naming_doctests": [naming.failed, naming.attempted],
+            "items": [(i[0], i[4]) for i in items], "flag_items": [(i[0], i[4]) for i in flags],
             "default_pair_key": default_pair_key, "pair_ref_active": list(pair_ref_active),
             "descriptions": descriptions, "menu_operators": menu_ops, "pinned_labels": labels}
 
@@ -244,7 +272,7 @@ def bake_dialog_and_playback():
     bpy.context.scene.frame_current = 5
     cls = bpy.types.LENGTHS_ANGLES_OT_bake_keyframes
     rna = bpy.ops.lengths_angles.bake_keyframes.get_rna_type().properties
-    fake = SimpleNamespace(keys="", frames="", key_set=set(ops._default_pair(obj)), frame_start=5,
+    fake = SimpleNamespace(keys="", frames="", key_set=set(ops.default_pair(obj)), frame_start=5,
                            frame_step=rna["frame_step"].default, smooth=False, playback='STEPPED', method='FAST')
     fake.bake_inputs = MethodType(cls.bake_inputs, fake)
     fake.summary = MethodType(cls.summary, fake)
@@ -378,7 +406,7 @@ def multires_method():
     for method in ("GAUSS_NEWTON", "MULTIRES"):  # MULTIRES: not an item of the Method enum yet (the runner takes it)
         session.clear()
         t = time.perf_counter()
-        runner = mod("operators_interpolate").interpolate_runner(obj, "Basis", "Bend180", [0.5, 0.75], method)
+        runner = mod("operators_interpolate").inbetween_run(obj, "Basis", "Bend180", [0.5, 0.75], method)
         runner.run()
         runner.finish()
         out[method] = {"seconds": time.perf_counter() - t, "X": coords(obj, "LA Basis>Bend180 0.500")}
@@ -398,9 +426,131 @@ def multires_method():
             "seconds": {m: v["seconds"] for m, v in out.items()}, "objects": session.STATS.get("object_miss", 0)}
 
 
+def integrability_of_holes_and_handles():
+    """A torus with one face removed (genus 1, a hole: two handle loops to check) encodes as integrable and the
+    tooltip says the loops close; a verdict stored by lacore for lengths and angles that fail around a hole (a
+    cone frustum's, all angles 0) gives "not integrable" and a tooltip saying where; an encoding stored without
+    the verdict falls back to the vertex condition and says so."""
+    import bmesh
+    storage, panels = mod("storage"), mod("panels")
+    reset()
+    bpy.ops.mesh.primitive_torus_add(major_segments=24, minor_segments=12)
+    obj = bpy.context.active_object
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bm.faces.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.faces[0]], context='FACES_ONLY')
+    bm.to_mesh(obj.data)
+    bm.free()
+    obj.shape_key_add(name="Basis")
+    squash = obj.shape_key_add(name="Squash")
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    squash.data.foreach_get("co", co)
+    co[2::3] *= 0.5
+    squash.data.foreach_set("co", co)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        state = bpy.ops.lengths_angles.encode()
+    stored = storage.read_encoding(obj.data)["keys"]
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_shape_keys, SimpleNamespace(object=obj))
+    verdicts = [kw.get("text") for name, args, kw in calls
+                if name == "operator" and args[0] == "lengths_angles.integrability_info"]
+    tips = [panels.integrability_text(v, i)[1] for _, _, v, i in storage.key_status(obj.data)]
+    lc = importlib.import_module(MODULE + ".lacore")
+    surfaces = importlib.import_module(MODULE + ".lacore.samples.surfaces")
+    faces, z = surfaces.cone_strip()
+    check = lc.check_integrability(z, lc.MeshTopology.from_faces(faces))
+    bad = panels.integrability_text(check.max_local, {"integrable": check.integrable, "integrability": check.describe(),
+                                                      "integrability_where": check.where()})
+    old = panels.integrability_text(2e-31)
+    return {"state": sorted(state), "stored": {k: [v["integrable"], v["integrability_where"], v["integrability"]]
+                                               for k, v in stored.items()},
+            "verdicts": verdicts, "tips": tips, "cone": list(bad), "old": list(old)}
+
+
+def script_defaults():
+    """bpy.ops calls without arguments do what the dialogs propose (issue 18): Bake = the reference and the active
+    key from the current frame every Frames Between Keys; typed keys alone start there too; typed frames alone
+    take the proposed keys; Clear Bake with nothing baked says so (no poll failure)."""
+    reset()
+    obj = bar_with_keys()
+    obj.active_shape_key_index = 1  # Bend180
+    scene = bpy.context.scene
+    scene.frame_current = 3
+    out = {}
+
+    def baked():
+        return [n for n in key_names(obj) if n.startswith("LA bake")]
+
+    with ops_context(obj):
+        out["no_arguments"] = {"result": sorted(bpy.ops.lengths_angles.bake_keyframes()), "baked": baked(),
+                               "source": obj.data["lengths_angles_bake"]["source"].to_dict()}
+        out["keys_only"] = {"result": sorted(bpy.ops.lengths_angles.bake_keyframes(keys="Basis, SimpleDeform90")),
+                            "baked": baked(), "source": obj.data["lengths_angles_bake"]["source"].to_dict()}
+        out["frames_only"] = {"result": sorted(bpy.ops.lengths_angles.bake_keyframes(frames="1 4")),
+                              "baked": baked(), "source": obj.data["lengths_angles_bake"]["source"].to_dict()}
+        out["consecutive_frames"] = {"result": sorted(bpy.ops.lengths_angles.bake_keyframes(frames="1 2")),
+                                     "baked": baked()}  # nothing between the keys: only keyframes
+        out["interpolate_no_arguments"] = sorted(bpy.ops.lengths_angles.interpolate())
+        assert bpy.ops.lengths_angles.clear_bake() == {'FINISHED'}
+        before = snapshot(obj)
+        out["clear_nothing"] = {"result": sorted(bpy.ops.lengths_angles.clear_bake()), "unchanged": snapshot(obj) ==
+                                before}
+    for source in ("no_arguments", "keys_only", "frames_only"):
+        src = out[source]["source"]
+        out[source]["source"] = {"keys": [str(k) for k in src["keys"]], "frames": [int(f) for f in src["frames"]]}
+    empty = bpy.data.objects.new("Empty", None)
+    scene.collection.objects.link(empty)
+    try:
+        with ops_context(empty):
+            bpy.ops.lengths_angles.clear_bake()
+        out["clear_not_a_mesh"] = None
+    except RuntimeError as exc:
+        out["clear_not_a_mesh"] = str(exc)
+    out["in_betweens_after"] = [n for n in key_names(obj) if n.startswith("LA Basis>")]
+    return out
+
+
+def changed_while_computing():
+    """In-betweens and Bake: what the run read changes before it writes (Edit Mode entered, a key renamed, the
+    object deleted): nothing is written and the message names it; Esc after a step changes nothing."""
+    ops, session = mod("operators_interpolate"), mod("session")
+    out = {}
+
+    def attempt(label, make, change):
+        reset()
+        obj = bar_with_keys()
+        session.clear()
+        run = make(obj)
+        run.run()
+        change(obj)
+        obj = bpy.data.objects.get("Bar")
+        changed = snapshot(obj) if obj is not None else None
+        op = fake_operator()
+        result = op._finish_run(run)
+        out[label] = {"result": sorted(result), "message": op.reports[-1][1],
+                      "unchanged": (snapshot(obj) if obj is not None else None) == changed}
+
+    def edit_mode(obj):
+        with ops_context(obj):
+            bpy.ops.object.mode_set(mode='EDIT')
+
+    def rename(obj):
+        obj.data.shape_keys.key_blocks["SimpleDeform90"].name = "Renamed"
+
+    inbetweens = lambda obj: ops.inbetween_run(obj, "Basis", "Bend180", [0.5], 'PREVIEW')  # noqa: E731
+    baking = lambda obj: ops.bake_run(obj, ["Basis", "Bend180"], [1, 3], method='PREVIEW')  # noqa: E731
+    attempt("inbetweens_edit_mode", inbetweens, edit_mode)
+    attempt("inbetweens_deleted", inbetweens, lambda obj: bpy.data.objects.remove(obj))
+    attempt("bake_key_renamed", baking, rename)
+    attempt("bake_key_edited", baking, lambda obj: obj.data.shape_keys.key_blocks["Bend180"].data[3].co.__setitem__(
+        2, 7.0))
+    return out
+
+
 def main():
     run_cases((install_and_enable, multires_method, modal_steps_and_cancel, session_cache, key_pickers_and_texts,
-               bake_dialog_and_playback, clear_bake_after_renames, remove_data_and_messages))
+               bake_dialog_and_playback, clear_bake_after_renames, remove_data_and_messages, script_defaults,
+               changed_while_computing, integrability_of_holes_and_handles))
 
 
 if __name__ == "__main__":

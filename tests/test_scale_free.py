@@ -1,0 +1,208 @@
+"""Issue 18, extreme scales: a mesh and its scaled copy give the same result up to the scale, on every path.
+
+The deformed spheres (513 vertices) scaled by 1e-160, 1e-80, 1e80, 1e160 (far outside the safe range
+2^-100 .. 2^100 of :func:`lacore.geometry.lengths_angles.safe_scale_exponent`): the CLI (``encode``,
+``interpolate``, ``reconstruct``) and the library (every reconstruction method, interpolation, the
+integrability violation) compute in units of an exact power of two (:mod:`lacore.reconstruction.context`,
+"Units"), with no RuntimeWarning; coordinates float64 cannot hold faithfully get a message that says what to do.
+"""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from conftest import load_topology, shared_mesh
+
+from lacore.cli import main
+from lacore.errors import InputError, MeshError
+from lacore.geometry.lengths_angles import check_float_range, lengths_and_angles, safe_scaled
+from lacore.geometry.trigonometry import interior_angle_jacobian, interior_angles, triangle_areas
+from lacore.integrability.local import euler_integrability_jacobian, integrability_violation
+from lacore.io.meshes import load_mesh, save_mesh
+from lacore.reconstruction import get_context, reconstruct, reconstruction_errors
+from lacore.shapes.interpolation import interpolate
+
+SCALES = (1e-160, 1e-80, 1e80, 1e160)
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    X0, topo = load_topology("sphere/defSphere0.ply")
+    X1, _ = load_topology("sphere/defSphere5.ply")
+    return topo, X0, X1
+
+
+def run_main(capsys, *argv):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a RuntimeWarning (overflow, underflow) fails the test
+        code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def scaled_z(z, topology, scale):
+    E = topology.n_edges
+    return np.concatenate([z[:E] * scale, z[E:]])
+
+
+# --------------------------------------------------------------------------- CLI
+@pytest.fixture(scope="module")
+def cli_reference(spheres, tmp_path_factory):
+    """The unscaled CLI results: encode summary, interpolated frame, reconstruction."""
+    topo, X0, X1 = spheres
+    d = tmp_path_factory.mktemp("unscaled")
+    return d, _cli_run(d, X0, X1, topo.faces, 1.0)
+
+
+def _cli_run(d, X0, X1, faces, scale):
+    save_mesh(d / "a.ply", X0 * scale, faces)
+    save_mesh(d / "b.ply", X1 * scale, faces)
+    out = {}
+    code = main(["encode", str(d / "a.ply"), "--json", "-o", str(d / "a.npz")])
+    assert code == 0
+    code = main(["interpolate", str(d / "a.ply"), str(d / "b.ply"), "--t", "0.5", "-o", str(d / "i"), "--json"])
+    out["interpolate"] = code
+    code = main(["reconstruct", "--ref", str(d / "a.ply"), "--target", str(d / "a.ply"), str(d / "b.ply"),
+                 "-o", str(d / "r.ply")])
+    out["reconstruct"] = code
+    out["frame"] = load_mesh(d / "i_000.ply")[0]
+    out["average"] = load_mesh(d / "r.ply")[0]
+    with np.load(d / "a.npz") as f:
+        out["violation"] = f["integrability_violation"]
+        out["z"] = f["z"]
+    return out
+
+
+@pytest.mark.parametrize("scale", SCALES)
+def test_cli_encode_interpolate_reconstruct_are_scale_free(scale, spheres, cli_reference, tmp_path, capsys):
+    topo, X0, X1 = spheres
+    _, ref = cli_reference
+    capsys.readouterr()
+    save_mesh(tmp_path / "a.ply", X0 * scale, topo.faces)
+    save_mesh(tmp_path / "b.ply", X1 * scale, topo.faces)
+    code, out, err = run_main(capsys, "encode", tmp_path / "a.ply", "--json", "-o", tmp_path / "a.npz")
+    summary = json.loads(out)
+    # 1e-160 used to report 1.06 (lengths multiplied to subnormal numbers), 1e160 to fail ("degenerate")
+    assert code == 0 and err == "" and max(summary["max_integrability_violation"].values()) < 1e-20, (err, summary)
+    with np.load(tmp_path / "a.npz") as f:
+        E = topo.n_edges
+        assert np.abs(f["z"][E:] - ref["z"][E:]).max() < 1e-12  # measured <= 4e-15 (the rounding of X * scale)
+        assert np.abs(f["z"][:E] / scale / ref["z"][:E] - 1).max() < 1e-12
+    code, out, err = run_main(capsys, "interpolate", tmp_path / "a.ply", tmp_path / "b.ply", "--t", "0.5",
+                              "-o", tmp_path / "i", "--json")
+    summary = json.loads(out)
+    assert code == 0 and summary["success"], (err, summary["message"])  # used to exit 2: "fixed face degenerate"
+    frame = load_mesh(tmp_path / "i_000.ply")[0]
+    diag = np.linalg.norm(np.ptp(ref["frame"], axis=0))
+    assert np.abs(frame / scale - ref["frame"]).max() < 1e-9 * diag  # measured <= 4e-15 of the diagonal
+    code, out, err = run_main(capsys, "reconstruct", "--ref", tmp_path / "a.ply", "--target", tmp_path / "a.ply",
+                              tmp_path / "b.ply", "-o", tmp_path / "r.ply")
+    assert code == 0 and err == "", err
+    average = load_mesh(tmp_path / "r.ply")[0]
+    assert np.abs(average / scale - ref["average"]).max() < 1e-9 * diag
+
+
+@pytest.mark.parametrize("case, fragment", [
+    ("subnormal", "subnormal float64 numbers (largest |x| = 4.68e-310"),
+    ("overflow", "edge lengths exceed the largest float64 number"),
+])
+def test_cli_names_coordinates_float64_cannot_hold(case, fragment, spheres, tmp_path, capsys):
+    """Below 2.2e-308 the stored shape has lost bits; beyond 1.8e308 edge lengths overflow: exit 2, what to do,
+    nothing written."""
+    if case == "subnormal":
+        X, F = load_mesh(shared_mesh("finger/finger0.ply"))
+        X = X * 1e-310
+    else:
+        X = np.array([[-1.5e308, 0, 0], [1.5e308, 0, 0], [0, 1e308, 0], [0, -1e308, 1e307]])
+        F = np.array([[0, 1, 2], [1, 0, 3]])
+    save_mesh(tmp_path / "m.ply", X, F)
+    code, out, err = run_main(capsys, "encode", tmp_path / "m.ply", "-o", tmp_path / "m.npz")
+    assert code == 2 and fragment in err and "export the mesh in a" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "m.npz").exists()
+
+
+# --------------------------------------------------------------------------- library
+@pytest.mark.parametrize("scale", SCALES)
+def test_every_method_and_interpolation_are_scale_free(scale, spheres):
+    topo, X0, X1 = spheres
+    z0, z1 = lengths_and_angles(X0, topo), lengths_and_angles(X1, topo)
+    za = 0.5 * (z0 + z1)
+    diag = np.linalg.norm(np.ptp(X0, axis=0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for method in ("gn", "lsq", "mst", "hybrid"):
+            ref = reconstruct(za, topo, X0, method=method)
+            res = reconstruct(scaled_z(za, topo, scale), topo, X0 * scale, method=method)
+            # measured 0 (powers of two) and <= 5e-15 (these scales)
+            assert np.abs(res.vertices / scale - ref.vertices).max() < 1e-9 * diag, method
+            assert res.energy == pytest.approx(ref.energy, rel=1e-9) and res.success == ref.success
+            assert any("coordinates of magnitude 2^" in n for n in res.notes)
+            err = reconstruction_errors(res.vertices, scaled_z(za, topo, scale), topo)
+            assert err["rms_length_error"] / scale == pytest.approx(
+                reconstruction_errors(ref.vertices, za, topo)["rms_length_error"], rel=1e-6)
+        ref = interpolate([X0, X1], topo, [0.25, 0.5])
+        res = interpolate([X0 * scale, X1 * scale], topo, [0.25, 0.5])
+        assert res.success and np.abs(res.vertices / scale - ref.vertices).max() < 1e-9 * diag
+        assert np.allclose(res.energy, ref.energy, rtol=1e-9)
+        viol = integrability_violation(lengths_and_angles(X0 * scale, topo), topo)
+        assert viol.max() < 1e-20  # measured 1.5e-30 (1.06 at 1e-160 before)
+
+
+def test_scaling_is_exact_for_powers_of_two(spheres):
+    """Computing in units of 2^k is an exact scaling: bit-identical results up to the power of two."""
+    topo, X0, X1 = spheres
+    za = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
+    ref = reconstruct(za, topo, X0)
+    for e in (-530, -270, 270, 530):
+        ctx = get_context(topo, np.ldexp(X0, e))
+        assert ctx.scale_exponent != 0
+        res = reconstruct(scaled_z(za, topo, 2.0**e), topo, np.ldexp(X0, e), context=ctx)
+        assert np.array_equal(np.ldexp(res.vertices, -e), ref.vertices) and res.energy == ref.energy
+        assert res.iterations == ref.iterations
+
+
+@pytest.mark.parametrize("kw", [{"weights": "heeren"}, {"weights": "uniform"},
+                                {"energy": "shells", "max_iterations": 30}])
+def test_unit_dependent_energies_keep_the_callers_units(kw, spheres):
+    """(3.21), uniform weights and W_TS have a membrane term in length units squared: the problem at scale s with
+    bending weight eta s^2 is the problem at scale 1 with eta, exactly (energies times s^2), also where the
+    context computes in scaled units (2^+-270) and where it does not (2^60); beyond float64 a clear error."""
+    topo, X0, X1 = spheres
+    za = 0.5 * (lengths_and_angles(X0, topo) + lengths_and_angles(X1, topo))
+    ref = reconstruct(za, topo, X0, **kw)
+    assert ref.success
+    for e in (-270, 60, 270):
+        s = 2.0**e
+        res = reconstruct(scaled_z(za, topo, s), topo, X0 * s, bending_weight=np.ldexp(1e-3, 2 * e), **kw)
+        assert np.array_equal(res.vertices / s, ref.vertices) and res.energy == ref.energy * s * s, e
+    with pytest.raises(InputError, match="depends on the unit of length.*scale the mesh"):
+        reconstruct(scaled_z(za, topo, 1e160), topo, X0 * 1e160, **kw)
+
+
+def test_trigonometry_and_integrability_jacobian_are_scale_free(spheres):
+    topo, X0, _ = spheres
+    z = lengths_and_angles(X0, topo)
+    L = z[:topo.n_edges][topo.face_edges]
+    J = euler_integrability_jacobian(z, topo)
+    for e in (-530, 530):
+        s = 2.0**e
+        zs = scaled_z(z, topo, s)
+        Ls = L * s
+        assert np.array_equal(interior_angles(Ls), interior_angles(L))
+        assert np.array_equal(interior_angle_jacobian(Ls) * s, interior_angle_jacobian(L))
+        half = 2.0**(e // 2)  # areas of the mesh scaled by 2^-530 are below float64's range: 2^-265 instead
+        assert np.array_equal(triangle_areas(L * half) / (half * half), triangle_areas(L))
+        Js = euler_integrability_jacobian(zs, topo)
+        E = topo.n_edges
+        assert np.array_equal(Js[:, :E].toarray() * s, J[:, :E].toarray())
+        assert np.array_equal(Js[:, E:].toarray(), J[:, E:].toarray())
+    assert safe_scaled(L)[1] == 0 and safe_scaled(L * 1e-160)[1] < 0
+
+
+def test_check_float_range_accepts_every_normal_scale(spheres):
+    topo, X0, _ = spheres
+    for scale in (1e-300, 1e-160, 1.0, 1e160, 1e300):
+        check_float_range(X0 * scale, topo)
+    with pytest.raises(MeshError, match="subnormal"):
+        check_float_range(X0 * 1e-318, topo)
