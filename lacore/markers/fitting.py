@@ -29,8 +29,8 @@ Solver
     Gauss-Newton on the bordered system in ``(X, alpha)``: the sparse block ``A`` is
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; the factor
-    is refactorized every step (reusing it only added failed steps).  Armijo backtracking.  A frame has converged when a step moved no marker's
-    surface point by more than :attr:`FitOptions.marker_tolerance` times ``l`` (after two
+    is refactorized every step (reusing it only added failed steps).  Armijo backtracking.
+    A frame has converged when a step moved no marker's surface point by more than :attr:`FitOptions.marker_tolerance` times ``l`` (after two
     steps), or the energy decreased by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
     ``W_q`` without moving the markers.
@@ -62,7 +62,8 @@ from .binding import MarkerBinding, MarkerBindingError, surface_point_jacobians,
 from .prolongation import as_fit_prolongation
 
 __all__ = ["fit_markers", "FitOptions", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers",
-           "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length", "marker_statistics", "MAX_MARKER_COORDINATE"]
+           "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length", "marker_statistics",
+           "MAX_MARKER_COORDINATE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -639,7 +640,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         frame_status=status, frame_messages=[FRAME_STATUS[int(s)] for s in status], frame_iterations=iters,
         frame_seconds=seconds, frame_energy=energy, visible=np.isfinite(x_all[:, :, 0]).sum(1),
         success=bool(fitted and np.all((status == 0) | (status == 2))),
-        status=int(worst), message=message if (fitted or message) else "no frame was fitted to markers", iterations=int(iters.sum()), timings=timings,
+        status=int(worst), message=message if (fitted or message) else "no frame was fitted to markers",
+        iterations=int(iters.sum()), timings=timings,
         prior_weight=float(options.prior_weight), temporal_weight=float(options.temporal_weight),
         fine_vertices=out_fine, regularized_frames=[int(t) for t in np.flatnonzero(status == 2)],
         topology=model.topology)
