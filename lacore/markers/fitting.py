@@ -31,7 +31,8 @@ Solver
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; the factor
     is refactorized every step (reusing it only added failed steps).  Armijo backtracking.
     A frame has converged when a step moved no marker's surface point by more than
-    :attr:`FitOptions.marker_tolerance` times ``l`` (after two steps), or the energy decreased by less than ``ftol`` relative with such a move: the
+    :attr:`FitOptions.marker_tolerance` times ``l`` (after two steps), or the energy decreased
+    by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
     ``W_q`` without moving the markers.
 Start
