@@ -270,7 +270,9 @@ class TakeFitResult(MarkerFitResult):
     def summary(self):
         """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
         s = super().summary()
-        f = (lambda x: None if x is None or not np.isfinite(x) else float(x))
+
+        def f(x):
+            return None if x is None or not np.isfinite(x) else float(x)
         s.update(marker_rms_mm=f(self.marker_rms_mm), marker_p95_mm=f(self.marker_p95_mm),
                  flagged_frames=[int(t) for t in self.flagged_frames], flagged_markers=list(self.flagged_markers),
                  warnings=list(self.warnings), seconds_per_frame=f(self.seconds_per_frame),
@@ -695,7 +697,7 @@ def _auto_prior_weight(model, cal, y_frames, fo, notes):
         errors.append(np.sqrt(sq / max(n, 1)) / cal.scale * 1000)
     best = PRIOR_WEIGHT_CHOICES[int(np.argmin(errors))]
     notes.append("prior_weight auto: " + ", ".join(f"{g:g}: {e:.2f} mm" for g, e in
-                                                   zip(PRIOR_WEIGHT_CHOICES, errors)) + f" -> {best:g}")
+                                                   zip(PRIOR_WEIGHT_CHOICES, errors, strict=True)) + f" -> {best:g}")
     return best
 
 
