@@ -33,7 +33,8 @@ def test_prolonged_fit_of_a_training_pose_reproduces_the_fine_pose(coarse_bar):
     X0, F, train, c, model, binding, keys = coarse_bar
     true = train[[4, 7]] @ ROT.T + SHIFT           # key poses under a rigid motion
     x = surface_points(true[:, c.vertex_indices], c.faces, binding)
-    res = fit_markers(model, x, binding, prior_weight=1.0, prolongation=keys)
+    # exact Schur steps: the reused ones stop at 3.7e-4 of the size (the marker-move test), not at 1e-6
+    res = fit_markers(model, x, binding, prior_weight=1.0, prolongation=keys, reuse_schur=False)
     size = np.linalg.norm(np.ptp(X0, axis=0))
     err_c = np.linalg.norm(res.vertices - true[:, c.vertex_indices], axis=2).max() / size
     err_f = np.linalg.norm(res.fine_vertices - true, axis=2).max() / size
