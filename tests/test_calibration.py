@@ -158,3 +158,31 @@ def test_calibration_saves_and_loads(model, tmp_path):
     mem = MarkerTake(labels=list(take.labels), positions=take.positions, rate=take.rate)
     res2 = fit_take(model, mem, again, frames=[0, 5, 7])
     assert np.abs(res2.vertices - res.vertices).max() < 1e-9
+
+
+def test_fit_command_on_a_take(model, tmp_path, capsys):
+    import json
+
+    from lacore.cli import main
+    model.save(tmp_path / "body.npz")
+    write_trc(tmp_path / "static.trc", excerpt(read("Static_Pose.c3d"), 6), units="mm")
+    out = tmp_path / "out.npz"
+    code = main(["fit", str(tmp_path / "body.npz"), "--markers", str(tmp_path / "static.trc"), "-o", str(out),
+                 "--json"])
+    stdout, err = capsys.readouterr()
+    assert code == 0, err
+    s = json.loads(stdout)
+    assert s["frames"] == 6 and s["marker_rms"] < 4.0 and s["marker_p95"] < 8.0      # mm; measured about 1 / 1.5
+    assert s["calibration_seconds"] > 0 and s["seconds_per_frame"] > 0 and s["prior_weight"] == 1.0
+    assert s["flagged_frames"] == [] and isinstance(s["flagged_markers"], list)
+    with np.load(out) as r:
+        assert r["vertices"].shape == (6, model.fine_level.n_fine_vertices, 3)
+        assert np.array_equal(r["faces"], model.fine_level.fine_faces)
+        assert r["marker_residuals"].shape == (6, 30, 3) and r["binding_faces"].shape == (30,)
+    # a unit mismatch: one line, exit 2, nothing written
+    bad = tmp_path / "bad.npz"
+    code = main(["fit", str(tmp_path / "body.npz"), "--markers", str(tmp_path / "static.trc"), "-o", str(bad),
+                 "--units", "cm"])
+    _, err = capsys.readouterr()
+    assert code == 2 and err.count("\n") == 1 and "unit mismatch" in err, err
+    assert not bad.exists()
