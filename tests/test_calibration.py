@@ -158,6 +158,12 @@ def test_calibration_saves_and_loads(model, tmp_path):
     mem = MarkerTake(labels=list(take.labels), positions=take.positions, rate=take.rate)
     res2 = fit_take(model, mem, again, frames=[0, 5, 7])
     assert np.abs(res2.vertices - res.vertices).max() < 1e-9
+    # prior_weight="auto": chosen by held-out markers on the calibration frames, reported
+    from lacore.markers import FitOptions
+    from lacore.markers.calibration import PRIOR_WEIGHT_CHOICES
+    auto = fit_take(model, take, again, FitOptions(prior_weight="auto"), frames=[0])
+    assert auto.success and auto.prior_weight in PRIOR_WEIGHT_CHOICES
+    assert any(n.startswith("prior_weight auto: ") for n in auto.calibration.notes)
 
 
 def test_fit_command_on_a_take(model, tmp_path, capsys):
