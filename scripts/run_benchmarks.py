@@ -63,6 +63,7 @@ BENCHMARKS = {
     "bench_sparse_fallback": Benchmark(),
     "bench_shape_model": Benchmark(quick=("--quick",)),
     "bench_markers": Benchmark(),
+    "bench_mixer": Benchmark(quick=("bar5k", "body13k", "--references", "2"), long=True),
     "bench_marker_fitting": Benchmark(full=("--frames", "150", "--validation-frames", "40", "--prolong")),
     "bench_blender_markers": Benchmark(blender=True),
     "bench_blender_fit": Benchmark(full=("--repeat", "3"), blender=True),
