@@ -70,6 +70,7 @@ BENCHMARKS = {
     "bench_blender_runs": Benchmark(blender=True, json_option=True),
     "bench_blender_interpolate": Benchmark(full=("--methods", "FAST", "--no-profile"), blender=True,
                                            json_option=True, long=True),
+    "bench_blender_live_mix": Benchmark(blender=True, json_option=True, long=True),
 }
 
 
