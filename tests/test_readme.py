@@ -322,6 +322,8 @@ NUMBER_CLAIMS = [
     (r"`positions \(T, M, 3\)`", "tests/test_fit_cli.py", r"positions must have shape \(T, M, 3\)"),
     (r"`\+pi/2`", "tests/test_lengths_angles.py", r"np\.pi / 2"),
     (r"0 on boundary edges", "tests/test_lengths_angles.py", r"theta\[topo\.boundary_edges\] == 0"),
+    (r"exits 3 with a message", "tests/test_mixing.py", r'code == 3 and err\.startswith\("lacore mix: failed: "\)'),
+    (r"reduced space \(0: automatic\)", "addon/operators_live_mix.py", r"0: chosen automatically"),
 ]
 #: numbers that are not claims: list numbering, the factors of an example, the licence's name
 NOT_CLAIMS = re.compile(r"^\s*\d\. |`0\.25 0\.5 0\.75 1\.5`|GPL-3\.0")
