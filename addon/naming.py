@@ -8,7 +8,8 @@ taken for the user's own data (a shape model's training keys, a bake's keyframed
   re-running with the same keys and factors overwrites those keys in place;
 * baked keys ``"LA bake <frame>"`` (:func:`bake_key_name`, e.g. ``"LA bake 012"``);
 * fitted frames ``"LA fit <frame>"`` (:func:`fit_key_name`), the Mesh Cache modifier
-  :data:`FIT_MODIFIER` and the slider preview key :data:`PREVIEW_KEY`.
+  :data:`FIT_MODIFIER` and the slider preview key :data:`PREVIEW_KEY`;
+* the live-mixing key :data:`LIVE_MIX_KEY` (:mod:`.live_mix`).
 
 Shape-key names hold at most 63 bytes (Blender's limit); key names inside an in-between's name are
 shortened to fit.
@@ -23,8 +24,8 @@ import re
 from ..lacore.errors import InputError
 
 __all__ = ["OperatorInputError", "OWN_PREFIX", "INBETWEEN_PREFIX", "BAKE_PREFIX", "FIT_PREFIX", "PREVIEW_KEY",
-           "FIT_MODIFIER", "is_own_key", "inbetween_key_name", "bake_key_name", "fit_key_name", "parse_factors",
-           "parse_key_list", "parse_frames"]
+           "FIT_MODIFIER", "LIVE_MIX_KEY", "is_own_key", "inbetween_key_name", "bake_key_name", "fit_key_name",
+           "parse_factors", "parse_key_list", "parse_frames"]
 
 OWN_PREFIX = "LA "
 INBETWEEN_PREFIX = OWN_PREFIX
@@ -32,6 +33,7 @@ BAKE_PREFIX = OWN_PREFIX + "bake "
 FIT_PREFIX = OWN_PREFIX + "fit "
 PREVIEW_KEY = OWN_PREFIX + "model preview"
 FIT_MODIFIER = "LA Fit"
+LIVE_MIX_KEY = OWN_PREFIX + "live mix"
 _NAME_BYTES = 63  # Blender's shape-key names hold 63 bytes
 
 
@@ -40,7 +42,7 @@ class OperatorInputError(InputError):
 
 
 def is_own_key(name):
-    """Whether the shape key ``name`` was made by the add-on (in-between, bake, fit, preview)."""
+    """Whether the shape key ``name`` was made by the add-on (in-between, bake, fit, preview, live mix)."""
     return name.startswith(OWN_PREFIX)
 
 

@@ -9,7 +9,7 @@ from bpy.props import StringProperty
 
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
-from . import bake, session, storage
+from . import bake, live_mix, session, storage
 from .mesh_access import object_mode, require_mesh_object
 from .operators_fit import BINDING_PROP, remove_model
 
@@ -55,9 +55,9 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity), the shape model (with its preview key and slider values), the marker binding and the
-    session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
-    short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding, the live
+    mixer (with its key: Blender's linear mixing again) and the session cache.  Results you asked for
+    (in-between keys, fitted keys or point caches) stay.  Returns a short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
@@ -71,6 +71,8 @@ def remove_data(obj):
     if BINDING_PROP in obj:
         del obj[BINDING_PROP]
         removed.append("marker binding")
+    if live_mix.disable(obj):
+        removed.append("live mixer")
     session.clear()
     return ", ".join(removed) if removed else "nothing stored"
 
@@ -122,8 +124,8 @@ class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
     bl_idname = "lengths_angles.remove_data"
     bl_label = "Remove Lengths & Angles Data"
     bl_description = ("Remove everything Lengths & Angles stored on this mesh: the encoding, the bake (its keys "
-                      "and keyframes), the shape model, the marker binding and the cached computations (in-between "
-                      "keys and fitted results stay)")
+                      "and keyframes), the shape model, the marker binding, the live mixer and the cached "
+                      "computations (in-between keys and fitted results stay)")
     bl_options = {'REGISTER', 'UNDO'}
 
     @classmethod

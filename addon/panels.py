@@ -6,15 +6,16 @@ Panel and operators act on ``context.object`` (which follows a pinned Properties
 
 import bpy
 
+from . import live_mix, storage
 from . import operators_fit as fit
-from . import storage
+from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
 from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
-__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_mocap", "classes", "draw_shape_key_menu",
-           "integrability_text"]
+__all__ = ["LENGTHS_ANGLES_PT_shape_keys", "LENGTHS_ANGLES_PT_live_mix", "LENGTHS_ANGLES_PT_mocap", "classes",
+           "draw_shape_key_menu", "integrability_text"]
 
 
 def integrability_text(violation, integrability=None):
@@ -139,4 +140,37 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
             layout.operator(fit.LENGTHS_ANGLES_OT_fit_markers.bl_idname, icon='ARMATURE_DATA')
 
 
-classes = (LENGTHS_ANGLES_PT_shape_keys, LENGTHS_ANGLES_PT_mocap)
+class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
+    """Live mixing: state (live, stale, out of range), build time, Rebuild, quality, Disable."""
+    bl_label = "Lengths & Angles: Live Mixing"
+
+    def draw(self, context):
+        layout = self.layout
+        mesh = context.object.data
+        state = live_mix.status(mesh)
+        row = layout.row(align=True)
+        row.operator_context = 'INVOKE_DEFAULT'
+        row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_enable.bl_idname,
+                     text="Enable Live Mixing" if state is None else "Rebuild", icon='SHAPEKEY_DATA')
+        if state is not None:
+            row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_disable.bl_idname, text="", icon='X')
+        layout.prop(mesh, live_ops.REDUCED_SIZE_PROP, text="Quality (reduced size, 0 = auto)")
+        if state is None:
+            layout.label(text="Blender mixes the keys linearly", icon='INFO')
+            return
+        col = layout.column(align=True)
+        if state["stale"]:
+            col.label(text=f"Stale: {state['stale']}", icon='ERROR')
+            col.label(text="Showing Blender's linear mix: Rebuild to mix live again")
+        else:
+            col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['reduced_size'] or 'auto'}",
+                      icon='CHECKMARK')
+        col.label(text=f"Built in {state['build_seconds']:.2f} s; last mix {1000 * state['mix_seconds']:.1f} ms")
+        if not state["in_range"]:
+            col.label(text=state["message"] or "weights outside the mixer's accurate range", icon='ERROR')
+        if state["linear"]:
+            col.label(text=f"Mixed linearly (vertex group or other relative key): {', '.join(state['linear'])}",
+                      icon='INFO')
+
+
+classes = (LENGTHS_ANGLES_PT_shape_keys, LENGTHS_ANGLES_PT_live_mix, LENGTHS_ANGLES_PT_mocap)

@@ -20,6 +20,7 @@ SolverResult                    base of every solver's result (:mod:`lacore.resu
 interpolate, keyframe_inbetweens  in-betweens in z (:mod:`lacore.shapes.interpolation`, imported on first use)
 discrete_geodesic               geodesics on the admissible set (:mod:`lacore.shapes.geodesics`, on first use)
 ShapeModel                      PCA / simplified PGA shape models (:mod:`lacore.models.shape_model`, on first use)
+ShapeMixer, MixerOptions, MixResult  nonlinear shape-key mixing (:mod:`lacore.shapes.mixing`, on first use)
 
 Examples
 --------
@@ -58,7 +59,8 @@ from .geometry.topology import MeshTopology, check_vertices
 #: Names imported on first use (their modules pull in scipy.interpolate, which is slow to import).
 _LAZY = {"interpolate": "shapes.interpolation", "keyframe_inbetweens": "shapes.interpolation",
          "discrete_geodesic": "shapes.geodesics", "path_energy_profile": "shapes.path_energy",
-         "ShapeModel": "models.shape_model"}
+         "ShapeModel": "models.shape_model",
+         "ShapeMixer": "shapes.mixing", "MixerOptions": "shapes.mixing", "MixResult": "shapes.mixing"}
 
 
 def __getattr__(name):
@@ -79,4 +81,5 @@ __all__ = [
     "QuadraticEnergy", "ThinShellsEnergy", "EnergyInVertices", "reconstruct", "reconstruction_errors", "project",
     "ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "SolverResult",
     "interpolate", "keyframe_inbetweens", "discrete_geodesic", "path_energy_profile", "ShapeModel",
+    "ShapeMixer", "MixerOptions", "MixResult",
 ]

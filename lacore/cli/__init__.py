@@ -38,7 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ..errors import InputError
-from . import encode, fit, interpolate, model, reconstruct
+from . import encode, fit, interpolate, mixer, model, reconstruct
 from .common import EXIT_FAILED_CHECKS, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, CliError, error_message
 from .encode import encode_mesh
 
@@ -67,6 +67,7 @@ register_subcommand("reconstruct", reconstruct.HELP, reconstruct.configure, reco
 register_subcommand("interpolate", interpolate.HELP, interpolate.configure, interpolate.run)
 model.register(register_subcommand)  # model, model-sweep
 fit.register(register_subcommand)  # fit
+mixer.register(register_subcommand)  # mixer, mix
 
 
 # --------------------------------------------------------------------------- main

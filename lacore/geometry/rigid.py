@@ -53,6 +53,9 @@ def rigid_fit(source, target, weights=None):
     Q = np.asarray(target, dtype=float)
     if P.ndim != 2 or P.shape[1] != 3 or P.shape != Q.shape:
         raise InputError(f"rigid_fit needs two (N, 3) arrays of equal shape, got {P.shape} and {Q.shape}")
+    if weights is None and len(P) and np.isfinite(P.sum()) and np.isfinite(Q.sum()):
+        cp, cq = P.mean(0), Q.mean(0)                         # every point, equal weights: no masks or copies
+        return _kabsch((P - cp).T @ Q, cp, cq)             # the centred P makes centring Q unnecessary
     w = np.ones(len(P)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape != (len(P),):
         raise InputError(f"weights must have shape ({len(P)},), got {w.shape}")
@@ -62,7 +65,11 @@ def rigid_fit(source, target, weights=None):
     P, Q, w = P[use], Q[use], w[use]
     w = w / w.sum()
     cp, cq = w @ P, w @ Q
-    H = (P - cp).T @ ((Q - cq) * w[:, None])
+    return _kabsch((P - cp).T @ ((Q - cq) * w[:, None]), cp, cq)
+
+
+def _kabsch(H, cp, cq):
+    """The rotation maximizing ``trace(R H)`` (no reflection) and the translation moving ``cp`` onto ``cq``."""
     U, _s, Vt = np.linalg.svd(H)
     d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0 else -1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T

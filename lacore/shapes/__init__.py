@@ -8,6 +8,8 @@
 * :mod:`.geodesics` -- discrete geodesics on the admissible set (4.6): the entry point, its
   options and result; :mod:`.path_energy` -- the discrete path energy (2.7) and its quadratic
   model; :mod:`.geodesic_solvers` -- the SQP and vertex Gauss-Newton solvers.
+* :mod:`.mixing` -- the shape mixer: weighted blends of shape keys in lengths and angles,
+  projected (:class:`~.mixing.ShapeMixer`).
 
 The submodules are imported on first use of their names (the interpolation pulls in
 ``scipy.interpolate``).
@@ -20,7 +22,8 @@ _LAZY = {"project": "projection", "SequenceProjection": "projection", "Projectio
          "interpolate": "interpolation", "keyframe_inbetweens": "interpolation", "project_targets": "interpolation",
          "InterpolationResult": "interpolation",
          "discrete_geodesic": "geodesics", "GeodesicResult": "geodesics", "GeodesicOptions": "geodesics",
-         "path_energy_profile": "path_energy"}
+         "path_energy_profile": "path_energy",
+         "ShapeMixer": "mixing", "MixerOptions": "mixing", "MixResult": "mixing", "MixerError": "mixing"}
 
 
 def __getattr__(name):

@@ -50,6 +50,7 @@ from scipy.interpolate import CubicSpline
 from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import MeshTopology, check_vertices
+from ..reconstruction import reconstruction_errors
 from ..reconstruction.settings import projection_preset, split_options
 from ..result import SolverResult
 from .projection import ProjectionOptions, SequenceProjection, check_times
@@ -457,10 +458,13 @@ def keyframe_targets(z_keys, keyframes, times, smooth=False, bc_type="natural"):
 
 
 def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, reference_vertices, opts, progress,
-         on_frame, workers):
+         on_frame, workers, mixer=None):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
+    if mixer is not None:
+        return _mixer_run(mixer, z_keys, k, times, smooth, bc_type, reference, reference_vertices, progress, on_frame,
+                          t_start)
     targets = keyframe_targets(z_keys, k, times, smooth, bc_type)
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
@@ -468,9 +472,59 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, referen
     return sequence_result(run.run(progress, on_frame), t_start, keyframes=k, smooth=smooth)
 
 
+def _mixer_run(mixer, z_keys, keyframes, times, smooth, bc_type, reference, reference_vertices, progress, on_frame,
+               t_start):
+    """The frames by a :class:`~lacore.shapes.mixing.ShapeMixer` of the same keys: the targets are linear in the keys'
+    lengths and angles (``z~(t) = sum_k a_k(t) z_k`` with ``sum_k a_k = 1``), i.e. the mixer's blend with weights
+    ``a_1(t) .. a_{K-1}(t)``; each frame is one warm-started mix."""
+    from ..progress import report
+    from .mixing import ShapeMixer
+
+    if not isinstance(mixer, ShapeMixer):
+        raise InputError(f"mixer must be a ShapeMixer, got {type(mixer).__name__}")
+    K = len(z_keys)
+    E = mixer.n_edges
+    same = (mixer.n_keys == K and mixer.z_keys.shape == z_keys.shape
+            and np.allclose(mixer.z_keys[:, :E], z_keys[:, :E], rtol=1e-9, atol=0.0)
+            and np.allclose(mixer.z_keys[:, E:], z_keys[:, E:], rtol=0.0, atol=1e-9))
+    if not same:
+        raise InputError("the mixer was built from other keys than these shapes: build it from the shapes, in "
+                         "order, or interpolate without it")
+    if reference != 0 or reference_vertices is not None:
+        raise InputError("with a mixer the reference is its basis, shape 0: leave reference and reference_vertices "
+                         "at their defaults")
+    coefficients = keyframe_targets(np.eye(K), keyframes, times, smooth, bc_type)   # (N, K), rows sum to 1
+    targets = keyframe_targets(z_keys, keyframes, times, smooth, bc_type)
+    N, V = len(times), mixer.n_vertices
+    vertices = np.empty((N, V, 3))
+    energy, seconds, iterations = np.empty(N), np.empty(N), np.zeros(N, np.int64)
+    max_len, max_ang = np.empty(N), np.empty(N)
+    off = []
+    for i in range(N):
+        report(progress, i, N, f"frame {i + 1} of {N}")
+        r = mixer.mix(coefficients[i, 1:])
+        vertices[i], energy[i], seconds[i], iterations[i] = r.vertices, r.energy, r.seconds, r.iterations
+        errors = reconstruction_errors(r.vertices, targets[i], mixer.topology)
+        max_len[i], max_ang[i] = errors["max_length_error"], errors["max_angle_error"]
+        if not r.in_range:
+            off.append((float(times[i]), r.message))
+        if on_frame is not None:
+            on_frame(i, r)
+    report(progress, N, N, "done")
+    total = time.perf_counter() - t_start
+    message = "all frames mixed" if not off else (f"{len(off)} frames outside the mixer's accurate range (first: "
+                                                  f"t = {off[0][0]:g}: {off[0][1]})")
+    return InterpolationResult(
+        vertices=vertices, times=np.asarray(times, float), z_targets=targets, energy=energy, iterations=iterations,
+        seconds=seconds, max_length_error=max_len, max_angle_error=max_ang, status=np.zeros(N, np.int64),
+        warm_start_times=np.r_[np.nan, np.asarray(times, float)[:-1]], order=np.arange(N), reconstructions=[],
+        context=mixer._context, method="mixer", success=not off, message=message, keyframes=keyframes,
+        smooth=bool(smooth), timings={"total": total}, total_seconds=total, total_iterations=int(iterations.sum()))
+
+
 def interpolate(shapes, topology, factors, keyframes=None, method=None, reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
-                on_frame=None, workers=1, **reconstruct_kw):
+                on_frame=None, workers=1, mixer=None, **reconstruct_kw):
     """Interpolate or extrapolate shapes linearly in lengths and angles, then project (4.9), (4.10).
 
     Parameters
@@ -529,6 +583,14 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
         A worker that cannot start or dies raises
         :class:`lacore.parallel.WorkerError` (the add-on then computes its
         frames itself); an input error in a worker is raised as itself.
+    mixer : ShapeMixer, optional
+        A :class:`~lacore.shapes.mixing.ShapeMixer` built from these shapes (in this order,
+        the reference shape 0 its basis): every frame is one warm-started reduced mix
+        (milliseconds) instead of a projection; ``method``, ``warm_start``, ``tree``, the
+        options and ``workers`` do not apply, ``on_frame`` gets the
+        :class:`~lacore.shapes.mixing.MixResult`, ``method`` of the result is ``"mixer"``,
+        ``energy`` the mixer's estimate, ``reconstructions`` empty, and ``success`` False
+        when a frame leaves the mixer's accurate range (``message`` says which).
     **reconstruct_kw
         The fields of these objects as keywords (``energy, weights,
         bending_weight, fixed_face, fix_triangle_shape, solver, hybrid_start,
@@ -572,12 +634,13 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
     times = check_times(factors, "factors")
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate")
     return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, opts, progress,
-                on_frame, workers)
+                on_frame, workers, mixer)
 
 
 def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method=None,
                         reference=0, reference_vertices=None, warm_start=True, tree=None, *, settings=None,
-                        options=None, hybrid=None, progress=None, on_frame=None, workers=1, **reconstruct_kw):
+                        options=None, hybrid=None, progress=None, on_frame=None, workers=1, mixer=None,
+                        **reconstruct_kw):
     """In-between frames of keyed shapes, piecewise linear or cubic spline in lengths and angles.
 
     Parameters
@@ -598,7 +661,7 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         Spline boundary condition, default ``"natural"``.
     method, reference, reference_vertices, warm_start, tree, settings, options, hybrid, progress, on_frame
         As in :func:`interpolate`.
-    workers, **reconstruct_kw
+    workers, mixer, **reconstruct_kw
         As in :func:`interpolate`.
 
     Returns
@@ -631,4 +694,4 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw,
                               "keyframe_inbetweens")
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, opts,
-                progress, on_frame, workers)
+                progress, on_frame, workers, mixer)

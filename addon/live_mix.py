@@ -1,0 +1,581 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Live nonlinear mixing: Blender's own shape-key sliders drive lacore's :class:`ShapeMixer` (glue only).
+
+``lengths_angles.live_mix_enable`` builds a mixer of the active mesh's keys through the one run
+mechanism (:mod:`.runs`: modal with progress and Esc from the UI, synchronous from scripts) and stores
+it with the mesh; from then on the mesh shows the lengths-and-angles mix of its keys' current values.
+
+How the mesh follows the sliders
+--------------------------------
+The user's keys are never changed (values, mutes, ranges, drivers, keyframes): they stay the controls,
+and Blender keeps adding them linearly.  One add-on key, :data:`.naming.LIVE_MIX_KEY` (relative to the
+basis, value 1), carries the *correction* from Blender's linear sum to the mix::
+
+    mix key = N(w) - sum_k w_k (K_k - B)        so that     B + sum_k w_k (K_k - B) + (mix key - B) = N(w)
+
+with ``N(w)`` = :meth:`ShapeMixer.mix` of the weights ``w``, placed like the in-betweens (the rigid motion
+that best fits it to Blender's linear blend, :func:`lacore.geometry.rigid.rigid_align`: at a single key at
+1 the mesh is that key where it is).  The handlers ``depsgraph_update_post``
+(a slider dragged, a driver, undo) and ``frame_change_post`` (playback, ``frame_set``, animation
+renders: the values are read from the depsgraph being evaluated, the render's included) rewrite the
+mix key when the weights change; Blender evaluates the key once more in the same update (for a render
+the evaluated values are copied to the original keys first, as Blender does itself for the viewport, since
+that second evaluation copies the key, values included, from the original).  Animation renders from the
+user interface should use Render > Lock Interface (the render thread writes the mix key).  So
+modifiers after the shape keys (Armature, Subdivision Surface ...) apply to the mix, and
+:func:`disable` (removing the mix key and the stored mixer) gives back Blender's linear mixing bit for
+bit.  Why a correction key rather than muting the user's keys: nothing of the user's state has to be
+remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
+mixer shows the exact linear mix by zeroing one key.
+
+Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.
+Keys with a vertex group, or relative to another key than the basis, are not mixed nonlinearly (the
+mixer takes one weight per whole key): Blender mixes them linearly on top of the nonlinear mix, as it
+does keys added after the mixer was built (the panel lists them).
+
+Staleness: every update compares the basis and mixer keys' coordinates and the mesh's corners with
+the ones the mixer was built from (and after loading a .blend, with their stored digest).  An edited
+mesh or key, a renamed or deleted key, a key given a vertex group or another relative key makes the
+mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel says so
+until Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
+
+Storage (saved in the .blend, decoded once per session: :func:`live_meshes` after ``load_post``): the
+mixer's ``.npz`` (:meth:`ShapeMixer.save`), base64-encoded, in a text datablock ``"LA live mixer <mesh>"``
+(fake user; its first line names the mixer's token), and ``mesh["lengths_angles_live_mix"]`` a small
+record: the text's name, the token, the key names, a fingerprint digest and the build time.  Not in the
+mesh itself: Blender copies a mesh's custom properties into every evaluation (tens of megabytes per
+frame at 50k vertices).
+"""
+
+import base64
+import binascii
+import hashlib
+import io
+import os
+import tempfile
+import threading
+import time
+import uuid
+
+import bpy
+import numpy as np
+from bpy.app.handlers import persistent
+
+from ..lacore.errors import InputError
+from ..lacore.geometry.rigid import rigid_align
+from ..lacore.shapes import MixerOptions, ShapeMixer
+from .jobs import CallJob
+from .mesh_access import read_shape_keys, require_mesh_object, triangulate
+from .naming import LIVE_MIX_KEY, is_own_key
+from .runs import ObjectWatch, Run
+
+__all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
+           "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
+           "live_meshes"]
+
+MIXER_PROP = "lengths_angles_live_mix"
+FORMAT_VERSION = 1
+
+
+class LiveMixError(InputError):
+    """A mesh that cannot be mixed live (no keys, Edit Mode, absolute keys, no mixer ...)."""
+
+
+# ------------------------------------------------------------------------------------------- reading
+def split_keys(mesh):
+    """``(basis, nonlinear, linear)`` key names of ``mesh``: the reference key, the keys the mixer mixes
+    (relative to the basis, no vertex group) and the keys Blender keeps mixing linearly (a vertex group or
+    another relative key).  The add-on's own ``"LA ..."`` keys are in neither list."""
+    key = mesh.shape_keys
+    ref = key.reference_key
+    nonlinear, linear = [], []
+    for kb in key.key_blocks:
+        if kb == ref or is_own_key(kb.name):
+            continue
+        (nonlinear if kb.relative_key == ref and not kb.vertex_group else linear).append(kb.name)
+    return ref.name, nonlinear, linear
+
+
+def _corners(mesh):
+    """The corner (loop) vertex indices as int32 (the connectivity a mixer was built on)."""
+    attr = mesh.attributes.get(".corner_vert")
+    out = np.empty(len(mesh.loops), np.int32)
+    if attr is not None and len(attr.data) == len(out):
+        attr.data.foreach_get("value", out)
+    else:  # pragma: no cover - Blender versions without the generic corner attribute
+        mesh.loops.foreach_get("vertex_index", out)
+    return out
+
+
+def _key_coords(key, names, n_vertices):
+    """``(len(names), 3 V)`` float32 coordinates of the keys ``names`` (None if one is missing or resized)."""
+    out = np.empty((len(names), 3 * n_vertices), np.float32)
+    for i, name in enumerate(names):
+        kb = key.key_blocks.get(name)
+        if kb is None or len(kb.points) != n_vertices:
+            return None
+        kb.points.foreach_get("co", out[i])
+    return out
+
+
+def _digest(coords, corners):
+    return hashlib.blake2b(coords.tobytes() + corners.tobytes(), digest_size=16).hexdigest()
+
+
+# ------------------------------------------------------------------------------------------- runtime
+class _Live:
+    """The session state of one live mesh: the decoded mixer, what it was built from, the last mix."""
+
+    def __init__(self, mesh, meta, mixer):
+        self.token = str(meta["token"])
+        self.basis = str(meta["basis"])
+        self.names = list(meta["keys"])
+        self.n_vertices = int(meta["n_vertices"])
+        self.build_seconds = float(meta.get("build_seconds", 0.0))
+        self.reduced_size = int(meta.get("reduced_size", 0))
+        self.mixer = mixer
+        self.reference = None  # (K, 3V) float32 basis + mixer keys as built (None: not verified yet)
+        self.corners = None
+        self.deltas = None  # (K-1, 3V) float64 K_k - B
+        self.last = None  # weights of the mix in the mix key
+        self.result = None  # its MixResult
+        self.stale = ""  # why the mixer does not fit the mesh now ("" when it does)
+        self.error = ""  # a mix that failed (the linear mix is shown)
+        self.mix_seconds = 0.0
+        coords = _key_coords(mesh.shape_keys, [self.basis, *self.names], self.n_vertices) \
+            if mesh.shape_keys is not None and len(mesh.vertices) == self.n_vertices else None
+        if coords is not None:
+            corners = _corners(mesh)
+            if _digest(coords, corners) == str(meta["fingerprint"]):
+                self._set_reference(coords, corners)
+
+    def _set_reference(self, coords, corners):
+        self.reference, self.corners = coords, corners
+        self.deltas = coords[1:].astype(np.float64) - coords[0].astype(np.float64)
+
+    def check(self, mesh):
+        """Why the mixer does not fit ``mesh`` now ("" if it does): structure, then coordinates."""
+        key = mesh.shape_keys
+        if key is None:
+            return "the shape keys were removed"
+        if not key.use_relative:
+            return "the shape keys are not Relative any more"
+        if len(mesh.vertices) != self.n_vertices:
+            return f"the mesh has {len(mesh.vertices)} vertices now, {self.n_vertices} when the mixer was built"
+        ref = key.reference_key
+        if ref.name != self.basis:
+            return f"the basis key is '{ref.name}' now, '{self.basis}' when the mixer was built"
+        for name in self.names:
+            kb = key.key_blocks.get(name)
+            if kb is None:
+                return f"shape key '{name}' was renamed or deleted"
+            if kb.relative_key != ref:
+                return f"shape key '{name}' is relative to '{kb.relative_key.name}' now"
+            if kb.vertex_group:
+                return f"shape key '{name}' has a vertex group now (a mixer key takes one weight for all vertices)"
+        mix = key.key_blocks.get(LIVE_MIX_KEY)
+        if mix is None:
+            return f"the key '{LIVE_MIX_KEY}' was deleted"
+        if mix.relative_key != ref or mix.vertex_group:
+            return f"the key '{LIVE_MIX_KEY}' was changed (relative key or vertex group)"
+        if self.reference is None:
+            return "the mesh or its keys differ from the ones the mixer was built from"
+        coords = _key_coords(key, [self.basis, *self.names], self.n_vertices)
+        if not np.array_equal(_corners(mesh), self.corners):
+            return "the mesh's faces were edited"
+        edited = [n for n, a, b in zip([self.basis, *self.names], coords, self.reference, strict=True)
+                  if not np.array_equal(a, b)]
+        if edited:
+            return f"shape key '{edited[0]}' was edited"
+        return ""
+
+    def weights(self, key_eval):
+        """The mixer weights from the evaluated key: values within the slider range, 0 for muted keys."""
+        w = np.empty(len(self.names), np.float64)
+        for i, name in enumerate(self.names):
+            kb = key_eval.key_blocks[name]
+            w[i] = 0.0 if kb.mute else min(max(kb.value, kb.slider_min), kb.slider_max)
+        return w
+
+
+_LIVE = {}  # mesh name_full -> _Live
+_MIXERS = {}  # token -> ShapeMixer (decoded once per session)
+_BROKEN = set()  # names of meshes whose stored mixer cannot be read (their mix key is zeroed)
+_GUARD = [False]  # a handler writing: the updates it causes are not handled again
+_LOCK = threading.Lock()  # one update at a time (a render thread and the main thread)
+
+
+#: First line of the text datablock holding a mixer (followed by the token).
+TEXT_HEADER = "Lengths & Angles live mixer (do not edit)"
+_LINE = 65536  # base64 characters per line of the text
+
+
+def _write_text(data, token, name):
+    """A new text datablock (fake user: kept without users) holding ``data`` (bytes) base64-encoded."""
+    text = bpy.data.texts.new(name)
+    text.use_fake_user = True
+    encoded = base64.b64encode(data).decode("ascii")
+    lines = [encoded[i:i + _LINE] for i in range(0, len(encoded), _LINE)]
+    text.from_string("\n".join([f"{TEXT_HEADER} {token}", *lines]))
+    return text
+
+
+def stored_npz(meta):
+    """The mixer ``.npz`` (bytes) of the stored mixer ``meta`` (``mesh[MIXER_PROP]``), :class:`LiveMixError` if its
+    text datablock is gone or is not it."""
+    text = bpy.data.texts.get(str(meta["text"]))
+    head, _, body = ("" if text is None else text.as_string()).partition("\n")
+    if head != f"{TEXT_HEADER} {meta['token']}":
+        raise LiveMixError(f"the live mixer's text '{meta['text']}' is missing or was edited: Rebuild")
+    return base64.b64decode(body.replace("\n", ""))
+
+
+def _remove_text(meta):
+    """Remove the text of ``meta`` unless another mesh (a duplicate) still uses it."""
+    name = str(meta["text"])
+    users = [m for m in bpy.data.meshes if MIXER_PROP in m and str(m[MIXER_PROP].get("text", "")) == name]
+    text = bpy.data.texts.get(name)
+    if text is not None and not users:
+        bpy.data.texts.remove(text)
+
+
+def _decode(meta):
+    token = str(meta["token"])
+    mixer = _MIXERS.get(token)
+    if mixer is None:
+        mixer = ShapeMixer.load(io.BytesIO(stored_npz(meta)))
+        _MIXERS[token] = mixer
+    return mixer
+
+
+def _live(mesh):
+    """The session state of ``mesh`` (decoded on first use), None if it has no mixer or it cannot be read."""
+    meta = mesh.get(MIXER_PROP)
+    if meta is None:
+        _LIVE.pop(mesh.name_full, None)
+        return None
+    live = _LIVE.get(mesh.name_full)
+    if live is not None and live.token == str(meta["token"]):
+        return live
+    try:
+        live = _Live(mesh, meta, _decode(meta))
+    except (InputError, KeyError, ValueError, binascii.Error) as exc:
+        if mesh.name_full not in _BROKEN:
+            print(f"Lengths & Angles: the live mixer of '{mesh.name}' cannot be read ({exc}): rebuild it")
+        _LIVE.pop(mesh.name_full, None)
+        _BROKEN.add(mesh.name_full)  # the handlers show Blender's linear mix
+        return None
+    _BROKEN.discard(mesh.name_full)
+    _LIVE[mesh.name_full] = live
+    return live
+
+
+def live_meshes():
+    """Meshes with a stored mixer (their session state decoded)."""
+    return [m for m in bpy.data.meshes if MIXER_PROP in m and _live(m) is not None]
+
+
+def is_live(mesh):
+    return mesh is not None and MIXER_PROP in mesh
+
+
+def status(mesh):
+    """What the panel shows: ``dict(keys, linear, build_seconds, reduced_size, stale, in_range, message,
+    mix_seconds)`` or None when ``mesh`` has no mixer."""
+    if not is_live(mesh):
+        return None
+    live = _live(mesh)
+    if live is None:
+        return {"keys": [], "linear": [], "build_seconds": 0.0, "reduced_size": 0, "stale": "the stored mixer "
+                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0}
+    res = live.result
+    key = mesh.shape_keys
+    linear = [] if key is None else [kb.name for kb in key.key_blocks[1:]
+                                     if kb.name not in live.names and not is_own_key(kb.name)]
+    return {"keys": live.names, "linear": linear, "build_seconds": live.build_seconds,
+            "reduced_size": live.reduced_size, "stale": live.stale or live.error,
+            "in_range": True if res is None else bool(res.in_range), "message": "" if res is None else res.message,
+            "mix_seconds": live.mix_seconds}
+
+
+# ------------------------------------------------------------------------------------------- updating
+def _write(kb, coords):
+    """Write ``coords`` (3V float32) into the key ``kb`` if they differ; True if written."""
+    old = np.empty_like(coords)
+    kb.points.foreach_get("co", old)
+    if np.array_equal(old, coords):
+        return False
+    kb.points.foreach_set("co", coords)
+    return True
+
+
+def _flush_values(key, key_eval):
+    """Copy the values a render evaluated (keyframes, drivers) to the original key, as Blender does for the
+    viewport: the mix key written here is copied into the render's depsgraph together with the original
+    key's values, and the render evaluates the keys once more without animation."""
+    for kb, kb_eval in zip(key.key_blocks, key_eval.key_blocks, strict=True):
+        if kb.value != kb_eval.value:
+            kb.value = kb_eval.value
+
+
+def _zero_mix_key(mesh):
+    """The mix key at the basis' coordinates (Blender's linear mix); True if written."""
+    key = mesh.shape_keys
+    kb = None if key is None or mesh.is_editmode else key.key_blocks.get(LIVE_MIX_KEY)
+    if kb is None or len(kb.points) != len(mesh.vertices):
+        return False
+    basis = np.empty(3 * len(mesh.vertices), np.float32)
+    key.reference_key.points.foreach_get("co", basis)
+    return _write(kb, basis)
+
+
+def _update_mesh(mesh, depsgraph, force=False):
+    """Bring the mix key of ``mesh`` up to date with the key values evaluated in ``depsgraph``; True if written."""
+    live = _live(mesh)
+    if live is None or mesh.is_editmode:
+        return False
+    live.stale = live.check(mesh)
+    key = mesh.shape_keys
+    mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
+    if mix_kb is None:
+        return False
+    key_eval = key
+    if depsgraph is not None:
+        try:
+            key_eval = key.evaluated_get(depsgraph)
+        except (RuntimeError, ReferenceError):  # not in that depsgraph: the values as set
+            key_eval = key
+
+    def write(coords):
+        written = _write(mix_kb, coords)
+        if written and key_eval is not key and depsgraph.mode == 'RENDER':
+            _flush_values(key, key_eval)
+        return written
+
+    if live.stale:
+        live.last = None
+        basis = np.empty(3 * len(mesh.vertices), np.float32)
+        key.reference_key.points.foreach_get("co", basis)
+        return write(basis)  # a zero offset: Blender's linear mix, exactly
+    w = live.weights(key_eval)
+    if not force and live.last is not None and np.array_equal(w, live.last):
+        return False
+    try:
+        res = live.mixer.mix(w)
+    except Exception as exc:  # never a traceback from a handler: show the linear mix and say why
+        live.error = f"the mix failed ({type(exc).__name__}: {exc}): showing the linear mix"
+        live.last = None
+        return write(live.reference[0].copy())
+    live.error = ""
+    live.result, live.last, live.mix_seconds = res, w, float(res.seconds)
+    offsets = w @ live.deltas  # Blender's linear sum of the mixer keys, minus the basis
+    linear = (live.reference[0] + offsets).reshape(-1, 3)
+    placed = rigid_align(np.asarray(res.vertices, np.float64), linear)  # placed like the in-betweens
+    return write((placed.ravel() - offsets).astype(np.float32))
+
+
+def update_all(depsgraph=None, force=False):
+    """Update the mix key of every live mesh (the handlers' work; ``depsgraph`` None: the values as set).
+
+    A render (its own depsgraph, possibly in the render thread) waits for an update running in the main
+    thread; the viewport's updates skip while a render's runs (they come again with the next update)."""
+    if not (_LIVE or _BROKEN) or _GUARD[0] and threading.current_thread() is threading.main_thread():
+        return
+    rendering = depsgraph is not None and depsgraph.mode == 'RENDER'
+    if not _LOCK.acquire(blocking=rendering):
+        return
+    _GUARD[0] = True
+    try:
+        for name in list(_BROKEN):
+            mesh = bpy.data.meshes.get(name)
+            if mesh is None or MIXER_PROP not in mesh:
+                _BROKEN.discard(name)
+            elif _zero_mix_key(mesh):
+                mesh.shape_keys.update_tag()
+        for name in list(_LIVE):
+            mesh = bpy.data.meshes.get(name)
+            if mesh is None or MIXER_PROP not in mesh:
+                _LIVE.pop(name, None)
+                continue
+            try:
+                written = _update_mesh(mesh, depsgraph, force)
+            except Exception as exc:  # e.g. a linked (read-only) mesh: never a traceback from a handler
+                live = _LIVE.get(name)
+                if live is not None and not live.error:
+                    print(f"Lengths & Angles: live mixing of '{name}' failed: {type(exc).__name__}: {exc}")
+                    live.error = f"the mix could not be written ({type(exc).__name__}: {exc})"
+                continue
+            if written:  # the key (not the whole mesh) is evaluated again with the new coordinates
+                mesh.shape_keys.update_tag()
+    finally:
+        _GUARD[0] = False
+        _LOCK.release()
+
+
+@persistent
+def _on_depsgraph_update(scene, depsgraph=None):
+    if depsgraph is not None:  # a live mesh appended, linked or duplicated (Shift+D copies the mixer too)
+        for u in depsgraph.updates:
+            data = u.id.original
+            if isinstance(data, bpy.types.Mesh) and data.name_full not in _LIVE and MIXER_PROP in data:
+                _live(data)
+    update_all(depsgraph)
+
+
+@persistent
+def _on_frame_change(scene, depsgraph=None):
+    update_all(depsgraph)
+
+
+@persistent
+def _on_load(*_args):
+    _LIVE.clear()
+    _BROKEN.clear()
+    _MIXERS.clear()
+    live_meshes()
+    update_all(None)
+
+
+@persistent
+def _on_undo(*_args):
+    """Undo / redo restored the meshes (mix key included): forget the session's last mixes."""
+    for live in _LIVE.values():
+        live.last = None
+    live_meshes()
+
+
+_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("frame_change_post", _on_frame_change),
+             ("load_post", _on_load), ("undo_post", _on_undo), ("redo_post", _on_undo))
+
+
+def register_handlers():
+    for name, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if fn not in handlers:
+            handlers.append(fn)
+    try:
+        live_meshes()  # the add-on enabled with a file open
+    except AttributeError:  # Blender starting (no data yet): load_post follows
+        pass
+
+
+def unregister_handlers():
+    for name, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if fn in handlers:
+            handlers.remove(fn)
+    _LIVE.clear()
+    _BROKEN.clear()
+    _MIXERS.clear()
+
+
+# ------------------------------------------------------------------------------------------- enable / disable
+def _inputs(obj):
+    """Validated inputs of a mixer of ``obj``: ``(basis, nonlinear, linear, coords (K, V, 3), faces)``."""
+    mesh = require_mesh_object(obj)
+    if obj.mode == 'EDIT':
+        raise LiveMixError(f"'{obj.name}' is in Edit Mode: switch to Object Mode to enable live mixing")
+    if mesh.shape_keys is None:
+        raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
+    if not mesh.shape_keys.use_relative:
+        raise LiveMixError(f"mesh '{mesh.name}': live mixing needs Relative shape keys (check Relative in the "
+                           "Shape Keys panel)")
+    basis, nonlinear, linear = split_keys(mesh)
+    if not nonlinear:
+        why = (f" ({', '.join(map(repr, linear[:3]))} have a vertex group or another relative key)" if linear
+               else "")
+        raise LiveMixError(f"mesh '{mesh.name}' has no shape key to mix besides the basis '{basis}'{why}: add a "
+                           "key relative to the basis")
+    names, coords = read_shape_keys(mesh)
+    faces = triangulate(mesh).faces
+    return basis, nonlinear, linear, coords[[names.index(n) for n in (basis, *nonlinear)]], faces
+
+
+def enable_run(obj, reduced_size=0):
+    """A :class:`.runs.Run` building the mixer of ``obj``'s keys and making the mesh mix live (validated;
+    raises InputError subclasses).  ``reduced_size`` 0: automatic (:class:`MixerOptions`)."""
+    basis, nonlinear, linear, coords, faces = _inputs(obj)
+    options = MixerOptions(reduced_size=int(reduced_size) or None)
+    job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress), "live mixer")
+    t0 = time.perf_counter()
+
+    def write(obj, job):
+        seconds = time.perf_counter() - t0
+        store_mixer(obj, job.result, basis, nonlinear, linear, seconds, int(reduced_size))
+        return (f"live mixing of {len(nonlinear)} key{'s' if len(nonlinear) != 1 else ''} on '{obj.name}' "
+                f"(built in {seconds:.2f} s)" + (f"; mixed linearly: {', '.join(linear)}" if linear else ""))
+    return Run(job, ObjectWatch(obj, [basis, *nonlinear]), write, what="mixer")
+
+
+def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_size=0):
+    """Store ``mixer`` with ``obj``'s mesh, add the mix key (if missing) and show the mix of the current values."""
+    mesh = obj.data
+    with tempfile.TemporaryDirectory() as tmp:
+        path = mixer.save(os.path.join(tmp, "mixer.npz"))
+        with open(path, "rb") as fh:
+            data = fh.read()
+    coords = _key_coords(mesh.shape_keys, [basis, *nonlinear], len(mesh.vertices))
+    token = uuid.uuid4().hex
+    old = mesh.get(MIXER_PROP)
+    old = None if old is None else old.to_dict()
+    text = _write_text(data, token, f"LA live mixer {mesh.name}")
+    mesh[MIXER_PROP] = {"format_version": FORMAT_VERSION, "text": text.name, "token": token, "basis": basis,
+                        "keys": list(nonlinear), "linear": list(linear), "n_vertices": len(mesh.vertices),
+                        "fingerprint": _digest(coords, _corners(mesh)), "build_seconds": float(build_seconds),
+                        "reduced_size": int(reduced_size)}
+    if old is not None and "text" in old:  # a rebuild: the previous mixer's text goes, the new one takes its name
+        _remove_text(old)
+        text.name = f"LA live mixer {mesh.name}"
+        mesh[MIXER_PROP]["text"] = text.name
+    _MIXERS[token] = mixer
+    key = mesh.shape_keys
+    kb = key.key_blocks.get(LIVE_MIX_KEY)
+    if kb is None:
+        active = obj.active_shape_key_index
+        kb = obj.shape_key_add(name=LIVE_MIX_KEY, from_mix=False)
+        obj.active_shape_key_index = active
+    kb.relative_key = key.reference_key
+    kb.vertex_group = ""
+    kb.slider_max = max(kb.slider_max, 1.0)
+    kb.value = 1.0
+    kb.mute = False
+    _LIVE.pop(mesh.name_full, None)
+    live = _live(mesh)
+    if live is not None:
+        with _LOCK:
+            _GUARD[0] = True
+            try:
+                _update_mesh(mesh, None, force=True)
+            finally:
+                _GUARD[0] = False
+    mesh.update()
+
+
+def disable(obj):
+    """Remove the mixer and the mix key of ``obj``'s mesh (Blender's linear mixing again); False if there was
+    none.  The user's keys were never changed."""
+    mesh = obj.data
+    if MIXER_PROP not in mesh:
+        return False
+    meta = mesh[MIXER_PROP].to_dict()
+    del mesh[MIXER_PROP]
+    if "text" in meta:
+        _remove_text(meta)
+    _LIVE.pop(mesh.name_full, None)
+    kb = mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) if mesh.shape_keys is not None else None
+    if kb is not None:
+        active = obj.active_shape_key_index
+        index = list(mesh.shape_keys.key_blocks).index(kb)
+        obj.shape_key_remove(kb)
+        obj.active_shape_key_index = max(0, min(active - (active > index), len(mesh.shape_keys.key_blocks) - 1))
+    mesh.update()
+    return True
+
+
+def require_live(obj):
+    """The mesh of ``obj`` if it mixes live, else :class:`LiveMixError`."""
+    mesh = require_mesh_object(obj)
+    if MIXER_PROP not in mesh:
+        raise LiveMixError(f"mesh '{mesh.name}' does not mix live: nothing to disable")
+    return mesh
+

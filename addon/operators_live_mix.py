@@ -1,0 +1,85 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Operators of live nonlinear mixing (glue: :mod:`.live_mix` does the work, lacore the mathematics).
+
+``lengths_angles.live_mix_enable``
+    Builds the mixer of the active mesh's keys (:class:`lacore.shapes.ShapeMixer`) through the one
+    run mechanism (:mod:`.runs`: modal with progress and Esc from the UI, at once from scripts and in
+    background mode) and makes the mesh show the lengths-and-angles mix of its keys' values.  On a
+    mesh that already mixes live it rebuilds (the panel's Rebuild).  The quality is the mesh's
+    ``lengths_angles_live_mix_reduced_size`` (0: automatic).
+``lengths_angles.live_mix_disable``
+    Back to Blender's linear mixing, exactly: the mix key and the stored mixer are removed.
+"""
+
+import bpy
+from bpy.props import IntProperty
+
+from ..lacore.errors import InputError
+from . import live_mix
+from .mesh_access import object_mode
+from .runs import RunOperator, error_text
+
+__all__ = ["LENGTHS_ANGLES_OT_live_mix_enable", "LENGTHS_ANGLES_OT_live_mix_disable", "classes",
+           "register_properties", "unregister_properties", "REDUCED_SIZE_PROP"]
+
+REDUCED_SIZE_PROP = "lengths_angles_live_mix_reduced_size"
+
+
+class LENGTHS_ANGLES_OT_live_mix_enable(RunOperator, bpy.types.Operator):
+    """Mix the shape keys in lengths and angles live: the mesh follows its keys' sliders, drivers and
+    keyframes with the nonlinear mix (builds the mixer; on a live mesh: rebuilds it)"""
+    bl_idname = "lengths_angles.live_mix_enable"
+    bl_label = "Live Mixing"
+    bl_description = ("Mix the shape keys in lengths and angles live: the mesh follows its keys' sliders, drivers "
+                      "and keyframes with the nonlinear mix (builds the mixer; on a live mesh, rebuilds it)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def invoke(self, context, event):
+        self.interactive = True
+        return self.execute(context)
+
+    def execute(self, context):
+        def make(context):
+            obj = context.active_object
+            size = getattr(obj.data, REDUCED_SIZE_PROP, 0) if obj is not None and obj.type == 'MESH' else 0
+            return live_mix.enable_run(obj, size)
+        return self.start_run(context, make)
+
+
+class LENGTHS_ANGLES_OT_live_mix_disable(bpy.types.Operator):
+    """Stop live mixing: Blender mixes the shape keys linearly again (the mixer and its key are removed;
+    your keys were never changed)"""
+    bl_idname = "lengths_angles.live_mix_disable"
+    bl_label = "Disable Live Mixing"
+    bl_description = ("Stop live mixing: Blender mixes the shape keys linearly again (the mixer and its key are "
+                      "removed; your keys were never changed)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        obj = context.active_object
+        try:
+            live_mix.require_live(obj)
+        except InputError as exc:
+            self.report({'ERROR'}, error_text(exc))
+            return {'CANCELLED'}
+        with object_mode(obj):  # a key removed in Edit Mode would come back on leaving it
+            live_mix.disable(obj)
+        self.report({'INFO'}, f"'{obj.name}': Blender's linear shape-key mixing again")
+        return {'FINISHED'}
+
+
+classes = (LENGTHS_ANGLES_OT_live_mix_enable, LENGTHS_ANGLES_OT_live_mix_disable)
+
+
+def register_properties():
+    setattr(bpy.types.Mesh, REDUCED_SIZE_PROP, IntProperty(
+        name="Reduced Size", default=0, min=0, soft_max=200,
+        description="Quality of live mixing: the size of the mixer's reduced space (0: chosen automatically); "
+                    "larger follows the exact lengths-and-angles blend more closely and costs more per update. "
+                    "Applies at the next Rebuild"))
+    live_mix.register_handlers()
+
+
+def unregister_properties():
+    live_mix.unregister_handlers()
+    delattr(bpy.types.Mesh, REDUCED_SIZE_PROP)

@@ -1,0 +1,200 @@
+"""Benchmark of the shape mixer (:mod:`lacore.shapes.mixing`): build time by stage, time per mix, accuracy.
+
+Meshes (keys: K = 3 at 50k, K = 4 on the CC0 body):
+
+* ``bar5k`` / ``bar50k``: the box bar (:func:`lacore.samples.simple_deform.box_bar`, 64 x 16 resp.
+  210 x 52 segments), keys rest, bent by 90 degrees (Simple Deform), twisted by 90 degrees;
+* ``body13k`` / ``body50k``: the MakeHuman body (``human/base.obj``, group ``body``; 50k: one midpoint
+  subdivision), keys rest, bent by 60 degrees, twisted by 60 degrees;
+* ``human13k``: the CC0 rigged body (:func:`lacore.samples.human.load_human`), keys rest, left arm
+  raised by 70 degrees, right knee bent by 35 degrees, torso twisted (10/15/10 degrees).
+
+Accuracy is measured against converged full Gauss-Newton projections (``reconstruct(..., method="gn",
+max_iterations=300)`` from the basis, by continuation along the straight line in steps of 0.25) at the
+weights of :func:`reference_weights`, computed here (hours at 50k vertices) or read from a cache
+``--reference DIR`` of the same computation (``<mesh>.npz`` with ``weights (N, K-1)``, ``n_in`` (the
+first ``n_in`` weights lie in [0, 1]), ``vertices (N, V, 3)``, ``energy (N,)``).  RMS vertex
+distance after the best rigid motion, in % of the bounding-box diagonal of the basis.
+
+Prints one JSON object.  Times: wall (``perf_counter``) and CPU (``process_time``); run with
+``OPENBLAS_NUM_THREADS=1`` for one core.
+"""
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+for p in (REPO, HERE):
+    if p not in sys.path:
+        sys.path.insert(0, p)
+
+from bench_common import machine_info  # noqa: E402
+
+from lacore.geometry.rigid import rigid_align  # noqa: E402
+from lacore.samples.simple_deform import box_bar, simple_deform_bend  # noqa: E402
+from lacore.shapes.mixing import ShapeMixer, blend_targets  # noqa: E402
+
+MESHES = ("bar5k", "human13k", "body13k", "bar50k", "body50k")
+
+
+def mesh_keys(name):
+    """``(keys (K, V, 3), faces)`` of a benchmark mesh."""
+    from bench_multires import beam_bend, load_body, midpoint_subdivide, twist
+
+    if name.startswith("bar"):
+        nl, nw = {"bar50k": (210, 52), "bar5k": (64, 16), "bar2k": (40, 10)}[name]
+        B, F = box_bar(nl, nw)
+        return np.stack([B, simple_deform_bend(B, np.pi / 2), twist(B, np.pi / 2, axis=0)]), F
+    if name.startswith("body"):
+        X, F = load_body()
+        if name == "body50k":
+            X, F = midpoint_subdivide(X, F)
+        return np.stack([X, beam_bend(X, np.pi / 3), twist(X, np.pi / 3, axis=1)]), F
+    if name == "human13k":
+        from lacore.samples.human import JOINT_DOFS, load_human
+
+        body = load_human()
+
+        def pose(angles):
+            p = np.zeros(len(JOINT_DOFS))
+            for (bone, kind, toward), deg in angles.items():
+                i = next(i for i, d in enumerate(JOINT_DOFS) if d[:3] == (bone, kind, toward))
+                p[i] = np.radians(deg)
+            return body.pose(p)
+
+        arm = pose({("LeftArm", "swing", "up"): 70})
+        knee = pose({("RightLeg", "swing", "backward"): 35})
+        torso = pose({("LowerBack", "twist", None): 10, ("Spine", "twist", None): 15, ("Spine1", "twist", None): 10})
+        return np.stack([body.vertices, arm, knee, torso]), body.faces
+    raise KeyError(name)
+
+
+def reference_weights(m, seed=0):
+    """10 weights in [0, 1]^m (the centre, all ones, random) and 10 in [-0.5, 1.5]^m (4 corners first, random)."""
+    rng = np.random.default_rng(seed)
+    inside = [np.full(m, 0.5), np.ones(m)] + list(rng.uniform(0, 1, (8, m)))
+    lo, hi = np.full(m, -0.5), np.full(m, 1.5)
+    corners = [lo, hi, np.r_[1.5, lo[1:]], np.r_[-0.5, hi[1:]]]             # all low, all high, first alone
+    outside = corners + list(rng.uniform(-0.5, 1.5, (10 - len(corners), m)))
+    return np.array(inside + outside), len(inside)
+
+
+def compute_references(keys, faces, W):
+    from lacore import MeshTopology, lengths_and_angles, reconstruct
+
+    topo = MeshTopology.from_faces(faces, n_vertices=keys.shape[1])
+    zk = np.stack([lengths_and_angles(k, topo) for k in keys])
+    X, E = [], []
+    for w in W:
+        start = None
+        for t in np.append(np.arange(0.25, 1.0, 0.25), 1.0):
+            res = reconstruct(blend_targets(zk, t * w, topo.n_edges), topo, keys[0], method="gn",
+                              initial_vertices=start, max_iterations=300)
+            start = res.vertices
+        X.append(res.vertices)
+        E.append(res.energy)
+    return np.array(X), np.array(E)
+
+
+def rms_percent(A, B, diag):
+    Y = rigid_align(A, B)
+    return 100.0 * float(np.sqrt(np.mean(np.sum((Y - B) ** 2, axis=1)))) / diag
+
+
+def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=None):
+    keys, faces = mesh_keys(name)
+    diag = float(np.linalg.norm(np.ptp(keys[0], axis=0)))
+    out = {"mesh": name, "vertices": int(keys.shape[1]), "keys": int(len(keys))}
+    path = os.path.join(reference_dir, f"{name}.npz") if reference_dir else None
+    if path and os.path.exists(path):
+        ref = np.load(path)
+        W, n_in, Xref, Eref = ref["weights"], int(ref["n_in"]), ref["vertices"], ref["energy"]
+    else:
+        W, n_in = reference_weights(len(keys) - 1)
+        if references:
+            W = np.concatenate([W[:references], W[n_in:n_in + references]])
+            n_in = references
+        Xref, Eref = compute_references(keys, faces, W)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    c0, t0 = time.process_time(), time.perf_counter()
+    mixer = ShapeMixer.build(keys, faces, options)
+    out["build_seconds"] = {k: round(v, 3) for k, v in mixer.build_seconds.items()}
+    out["build_cpu_seconds_by_stage"] = {k: round(v, 3) for k, v in mixer.build_cpu_seconds.items()}
+    out["build_cpu_seconds"] = round(time.process_time() - c0, 3)
+    out["build_wall_seconds"] = round(time.perf_counter() - t0, 3)
+    out["reduced_size"] = mixer.reduced_size
+    out["cubature_edges"] = mixer.cubature_size
+    out["edges"] = int(mixer.n_edges)
+    out["cubature_fit_residual"] = round(float(getattr(mixer, "cubature_residual", 0.0)), 5)
+    out["mixer_megabytes"] = round(mixer.nbytes / 2 ** 20, 1)
+    out["peak_rss_growth_megabytes"] = round((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024, 1)
+    errs, ratios, inds, flags, its, wall, cpu = [], [], [], [], [], [], []
+    for i, w in enumerate(W):
+        mixer.mix(np.zeros(len(w)), warm_start=False)
+        ws, cs = [], []
+        for _ in range(repeats):  # cold mixes (no warm start): the worst case of a slider jump
+            c1, t1 = time.process_time(), time.perf_counter()
+            r = mixer.mix(w, warm_start=False)
+            cs.append(time.process_time() - c1)
+            ws.append(time.perf_counter() - t1)
+        wall.append(min(ws))
+        cpu.append(min(cs))
+        errs.append(rms_percent(r.vertices, Xref[i], diag))
+        exact = mixer.full_energy(w, r.vertices)
+        ratios.append(exact / Eref[i] if Eref[i] > 0 else float("nan"))
+        inds.append(r.indicator)
+        flags.append(bool(r.in_range))
+        its.append(r.iterations)
+    # slider drags: 20 small steps from 0 to the centre, warm-started
+    m = len(keys) - 1
+    mixer.mix(np.zeros(m))
+    drag = []
+    for t in np.linspace(0.05, 1.0, 20):
+        c1 = time.process_time()
+        mixer.mix(np.full(m, 0.5) * t)
+        drag.append(time.process_time() - c1)
+    errs, ratios = np.array(errs), np.array(ratios)
+    out["mix"] = {
+        "ms_median_cold_wall": round(1e3 * float(np.median(wall)), 2),
+        "ms_median_cold_cpu": round(1e3 * float(np.median(cpu)), 2),
+        "ms_median_drag_cpu": round(1e3 * float(np.median(drag)), 2),
+        "iterations_max": int(max(its)),
+        "rms_percent_diag_in_01": {"mean": round(float(errs[:n_in].mean()), 4),
+                                   "max": round(float(errs[:n_in].max()), 4)},
+        "rms_percent_diag_extrapolated": {"mean": round(float(errs[n_in:].mean()), 4),
+                                          "max": round(float(errs[n_in:].max()), 4)},
+        "energy_ratio_in_01": {"median": round(float(np.nanmedian(ratios[:n_in])), 4),
+                               "max": round(float(np.nanmax(ratios[:n_in])), 4)},
+        "energy_ratio_extrapolated": {"median": round(float(np.nanmedian(ratios[n_in:])), 4),
+                                      "max": round(float(np.nanmax(ratios[n_in:])), 4)},
+        "per_weight": [{"w": [round(float(a), 3) for a in w], "rms_percent": round(float(e), 4),
+                        "energy_ratio": round(float(q), 4), "indicator": round(float(d), 5), "in_range": f}
+                       for w, e, q, d, f in zip(W, errs, ratios, inds, flags, strict=True)],
+    }
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("meshes", nargs="*", default=list(MESHES), help=f"of {', '.join(MESHES)}")
+    ap.add_argument("--reference", help="folder of stored converged full Gauss-Newton mixes <mesh>.npz")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--references", type=int, default=None, metavar="N",
+                    help="without stored references: compute only N weights in [0, 1] and N outside (default 10 + 10)")
+    args = ap.parse_args(argv)
+    results = {"machine": machine_info(), "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "meshes": []}
+    for name in args.meshes:
+        results["meshes"].append(bench_mesh(name, args.reference, args.repeats, references=args.references))
+        print(json.dumps(results["meshes"][-1]), file=sys.stderr, flush=True)
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

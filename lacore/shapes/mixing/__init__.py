@@ -1,0 +1,15 @@
+"""The shape mixer: nonlinear blends of shape keys in lengths and angles, in real time.
+
+* :mod:`.mixer` -- :class:`ShapeMixer` (build, mix, save, load), :class:`MixerOptions`,
+  :class:`MixResult`, the blend of targets :func:`blend_targets`;
+* :mod:`.subspace` -- the reduced space (keys, derivatives of the projection, chord vectors);
+* :mod:`.reduced` -- the reduced energy on a weighted subset of edges and its solver;
+* :mod:`.cubature` -- the choice of that subset (greedy non-negative least squares);
+* :mod:`.files` -- saving and loading mixers.
+"""
+
+from .mixer import (FORMAT, FORMAT_VERSION, MIN_LENGTH_RATIO, MixerError, MixerOptions, MixResult, ShapeMixer,
+                    blend_targets)
+
+__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO", "FORMAT",
+           "FORMAT_VERSION"]

@@ -1,0 +1,125 @@
+"""Cubature of the mixer's reduced energy: a sparse weighted subset of edges reproducing its gradient.
+
+The reduced gradient is a sum over edges of pieces affine in the weights ``w``
+(:meth:`~lacore.shapes.mixing.reduced.ReducedEnergy.gradient_pieces`).  At training points ``q`` of
+the subspace the exact sums over all edges are matched by a non-negative combination of a few
+edges' pieces (non-negative least squares, greedy selection): the cubature of the reduced energy
+(An, Kim and James 2008; von Tycowicz et al. 2015).  Matching every piece separately makes the
+cubature valid for all ``w`` at once.
+"""
+
+import numpy as np
+import scipy.linalg as sl
+import scipy.optimize as so
+
+__all__ = ["greedy_nnls", "fit_cubature"]
+
+
+def _cholesky(gram):
+    n = len(gram)
+    shift = 1e-13 * np.trace(gram) / max(n, 1)
+    return sl.cholesky(gram + shift * np.eye(n), lower=False, check_finite=False)
+
+
+def greedy_nnls(A, b, max_points, batch=16, passes=3):
+    """A sparse non-negative ``c`` with ``A[:, sel] @ c ~ b``, at most ``max_points`` columns.
+
+    Columns are added in batches by their correlation with the residual (orthogonal matching
+    pursuit with least-squares refits), then the weights on the support are fitted by NNLS and
+    columns with weight 0 dropped; repeated ``passes`` times while the support is short.
+
+    Parameters
+    ----------
+    A : (R, N) ndarray
+    b : (R,) ndarray
+    max_points : int
+    batch : int
+    passes : int
+
+    Returns
+    -------
+    sel : (n,) int ndarray
+        Selected columns.
+    c : (n,) ndarray
+        Their positive weights.
+    relative_residual : float
+        ``|A[:, sel] c - b| / |b|``.
+    """
+    A = np.asarray(A, float)
+    N = A.shape[1]
+    max_points = min(int(max_points), N)
+    norms = np.sqrt(np.einsum("ij,ij->j", A, A))
+    norms[norms == 0] = np.inf
+    Atb = A.T @ b
+    C = np.empty((N, 0))
+    sel = np.zeros(0, np.int64)
+    c = np.zeros(0)
+    for _ in range(passes):
+        while len(sel) < max_points:
+            corr = np.abs(Atb - C @ c) / norms
+            corr[sel] = -np.inf
+            k = min(batch, max_points - len(sel))
+            new = np.argpartition(-corr, k - 1)[:k]
+            new = new[np.isfinite(corr[new]) & (corr[new] > 0)]
+            if not new.size:
+                break
+            C = np.hstack([C, A.T @ A[:, new]])
+            sel = np.r_[sel, new]
+            c = sl.cho_solve((_cholesky(C[sel]), False), Atb[sel], check_finite=False)
+        R = _cholesky(C[sel])
+        y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
+        c, _ = so.nnls(R, y, maxiter=50 * max(len(sel), 1))
+        keep = c > 0
+        sel, c, C = sel[keep], c[keep], C[:, keep]
+        if len(sel) >= 0.97 * max_points:
+            break
+    bn = float(np.linalg.norm(b)) or 1.0
+    return sel, c, float(np.linalg.norm(b - A[:, sel] @ c)) / bn
+
+
+def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0):
+    """Edges and weights of a cubature of the reduced energy, trained at the subspace points ``samples``.
+
+    Parameters
+    ----------
+    make_energy : callable
+        ``make_energy(edges, c)`` -> :class:`~lacore.shapes.mixing.reduced.ReducedEnergy` on those edges.
+    samples : list of (r,) ndarrays
+    totals : list of (m+1, r) ndarrays
+        The exact gradient pieces (sums over all edges) at the samples.
+    score : (E,) ndarray
+        Importance of every edge (the size of its contributions).
+    n_points : int
+        Largest number of edges of the cubature.
+    max_candidates : int
+        Edges offered to the selection: all when there are not more, else the half with the largest
+        ``score`` and a seeded random draw of the others.
+
+    Returns
+    -------
+    edges : (n,) int ndarray
+    c : (n,) ndarray
+    relative_residual : float
+        Of the training fit.
+    """
+    E = len(score)
+    if E <= max_candidates:
+        cand = np.arange(E)
+    else:
+        rng = np.random.default_rng(seed)
+        n_top = max_candidates // 2
+        top = np.argpartition(-score, n_top)[:n_top]
+        rest = np.setdiff1d(np.arange(E), top)
+        cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
+    model = make_energy(cand, None)
+    rows, rhs = [], []
+    for q, tot in zip(samples, totals, strict=True):
+        P = model.gradient_pieces(q)
+        for k in range(P.shape[0]):
+            s = np.sqrt((P[k] * P[k]).sum() / P.shape[2]) or 1.0
+            rows.append(P[k] / s)
+            rhs.append(tot[k] / s)
+    A, b = np.concatenate(rows), np.concatenate(rhs)
+    sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
+    order = np.argsort(cand[sel])
+    return cand[sel][order], c[order], rel

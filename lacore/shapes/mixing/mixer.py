@@ -1,0 +1,706 @@
+"""Shape mixer: the nonlinear blend of shape keys in lengths and angles, projected, in real time.
+
+A :class:`ShapeMixer` is built once from ``K >= 2`` keys of one mesh (``keys[0]`` is the basis,
+like Blender's relative keys).  For weights ``w`` (one per non-basis key, Blender's slider
+values) the target is the blend in lengths and angles (the thesis' linear interpolation in
+``z``, section 4.2, with several keys)::
+
+    z(w) = z_0 + sum_k w_k (z_k - z_0)
+
+angles on the circle (every difference ``theta_k - theta_0`` wrapped to ``(-pi, pi]``), lengths
+floored at :data:`MIN_LENGTH_RATIO` of the basis' (as the shape model's synthesis does).  The mix
+is its energy-based projection (Definition 4.3): the minimizer of ``W_q[z(w), Z(X)]`` (3.19), the
+energy and weights of :func:`lacore.reconstruction.reconstruct`, in the frame of the basis key.
+
+A reduced-order model makes a mix cost independent of the vertex count except for writing the
+vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebrandt 2015):
+
+* offline (:meth:`ShapeMixer.build`): a subspace of vertex positions spanned by the keys, the first
+  derivatives of the projection at the keys and Newton vectors (a full Gauss-Newton step from the
+  reduced minimizer at the centre, all ones, pairs of keys and the corners of the accurate box, in
+  two rounds; :mod:`.subspace`), and a cubature of the reduced energy, a weighted subset of edges
+  (:mod:`.cubature`);
+* online (:meth:`ShapeMixer.mix`): Gauss-Newton in the subspace on the cubature edges
+  (:mod:`.reduced`), started from the previous mix or the Taylor prediction of the nearest key; an
+  error indicator (:meth:`ShapeMixer.indicator`); ``polish=True`` finishes with the full
+  Gauss-Newton projection.
+
+The build costs ``K + C + ceil(C / 2)`` sparse factorizations (``C`` candidate weights: 6 for
+``K = 3``, 13 for ``K = 4``); a mix costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n``
+the cubature's edges, both independent of the mesh size) plus ``O(V r)`` to write the vertices.
+
+Examples: ``benchmarks/bench_mixer.py`` measures build, time per mix and the distance to converged
+full Gauss-Newton on a bar and two bodies.
+
+Weights outside ``[low, high]`` of :class:`MixerOptions` extrapolate; the result says so
+(``in_range`` False and a message) instead of failing, and so does an indicator above
+``max_indicator``.
+
+Files (:meth:`ShapeMixer.save`, :meth:`ShapeMixer.load`): one ``.npz`` with ``format``
+(:data:`FORMAT`), ``format_version`` (:data:`FORMAT_VERSION`), the keys, the faces, the options and
+the reduced model.
+"""
+
+import contextlib
+import time
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ...errors import InputError, MeshError
+from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.topology import MeshTopology, check_vertices
+from ...progress import report
+from ...reconstruction import get_context, reconstruct
+from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
+from .cubature import fit_cubature
+from .files import FORMAT, FORMAT_VERSION, load_mixer, save_mixer
+from .reduced import ReducedEnergy, edge_stencils
+from .subspace import (Expansion, FullProblem, build_space, candidate_weights, newton_vectors,
+                       orthonormal_basis)
+
+__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
+           "FORMAT", "FORMAT_VERSION"]
+
+#: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
+MIN_LENGTH_RATIO = 0.01
+
+
+class MixerError(InputError):
+    """A mixer file or mixer input that lacore cannot use; the message names it and what to do."""
+
+
+@dataclass(frozen=True)
+class MixerOptions:
+    """Settings of a :class:`ShapeMixer`, the one place of its defaults (all scale-free).
+
+    Attributes
+    ----------
+    reduced_size : int or None
+        Largest size of the reduced space (at least ``K-1``: the keys are always in it); None (the
+        default): every vector the build makes (the keys, first derivatives at the keys, Newton
+        vectors), less the dependent ones.
+    low, high : float
+        The box ``[low, high]^(K-1)`` of weights where the mixer is accurate (the build trains
+        there); outside it a result has ``in_range`` False and says so.
+    second_order : bool
+        Second derivatives of the projection at the keys in the space (and second-order Taylor
+        predictions).  Off by default: with Newton vectors they did not improve the accuracy on the bar
+        (largest errors 0.034 % / 0.34 % with, 0.044 % / 0.35 % without) and cost a larger space.
+    chord_steps : int
+        Chord (Krylov) steps per candidate weight (:mod:`.subspace`); 0 for none.
+    newton_rounds : int
+        Rounds of Newton vectors (:func:`.subspace.newton_vectors`: a full Gauss-Newton step from the
+        reduced minimizer at every candidate weight; rounds after the first at the half of the
+        candidates with the largest steps in the round before); 0 for none.
+    newton_pcg_iterations : int
+        0: every Newton vector with a fresh factorization; else that many conjugate-gradient
+        iterations preconditioned by the nearest key's factorization (fewer factorizations).
+    cubature_points : int or None
+        Largest number of edges of the cubature; None: ``max(300, 12 r)``.  Meshes with fewer than
+        twice as many edges use all (the exact reduced energy).
+    cubature_correction : bool
+        Correct the cubature's gradient by the exact one at its minimizers of the training weights,
+        interpolated in weight space (:meth:`ShapeMixer._shift`).  Off by default: on the MakeHuman
+        body (13k) it brought the largest RMS error from 0.008 % to 0.0014 % and the median energy
+        excess from 6 % to 1 %, but near the keys (mixes of very low energy) it made the energy up
+        to 6 times worse on the bar and did not help on the CC0 body.
+    max_iterations : int
+        Iterations of one mix (reduced Gauss-Newton).
+    polish_iterations : int
+        Iterations of a polish (full Gauss-Newton, :func:`lacore.reconstruction.reconstruct`).
+    step_tolerance : float
+        A mix stops when a step moves the vertices by less than this fraction of the bounding-box
+        diagonal (RMS over the vertices).
+    max_indicator : float
+        Indicator (:meth:`ShapeMixer.indicator`, the estimated RMS error as a fraction of the
+        bounding-box diagonal) above which a result is flagged (``in_range`` False).
+    bending_weight : float or None
+        ``eta`` of ``W_q`` (default: the reconstruction's default).
+
+    Examples
+    --------
+    >>> options = MixerOptions(low=-1.0, high=2.0)        # build for sliders in [-1, 2]
+    >>> options.newton_rounds, options.max_indicator
+    (2, 0.01)
+    >>> MixerOptions.from_array(options.to_array()) == options   # as stored in mixer files
+    True
+    """
+
+    reduced_size: int | None = None
+    low: float = -0.5
+    high: float = 1.5
+    second_order: bool = False
+    chord_steps: int = 0
+    newton_rounds: int = 2
+    newton_pcg_iterations: int = 0
+    cubature_points: int | None = None
+    cubature_correction: bool = False
+    max_iterations: int = 50
+    polish_iterations: int = 300
+    step_tolerance: float = 1e-4
+    max_indicator: float = 0.01
+    bending_weight: float | None = None
+
+    def __post_init__(self):
+        for name in ("reduced_size", "cubature_points"):
+            v = getattr(self, name)
+            if v is not None and (int(v) != v or v < 1):
+                raise InputError(f"{name} must be a positive integer or None, got {v!r}")
+        if not (np.isfinite(self.low) and np.isfinite(self.high) and self.low <= 0.0 and self.high >= 1.0):
+            raise InputError(f"the accurate range [low, high] must contain 0 and 1, got [{self.low}, {self.high}]")
+        for name in ("max_iterations", "polish_iterations"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise InputError(f"{name} must be a positive integer, got {v!r}")
+        for name in ("chord_steps", "newton_rounds", "newton_pcg_iterations"):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise InputError(f"{name} must be a non-negative integer, got {v!r}")
+        for name in ("step_tolerance", "max_indicator"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a positive number, got {v!r}")
+        if self.bending_weight is not None and not (np.isfinite(self.bending_weight) and self.bending_weight >= 0):
+            raise InputError(f"bending_weight must be a non-negative number, got {self.bending_weight!r}")
+
+    @property
+    def settings(self):
+        """The :class:`~lacore.reconstruction.ReconstructionSettings` of the mixer's energy."""
+        if self.bending_weight is None:
+            return ReconstructionSettings()
+        return ReconstructionSettings(bending_weight=float(self.bending_weight))
+
+    def to_array(self):
+        """The options as numbers (None as NaN), in the order of :data:`_OPTION_FIELDS` (for files)."""
+        return np.array([np.nan if getattr(self, f) is None else float(getattr(self, f)) for f in _OPTION_FIELDS])
+
+    @classmethod
+    def from_array(cls, a):
+        kinds = {f.name: f.type for f in fields(cls)}
+        kw = {}
+        for name, v in zip(_OPTION_FIELDS, a, strict=True):
+            if np.isnan(v):
+                kw[name] = None
+            elif "bool" in str(kinds[name]):
+                kw[name] = bool(v)
+            elif "int" in str(kinds[name]):
+                kw[name] = int(v)
+            else:
+                kw[name] = float(v)
+        return cls(**kw)
+
+
+_OPTION_FIELDS = ("reduced_size", "low", "high", "second_order", "chord_steps", "newton_rounds",
+                  "newton_pcg_iterations", "cubature_points", "cubature_correction", "max_iterations",
+                  "polish_iterations", "step_tolerance", "max_indicator", "bending_weight")
+
+
+@dataclass(frozen=True)
+class MixResult:
+    """One mix of a :class:`ShapeMixer`.
+
+    Attributes
+    ----------
+    vertices : (V, 3) ndarray
+        The mixed shape, in the frame of the basis key (its fixed face where the basis has it).
+    weights : (K-1,) ndarray
+        The weights mixed.
+    energy : float
+        ``W_q[z(w), Z(vertices)]`` (3.19): the reduced model's estimate (on the cubature's edges),
+        or the full energy when ``polished`` (:meth:`ShapeMixer.full_energy` computes it for any mix).
+    indicator : float
+        Estimated error (relative to the bounding-box diagonal of the basis, dimensionless).
+    in_range : bool
+        False when the weights leave the range where the mixer is accurate (see ``message``).
+    message : str
+        ``""`` or one line saying what is off and what to do.
+    seconds : float
+        Wall time of the mix (vertices written included).
+    iterations : int
+        Solver iterations (reduced, plus full Gauss-Newton ones when polished).
+    polished : bool
+        Whether the full Gauss-Newton projection produced ``vertices``.
+
+    Examples
+    --------
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> mixer = ShapeMixer.build([X, bar_pose(X, 0.4, 0.0), bar_pose(X, 0.0, 0.4)], faces)
+    >>> r = mixer.mix([0.5, 0.5])
+    >>> r.vertices.shape, r.in_range, r.message, r.polished
+    ((22, 3), True, '', False)
+    >>> far = mixer.mix([3.0, 0.0])
+    >>> far.in_range, far.message.split(":")[0]
+    (False, 'weights outside [-0.5, 1.5] (key 1 = 3)')
+    """
+
+    vertices: np.ndarray
+    weights: np.ndarray
+    energy: float
+    indicator: float
+    in_range: bool
+    message: str
+    seconds: float
+    iterations: int
+    polished: bool
+
+
+def _wrap(a):
+    """Angles to ``(-pi, pi]``."""
+    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+
+
+def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
+    """``z(w) = z_0 + sum_k w_k (z_k - z_0)``, angle differences on the circle, lengths floored.
+
+    Parameters
+    ----------
+    z_keys : (K, 2E) array_like
+        Lengths and angles of the keys (``z_keys[0]`` the basis).
+    weights : (K-1,) or (N, K-1) array_like
+    n_edges : int
+    min_length_ratio : float
+        Lengths below this fraction of the basis' are raised to it.
+
+    Returns
+    -------
+    z : (2E,) or (N, 2E) ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> z = np.array([[1.0, 3.0], [2.0, -3.0]])         # one edge: length, angle
+    >>> blend_targets(z, [0.5], 1).round(4)             # the angle goes the short way round through pi
+    array([1.5   , 3.1416])
+    """
+    Z = np.asarray(z_keys, float)
+    D = Z[1:] - Z[0]
+    D[:, n_edges:] = _wrap(D[:, n_edges:])
+    z = Z[0] + np.asarray(weights, float) @ D
+    z[..., n_edges:] = _wrap(z[..., n_edges:])
+    z[..., :n_edges] = np.maximum(z[..., :n_edges], min_length_ratio * Z[0, :n_edges])
+    return z
+
+
+def _check_keys(keys, faces):
+    F = np.asarray(faces)
+    if F.ndim != 2 or F.shape[1] != 3 or F.size == 0 or F.dtype.kind not in "iu":
+        raise MeshError(f"faces must be a non-empty (F, 3) integer array, got shape {F.shape}")
+    try:
+        K = np.asarray(keys, float)
+    except (TypeError, ValueError):
+        raise MeshError("keys must be a (K, V, 3) array of numbers (K >= 2 keys of one mesh)") from None
+    if K.ndim != 3 or K.shape[2] != 3:
+        raise MeshError(f"keys must be a (K, V, 3) array (K >= 2 keys of one mesh), got shape {K.shape}")
+    if K.shape[0] < 2:
+        raise MeshError(f"a mixer needs at least 2 keys (the basis and one more), got {K.shape[0]}")
+    topo = MeshTopology.from_faces(F.astype(np.int64), n_vertices=K.shape[1])
+    for k in range(K.shape[0]):
+        check_vertices(K[k], K.shape[1], name=f"key {k}")
+    return K, topo
+
+
+#: Inverse-distance weights of the cubature's gradient corrections: ``|w - w_s|^(-2 p)``.
+_CORRECTION_POWER = 2
+
+
+class _Stopwatch:
+    """Wall and CPU seconds by stage (a stage timed twice adds up)."""
+
+    def __init__(self):
+        self.wall, self.cpu = {}, {}
+
+    @contextlib.contextmanager
+    def __call__(self, name):
+        t, c = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - t
+            self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
+
+
+class ShapeMixer:
+    """Nonlinear mixing of shape keys in lengths and angles (see the module docstring).
+
+    Build with :meth:`build` (or :meth:`load` a saved one), then call :meth:`mix` with the weights.
+    A mixer remembers its last mix (the warm start of the next); use one mixer per thread.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> mixer = ShapeMixer.build([X, bar_pose(X, 0.4, 0.0), bar_pose(X, 0.0, 0.4)], faces)
+    >>> r = mixer.mix([1.0, 0.0])                    # the first key (in the basis' frame)
+    >>> from lacore.geometry.rigid import rigid_rms
+    >>> bool(rigid_rms(r.vertices, bar_pose(X, 0.4, 0.0)) < 1e-6 * np.ptp(X)), r.in_range
+    (True, True)
+    >>> mixer.mix([2.5, 0.0]).in_range               # far outside the accurate range: it says so
+    False
+    """
+
+    def __init__(self, keys, faces, options=None, *, _topology=None):
+        self.options = MixerOptions() if options is None else options
+        if _topology is None:
+            keys, _topology = _check_keys(keys, faces)
+        self.keys = np.asarray(keys, float)
+        self.topology = _topology
+        self.faces = self.topology.faces
+        E = self.n_edges = self.topology.n_edges
+        ctx = self._context = get_context(self.topology, self.keys[0], self.options.settings)
+        self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
+        zi = np.stack([ctx.internal_z(z) for z in self.z_keys])
+        dz = zi[1:] - zi[0]
+        dz[:, E:] = _wrap(dz[:, E:])
+        w = np.array(ctx.residual_weights, float)
+        w[E:][self.topology.is_boundary_edge] = 0.0
+        self._problem = FullProblem(ctx, zi, dz, MIN_LENGTH_RATIO * zi[0, :E], w)
+        self._key_x = np.stack([ctx.to_canonical(k).ravel() for k in self.keys])
+        self._stencils = edge_stencils(self.topology)
+        self._gn = GaussNewtonOptions(max_iterations=self.options.polish_iterations)
+        self.diagonal = float(np.linalg.norm(np.ptp(self.keys[0], axis=0))) or 1.0
+        self.build_seconds = {}
+        self.build_cpu_seconds = {}
+        self._last_q = None
+        self.basis = None
+        self._error_w = self._error_v = None
+        self._corr_w = self._corr = None
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def build(cls, keys, faces, options=None, *, progress=None):
+        """A mixer of ``keys`` ``(K, V, 3)`` (``keys[0]`` the basis) on ``faces`` ``(F, 3)``.
+
+        Parameters
+        ----------
+        keys : (K, V, 3) array_like
+            K >= 2 shapes of one mesh in dense correspondence.
+        faces : (F, 3) array_like of int
+        options : MixerOptions, optional
+        progress : callable, optional
+            ``progress(done, total, message)``; returning True raises :class:`lacore.progress.Cancelled`.
+
+        Raises
+        ------
+        MeshError
+            Keys of different vertex counts, fewer than two keys, bad faces, NaN coordinates.
+        """
+        if options is not None and not isinstance(options, MixerOptions):
+            raise InputError(f"options must be MixerOptions, got {type(options).__name__}")
+        watch = _Stopwatch()
+        report(progress, 0, 4, "lengths and angles of the keys")
+        with watch("setup"):
+            mixer = cls(keys, faces, options)
+        o = mixer.options
+        if o.reduced_size is not None and o.reduced_size < mixer.n_keys - 1:
+            raise InputError(f"reduced_size {o.reduced_size} is below the {mixer.n_keys - 1} non-basis keys: the space "
+                             "holds at least the keys")
+        P = mixer._problem
+        size = mixer._context.size
+        vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
+                                    chord_steps=o.chord_steps, size=size, stage=watch,
+                                    progress=None if progress is None else (
+                                        lambda d, t, m: progress(1, 4, m)))
+        report(progress, 2, 4, "basis")
+        with watch("basis"):
+            U, _ = orthonormal_basis(vectors, None if o.newton_rounds else o.reduced_size, keep=mixer.n_keys - 1)
+            mixer._set_basis(U, exps)
+        x0 = mixer._key_x[0]
+        all_cands = candidate_weights(mixer.n_keys - 1, o.low, o.high)
+        latest = {}  # the last error estimate at every candidate
+        for rnd in range(o.newton_rounds):
+            report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
+            with watch("newton_vectors"):
+                if rnd == 0:
+                    cands = all_cands
+                else:  # later rounds: the half of the candidates where the space is worst
+                    order = np.argsort([-latest[tuple(c)] for c in all_cands])
+                    cands = [all_cands[i] for i in order[:max(1, (len(all_cands) + 1) // 2)]]
+                keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
+                new, points, errors = newton_vectors(P, x0, mixer.basis,
+                                                     [(wc, mixer._start(wc)) for wc in cands], size,
+                                                     keys=list(zip(keys_w, mixer._key_x, strict=True)),
+                                                     pcg_iterations=o.newton_pcg_iterations,
+                                                     progress=None if progress is None else (
+                                                         lambda d, t, msg, rnd=rnd: progress(
+                                                             2, 4, f"round {rnd + 1}: {msg}")))
+                latest.update({tuple(c): e for c, e in zip(cands, errors, strict=True)})
+                mixer._error_w = np.array([np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1)) + all_cands)
+                mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
+                vectors += new
+                done = {tuple(wc) for wc, _ in points}
+                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [Expansion(wc, x)
+                                                                                        for wc, x in points]
+            with watch("basis"):
+                U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
+                                         keep=mixer.n_keys - 1)
+                mixer._set_basis(U, exps)
+        report(progress, 3, 4, "cubature")
+        with watch("cubature"):
+            mixer._fit_cubature()
+        mixer.build_seconds = dict(watch.wall, total=sum(watch.wall.values()))
+        mixer.build_cpu_seconds = dict(watch.cpu, total=sum(watch.cpu.values()))
+        report(progress, 4, 4, "done")
+        return mixer
+
+    def _set_basis(self, U, exps):
+        """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones."""
+        self.basis = U
+        x0 = self._key_x[0]
+        self._exp_w = np.array([e.w for e in exps])
+        self._exp_q = np.array([U.T @ (e.x - x0) for e in exps])
+        m, r = self.n_keys - 1, U.shape[1]
+        self._exp_order = np.array([0 if e.D1 is None else (1 if e.T is None else 2) for e in exps])
+        self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
+        self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
+                                for e in exps])
+        self._output_basis()
+
+    def _output_basis(self):
+        """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
+        ctx, U = self._context, self.basis
+        V, r = self.n_vertices, U.shape[1]
+        self._y0 = ctx.from_canonical(self._key_x[0].reshape(-1, 3))
+        zero = ctx.from_canonical(np.zeros((V, 3)))
+        B = np.empty((V, 3, r))
+        Ur = U.reshape(V, 3, r)
+        for j in range(r):
+            B[:, :, j] = ctx.from_canonical(Ur[:, :, j]) - zero
+        self._B = B.reshape(3 * V, r)
+
+    def _make_energy(self, edges, c):
+        P = self._problem
+        return ReducedEnergy(self._stencils, self._key_x[0], self.basis, P.w, P.z0, P.dz, P.floor, edges, c)
+
+    def _cubature_samples(self):
+        """Training points ``(weights (S, m), q (S, r))``: the points the build solved and Taylor predictions at
+        fixed and seeded random weights."""
+        m = self.n_keys - 1
+        o = self.options
+        rng = np.random.default_rng(1)
+        extra = [np.full(m, 0.25), np.full(m, 0.75)] + list(rng.uniform(o.low, o.high, (3 * m, m)))
+        extra += list(rng.uniform(0.0, 1.0, (3 * m, m)))
+        W = np.concatenate([self._exp_w, np.array(extra)])
+        Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
+        return W, Q
+
+    def _training(self, samples):
+        """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
+        edge bounding the size of its pieces."""
+        P, U, topo = self._problem, self.basis, self.topology
+        E = self.n_edges
+        x0 = self._key_x[0]
+        un = np.sqrt((U.reshape(-1, 3, U.shape[1]) ** 2).sum(axis=(1, 2)))        # per-vertex norm of U
+        st = self._stencils
+        reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
+        totals, score = [], np.zeros(E)
+        for q in samples:
+            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            r0 = z - P.z0
+            r0[E:] = _wrap(r0[E:])
+            C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
+            totals.append((U.T @ (J.T @ C)).T)
+            rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(2 * E)
+            rown[np.diff(J.indptr) == 0] = 0.0
+            bound = np.abs(C) * (rown * reach)[:, None]
+            bound /= np.maximum(bound.sum(axis=0), 1e-300)
+            score += (bound[:E] + bound[E:]).sum(axis=1)
+        return totals, score
+
+    def _fit_cubature(self):
+        r = self.basis.shape[1]
+        E = self.n_edges
+        n = self.options.cubature_points or max(300, 12 * r)
+        self._corr_w = self._corr = None
+        if E <= 2 * n:
+            self._cubature = self._make_energy(None, None)
+            self.cubature_residual = 0.0
+            return
+        W, Q = self._cubature_samples()
+        totals, score = self._training(list(Q))
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n)
+        self._cubature = self._make_energy(edges, c)
+        self.cubature_residual = rel
+        if not self.options.cubature_correction:
+            return
+        # gradient corrections at the cubature's own minimizers of the training weights
+        cub = self._cubature
+        step_tol = self.options.step_tolerance * self._context.size * np.sqrt(self.n_vertices)
+        Qs = np.array([cub.solve(wk, qk, self.options.max_iterations, step_tol)[0]
+                       for wk, qk in zip(W, Q, strict=True)])
+        exact, _ = self._training(list(Qs))
+        self._corr_w = W
+        self._corr = np.array([t - cub.gradient_pieces(q).sum(axis=2) for t, q in zip(exact, Qs, strict=True)])
+
+    def _shift(self, w):
+        """Gradient correction ``(r,)`` of the cubature at the weights ``w`` (None without cubature): the difference
+        between the exact and the cubature's gradient pieces at the training minimizers, interpolated by inverse
+        squared distances in weight space; it makes the cubature's gradient exact at the training minimizers."""
+        if self._corr_w is None:
+            return None
+        d2 = ((self._corr_w - w) ** 2).sum(axis=1)
+        i = int(np.argmin(d2))
+        if d2[i] <= 1e-24:
+            phi = np.zeros(len(d2))
+            phi[i] = 1.0
+        else:
+            phi = d2 ** -_CORRECTION_POWER
+            phi /= phi.sum()
+        pieces = np.einsum("s,skr->kr", phi, self._corr)                  # (m+1, r)
+        return pieces[0] - w @ pieces[1:]
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def n_keys(self):
+        """K, the number of keys (the basis included)."""
+        return self.keys.shape[0]
+
+    @property
+    def n_vertices(self):
+        return self.keys.shape[1]
+
+    @property
+    def reduced_size(self):
+        """Size ``r`` of the reduced space."""
+        return int(self.basis.shape[1])
+
+    @property
+    def cubature_size(self):
+        """Number of edges of the energy a mix evaluates."""
+        return int(len(self._cubature.edges))
+
+    @property
+    def nbytes(self):
+        """Memory of the reduced model (basis, output basis, cubature), in bytes."""
+        cub = self._cubature
+        return int(self.basis.nbytes + self._B.nbytes + 2 * cub.US.nbytes + cub.xb.nbytes + self._exp_T.nbytes)
+
+    # ------------------------------------------------------------------ mixing
+    def check_weights(self, weights):
+        """``weights`` as a finite ``(K-1,)`` float array, or :class:`MixerError`."""
+        try:
+            w = np.asarray(weights, float)
+        except (TypeError, ValueError):
+            raise MixerError(f"weights must be {self.n_keys - 1} numbers, one per non-basis key") from None
+        if w.shape != (self.n_keys - 1,):
+            raise MixerError(f"weights must be {self.n_keys - 1} numbers, one per non-basis key, got shape "
+                             f"{w.shape}")
+        if not np.all(np.isfinite(w)):
+            raise MixerError(f"weights must be finite numbers, got {w.tolist()}")
+        return w
+
+    def target(self, weights):
+        """The blended lengths and angles ``z(w)`` ``(2E,)``."""
+        return blend_targets(self.z_keys, self.check_weights(weights), self.n_edges)
+
+    def range_message(self, weights):
+        """``""`` when ``weights`` lie in the accurate range, else one line saying which do not."""
+        w = np.asarray(weights, float)
+        lo, hi = self.options.low, self.options.high
+        out = np.flatnonzero((w < lo) | (w > hi))
+        if not out.size:
+            return ""
+        which = ", ".join(f"key {i + 1} = {w[i]:g}" for i in out[:4])
+        return (f"weights outside [{lo:g}, {hi:g}] ({which}): the mix extrapolates beyond the range the mixer "
+                "was built for; polish it for the exact projection (polish=True, lacore mix --polish) or rebuild "
+                "the mixer with a wider range (MixerOptions low/high, lacore mixer --range)")
+
+    def full_energy(self, weights, vertices):
+        """``W_q[z(w), Z(vertices)]`` on the whole mesh (the energy the full projection minimizes)."""
+        return float(self._context.energy(self.target(weights), vertices))
+
+    def predict(self, weights, order=2):
+        """Taylor prediction ``(r,)`` of the reduced coordinates from the nearest expansion point."""
+        w = np.asarray(weights, float)
+        near = self._nearest(w, order)
+        d = w - self._exp_w[near]
+        q = self._exp_q[near] + self._exp_A[near] @ d
+        if order >= 2 and self._exp_order[near] >= 2:
+            q = q + 0.5 * np.einsum("a,b,abr->r", d, d, self._exp_T[near])
+        return q
+
+    def _start(self, w):
+        """A start for the reduced minimizer at ``w``: the point the build solved there, else the Taylor prediction."""
+        i = self._nearest(w)
+        return self._exp_q[i].copy() if np.abs(self._exp_w[i] - w).max() <= 1e-12 else self.predict(w)
+
+    def _nearest(self, w, order=0):
+        dist = np.abs(self._exp_w - w).sum(axis=1)
+        if order > 0:
+            dist = np.where(self._exp_order >= 1, dist, np.inf)
+        return int(np.argmin(dist))
+
+    def indicator(self, weights):
+        """Estimated RMS error of the mix, relative to the bounding-box diagonal.
+
+        The build measures the error of the space at the candidate weights (the RMS length of the
+        last round's Newton vectors, :func:`.subspace.newton_vectors`, before they join the space: an
+        upper estimate) and knows it is 0 at the keys; this interpolates those values by inverse
+        squared distances in weight space.  Without Newton vectors: NaN.
+        """
+        if self._error_w is None:
+            return float("nan")
+        d2 = ((self._error_w - np.asarray(weights, float)) ** 2).sum(axis=1)
+        i = int(np.argmin(d2))
+        if d2[i] <= 1e-24:
+            return float(self._error_v[i])
+        inv = 1.0 / d2
+        return float(inv @ self._error_v / inv.sum())
+
+    def mix(self, weights, *, warm_start=True, polish=False):
+        """The mix for ``weights`` ``(K-1,)``: the projection of ``z(w)``.
+
+        Parameters
+        ----------
+        weights : (K-1,) array_like
+            One weight per non-basis key (the slider values); outside ``[low, high]`` they extrapolate.
+        warm_start : bool
+            Start from the previous mix when its reduced energy is below that of the Taylor prediction
+            of the nearest key (the start otherwise).
+        polish : bool
+            Finish with the full Gauss-Newton projection from the reduced result (the exact mix).
+
+        Returns
+        -------
+        MixResult
+        """
+        t0 = time.perf_counter()
+        w = self.check_weights(weights)
+        cub = self._cubature
+        shift = self._shift(w)
+        q0 = self.predict(w)
+        if (warm_start and self._last_q is not None
+                and cub.energy(self._last_q, w, shift) < cub.energy(q0, w, shift)):
+            q0 = self._last_q
+        step_tol = self.options.step_tolerance * self._context.size * np.sqrt(self.n_vertices)
+        q, energy, its = cub.solve(w, q0, self.options.max_iterations, step_tol, shift=shift)
+        self._last_q = q
+        X = (self._y0.ravel() + self._B @ q).reshape(-1, 3)
+        indicator = self.indicator(w)
+        msg = self.range_message(w)
+        if not msg and indicator > self.options.max_indicator:
+            msg = (f"error indicator {indicator:.3g} above {self.options.max_indicator:g}: the reduced mix may be "
+                   "off; polish it for the exact projection (polish=True, lacore mix --polish)")
+        polished = False
+        if polish:
+            res = reconstruct(self.target(w), self.topology, self.keys[0], context=self._context, options=self._gn,
+                              initial_vertices=X)
+            X, energy, its, polished = res.vertices, float(res.energy), its + int(res.iterations), True
+            if res.success:
+                msg = ""
+            else:
+                msg = (msg + "; " if msg else "") + f"the full projection did not converge ({res.message})"
+        return MixResult(vertices=X, weights=w, energy=float(energy), indicator=indicator, in_range=not msg,
+                         message=msg, seconds=time.perf_counter() - t0, iterations=int(its), polished=polished)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path):
+        """Write the mixer to ``path`` (``.npz`` appended unless it ends so), atomically; returns the path."""
+        return save_mixer(self, path)
+
+    @classmethod
+    def load(cls, path):
+        """Read a mixer written by :meth:`save`; :class:`MixerError` naming the file for anything else."""
+        return load_mixer(cls, path)

@@ -1,0 +1,529 @@
+"""Blender-side checks of live nonlinear mixing of the INSTALLED extension (run in a SUBPROCESS by
+tests/test_blender_live_mix.py, which prepares ``<work>/inputs.npz`` with the repo's lacore: a box bar's
+``basis``, ``faces``, ``keys`` (Bend, Twist, Both) and ``grouped`` (a key used with a vertex group)).
+
+usage: BLENDER_USER_RESOURCES=<tmp> python check_live_mix.py --zip EXT.zip --workdir DIR --result OUT.json
+
+What Blender showed (evaluated meshes, the key values they were evaluated at, the stored mixer) goes to
+``<workdir>/live_mix.npz``; pytest compares it with lacore's own mix of the same weights.
+"""
+
+import importlib
+import os
+import time
+from types import SimpleNamespace
+
+from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+import numpy as np
+
+WORK = os.path.dirname(ARGS.workdir)
+INPUTS = dict(np.load(os.path.join(WORK, "inputs.npz")))
+NAMES = ["Bend", "Twist", "Both"]
+WEIGHTS = [(0.5, 0.0, 0.0), (0.5, 0.3, 0.0), (1.0, 0.0, 0.0), (0.3, 0.6, 0.4), (0.0, 0.0, 0.0)]
+FRAMES = [1, 4, 7, 11]
+BLEND = os.path.join(ARGS.workdir, "live.blend")
+OUT = {}
+
+
+def ext(name):
+    return importlib.import_module(f"{MODULE}.addon.{name}")
+
+
+def ops_context(obj):
+    return bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj] if obj else [])
+
+
+def select_only(obj):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    obj.select_set(True)
+    bpy.context.view_layer.objects.active = obj
+
+
+def make_bar(name="Bar", grouped=False):
+    """The bar with keys Bend, Twist, Both (values 0); with ``grouped`` also the key Grouped limited to the
+    vertex group 'end' (weights 0 .. 1 along the bar)."""
+    X, faces = INPUTS["basis"], INPUTS["faces"]
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(X.tolist(), [], faces.tolist())
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.shape_key_add(name="Basis", from_mix=False)
+    for n, K in zip(NAMES, INPUTS["keys"], strict=True):
+        kb = obj.shape_key_add(name=n, from_mix=False)
+        kb.data.foreach_set("co", K.astype(np.float32).ravel())
+        kb.value = 0.0  # (new keys are at 1 in Blender 5)
+    if grouped:
+        group = obj.vertex_groups.new(name="end")
+        for i, w in enumerate(INPUTS["group_weights"]):
+            group.add([i], float(w), 'REPLACE')
+        kb = obj.shape_key_add(name="Grouped", from_mix=False)
+        kb.data.foreach_set("co", INPUTS["grouped"].astype(np.float32).ravel())
+        kb.vertex_group = "end"
+        kb.value = 0.0
+    select_only(obj)
+    return obj
+
+
+def evaluated(obj):
+    """(V', 3) float32 positions of the evaluated object (shape keys, then modifiers)."""
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    co = np.empty(3 * len(me.vertices), np.float32)
+    me.vertices.foreach_get("co", co)
+    ev.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
+def set_values(obj, values, names=NAMES):
+    for n, v in zip(names, values, strict=True):
+        obj.data.shape_keys.key_blocks[n].value = v
+
+
+def values(obj, names=NAMES):
+    return [obj.data.shape_keys.key_blocks[n].value for n in names]
+
+
+def snapshot(obj):
+    """Everything of the user's a live-mixing operator must leave alone (and a failed one: everything)."""
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    keys = []
+    for kb in (mesh.shape_keys.key_blocks if mesh.shape_keys else []):
+        c = np.empty(3 * len(kb.points), np.float32)
+        kb.points.foreach_get("co", c)
+        keys.append((kb.name, kb.value, kb.mute, kb.slider_min, kb.slider_max, kb.relative_key.name,
+                     kb.vertex_group, kb.interpolation, c.tobytes()))
+    return {"keys": keys, "active": obj.active_shape_key_index, "mesh_props": sorted(mesh.keys()),
+            "texts": sorted(t.name for t in bpy.data.texts),
+            "co": co.tobytes(), "modifiers": [m.name for m in obj.modifiers], "mode": obj.mode,
+            "use_relative": None if mesh.shape_keys is None else mesh.shape_keys.use_relative}
+
+
+def enable(obj):
+    with ops_context(obj):
+        return sorted(bpy.ops.lengths_angles.live_mix_enable())
+
+
+def disable(obj):
+    with ops_context(obj):
+        return sorted(bpy.ops.lengths_angles.live_mix_disable())
+
+
+def status(obj):
+    s = ext("live_mix").status(obj.data)
+    return None if s is None else {k: v for k, v in s.items() if k != "mix_seconds"}
+
+
+def panel_labels(obj):
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_live_mix, SimpleNamespace(object=obj))
+    return [kw.get("text") for name, _, kw in calls if name == "label"]
+
+
+def stored_mixer(obj):
+    live_mix = ext("live_mix")
+    return np.frombuffer(live_mix.stored_npz(obj.data[live_mix.MIXER_PROP]), np.uint8)
+
+
+# --------------------------------------------------------------------------------------------------- cases
+def install_and_enable():
+    result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
+                                                      enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    live_mix = ext("live_mix")
+    return {"operators": [bpy.ops.lengths_angles.live_mix_enable.idname(),
+                          bpy.ops.lengths_angles.live_mix_disable.idname()],
+            "handlers": sorted(name for name, fn in live_mix._HANDLERS if fn in getattr(bpy.app.handlers, name))}
+
+
+def enable_mix_disable():
+    """Enable, set values (the evaluated mesh = lacore's mix), a modifier after the keys, disable (Blender's
+    linear mix again, bit for bit; the user's keys untouched)."""
+    reset()
+    obj = make_bar()
+    linear = []
+    for w in WEIGHTS:
+        set_values(obj, w)
+        linear.append(evaluated(obj))
+    set_values(obj, (0.0, 0.0, 0.0))
+    before = snapshot(obj)
+    t = time.perf_counter()
+    result = enable(obj)
+    seconds = time.perf_counter() - t
+    after_enable = snapshot(obj)
+    OUT["mixer_npz"] = stored_mixer(obj)
+    meta = obj.data[ext("live_mix").MIXER_PROP]
+    storage = {"record_bytes": len(repr(meta.to_dict())), "text": meta["text"],
+               "texts": sorted(t.name for t in bpy.data.texts), "fake_user": bpy.data.texts[meta["text"]].use_fake_user}
+    mixed = []
+    for w in WEIGHTS:
+        set_values(obj, w)
+        mixed.append(evaluated(obj))
+    OUT["weights"] = np.array(WEIGHTS)
+    OUT["mixed"] = np.array(mixed)
+    OUT["linear"] = np.array(linear)
+    st = status(obj)
+    labels = panel_labels(obj)
+    # a modifier after the shape keys applies to the mix: Displace along X without a texture shifts every
+    # vertex by strength * (1 - midlevel)
+    set_values(obj, WEIGHTS[3])
+    mod = obj.modifiers.new("Shift", 'DISPLACE')
+    mod.direction, mod.strength, mod.mid_level = 'X', 0.4, 0.0
+    OUT["with_modifier"] = evaluated(obj)
+    obj.modifiers.remove(mod)
+    OUT["without_modifier"] = evaluated(obj)
+    # disable: the linear mix, bit for bit, at every weight; the keys exactly as before
+    assert disable(obj) == ["FINISHED"]
+    relinear = []
+    for w in WEIGHTS:
+        set_values(obj, w)
+        relinear.append(evaluated(obj))
+    set_values(obj, (0.0, 0.0, 0.0))
+    return {"result": result, "seconds": round(seconds, 3), "status": st, "panel": labels, "storage": storage,
+            "user_keys_untouched_by_enable": after_enable["keys"][:4] == before["keys"],
+            "keys_after_enable": [k[0] for k in after_enable["keys"]],
+            "mix_key": after_enable["keys"][-1][1:7],
+            "active_kept": after_enable["active"] == before["active"],
+            "linear_bit_for_bit": all(np.array_equal(a, b) for a, b in zip(linear, relinear, strict=True)),
+            "snapshot_restored": snapshot(obj) == before, "status_after_disable": status(obj),
+            "panel_after_disable": panel_labels(obj)}
+
+
+def keyframes_drivers_and_save():
+    """Keyframed values through frame_set, a driven value, then save the .blend (reopened by the next case)."""
+    reset()
+    os.makedirs(ARGS.workdir, exist_ok=True)
+    obj = make_bar()
+    assert enable(obj) == ["FINISHED"]
+    OUT["anim_mixer_npz"] = stored_mixer(obj)
+    kbs = obj.data.shape_keys.key_blocks
+    for n, (a, b) in zip(NAMES[:2], [(0.0, 1.0), (0.2, 0.9)], strict=True):
+        kbs[n].value = a
+        kbs[n].keyframe_insert("value", frame=1)
+        kbs[n].value = b
+        kbs[n].keyframe_insert("value", frame=11)
+    # Both: driven by an empty's x location (a simple expression: no Python needed)
+    empty = bpy.data.objects.new("Control", None)
+    bpy.context.scene.collection.objects.link(empty)
+    fc = kbs["Both"].driver_add("value")
+    var = fc.driver.variables.new()
+    var.name, var.type = "x", 'TRANSFORMS'
+    var.targets[0].id = empty
+    var.targets[0].transform_type = 'LOC_X'
+    fc.driver.expression = "x"
+    empty.location.x = 0.25
+    scene = bpy.context.scene
+    frame_values, frame_mixed = [], []
+    t = time.perf_counter()
+    for f in FRAMES:
+        scene.frame_set(f)
+        frame_mixed.append(evaluated(obj))
+        frame_values.append(values(obj))
+    seconds = time.perf_counter() - t
+    OUT["frame_values"], OUT["frame_mixed"] = np.array(frame_values), np.array(frame_mixed)
+    empty.location.x = 0.6
+    scene.frame_set(4)
+    OUT["driven_values"], OUT["driven_mixed"] = np.array(values(obj)), evaluated(obj)
+    scene.frame_set(7)
+    bpy.ops.wm.save_as_mainfile(filepath=BLEND)
+    return {"frame_seconds": round(seconds / len(FRAMES), 4)}
+
+
+def reload_still_live():
+    """The saved .blend reopens mixing live: load_post re-registers the mesh; playback and sliders mix."""
+    bpy.ops.wm.open_mainfile(filepath=BLEND)
+    obj = bpy.data.objects["Bar"]
+    st = status(obj)
+    scene = bpy.context.scene
+    reload_values, reload_mixed = [], []
+    for f in (4, 11):
+        scene.frame_set(f)
+        reload_mixed.append(evaluated(obj))
+        reload_values.append(values(obj))
+    OUT["reload_values"], OUT["reload_mixed"] = np.array(reload_values), np.array(reload_mixed)
+    return {"status": st, "live": ext("live_mix").is_live(obj.data)}
+
+
+def mixer_text_deleted():
+    """The stored mixer's text deleted (and the file saved and reopened): Blender's linear mix, a panel message."""
+    bpy.ops.wm.open_mainfile(filepath=BLEND)
+    bpy.data.texts.remove(bpy.data.texts["LA live mixer Bar"])
+    path = os.path.join(ARGS.workdir, "no_text.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Bar"]
+    bpy.context.scene.frame_set(7)
+    shown = evaluated(obj)
+    obj.data.shape_keys.key_blocks["LA live mix"].mute = True
+    linear = evaluated(obj)
+    return {"status": status(obj), "panel": panel_labels(obj),
+            "linear_bit_for_bit": bool(np.array_equal(shown, linear))}
+
+
+def stale_when_edited():
+    """An edited key or mesh: stale, the linear mix shown (bit for bit), the panel says so; restored: live."""
+    bpy.ops.wm.open_mainfile(filepath=BLEND)
+    obj = bpy.data.objects["Bar"]
+    scene = bpy.context.scene
+    scene.frame_set(7)
+    live_shape = evaluated(obj)
+    mix_kb = obj.data.shape_keys.key_blocks["LA live mix"]
+    kb = obj.data.shape_keys.key_blocks["Twist"]
+    co = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", co)
+    edited = co.copy()
+    edited[:3] += 0.1
+    kb.points.foreach_set("co", edited)
+    obj.data.update()
+    stale_shape = evaluated(obj)
+    st = status(obj)
+    labels = panel_labels(obj)
+    mix_kb.mute = True  # Blender's linear mix without the add-on's key
+    linear = evaluated(obj)
+    mix_kb.mute = False
+    kb.points.foreach_set("co", co)  # the edit undone by hand: live again
+    obj.data.update()
+    back = evaluated(obj)
+    st_back = status(obj)
+    # a topology edit (a vertex deleted in Edit Mode)
+    select_only(obj)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bpy.ops.mesh.select_all(action='DESELECT')
+    obj.data.vertices[0].select = True
+    import bmesh
+    bm = bmesh.from_edit_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.verts[0]], context='VERTS')
+    bmesh.update_edit_mesh(obj.data)
+    in_edit = ext("live_mix").status(obj.data)["stale"]
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    evaluated(obj)
+    st_topology = status(obj)
+    topology_labels = panel_labels(obj)
+    return {"status": st, "panel": labels, "linear_bit_for_bit": bool(np.array_equal(stale_shape, linear)),
+            "differs_from_live": float(np.abs(stale_shape - live_shape).max()),
+            "restored_vs_live": float(np.abs(back - live_shape).max()), "status_restored": st_back,
+            "stale_in_edit_mode": in_edit, "status_topology": st_topology, "panel_topology": topology_labels}
+
+
+def out_of_range_and_vertex_groups():
+    """A value outside the mixer's accurate range: the result's message in the panel.  A key with a vertex
+    group is mixed linearly on top of the nonlinear mix."""
+    reset()
+    obj = make_bar(grouped=True)
+    assert enable(obj) == ["FINISHED"]
+    OUT["grouped_mixer_npz"] = stored_mixer(obj)
+    st = status(obj)
+    set_values(obj, (0.5, 0.0, 0.0, 1.0), NAMES + ["Grouped"])
+    OUT["grouped_values"] = np.array(values(obj, NAMES + ["Grouped"]))
+    OUT["grouped_mixed"] = evaluated(obj)
+    kb = obj.data.shape_keys.key_blocks["Bend"]
+    kb.slider_max = 3.0
+    kb.value = 2.5
+    evaluated(obj)
+    far = status(obj)
+    labels = panel_labels(obj)
+    kb.value = 5.0  # beyond slider_max: Blender clamps, so does the mix
+    clamped = values(obj, ["Bend"])[0]
+    obj.shape_key_add(name="Later", from_mix=False)  # a key added after the build: mixed linearly
+    linear_after = status(obj)["linear"]
+    # the quality choice (the panel's Reduced Size), applied by Rebuild (= Enable on a live mesh)
+    obj.data.lengths_angles_live_mix_reduced_size = 12
+    rebuilt = enable(obj)
+    return {"status": st, "far": far, "panel": labels, "clamped": clamped, "linear_after_adding": linear_after,
+            "rebuilt": rebuilt, "rebuilt_status": status(obj),
+            "rebuilt_size": ext("live_mix")._live(obj.data).mixer.reduced_size,
+            "texts_after_rebuild": sorted(t.name for t in bpy.data.texts)}
+
+
+def several_objects_and_undo():
+    """Two live objects at once; undo of Enable gives back the linear mix, redo the live one."""
+    reset()
+    a, b = make_bar("A"), make_bar("B")
+    assert enable(a) == ["FINISHED"] and enable(b) == ["FINISHED"]
+    set_values(a, (0.5, 0.0, 0.0))
+    set_values(b, (0.0, 0.7, 0.0))
+    OUT["two_mixed"] = np.array([evaluated(a), evaluated(b)])
+    select_only(a)  # Shift+D: the copy's mesh carries the mixer and mixes live too
+    with ops_context(a):
+        bpy.ops.object.duplicate()
+    copy = bpy.context.view_layer.objects.active
+    set_values(copy, (0.0, 0.0, 0.6))
+    OUT["copy_mixed"] = evaluated(copy)
+    copy_mesh = copy.data.name
+    # undo / redo (memfile undo: the mix key and the stored mixer come and go with the mesh)
+    reset()
+    obj = make_bar()
+    set_values(obj, (0.5, 0.3, 0.0))
+    linear = evaluated(obj)
+    bpy.ops.ed.undo_push(message="before live mixing")
+    assert enable(obj) == ["FINISHED"]
+    bpy.ops.ed.undo_push(message="live mixing")
+    live_shape = evaluated(obj)
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["Bar"]
+    undone = evaluated(obj)
+    undone_live = ext("live_mix").is_live(obj.data)
+    bpy.ops.ed.redo()
+    obj = bpy.data.objects["Bar"]
+    redone = evaluated(obj)
+    return {"copy_mesh": copy_mesh, "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
+            "undone_live": undone_live,
+            "redo_live": ext("live_mix").is_live(obj.data),
+            "redo_vs_live": float(np.abs(redone - live_shape).max()),
+            "live_differs": float(np.abs(live_shape - linear).max())}
+
+
+def bad_input():
+    """No shape keys, one key, Edit Mode, absolute keys, disable without a mixer: one line, nothing changed."""
+    reset()
+    out = {}
+
+    def attempt(name, obj, op):
+        before = snapshot(obj)
+        try:
+            with ops_context(obj):
+                res, msg = sorted(op()), ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = ["CANCELLED"], str(exc).strip()
+        out[name] = {"result": res, "message": msg, "one_line": "\n" not in msg and "Traceback" not in msg,
+                     "unchanged": snapshot(obj) == before}
+
+    mesh = bpy.data.meshes.new("Plain")
+    mesh.from_pydata(INPUTS["basis"].tolist(), [], INPUTS["faces"].tolist())
+    plain = bpy.data.objects.new("Plain", mesh)
+    bpy.context.scene.collection.objects.link(plain)
+    select_only(plain)
+    attempt("no_shape_keys", plain, bpy.ops.lengths_angles.live_mix_enable)
+    plain.shape_key_add(name="Basis", from_mix=False)
+    attempt("one_key", plain, bpy.ops.lengths_angles.live_mix_enable)
+    attempt("disable_not_live", plain, bpy.ops.lengths_angles.live_mix_disable)
+    obj = make_bar()
+    obj.data.shape_keys.use_relative = False
+    attempt("absolute_keys", obj, bpy.ops.lengths_angles.live_mix_enable)
+    obj.data.shape_keys.use_relative = True
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+    attempt("edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    return out
+
+
+class FakeOperator:
+    """The run logic of the enable operator (the runs.RunOperator mixin) on a plain object: modal() driven here."""
+
+    def __init__(self):
+        self.reports = []
+        self.interactive = True
+
+    def report(self, kind, text):
+        self.reports.append((sorted(kind)[0], text))
+
+
+def modal_run_and_cancel():
+    """From the UI the mixer is built in the worker thread (timer events drive modal()); Esc writes nothing."""
+    runs = ext("runs")
+    reset()
+    obj = make_bar()
+    fake = type("Fake", (FakeOperator, runs.RunOperator), {})
+    timer = lambda op: SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)  # noqa: E731
+    op, run = fake(), ext("live_mix").enable_run(obj)
+    op._begin_modal(bpy.context, run)
+    state, end = {'RUNNING_MODAL'}, time.perf_counter() + 120
+    ticks = 0
+    while state == {'RUNNING_MODAL'} and time.perf_counter() < end:
+        state = op.modal(bpy.context, timer(op))
+        ticks += 1
+        time.sleep(0.005)
+    finished = {"state": sorted(state), "reports": [r[0] for r in op.reports], "ticks": ticks,
+                "live": ext("live_mix").is_live(obj.data)}
+    assert disable(obj) == ["FINISHED"]
+    before = snapshot(obj)
+    op, run = fake(), ext("live_mix").enable_run(obj)
+    op._begin_modal(bpy.context, run)
+    op.modal(bpy.context, timer(op))  # the build starts in the worker thread
+    cancelled = op.modal(bpy.context, SimpleNamespace(type='ESC', value='PRESS', timer=None))
+    runs.wait_for_worker_thread()
+    return {"finished": finished, "cancelled": sorted(cancelled), "cancel_reports": op.reports,
+            "unchanged": snapshot(obj) == before}
+
+
+def render_png(scene, path, animation=False):
+    """Cycles (1 sample, transparent film) to PNG; returns the alpha channels (the silhouettes) per frame."""
+    scene.render.filepath = path
+    assert bpy.ops.render.render(animation=animation, write_still=not animation) == {'FINISHED'}
+    frames = range(scene.frame_start, scene.frame_end + 1) if animation else [None]
+    out = []
+    for f in frames:
+        file = scene.render.frame_path(frame=f) if f is not None else path
+        img = bpy.data.images.load(file)
+        px = np.array(img.pixels[:], np.float32).reshape(img.size[1], img.size[0], 4)
+        bpy.data.images.remove(img)
+        out.append(px[..., 3])
+    return out
+
+
+def renders():
+    """An animation render (as on the command line: the render's own depsgraph at every frame) shows the live
+    mix -- the same pixels as a render of a plain mesh holding the viewport's evaluated mix -- and not the
+    linear one; so does a still (F12) render of the current frame."""
+    reset()
+    obj = make_bar()
+    kb = obj.shape_key_add(name="Fold", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["fold"].astype(np.float32).ravel())
+    for f, v in ((1, 0.5), (2, 0.75)):
+        kb.value = v
+        kb.keyframe_insert("value", frame=f)
+    assert enable(obj) == ["FINISHED"]
+    scene = bpy.context.scene
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.data.type, cam.data.ortho_scale = 'ORTHO', 9.0
+    cam.location, cam.rotation_euler = (3.0, -20.0, 2.0), (np.pi / 2, 0.0, 0.0)
+    scene.camera = cam
+    scene.render.engine = 'CYCLES'
+    scene.cycles.samples = 1
+    scene.render.film_transparent = True
+    scene.render.resolution_x = scene.render.resolution_y = 48
+    scene.render.image_settings.file_format = 'PNG'
+    scene.frame_start, scene.frame_end = 1, 2
+    t = time.perf_counter()
+    live = render_png(scene, os.path.join(ARGS.workdir, "live_"), animation=True)
+    seconds = time.perf_counter() - t
+    scene.frame_set(2)
+    still = render_png(scene, os.path.join(ARGS.workdir, "still.png"))[0]
+    # the viewport's evaluated mix at each frame, as a plain mesh in place of the live one
+    copies = []
+    for f in (1, 2):
+        scene.frame_set(f)
+        X = evaluated(obj)
+        mesh = bpy.data.meshes.new(f"Copy{f}")
+        mesh.from_pydata(X.tolist(), [], INPUTS["faces"].tolist())
+        copies.append(bpy.data.objects.new(f"Copy{f}", mesh))
+    obj.hide_render = True
+    plain = []
+    for copy in copies:
+        scene.collection.objects.link(copy)
+        plain.append(render_png(scene, os.path.join(ARGS.workdir, f"{copy.name}.png"))[0])
+        scene.collection.objects.unlink(copy)
+    obj.hide_render = False
+    assert disable(obj) == ["FINISHED"]
+    linear = render_png(scene, os.path.join(ARGS.workdir, "linear_"), animation=True)
+    diff = lambda a, b: float(np.abs(a - b).max())  # noqa: E731
+    return {"seconds": round(seconds, 2), "covered": [float((a > 0.5).mean()) for a in live],
+            "live_vs_plain": [diff(a, b) for a, b in zip(live, plain, strict=True)],
+            "live_vs_linear": [diff(a, b) for a, b in zip(live, linear, strict=True)],
+            "still_vs_frame2": diff(still, live[1])}
+
+
+def finish():
+    np.savez(os.path.join(ARGS.workdir, "live_mix.npz"), **OUT)
+
+
+run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
+           mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo, bad_input,
+           modal_run_and_cancel, renders, finish])

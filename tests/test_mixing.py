@@ -1,0 +1,391 @@
+"""The shape mixer (lacore.shapes.mixing): blends of keys in lengths and angles, projected."""
+
+import os
+
+import numpy as np
+import pytest
+
+from lacore import MeshTopology, lengths_and_angles, reconstruct
+from lacore.geometry.rigid import rigid_rms
+from lacore.samples.bar import bar_mesh, bar_pose
+from lacore.shapes.mixing import MixerError, MixerOptions, MixResult, ShapeMixer, blend_targets
+
+
+@pytest.fixture(scope="module")
+def bar():
+    X, F = bar_mesh(n_along=12, n_side=2)
+    keys = np.stack([X, bar_pose(X, 1.2, 0.0), bar_pose(X, 0.0, 1.0)])
+    return keys, F
+
+
+@pytest.fixture(scope="module")
+def mixer(bar):
+    return ShapeMixer.build(*bar)
+
+
+def _diag(X):
+    return float(np.linalg.norm(np.ptp(X, axis=0)))
+
+
+def _reference(keys, F, w):
+    """Converged full Gauss-Newton projection of the blend, from the basis."""
+    topo = MeshTopology.from_faces(F)
+    zk = np.stack([lengths_and_angles(k, topo) for k in keys])
+    z = blend_targets(zk, w, topo.n_edges)
+    res = reconstruct(z, topo, keys[0], method="gn", max_iterations=300)
+    assert res.success
+    return res
+
+
+def test_blend_targets_circle_and_floor():
+    z = np.array([[1.0, 3.0], [0.2, -3.0]])                      # one edge: length, angle
+    out = blend_targets(z, [[0.5], [2.0]], 1)
+    assert out[0, 1] == pytest.approx(np.pi, abs=1e-12) or out[0, 1] == pytest.approx(-np.pi, abs=1e-12)
+    assert out[0, 0] == pytest.approx(0.6)
+    assert out[1, 0] == pytest.approx(0.01)                       # 1 - 2 * 0.8 < 0: floored at 1 % of the basis'
+    assert abs(out[1, 1]) <= np.pi
+
+
+def test_keys_are_reproduced(bar, mixer):
+    keys, _ = bar
+    diag = _diag(keys[0])
+    assert mixer.n_keys == 3 and mixer.n_vertices == keys.shape[1]
+    for k in range(1, 3):
+        r = mixer.mix(np.eye(2)[k - 1], warm_start=False)
+        assert isinstance(r, MixResult)
+        assert rigid_rms(r.vertices, keys[k]) < 1e-4 * diag
+        assert r.energy < 1e-10 and r.in_range and r.message == ""
+    r = mixer.mix([0.0, 0.0])
+    assert np.abs(r.vertices - keys[0]).max() < 1e-6 * diag     # the basis, in its own frame
+
+
+@pytest.mark.parametrize("w", [[0.5, 0.5], [0.3, 0.8], [1.0, 1.0], [-0.4, 1.3]])
+def test_mix_matches_full_gauss_newton(bar, mixer, w):
+    keys, F = bar
+    ref = _reference(keys, F, w)
+    r = mixer.mix(w)
+    rms = np.sqrt(np.mean(np.sum((r.vertices - ref.vertices) ** 2, axis=1))) / _diag(keys[0])
+    assert rms < 3e-3
+    assert r.energy <= 1.02 * ref.energy + 1e-12
+    assert np.isfinite(r.indicator) and r.iterations >= 0 and r.seconds >= 0
+
+
+def test_out_of_range_weights_are_flagged(mixer):
+    r = mixer.mix([2.5, 0.0])
+    assert not r.in_range and "outside" in r.message and "key 1 = 2.5" in r.message
+    assert np.all(np.isfinite(r.vertices))
+
+
+def test_bad_weights(mixer):
+    for bad in ([0.5], [0.5, np.nan], "ab", [[0.1, 0.2]]):
+        with pytest.raises(MixerError):
+            mixer.mix(bad)
+
+
+def test_bad_keys():
+    X, F = bar_mesh(n_along=3, n_side=1)
+    with pytest.raises(ValueError, match="at least 2 keys"):
+        ShapeMixer.build(X[None], F)
+    with pytest.raises(ValueError, match="key 1"):
+        Y = X.copy()
+        Y[2, 0] = np.nan
+        ShapeMixer.build([X, Y], F)
+    with pytest.raises(ValueError):
+        ShapeMixer.build([X, X[:-1]], F)
+    with pytest.raises(ValueError):
+        MixerOptions(low=0.5)
+
+
+def test_save_load_round_trip(tmp_path, bar, mixer):
+    path = mixer.save(tmp_path / "m")
+    assert path.endswith(".npz")
+    back = ShapeMixer.load(path)
+    assert back.n_keys == mixer.n_keys and back.reduced_size == mixer.reduced_size
+    assert back.options == mixer.options
+    w = [0.4, 0.6]
+    a, b = mixer.mix(w, warm_start=False), back.mix(w, warm_start=False)
+    assert np.abs(a.vertices - b.vertices).max() < 1e-6 * _diag(bar[0][0])
+
+
+def test_bad_files(tmp_path, mixer):
+    txt = tmp_path / "x.npz"
+    txt.write_text("hello")
+    with pytest.raises(MixerError, match="x.npz"):
+        ShapeMixer.load(txt)
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.zeros(3))
+    with pytest.raises(MixerError, match="not a lacore shape mixer"):
+        ShapeMixer.load(other)
+    with pytest.raises(FileNotFoundError):
+        ShapeMixer.load(tmp_path / "missing.npz")
+    good = dict(np.load(mixer.save(tmp_path / "good.npz")))
+    good["format_version"] = np.array(99)
+    np.savez(tmp_path / "future.npz", **good)
+    with pytest.raises(MixerError, match="version 99"):
+        ShapeMixer.load(tmp_path / "future.npz")
+    damaged = dict(np.load(mixer.save(tmp_path / "good.npz")))
+    damaged["basis"] = damaged["basis"][:-3]
+    np.savez(tmp_path / "damaged.npz", **damaged)
+    with pytest.raises(MixerError, match="'basis' has shape"):
+        ShapeMixer.load(tmp_path / "damaged.npz")
+    damaged = dict(np.load(mixer.save(tmp_path / "good.npz")))
+    damaged["cubature_edges"] = damaged["cubature_edges"] + 10 ** 6
+    np.savez(tmp_path / "damaged2.npz", **damaged)
+    with pytest.raises(MixerError, match="damaged"):
+        ShapeMixer.load(tmp_path / "damaged2.npz")
+    del damaged["keys"]
+    np.savez(tmp_path / "nokeys.npz", **damaged)
+    with pytest.raises(MixerError, match="'keys'"):
+        ShapeMixer.load(tmp_path / "nokeys.npz")
+
+
+# --------------------------------------------------------------------------- CLI
+def _run(capsys, *argv):
+    from lacore.cli import main
+
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.fixture(scope="module")
+def key_files(tmp_path_factory, bar):
+    from lacore.io.meshes import save_mesh
+
+    d = tmp_path_factory.mktemp("mixer_cli")
+    keys, F = bar
+    paths = []
+    for k, X in enumerate(keys):
+        paths.append(d / f"key{k}.ply")
+        save_mesh(paths[-1], X, F)
+    return d, paths
+
+
+def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
+    import json
+
+    from lacore.io.meshes import load_mesh
+
+    _, paths = key_files
+    code, out, err = _run(capsys, "mixer", *paths, "-o", tmp_path / "m.npz", "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["vertices"] == bar[0].shape[1] and info["keys"] == 3 and info["reduced_size"] >= 3
+    assert {"setup", "derivatives", "basis", "cubature", "load", "save"} <= set(info["build_seconds"])
+    code, out, err = _run(capsys, "mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "--weights", 1, 0,
+                          "-o", tmp_path / "out.ply", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    files = [o["file"] for o in res["outputs"]]
+    assert [os.path.basename(f) for f in files] == ["out_000.ply", "out_001.ply"]
+    for o in res["outputs"]:
+        assert o["in_range"] and o["energy"] >= 0 and o["seconds"] > 0 and o["indicator"] >= 0
+    X1, F1 = load_mesh(files[1])
+    assert rigid_rms(X1, bar[0][1]) < 1e-4 * _diag(bar[0][0])
+    ref = _reference(*bar, [0.5, 0.5])
+    X0, _ = load_mesh(files[0])
+    assert np.sqrt(np.mean(np.sum((X0 - ref.vertices) ** 2, axis=1))) < 3e-3 * _diag(bar[0][0])
+    # one group: exactly the file named; out of range: written, reported, exit 3 (0 with --allow-failure)
+    code, out, err = _run(capsys, "mix", tmp_path / "m.npz", "--weights", 2.5, 0, "-o", tmp_path / "far.obj")
+    assert code == 3 and err.startswith("lacore mix: failed: ") and err.count("\n") == 1, err
+    assert (tmp_path / "far.obj").exists()
+    code, out, err = _run(capsys, "mix", tmp_path / "m.npz", "--weights", 2.5, 0, "-o", tmp_path / "far.obj",
+                          "--allow-failure", "--polish", "--json")
+    assert code == 0 and json.loads(out)["outputs"][0]["polished"]
+    # a wider range: 2.5 is then inside
+    assert _run(capsys, "mixer", *paths, "-o", tmp_path / "wide.npz", "--range", -1, 3)[0] == 0
+    code, out, err = _run(capsys, "mix", tmp_path / "wide.npz", "--weights", 2.5, 0, "-o", tmp_path / "w.ply")
+    assert ShapeMixer.load(tmp_path / "wide.npz").options.high == 3.0 and "outside [" not in err
+
+
+@pytest.mark.parametrize("case", ["one_key", "not_npz", "bad_weights_count", "foreign_file", "missing", "bad_ext",
+                                  "nan_weight", "not_in_correspondence", "bad_range"])
+def test_cli_bad_input(capsys, tmp_path, key_files, case):
+    d, paths = key_files
+    if case in ("bad_weights_count", "bad_ext", "nan_weight"):
+        assert _run(capsys, "mixer", *paths, "-o", tmp_path / "m.npz")[0] == 0
+    np.savez(tmp_path / "foreign.npz", a=np.zeros(2))
+    if case == "not_in_correspondence":
+        from lacore.io.meshes import save_mesh
+
+        Xs, Fs = bar_mesh(n_along=3, n_side=1)
+        save_mesh(tmp_path / "small.ply", Xs, Fs)
+    argv = {
+        "one_key": ("mixer", paths[0], "-o", tmp_path / "x.npz"),
+        "not_npz": ("mixer", *paths, "-o", tmp_path / "x.ply"),
+        "bad_weights_count": ("mix", tmp_path / "m.npz", "--weights", 0.5, "-o", tmp_path / "o.ply"),
+        "foreign_file": ("mix", tmp_path / "foreign.npz", "--weights", 0.5, 0.5, "-o", tmp_path / "o.ply"),
+        "missing": ("mix", tmp_path / "none.npz", "--weights", 0.5, 0.5, "-o", tmp_path / "o.ply"),
+        "bad_ext": ("mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "-o", tmp_path / "o.txt"),
+        "nan_weight": ("mix", tmp_path / "m.npz", "--weights", "nan", 0.5, "-o", tmp_path / "o.ply"),
+        "not_in_correspondence": ("mixer", paths[0], tmp_path / "small.ply", "-o", tmp_path / "x.npz"),
+        "bad_range": ("mixer", *paths, "-o", tmp_path / "x.npz", "--range", 0.2, 1.5),
+    }[case]
+    before = _listing(tmp_path)
+    code, out, err = _run(capsys, *argv)
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith(f"lacore {argv[0]}: error: "), err
+    assert "Traceback" not in err
+    assert _listing(tmp_path) == before
+
+
+# --------------------------------------------------------------------------- reduced model
+@pytest.fixture(scope="module")
+def long_bar():
+    """A bar with more edges than a cubature takes (so the mixer evaluates a weighted subset of edges)."""
+    X, F = bar_mesh(n_along=40, n_side=3)
+    keys = np.stack([X, bar_pose(X, 1.5, 0.0), bar_pose(X, 0.0, 1.5)])
+    return keys, F, ShapeMixer.build(keys, F)
+
+
+@pytest.mark.parametrize("w", [[0.5, 0.5], [1.0, 1.0], [0.2, 0.7], [1.5, -0.5], [-0.5, 1.5]])
+def test_cubature_mixer_matches_full_gauss_newton(long_bar, w):
+    keys, F, mixer = long_bar
+    assert mixer.cubature_size < mixer.n_edges / 2                 # a subset of the edges
+    assert mixer.reduced_size < 60
+    ref = _reference(keys, F, w)
+    r = mixer.mix(w, warm_start=False)
+    rms = np.sqrt(np.mean(np.sum((r.vertices - ref.vertices) ** 2, axis=1))) / _diag(keys[0])
+    inside = all(0 <= v <= 1 for v in w)
+    assert rms < (3e-4 if inside else 5e-4)                          # measured: below 7e-5 / 1.3e-4
+    assert mixer.full_energy(w, r.vertices) <= 1.05 * ref.energy     # measured: 1.002 - 1.010
+    assert r.iterations <= 10                                        # measured: 2 - 3
+    p = mixer.mix(w, polish=True)
+    assert p.polished and p.energy <= 1.0001 * ref.energy + 1e-12
+    assert np.sqrt(np.mean(np.sum((p.vertices - ref.vertices) ** 2, axis=1))) < 1e-4 * _diag(keys[0])
+
+
+def test_warm_start_slider_drag(long_bar):
+    keys, F, mixer = long_bar
+    cold = [mixer.mix([t, 0.5 * t], warm_start=False) for t in (0.3, 0.6)]
+    mixer.mix([0.0, 0.0])
+    for t in np.linspace(0.05, 0.6, 12):
+        r = mixer.mix([t, 0.5 * t])
+        assert r.iterations <= 10
+        if t in (0.3, 0.6):
+            c = cold[0 if t == 0.3 else 1]
+            assert np.abs(r.vertices - c.vertices).max() < 1e-4 * _diag(keys[0])
+
+
+def test_indicator(long_bar):
+    keys, F, mixer = long_bar
+    assert mixer.indicator([0.0, 0.0]) == 0.0 and mixer.indicator([1.0, 0.0]) == 0.0
+    mid = mixer.indicator([0.5, 0.5])
+    assert 0 < mid < mixer.options.max_indicator
+    tight = ShapeMixer.build(keys, F, MixerOptions(max_indicator=1e-9, newton_rounds=1))
+    r = tight.mix([0.5, 0.5])
+    assert not r.in_range and "indicator" in r.message and "polish" in r.message
+    assert tight.mix([1.0, 0.0]).in_range                            # 0 at the keys
+
+
+def test_reduced_energy_gradient_fd(long_bar):
+    """The reduced energy's analytic gradient and its Gauss-Newton matrix against finite differences."""
+    keys, F, mixer = long_bar
+    cub = mixer._cubature
+    rng = np.random.default_rng(3)
+    w = np.array([0.4, 0.7])
+    q = mixer.predict(w) + 1e-3 * rng.standard_normal(mixer.reduced_size)
+    e, g, H = cub.linearize(q, w)
+    assert e == pytest.approx(cub.energy(q, w))
+    for _ in range(3):
+        d = rng.standard_normal(len(q))
+        h = 1e-6
+        fd = (cub.energy(q + h * d, w) - cub.energy(q - h * d, w)) / (2 * h)
+        assert fd == pytest.approx(g @ d, rel=1e-5, abs=1e-10 * abs(e))
+    assert np.allclose(H, H.T) and np.all(np.linalg.eigvalsh(H) > -1e-10 * np.abs(H).max())
+
+
+def test_first_derivatives_of_the_projection_fd():
+    """dX/dw at a key (implicit function theorem) against central differences of converged projections."""
+    from lacore.shapes.mixing.subspace import FullProblem  # noqa: F401  (the problem the mixer builds)
+
+    X, F = bar_mesh(n_along=10, n_side=1)
+    keys = np.stack([X, bar_pose(X, 0.8, 0.0), bar_pose(X, 0.0, 0.8)])
+    mixer = ShapeMixer(keys, F)                                      # no build: the full problem only
+    P, ctx = mixer._problem, mixer._context
+    J = P.factorize(mixer._key_x[1], np.array([1.0, 0.0]))
+    D1 = P.first_derivatives(J)
+    h = 1e-4
+    for j in range(2):
+        xs = []
+        for s in (1, -1):
+            w = np.array([1.0, 0.0]) + s * h * np.eye(2)[j]
+            res = reconstruct(mixer.target(w), mixer.topology, keys[0], method="gn", context=ctx,
+                              initial_vertices=keys[1], max_iterations=100, ftol=1e-15, gtol=1e-13)
+            xs.append(ctx.to_canonical(res.vertices).ravel())
+        fd = (xs[0] - xs[1]) / (2 * h)
+        assert np.linalg.norm(fd - D1[j]) < 1e-4 * np.linalg.norm(D1[j])
+
+
+def test_keyframe_inbetweens_with_a_mixer(long_bar):
+    """In-betweens by the mixer agree with the full Gauss-Newton in-betweens; keys are reproduced."""
+    from lacore.shapes.interpolation import keyframe_inbetweens
+
+    keys, F, mixer = long_bar
+    topo = mixer.topology
+    frames = [0, 2, 4, 5, 7, 8]
+    for smooth in (False, True):
+        fast = keyframe_inbetweens(list(keys), topo, [0, 4, 8], frames=frames, smooth=smooth, mixer=mixer)
+        full = keyframe_inbetweens(list(keys), topo, [0, 4, 8], frames=frames, smooth=smooth, method="gn")
+        assert fast.method == "mixer" and fast.success and fast.vertices.shape == full.vertices.shape
+        rms = np.sqrt(np.mean(np.sum((fast.vertices - full.vertices) ** 2, axis=2), axis=1)) / _diag(keys[0])
+        assert rms.max() < 1e-3, rms
+        assert rigid_rms(fast.vertices[2], keys[1]) < 1e-4 * _diag(keys[0])        # frame 4 is key 1
+    with pytest.raises(ValueError, match="other keys"):
+        keyframe_inbetweens([keys[0], keys[2], keys[1]], topo, [0, 4, 8], mixer=mixer)
+
+
+def test_cubature_correction_option(long_bar, tmp_path):
+    """With the optional gradient correction the cubature's gradient is exact at its training minimizers."""
+    keys, F, _ = long_bar
+    mixer = ShapeMixer.build(keys, F, MixerOptions(cubature_correction=True))
+    assert mixer._corr is not None
+    w = np.array([0.5, 0.5])                                          # a training weight
+    q = mixer.mix(w, warm_start=False)
+    ref = _reference(keys, F, w)
+    rms = np.sqrt(np.mean(np.sum((q.vertices - ref.vertices) ** 2, axis=1))) / _diag(keys[0])
+    assert rms < 3e-4
+    back = ShapeMixer.load(mixer.save(tmp_path / "c.npz"))
+    assert back.options.cubature_correction and np.allclose(back._corr, mixer._corr)
+    assert np.abs(back.mix(w, warm_start=False).vertices - q.vertices).max() < 1e-9 * _diag(keys[0])
+
+
+def test_build_progress_and_cancel():
+    from lacore.progress import Cancelled
+
+    X, F = bar_mesh(n_along=8, n_side=1)
+    keys = np.stack([X, bar_pose(X, 0.8, 0.0), bar_pose(X, 0.0, 0.8)])
+    seen = []
+    ShapeMixer.build(keys, F, progress=lambda d, t, m: seen.append((d, t, m)))
+    assert seen[0][0] == 0 and seen[-1][:2] == (4, 4) and any("Newton vector" in m for *_, m in seen)
+    with pytest.raises(Cancelled):
+        ShapeMixer.build(keys, F, progress=lambda d, t, m: "Newton" in m)
+
+
+@pytest.mark.parametrize("options", [MixerOptions(second_order=True, chord_steps=1),
+                                     MixerOptions(newton_rounds=1, newton_pcg_iterations=20),
+                                     MixerOptions(newton_rounds=0, reduced_size=6)])
+def test_optional_build_paths(options):
+    X, F = bar_mesh(n_along=12, n_side=2)
+    keys = np.stack([X, bar_pose(X, 1.0, 0.0), bar_pose(X, 0.0, 1.0)])
+    mixer = ShapeMixer.build(keys, F, options)
+    if options.reduced_size:
+        assert mixer.reduced_size == options.reduced_size and np.isnan(mixer.indicator([0.5, 0.5]))
+    w = [0.5, 0.5]
+    r = mixer.mix(w, warm_start=False)
+    ref = _reference(keys, F, w)
+    rms = np.sqrt(np.mean(np.sum((r.vertices - ref.vertices) ** 2, axis=1))) / _diag(keys[0])
+    assert rms < (2e-2 if options.reduced_size else 2e-3)
+    assert rigid_rms(mixer.mix([1.0, 0.0]).vertices, keys[1]) < 1e-4 * _diag(keys[0])
+
+
+def test_a_key_equal_to_the_basis():
+    X, F = bar_mesh(n_along=8, n_side=1)
+    mixer = ShapeMixer.build([X, bar_pose(X, 0.8, 0.0), X.copy()], F)
+    r = mixer.mix([0.5, 1.0])
+    ref = _reference(np.stack([X, bar_pose(X, 0.8, 0.0), X]), F, [0.5, 0.0])
+    assert np.sqrt(np.mean(np.sum((r.vertices - ref.vertices) ** 2, axis=1))) < 1e-3 * _diag(X)
