@@ -63,6 +63,18 @@ def register(register_subcommand):
     register_subcommand("fit", HELP, configure, run)
 
 
+def _prior_weight(text):
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"--prior-weight must be a number > 0 or auto, got {text!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise InputError(f"--prior-weight must be a finite number > 0, got {v}")
+    return v
+
+
 def configure(parser):
     """Arguments of ``lacore fit``."""
     parser.add_argument("model", metavar="MODEL.npz", help="a shape model written by `lacore model`")
@@ -71,7 +83,7 @@ def configure(parser):
                              "NaN for occlusion and vertices (M,) or faces (M,) + barycentric (M,3) [+ offsets (M,)]")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.npz", help="result file to write")
     parser.add_argument("--static", metavar="STATIC.c3d", help="a static trial to calibrate on (takes only)")
-    parser.add_argument("--prior-weight", default=str(FIT_DEFAULTS.prior_weight), metavar="G",
+    parser.add_argument("--prior-weight", default=FIT_DEFAULTS.prior_weight, metavar="G",
                         help=f"scale-free prior weight gamma, or 'auto' (default {FIT_DEFAULTS.prior_weight:g})")
     parser.add_argument("--temporal-weight", type=float, default=FIT_DEFAULTS.temporal_weight, metavar="W",
                         help=f"weight of the vertex temporal term at {FIT_DEFAULTS.reference_rate:g} Hz, scaled "
@@ -85,18 +97,6 @@ def configure(parser):
 def load_marker_file(path, model):
     """Positions ``(T, M, 3)`` and the binding of a markers file (:func:`lacore.markers.io.read_marker_arrays`)."""
     return read_marker_arrays(path, model.faces, model.topology.n_vertices)
-
-
-def _prior_weight(text):
-    if str(text).strip().lower() == "auto":
-        return "auto"
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"--prior-weight must be a number > 0 or auto, got {text!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise InputError(f"--prior-weight must be a finite number > 0, got {v}")
-    return v
 
 
 def _frames(text):
