@@ -60,18 +60,24 @@ from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
 from ..lacore.markers.fitting import fit_markers
 from ..lacore.models.shape_model import ShapeModel
-from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels
+from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels, id_fcurves
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
 from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_own_key, parse_key_list
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
+from .operators_markers import _write_curve as write_curve
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
-__all__ = ["MODEL_PROP", "BINDING_PROP", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run", "bind_run", "fit_run",
+__all__ = ["MODEL_PROP", "BINDING_PROP", "FIT_PROP", "RMS_PROP", "metres_per_unit", "write_quality",
+           "remove_quality", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run", "bind_run", "fit_run",
            "fit_inputs", "store_model", "read_model", "read_binding", "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
 BINDING_PROP = "lengths_angles_binding"
+#: The last fit's quality on the object (take, frames, marker RMS / p95 in mm, prior weight, flagged frames/markers).
+FIT_PROP = "lengths_angles_fit"
+#: The keyed float property of the fitted object holding the per-frame marker RMS in mm (a curve to look at).
+RMS_PROP = "LA marker RMS"
 MAX_MODES = 32
 MAX_SHAPE_KEY_FRAMES = 100
 
@@ -267,9 +273,37 @@ def _posed_mesh_state(obj_name):
     return state
 
 
+def metres_per_unit(obj, take=None, scene=None):
+    """Metres per unit of length in ``obj``'s own space (where meshes, bindings and fits are computed).
+
+    A take empty imported by :func:`.operators_markers.import_take` knows it exactly: its markers are the file's
+    metres times the import *Scale*, in the take empty's space; otherwise the scene's Unit Scale
+    (``scene.unit_settings.scale_length``: metres per Blender unit).  Object scales count (their mean
+    factor, the cube root of the determinant of the world matrix).
+    """
+    def factor(ob):
+        return abs(float(np.linalg.det(np.array(ob.matrix_world, np.float64)[:3, :3]))) ** (1.0 / 3.0)
+    meta = take.get(TAKE_PROP) if take is not None else None
+    if meta is not None and float(meta.get("scale", 0.0)) > 0 and factor(take) > 0:
+        world = 1.0 / (float(meta["scale"]) * factor(take))
+    else:
+        scene = scene or bpy.context.scene
+        world = float(scene.unit_settings.scale_length) or 1.0
+    return world * (factor(obj) or 1.0)
+
+
+#: Markers needed to bind (and to place a pose by them).
+MIN_BOUND_MARKERS = 3
+
+
 def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     """A :class:`.runs.Run` binding markers of ``take`` (``labels`` or all) to ``obj`` at the current frame and
-    storing the binding (validated; raises InputError subclasses)."""
+    storing the binding (validated; raises InputError subclasses).
+
+    Markers occluded at the current frame are not bound (the report names them; Calibrate & Fit binds every
+    marker where it is visible); at least :data:`MIN_BOUND_MARKERS` must be visible.  ``warn_distance`` is in
+    metres (:func:`metres_per_unit`).
+    """
     require_mesh_object(obj)
     model = read_model(obj)
     all_labels = [lb for lb, _ in marker_objects(take)]
@@ -277,10 +311,14 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     idx = [all_labels.index(lb) for lb in labels]
     frame = context.scene.frame_current
     world = read_take(take, frames=[frame]).positions[0][idx]
-    hidden = [lb for lb, x in zip(labels, world, strict=True) if not np.isfinite(x).all()]
-    if hidden:
-        raise FitSetupError(f"markers {', '.join(map(repr, hidden[:5]))} are occluded at frame {frame}: "
-                            "bind at a frame where all are visible (or select the visible ones)")
+    seen = np.isfinite(world).all(1)
+    hidden = [lb for lb, s in zip(labels, seen, strict=True) if not s]
+    if seen.sum() < MIN_BOUND_MARKERS:
+        raise FitSetupError(f"only {int(seen.sum())} of the {len(labels)} markers are visible at frame {frame} "
+                            f"(occluded: {', '.join(map(repr, hidden[:5]))}{' ...' if len(hidden) > 5 else ''}): "
+                            f"bind at a frame where at least {MIN_BOUND_MARKERS} are visible, or use Calibrate & Fit")
+    labels = [lb for lb, s in zip(labels, seen, strict=True) if s]
+    world = world[seen]
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     local = world @ inv[:3, :3].T + inv[:3, 3]
     X = _mesh_vertices(obj, context.evaluated_depsgraph_get())
@@ -290,6 +328,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
                                                 progress=progress), "binding", total=iterations if align else 1)
     empties = {lb: o.name for lb, o in marker_objects(take)}
     take_name = take.name
+    unit = metres_per_unit(obj, take, context.scene)
+    warn_distance = float(warn_distance)
 
     def write(obj, job):
         binding, _info = job.result
@@ -297,11 +337,16 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
         }
-        far = np.flatnonzero(np.abs(binding.offsets) > warn_distance)
+        if hidden:
+            job.notes.append(f"{len(hidden)} markers occluded at frame {frame} were not bound: "
+                             + ", ".join(hidden[:8]) + (" ..." if len(hidden) > 8 else ""))
+        far = np.flatnonzero(np.abs(binding.offsets) * unit > warn_distance)
         if far.size:
-            job.notes.append(f"{far.size} markers are farther than {warn_distance:g} from the surface: "
-                             + ", ".join(labels[i] for i in far[:8]))
+            job.notes.append(f"{far.size} markers are farther than {1000 * warn_distance:g} mm from the surface: "
+                             + ", ".join(f"{labels[i]} ({1000 * abs(binding.offsets[i]) * unit:.0f} mm)"
+                                         for i in far[:8]))
         return f"bound {binding.n_markers} markers"
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The take '{take_name}' or its marker empties": _take_state(take_name),
@@ -373,7 +418,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     return {"model": model, "binding": binding, "take": take, "markers": world @ inv[:3, :3].T + inv[:3, 3],
-            "frames": frames, "filepath": filepath, "path": path}
+            "frames": frames, "filepath": filepath, "path": path, "labels": labels}
 
 
 def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0, temporal_weight=0.0, filepath=""):
@@ -386,13 +431,96 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0
                   "marker fit", total=len(frames))
     job.inputs = inputs
 
+    unit = metres_per_unit(obj, inputs["take"], context.scene)
+    labels = inputs["labels"]
+
     def write(obj, job):
-        return _write_fit(obj, job.result.vertices, frames, output, inputs["filepath"], inputs["path"])
+        text = _write_fit(obj, job.result.vertices, frames, output, inputs["filepath"], inputs["path"])
+        quality = write_quality(obj, frames, job.result, labels, unit, take_name)
+        job.notes.extend(quality["notes"])
+        return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The marker binding of '{obj.name}'": _prop_state(obj.name, BINDING_PROP, on_mesh=False),
               f"The take '{take_name}' or its marker empties": _take_state(take_name)}
     return Run(job, ObjectWatch(obj, extras=extras), write, what="fitted frame")
+
+
+def _distances(result):
+    """``(T, M)`` marker distances of a fit result (NaN where occluded)."""
+    d = getattr(result, "marker_distances", None)
+    if d is None:
+        d = np.asarray(result.marker_residuals, float)
+        d = np.linalg.norm(d, axis=2) if d.ndim == 3 else d
+    return np.asarray(d, float)
+
+
+def write_quality(obj, frames, result, labels, unit, take_name):
+    """Store a fit's quality on ``obj`` and describe it.
+
+    * the per-frame curve: the float property :data:`RMS_PROP` (millimetres) keyed at every fitted frame
+      (LINEAR; frames without a visible marker get no key), so the Graph Editor and the Dope Sheet show
+      where the fit is poor (an existing curve of that property is replaced);
+    * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm), prior weight, flagged frames and markers.
+
+    Returns ``{"text": report text, "notes": [warning texts]}``.
+    """
+    frames = np.asarray(frames)
+    mm = 1000.0 * float(unit)
+    d = _distances(result) * mm
+    seen = np.isfinite(d)
+    n = seen.sum(1)
+    rms = np.full(len(d), np.nan)
+    rms[n > 0] = np.sqrt(np.nansum(d[n > 0] ** 2, axis=1) / n[n > 0])
+    overall = float(np.sqrt(np.mean(d[seen] ** 2))) if seen.any() else float("nan")
+    p95 = float(np.nanmean(np.nanpercentile(d[n > 0], 95, axis=1))) if (n > 0).any() else float("nan")
+    flagged_frames = [int(frames[t]) for t in getattr(result, "flagged_frames", [])]
+    flagged_markers = [labels[m] if isinstance(m, (int, np.integer)) else str(m)
+                       for m in getattr(result, "flagged_markers", [])]
+    prior = float(getattr(result, "prior_weight", float("nan")))
+    obj[FIT_PROP] = {"take": take_name, "frame_start": int(frames[0]), "frame_end": int(frames[-1]),
+                     "marker_rms_mm": overall, "marker_p95_mm": p95, "prior_weight": prior,
+                     "flagged_frames": flagged_frames, "flagged_markers": flagged_markers,
+                     "success": bool(getattr(result, "success", True))}
+    obj[RMS_PROP] = float(rms[0]) if np.isfinite(rms[0]) else 0.0
+    obj.id_properties_ui(RMS_PROP).update(
+        min=0.0, description="RMS distance (mm) of the visible markers from the fitted surface in this frame")
+    owner, _ = ensure_animation_channels(obj, f"{obj.name} LA fit quality")
+    path = f'["{RMS_PROP}"]'
+    old = owner.fcurves.find(path)
+    if old is not None:
+        owner.fcurves.remove(old)
+    keyed = np.isfinite(rms)
+    write_curve(owner.fcurves, path, 0, frames[keyed].astype(np.float64), rms[keyed], 'LINEAR')
+    text = (f"marker RMS {overall:.1f} mm (per-frame p95 {p95:.1f} mm), prior weight {prior:g}; per-frame RMS in "
+            f"the property '{RMS_PROP}' of '{obj.name}' (Graph Editor)")
+    notes = []
+    if flagged_frames or flagged_markers:
+        notes.append(f"residuals far above marker noise at {len(flagged_frames)} frames "
+                     f"({_listing(flagged_frames)}) and for {len(flagged_markers)} markers "
+                     f"({_listing(flagged_markers)}): inspect them")
+    if not getattr(result, "success", True):
+        notes.append(f"the fit did not succeed: {getattr(result, 'message', '')}")
+    return {"text": text, "notes": notes, "rms": rms, "marker_rms_mm": overall, "marker_p95_mm": p95}
+
+
+def remove_quality(obj):
+    """Remove the last fit's quality (summary, keyed RMS property and its curve) from ``obj``; True if there was
+    one."""
+    had = FIT_PROP in obj or RMS_PROP in obj
+    fcurves = id_fcurves(obj)
+    fc = fcurves.find(f'["{RMS_PROP}"]') if fcurves is not None else None
+    if fc is not None:
+        fcurves.remove(fc)
+    for prop in (FIT_PROP, RMS_PROP):
+        if prop in obj:
+            del obj[prop]
+    return had
+
+
+def _listing(items, n=8):
+    items = list(items)
+    return ", ".join(map(str, items[:n])) + (f" and {len(items) - n} more" if len(items) > n else "") or "none"
 
 
 def _write_fit(obj, X, frames, output, filepath, path):
@@ -486,9 +614,11 @@ class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operat
     align: BoolProperty(name="Align", default=False,
                         description="Rigidly align the markers to the mesh first (iterative closest points, up to "
                                     "100 iterations); off: bind them where they are")
-    warn_distance: FloatProperty(name="Warn Distance", default=0.05, min=0.0, subtype='DISTANCE',
-                                 description="Warn about markers farther than this from the surface (in the "
-                                             "mesh's units)")
+    warn_distance: FloatProperty(name="Warn Distance (m)", default=0.05, min=0.0, soft_max=0.5, precision=3,
+                                 step=0.1,
+                                 description="Warn about markers farther than this from the surface, in metres of "
+                                             "the performer (the take's import Scale says how long a metre is; "
+                                             "without it the scene's Unit Scale)")
 
     def execute(self, context):
         def make(context):

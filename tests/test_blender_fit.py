@@ -109,6 +109,42 @@ def test_mesh_cache_matches_lacore_fit_and_true_poses(run, inputs):
     assert (err <= base_err).all(), (err, base_err)
 
 
+def test_fit_quality_curve_and_summary(run):
+    """The per-frame marker RMS (mm) keyed on the object equals lacore's residuals of the same fit."""
+    a = run["arrays"]
+    model = ShapeModel.load(io.BytesIO(a["model_npz"].tobytes()))
+    binding = MarkerBinding.from_surface(a["bind_faces"], a["bind_barycentric"], a["bind_offsets"])
+    markers = read_markers(run["work"] / "take.c3d").positions * 10.0
+    res = fit_markers(model, markers, binding)
+    d = np.asarray(res.marker_residuals, float)
+    d = np.linalg.norm(d, axis=2) if d.ndim == 3 else d
+    rms = 100.0 * np.sqrt(np.nanmean(d ** 2, axis=1))  # decimetres -> mm (imported with Scale 10)
+    q = run["cases"]["whole_path"]["quality"]
+    assert q["frames"] == list(range(1, N_FRAMES + 1))
+    assert np.allclose(q["values"], rms, rtol=1e-3, atol=1e-3), (q["values"], rms)
+    assert abs(q["value_at_3"] - rms[2]) < 1e-3 * rms[2] + 1e-3
+    s = q["summary"]
+    assert s["frame_start"] == 1 and s["frame_end"] == N_FRAMES and s["take"] == "take"
+    assert abs(s["marker_rms_mm"] - 100.0 * np.sqrt(np.nanmean(d ** 2))) < 1e-2
+    assert 0 < s["marker_rms_mm"] < 20  # measured 6.3 mm (12 training poses, 0.5 mm noise)
+    assert any(t.startswith("Fit of 'take' 1-8: marker RMS") for t in q["panel"]), q["panel"]
+
+
+def test_bind_skips_occluded_markers_and_warns_in_metres(run):
+    res = run["cases"]["bind_units_and_occlusion"]
+    d, strict = res["default"], res["strict"]
+    assert d["result"] == ["FINISHED"] and d["n_bound"] == res["n_markers"] - 3
+    assert sorted(d["not_bound"]) == sorted(res["occluded_labels"])
+    assert abs(d["metres_per_unit"] - 0.1) < 1e-6  # imported with Scale 10
+    kind, text = d["reports"][-1]
+    assert kind == "WARNING" and "3 markers occluded at frame 3 were not bound" in text
+    assert "farther than" not in text  # 8 mm markers: under the default 0.05 m
+    assert max(d["offsets_mm"]) < 20
+    far = sum(o > 4.0 for o in strict["offsets_mm"])
+    assert far > 0 and f"{far} markers are farther than 4 mm from the surface" in strict["reports"][-1][1]
+    assert abs(res["scene_unit"] - 0.1) < 1e-6 and abs(res["take_unit_after_scene_change"] - 0.1) < 1e-6
+
+
 def test_binding_close_to_the_true_one(run, inputs):
     a = run["arrays"]
     assert np.abs(np.abs(a["bind_offsets"]) - 0.08).max() < 0.05  # 8 mm markers, 0.5 mm noise
@@ -123,7 +159,7 @@ def test_shape_key_output(run):
 
 @pytest.mark.parametrize("case, words", [
     ("take_too_short", "covers frames"), ("no_model", "no shape model"), ("bind_without_model", "no shape model"),
-    ("bind_occluded", "occluded at frame 3"),
+    ("bind_occluded", "only 0 of the 3 markers are visible at frame 3"),
     ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after")])
 def test_bad_input_changes_nothing(run, case, words):
     res = run["cases"]["bad_input"][case]
