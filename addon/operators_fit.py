@@ -101,9 +101,8 @@ def _prop_state(object_name, prop, on_mesh):
 
 
 # ---------------------------------------------------------------------------------------------- model
-def model_run(obj, keys=None, n_modes=None):
-    """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
-    the basis and the add-on's own keys) and storing it (validated; raises InputError subclasses)."""
+def _model_inputs(obj, keys=None, n_modes=None):
+    """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes)``."""
     mesh = require_mesh_object(obj)
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
@@ -118,20 +117,34 @@ def model_run(obj, keys=None, n_modes=None):
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
-    faces = triangulate(mesh).faces
-    poses = coords[[names.index(k) for k in keys]]
-    reference = coords[0]
-    job = CallJob(lambda progress: ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=n_modes,
-                                                  progress=progress), "shape model", total=4)
-    keys = list(keys)
+    return {"names": names, "keys": list(keys), "poses": coords[[names.index(k) for k in keys]],
+            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes}
+
+
+def _build_model(inputs, progress):
+    """lacore's :meth:`ShapeModel.fit` on :func:`_model_inputs` (any thread)."""
+    return ShapeModel.fit(inputs["poses"], inputs["faces"], reference_vertices=inputs["reference"],
+                          n_modes=inputs["n_modes"], progress=progress)
+
+
+def model_run(obj, keys=None, n_modes=None):
+    """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
+    the basis and the add-on's own keys) and storing it (validated; raises InputError subclasses)."""
+    inputs = _model_inputs(obj, keys, n_modes)
+    job = CallJob(lambda progress: _build_model(inputs, progress), "shape model", total=4)
+    keys = inputs["keys"]
 
     def write(obj, job):
-        store_model(obj.data, job.result, keys)
-        _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
-        obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
-        _PENDING_PREVIEWS.discard(obj.name)
+        _store_built_model(obj, job.result, keys)
         return f"shape model of {len(keys)} keys, {job.result.n_modes} modes"
-    return Run(job, ObjectWatch(obj, [names[0], *keys]), write, what="model")
+    return Run(job, ObjectWatch(obj, [inputs["names"][0], *keys]), write, what="model")
+
+
+def _store_built_model(obj, model, keys):
+    store_model(obj.data, model, keys)
+    _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
+    obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
+    _PENDING_PREVIEWS.discard(obj.name)
 
 
 def store_model(mesh, model, keys):

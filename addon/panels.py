@@ -10,6 +10,7 @@ from . import operators_fit as fit
 from . import storage
 from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
+from .operators_calibrate import LENGTHS_ANGLES_OT_calibrate_fit
 from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
@@ -116,6 +117,9 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         obj = context.object
+        row = layout.row()
+        row.operator_context = 'INVOKE_DEFAULT'  # modal: progress bar and Esc
+        row.operator(LENGTHS_ANGLES_OT_calibrate_fit.bl_idname, icon='ARMATURE_DATA')
         layout.operator(fit.LENGTHS_ANGLES_OT_build_model.bl_idname, icon='MOD_DATA_TRANSFER')
         meta = obj.data.get(fit.MODEL_PROP)
         if meta is None:
