@@ -48,7 +48,7 @@ def test_fit_writes_poses_and_json(files, capsys):
     with np.load(out) as r:
         assert r["vertices"].shape == (4, model.topology.n_vertices, 3)
         assert np.array_equal(r["faces"], model.faces)
-        assert r["coefficients"].shape == (4, 3) and r["marker_residuals"].shape == (4, 16)
+        assert r["coefficients"].shape == (4, 3) and r["marker_residuals"].shape == (4, 16, 3)
         assert np.isnan(r["marker_residuals"][1, :3]).all()
         assert np.linalg.norm(r["vertices"] - true, axis=2).mean() < 0.02  # measured 0.004
     # surface bindings give the same result

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from lacore.geometry.lengths_angles import face_areas
 from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
                                     surface_points)
-from lacore.markers.fitting import MarkerDataError, _Frame, _joint_step, _Problem, fit_markers
+from lacore.markers.fitting import FitOptions, FrameSolver, MarkerDataError, fit_markers
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
 from lacore.progress import Cancelled
@@ -58,34 +58,30 @@ def test_gradient_and_bordered_step_match_fd_and_dense_solve(bar):
     x = surface_points(bar_pose(X0, 0.7, -0.2) @ ROT.T + SHIFT, F, binding)
     x[3] = np.nan
     vis = np.flatnonzero(np.isfinite(x[:, 0]))
-    # compression ratio 0.98: 144 faces are penalized here (checks that Jacobian too; none within 0.5 % of the kink)
-    prob = _Problem(model, binding, 0.7, 0.3, 0.98, 100.0, 1e-3, None)
-    assert 0 < len(prob.compression(X)[1]) < len(F)
+    # compression ratio 0.98: faces are penalized here (checks that Jacobian too); temporal term on
+    solver = FrameSolver(model, binding, FitOptions(prior_weight=0.7, compression_ratio=0.98), temporal=0.3)
+    solver.X_hat = X + 0.01
+    assert 0 < len(solver._compression(X)[1]) < len(F)
     rng = np.random.default_rng(3)
     a = 0.1 * rng.standard_normal(model.n_modes)
-    fr = _Frame(x, vis, len(vis), 0.05 * rng.standard_normal(model.n_modes), X.copy(), 0.0)
-    grad, vals, gn = prob.linearize(X, a, fr)
+    gX, ga, vals, B = solver.gradient(X, a, x, vis, matrix=True)
     dX = rng.standard_normal(X.shape)
-    fd = directional_fd(lambda Y: prob.energy(Y, a, fr)[0], X, dX, 1e-4)
-    assert abs(grad @ dX.ravel() - fd) < 1e-7 * abs(fd), (grad @ dX.ravel(), fd)
+    fd = directional_fd(lambda Y: solver.energy(Y, a, x, vis)[0], X, dX, 1e-4)
+    assert abs(gX @ dX.ravel() - fd) < 1e-7 * abs(fd), (gX @ dX.ravel(), fd)
+    da = rng.standard_normal(model.n_modes)
+    fd_a = directional_fd(lambda b: solver.energy(X, b, x, vis)[0], a, da, 1e-4)
+    assert abs(ga @ da - fd_a) < 1e-7 * abs(fd_a)
     # bordered Schur step == dense solve of the full (3V + J) Gauss-Newton system
-    step_X, step_a, slope = _joint_step(prob, X, a, fr)
-    pat = prob.pattern
+    solver.factorize(X, a, x, vis)
+    step_X, step_a = solver.step(gX, ga)
+    pat = solver.pattern
     import scipy.sparse as sp
     L = sp.csc_matrix((vals, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"])).toarray()
     A = L + L.T - np.diag(np.diag(L))
-    B = -2 * prob.gamma * (gn.J.T @ prob.WU)
-    C = 2 * (prob.gamma * prob.UMU + prob.tau * np.eye(prob.J))
-    rz = gn.z - prob.zbar - a @ prob.U
-    ga = -2 * prob.gamma * prob.WU.T @ rz + 2 * prob.tau * (a - fr.a_prev)
-    full = np.block([[A, B], [B.T, C]])
-    ref = np.linalg.solve(full, -np.concatenate([grad, ga]))
+    full = np.block([[A, B], [B.T, solver.C]])
+    ref = np.linalg.solve(full, -np.concatenate([gX, ga]))
     assert relative_error(np.concatenate([step_X, step_a]), ref) < 1e-8
-    # the alpha-gradient is the derivative of the energy in alpha
-    da = rng.standard_normal(model.n_modes)
-    fd_a = directional_fd(lambda b: prob.energy(X, b, fr)[0], a, da, 1e-4)
-    assert abs(ga @ da - fd_a) < 1e-7 * abs(fd_a)
-    assert slope < 0
+    assert gX @ step_X + ga @ step_a < 0
 
 
 def test_fit_recovers_held_out_poses_under_rigid_motion_and_occlusion(bar):
@@ -94,15 +90,15 @@ def test_fit_recovers_held_out_poses_under_rigid_motion_and_occlusion(bar):
     true = np.array([bar_pose(X0, 0.7 * np.sin(v), 0.5 * np.cos(v)) for v in s]) @ ROT.T + SHIFT
     x = surface_points(true, F, binding)
     x[3, :5] = np.nan
-    res = fit_markers(model, x, binding, prior_weight=1.0)
+    res = fit_markers(model, x, binding, prior_weight=1.0, temporal_weight=0.0)  # 8 far-apart frames: no smoothing
     err = np.linalg.norm(res.vertices - true, axis=2).mean(1)
     assert res.success and res.status == 0, res.message
     assert err.max() < 0.015, err  # bar length 6; measured 0.0042
     assert res.marker_rms < 0.01, res.marker_rms  # measured 0.0034
     assert np.isnan(res.marker_residuals[3, :5]).all() and np.isfinite(res.marker_residuals[3, 5:]).all()
     assert res.vertices.shape == (8, len(X0), 3) and res.coefficients.shape == (8, 4)
-    assert set(res.timings) >= {"alternating", "joint", "prolongation", "total"}
-    assert res.frame_iterations[:, 1].max() <= 5  # measured 3
+    assert set(res.timings) >= {"frames", "prolongation", "total"}
+    assert res.frame_iterations.max() <= 8  # measured 3
     # the model's own lengths and angles are reproduced: Z[X] vs z of the result
     assert res.z.shape == (8, 2 * model.topology.n_edges)
     s = res.summary()
@@ -132,13 +128,16 @@ def test_frames_with_fewer_than_three_markers_and_temporal_term(bar):
     assert res.success and res.status == 2 and "fewer than 3" in res.message
     assert np.isfinite(res.vertices).all()
     assert res.regularized_frames == [3, 4]
-    # without markers the pose stays where it was (anchor) and the shape follows the prior
-    assert np.abs(res.vertices[4] - res.vertices[3]).max() < 0.2  # measured 0.079 (bar length 6)
-    # temporal term: the change of alpha over the gap is damped
-    res_t = fit_markers(model, x, binding, temporal_weight=10.0)
-    jump = np.linalg.norm(np.diff(res.coefficients, axis=0), axis=1)
-    jump_t = np.linalg.norm(np.diff(res_t.coefficients, axis=0), axis=1)
-    assert jump_t.max() < 0.3 * jump.max(), (jump_t, jump)  # measured 0.021 vs 0.31
+    # without markers the pose follows the constant-velocity prediction and the shape the prior
+    gap_error = np.linalg.norm(res.vertices[3:5] - true[3:5], axis=2).max()
+    assert gap_error < 0.2, gap_error  # measured 0.056 (bar length 6)
+    # temporal term (vertex space): noisy markers on a smooth motion give a smoother fit with it
+    s = np.linspace(0, 1, 12)
+    true = np.array([bar_pose(X0, 0.6 * v, 0.3 * v) for v in s])
+    noisy = surface_points(true, F, binding) + 0.01 * np.random.default_rng(4).standard_normal((12, 20, 3))
+    acc = [np.linalg.norm(np.diff(fit_markers(model, noisy, binding, temporal_weight=w).vertices, 2, axis=0),
+                          axis=2).mean() for w in (0.0, 10.0)]
+    assert acc[1] < 0.85 * acc[0], acc  # measured 0.0169 vs 0.0237
 
 
 def test_bind_markers_recovers_a_binding_after_a_rigid_motion(bar):
@@ -197,11 +196,11 @@ def test_safeguard_keeps_triangles_from_collapsing(bar):
     x[0] += [0.0, 0.0, -1.5]
     x[1] += [0.0, 1.5, 0.0]
     a0 = face_areas(model.reference_vertices, F)
-    opts = {"prior_weight": 1e-3, "joint_iterations": 50, "ftol": 1e-9}
+    opts = {"prior_weight": 1e-3, "max_iterations": 50, "ftol": 1e-9, "marker_tolerance": 0.0}
     off = fit_markers(model, x, b, compression_ratio=None, **opts)
     on = fit_markers(model, x, b, **opts)
     ratio_off = (face_areas(off.vertices[0], F) / a0).min()
     ratio_on = (face_areas(on.vertices[0], F) / a0).min()
-    assert ratio_off < 1e-4, ratio_off    # measured 7e-10
+    assert ratio_off < 0.15, ratio_off    # measured 0.047 (7e-10 before angle residuals were wrapped)
     assert ratio_on > 0.2, ratio_on       # measured 0.24999 (a penalty, not a hard bound)
-    assert on.frame_energy[0] < 1.003 * off.frame_energy[0]  # measured 0.020407 vs 0.020416
+    assert on.frame_energy[0] < 1.05 * off.frame_energy[0]  # measured 0.02289 vs 0.02248

@@ -46,11 +46,11 @@ def test_la_model_beats_vertex_pca_on_a_held_out_take(body):
     X, *_ = body.take(120, seed=7)
     X = X[::12]  # 10 frames spread over the take (poses beyond the training range, walk and turn)
     x = observe_markers(X, body.faces, binding, seed=7)
-    res = fit_markers(model, x, binding, prior_weight=1e-2)
+    res = fit_markers(model, x, binding, temporal_weight=0.0)  # the default prior weight; frames 0.2 s apart
     e_la = np.linalg.norm(res.vertices - X, axis=2).mean(1) * 100  # mm
     base = fit_markers_vertex_pca(pca, x, body.faces, binding, tikhonov=1e-2)
     e_pca = np.linalg.norm(base["vertices"] - X, axis=2).mean(1) * 100
     ratio = e_la.mean() / e_pca.mean()
     assert res.success
-    assert ratio < 0.6, (e_la, e_pca)     # measured 0.24 (9.9 mm vs 41 mm)
-    assert e_la.mean() < 25, e_la         # measured 9.9 mm
+    assert ratio < 0.35, (e_la, e_pca)    # measured 0.23 (9.4 mm vs 41 mm), default prior weight
+    assert e_la.mean() < 20, e_la         # measured 9.4 mm

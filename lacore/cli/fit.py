@@ -12,7 +12,7 @@ and the binding: either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
 ``offsets`` ``(M,)`` (distance along the face normal, positive outside).
 
 ``OUT.npz`` gets ``vertices`` ``(T, V, 3)``, ``faces`` ``(F, 3)``,
-``coefficients`` ``(T, J)``, ``marker_residuals`` ``(T, M)`` (NaN where
+``coefficients`` ``(T, J)``, ``marker_residuals`` ``(T, M, 3)`` (NaN where
 occluded), ``frame_status`` ``(T,)`` and ``frame_rms`` ``(T,)``.  ``--json``
 prints one object with ``frames``, ``seconds``, ``seconds_per_frame``,
 ``marker_rms``, the stage timings and the per-frame status counts.

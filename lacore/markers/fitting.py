@@ -1,121 +1,164 @@
 """Armature-free marker fitting: mesh poses from motion-capture markers and a shape model (thesis 4.3.1).
 
-For every frame ``t`` of a take, :func:`fit_markers` solves (4.23) with the
-data term generalized to surface points with normal offsets
-(:mod:`lacore.markers.binding`) and an optional temporal term::
+For every frame ``t`` of a take, :func:`fit_markers` minimizes over vertex positions
+``X`` (V, 3) and model coefficients ``alpha`` (J,) (``z = zbar + alpha @ U``, the
+modes ``g``-orthonormal)::
 
-    minimize  J_t[X, alpha] = sum_{m visible} |p_m(X) - x_m^t|^2                    data (4.20)
-                            + gamma W_q[Z[X], zbar + U^T alpha]                      prior (4.21)-(4.23)
-                            + tau |alpha - alpha^{t-1}|^2                            temporal
-                            (+ kappa |X - X^{t-1}|^2 only in frames with < 3 usable markers)
+    J_t[X, alpha] = (1 / l^2) sum_{m visible} |p_m(X) - x_m^t|^2          data (4.20), surface points
+                  + gamma W_q[Z[X], zbar + U^T alpha]                       prior (4.21)-(4.23)
+                  + kappa (1 / l^2) sum_v a_v |X_v - Xhat_v^t|^2            temporal (vertices)
+                  + c l^2-free sum_f max(0, rho - a_f / abar_f)^2           compression safeguard
 
-over vertex positions ``X`` (V, 3) and model coefficients ``alpha`` (J,)
-(``z = zbar + sum_j alpha_j u_j``, the ``u_j`` ``g``-orthonormal: ``U M U^T = Id``,
-``M = diag(w)`` the residual weights of ``W_q`` from the model's reference mesh).
-
-Solver (the thesis' remark on implementation)
----------------------------------------------
-1. **Start.** Frame 0: the model's reference mesh (not the immersion of the
-   mean ``zbar``, which can contain slivers: on the 2.5k-vertex coarse human a
-   face of the mean pose has 1e-9 of its rest area) moved by a Kabsch fit
-   (:func:`lacore.geometry.rigid.rigid_fit`) of its marker points onto the visible
-   markers; later frames: the previous frame's pose, moved by the Kabsch fit of
-   its marker points onto the new markers (the walk), and its coefficients.
-2. **Alternating iterations** (``alternating_iterations``, default 3 in frame 0, 1 in warm-started frames): the
-   ``z``-step minimizes over ``alpha`` exactly, the ``g``-orthogonal projection
-   (4.22) of ``Z[X]`` onto ``zbar + span U`` (with the temporal term:
-   ``(gamma U M U^T + tau Id) alpha = gamma U M (Z[X] - zbar) + tau alpha^{t-1}``);
-   the ``X``-step is one Gauss-Newton step in ``X`` for fixed ``z`` (the prior
-   then is the energy of the reconstruction, :mod:`lacore.reconstruction.gauss_newton`).
-3. **Joint Gauss-Newton** in ``(X, alpha)`` (at most ``joint_iterations``).
-   The Gauss-Newton matrix is bordered::
-
-       [ A    B ] [dX]     [g_X]      A = 2 (gamma J^T M J + sum_m G_m^T G_m) (+ 2 kappa Id)   sparse (3V, 3V)
-       [ B^T  C ] [da] = - [g_a]      B = -2 gamma J^T M U^T                              dense (3V, J)
-                                      C = 2 (gamma U M U^T + tau Id)                      (J, J)
-
-   with ``J = dZ/dX`` and ``G_m`` the ``(3, 9)`` Jacobian of marker ``m``'s
-   surface point (normal derivative included).  ``A`` is factorized once per
-   iteration by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic
-   analysis once per topology, reused by every iteration and frame); the Schur
-   complement ``S = C - B^T A^-1 B`` (J x J) gives ``da = S^-1 (B^T A^-1 g_X - g_a)``
-   and ``dX = -A^-1 (g_X + B da)``: ``J + 1`` solves with one factor, never a
-   dense ``3V x 3V`` matrix.
-
-``W_q`` is invariant under rigid motions, so ``A`` is singular without data;
-``>= 3`` visible, non-collinear markers make it definite.  Frames with fewer
-(or collinear ones) add the anchor term ``kappa |X - X^{t-1}|^2`` (``kappa =
-anchor_weight``, relative to ``gamma`` times the mean diagonal of the prior's
-Gauss-Newton matrix) and report status 2; the pose then comes from the prior,
-the temporal term and the markers still seen.
-
-Degenerate triangles (the thesis' exploding gradients)
-------------------------------------------------------
-The gradient of a dihedral angle grows like ``1 / height`` of its triangles; the
-thesis saw fits get stuck when a Gauss-Newton step squashed a triangle.  The
-default safeguard is a **compression penalty** in the energy (in the spirit of
-the thin-shells membrane term, which penalizes compression, but one-sided and
-zero on every face with at least ``compression_ratio`` = 25 % of its area in
-the model's reference mesh)::
-
-    + compression_weight lbar^2 sum_f max(0, compression_ratio - a_f(X) / abar_f)^2
-
-with its exact Gauss-Newton block per face (``lbar`` the mean edge length, so
-the term has the data term's unit).  It leaves normal poses untouched and
-keeps the closed-form ``z``-step (4.22) that using ``W_TS`` as the prior would
-lose.  Two alternatives were tried on the human and rejected: a line search
-rejecting steps that flip a face (blocks the large first-frame steps: 212 mm
-instead of 14 mm error in frame 0) and one rejecting steps that shrink a face
-below 5 % of its area (faces pressed against the bound block every later step:
-the fit stalls and trails the markers by up to 200 mm).
-``tests/test_marker_fitting.py`` shows a fit that collapses triangles to 7e-10
-of their area without the penalty and keeps them at 25 % with it, at the same
-energy to 0.1 %.
-
+Scale-free weights
+    ``l`` is the mean edge length of the model's reference mesh: ``W_q`` (Froehlich-Botsch
+    weights, lengths relative to ``lbar``, angles in radians) is dimensionless and grows
+    with the number of edges like the normalized marker term, so ``gamma``
+    (:attr:`FitOptions.prior_weight`) means the same in metres, decimetres and
+    millimetres and on a coarse or fine mesh (it is the old ``prior_weight`` divided by
+    ``l^2``).  Default 1.0, chosen on held-out synthetic takes and the shared real takes
+    (``benchmarks/bench_fit_takes.py``).
+Angles on the circle
+    Angle residuals are wrapped to ``[-pi, pi)``: the linear targets ``zbar + U^T alpha``
+    cross ``+-pi`` at the creases of skinned training poses.
+Temporal term without lag
+    ``Xhat^t`` is the previous pose extrapolated at constant velocity and moved rigidly
+    onto the markers (Kabsch); ``a_v`` are vertex areas summing to 1.  It pins the
+    directions the markers leave free (a forearm's twist), which otherwise drift from
+    frame to frame: hands "flapping".  ``kappa = temporal_weight (rate / 60 Hz)^2``.
+Solver
+    Gauss-Newton on the bordered system in ``(X, alpha)``: the sparse block ``A`` is
+    factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
+    cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; the factor
+    is refactorized every step (reusing it only added failed steps).  Armijo backtracking.
+    A frame has converged when a step moved no marker's surface point by more than
+    :attr:`FitOptions.marker_tolerance` times ``l`` (after two steps), or the energy decreased
+    by less than ``ftol`` relative with such a move: the
+    interior of the body keeps relaxing for many more steps in the flat valleys of
+    ``W_q`` without moving the markers.
+Start
+    Frame 0: ``initial_vertices`` or the model's reference mesh, moved by a Kabsch fit of
+    its marker points onto the visible markers; later frames: the previous pose
+    extrapolated and moved likewise.  Frames with fewer than 3 usable markers keep the
+    pose of the temporal prediction (status 2).
 Multiresolution
----------------
-Fit the model of a coarse mesh (for the human, the 2.5k-vertex coarse body)
-and give ``prolongation`` (a :class:`lacore.multiresolution.Prolongation` or
-a callable ``(coarse_vertices, coefficients) -> fine vertices``, e.g.
-:class:`lacore.markers.prolongation.NearestKeysProlongation`): every fitted
-frame is prolonged to the full mesh (``fine_vertices``, timed in
-``timings["prolongation"]``, thesis 2.3: ~20 ms).  Without it
-``fine_vertices`` is None and ``timings["prolongation"]`` is 0.
+    Give ``prolongation`` (a model's :class:`lacore.models.FineLevel`, a
+    :class:`lacore.multiresolution.Prolongation` or a callable ``(X, alpha) -> X_fine``) to
+    get every pose on the fine mesh (``fine_vertices``).
 """
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
 from ..errors import InputError, format_indices
-from ..geometry.lengths_angles import face_normals, lengths_and_angles
-from .prolongation import as_fit_prolongation
-from .binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
-from ..progress import report
-from ..reconstruction.assembly import dof_ordering, gauss_newton_pattern
-from ..reconstruction.objectives import QuadraticObjective
-from ..result import SolverResult
+from ..geometry.lengths_angles import face_normals, lengths_and_angles, lengths_and_angles_jacobian
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+from ..progress import report
+from ..reconstruction.assembly import dof_ordering, gauss_newton_pattern
+from ..reconstruction.objectives import QuadraticGNMatrix, QuadraticObjective
+from ..result import SolverResult
+from .binding import MarkerBinding, MarkerBindingError, surface_point_jacobians, surface_points
+from .prolongation import as_fit_prolongation
 
-__all__ = ["fit_markers", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers",
+__all__ = ["fit_markers", "FitOptions", "MarkerFitResult", "MarkerDataError", "FRAME_STATUS", "check_markers",
+           "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length", "marker_statistics",
            "MAX_MARKER_COORDINATE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
     -2: "the linear system could not be solved",
-    -1: "the line search found no decrease before the first joint step",
     0: "converged",
     1: "iteration limit reached",
     2: "fewer than 3 usable (visible, non-collinear) markers: pose from the prior and the temporal term",
 }
-
+#: Least temporal weight of a frame with fewer than 3 usable markers (its pose stays at the prediction).
+ANCHOR_WEIGHT = 1.0
+#: A first frame started from the reference mesh may take this many times ``max_iterations`` steps.
+COLD_START_FACTOR = 4
+_SEVERITY = {-2: 5, 1: 2, 2: 3, 0: 0}
 _I9, _J9 = np.triu_indices(9)
 
 
+@dataclass(frozen=True)
+class FitOptions:
+    """Settings of :func:`fit_markers` (and of the fitting part of :func:`lacore.markers.fit_take`).
+
+    Attributes
+    ----------
+    prior_weight : float or "auto"
+        ``gamma`` > 0, scale-free (module docstring).  ``"auto"`` is resolved by
+        :func:`lacore.markers.fit_take` from held-out markers; :func:`fit_markers` needs a number.
+    temporal_weight : float
+        ``>= 0``; the vertex temporal term's weight at ``reference_rate`` (0: none).
+    reference_rate : float
+        Hz; the weight scales with ``(rate / reference_rate)^2``.
+    max_iterations : int
+        Gauss-Newton steps per frame.
+    marker_tolerance : float
+        Convergence: largest marker move of the last step, in mean edge lengths.
+    ftol : float
+        Relative energy decrease accepted as converged together with ``marker_tolerance``.
+    compression_ratio, compression_weight : float
+        Faces below ``compression_ratio`` of their reference area are penalized (None: off).
+    n_modes : int or None
+        Use the first ``n_modes`` modes (0: mean-only prior).
+    solver : {"cholmod", "scipy"} or None
+    """
+
+    prior_weight: object = 1.0
+    temporal_weight: float = 10.0
+    reference_rate: float = 60.0
+    max_iterations: int = 20
+    marker_tolerance: float = 0.005
+    ftol: float = 1e-2
+    compression_ratio: float = 0.25
+    compression_weight: float = 100.0
+    n_modes: int = None
+    solver: str = None
+
+    def check(self, allow_auto=False):
+        """Raise InputError naming the first bad setting; returns self."""
+        g = self.prior_weight
+        if isinstance(g, str):
+            if not (allow_auto and g == "auto"):
+                raise InputError(f"prior_weight must be a positive number{' or auto' if allow_auto else ''}, "
+                                 f"got {g!r}")
+        elif not (np.isfinite(g) and g > 0):
+            raise InputError(f"prior_weight must be a finite number > 0, got {g!r}")
+        for name in ("temporal_weight", "marker_tolerance", "ftol", "compression_weight"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not (np.isfinite(self.reference_rate) and self.reference_rate > 0):
+            raise InputError(f"reference_rate must be > 0, got {self.reference_rate!r}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
+            raise InputError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
+        return self
+
+
+#: The defaults, in one place (library, CLI and add-on).
+FIT_DEFAULTS = FitOptions()
+
+
+def fit_options(options=None, allow_auto=False, **settings):
+    """``options`` (default :data:`FIT_DEFAULTS`) with the fields ``settings`` replaced, checked.
+
+    Raises TypeError for a name that is not a field of :class:`FitOptions`, InputError for a bad value.
+    """
+    options = FIT_DEFAULTS if options is None else options
+    if not isinstance(options, FitOptions):
+        raise InputError(f"options must be a FitOptions, got {type(options).__name__}")
+    unknown = sorted(set(settings) - {f.name for f in fields(FitOptions)})
+    if unknown:
+        raise TypeError(f"unknown fit setting(s) {', '.join(unknown)}; FitOptions has "
+                        f"{', '.join(f.name for f in fields(FitOptions))}")
+    return replace(options, **settings).check(allow_auto=allow_auto) if settings else options.check(allow_auto)
+
+
 class MarkerDataError(InputError):
-    """Marker positions of a wrong shape or type, infinite, too large, or with nothing to fit."""
+    """Marker positions of a wrong shape or with infinite values."""
 
 
 #: Largest marker coordinate magnitude: squared distances of larger ones overflow double precision.
@@ -163,6 +206,12 @@ def check_markers(markers, binding):
     return x
 
 
+def mean_edge_length(vertices, edges):
+    """Mean edge length ``l`` of a mesh: the length scale of the marker term."""
+    X = np.asarray(vertices, float)
+    return float(np.mean(np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1)))
+
+
 @dataclass(kw_only=True, repr=False)
 class MarkerFitResult(SolverResult):
     """Outcome of :func:`fit_markers` (a :class:`lacore.result.SolverResult`).
@@ -170,64 +219,56 @@ class MarkerFitResult(SolverResult):
     Attributes
     ----------
     vertices : (T, V, 3) ndarray
-        Fitted poses, in the markers' frame.
+        Fitted poses in the markers' frame and unit.
     coefficients : (T, J) ndarray
-        ``alpha`` per frame (``z = zbar + alpha @ modes``).
-    z : (T, 2E) ndarray
-        ``Z[vertices]`` per frame (admissible lengths and angles of the fitted pose).
-    marker_residuals : (T, M) ndarray
-        ``|p_m(X) - x_m|`` per frame and marker (NaN where occluded).
-    frame_rms : (T,) ndarray
-        RMS of the visible markers' residuals (NaN without visible markers).
+    marker_residuals : (T, M, 3) ndarray
+        ``p_m(X) - x_m`` (NaN where occluded); ``marker_distances`` ``(T, M)`` their lengths.
+    frame_rms, frame_p95 : (T,) ndarray
+        RMS and 95th percentile of the visible markers' distances (NaN without markers).
     marker_rms : float
         RMS over all visible samples.
-    frame_energy : (T,) ndarray
-        ``J_t`` at the solution; ``frame_data`` and ``frame_prior`` its data and ``gamma W_q`` parts.
     frame_status : (T,) int ndarray
-        See :data:`FRAME_STATUS`; ``frame_messages`` the same in words.
-    frame_iterations : (T, 2) int ndarray
-        Alternating and joint iterations per frame.
+        :data:`FRAME_STATUS`; ``frame_messages`` the same in words.
+    frame_iterations : (T,) int ndarray
     frame_seconds : (T,) ndarray
+    frame_energy : (T,) ndarray
     visible : (T,) int ndarray
-        Visible markers per frame.
     success : bool
-        No frame failed (all statuses >= 0).
-    status : int
-        Worst frame status by severity (-2, -1, 1, 2, 0 in that order).
-    message : str
-    iterations : int
-        Total Gauss-Newton iterations (alternating X-steps and joint steps).
-    timings : dict
-        Seconds in ``initialization`` (set-up, starts), ``alternating``,
-        ``joint``, ``prolongation`` (0 without ``prolongation``), ``total``.
-    fine_vertices : (T, V_fine, 3) ndarray or None
-        The fitted poses prolonged to the fine mesh (``prolongation`` given).
+        Every frame converged or had too few markers to fit (status 0 or 2) and at least
+        one frame was fitted to markers.
     prior_weight, temporal_weight : float
+        ``gamma`` and the temporal weight used (before the rate scaling).
+    fine_vertices : (T, V_fine, 3) ndarray or None
     regularized_frames : list of int
-        Frames that needed the anchor term or a diagonal shift of the factorization.
+        Frames with fewer than 3 usable markers (status 2): pose from the prior and the temporal term.
+    z : (T, 2E) ndarray
+        Lengths and angles of ``vertices`` (a property, computed when read).
     """
 
     vertices: np.ndarray
     coefficients: np.ndarray
-    z: np.ndarray
     marker_residuals: np.ndarray
+    marker_distances: np.ndarray
     frame_rms: np.ndarray
+    frame_p95: np.ndarray
     marker_rms: float
-    frame_energy: np.ndarray
-    frame_data: np.ndarray
-    frame_prior: np.ndarray
     frame_status: np.ndarray
     frame_messages: list
     frame_iterations: np.ndarray
     frame_seconds: np.ndarray
+    frame_energy: np.ndarray
     visible: np.ndarray
     prior_weight: float = 1.0
     temporal_weight: float = 0.0
-    regularized_frames: list = field(default_factory=list)
     fine_vertices: np.ndarray = None
+    regularized_frames: list = field(default_factory=list)
+    topology: object = None
+    _summary_exclude = ("vertices", "coefficients", "marker_residuals", "marker_distances", "fine_vertices",
+                        "frame_messages", "topology")
 
     @property
     def n_frames(self):
+        """``T``."""
         return int(self.vertices.shape[0])
 
     def summary(self):
@@ -246,79 +287,105 @@ class MarkerFitResult(SolverResult):
             "max_frame_rms": f(np.nanmax(self.frame_rms)) if np.isfinite(self.frame_rms).any() else None,
             "frame_status_counts": {str(int(s)): int(np.sum(self.frame_status == s))
                                     for s in np.unique(self.frame_status)},
-            "mean_iterations": [float(v) for v in self.frame_iterations.mean(0)] if T else [0.0, 0.0],
+            "mean_iterations": float(np.mean(self.frame_iterations)) if T else 0.0,
             "prior_weight": float(self.prior_weight), "temporal_weight": float(self.temporal_weight),
             "regularized_frames": [int(t) for t in self.regularized_frames],
         }
 
+    @property
+    def z(self):
+        """Lengths and angles ``(T, 2E)`` of the fitted poses."""
+        return np.stack([lengths_and_angles(X, self.topology, check=False) for X in self.vertices])
 
-_SEVERITY = {-2: 5, -1: 4, 2: 3, 1: 2, 0: 0}
 
+# ----------------------------------------------------------------------------- one frame
+class FrameSolver:
+    """The per-frame problem of one model and binding (module docstring); keeps the factorization between steps.
 
-class _Problem:
-    """Constant pieces of one fit: model arrays, pattern, factorization, binding slots."""
+    Parameters
+    ----------
+    model : ShapeModel
+    binding : MarkerBinding
+    options : FitOptions
+    temporal : float
+        ``kappa`` after the rate scaling.
+    extra_modes : (K, 2E) ndarray, optional
+        Further directions of ``z`` fitted with the modes (calibration: body proportions),
+        with the penalty ``extra_penalty (K,)`` on their coefficients.
+    """
 
-    def __init__(self, model, binding, gamma, tau, compression_ratio, compression_weight, anchor_weight, solver,
-                 n_modes=None):
+    def __init__(self, model, binding, options=FIT_DEFAULTS, temporal=0.0, extra_modes=None, extra_penalty=0.0):
         topo = model.topology
-        self.topology = topo
-        self.faces = topo.faces
-        self.V = topo.n_vertices
-        self.E = topo.n_edges
-        self.binding = binding
-        self.gamma = float(gamma)
-        self.tau = float(tau)
+        self.topology, self.faces = topo, topo.faces
+        self.V, self.E = topo.n_vertices, topo.n_edges
+        Xr = np.asarray(model.reference_vertices, float)
+        self.reference = Xr
+        self.length = mean_edge_length(Xr, topo.edges)
+        self.wd = 1.0 / self.length ** 2
+        self.gamma = float(options.prior_weight)
+        self.kappa = float(temporal)
         self.w = np.asarray(model.metric_weights, float)
         self.zbar = np.asarray(model.mean_z, float)
-        self.U = np.asarray(model.modes, float)[:n_modes]             # (J, 2E)
-        self.J = self.U.shape[0]
-        self.WU = (self.w * self.U).T.copy()                          # (2E, J) = M U^T
-        self.UMU = self.U @ self.WU                                   # (J, J), = Id for a g-orthonormal model
+        U = np.asarray(model.modes, float)[:options.n_modes]
+        penalty = np.zeros(len(U))
+        if extra_modes is not None and len(extra_modes):
+            U = np.vstack([U, extra_modes])
+            penalty = np.concatenate([penalty, np.broadcast_to(extra_penalty, (len(extra_modes),))])
+        self.U, self.penalty, self.J = U, penalty, len(U)
+        self.WU = (self.w * U).T.copy()
+        self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(penalty))
         self.pattern = pat = gauss_newton_pattern(topo)
         cache = topo.cache.get((__name__, "cholesky"), dict)
-        key = solver or "default"
+        key = options.solver or "default"
         chol = cache.get(key)
         if chol is None:
-            ordered = (solver or "cholmod") == "cholmod"  # CHOLMOD takes an ordering; SuperLU finds its own
-            ordering = dof_ordering(topo, pat, model.reference_vertices)[0] if ordered else None
+            ordered = (options.solver or "cholmod") == "cholmod"
+            ordering = dof_ordering(topo, pat, Xr)[0] if ordered else None
             try:
-                chol = SparseCholesky(pat["matrix"], backend=solver, ordering=ordering)
+                chol = SparseCholesky(pat["matrix"], backend=options.solver, ordering=ordering)
             except ValueError:
-                chol = SparseCholesky(pat["matrix"], backend=solver)
+                chol = SparseCholesky(pat["matrix"], backend=options.solver)
             cache[key] = chol
         self.chol = chol
         self.diag = np.flatnonzero(pat["indices"] == pat["cols"])
-        # data-term slots: upper pairs of every marker's 9x9 block in the pattern's value order
-        _, dofs = surface_point_jacobians(model.reference_vertices, self.faces, binding)
-        self.dofs = dofs
-        self.data_slots = self._slots(dofs)
         self.buffer = np.empty(len(pat["slots"]))
-        # compression penalty: per face, the 9 coordinates of its corners
         self.face_dofs = (3 * self.faces[:, :, None] + np.arange(3)).reshape(-1, 9)
-        self.face_slots = None
-        self.rest_area = 0.5 * np.linalg.norm(face_normals(model.reference_vertices, self.faces, unit=False), axis=1)
-        self.rho = 0.0 if compression_ratio is None else float(compression_ratio)
-        edge = np.linalg.norm(np.diff(model.reference_vertices[model.edges], axis=1)[:, 0], axis=1)
-        self.w_c = float(compression_weight) * float(np.mean(edge)) ** 2 if self.rho > 0 else 0.0
-        self.anchor_weight = float(anchor_weight)
-        self.prior_scale = None
+        self.face_slots = self._slots(self.face_dofs)
+        self.rest_area = 0.5 * np.linalg.norm(face_normals(Xr, self.faces, unit=False), axis=1)
+        self.rho = float(options.compression_ratio or 0.0)
+        self.w_c = float(options.compression_weight) if self.rho > 0 else 0.0
+        mass = np.zeros(self.V)
+        np.add.at(mass, self.faces.ravel(), np.repeat(self.rest_area, 3) / 3.0)
+        self.mass = mass / mass.sum()
+        self.options = options
+        self.set_binding(binding)
+        self.X_hat = None
+        self._factor_key = None
+
+    def set_binding(self, binding):
+        self.binding = binding
+        _, self.dofs = surface_point_jacobians(self.reference, self.faces, binding)
+        self.data_slots = self._slots(self.dofs)
+        self._factor_key = None
 
     def _slots(self, dofs):
-        """Positions of the upper pairs of ``(k, 9)`` coordinate blocks in the pattern's value order."""
         pat = self.pattern
         n = pat["n"]
         r = np.maximum(dofs[:, _I9], dofs[:, _J9])
         c = np.minimum(dofs[:, _I9], dofs[:, _J9])
-        keys = pat["cols"] * n + pat["indices"]
-        k = c * n + r
-        pos = np.searchsorted(keys, k)
-        if np.any(keys[np.minimum(pos, len(keys) - 1)] != k):  # pragma: no cover - faces are in the pattern
-            raise RuntimeError("face blocks outside the Gauss-Newton pattern")
-        return pos
+        return np.searchsorted(pat["cols"] * n + pat["indices"], c * n + r)
 
-    # ---------------------------------------------------------------- pieces
-    def compression(self, X):
-        """Compression residuals ``rho - a_f / abar_f`` (positive part), their faces and value ``w_c sum r^2``."""
+    def _sub(self, vis):
+        b = self.binding
+        return MarkerBinding(b.faces[vis], b.barycentric[vis], b.offsets[vis])
+
+    def _residual_z(self, z, a):
+        r = z - self.zbar - a @ self.U
+        ang = r[self.E:]
+        r[self.E:] = np.where(np.abs(ang) < np.pi, ang, np.mod(ang + np.pi, 2 * np.pi) - np.pi)
+        return r
+
+    def _compression(self, X):
         if not self.w_c:
             return np.zeros(0), np.zeros(0, np.int64), 0.0
         a = 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1)
@@ -327,11 +394,7 @@ class _Problem:
         r = r[act]
         return r, act, self.w_c * float(r @ r)
 
-    def compression_jacobian(self, X, act):
-        """``d (a_f / abar_f) / dX`` of the faces ``act``: ``(k, 9)`` on their corner coordinates.
-
-        ``da/dX_0 = n x (e_2 - e_1) / 2``, ``da/dX_1 = -n x e_2 / 2``, ``da/dX_2 = n x e_1 / 2``.
-        """
+    def _compression_jacobian(self, X, act):
         P = X[self.faces[act]]
         e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
         c = np.cross(e1, e2)
@@ -339,189 +402,158 @@ class _Problem:
         g = 0.5 * np.concatenate([np.cross(n, e2 - e1), -np.cross(n, e2), np.cross(n, e1)], axis=1)
         return g / self.rest_area[act, None]
 
-    def data(self, X, x, vis):
-        """Data residuals ``(m, 3)`` of the visible markers and their value."""
-        P = surface_points(X, self.faces, self._sub(vis))
-        r = P - x[vis]
-        return r, float(np.einsum("ij,ij->", r, r))
-
-    def _sub(self, vis):
-        b = self.binding
-        return MarkerBinding(b.faces[vis], b.barycentric[vis], b.offsets[vis])
-
-    def energy(self, X, a, fr):
-        """``(total, data, prior)`` at ``(X, a)`` for frame ``fr``; the total adds compression, temporal, anchor."""
+    def energy(self, X, a, y, vis):
+        """``(total, data, prior)`` of one frame (markers ``y (M, 3)``, visible indices ``vis``)."""
         z = lengths_and_angles(X, self.topology, check=False)
-        _, d = self.data(X, fr.x, fr.vis) if fr.n_vis else (None, 0.0)
-        rz = z - self.zbar - a @ self.U if self.J else z - self.zbar
+        r = surface_points(X, self.faces, self._sub(vis)) - y[vis]
+        d = self.wd * float(np.einsum("ij,ij->", r, r))
+        rz = self._residual_z(z, a)
         p = self.gamma * float(np.einsum("i,i,i->", self.w, rz, rz))
-        tot = d + p + self.compression(X)[2]
-        if self.J and self.tau:
-            da = a - fr.a_prev
-            tot += self.tau * float(da @ da)
-        if fr.kappa:
-            dx = X - fr.X_anchor
-            tot += fr.kappa * float(np.einsum("ij,ij->", dx, dx))
-        return tot, d, p
+        total = d + p + self._compression(X)[2] + float(np.sum(self.penalty * a * a))
+        if self.kappa and self.X_hat is not None:
+            dx = X - self.X_hat
+            total += self.kappa * self.wd * float(np.einsum("v,vc,vc->", self.mass, dx, dx))
+        return total, d, p
 
-    def linearize(self, X, a, fr):
-        """Gradient in X ``(3V,)``, GN matrix values of ``A`` (pattern order), prior objective and its GN matrix."""
-        target = self.zbar + a @ self.U if self.J else self.zbar
-        obj = QuadraticObjective(target, self.gamma * self.w, self.topology, self.pattern, buffer=self.buffer)
-        _, grad, gn = obj.linearize(X)
-        vals = gn()
-        if self.prior_scale is None:
-            self.prior_scale = float(np.mean(vals[self.diag])) / self.gamma if self.gamma else 1.0
-        if fr.n_vis:
-            r, _ = self.data(X, fr.x, fr.vis)
-            G, _ = surface_point_jacobians(X, self.faces, self._sub(fr.vis))
-            dofs = self.dofs[fr.vis]
-            grad = grad + np.bincount(dofs.ravel(), weights=(2.0 * np.einsum("mij,mi->mj", G, r)).ravel(),
-                                      minlength=3 * self.V)
-            H = 2.0 * np.einsum("mki,mkj->mij", G, G)[:, _I9, _J9]
-            vals = vals + np.bincount(self.data_slots[fr.vis].ravel(), weights=H.ravel(), minlength=len(vals))
-        rc, act, _ = self.compression(X)
+    def gradient(self, X, a, y, vis, matrix=False):
+        """Gradients ``(3V,)``, ``(J,)``; with ``matrix`` also the Gauss-Newton values of ``A`` and the border ``B``."""
+        Jz, z = lengths_and_angles_jacobian(X, self.topology, return_z=True)
+        rz = self._residual_z(z, a)
+        wr = self.w * rz
+        gX = 2.0 * self.gamma * (Jz.T @ wr)
+        ga = -2.0 * self.gamma * (self.U @ wr) + 2.0 * self.penalty * a
+        sub = self._sub(vis)
+        r = surface_points(X, self.faces, sub) - y[vis]
+        G, _ = surface_point_jacobians(X, self.faces, sub)
+        gX = gX + np.bincount(self.dofs[vis].ravel(), weights=(2.0 * self.wd * np.einsum("mij,mi->mj", G, r)).ravel(),
+                              minlength=3 * self.V)
+        if self.kappa and self.X_hat is not None:
+            gX = gX + (2.0 * self.kappa * self.wd * self.mass[:, None] * (X - self.X_hat)).ravel()
+        rc, act, _ = self._compression(X)
         if act.size:
-            g = self.compression_jacobian(X, act)                       # d ratio / dX, residual rho - ratio
-            dofs = self.face_dofs[act]
-            grad = grad + np.bincount(dofs.ravel(), weights=(-2.0 * self.w_c * rc[:, None] * g).ravel(),
-                                      minlength=3 * self.V)
-            H = 2.0 * self.w_c * (g[:, _I9] * g[:, _J9])
-            if self.face_slots is None:
-                self.face_slots = self._slots(self.face_dofs)
-            vals = vals + np.bincount(self.face_slots[act].ravel(), weights=H.ravel(), minlength=len(vals))
-        if fr.kappa:
-            grad = grad + 2.0 * fr.kappa * (X - fr.X_anchor).ravel()
-            vals = vals.copy()
-            vals[self.diag] += 2.0 * fr.kappa
-        return grad, vals, gn
+            gc = self._compression_jacobian(X, act)
+            gX = gX + np.bincount(self.face_dofs[act].ravel(), weights=(-2.0 * self.w_c * rc[:, None] * gc).ravel(),
+                                  minlength=3 * self.V)
+        if not matrix:
+            return gX, ga
+        obj = QuadraticObjective(z - rz, self.gamma * self.w, self.topology, self.pattern, buffer=self.buffer)
+        vals = QuadraticGNMatrix(obj, Jz, z, X)()
+        H = 2.0 * self.wd * np.einsum("mki,mkj->mij", G, G)[:, _I9, _J9]
+        vals = vals + np.bincount(self.data_slots[vis].ravel(), weights=H.ravel(), minlength=len(vals))
+        if act.size:
+            Hc = 2.0 * self.w_c * (gc[:, _I9] * gc[:, _J9])
+            vals = vals + np.bincount(self.face_slots[act].ravel(), weights=Hc.ravel(), minlength=len(vals))
+        extra = 1e-9 * float(np.mean(vals[self.diag]))             # rigid motions are free without markers
+        if self.kappa and self.X_hat is not None:
+            extra = extra + np.repeat(2.0 * self.kappa * self.wd * self.mass, 3)
+        vals = vals.copy()
+        vals[self.diag] += extra
+        B = -2.0 * self.gamma * np.asarray(Jz.T @ self.WU)
+        return gX, ga, vals, B
 
-    def z_step(self, X, fr):
-        """Exact minimizer over ``alpha`` for fixed ``X`` (4.22) (+ temporal term)."""
+    def factorize(self, X, a, y, vis):
+        """Gauss-Newton matrix at ``(X, a)``: sparse factor and Schur complement; returns the gradients."""
+        gX, ga, vals, B = self.gradient(X, a, y, vis, matrix=True)
+        if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(gX)) and np.all(np.isfinite(B))):
+            # e.g. markers so far from the mesh's scale that its lengths lose all precision (frame status -2)
+            raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
+        self.chol.factorize(vals)
+        if self.J:
+            self.Y = self.chol.solve(B)
+            S = self.C - B.T @ self.Y
+            self.B, self.S = B, np.linalg.cholesky(0.5 * (S + S.T))
+        self._factor_key = vis.tobytes()
+        return gX, ga
+
+    def step(self, gX, ga):
+        """Gauss-Newton step ``(dX (3V,), dalpha (J,))`` for the gradients with the current factorization."""
+        u = self.chol.solve(gX)
         if not self.J:
-            return np.zeros(0)
-        z = lengths_and_angles(X, self.topology, check=False)
-        lhs = self.gamma * self.UMU + self.tau * np.eye(self.J)
-        rhs = self.gamma * (self.WU.T @ (z - self.zbar)) + self.tau * fr.a_prev
-        return np.linalg.solve(lhs, rhs)
+            return -u, np.zeros(0)
+        da = np.linalg.solve(self.S.T, np.linalg.solve(self.S, self.B.T @ u - ga))
+        return -(u + self.Y @ da), da
 
+    def solve_frame(self, X, a, y, max_iterations=None):
+        """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``.
 
-@dataclass
-class _Frame:
-    x: np.ndarray
-    vis: np.ndarray
-    n_vis: int
-    a_prev: np.ndarray
-    X_anchor: np.ndarray
-    kappa: float
+        ``max_iterations`` overrides the options' bound (a cold start needs more steps).
+        """
+        o = self.options
+        limit = o.max_iterations if max_iterations is None else int(max_iterations)
+        vis = np.flatnonzero(np.isfinite(y[:, 0]))
+        E0 = self.energy(X, a, y, vis)[0]
+        tol = o.marker_tolerance * self.length
+        need, fresh = True, False
+        P0 = surface_points(X, self.faces, self._sub(vis))
+        it, status = 0, 1
+        while it < limit:
+            try:
+                if need:
+                    gX, ga = self.factorize(X, a, y, vis)
+                    need, fresh = False, True
+                else:
+                    gX, ga = self.gradient(X, a, y, vis)
+            except (NotPositiveDefiniteError, np.linalg.LinAlgError):
+                return X, a, -2, it, E0
+            dX, da = self.step(gX, ga)
+            slope = float(gX @ dX + ga @ da)
+            it += 1
+            t, Et = 1.0, None
+            if slope < 0:
+                while t >= 1.0 / 16:
+                    Xt, at = X + t * dX.reshape(-1, 3), a + t * da
+                    Et = self.energy(Xt, at, y, vis)[0]
+                    if np.isfinite(Et) and Et <= E0 + 1e-4 * t * slope:
+                        break
+                    t *= 0.5
+                    Et = None
+            if Et is None:
+                if fresh:                      # no decrease even with a fresh matrix: converged at this precision
+                    status = 0
+                    break
+                need = True
+                continue
+            dec = E0 - Et
+            X, a, E0, fresh = Xt, at, Et, False
+            need = True                        # full Gauss-Newton: a stale factor only adds failed steps
+            P1 = surface_points(X, self.faces, self._sub(vis))
+            move = float(np.sqrt(np.max(np.sum((P1 - P0) ** 2, 1)))) if len(vis) else 0.0
+            P0 = P1
+            if move <= tol and (it >= 2 or dec <= o.ftol * E0):
+                status = 0
+                break
+        return X, a, status, it, E0
 
 
 def _usable(x_vis):
-    """At least 3 visible markers that are not collinear (second singular value > 1e-3 of the first)."""
+    """At least 3 visible markers that are not collinear."""
     if len(x_vis) < 3:
         return False
     s = np.linalg.svd(x_vis - x_vis.mean(0), compute_uv=False)
     return bool(s[0] > 0 and s[1] > 1e-3 * s[0])
 
 
-def _line_search(prob, X, a, dX, da, E0, slope, fr, max_backtracks=30):
-    """Armijo backtracking; returns ``(t, X, a, E, parts)``."""
-    t = 1.0
-    for _ in range(max_backtracks):
-        Xt = X + t * dX.reshape(-1, 3)
-        at = a + t * da if da is not None else a
-        Et, d, p = prob.energy(Xt, at, fr)
-        if np.isfinite(Et) and Et <= E0 + 1e-4 * t * slope:
-            return t, Xt, at, Et, (d, p)
-        t *= 0.5
-    return 0.0, X, a, E0, None
-
-
-def _factorize(prob, grad, vals):
-    """Factorize the Gauss-Newton matrix; NotPositiveDefiniteError (frame status -2) also when it or the gradient
-    is not finite (e.g. markers so far from the mesh's scale that its lengths lose all precision)."""
-    if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(grad))):
-        raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
-    prob.chol.factorize(vals)
-
-
-def _joint_step(prob, X, a, fr):
-    """Gauss-Newton step of the joint problem in ``(X, alpha)`` by the bordered system (Schur complement).
-
-    Returns ``(dX (3V,), da (J,) or None, slope)`` with ``slope = g . d`` the
-    directional derivative of the energy along the step.
-    """
-    grad, vals, gn = prob.linearize(X, a, fr)
-    _factorize(prob, grad, vals)
-    if not prob.J:
-        dX = -prob.chol.solve(grad)
-        return dX, None, float(grad @ dX)
-    J = prob.J
-    rz = gn.z - (prob.zbar + a @ prob.U)
-    ga = -2.0 * prob.gamma * (prob.WU.T @ rz) + 2.0 * prob.tau * (a - fr.a_prev)
-    B = -2.0 * prob.gamma * np.asarray(gn.J.T @ prob.WU)                   # (3V, J), dense border
-    C = 2.0 * (prob.gamma * prob.UMU + prob.tau * np.eye(J))
-    Y = prob.chol.solve(np.column_stack([grad, B]))                         # A^-1 [g_X, B]: J + 1 solves
-    S = C - B.T @ Y[:, 1:]                                                  # Schur complement (J, J)
-    da = np.linalg.solve(S, B.T @ Y[:, 0] - ga)
-    dX = -(Y[:, 0] + Y[:, 1:] @ da)
-    return dX, da, float(grad @ dX + ga @ da)
-
-
-def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.0, alternating_iterations=3,
-                warm_alternating_iterations=1,
-                joint_iterations=5, n_modes=None, ftol=1e-3, xtol=1e-9, compression_ratio=0.25,
-                compression_weight=100.0, anchor_weight=1e-3,
-                initial_vertices=None, initial_coefficients=None, solver=None, prolongation=None, progress=None):
-    """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23)).
+def fit_markers(model, markers, binding, options=None, *, rate=None, initial_vertices=None,
+                initial_coefficients=None, prolongation=None, progress=None, **settings):
+    """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23), module docstring).
 
     Parameters
     ----------
-    model : lacore.models.shape_model.ShapeModel
-        The prior: mean ``zbar``, ``g``-orthonormal modes ``U`` (``J`` may be 0:
-        the mean-only prior), weights of ``W_q``, reference mesh (start, areas ``abar_f``).
+    model : lacore.models.ShapeModel
     markers : (T, M, 3) or (M, 3) array_like
-        Marker positions per frame; NaN where a marker is occluded.
+        Marker positions in the model's unit; NaN where occluded.
     binding : MarkerBinding
-        Surface point and normal offset of every marker on the model's mesh.
-    prior_weight : float
-        ``gamma`` > 0 of (4.23).  The data term is in squared length units of the
-        markers, ``W_q`` is scale-free (lengths weighted by ``1 / lbar^2``).
-    temporal_weight : float
-        ``tau >= 0``: penalty ``tau |alpha^t - alpha^{t-1}|^2`` on the change of
-        the model coefficients (``g``-norm of the change of ``z`` in the model's
-        subspace) from the previous frame; rigid-motion free, so the walk is not
-        damped.  0 (default): warm start only, as in the thesis.
-    alternating_iterations, warm_alternating_iterations : int
-        ``z``-step + ``X``-step rounds before the joint iteration in the first
-        frame and in warm-started (later) frames.
-        ``z``-step + ``X``-step rounds before the joint iteration.
-    joint_iterations : int
-        Maximal joint Gauss-Newton iterations per frame.
-    n_modes : int, optional
-        Use only the first ``n_modes`` modes of the model (0: the mean-only prior
-        ``W_q[Z[X], zbar]``); default all.
-    ftol, xtol : float
-        Stop the joint iteration when the relative energy decrease is below
-        ``ftol`` or the largest vertex move below ``xtol`` times the mesh size.
-    compression_ratio, compression_weight : float
-        Safeguard against degenerate triangles (see module notes): the penalty
-        ``compression_weight lbar^2 sum_f max(0, compression_ratio - a_f / abar_f)^2``
-        on faces compressed below ``compression_ratio`` of their area ``abar_f``
-        in the reference mesh (``lbar`` its mean edge length, so the term has the
-        data term's unit); ``compression_ratio=None`` disables it.
-    anchor_weight : float
-        ``kappa`` of the anchor term in frames with < 3 usable markers, relative
-        to ``gamma`` times the mean diagonal entry of the prior's Gauss-Newton matrix.
+    options : FitOptions, optional
+        Default :data:`FIT_DEFAULTS`.
+    **settings
+        Fields of :class:`FitOptions` overriding ``options`` (``prior_weight=0.5``...).
+    rate : float, optional
+        Frames per second (scales the temporal weight); default the options' ``reference_rate``.
     initial_vertices : (V, 3) array_like, optional
-        Start of frame 0 instead of the Kabsch-placed reference mesh.
+        Start of frame 0 (default: the reference mesh placed by a Kabsch fit).
     initial_coefficients : (J,) array_like, optional
-        ``alpha`` of the previous frame for frame 0 (temporal term), default 0.
-    solver : {"cholmod", "scipy"}, optional
-    prolongation : lacore.multiresolution.Prolongation or callable, optional
-        Prolong every fitted pose to the fine mesh the model's mesh was
-        coarsened from (module notes): a ``Prolongation`` (first key shape)
-        or ``f(coarse_vertices (V, 3), coefficients (J,)) -> (V_fine, 3)``.
+    prolongation : FineLevel, Prolongation or callable, optional
+        Also return every pose on the fine mesh.
     progress : callable, optional
         ``progress(done, total, message)`` per frame (:mod:`lacore.progress`).
 
@@ -529,132 +561,60 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
     -------
     MarkerFitResult
 
-    Raises
-    ------
-    MarkerBindingError
-        Binding out of range, marker bound to nothing, marker count mismatch.
-    MarkerDataError
-        Marker array of a wrong shape or with infinite values.
-    InputError
-        Bad weights.
+    Examples
+    --------
+    >>> res = fit_markers(model, markers, binding, FitOptions(prior_weight=1.0))    # doctest: +SKIP
+    >>> res.success, res.marker_rms                                                 # doctest: +SKIP
     """
     t_start = time.perf_counter()
+    options = fit_options(options, **settings)
     if not isinstance(binding, MarkerBinding):
         raise MarkerBindingError(f"binding must be a MarkerBinding, got {type(binding).__name__}")
     binding.check(model.faces)
     x_all = check_markers(markers, binding)
-    for name, v, lo in (("prior_weight", prior_weight, 0.0), ("temporal_weight", temporal_weight, 0.0)):
-        if not (np.isfinite(v) and v >= lo):
-            raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
-    if not prior_weight > 0:
-        raise InputError(f"prior_weight must be > 0, got {prior_weight!r}")
-    T, M = x_all.shape[:2]
-    if n_modes is not None and not (int(n_modes) == n_modes and 0 <= n_modes <= model.n_modes):
-        raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {n_modes!r}")
+    if options.n_modes is not None and not (int(options.n_modes) == options.n_modes
+                                            and 0 <= options.n_modes <= model.n_modes):
+        raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {options.n_modes!r}")
+    rate = options.reference_rate if rate is None else float(rate)
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"rate must be a positive number of frames per second, got {rate!r}")
     prolong = None if prolongation is None else as_fit_prolongation(prolongation)
-    prob = _Problem(model, binding, prior_weight, temporal_weight, compression_ratio, compression_weight,
-                    anchor_weight, solver, None if n_modes is None else int(n_modes))
-    V, J = prob.V, prob.J
-    size = float(np.linalg.norm(np.ptp(model.reference_vertices, axis=0)))
-
-    out_X = np.empty((T, V, 3))
-    out_a = np.zeros((T, J))
-    out_z = np.empty((T, 2 * prob.E))
-    status = np.zeros(T, np.int64)
-    iters = np.zeros((T, 2), np.int64)
-    energy = np.zeros((T, 3))
-    seconds = np.zeros(T)
-    timings = {"initialization": time.perf_counter() - t_start, "alternating": 0.0, "joint": 0.0,
-               "prolongation": 0.0}
-    regularized = []
-    out_fine = None
-
-    X = np.asarray(model.reference_vertices, float).copy() if initial_vertices is None else \
-        np.asarray(initial_vertices, float).copy()
+    kappa = options.temporal_weight * (rate / options.reference_rate) ** 2
+    solver = FrameSolver(model, binding, options, temporal=kappa)
+    T = x_all.shape[0]
+    V, J = solver.V, solver.J
+    X = np.asarray(model.reference_vertices if initial_vertices is None else initial_vertices, float).copy()
     if X.shape != (V, 3):
         raise InputError(f"initial_vertices must have shape ({V}, 3), got {X.shape}")
-    a = np.zeros(J) if initial_coefficients is None else np.asarray(initial_coefficients, float).reshape(J)
-    have_previous = initial_vertices is not None
+    a = np.zeros(J) if initial_coefficients is None else np.asarray(initial_coefficients, float).reshape(J).copy()
+    out_X, out_a = np.empty((T, V, 3)), np.zeros((T, J))
+    status, iters = np.zeros(T, np.int64), np.zeros(T, np.int64)
+    energy, seconds = np.zeros(T), np.zeros(T)
+    timings = {"initialization": time.perf_counter() - t_start, "frames": 0.0, "prolongation": 0.0}
+    out_fine = None
+    X_prev = a_prev = None
     for t in range(T):
         report(progress, t, T, f"frame {t + 1}/{T}")
         t0 = time.perf_counter()
-        x = x_all[t]
-        vis = np.flatnonzero(np.isfinite(x[:, 0]))
-        usable = _usable(x[vis])
-        # start: Kabsch fit of the current pose's marker points onto the visible markers
+        y = x_all[t]
+        vis = np.flatnonzero(np.isfinite(y[:, 0]))
+        Xs, as_ = (X, a) if X_prev is None else (2.0 * X - X_prev, 2.0 * a - a_prev)
+        usable = _usable(y[vis])
         if usable:
-            R, tr = rigid_fit(surface_points(X, prob.faces, binding)[vis], x[vis])
-            X = apply_rigid(X, R, tr)
-        elif t == 0 and not have_previous and len(vis):
-            X = X + (x[vis].mean(0) - surface_points(X, prob.faces, binding)[vis].mean(0))
-        if prob.prior_scale is None:
-            prob.linearize(X, a, _Frame(x, vis[:0], 0, a, X, 0.0))
-        kappa = 0.0 if usable else prob.anchor_weight * prob.gamma * prob.prior_scale
-        fr = _Frame(x, vis, len(vis), a.copy(), X.copy(), kappa)
-        if kappa:
-            regularized.append(t)
-        st = 0
-        # ------------------------------------------------ alternating
-        ta = time.perf_counter()
-        n_alt = 0
-        E_cur = prob.energy(X, a, fr)[0]
-        n_rounds = alternating_iterations if (t == 0 and not have_previous) else warm_alternating_iterations
-        for _ in range(int(n_rounds)):
-            a = prob.z_step(X, fr)
-            E_cur = prob.energy(X, a, fr)[0]
-            grad, vals, _ = prob.linearize(X, a, fr)
-            try:
-                _factorize(prob, grad, vals)
-            except NotPositiveDefiniteError:
-                st = -2
-                break
-            dX = -prob.chol.solve(grad)
-            step, X, a, E_new, _ = _line_search(prob, X, a, dX, None, E_cur, float(grad @ dX), fr)
-            n_alt += 1
-            if step == 0.0:
-                break
-            E_cur = E_new
-        timings["alternating"] += time.perf_counter() - ta
-        # ------------------------------------------------ joint
-        tj = time.perf_counter()
-        n_joint = 0
-        converged = False
-        if st == 0:
-            if J:
-                a_opt = prob.z_step(X, fr)  # exact in alpha for the current X: a better joint start
-                E_opt = prob.energy(X, a_opt, fr)[0]
-                if E_opt <= E_cur:
-                    a, E_cur = a_opt, E_opt
-            for _ in range(int(joint_iterations)):
-                try:
-                    dX, da, slope = _joint_step(prob, X, a, fr)
-                except NotPositiveDefiniteError:
-                    st = -2
-                    break
-                if prob.chol.shift and t not in regularized:
-                    regularized.append(t)
-                n_joint += 1
-                if slope >= 0:
-                    converged = True
-                    break
-                step, X, a, E_new, _ = _line_search(prob, X, a, dX, da, E_cur, slope, fr)
-                if step == 0.0:
-                    converged = True  # no decrease left at this precision
-                    break
-                dec = E_cur - E_new
-                E_cur = E_new
-                if dec <= ftol * max(E_cur, 1e-300) or step * np.abs(dX).max() <= xtol * size:
-                    converged = True
-                    break
-        timings["joint"] += time.perf_counter() - tj
-        if st == 0:
-            st = 2 if not usable else (0 if converged else 1)
-        status[t] = st
-        iters[t] = (n_alt, n_joint)
-        out_X[t] = X
-        out_a[t] = a
-        out_z[t] = lengths_and_angles(X, prob.topology, check=False)
-        energy[t] = prob.energy(X, a, fr)
+            R, tr = rigid_fit(surface_points(Xs, solver.faces, solver._sub(vis)), y[vis])
+            Xs = apply_rigid(Xs, R, tr)
+        elif t == 0 and len(vis) and initial_vertices is None:
+            Xs = Xs + (y[vis].mean(0) - surface_points(Xs, solver.faces, solver._sub(vis)).mean(0))
+        solver.X_hat = Xs if (X_prev is not None or not usable) else None
+        solver.kappa = kappa if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
+        cold = t == 0 and initial_vertices is None        # from the rest pose: a longer way to go
+        Xn, an, st, it, E = solver.solve_frame(Xs, as_, y, options.max_iterations * (COLD_START_FACTOR if cold else 1))
+        if st >= 0 and not usable:
+            st = 2
+        X_prev, a_prev = (X, a) if t > 0 else (None, None)
+        X, a = Xn, an
+        out_X[t], out_a[t], status[t], iters[t], energy[t] = X, a, st, it, E
+        timings["frames"] += time.perf_counter() - t0
         if prolong is not None:
             tp = time.perf_counter()
             fine = np.asarray(prolong(X, a), float)
@@ -666,23 +626,38 @@ def fit_markers(model, markers, binding, *, prior_weight=1.0, temporal_weight=0.
             timings["prolongation"] += time.perf_counter() - tp
         seconds[t] = time.perf_counter() - t0
     report(progress, T, T, "done")
-
-    P = surface_points(out_X, prob.faces, binding)
-    res = np.linalg.norm(P - x_all, axis=2)                  # NaN where occluded
-    n_vis = np.isfinite(res).sum(1)
-    frame_rms = np.full(T, np.nan)
-    frame_rms[n_vis > 0] = np.sqrt(np.nansum(res ** 2, axis=1)[n_vis > 0] / n_vis[n_vis > 0])
-    finite = np.isfinite(res)
-    marker_rms = float(np.sqrt(np.mean(res[finite] ** 2))) if finite.any() else float("nan")
+    P = surface_points(out_X, solver.faces, binding)
+    resid = P - x_all
+    dist = np.linalg.norm(resid, axis=2)
+    stats = marker_statistics(dist)
     worst = max(status.tolist(), key=lambda s: _SEVERITY[s]) if T else 0
-    counts = {s: int(np.sum(status == s)) for s in np.unique(status)}
-    message = "; ".join(f"{n} frame{'s' if n != 1 else ''}: {FRAME_STATUS[int(s)]}" for s, n in counts.items())
+    counts = {int(s): int(np.sum(status == s)) for s in np.unique(status)}
+    message = "; ".join(f"{n} frame{'s' if n != 1 else ''}: {FRAME_STATUS[s]}" for s, n in counts.items())
+    fitted = bool(np.any(status == 0))
     timings["total"] = time.perf_counter() - t_start
     return MarkerFitResult(
-        vertices=out_X, coefficients=out_a, z=out_z, marker_residuals=res, frame_rms=frame_rms,
-        marker_rms=marker_rms, frame_energy=energy[:, 0], frame_data=energy[:, 1], frame_prior=energy[:, 2],
+        vertices=out_X, coefficients=out_a, marker_residuals=resid, marker_distances=dist,
+        frame_rms=stats["frame_rms"], frame_p95=stats["frame_p95"], marker_rms=stats["marker_rms"],
         frame_status=status, frame_messages=[FRAME_STATUS[int(s)] for s in status], frame_iterations=iters,
-        frame_seconds=seconds, visible=np.isfinite(x_all[:, :, 0]).sum(1), success=bool(np.all(status >= 0)),
-        status=int(worst), message=message, iterations=int(iters.sum()), timings=timings,
-        prior_weight=float(prior_weight), temporal_weight=float(temporal_weight), regularized_frames=regularized,
-        fine_vertices=out_fine)
+        frame_seconds=seconds, frame_energy=energy, visible=np.isfinite(x_all[:, :, 0]).sum(1),
+        success=bool(fitted and np.all((status == 0) | (status == 2))),
+        status=int(worst), message=message if (fitted or message) else "no frame was fitted to markers",
+        iterations=int(iters.sum()), timings=timings,
+        prior_weight=float(options.prior_weight), temporal_weight=float(options.temporal_weight),
+        fine_vertices=out_fine, regularized_frames=[int(t) for t in np.flatnonzero(status == 2)],
+        topology=model.topology)
+
+
+def marker_statistics(distances):
+    """Per-frame RMS and 95th percentile of marker distances ``(T, M)`` (NaN = occluded) and the overall RMS."""
+    d = np.asarray(distances, float)
+    n = np.isfinite(d).sum(1)
+    rms = np.full(len(d), np.nan)
+    p95 = np.full(len(d), np.nan)
+    have = n > 0
+    if have.any():
+        rms[have] = np.sqrt(np.nansum(d[have] ** 2, axis=1) / n[have])
+        p95[have] = np.nanpercentile(d[have], 95, axis=1)
+    finite = np.isfinite(d)
+    overall = float(np.sqrt(np.mean(d[finite] ** 2))) if finite.any() else float("nan")
+    return {"frame_rms": rms, "frame_p95": p95, "marker_rms": overall}

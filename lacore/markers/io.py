@@ -42,10 +42,14 @@ from ..io.atomic import atomic_write
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
            "write_trc", "unit_scale", "resample", "sample_frames", "visibility_keys", "read_marker_arrays",
-           "MODEL_OUTPUT_GROUPS", "UNIT_SCALES"]
+           "MODEL_OUTPUT_GROUPS", "UNIT_SCALES", "NON_MARKER_GROUPS", "drop_non_markers", "read_take",
+           "select_markers"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
+#: POINT parameters listing points that are not markers (besides the groups POINT:TYPE_GROUPS names).
+NON_MARKER_GROUPS = MODEL_OUTPUT_GROUPS + ("REACTIONS", "MODELED_MARKERS", "MODELLED_MARKERS", "VIRTUAL_MARKERS",
+                                           "CALCULATED_MARKERS")
 
 #: Length units (lower case) and their size in metres.
 UNIT_SCALES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "um": 1e-6, "\u00b5m": 1e-6,
@@ -89,6 +93,16 @@ class MarkerTake:
     residuals : (T, M) float64 ndarray or None
         Per-sample residual (reconstruction error estimate) in metres, ``NaN``
         where invalid; ``None`` if the format has none (TRC).
+    descriptions : (M,) tuple of str
+        Point descriptions (C3D ``POINT:DESCRIPTIONS``; empty strings if none).
+    point_groups : dict
+        ``{label: group}`` for labels the file lists in a POINT group of
+        non-markers (``POINT:TYPE_GROUPS``, ``MODELED_MARKERS``, ...; see
+        :data:`NON_MARKER_GROUPS`).
+    up_axis : str or None
+        The vertical axis the file declares (C3D ``POINT:Y_SCREEN``, e.g. ``"+z"``).
+    dropped : tuple of (str, str)
+        ``(label, reason)`` of the points :func:`drop_non_markers` removed.
     """
 
     labels: tuple
@@ -98,6 +112,10 @@ class MarkerTake:
     units: str = "m"
     source: str = ""
     residuals: np.ndarray = field(default=None)
+    descriptions: tuple = None
+    point_groups: dict = None
+    up_axis: str = None
+    dropped: tuple = ()
 
     def __post_init__(self):
         labels = tuple(str(s) for s in self.labels)
@@ -124,6 +142,12 @@ class MarkerTake:
         object.__setattr__(self, "rate", float(self.rate))
         object.__setattr__(self, "first_frame", int(self.first_frame))
         object.__setattr__(self, "residuals", res)
+        desc = ("",) * len(labels) if self.descriptions is None else tuple(str(d) for d in self.descriptions)
+        if len(desc) != len(labels):
+            raise MarkerError(f"{what}: {len(desc)} descriptions for {len(labels)} markers")
+        object.__setattr__(self, "descriptions", desc)
+        object.__setattr__(self, "point_groups", dict(self.point_groups or {}))
+        object.__setattr__(self, "dropped", tuple((str(a), str(b)) for a, b in self.dropped))
 
     @property
     def n_frames(self):
@@ -452,6 +476,16 @@ def _read_c3d_bytes(data, path, units):
 
     labels = _c3d_strings(reader, "LABELS")[:used]
     labels += [""] * (used - len(labels))
+    descriptions = _c3d_strings(reader, "DESCRIPTIONS")[:used]
+    descriptions += [""] * (used - len(descriptions))
+    groups = {}
+    for group in dict.fromkeys(NON_MARKER_GROUPS + tuple(g.upper() for g in _c3d_strings(reader, "TYPE_GROUPS"))):
+        for s in _c3d_strings(reader, group):
+            if s:
+                groups.setdefault(s, group)
+    screen = reader.get("POINT:Y_SCREEN")
+    up_axis = screen.string_value.strip().lower() if screen is not None and screen.dimensions else None
+    up_axis = up_axis if up_axis in ("+x", "-x", "+y", "-y", "+z", "-z") else None
     model_outputs = set()
     for group in MODEL_OUTPUT_GROUPS:
         model_outputs.update(s for s in _c3d_strings(reader, group) if s)
@@ -460,8 +494,11 @@ def _read_c3d_bytes(data, path, units):
         raise MarkerFileError(f"{path}: all {used} points are model outputs (POINT:{'/'.join(MODEL_OUTPUT_GROUPS)}),"
                               " no markers")
     labels = _unique_labels([s for s, k in zip(labels, keep, strict=True) if k])
+    descriptions = [d for d, k in zip(descriptions, keep, strict=True) if k]
+    point_groups = {lab: groups[lab.split("#")[0]] for lab in labels if lab.split("#")[0] in groups}
     return MarkerTake(labels=labels, positions=positions[:, keep], rate=rate, first_frame=first,
-                      units=units if units is not None else file_units, source=path, residuals=residuals[:, keep])
+                      units=units if units is not None else file_units, source=path, residuals=residuals[:, keep],
+                      descriptions=descriptions, point_groups=point_groups, up_axis=up_axis)
 
 
 def write_c3d(path, take, units="mm", integer=False):
@@ -602,6 +639,95 @@ def write_trc(path, take, units="mm"):
     body = ("\n".join(lines) + "\n" + data).encode()
     _atomic_write(str(path), lambda fh: fh.write(body))
 
+
+
+# ----------------------------------------------------------------------------- points that are not markers
+_VIRTUAL_DESCRIPTION = ("v_", "virtual")
+_AXIS_SUFFIXES = ("O", "A", "L", "P")
+
+
+def select_markers(take, keep, dropped=()):
+    """The take restricted to the markers ``keep`` ((M,) bool or indices), with ``dropped`` notes appended."""
+    idx = np.flatnonzero(np.asarray(keep, bool)) if np.asarray(keep).dtype == bool else np.asarray(keep, np.int64)
+    return MarkerTake(labels=[take.labels[i] for i in idx], positions=take.positions[:, idx], rate=take.rate,
+                      first_frame=take.first_frame, units=take.units, source=take.source,
+                      residuals=None if take.residuals is None else take.residuals[:, idx],
+                      descriptions=[take.descriptions[i] for i in idx],
+                      point_groups={take.labels[i]: take.point_groups[take.labels[i]] for i in idx
+                                    if take.labels[i] in take.point_groups},
+                      up_axis=take.up_axis, dropped=tuple(take.dropped) + tuple(dropped))
+
+
+def drop_non_markers(take, rigid_tolerance=1e-6):
+    """The take without the points that are not skin markers; every drop noted in ``take.dropped``.
+
+    Rules, in this order (the first that applies names the reason):
+
+    1. the label is listed in a POINT group of non-markers (``POINT:TYPE_GROUPS``
+       and :data:`NON_MARKER_GROUPS`: model outputs, modelled and virtual
+       markers); a repeated label ``X#2`` counts as ``X``;
+    2. its description starts with ``V_`` or ``Virtual`` (virtual points);
+    3. it is never visible;
+    4. it is one of four labels ``P + O, A, L, P`` (origin and axes of a model's
+       segment frame, as biomechanical models export them);
+    5. it is rigid to two other points that are rigid to each other, to
+       ``rigid_tolerance`` times the take's size (standard deviation of the
+       distances over the take): a computed point.  Real markers move against
+       each other by at least their noise (>= 0.03 mm in the shared takes,
+       computed points <= 1e-5 mm).
+
+    Returns
+    -------
+    MarkerTake
+        With ``dropped`` extended by ``(label, reason)`` pairs.
+    """
+    M = take.n_markers
+    notes = {}
+    for m, lab in enumerate(take.labels):
+        group = take.point_groups.get(lab)
+        if group is not None:
+            notes[lab] = f"listed in POINT:{group}: not a marker"
+        elif take.descriptions[m].strip().lower().startswith(_VIRTUAL_DESCRIPTION):
+            notes[lab] = f"virtual point (description {take.descriptions[m]!r})"
+    vis = take.visible
+    for m, lab in enumerate(take.labels):
+        if lab not in notes and not vis[:, m].any():
+            notes[lab] = "never visible"
+    labset = set(take.labels)
+    for lab in take.labels:
+        if lab.endswith("O") and len(lab) > 1:
+            quad = [lab[:-1] + s for s in _AXIS_SUFFIXES]
+            if all(q in labset for q in quad):
+                for q in quad:
+                    notes.setdefault(q, f"segment frame of a model ({lab[:-1]}O/A/L/P): not a marker")
+    rest = [m for m in range(M) if take.labels[m] not in notes]
+    if len(rest) >= 3:
+        x = take.positions[:, rest]
+        finite = np.isfinite(x[..., 0])
+        size = float(np.nanmax(np.abs(x))) if finite.any() else 1.0
+        rig = np.zeros((len(rest), len(rest)), bool)
+        for i in range(len(rest)):
+            d = np.linalg.norm(x[:, i:i + 1] - x, axis=2)              # (T, n) NaN where either is occluded
+            n = np.isfinite(d).sum(0)
+            with np.errstate(invalid="ignore"):
+                mean = np.where(n > 0, np.nansum(d, 0) / np.maximum(n, 1), 0.0)
+                sd = np.sqrt(np.where(n > 0, np.nansum((d - mean) ** 2, 0) / np.maximum(n, 1), np.inf))
+            rig[i] = (n >= 3) & (sd <= rigid_tolerance * size)
+        np.fill_diagonal(rig, False)
+        for i in range(len(rest)):
+            nb = np.flatnonzero(rig[i])
+            if any(rig[b, c] for j, b in enumerate(nb) for c in nb[j + 1:]):
+                notes.setdefault(take.labels[rest[i]], "rigid to two other points to rounding error: computed")
+    keep = np.array([lab not in notes for lab in take.labels], bool)
+    if not keep.any():
+        raise MarkerError(f"{take.source or 'marker take'}: no markers left after dropping {M} points that are not "
+                          "markers (model outputs, virtual or never visible points)")
+    return select_markers(take, keep, [(lab, notes[lab]) for lab in take.labels if lab in notes])
+
+
+def read_take(path, units=None):
+    """:func:`read_markers` followed by :func:`drop_non_markers`: the skin markers of a file, drops noted."""
+    return drop_non_markers(read_markers(path, units=units))
 
 
 # ----------------------------------------------------------------------------- marker arrays (.npz)

@@ -16,7 +16,10 @@ the same rows, so a new entry of the file is one new row:
   field of its :class:`~lacore.reconstruction.ReconstructionSettings`),
   ``"topology"`` (faces and edges, which make the mesh topology) or
   ``"derived"`` (written for other readers, recomputed by the model and compared
-  on load).
+  on load);
+* ``kind="record"`` rows are composite records (:data:`RECORDS`: a class with
+  ``to_arrays()`` and ``from_arrays(arrays)``, e.g. the fine level, keys
+  ``fine_*``), written and read by their class.
 """
 
 import os
@@ -39,7 +42,9 @@ FORMAT = "lacore.shape_model"
 #: Other ``format`` values read as :data:`FORMAT`.
 FORMAT_ALIASES = ("lacore.models.shape_model",)
 #: Version of the layout written by :func:`save_model`; :func:`load_model` reads versions 1 to this one.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Directions accepted for ``up_axis`` and ``forward_axis``.
+AXES = ("x", "y", "z", "-x", "-y", "-z", "+x", "+y", "+z")
 
 _REQUIRED = object()
 
@@ -52,8 +57,8 @@ class Field:
     ----------
     name : str
         Key in the ``.npz`` and attribute of the model.
-    kind : {"float", "int", "str", "scalar"}
-        Float array, integer array, string, or float number.
+    kind : {"float", "int", "str", "scalar", "record"}
+        Float array, integer array, string, float number, or a record of :data:`RECORDS`.
     shape : tuple or None
         Axes as symbols or numbers (arrays only); ``None``: any 1-D array.
     choices : tuple or None
@@ -101,7 +106,20 @@ FIELDS = (
     Field("tangent", "str", choices=TANGENTS),
     Field("projection_metric", "str", choices=PROJECTION_METRICS),
     Field("method", "str", choices=METHODS),
+    Field("length_unit", "scalar", since=2, default=None),
+    Field("up_axis", "str", choices=AXES, since=2, default=None),
+    Field("forward_axis", "str", choices=AXES, since=2, default=None),
+    Field("fine_level", "record", since=2, default=None),
 )
+
+
+def _records():
+    from .fine_level import FineLevel
+    return {"fine_level": (FineLevel, "fine_")}
+
+
+#: Composite rows: name -> (class, key prefix); filled on first use (import order).
+RECORDS = {}
 
 
 def _encode(field, value):
@@ -132,8 +150,12 @@ def save_model(model, path):
     """
     data = {"format": np.array(FORMAT), "format_version": np.array(FORMAT_VERSION)}
     for field in FIELDS:
-        value = getattr(model, field.name)
-        if value is not None:
+        value = getattr(model, field.name, None)
+        if value is None:
+            continue
+        if field.kind == "record":
+            data.update(value.to_arrays())
+        else:
             data[field.name] = _encode(field, value)
     if not isinstance(path, (str, os.PathLike)):  # a binary file object
         np.savez(path, **data)
@@ -164,10 +186,18 @@ def _read(path, name):
             raise ShapeModelError(f"{name} has shape-model format version {version.tolist()!r}; this lacore reads "
                                   f"{known}")
         version = int(version)
-        missing = [f.name for f in FIELDS if f.name not in keys and not f.optional_in(version)]
+        missing = [f.name for f in FIELDS if f.name not in keys and f.kind != "record" and not f.optional_in(version)]
         if missing:
             raise ShapeModelError(f"{name} is a corrupt shape model: missing {', '.join(missing)}")
-        return version, {f.name: read(f.name) for f in FIELDS if f.name in keys}
+        raw = {f.name: read(f.name) for f in FIELDS if f.name in keys and f.kind != "record"}
+        RECORDS.update(RECORDS or _records())
+        for field in FIELDS:
+            if field.kind == "record":
+                prefix = RECORDS[field.name][1]
+                sub = {k: read(k) for k in keys if k.startswith(prefix)}
+                if sub:
+                    raw[field.name] = sub
+        return version, raw
 
 
 def _decode(field, raw, dims, name):
@@ -201,6 +231,15 @@ def _decode(field, raw, dims, name):
     if not np.all(np.isfinite(raw)):
         raise corrupt("has NaN or infinite entries")
     return raw.astype(float)
+
+
+def _decode_record(field, arrays, name):
+    """A composite entry (:data:`RECORDS`) from its ``prefix*`` arrays; ShapeModelError naming the file if corrupt."""
+    cls = RECORDS[field.name][0]
+    try:
+        return cls.from_arrays(arrays)
+    except (InputError, MeshError, ValueError, KeyError, TypeError) as exc:
+        raise ShapeModelError(f"{name} is a corrupt shape model: its {field.name.replace('_', ' ')}: {exc}") from None
 
 
 def _check_values(values, name):
@@ -253,6 +292,9 @@ def load_model(path, cls, faces=None):
         if field.name not in raw:
             values[field.name] = field.default
             continue
+        if field.kind == "record":
+            values[field.name] = _decode_record(field, raw[field.name], name)
+            continue
         values[field.name] = _decode(field, raw[field.name], dims, name)
         if "E" in dims:
             dims.setdefault("2E", 2 * dims["E"])
@@ -276,6 +318,11 @@ def load_model(path, cls, faces=None):
                 getattr(model, field.name), values[field.name], rtol=1e-12, atol=0):
             raise ShapeModelError(f"{name} is a corrupt shape model: its {field.name} do not match its reference "
                                   "mesh")
+    fine = model.fine_level
+    if fine is not None and (fine.coarsening.n_vertices != len(model.reference_vertices)
+                             or fine.key_coefficients.shape[1] != model.n_modes):
+        raise ShapeModelError(f"{name} is a corrupt shape model: its fine level does not match its "
+                              f"{len(model.reference_vertices)} vertices and {model.n_modes} modes")
     if faces is not None:
         model.check_mesh(faces=faces)
     return model

@@ -146,7 +146,8 @@ class ShapeModel:
 
     def __init__(self, *, topology, reference_vertices, mean_z, mean_vertices, linear_mean_z, modes, variances,
                  explained_variance_ratio, total_variance, training_coefficients, tangent, projection_metric,
-                 settings, method, timings=None, mean_result=None, all_eigenvalues=None, projector=None):
+                 settings, method, timings=None, mean_result=None, all_eigenvalues=None, projector=None,
+                 fine_level=None, length_unit=None, up_axis=None, forward_axis=None):
         if settings.energy != "quadratic":
             raise ShapeModelError(f"a shape model's metric is the Hessian of W_q: settings.energy must be "
                                   f"'quadratic', got {settings.energy!r}")
@@ -170,6 +171,13 @@ class ShapeModel:
         self.mean_result = mean_result
         self.all_eigenvalues = all_eigenvalues
         self._projector = projector
+        #: Optional :class:`lacore.models.FineLevel`: prolongation of poses to the fine mesh.
+        self.fine_level = fine_level
+        #: Optional length of one model unit in metres (e.g. 0.1 for decimetres); None if not declared.
+        self.length_unit = None if length_unit is None else float(length_unit)
+        #: Optional up and forward axes of the reference mesh (``"x"``, ``"-y"``...); None if not declared.
+        self.up_axis = up_axis
+        self.forward_axis = forward_axis
 
     # ------------------------------------------------------------------ properties
     @property

@@ -154,6 +154,18 @@ class Prolongation:
             seg = np.r_[0, np.cumsum(sizes)]
             self._level_data.append((ks, c.collapse_sources[ks], c.collapse_targets[ks], pairs[idx], seg, sizes))
 
+    @classmethod
+    def from_local_coordinates(cls, coarsening, alpha):
+        """A prolongation from stored local coordinates ``alpha (N, K, 3)`` (see :attr:`alpha`), no key shapes."""
+        c = coarsening
+        alpha = np.asarray(alpha, dtype=float)
+        K = len(c.collapse_sources)
+        if alpha.ndim != 3 or alpha.shape[1:] != (K, 3):
+            raise MeshError(f"local coordinates must be (N, {K}, 3) for {K} collapses, got {alpha.shape}")
+        obj = cls(c, np.zeros((1, c.n_fine_vertices, 3)))
+        obj.alpha = alpha
+        return obj
+
     @staticmethod
     def _frames(X, v, pr, seg, sizes):
         """Centres (k,3) and frames (k,3,3) (rows t1, t2, n) of the rings of one level."""

@@ -42,7 +42,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_data_dir", "JOINT_DOFS", "LIMBS",
+__all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_model", "human_data_dir",
+           "JOINT_DOFS", "LIMBS",
            "N_BODY_VERTICES"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
@@ -453,6 +454,40 @@ def coarse_human_coarsening(path=None):
         raise MeshError(f"{f} was made from another base mesh than {human_data_dir(path) / 'base.obj'}: "
                         "run scripts/make_coarse_human.py")
     return c
+
+
+def human_model(n_poses=30, seed=0, path=None):
+    """A shape model of the coarse body trained on ``n_poses`` random poses, carrying its fine level.
+
+    The model (:class:`lacore.models.ShapeModel`, ambient tangent, rest pose as
+    reference) declares its unit (decimetres: ``length_unit = 0.1``) and axes (``+y``
+    up, ``+z`` forward) and holds a :class:`lacore.models.FineLevel` (the stored
+    coarsening, the rest pose and the training poses as keys), so
+    :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds;
+    cached per process (treat the result as read-only).
+
+    Examples
+    --------
+    >>> from lacore.samples.human import human_model
+    >>> model = human_model(n_poses=30)                 # doctest: +SKIP
+    >>> model.length_unit, model.up_axis, model.fine_level.n_fine_vertices  # doctest: +SKIP
+    (0.1, 'y', 13380)
+    """
+    return _human_model(int(n_poses), int(seed), None if path is None else str(path))
+
+
+@functools.lru_cache(maxsize=2)
+def _human_model(n_poses, seed, path):
+    from ..models import FineLevel, ShapeModel
+
+    full = load_human(path)
+    coarse = load_human(path, coarse=True)
+    c = coarse_human_coarsening(path)
+    fine_poses, _ = full.random_poses(n_poses, seed=seed)
+    model = ShapeModel.fit(fine_poses[:, c.vertex_indices], coarse.faces, reference_vertices=coarse.vertices)
+    model.fine_level = FineLevel.build(c, full.vertices, fine_poses, model.training_coefficients)
+    model.length_unit, model.up_axis, model.forward_axis = 0.1, "y", "z"
+    return model
 
 
 def load_human(path=None, coarse=False):
