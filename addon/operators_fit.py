@@ -58,8 +58,10 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from ..lacore.errors import InputError
 from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
-from ..lacore.markers.fitting import fit_markers
+from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers
+from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
+from ..lacore.multiresolution import coarsen
 from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels, id_fcurves
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
@@ -79,6 +81,11 @@ FIT_PROP = "lengths_angles_fit"
 #: The keyed float property of the fitted object holding the per-frame marker RMS in mm (a curve to look at).
 RMS_PROP = "LA marker RMS"
 MAX_MODES = 32
+#: Auto coarse level of Build Model: meshes of more than twice as many vertices get a model on a coarse mesh of
+#: this many vertices (the fit runs there and is prolonged: the coarse CC0 body's size).
+COARSE_MODEL_VERTICES = 2500
+#: The Fit operators' prior weight default: lacore's (a number; "auto" is Calibrate & Fit's option).
+_DEFAULT_PRIOR = 1.0 if isinstance(FIT_DEFAULTS.prior_weight, str) else float(FIT_DEFAULTS.prior_weight)
 MAX_SHAPE_KEY_FRAMES = 100
 
 
@@ -101,8 +108,21 @@ def _prop_state(object_name, prop, on_mesh):
 
 
 # ---------------------------------------------------------------------------------------------- model
-def _model_inputs(obj, keys=None, n_modes=None):
-    """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes)``."""
+def coarse_vertices_for(n_vertices, requested=-1):
+    """Vertices of the coarse level a model of a mesh of ``n_vertices`` is built on (0: none, the mesh itself).
+
+    ``requested`` > 0 as given (if it coarsens), 0 none, -1 (Auto) :data:`COARSE_MODEL_VERTICES` for meshes of
+    more than twice as many vertices.
+    """
+    requested = int(requested)
+    if requested < 0:
+        requested = COARSE_MODEL_VERTICES if n_vertices > 2 * COARSE_MODEL_VERTICES else 0
+    return requested if 0 < requested < n_vertices else 0
+
+
+def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
+    """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes,
+    coarse)`` (``coarse``: vertices of the coarse level, 0 for none; :func:`coarse_vertices_for`)."""
     mesh = require_mesh_object(obj)
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
@@ -118,20 +138,59 @@ def _model_inputs(obj, keys=None, n_modes=None):
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
     return {"names": names, "keys": list(keys), "poses": coords[[names.index(k) for k in keys]],
-            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes}
+            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes,
+            "coarse": coarse_vertices_for(len(mesh.vertices), coarse_vertices)}
 
 
 def _build_model(inputs, progress):
-    """lacore's :meth:`ShapeModel.fit` on :func:`_model_inputs` (any thread)."""
-    return ShapeModel.fit(inputs["poses"], inputs["faces"], reference_vertices=inputs["reference"],
-                          n_modes=inputs["n_modes"], progress=progress)
+    """lacore's :meth:`ShapeModel.fit` on :func:`_model_inputs` (any thread): on the mesh, or on a coarse level
+    (:func:`lacore.multiresolution.coarsen` of the reference and the training poses) carrying its
+    :class:`lacore.models.FineLevel`, so fits run on the coarse mesh and are prolonged to this one."""
+    poses, faces, reference = inputs["poses"], inputs["faces"], inputs["reference"]
+    if not inputs["coarse"]:
+        return ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=inputs["n_modes"],
+                              progress=progress)
+    half = staged_progress(progress, 2)
+    c = coarsen(np.concatenate([reference[None], poses]), faces, inputs["coarse"], progress=half(0))
+    model = ShapeModel.fit(poses[:, c.vertex_indices], c.faces, reference_vertices=reference[c.vertex_indices],
+                           n_modes=inputs["n_modes"], progress=half(1))
+    model.fine_level = FineLevel.build(c, reference, poses, model.training_coefficients)
+    return model
 
 
-def model_run(obj, keys=None, n_modes=None):
+def staged_progress(progress, stages, scale=1000):
+    """``stage -> progress callback`` mapping stage ``stage``'s ``(done, total)`` onto
+    ``stage * scale + scale * done / total`` of ``stages * scale`` (one bar for several lacore calls)."""
+    def stage(i):
+        def report(done, total, message=""):
+            if progress is None:
+                return False
+            return progress(i * scale + int(scale * min(done, total) / max(total, 1)), stages * scale, message)
+        return report
+    return stage
+
+
+def model_vertices(model, coefficients):
+    """Vertices of the model's pose with ``coefficients`` on the mesh it was built from (prolonged from the
+    coarse level when there is one)."""
+    X = model.synthesize(coefficients)
+    fine = getattr(model, "fine_level", None)
+    return X if fine is None else fine(X, coefficients)
+
+
+def model_mesh_vertices(model, X):
+    """The model's vertices of a pose ``X`` of the mesh it was built from (the coarse level's, if any)."""
+    fine = getattr(model, "fine_level", None)
+    return X if fine is None else X[fine.coarsening.vertex_indices]
+
+
+def model_run(obj, keys=None, n_modes=None, coarse_vertices=-1):
     """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
-    the basis and the add-on's own keys) and storing it (validated; raises InputError subclasses)."""
-    inputs = _model_inputs(obj, keys, n_modes)
-    job = CallJob(lambda progress: _build_model(inputs, progress), "shape model", total=4)
+    the basis and the add-on's own keys), on a coarse level for large meshes (:func:`coarse_vertices_for`), and
+    storing it (validated; raises InputError subclasses)."""
+    inputs = _model_inputs(obj, keys, n_modes, coarse_vertices)
+    job = CallJob(lambda progress: _build_model(inputs, progress), "shape model",
+                  total=2000 if inputs["coarse"] else 4)
     keys = inputs["keys"]
 
     def write(obj, job):
@@ -188,7 +247,9 @@ def read_model(obj):
         _MODEL_CACHE.clear()
         _MODEL_CACHE[key] = model
     faces = triangulate(mesh).faces
-    if len(mesh.vertices) != int(meta["n_vertices"]) or not np.array_equal(faces, model.faces):
+    fine = getattr(model, "fine_level", None)
+    if len(mesh.vertices) != int(meta["n_vertices"]) or not np.array_equal(
+            faces, model.faces if fine is None else fine.fine_faces):
         raise FitSetupError(f"mesh '{mesh.name}' was edited after its model was built ({len(mesh.vertices)} vertices "
                             f"now, {int(meta['n_vertices'])} then, or other faces): build the model again")
     return model
@@ -219,7 +280,7 @@ def preview_pose(obj):
     """Write the mode sliders' pose (``ShapeModel.synthesize``) into the shape key :data:`PREVIEW_KEY` (at 1)."""
     model = read_model(obj)
     w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-    X = model.synthesize(w * model.standard_deviations)
+    X = model_vertices(model, w * model.standard_deviations)
     if obj.data.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
     kb = obj.data.shape_keys.key_blocks.get(PREVIEW_KEY) or obj.shape_key_add(name=PREVIEW_KEY, from_mix=False)
@@ -334,7 +395,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     world = world[seen]
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     local = world @ inv[:3, :3].T + inv[:3, 3]
-    X = _mesh_vertices(obj, context.evaluated_depsgraph_get())
+    X = model_mesh_vertices(model, _mesh_vertices(obj, context.evaluated_depsgraph_get()))
     faces = model.faces
     iterations = 100
     job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
@@ -434,21 +495,26 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
             "frames": frames, "filepath": filepath, "path": path, "labels": labels}
 
 
-def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0, temporal_weight=0.0, filepath=""):
+def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=None, temporal_weight=None, filepath=""):
     """A :class:`.runs.Run` fitting the shape model to the bound markers over the frame range and writing the
     PC2 + Mesh Cache modifier or the shape keys (validated; raises InputError subclasses)."""
     inputs = fit_inputs(context, obj, frame_start, frame_end, output, filepath)
     model, markers, binding, frames = inputs["model"], inputs["markers"], inputs["binding"], inputs["frames"]
-    job = CallJob(lambda progress: fit_markers(model, markers, binding, prior_weight=prior_weight,
-                                               temporal_weight=temporal_weight, progress=progress),
-                  "marker fit", total=len(frames))
+    settings = {k: v for k, v in (("prior_weight", prior_weight), ("temporal_weight", temporal_weight))
+                if v is not None}
+    render = context.scene.render
+    rate = render.fps / render.fps_base  # one sample per scene frame (scales the temporal weight)
+    fine = getattr(model, "fine_level", None)
+    job = CallJob(lambda progress: fit_markers(model, markers, binding, rate=rate, prolongation=fine,
+                                               progress=progress, **settings), "marker fit", total=len(frames))
     job.inputs = inputs
 
     unit = metres_per_unit(obj, inputs["take"], context.scene)
     labels = inputs["labels"]
 
     def write(obj, job):
-        text = _write_fit(obj, job.result.vertices, frames, output, inputs["filepath"], inputs["path"])
+        X = job.result.vertices if fine is None else job.result.fine_vertices
+        text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
         quality = write_quality(obj, frames, job.result, labels, unit, take_name)
         job.notes.extend(quality["notes"])
         return f"{text}; {quality['text']}"
@@ -585,11 +651,16 @@ class LENGTHS_ANGLES_OT_build_model(_Interactive, RunOperator, bpy.types.Operato
                                                         "but the basis and the add-on's own 'LA ...' keys")
     n_modes: IntProperty(name="Modes", default=0, min=0, max=MAX_MODES,
                          description=f"Modes of variation to keep; 0: as many as the keys allow (at most {MAX_MODES})")
+    coarse_vertices: IntProperty(name="Coarse Vertices", default=-1, min=-1,
+                                 description="Build the model on a coarse version of the mesh with this many "
+                                             "vertices (fits run there and are carried to the full mesh: much "
+                                             f"faster); -1: Auto ({COARSE_MODEL_VERTICES} for meshes of more than "
+                                             f"{2 * COARSE_MODEL_VERTICES} vertices); 0: the full mesh")
 
     def execute(self, context):
         def make(context):
             keys = parse_key_list(self.keys) if self.keys.strip() else None
-            return model_run(context.active_object, keys, self.n_modes or None)
+            return model_run(context.active_object, keys, self.n_modes or None, self.coarse_vertices)
         return self.start_run(context, make)
 
 
@@ -606,7 +677,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         try:
             model = read_model(obj)
             w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-            X = model.synthesize(w * model.standard_deviations)
+            X = model_vertices(model, w * model.standard_deviations)
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
@@ -654,13 +725,13 @@ class LENGTHS_ANGLES_OT_fit_markers(_Interactive, RunOperator, bpy.types.Operato
                                   description="Fit the scene's frame range (off: Start to End)")
     frame_start: IntProperty(name="Start", default=1, description="First frame to fit (without Scene Frame Range)")
     frame_end: IntProperty(name="End", default=250, description="Last frame to fit (without Scene Frame Range)")
-    prior_weight: FloatProperty(name="Prior Weight", default=1.0, min=1e-9,
-                                description="How strongly poses are held to the shape model against the marker "
-                                            "distances (squared, in the mesh's units): larger gives more model-like "
-                                            "poses; it scales with the square of the unit (0.01 suits decimetres)")
-    temporal_weight: FloatProperty(name="Temporal Weight", default=0.0, min=0.0,
-                                   description="Damps the change of the model coefficients from frame to frame "
-                                               "(0: none, each frame starts from the previous one)")
+    prior_weight: FloatProperty(name="Prior Weight", default=_DEFAULT_PRIOR, min=1e-9, soft_max=100.0,
+                                description="How strongly poses are held to the shape model against the markers "
+                                            "(scale-free: the same in any unit); larger gives more model-like poses")
+    temporal_weight: FloatProperty(name="Temporal Weight", default=float(FIT_DEFAULTS.temporal_weight), min=0.0,
+                                   soft_max=100.0,
+                                   description="Damps jitter between frames (the previous pose extrapolated; no lag "
+                                               "on steady motion); 0: none")
     filepath: StringProperty(name="Cache File", default="", subtype='FILE_PATH', options=BLEND_RELATIVE_PATH,
                              description="Point cache to write ('//' is the folder of the .blend); empty: "
                                          "//<object>_<take>.pc2 next to the .blend")

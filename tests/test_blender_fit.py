@@ -91,7 +91,7 @@ def test_mesh_cache_matches_lacore_fit_and_true_poses(run, inputs):
     model = ShapeModel.load(io.BytesIO(a["model_npz"].tobytes()))
     binding = MarkerBinding.from_surface(a["bind_faces"], a["bind_barycentric"], a["bind_offsets"])
     markers = read_markers(run["work"] / "take.c3d").positions * 10.0  # as imported with scale 10
-    ours = fit_markers(model, markers, binding)
+    ours = fit_markers(model, markers, binding, rate=100.0)  # the scene rate (the take's)
     ev = a["evaluated"].astype(np.float64)
     # frame f of the scene shows fitted frame f (Mesh Cache frame_start = 1)
     diff = np.abs(ev - ours.vertices).max()
@@ -115,7 +115,7 @@ def test_fit_quality_curve_and_summary(run):
     model = ShapeModel.load(io.BytesIO(a["model_npz"].tobytes()))
     binding = MarkerBinding.from_surface(a["bind_faces"], a["bind_barycentric"], a["bind_offsets"])
     markers = read_markers(run["work"] / "take.c3d").positions * 10.0
-    res = fit_markers(model, markers, binding)
+    res = fit_markers(model, markers, binding, rate=100.0)
     d = np.asarray(res.marker_residuals, float)
     d = np.linalg.norm(d, axis=2) if d.ndim == 3 else d
     rms = 100.0 * np.sqrt(np.nanmean(d ** 2, axis=1))  # decimetres -> mm (imported with Scale 10)
