@@ -6,14 +6,22 @@
   barycentric coordinates) plus a normal offset; :func:`bind_markers`.
 * :mod:`.fitting` -- :func:`fit_markers`: per-frame fits of a shape model to the markers
   (thesis 4.3.1), without skeleton or skinning.
+* :mod:`.calibration` -- :func:`calibrate` and :func:`fit_take`: a take calibrated to a model
+  (axes, units, size, binding, proportions) and fitted, with no hand work.
+* :mod:`.marker_sets` -- standard marker-set labels as hints for a humanoid.
 * :mod:`.prolongation` -- coarse fits prolonged to the full mesh.
 * :mod:`.baselines` -- the vertex-PCA baseline the fits are measured against.
 """
 
 from .binding import MarkerBinding, MarkerBindingError, bind_markers, closest_surface_points, surface_points
-from .fitting import MarkerDataError, MarkerFitResult, check_markers, fit_markers
-from .io import MarkerError, MarkerFileError, MarkerTake, read_markers, resample, write_c3d, write_trc
+from .calibration import (AxisMismatchError, Calibration, CalibrationError, CalibrationOptions, TakeFitResult,
+                          UnitMismatchError, calibrate, fit_take)
+from .fitting import FIT_DEFAULTS, FitOptions, MarkerDataError, MarkerFitResult, check_markers, fit_markers
+from .io import (MarkerError, MarkerFileError, MarkerTake, drop_non_markers, read_markers, read_take, resample,
+                 write_c3d, write_trc)
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "resample", "write_c3d", "write_trc",
            "MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
-           "MarkerDataError", "MarkerFitResult", "check_markers", "fit_markers"]
+           "MarkerDataError", "MarkerFitResult", "check_markers", "fit_markers", "FitOptions", "FIT_DEFAULTS",
+           "read_take", "drop_non_markers", "calibrate", "fit_take", "Calibration", "CalibrationOptions",
+           "TakeFitResult", "CalibrationError", "UnitMismatchError", "AxisMismatchError"]

@@ -312,9 +312,12 @@ class FrameSolver:
     extra_modes : (K, 2E) ndarray, optional
         Further directions of ``z`` fitted with the modes (calibration: body proportions),
         with the penalty ``extra_penalty (K,)`` on their coefficients.
+    mean_z : (2E,) ndarray, optional
+        The prior's mean instead of ``model.mean_z`` (a calibrated performer's proportions).
     """
 
-    def __init__(self, model, binding, options=FIT_DEFAULTS, temporal=0.0, extra_modes=None, extra_penalty=0.0):
+    def __init__(self, model, binding, options=FIT_DEFAULTS, temporal=0.0, extra_modes=None, extra_penalty=0.0,
+                 mean_z=None):
         topo = model.topology
         self.topology, self.faces = topo, topo.faces
         self.V, self.E = topo.n_vertices, topo.n_edges
@@ -325,7 +328,7 @@ class FrameSolver:
         self.gamma = float(options.prior_weight)
         self.kappa = float(temporal)
         self.w = np.asarray(model.metric_weights, float)
-        self.zbar = np.asarray(model.mean_z, float)
+        self.zbar = np.asarray(model.mean_z if mean_z is None else mean_z, float)
         U = np.asarray(model.modes, float)[:options.n_modes]
         penalty = np.zeros(len(U))
         if extra_modes is not None and len(extra_modes):
@@ -534,7 +537,7 @@ def _usable(x_vis):
 
 
 def fit_markers(model, markers, binding, options=None, *, rate=None, initial_vertices=None,
-                initial_coefficients=None, prolongation=None, progress=None, **settings):
+                initial_coefficients=None, prolongation=None, mean_z=None, progress=None, **settings):
     """Fit a shape model to marker positions over a take (thesis (4.20)-(4.23), module docstring).
 
     Parameters
@@ -554,6 +557,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     initial_coefficients : (J,) array_like, optional
     prolongation : FineLevel, Prolongation or callable, optional
         Also return every pose on the fine mesh.
+    mean_z : (2E,) array_like, optional
+        The prior's mean instead of the model's (:attr:`lacore.markers.Calibration.mean_z`).
     progress : callable, optional
         ``progress(done, total, message)`` per frame (:mod:`lacore.progress`).
 
@@ -580,7 +585,9 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         raise InputError(f"rate must be a positive number of frames per second, got {rate!r}")
     prolong = None if prolongation is None else as_fit_prolongation(prolongation)
     kappa = options.temporal_weight * (rate / options.reference_rate) ** 2
-    solver = FrameSolver(model, binding, options, temporal=kappa)
+    if mean_z is not None and np.shape(mean_z) != np.shape(model.mean_z):
+        raise InputError(f"mean_z must have shape {np.shape(model.mean_z)}, got {np.shape(mean_z)}")
+    solver = FrameSolver(model, binding, options, temporal=kappa, mean_z=mean_z)
     T = x_all.shape[0]
     V, J = solver.V, solver.J
     X = np.asarray(model.reference_vertices if initial_vertices is None else initial_vertices, float).copy()

@@ -1,0 +1,814 @@
+"""Automatic calibration of a marker take to a shape model, and the fit of the whole take.
+
+:func:`calibrate` finds, from the take alone (positions in metres, as
+:func:`lacore.markers.io.read_take` gives them):
+
+1. **the model's axes** (declared in the model file, else the longest axis of the
+   reference mesh is up and the forward direction is the one whose hints fit best);
+2. **placement and size**: labels of standard marker sets are hints
+   (:mod:`lacore.markers.marker_sets`); a similarity fit of the hinted markers to their
+   landmarks places the rest mesh over the first calibration frame; the performer's size
+   is the median length ratio of hinted marker pairs whose distance stays constant over
+   the take (coefficient of variation < 2 %, longer than 10 cm) -- a pose-free measure
+   (a similarity fit is biased by the pose);
+3. **units**: ``performer_ratio = size / model.length_unit`` must lie in
+   :attr:`CalibrationOptions.ratio_limits` (:class:`UnitMismatchError` otherwise); a model
+   without a declared unit gets the power of ten nearest to the measured scale (noted);
+   the placement must keep the model's up axis within 45 degrees of the take's
+   (:class:`AxisMismatchError`);
+4. **the starting pose**: the pinned (landmark) markers are tracked through the take at a
+   stride with a stiff prior (a rough but safe pose for every calibration frame);
+5. **binding and proportions**, in rounds over ``n_frames`` frames spread over the take:
+   every marker is rebound (per candidate face: least squares in barycentric coordinates
+   and normal offset over the frames where it is visible, the offset pulled to
+   :attr:`CalibrationOptions.offset` by a Huber prior and clamped to
+   ``offset_limits``); the frames are refitted with ``n_proportions`` smooth regional
+   length scalings (low eigenfunctions of the rest mesh's Laplacian, no skeleton needed)
+   as extra, weakly penalized modes, whose median over the frames is folded into the
+   prior's mean (:attr:`Calibration.mean_z`).
+
+:func:`fit_takes` fits every frame with the calibrated binding and mean
+(:func:`lacore.markers.fitting.fit_markers`), prolongs to the model's fine level if it
+has one, and reports residuals, flagged frames and markers.
+
+Without hint labels (a creature, a custom marker set) give ``placement`` (the rest
+mesh's similarity into the take at its first frame) or ``pins`` (marker label -> vertex).
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..errors import InputError
+from ..geometry.lengths_angles import face_normals
+from ..progress import report
+from .binding import MarkerBinding, closest_surface_points, surface_points
+from .fitting import (FIT_DEFAULTS, FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics,
+                      mean_edge_length)
+from .io import MarkerTake, drop_non_markers
+from .marker_sets import AXES, match_label, place_hints
+
+__all__ = ["calibrate", "fit_take", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "TakeFitResult",
+           "CalibrationError", "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES"]
+
+
+class CalibrationError(InputError):
+    """A take that cannot be calibrated (no hinted marker and no placement, too few markers)."""
+
+
+class UnitMismatchError(InputError):
+    """The performer measured in the model's declared unit is implausibly small or large."""
+
+
+class AxisMismatchError(InputError):
+    """The calibrated placement turns the model's declared up axis away from the take's."""
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Settings of :func:`calibrate` (lengths in metres of the performer).
+
+    Attributes
+    ----------
+    n_frames : int
+        Calibration frames spread over the take (among those with >= 80 % of the most markers visible).
+    rounds : int
+        Rebinding rounds after the tracking round.
+    n_proportions : int
+        Regional length scalings fitted (0: global size only).
+    proportion_penalty : float
+        Their penalty relative to the prior's stiffness along them.
+    offset, offset_sigma : float
+        Expected marker offset from the skin (marker radius + soft tissue) and its spread (Huber scale).
+    offset_limits : (float, float)
+        Offsets are clamped to this range.
+    hint_weight : float
+        Pull of a landmark marker's surface point toward its landmark (relative to one frame's data).
+    max_tracked : int
+        At most this many frames are tracked in the first round (a stride over the take).
+    track_prior_weight : float
+        Prior weight of the tracking round (stiff: a safe, rough pose).
+    ratio_limits : (float, float)
+        Accepted performer / model size ratios with a declared unit.
+    """
+
+    n_frames: int = 8
+    rounds: int = 3
+    n_proportions: int = 16
+    proportion_penalty: float = 0.01
+    offset: float = 0.010
+    offset_sigma: float = 0.010
+    offset_limits: tuple = (-0.003, 0.040)
+    hint_weight: float = 0.05
+    max_tracked: int = 60
+    track_prior_weight: float = 10.0
+    ratio_limits: tuple = (0.5, 2.0)
+
+    def check(self):
+        """Raise InputError naming the first bad setting; returns self."""
+        for name in ("n_frames", "rounds", "n_proportions", "max_tracked"):
+            v = getattr(self, name)
+            if int(v) != v or v < (1 if name in ("n_frames", "max_tracked") else 0):
+                raise InputError(f"{name} must be a non-negative integer, got {v!r}")
+        for name in ("proportion_penalty", "offset_sigma", "hint_weight", "track_prior_weight"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+        return self
+
+
+#: The calibration defaults, in one place.
+CALIBRATION_DEFAULTS = CalibrationOptions()
+#: Candidates of ``prior_weight="auto"`` (held-out markers on the calibration frames).
+PRIOR_WEIGHT_CHOICES = (0.3, 1.0, 3.0)
+
+
+@dataclass(eq=False)
+class Calibration:
+    """What :func:`calibrate` found (see the module docstring); ``save``/``load`` as ``.npz``.
+
+    Attributes
+    ----------
+    labels : list of str
+        The markers, in the order of ``binding``.
+    binding : MarkerBinding
+        On the model's mesh; offsets in model units.
+    scale : float
+        Model units per metre of the performer: markers times ``scale`` meet the model.
+    length_unit : float
+        Metres per model unit (declared, or inferred: see ``notes``).
+    performer_ratio : float
+        Performer size / model size, ``1 / (scale * length_unit)``.
+    rotation : (3, 3) ndarray
+    translation : (3,) ndarray
+        The rest mesh's placement into the take (scaled coordinates) at the first calibration frame.
+    up_axis, forward_axis : str
+        The model's axes used.
+    take_up : (3,) ndarray
+        The take's up direction.
+    frames : (K,) int ndarray
+        Take frames used.
+    poses : (K, V, 3) ndarray
+        Fitted poses of those frames (take axes, model units times ``scale``).
+    coefficients : (K, J) ndarray
+    mean_z : (2E,) ndarray or None
+        The prior's mean with the performer's proportions (None: the model's).
+    frame_rms : (K,) ndarray
+        Marker RMS of the calibration frames, metres.
+    seconds : float
+    notes : list of str
+    """
+
+    labels: list
+    binding: MarkerBinding
+    scale: float
+    length_unit: float
+    performer_ratio: float
+    rotation: np.ndarray
+    translation: np.ndarray
+    up_axis: str
+    forward_axis: str
+    take_up: np.ndarray
+    frames: np.ndarray
+    poses: np.ndarray
+    coefficients: np.ndarray
+    mean_z: np.ndarray = None
+    frame_rms: np.ndarray = None
+    seconds: float = 0.0
+    notes: list = field(default_factory=list)
+
+    def start(self, frame):
+        """Pose and coefficients of the calibration frame nearest to take frame ``frame``."""
+        i = int(np.argmin(np.abs(np.asarray(self.frames) - frame)))
+        return self.poses[i], self.coefficients[i]
+
+    def save(self, path):
+        """Write to one ``.npz`` (atomically); returns the path written."""
+        from ..io.atomic import save_npz_atomic
+        b = self.binding
+        data = {"format": np.array("lacore.markers.calibration"), "format_version": np.array(1),
+                "labels": np.array(self.labels, dtype=str), "binding_faces": b.faces,
+                "binding_barycentric": b.barycentric, "binding_offsets": b.offsets}
+        for f in dataclasses.fields(self):
+            if f.name in ("labels", "binding", "notes"):
+                continue
+            v = getattr(self, f.name)
+            if v is not None:
+                data[f.name] = np.asarray(v)
+        data["notes"] = np.array(self.notes, dtype=str)
+        return save_npz_atomic(path, **data)
+
+    @classmethod
+    def load(cls, path):
+        """Read a file written by :meth:`save`; CalibrationError if it is not one."""
+        from ..io.npz import open_npz, read_array
+        with open_npz(path, "calibration", CalibrationError) as npz:
+            d = {k: read_array(npz, k, str(path), "calibration", CalibrationError) for k in npz.files}
+        if str(d.get("format", "")) != "lacore.markers.calibration":
+            raise CalibrationError(f"{path} is not a lacore calibration file")
+        kw = {}
+        for f in dataclasses.fields(cls):
+            if f.name in ("labels", "binding", "notes") or f.name not in d:
+                continue
+            v = d[f.name]
+            kw[f.name] = v.item() if v.ndim == 0 else v
+        return cls(labels=[str(s) for s in d["labels"]], notes=[str(s) for s in d["notes"]],
+                   binding=MarkerBinding.from_surface(d["binding_faces"], d["binding_barycentric"],
+                                                      d["binding_offsets"]), **kw)
+
+
+@dataclass(kw_only=True, repr=False)
+class TakeFitResult(MarkerFitResult):
+    """Outcome of :func:`fit_take` (a :class:`~lacore.markers.fitting.MarkerFitResult`).
+
+    Geometry (``vertices``, ``fine_vertices``, ``markers``, ``marker_residuals``,
+    ``frame_rms``...) is in the take's axes and the model's unit, with the performer's
+    size (the fitted body scaled by ``calibration.performer_ratio``), i.e. over the take's
+    markers converted to model units.
+
+    Attributes
+    ----------
+    markers : (T, M, 3) ndarray
+        The take's positions in model units.
+    labels : list of str
+    frames : (T,) int ndarray
+        Take frames fitted.
+    calibration : Calibration
+    marker_rms_mm, marker_p95_mm : float
+        Mean over frames of the per-frame marker RMS and 95th percentile, millimetres.
+    marker_rms_by_marker_mm : (M,) ndarray
+        Each marker's RMS over the take, millimetres.
+    flagged_frames : list of int
+        Take frames whose RMS is far above marker noise (> 3x the take's median and > 10 mm).
+    flagged_markers : list of str
+        Markers whose RMS is far above the others' (> 3x the median and > 10 mm).
+    warnings : list of str
+        One line per flag.
+    seconds_per_frame : float
+        Fitting time per frame (calibration not included).
+    calibration_seconds : float
+    """
+
+    markers: np.ndarray = None
+    labels: list = field(default_factory=list)
+    frames: np.ndarray = None
+    calibration: Calibration = None
+    marker_rms_mm: float = float("nan")
+    marker_p95_mm: float = float("nan")
+    marker_rms_by_marker_mm: np.ndarray = None
+    flagged_frames: list = field(default_factory=list)
+    flagged_markers: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    seconds_per_frame: float = float("nan")
+    calibration_seconds: float = 0.0
+    _summary_exclude = MarkerFitResult._summary_exclude + ("markers", "calibration")
+
+    def summary(self):
+        """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
+        s = super().summary()
+        f = (lambda x: None if x is None or not np.isfinite(x) else float(x))
+        s.update(marker_rms_mm=f(self.marker_rms_mm), marker_p95_mm=f(self.marker_p95_mm),
+                 flagged_frames=[int(t) for t in self.flagged_frames], flagged_markers=list(self.flagged_markers),
+                 warnings=list(self.warnings), seconds_per_frame=f(self.seconds_per_frame),
+                 calibration_seconds=f(self.calibration_seconds), markers=len(self.labels),
+                 performer_ratio=f(self.calibration.performer_ratio) if self.calibration else None,
+                 length_unit=f(self.calibration.length_unit) if self.calibration else None,
+                 notes=list(self.calibration.notes) if self.calibration else [])
+        return s
+
+
+# ----------------------------------------------------------------------------- helpers
+def _axis(name):
+    try:
+        return np.asarray(AXES[str(name).lower()], float)
+    except KeyError:
+        raise InputError(f"unknown axis {name!r}; use one of x, y, z, -x, -y, -z") from None
+
+
+def _similarity(P, Q):
+    """``s, R, t`` with ``s R P + t ~ Q`` (least squares, proper rotation)."""
+    cp, cq = P.mean(0), Q.mean(0)
+    Pc, Qc = P - cp, Q - cq
+    U, S, Vt = np.linalg.svd(Pc.T @ Qc)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    D = np.diag([1.0, 1.0, d])
+    R = Vt.T @ D @ U.T
+    s = float(np.trace(np.diag(S) @ D) / np.sum(Pc ** 2))
+    return s, R, cq - s * cp @ R.T
+
+
+def _choose_frames(visible, k):
+    counts = visible.sum(1)
+    good = np.flatnonzero(counts >= 0.8 * counts.max())
+    idx = np.unique(np.round(np.linspace(0, len(good) - 1, min(k, len(good)))).astype(int))
+    return good[idx]
+
+
+def _take_up(take):
+    """The take's up direction: POINT:Y_SCREEN if given, else the axis of largest median per-frame extent."""
+    if take.up_axis:
+        return _axis(take.up_axis), f"take up axis {take.up_axis} (from the file)"
+    x = take.positions
+    with np.errstate(invalid="ignore"):
+        ext = np.nanmedian(np.nanmax(x, 1) - np.nanmin(x, 1), axis=0)
+    a = int(np.nanargmax(ext))
+    up = np.eye(3)[a]
+    return up, f"take up axis +{'xyz'[a]} (inferred: largest extent {ext[a]:.2f} m)"
+
+
+def cotan_laplacian(vertices, faces):
+    """Cotangent Laplacian ``L`` (positive semi-definite) and lumped mass ``M`` (sparse) of a triangle mesh."""
+    X, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
+    V = len(X)
+    rows, cols, vals = [], [], []
+    area = 0.5 * np.linalg.norm(np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]]), axis=1)
+    for k in range(3):
+        i, j, o = F[:, (k + 1) % 3], F[:, (k + 2) % 3], F[:, k]
+        u, v = X[i] - X[o], X[j] - X[o]
+        cot = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(np.cross(u, v), axis=1), 1e-300)
+        rows += [i, j]
+        cols += [j, i]
+        vals += [-0.5 * cot, -0.5 * cot]
+    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(V, V))
+    L = sp.diags(-np.asarray(W.sum(1)).ravel()) + W
+    m = np.zeros(V)
+    np.add.at(m, F.ravel(), np.repeat(area / 3.0, 3))
+    return L.tocsc(), sp.diags(m).tocsc()
+
+
+def proportion_modes(model, n):
+    """``(n, 2E)``: smooth regional length scalings of the model's mean (low Laplacian eigenfunctions).
+
+    Row ``j`` scales each edge's mean length by the ``j``-th non-constant eigenfunction
+    of the reference mesh's cotangent Laplacian (averaged over the edge's ends,
+    normalized to RMS 1); angles are unchanged.  Skeleton-free: any character.
+
+    Examples
+    --------
+    >>> from lacore.markers.calibration import proportion_modes
+    >>> D = proportion_modes(model, 4)          # doctest: +SKIP
+    >>> D.shape == (4, 2 * model.topology.n_edges)  # doctest: +SKIP
+    True
+    """
+    E = model.topology.n_edges
+    if n <= 0:
+        return np.zeros((0, 2 * E))
+    Ed = model.edges
+    lb = np.asarray(model.mean_z, float)[:E]
+    L, M = cotan_laplacian(model.reference_vertices, model.faces)
+    scale = float(M.diagonal().mean())
+    _, vecs = spla.eigsh(L, k=n + 1, M=M / scale, sigma=-1e-6 * float(np.abs(L.diagonal()).mean()), which="LM")
+    rows = []
+    for j in range(1, n + 1):
+        pe = 0.5 * (vecs[Ed[:, 0], j] + vecs[Ed[:, 1], j])
+        pe /= np.sqrt(np.mean(pe ** 2))
+        rows.append(np.concatenate([lb * pe, np.zeros(E)]))
+    return np.array(rows)
+
+
+def _candidates(X_rest, faces, binding, radius, allowed):
+    cen = X_rest[faces].mean(1)
+    P = surface_points(X_rest, faces, MarkerBinding(binding.faces, binding.barycentric,
+                                                     np.zeros(binding.n_markers)))
+    out = []
+    for m in range(binding.n_markers):
+        c = np.flatnonzero(np.linalg.norm(cen - P[m], axis=1) < radius)
+        if allowed[m] is not None:
+            c = np.intersect1d(c, allowed[m])
+            if not len(c):
+                c = np.asarray(allowed[m])
+        if not len(c):
+            c = np.array([binding.faces[m]])
+        out.append(c)
+    return out
+
+
+def _rebind(Xs, ys, faces, binding, cands, o0, lam_o, hint_pts, lam_h, X_rest, limits):
+    """Best (face, barycentric, offset) of every marker over the poses ``Xs (K, V, 3)`` and markers ``ys (K, M, 3)``."""
+    M = ys.shape[1]
+    fa, ba, oa = binding.faces.copy(), binding.barycentric.copy(), binding.offsets.copy()
+    for m in range(M):
+        vis = np.flatnonzero(np.isfinite(ys[:, m, 0]))
+        if not len(vis):
+            continue
+        C = faces[cands[m]]
+        P = Xs[vis][:, C]                                        # (k, c, 3, 3)
+        e1, e2 = P[:, :, 1] - P[:, :, 0], P[:, :, 2] - P[:, :, 0]
+        n = np.cross(e1, e2)
+        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+        A = np.stack([e1, e2, n], -1)
+        r = ys[vis, m][:, None, :] - P[:, :, 0]
+        H = np.einsum("kcij,kcil->cjl", A, A)
+        g = np.einsum("kcij,kci->cj", A, r)
+        H[:, 2, 2] += lam_o[m]
+        g[:, 2] += lam_o[m] * o0
+        hinted = hint_pts is not None and np.isfinite(hint_pts[m]).all()
+        if hinted:
+            R0 = X_rest[C]
+            B = np.stack([R0[:, 1] - R0[:, 0], R0[:, 2] - R0[:, 0], np.zeros((len(C), 3))], -1)
+            H += lam_h * np.einsum("cij,cil->cjl", B, B)
+            g += lam_h * np.einsum("cij,ci->cj", B, hint_pts[m] - R0[:, 0])
+        sol = np.linalg.solve(H + 1e-12 * np.eye(3), g[..., None])[..., 0]
+        b = np.clip(np.stack([1 - sol[:, 0] - sol[:, 1], sol[:, 0], sol[:, 1]], 1), 0, None)
+        b /= np.maximum(b.sum(1, keepdims=True), 1e-300)
+        base = P[:, :, 0] + b[None, :, 1, None] * e1 + b[None, :, 2, None] * e2
+        d = np.einsum("kci,kci->kc", ys[vis, m][:, None] - base, n).sum(0)
+        o = np.clip((d + lam_o[m] * o0) / (len(vis) + lam_o[m]), limits[0], limits[1])
+        res = ys[vis, m][:, None] - base - o[None, :, None] * n
+        cost = np.einsum("kci,kci->c", res, res) + lam_o[m] * (o - o0) ** 2
+        if hinted:
+            q = np.einsum("ci,cij->cj", b, R0)
+            cost += lam_h * np.sum((q - hint_pts[m]) ** 2, 1)
+        j = int(np.argmin(cost))
+        fa[m], ba[m], oa[m] = cands[m][j], b[j], o[j]
+    return MarkerBinding.from_surface(fa, ba, oa)
+
+
+def _pair_scale(x, landmark_markers, P_rest, normals, o0, min_dist=0.1, max_cv=0.02):
+    """Median ratio (metres per model unit) of take-rigid landmark marker pairs, and the pair count."""
+    ratios = []
+    for i, a in enumerate(landmark_markers):
+        for b in landmark_markers[i + 1:]:
+            d = np.linalg.norm(x[:, a] - x[:, b], axis=1)
+            d = d[np.isfinite(d)]
+            if len(d) < 10 or d.mean() < min_dist or d.std() > max_cv * d.mean():
+                continue
+            dr = np.linalg.norm((P_rest[a] + o0 * normals[a]) - (P_rest[b] + o0 * normals[b]))
+            if dr > 0:
+                ratios.append(d.mean() / dr)
+    return (float(np.median(ratios)), len(ratios)) if ratios else (None, 0)
+
+
+def _unit_name(u):
+    names = {1.0: "metres", 0.1: "decimetres", 0.01: "centimetres", 0.001: "millimetres"}
+    return next((v for k, v in names.items() if abs(np.log10(u / k)) < 0.05), f"{u:g} m")
+
+
+def _model_axes(model, hints, notes):
+    """The model's (up, forward): declared, or the longest axis up and the forward of the best hint fit."""
+    if model.up_axis is not None and model.forward_axis is not None:
+        return str(model.up_axis), str(model.forward_axis)
+    X = np.asarray(model.reference_vertices, float)
+    if model.up_axis is not None:
+        ups = [str(model.up_axis)]
+    else:
+        a = int(np.argmax(np.ptp(X, axis=0)))
+        ups = ["+" + "xyz"[a], "-" + "xyz"[a]]
+    best = None
+    for up in ups:
+        u = _axis(up)
+        for fwd in ("x", "y", "z", "-x", "-y", "-z"):
+            if abs(_axis(fwd) @ u) > 0.5:
+                continue
+            points, _, height = place_hints(X, model.faces, hints, up, fwd)
+            lm = np.isfinite(points[:, 0])
+            score = float(np.mean(np.linalg.norm(closest_surface_points(X, model.faces, points[lm])[0]
+                                                 - points[lm], axis=1))) if lm.any() else 0.0
+            if best is None or score < best[0]:
+                best = (score, up, fwd)
+    notes.append(f"model axes inferred: up {best[1]}, forward {best[2]} (declare model.up_axis/forward_axis)")
+    return best[1], best[2]
+
+
+# ----------------------------------------------------------------------------- calibration
+def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None, progress=None):
+    """Calibrate a take to a shape model: axes, units, size, starting pose, binding, proportions.
+
+    Parameters
+    ----------
+    model : lacore.models.ShapeModel
+        With ``length_unit``, ``up_axis``, ``forward_axis`` if known (see the module docstring).
+    take : MarkerTake
+        Positions in metres; points that are not markers are dropped (noted).
+    options : CalibrationOptions, optional
+        Default :data:`CALIBRATION_DEFAULTS`.
+    fit : FitOptions, optional
+        The fit's settings (its prior weight is used in the rebinding rounds; ``"auto"`` uses 1).
+    placement : (s, R, t), optional
+        The rest mesh's similarity into the take at the first calibration frame (``x = s R X + t``,
+        ``x`` in metres): for characters without hint labels.
+    pins : dict of str -> int, optional
+        Marker label -> model vertex: correspondences for characters without hint labels.
+    progress : callable, optional
+        ``progress(done, total, message)`` (:mod:`lacore.progress`).
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    CalibrationError
+        Nothing to place the model with (no hint, placement or pins), too few markers.
+    UnitMismatchError, AxisMismatchError
+        See the module docstring.
+
+    Examples
+    --------
+    >>> from lacore.markers import read_take, calibrate
+    >>> from lacore.samples.human import human_model
+    >>> cal = calibrate(human_model(), read_take("Walk1.c3d"))      # doctest: +SKIP
+    >>> round(cal.performer_ratio, 2), cal.binding.n_markers        # doctest: +SKIP
+    (1.07, 25)
+    """
+    t_start = time.perf_counter()
+    o = (options or CALIBRATION_DEFAULTS).check()
+    fo = fit_options(fit, allow_auto=True)
+    gamma = 1.0 if isinstance(fo.prior_weight, str) else float(fo.prior_weight)
+    if not isinstance(take, MarkerTake):
+        raise InputError(f"take must be a MarkerTake (lacore.markers.read_take), got {type(take).__name__}")
+    notes = []
+    n_before = take.n_markers
+    take = drop_non_markers(take)
+    notes += [f"dropped {lab}: {why}" for lab, why in take.dropped]
+    x = take.positions
+    vis = take.visible
+    M = take.n_markers
+    if M < 3:
+        raise CalibrationError(f"{take.source or 'the take'}: {M} markers left of {n_before}: need at least 3")
+    F = np.asarray(model.faces, np.int64)
+    Xr = np.asarray(model.reference_vertices, float)
+    lbar = mean_edge_length(Xr, model.edges)
+    hints = [match_label(lab) for lab in take.labels]
+    pins = dict(pins or {})
+    unknown = sorted(set(pins) - set(take.labels))
+    if unknown:
+        raise CalibrationError(f"pins name markers not in the take: {', '.join(unknown)}")
+    n_steps = 2 + o.rounds
+    report(progress, 0, n_steps, "placing the model")
+    up, fwd = _model_axes(model, hints, notes)
+    P_rest, faces_of, _ = place_hints(Xr, F, hints, up, fwd)
+    kinds = ["landmark" if h is not None and h.kind == "landmark" else
+             "region" if h is not None else None for h in hints]
+    for lab, v in pins.items():
+        m = take.labels.index(lab)
+        if not 0 <= int(v) < len(Xr):
+            raise CalibrationError(f"pin {lab}: vertex {v} out of range (the model has {len(Xr)} vertices)")
+        q, ff, bb = closest_surface_points(Xr, F, Xr[[int(v)]])
+        P_rest[m], faces_of[m], kinds[m] = q[0], (int(ff[0]), bb[0]), "landmark"
+    frames = _choose_frames(vis, o.n_frames)
+    f0 = frames[0]
+    landmarks = [m for m in range(M) if kinds[m] == "landmark"]
+    P_pairs = [P_rest[m] for m in landmarks if vis[f0, m]]
+    Q_pairs = [x[f0, m] for m in landmarks if vis[f0, m]]
+    for name in sorted({hints[m].name for m in range(M) if kinds[m] == "region"}):
+        ms = [m for m in range(M) if kinds[m] == "region" and hints[m].name == name and vis[f0, m]]
+        if ms:
+            P_pairs.append(P_rest[ms[0]])
+            Q_pairs.append(x[f0, ms].mean(0))
+    if placement is not None:
+        s, R, t = float(placement[0]), np.asarray(placement[1], float), np.asarray(placement[2], float)
+    elif len(P_pairs) >= 3:
+        s, R, t = _similarity(np.array(P_pairs), np.array(Q_pairs))
+    else:
+        raise CalibrationError(f"{take.source or 'the take'}: {len(P_pairs)} markers with a known place on the "
+                               "model (standard marker-set labels or pins): give pins (label -> vertex, >= 3) or "
+                               "a placement")
+    normals = np.zeros((M, 3))
+    for m in landmarks:
+        normals[m] = face_normals(Xr, F[[faces_of[m][0]]])[0]
+    s_pairs, n_pairs = _pair_scale(x, landmarks, P_rest, normals, o.offset / s)
+    s_used = s_pairs if s_pairs is not None and n_pairs >= 5 else s
+    notes.append(f"size: {s_used:.4g} m per model unit ({n_pairs} take-rigid marker pairs; "
+                 f"similarity at frame {f0}: {s:.4g})")
+    # ---- units
+    if model.length_unit is not None:
+        u = float(model.length_unit)
+        ratio = s_used / u
+        lo, hi = o.ratio_limits
+        if not lo <= ratio <= hi:
+            guess = 10.0 ** np.round(np.log10(s_used))
+            raise UnitMismatchError(
+                f"unit mismatch: the performer measures {ratio:.3g} times the model in its declared unit "
+                f"({_unit_name(u)}); the take fits a model in {_unit_name(guess)}: check the model's length unit "
+                "or the take's POINT:UNITS (read_take(..., units=...))")
+    else:
+        u = float(10.0 ** np.round(np.log10(s_used)))
+        notes.append(f"model unit not declared: {_unit_name(u)} inferred (set model.length_unit)")
+    # ---- axes
+    take_up, up_note = _take_up(take)
+    notes.append(up_note)
+    cos = float(take_up @ (R @ _axis(up)))
+    if cos < np.cos(np.radians(45.0)):
+        raise AxisMismatchError(
+            f"axis mismatch: the model's up axis {up} is placed {np.degrees(np.arccos(np.clip(cos, -1, 1))):.0f} "
+            "degrees from the take's up: check the model's up_axis / forward_axis")
+    k = 1.0 / s_used
+    X0 = (Xr @ R.T) * (s / s_used) + t / s_used
+    y = x * k
+    o0 = o.offset * k
+    limits = (o.offset_limits[0] * k, o.offset_limits[1] * k)
+    # ---- initial binding
+    fa, ba, oa = np.zeros(M, np.int64), np.zeros((M, 3)), np.full(M, o0)
+    allowed = [None] * M
+    for m in range(M):
+        if kinds[m] == "landmark":
+            fa[m], ba[m] = faces_of[m]
+            continue
+        allowed[m] = faces_of[m] if kinds[m] == "region" else None
+        cand = allowed[m] if allowed[m] is not None else np.arange(len(F))
+        fm = next((f for f in frames if vis[f, m]), None)
+        if fm is None:
+            fm = int(np.flatnonzero(vis[:, m])[0])
+        q_rest = ((x[fm, m] - t) @ R) / s
+        _, ff, bb = closest_surface_points(Xr, F[cand], q_rest[None])
+        fa[m], ba[m] = cand[ff[0]], bb[0]
+    binding = MarkerBinding.from_surface(fa, ba, oa)
+    pinned = np.array([kd == "landmark" for kd in kinds])
+    if pinned.sum() < 6:
+        pinned[:] = True
+    # ---- round 0: track the pinned markers from the first to the last calibration frame at a stride
+    report(progress, 1, n_steps, "tracking the starting poses")
+    span = np.arange(frames[0], frames[-1] + 1)
+    stride = max(1, int(np.ceil(len(span) / o.max_tracked)))
+    track = np.unique(np.concatenate([span[::stride], frames]))
+    yt = y[track].copy()
+    yt[:, ~pinned] = np.nan
+    tr = fit_markers(model, yt, binding, FIT_DEFAULTS, prior_weight=o.track_prior_weight, max_iterations=10,
+                     temporal_weight=10.0, initial_vertices=X0)
+    sel = np.searchsorted(track, frames)
+    Xs, As = tr.vertices[sel].copy(), tr.coefficients[sel].copy()
+    # ---- rebinding rounds with proportions
+    D = proportion_modes(model, o.n_proportions)
+    nD = len(D)
+    mean_z = np.asarray(model.mean_z, float).copy()
+    if nD:
+        stiff = gamma * np.einsum("ij,j,ij->i", D, model.metric_weights, D)
+        penalty = o.proportion_penalty * stiff
+        As = np.concatenate([As, np.zeros((len(As), nD))], 1)
+    hint_pts = np.where(pinned[:, None], P_rest, np.nan)
+    lam0 = len(frames) * (0.002 / o.offset_sigma) ** 2
+    options_cal = dataclasses.replace(fo, prior_weight=gamma, max_iterations=30)
+    rms = np.zeros(len(frames))
+    for r in range(1, o.rounds + 1):
+        report(progress, 1 + r, n_steps, f"binding round {r} of {o.rounds}")
+        cands = _candidates(Xr, F, binding, (8 if r == 1 else 3) * lbar, allowed)
+        lam = np.full(M, lam0)
+        for _ in range(3):
+            nb = _rebind(Xs, y[frames], F, binding, cands, o0, lam, hint_pts, o.hint_weight, Xr, limits)
+            dev = (nb.offsets - o0) / (o.offset_sigma * k)
+            lam = lam0 * np.minimum(1.0, 1.5 / np.maximum(np.abs(dev), 1e-12))
+        binding = nb
+        solver = FrameSolver(model, binding, options_cal, temporal=0.0, extra_modes=D if nD else None,
+                             extra_penalty=penalty if nD else 0.0, mean_z=mean_z)
+        for i, f in enumerate(frames):
+            Xs[i], As[i], _, _, _ = solver.solve_frame(Xs[i], As[i], y[f])
+            P = surface_points(Xs[i], F, binding)
+            rms[i] = np.sqrt(np.nanmean(np.sum((P - y[f]) ** 2, 1))) / k
+        if nD:
+            beta = np.median(As[:, -nD:], 0)
+            mean_z = mean_z + beta @ D
+            As[:, -nD:] -= beta
+    if nD:
+        As = As[:, :-nD]
+    report(progress, n_steps, n_steps, "calibrated")
+    return Calibration(labels=list(take.labels), binding=binding, scale=k, length_unit=u,
+                       performer_ratio=s_used / u, rotation=R, translation=t / s_used, up_axis=up,
+                       forward_axis=fwd, take_up=take_up, frames=frames, poses=Xs, coefficients=As,
+                       mean_z=mean_z if nD else None, frame_rms=rms, seconds=time.perf_counter() - t_start,
+                       notes=notes)
+
+
+def _auto_prior_weight(model, cal, y_frames, fo, notes):
+    """The candidate of :data:`PRIOR_WEIGHT_CHOICES` with the least error on held-out markers (calibration frames)."""
+    M = y_frames.shape[1]
+    rng = np.random.default_rng(0)
+    folds = np.array_split(rng.permutation(M), 4)
+    errors = []
+    for g in PRIOR_WEIGHT_CHOICES:
+        opts = dataclasses.replace(fo, prior_weight=g)
+        sq, n = 0.0, 0
+        for held in folds:
+            y = y_frames.copy()
+            y[:, held] = np.nan
+            solver = FrameSolver(model, cal.binding, opts, mean_z=cal.mean_z)
+            for i in range(len(y)):
+                X, _, _, _, _ = solver.solve_frame(cal.poses[i], cal.coefficients[i], y[i])
+                d = surface_points(X, model.faces, cal.binding)[held] - y_frames[i, held]
+                ok = np.isfinite(d[:, 0])
+                sq += float(np.sum(d[ok] ** 2))
+                n += int(ok.sum())
+        errors.append(np.sqrt(sq / max(n, 1)) / cal.scale * 1000)
+    best = PRIOR_WEIGHT_CHOICES[int(np.argmin(errors))]
+    notes.append("prior_weight auto: " + ", ".join(f"{g:g}: {e:.2f} mm" for g, e in
+                                                   zip(PRIOR_WEIGHT_CHOICES, errors)) + f" -> {best:g}")
+    return best
+
+
+def fit_take(model, take, calibration=None, options=None, *, frames=None, static=None, calibration_options=None,
+             progress=None):
+    """Calibrate (unless given) and fit every frame of a take; full resolution if the model has a fine level.
+
+    Parameters
+    ----------
+    model : lacore.models.ShapeModel
+    take : MarkerTake
+        Positions in metres (:func:`lacore.markers.io.read_take`).
+    calibration : Calibration, optional
+        Default: :func:`calibrate` on ``static`` if given, else on the take.
+    options : FitOptions, optional
+        Default :data:`lacore.markers.fitting.FIT_DEFAULTS`; ``prior_weight="auto"``
+        picks from :data:`PRIOR_WEIGHT_CHOICES` by held-out markers.
+    frames : slice or array_like of int, optional
+        Take frames to fit (default all).
+    static : MarkerTake, optional
+        A static trial to calibrate on.
+    calibration_options : CalibrationOptions, optional
+    progress : callable, optional
+        ``progress(done, total, message)`` over calibration and frames (:mod:`lacore.progress`).
+
+    Returns
+    -------
+    TakeFitResult
+
+    Examples
+    --------
+    >>> from lacore.markers import read_take, fit_take
+    >>> from lacore.samples.human import human_model
+    >>> res = fit_take(human_model(), read_take("Walk1.c3d"), frames=slice(0, 30))  # doctest: +SKIP
+    >>> res.success, res.marker_rms_mm < 6, res.fine_vertices.shape                   # doctest: +SKIP
+    (True, True, (30, 13380, 3))
+    """
+    t_start = time.perf_counter()
+    fo = fit_options(options, allow_auto=True)
+    if not isinstance(take, MarkerTake):
+        raise InputError(f"take must be a MarkerTake (lacore.markers.read_take), got {type(take).__name__}")
+    take = drop_non_markers(take)
+    T_all = take.n_frames
+    idx = np.arange(T_all)[frames] if frames is not None else np.arange(T_all)
+    idx = np.atleast_1d(np.asarray(idx, np.int64))
+    if not len(idx):
+        raise InputError("frames selects no frame of the take")
+    n_cal = 2 + (calibration_options or CALIBRATION_DEFAULTS).rounds if calibration is None else 0
+    total = n_cal + len(idx)
+
+    def shifted(offset):
+        if progress is None:
+            return None
+        return lambda done, _total, message: progress(offset + done, total, message)
+
+    if calibration is None:
+        calibration = calibrate(model, static if static is not None else take, calibration_options, fit=fo,
+                                progress=shifted(0))
+    cal = calibration
+    notes = list(cal.notes)
+    missing = [lab for lab in cal.labels if lab not in take.labels]
+    if missing:
+        raise InputError(f"the calibration's markers {', '.join(missing)} are not in the take")
+    extra = [lab for lab in take.labels if lab not in cal.labels]
+    if extra:
+        notes.append(f"markers not calibrated, left out: {', '.join(extra)}")
+    order = [take.labels.index(lab) for lab in cal.labels]
+    x = take.positions[idx][:, order]
+    k, u = cal.scale, cal.length_unit
+    y = x * k
+    if isinstance(fo.prior_weight, str):
+        fo = dataclasses.replace(fo, prior_weight=_auto_prior_weight(
+            model, cal, take.positions[cal.frames][:, order] * k, fo, notes))
+    X0, a0 = cal.start(int(idx[0]))
+    t_fit = time.perf_counter()
+    res = fit_markers(model, y, cal.binding, fo, rate=take.rate, initial_vertices=X0, initial_coefficients=a0,
+                      prolongation=model.fine_level, mean_z=cal.mean_z, progress=shifted(n_cal))
+    fit_seconds = time.perf_counter() - t_fit
+    c = 1.0 / (k * u)                                   # fitted (body-size) units -> model units at performer size
+    dist_m = res.marker_distances / k
+    stats = marker_statistics(dist_m)
+    frame_rms_mm = stats["frame_rms"] * 1000
+    frame_p95_mm = stats["frame_p95"] * 1000
+    with np.errstate(invalid="ignore"):
+        by_marker = np.sqrt(np.nanmean(dist_m ** 2, axis=0)) * 1000
+    flagged_frames, flagged_markers, warns = [], [], []
+    if np.isfinite(frame_rms_mm).any():
+        med = float(np.nanmedian(frame_rms_mm))
+        bad = np.flatnonzero(frame_rms_mm > max(3 * med, 10.0))
+        flagged_frames = [int(idx[t]) for t in bad]
+        if len(bad):
+            warns.append(f"{len(bad)} frame(s) with marker RMS far above the take's ({med:.1f} mm median): "
+                         + ", ".join(f"{int(idx[t])} ({frame_rms_mm[t]:.0f} mm)" for t in bad[:10])
+                         + (" ..." if len(bad) > 10 else ""))
+    if np.isfinite(by_marker).any():
+        medm = float(np.nanmedian(by_marker))
+        badm = np.flatnonzero(by_marker > max(3 * medm, 10.0))
+        flagged_markers = [cal.labels[m] for m in badm]
+        if len(badm):
+            warns.append("markers far from the surface (RMS): " + ", ".join(
+                f"{cal.labels[m]} ({by_marker[m]:.0f} mm)" for m in badm))
+    timings = dict(res.timings, calibration=cal.seconds, total=time.perf_counter() - t_start)
+    fields_ = {f.name: getattr(res, f.name) for f in dataclasses.fields(MarkerFitResult)}
+    fields_.update(
+        vertices=res.vertices * c, marker_residuals=res.marker_residuals * c, marker_distances=res.marker_distances * c,
+        frame_rms=res.frame_rms * c, frame_p95=res.frame_p95 * c, marker_rms=res.marker_rms * c,
+        fine_vertices=None if res.fine_vertices is None else res.fine_vertices * c, timings=timings,
+        prior_weight=float(fo.prior_weight))
+    out = TakeFitResult(**fields_, markers=x / u, labels=list(cal.labels), frames=idx, calibration=cal,
+                        marker_rms_mm=float(np.nanmean(frame_rms_mm)) if np.isfinite(frame_rms_mm).any() else np.nan,
+                        marker_p95_mm=float(np.nanmean(frame_p95_mm)) if np.isfinite(frame_p95_mm).any() else np.nan,
+                        marker_rms_by_marker_mm=by_marker, flagged_frames=flagged_frames,
+                        flagged_markers=flagged_markers, warnings=warns,
+                        seconds_per_frame=fit_seconds / len(idx), calibration_seconds=cal.seconds)
+    out.calibration = dataclasses.replace(cal, notes=notes)
+    return out
