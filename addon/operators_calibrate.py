@@ -138,8 +138,13 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     local = world @ inv[:3, :3].T + inv[:3, 3]
     render = context.scene.render
     rate = render.fps / render.fps_base  # one sample per scene frame
-    markers = drop_non_markers(MarkerTake(labels=tuple(labels), positions=local * unit, rate=rate, units="m"))
     up, forward = object_axes(obj)
+    not_markers = {str(lb): str(why) for lb, why in meta.get("not_markers", [])}
+    keep = [m for m, lb in enumerate(labels) if lb not in not_markers]
+    markers = drop_non_markers(MarkerTake(
+        labels=tuple(labels[m] for m in keep), positions=local[:, keep] * unit, rate=rate, units="m",
+        up_axis=None if up is None else ("" if up.startswith("-") else "+") + up,
+        dropped=tuple(not_markers.items())))
     options = dataclasses.replace(
         defaults, **{k: v for k, v in (("prior_weight", "auto" if auto_prior else prior_weight),
                                        ("temporal_weight", temporal_weight)) if v is not None})

@@ -14,7 +14,7 @@ from conftest import REPO, run_blender_check, shared_data_dir
 from lacore.markers.binding import MarkerBinding, surface_points
 
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_calibrate.py"
-N_TRAIN, N_FRAMES = 20, 24
+N_TRAIN, N_FRAMES = 20, 20
 TAKE = "Walk1.c3d"
 
 
@@ -66,17 +66,12 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
 
 
 def test_modal_progress_and_cancel(run):
-    res = run["cases"]["modal_cancel_and_finish"]
-    c = res["cancel"]
+    c = run["cases"]["modal_cancel"]["cancel"]
     assert c["running"] == ["RUNNING_MODAL"] and c["cancel"] == ["CANCELLED"] and c["unchanged"], c
     assert c["reports"] == [["WARNING", "Cancelled: nothing was changed"]]
     assert c["step_raised"] == "Cancelled"
     done, total = c["seen"]
-    assert 0 < done < total
-    f = res["full"]
-    assert f["state"] == ["FINISHED"] and f["modifier"] and f["last"][0] == f["last"][1]
-    assert f["progress_values"] >= 5  # the bar moves through model, calibration and frames
-    assert f["reports"][-1][0] in ("INFO", "WARNING") and "marker RMS" in " ".join(r[1] for r in f["reports"])
+    assert total // 2 < done < total  # past Build Model (stage 1 of 2), inside the calibration
 
 
 @pytest.mark.parametrize("case, words", [
