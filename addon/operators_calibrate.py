@@ -196,7 +196,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                              + ", ".join(f"{lb} ({why})" for lb, why in dropped[:5])
                              + (" ..." if len(dropped) > 5 else ""))
         job.notes.extend(quality["notes"])
-        job.notes.extend(str(n) for n in getattr(cal, "notes", []))
+        # the calibration's own notes, but its drops once (summarized above)
+        job.notes.extend(str(n) for n in getattr(cal, "notes", []) if not str(n).startswith("dropped "))
         return (f"calibrated (performer {cal.performer_ratio:.2f}x the character) and {text}; "
                 f"{quality['text']}")
     extras = {f"The take '{take_name}' or its marker empties": _take_state(take_name),

@@ -540,7 +540,8 @@ def write_quality(obj, frames, result, labels, unit, take_name):
     * the per-frame curve: the float property :data:`RMS_PROP` (millimetres) keyed at every fitted frame
       (LINEAR; frames without a visible marker get no key), so the Graph Editor and the Dope Sheet show
       where the fit is poor (an existing curve of that property is replaced);
-    * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm), prior weight, flagged frames and markers.
+    * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm: per-frame values averaged over the take),
+      prior weight, flagged frames and markers.
 
     Returns ``{"text": report text, "notes": [warning texts]}``.
     """
@@ -551,8 +552,13 @@ def write_quality(obj, frames, result, labels, unit, take_name):
     n = seen.sum(1)
     rms = np.full(len(d), np.nan)
     rms[n > 0] = np.sqrt(np.nansum(d[n > 0] ** 2, axis=1) / n[n > 0])
-    overall = float(np.sqrt(np.mean(d[seen] ** 2))) if seen.any() else float("nan")
+    # the take's figures as lacore states them (TakeFitResult.marker_rms_mm / marker_p95_mm: per-frame RMS and
+    # 95th percentile in mm, averaged over the frames with markers), computed alike when the result has none
+    overall = float(np.nanmean(rms)) if (n > 0).any() else float("nan")
     p95 = float(np.nanmean(np.nanpercentile(d[n > 0], 95, axis=1))) if (n > 0).any() else float("nan")
+    stated = [getattr(result, name, None) for name in ("marker_rms_mm", "marker_p95_mm")]
+    if all(v is not None and np.isfinite(v) for v in stated):
+        overall, p95 = map(float, stated)
     flagged_frames = [int(frames[t]) for t in getattr(result, "flagged_frames", [])]
     flagged_markers = [labels[m] if isinstance(m, (int, np.integer)) else str(m)
                        for m in getattr(result, "flagged_markers", [])]
@@ -571,7 +577,7 @@ def write_quality(obj, frames, result, labels, unit, take_name):
         owner.fcurves.remove(old)
     keyed = np.isfinite(rms)
     write_curve(owner.fcurves, path, 0, frames[keyed].astype(np.float64), rms[keyed], 'LINEAR')
-    text = (f"marker RMS {overall:.1f} mm (per-frame p95 {p95:.1f} mm), prior weight {prior:g}; per-frame RMS in "
+    text = (f"marker RMS {overall:.1f} mm, p95 {p95:.1f} mm, prior weight {prior:g}; per-frame RMS in "
             f"the property '{RMS_PROP}' of '{obj.name}' (Graph Editor)")
     notes = []
     if flagged_frames or flagged_markers:

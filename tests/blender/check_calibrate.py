@@ -234,6 +234,7 @@ def bad_input():
     attempt("marker_deleted", obj)
     obj, take = open_scene()
     ext("addon.operators_markers").remove_take(take)
+    bpy.context.view_layer.update()
     select_only(obj)
     attempt("no_take", obj)
     # the take imported in millimetres (Scale 1000): the performer would be 1000x the character
