@@ -26,7 +26,7 @@ STAMP_BLENDER42 := $(VENV_BLENDER42)/.stamp-$(BPY42)-$(NUMPY_BLENDER42)
 STAMP_BLENDER52 := $(VENV_BLENDER52)/.stamp-$(BPY52)
 BLENDER_PYTHONS := 4.2=$(abspath $(VENV_BLENDER42))/bin/python:5.2=$(abspath $(VENV_BLENDER52))/bin/python
 
-.PHONY: help venv venv-np2 venv-blender demo test test-np2 test-kernels extension extension-split extension-validate samples bench clean distclean lint
+.PHONY: help venv venv-np2 venv-blender demo test test-np2 test-kernels extension extension-split extension-validate samples bench bench-quick clean distclean lint
 
 help:
 	@echo "make venv       create $(VENV) (Python 3.11, NumPy 1.26) and install lacore[test] in editable mode"
@@ -38,7 +38,8 @@ help:
 	@echo "make extension  download the bundled wheels (4 platforms) and build dist/lengths_angles-*.zip"
 	@echo "make extension-split  one smaller zip per platform (each with only its wheels)"
 	@echo "make samples    generate the sample .blend files into blend_samples/"
-	@echo "make bench      run benchmarks/*.py"
+	@echo "make bench      run every benchmark, store its JSON in docs/benchmarks/, rewrite docs/benchmarks.md"
+	@echo "make bench-quick  the same with the quick variants"
 	@echo "make lint       ruff check"
 	@echo "make clean      remove build/test/demo outputs (distclean: also the venvs and wheels/)"
 
@@ -118,12 +119,19 @@ samples: venv venv-np2 $(STAMP_BLENDER52)
 	$(VENV_BLENDER52)/bin/python scripts/make_samples.py --output blend_samples
 
 # bench_blender_*.py need bpy AND SciPy in one Python: bpy 5.2's venv with $(VENV_NP2)'s packages on the path.
+# scripts/run_benchmarks.py stores each benchmark's JSON in docs/benchmarks/; scripts/benchmark_docs.py then
+# rewrites docs/benchmarks.md and the README's measured tables from them.
+BENCH_RUN = $(PY) scripts/run_benchmarks.py --python $(abspath $(PY)) \
+	--blender-python $(abspath $(VENV_BLENDER52))/bin/python \
+	--blender-pythonpath "$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")"
+
 bench: venv venv-np2 $(STAMP_BLENDER52)
-	@set -e; shopt -s nullglob; files=(benchmarks/bench_*.py); \
-	np2_site=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])"); \
-	for f in "$${files[@]}"; do echo "== $$f"; case "$$f" in \
-	  */bench_blender_*) PYTHONPATH="$$np2_site" $(VENV_BLENDER52)/bin/python "$$f";; \
-	  *) $(PY) "$$f";; esac; done
+	$(BENCH_RUN)
+	$(PY) scripts/benchmark_docs.py
+
+bench-quick: venv venv-np2 $(STAMP_BLENDER52)
+	$(BENCH_RUN) --quick
+	$(PY) scripts/benchmark_docs.py
 
 clean:
 	rm -rf dist demo_output blend_samples .pytest_cache .ruff_cache build *.egg-info

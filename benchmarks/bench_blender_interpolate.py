@@ -85,7 +85,7 @@ def profile_top(fn, n=18):
     stats = pstats.Stats(prof, stream=stream)
     rows = []
     for (file, line, name), (_cc, nc, tt, ct, _callers) in stats.stats.items():
-        short = file.split("site-packages/")[-1].split("/work/main/")[-1]
+        short = file.split("site-packages/")[-1].split(REPO + os.sep)[-1]
         rows.append({"function": f"{short}:{line}({name})", "calls": nc, "cumulative_s": round(ct, 3),
                      "own_s": round(tt, 3)})
     rows.sort(key=lambda r: -r["cumulative_s"])

@@ -28,6 +28,8 @@ Steps now:
 7. ``blender_mocap_fit``: the take of step 4 as ``human_take.c3d``; the add-on's Build Shape Model (from shape
    keys), Import Markers, Bind Markers and Fit to Markers operators (scripts/demo_mocap_blender.py) ->
    ``human_mocap_fit.blend`` with a Mesh Cache modifier playing its PC2 next to it, ``human_mocap_fit.json``.
+8. ``blender_panel``: the add-on's panels and the In-betweens dialog drawn from their own ``draw()`` calls
+   (scripts/draw_panel.py) -> ``panel.png`` and ``inbetweens_dialog.png`` (the README's panel picture).
 """
 
 import argparse
@@ -161,7 +163,7 @@ def cli_interpolate(out_dir):
     return {
         "outputs": outputs,
         "text": (f"`lacore interpolate` finger0 -> finger1 at t = {', '.join(factors)} (outside [0, 1] "
-                 f"extrapolates; Gauss-Newton projection, warm-started): {len(factors)} PLY files; "
+                 f"extrapolates; the default projection, Fast): {len(factors)} PLY files; "
                  "open them in any mesh viewer"),
         "result": result,
     }
@@ -221,7 +223,7 @@ def cli_human_fit(out_dir):
     """`lacore fit` of human_model.npz to the 41 standard markers of a 20-frame held-out take + a picture."""
     sys.path.insert(0, HERE)
     import numpy as np
-    from render_marker_fit import draw_points, error_colors, rasterize, write_png
+    from render_marker_fit import TRUE_COLOR, error_colors, figure, front_view, write_png
 
     from lacore.samples.markers import observe_markers, place_markers
     body, _, take, root_rotation = _human_data()
@@ -240,31 +242,24 @@ def cli_human_fit(out_dir):
     result["max_vertex_error_mm"] = float(err_mm.max())
     with open(os.path.join(out_dir, "human_fit.json"), "w") as fh:
         json.dump(result, fh, indent=1)
-    # one frame, front view: true mesh + markers (left), fit coloured by per-vertex error (right)
+    # one frame, front view: true mesh + markers (left), fit coloured by per-vertex error (right), legend below
     t = len(take) // 2
-    heading = root_rotation[t] @ np.array([0.0, 0.0, 1.0])
-    heading[1] = 0.0
-    zc = heading / np.linalg.norm(heading)
-    yc = np.array([0.0, 1.0, 0.0])
-    view = np.stack([np.cross(yc, zc), yc, zc])
-    cell = (400, 260)
-    image = np.ones((cell[0], 2 * cell[1], 3))
-    depth = np.full(image.shape[:2], -np.inf)
+    view = front_view(root_rotation[t] @ np.array([0.0, 0.0, 1.0]))
     X = take[t]
     centre = 0.5 * (X.min(0) + X.max(0))
-    scale = 0.9 * cell[0] / 18.0
-    rasterize(X, body.faces, np.tile([0.75, 0.8, 0.9], (len(X), 1)), view, cell, image, depth, (0, 0), scale, centre)
-    draw_points(image, depth, positions[t], view, cell, (0, 0), scale, centre, np.array([0.1, 0.6, 0.1]))
-    rasterize(fitted[t], body.faces, error_colors(err_mm[t]), view, cell, image, depth, (0, cell[1]), scale, centre)
-    draw_points(image, depth, positions[t], view, cell, (0, cell[1]), scale, centre, np.array([0.1, 0.6, 0.1]))
+    panels = [(0, 0, X, np.tile(TRUE_COLOR, (len(X), 1)), positions[t], view, centre),
+              (0, 1, fitted[t], error_colors(err_mm[t]), positions[t], view, centre)]
+    image = figure(panels, 1, 2, body.faces, cell=(400, 260),
+                   col_titles=["true pose + markers", "lengths & angles fit"],
+                   title=f"held-out frame {t}: mean error {err_mm[t].mean():.1f} mm")
     write_png(os.path.join(out_dir, "human_fit.png"), (np.clip(image, 0, 1) * 255).astype(np.uint8))
     return {
         "outputs": ["human_take_markers.npz", "human_fit.npz", "human_fit.json", "human_fit.png"],
-        "text": (f"`lacore fit` human_model.npz to {result['markers']} markers (5 mm noise, occlusions) of a "
+        "text": (f"`lacore fit` human_model.npz to {result['markers']} markers (0.5 mm noise, occlusions) of a "
                  f"{result['frames']}-frame held-out take (seed 2): marker RMS {100 * result['marker_rms']:.1f} mm, "
                  f"mean per-vertex error vs the true poses {result['mean_vertex_error_mm']:.1f} mm (max "
                  f"{result['max_vertex_error_mm']:.0f} mm), {result['seconds']:.1f} s; human_fit.png frame {t}: "
-                 "true mesh + markers (left), fit coloured by error, white 0 -> red >= 50 mm (right)"),
+                 "true mesh + markers (left), fit coloured by error, white 0 -> red >= 50 mm (right), with a legend"),
         "result": result,
     }
 
@@ -301,8 +296,22 @@ def blender_mocap_fit(out_dir):
     }
 
 
+def blender_panel(out_dir):
+    """The README's picture of the panels (and of the In-betweens dialog), drawn in headless Blender."""
+    panel = os.path.join(out_dir, "panel.png")
+    dialog = os.path.join(out_dir, "inbetweens_dialog.png")
+    with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
+        run_blender([BLENDER_PYTHON, os.path.join(HERE, "draw_panel.py"), "--output", panel, "--dialog", dialog],
+                    env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+    return {
+        "outputs": ["panel.png", "inbetweens_dialog.png"],
+        "text": ("the add-on's panels (a bar with shape keys, an in-between, a shape model and a bound take) and the "
+                 "In-betweens dialog, drawn from their draw() calls: panel.png, inbetweens_dialog.png"),
+    }
+
+
 STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate,
-         blender_mocap_fit]
+         blender_mocap_fit, blender_panel]
 
 
 def main(argv=None):

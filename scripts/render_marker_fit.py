@@ -2,11 +2,14 @@
 
 Reads the ``.npz`` written by ``benchmarks/bench_marker_fitting.py --save FILE`` and draws, for a few frames
 (columns), the true mesh with its markers and the three fits (lengths-and-angles model, vertex PCA, mean-only
-prior) coloured by per-vertex error (white 0 -> red >= 50 mm): an orthographic triangle z-buffer rasterizer with
-Lambert shading, written to PNG by zlib.
+prior) coloured by per-vertex error (white 0 -> red >= 50 mm), each row titled with its mean error, and a
+legend: an orthographic triangle z-buffer rasterizer with Lambert shading, labels in the bitmap font of
+``scripts/raster_text.py``, written to PNG by zlib.  ``make demo`` draws its ``human_fit.png`` with
+:func:`figure` too.
 
 Usage::
 
+    python scripts/run_benchmarks.py --only bench_marker_fitting --extra=--save --extra=FIT.npz
     python scripts/render_marker_fit.py FIT.npz -o docs/images/marker_fitting.png [--frames 20 75 130]
 """
 
@@ -16,8 +19,12 @@ import struct
 import zlib
 
 import numpy as np
+from raster_text import color_bar, draw_text, text_size
 
 ERR_MAX_MM = 50.0
+TRUE_COLOR = np.array([0.75, 0.8, 0.9])
+MARKER_COLOR = np.array([0.1, 0.6, 0.1])
+TEXT_SCALE = 2
 
 
 def write_png(path, rgb):
@@ -87,8 +94,68 @@ def draw_points(image, depth, points, view, size, offset, scale, centre, color, 
 
 
 def error_colors(err_mm):
-    t = np.clip(err_mm / ERR_MAX_MM, 0, 1)[:, None]
+    """Per-vertex colours: white at 0 mm to red at :data:`ERR_MAX_MM` and beyond."""
+    t = np.clip(np.asarray(err_mm, float) / ERR_MAX_MM, 0, 1)[..., None]
     return (1 - t) * np.array([0.92, 0.92, 0.92]) + t * np.array([0.85, 0.1, 0.1])
+
+
+def front_view(heading):
+    """World -> camera rotation looking at a body from the front: ``heading`` (3,) is its forward direction
+    (y is up; only the horizontal part counts)."""
+    zc = np.array(heading, float)
+    zc[1] = 0.0
+    zc /= np.linalg.norm(zc)
+    yc = np.array([0.0, 1.0, 0.0])
+    return np.stack([np.cross(yc, zc), yc, zc])
+
+
+def figure(panels, n_rows, n_cols, faces, cell=(300, 190), col_titles=None, row_titles=None, title=None,
+           body_height=18.0):
+    """A grid of rendered bodies with titles and a legend; returns the ``(H, W, 3)`` float image.
+
+    ``panels``: ``[(row, col, vertices (V, 3), colors (V, 3), markers (M, 3) or None, view (3, 3),
+    centre (3,))]``.  ``col_titles`` go above the columns, ``row_titles`` above each row, ``title`` on top;
+    the legend (marker swatch, error colour bar) at the bottom.  ``body_height`` (scene units) fills 90 % of
+    a cell's height.
+    """
+    s = TEXT_SCALE
+    strip = 13 * s
+    top = (strip if title else 0) + (strip if col_titles else 0)
+    row_h = cell[0] + (strip if row_titles else 0)
+    legend_h = 30 * s
+    H, W = top + n_rows * row_h + legend_h, n_cols * cell[1]
+    image = np.ones((H, W, 3))
+    depth = np.full((H, W), -np.inf)
+    scale = 0.9 * cell[0] / body_height
+    y = 2 * s
+    if title:
+        draw_text(image, title, 4 * s, y, s)
+        y += strip
+    for j, text in enumerate(col_titles or []):
+        tw, _ = text_size(text, s)
+        draw_text(image, text, j * cell[1] + max((cell[1] - tw) // 2, 0), y, s)
+    for i, text in enumerate(row_titles or []):
+        draw_text(image, text, 4 * s, top + i * row_h + 2 * s, s)
+    for i, j, X, colors, markers, view, centre in panels:
+        off = (top + i * row_h + (strip if row_titles else 0), j * cell[1])
+        rasterize(X, faces, colors, view, cell, image, depth, off, scale, centre)
+        if markers is not None:
+            draw_points(image, depth, markers, view, cell, off, scale, centre, MARKER_COLOR)
+    # legend: marker swatch, then the error colour bar
+    ly = top + n_rows * row_h + 6 * s
+    x = 4 * s
+    image[ly + s:ly + 7 * s, x:x + 6 * s] = MARKER_COLOR
+    draw_text(image, "marker", x + 9 * s, ly, s)
+    x += 9 * s + text_size("marker", s)[0] + 12 * s
+    bar_w = min(75 * s, W - x - text_size("error vs true pose", s)[0] - 8 * s)
+    color_bar(image, x, ly, bar_w, 8 * s, error_colors_unit, [(0.0, "0"), (0.5, "25"), (1.0, "50+ mm")],
+              "error vs true pose", s)
+    return image
+
+
+def error_colors_unit(t):
+    """:func:`error_colors` on ``t`` in [0, 1] (a fraction of :data:`ERR_MAX_MM`)."""
+    return error_colors(np.asarray(t) * ERR_MAX_MM)
 
 
 def main(argv=None):
@@ -99,13 +166,15 @@ def main(argv=None):
     args = p.parse_args(argv)
     d = np.load(args.fit)
     true, faces, markers = d["true"], d["faces"], d["markers"]
-    fits = [("la", d["la"]), ("pca", d["pca"]), ("mean", d["mean_only"])]
+    fits = [("lengths & angles fit", d["la"]), ("vertex PCA fit (baseline)", d["pca"]),
+            ("mean-only prior", d["mean_only"])]
     T = len(true)
     frames = args.frames or [int(T * 0.15), int(T * 0.5), int(T * 0.85)]
-    cell = (300, 190)  # (height, width) per panel
-    rows = 1 + len(fits)
-    image = np.ones((rows * cell[0], len(frames) * cell[1], 3))
-    depth = np.full(image.shape[:2], -np.inf)
+    panels = []
+    row_titles = ["true pose + markers"]
+    for name, V in fits:
+        err = np.linalg.norm(V - true, axis=2) * 100.0   # decimetres -> mm
+        row_titles.append(f"{name}: mean error {err.mean():.1f} mm")
     for j, t in enumerate(frames):
         X = true[t]
         centre = 0.5 * (X.min(0) + X.max(0))
@@ -115,24 +184,13 @@ def main(argv=None):
         else:
             m = markers[max(t - 5, 0):t + 6]
             heading = np.nanmean(m[:, 9:11].reshape(-1, 3), 0) - np.nanmean(m[:, 11:13].reshape(-1, 3), 0)
-        heading = heading.copy()
-        heading[1] = 0.0
-        heading /= np.linalg.norm(heading)
-        zc = heading
-        yc = np.array([0.0, 1.0, 0.0])
-        xc = np.cross(yc, zc)
-        view = np.stack([xc, yc, zc])
-        scale = 0.9 * cell[0] / 18.0
-        for i in range(rows):
-            off = (i * cell[0], j * cell[1])
-            if i == 0:
-                rasterize(X, faces, np.tile([0.75, 0.8, 0.9], (len(X), 1)), view, cell, image, depth, off, scale,
-                          centre)
-                draw_points(image, depth, markers[t], view, cell, off, scale, centre, np.array([0.1, 0.6, 0.1]))
-            else:
-                V = fits[i - 1][1][t]
-                err = np.linalg.norm(V - X, axis=1) * 100.0
-                rasterize(V, faces, error_colors(err), view, cell, image, depth, off, scale, centre)
+        view = front_view(heading)
+        panels.append((0, j, X, np.tile(TRUE_COLOR, (len(X), 1)), markers[t], view, centre))
+        for i, (_, V) in enumerate(fits, start=1):
+            err = np.linalg.norm(V[t] - X, axis=1) * 100.0
+            panels.append((i, j, V[t], error_colors(err), None, view, centre))
+    image = figure(panels, 1 + len(fits), len(frames), faces, col_titles=[f"frame {t}" for t in frames],
+                   row_titles=row_titles, title=f"held-out take, errors: mean over its {T} frames")
     write_png(args.output, (np.clip(image, 0, 1) * 255).astype(np.uint8))
 
 

@@ -338,6 +338,23 @@ def make_runs(context, obj, take):
             "fit_markers": lambda: fit.fit_run(context, obj, 1, T)}
 
 
+def hold_after_first_progress(run):
+    """Make the run's worker wait after its first progress report until the returned event is set, so that Esc
+    arrives while the step computes however fast the machine is (the job's own progress callback still decides
+    whether lacore stops)."""
+    import threading
+
+    job, report, released = run.job, run.job._progress, threading.Event()
+
+    def progress(done, total, message=""):
+        report(done, total, message)
+        if job.done > 0:
+            released.wait(120)
+        return job.cancelled
+    job._progress = progress
+    return released
+
+
 def runs_progress_and_cancel():
     """Each long operator of the model/marker panel through the one run mechanism: modal steps in the worker
     thread with progress; Esc while a step computes cancels it (lacore raises Cancelled inside the step) and
@@ -353,12 +370,14 @@ def runs_progress_and_cancel():
     for name, make in make_runs(bpy.context, obj, take).items():
         before = state(obj)
         op, run = fake_operator(), make()
+        released = hold_after_first_progress(run)
         op._begin_modal(bpy.context, run)
         # Esc once the job has reported progress (or its step has ended)
         state_, seen = drive(op, run, until=lambda r, op=op: r.done > 0 or (op._future is not None
                                                                               and op._future.done()))
         future = op._future
         cancelled = op.modal(bpy.context, esc())
+        released.set()
         runs.wait_for_worker_thread()
         try:
             future.result()
