@@ -99,6 +99,25 @@ def object_axes(obj):
     return _axis_name(inv @ [0.0, 0.0, 1.0]), _axis_name(inv @ [0.0, -1.0, 0.0])
 
 
+#: What to do in Blender about lacore's unit and axis mismatches (their own advice is for scripts).
+_ADVICE = {
+    "UnitMismatchError": "the markers and the character differ that much in size as they stand in the scene: import "
+                         "the take again with a Scale that matches the character (Import Motion Capture Markers > "
+                         "Scale) or scale the character",
+    "AxisMismatchError": "the character does not stand up along the scene's Z axis facing -Y (front view): rotate "
+                         "it upright, or import the take again with its Up axis (Import Motion Capture Markers > Up)",
+}
+
+
+def _in_blender_terms(exc):
+    """lacore's unit and axis mismatch errors with advice for Blender (one line); other errors as they are."""
+    advice = _ADVICE.get(type(exc).__name__)
+    if advice is None:
+        return exc
+    head = str(exc).split(": check")[0].split(";")[0]
+    return FitSetupError(f"{head}: {advice}")
+
+
 def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=None, auto_prior=None,
                       temporal_weight=None, filepath=""):
     """A :class:`.runs.Run` building the model if needed, calibrating and fitting the frame range of ``take`` to
@@ -166,7 +185,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             m = _build_model(built, staged(0))
         fitted = copy.copy(m)  # the unit and axes of this scene, not stored with the model
         fitted.length_unit, fitted.up_axis, fitted.forward_axis = unit, up, forward
-        result = fit_take(fitted, markers, options=options, progress=staged(stages - 1))
+        try:
+            result = fit_take(fitted, markers, options=options, progress=staged(stages - 1))
+        except InputError as exc:
+            raise _in_blender_terms(exc) from exc
         return m, result
 
     job = CallJob(compute, "calibrate & fit", total=1000 * (2 if built is not None else 1))
@@ -219,6 +241,9 @@ class LENGTHS_ANGLES_OT_calibrate_fit(RunOperator, bpy.types.Operator):
     (Esc cancels)"""
     bl_idname = "lengths_angles.calibrate_fit"
     bl_label = "Calibrate & Fit"
+    bl_description = ("Fit the active character to the selected marker take: build its shape model if needed, "
+                      "calibrate (units, placement, performer size, marker binding) and fit every frame, played "
+                      "back by a Mesh Cache modifier (Esc cancels)")
     bl_options = {'REGISTER', 'UNDO'}
 
     use_scene_range: BoolProperty(name="Scene Frame Range", default=True,

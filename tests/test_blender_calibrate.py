@@ -78,7 +78,8 @@ def test_modal_progress_and_cancel(run):
 
 @pytest.mark.parametrize("case, words", [
     ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
-    ("marker_deleted", "missing"), ("no_take", "no marker take"), ("unit_mismatch", "")])
+    ("marker_deleted", "missing"), ("no_take", "no marker take"),
+    ("unit_mismatch", "a Scale that matches the character")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
