@@ -567,6 +567,10 @@ def write_quality(obj, frames, result, labels, unit, take_name):
                      "marker_rms_mm": overall, "marker_p95_mm": p95, "prior_weight": prior,
                      "flagged_frames": flagged_frames, "flagged_markers": flagged_markers,
                      "success": bool(getattr(result, "success", True))}
+    for name in ("calibration_seconds", "seconds_per_frame"):  # lacore's timings, where it states them
+        value = getattr(result, name, None)
+        if value is not None and np.isfinite(value):
+            obj[FIT_PROP][name] = float(value)
     obj[RMS_PROP] = float(rms[0]) if np.isfinite(rms[0]) else 0.0
     obj.id_properties_ui(RMS_PROP).update(
         min=0.0, description="RMS distance (mm) of the visible markers from the fitted surface in this frame")
