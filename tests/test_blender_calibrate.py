@@ -73,7 +73,7 @@ def test_modal_progress_and_cancel(run):
     assert c["reports"] == [["WARNING", "Cancelled: nothing was changed"]]
     assert c["step_raised"] == "Cancelled"
     done, total = c["seen"]
-    assert total // 2 < done < total  # past Build Model (stage 1 of 2), inside the calibration
+    assert total // 2 < done < total  # Esc halfway (the model stored by the first run: calibration and fit)
 
 
 @pytest.mark.parametrize("case, words", [

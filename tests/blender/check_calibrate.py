@@ -182,19 +182,18 @@ def drive(op, run, until=None, timeout=300.0):
 
 
 def modal_cancel():
-    """From the UI: modal with progress; Esc during the calibration leaves the scene as it was (the model not
-    stored, nothing written).  (A full modal run is the same Run: tests/test_blender_fit.py drives those.)"""
+    """From the UI: modal with progress; Esc halfway (the model stored by whole_path: calibration and fit)
+    leaves the scene as it was.  (A full modal run is the same Run: tests/test_blender_fit.py drives those.)"""
     cal = ext("addon.operators_calibrate")
     runs = ext("addon.runs")
     out = {}
-    # a fresh scene without a model: the run builds it, then calibrates and fits
     obj, take = open_scene()
     scene = bpy.context.scene
     before = state(obj)
     run = cal.calibrate_fit_run(bpy.context, obj, take, scene.frame_start, scene.frame_end)
     op = fake_operator()
     op._begin_modal(bpy.context, run)
-    # Esc once the calibration (stage 2 of 2: past the model) has reported progress
+    # Esc once the run is halfway
     state_, seen = drive(op, run, until=lambda r: r.done > r.total // 2)
     future = op._future
     cancelled = op.modal(bpy.context, esc())
