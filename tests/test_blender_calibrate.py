@@ -84,3 +84,14 @@ def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
     assert words in res["message"] and "Traceback" not in res["message"], res
+
+
+def test_coarse_model_plays_back_on_the_full_mesh(run):
+    """Build Model with a coarse level: fits run on 1,000 vertices and are played back on all 2,500."""
+    res = run["cases"]["coarse_model"]
+    assert res["coarse_vertices"] == 1000 and res["fine_vertices"] == res["mesh_vertices"] == len(run["faces"]) // 2 + 2
+    assert res["mode1_moves"] > 0.1  # the slider pose, prolonged to the mesh (decimetres)
+    assert res["result"] == ["FINISHED"] and res["finite"]
+    assert res["evaluated_shape"] == [2, res["mesh_vertices"], 3]
+    assert res["binding_faces_max"] < res["coarse_faces"]  # bound on the coarse level
+    assert res["marker_rms_mm"] < 25.0, res

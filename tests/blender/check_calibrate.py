@@ -245,5 +245,36 @@ def bad_input():
     return out
 
 
+def coarse_model():
+    """Build Model on a coarse level (Coarse Vertices 1000 of the 2,500): the model carries its fine level; the
+    slider pose, Calibrate & Fit and the played-back fit are on the full mesh."""
+    obj, take = open_scene()
+    fit = ext("addon.operators_fit")
+    fit.remove_model(obj)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        assert bpy.ops.lengths_angles.build_model(coarse_vertices=1000) == {'FINISHED'}
+    model = fit.read_model(obj)
+    obj.lengths_angles_mode_weights[0] = 1.0
+    assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
+    kb = obj.data.shape_keys.key_blocks["mode1"]
+    mode1 = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", mode1)
+    obj.shape_key_remove(kb)
+    obj.lengths_angles_mode_weights[0] = 0.0
+    select_only(obj, take)
+    t = time.perf_counter()
+    result = bpy.ops.lengths_angles.calibrate_fit()
+    seconds = time.perf_counter() - t
+    ev = evaluated(obj, [1, N_FRAMES])
+    q = obj[fit.FIT_PROP].to_dict()
+    basis = INPUTS["basis"]
+    return {"coarse_vertices": int(model.reference_vertices.shape[0]),
+            "fine_vertices": int(model.fine_level.n_fine_vertices), "mesh_vertices": len(obj.data.vertices),
+            "mode1_moves": float(np.abs(mode1.reshape(-1, 3) - basis).max()), "result": sorted(result),
+            "seconds": round(seconds, 2), "evaluated_shape": list(ev.shape), "finite": bool(np.isfinite(ev).all()),
+            "marker_rms_mm": q["marker_rms_mm"], "binding_faces_max": max(obj[fit.BINDING_PROP]["faces"]),
+            "coarse_faces": int(len(model.faces))}
+
+
 if __name__ == "__main__":
-    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input])
+    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input, coarse_model])
