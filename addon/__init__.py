@@ -6,11 +6,11 @@ All mathematics lives in the sibling package ``lacore`` (imported relatively).
 
 import bpy
 
-from . import (operators, operators_fit, operators_interpolate, operators_live_mix, operators_markers, panels,
-               runs)
+from . import (operators, operators_calibrate, operators_fit, operators_interpolate, operators_live_mix,
+               operators_markers, panels, runs)
 
 classes = (*operators.classes, *operators_interpolate.classes, *operators_markers.classes,
-           *operators_fit.classes, *operators_live_mix.classes, *panels.classes)
+           *operators_fit.classes, *operators_calibrate.classes, *operators_live_mix.classes, *panels.classes)
 
 
 def register():

@@ -11,7 +11,7 @@ from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
 from . import bake, live_mix, session, storage
 from .mesh_access import object_mode, require_mesh_object
-from .operators_fit import BINDING_PROP, remove_model
+from .operators_fit import BINDING_PROP, remove_model, remove_quality
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -55,9 +55,10 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity), the shape model (with its preview key and slider values), the marker binding, the live
-    mixer (with its key: Blender's linear mixing again) and the session cache.  Results you asked for
-    (in-between keys, fitted keys or point caches) stay.  Returns a short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding, the last
+    fit's quality (summary and per-frame RMS curve), the live mixer (with its key: Blender's linear mixing again)
+    and the session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
+    short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
@@ -71,6 +72,8 @@ def remove_data(obj):
     if BINDING_PROP in obj:
         del obj[BINDING_PROP]
         removed.append("marker binding")
+    if remove_quality(obj):
+        removed.append("fit quality")
     if live_mix.disable(obj):
         removed.append("live mixer")
     session.clear()

@@ -58,21 +58,34 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from ..lacore.errors import InputError
 from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
-from ..lacore.markers.fitting import fit_markers
+from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers
+from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
-from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels
+from ..lacore.multiresolution import coarsen
+from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels, id_fcurves
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
 from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_own_key, parse_key_list
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
+from .operators_markers import _write_curve as write_curve
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
-__all__ = ["MODEL_PROP", "BINDING_PROP", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run", "bind_run", "fit_run",
+__all__ = ["MODEL_PROP", "BINDING_PROP", "FIT_PROP", "RMS_PROP", "metres_per_unit", "write_quality",
+           "remove_quality", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run", "bind_run", "fit_run",
            "fit_inputs", "store_model", "read_model", "read_binding", "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
 BINDING_PROP = "lengths_angles_binding"
+#: The last fit's quality on the object (take, frames, marker RMS / p95 in mm, prior weight, flagged frames/markers).
+FIT_PROP = "lengths_angles_fit"
+#: The keyed float property of the fitted object holding the per-frame marker RMS in mm (a curve to look at).
+RMS_PROP = "LA marker RMS"
 MAX_MODES = 32
+#: Auto coarse level of Build Model: meshes of more than twice as many vertices get a model on a coarse mesh of
+#: this many vertices (the fit runs there and is prolonged: the coarse CC0 body's size).
+COARSE_MODEL_VERTICES = 2500
+#: The Fit operators' prior weight default: lacore's (a number; "auto" is Calibrate & Fit's option).
+_DEFAULT_PRIOR = 1.0 if isinstance(FIT_DEFAULTS.prior_weight, str) else float(FIT_DEFAULTS.prior_weight)
 MAX_SHAPE_KEY_FRAMES = 100
 
 
@@ -95,9 +108,21 @@ def _prop_state(object_name, prop, on_mesh):
 
 
 # ---------------------------------------------------------------------------------------------- model
-def model_run(obj, keys=None, n_modes=None):
-    """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
-    the basis and the add-on's own keys) and storing it (validated; raises InputError subclasses)."""
+def coarse_vertices_for(n_vertices, requested=-1):
+    """Vertices of the coarse level a model of a mesh of ``n_vertices`` is built on (0: none, the mesh itself).
+
+    ``requested`` > 0 as given (if it coarsens), 0 none, -1 (Auto) :data:`COARSE_MODEL_VERTICES` for meshes of
+    more than twice as many vertices.
+    """
+    requested = int(requested)
+    if requested < 0:
+        requested = COARSE_MODEL_VERTICES if n_vertices > 2 * COARSE_MODEL_VERTICES else 0
+    return requested if 0 < requested < n_vertices else 0
+
+
+def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
+    """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes,
+    coarse)`` (``coarse``: vertices of the coarse level, 0 for none; :func:`coarse_vertices_for`)."""
     mesh = require_mesh_object(obj)
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
@@ -112,20 +137,73 @@ def model_run(obj, keys=None, n_modes=None):
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
-    faces = triangulate(mesh).faces
-    poses = coords[[names.index(k) for k in keys]]
-    reference = coords[0]
-    job = CallJob(lambda progress: ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=n_modes,
-                                                  progress=progress), "shape model", total=4)
-    keys = list(keys)
+    return {"names": names, "keys": list(keys), "poses": coords[[names.index(k) for k in keys]],
+            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes,
+            "coarse": coarse_vertices_for(len(mesh.vertices), coarse_vertices)}
+
+
+def _build_model(inputs, progress):
+    """lacore's :meth:`ShapeModel.fit` on :func:`_model_inputs` (any thread): on the mesh, or on a coarse level
+    (:func:`lacore.multiresolution.coarsen` of the reference and the training poses) carrying its
+    :class:`lacore.models.FineLevel`, so fits run on the coarse mesh and are prolonged to this one."""
+    poses, faces, reference = inputs["poses"], inputs["faces"], inputs["reference"]
+    if not inputs["coarse"]:
+        return ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=inputs["n_modes"],
+                              progress=progress)
+    half = staged_progress(progress, 2)
+    c = coarsen(np.concatenate([reference[None], poses]), faces, inputs["coarse"], progress=half(0))
+    model = ShapeModel.fit(poses[:, c.vertex_indices], c.faces, reference_vertices=reference[c.vertex_indices],
+                           n_modes=inputs["n_modes"], progress=half(1))
+    model.fine_level = FineLevel.build(c, reference, poses, model.training_coefficients)
+    return model
+
+
+def staged_progress(progress, stages, scale=1000):
+    """``stage -> progress callback`` mapping stage ``stage``'s ``(done, total)`` onto
+    ``stage * scale + scale * done / total`` of ``stages * scale`` (one bar for several lacore calls)."""
+    def stage(i):
+        def report(done, total, message=""):
+            if progress is None:
+                return False
+            return progress(i * scale + int(scale * min(done, total) / max(total, 1)), stages * scale, message)
+        return report
+    return stage
+
+
+def model_vertices(model, coefficients):
+    """Vertices of the model's pose with ``coefficients`` on the mesh it was built from (prolonged from the
+    coarse level when there is one)."""
+    X = model.synthesize(coefficients)
+    fine = getattr(model, "fine_level", None)
+    return X if fine is None else fine(X, coefficients)
+
+
+def model_mesh_vertices(model, X):
+    """The model's vertices of a pose ``X`` of the mesh it was built from (the coarse level's, if any)."""
+    fine = getattr(model, "fine_level", None)
+    return X if fine is None else X[fine.coarsening.vertex_indices]
+
+
+def model_run(obj, keys=None, n_modes=None, coarse_vertices=-1):
+    """A :class:`.runs.Run` building a ShapeModel of the mesh ``obj`` from shape keys ``keys`` (default all but
+    the basis and the add-on's own keys), on a coarse level for large meshes (:func:`coarse_vertices_for`), and
+    storing it (validated; raises InputError subclasses)."""
+    inputs = _model_inputs(obj, keys, n_modes, coarse_vertices)
+    job = CallJob(lambda progress: _build_model(inputs, progress), "shape model",
+                  total=2000 if inputs["coarse"] else 4)
+    keys = inputs["keys"]
 
     def write(obj, job):
-        store_model(obj.data, job.result, keys)
-        _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
-        obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
-        _PENDING_PREVIEWS.discard(obj.name)
+        _store_built_model(obj, job.result, keys)
         return f"shape model of {len(keys)} keys, {job.result.n_modes} modes"
-    return Run(job, ObjectWatch(obj, [names[0], *keys]), write, what="model")
+    return Run(job, ObjectWatch(obj, [inputs["names"][0], *keys]), write, what="model")
+
+
+def _store_built_model(obj, model, keys):
+    store_model(obj.data, model, keys)
+    _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
+    obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
+    _PENDING_PREVIEWS.discard(obj.name)
 
 
 def store_model(mesh, model, keys):
@@ -169,7 +247,9 @@ def read_model(obj):
         _MODEL_CACHE.clear()
         _MODEL_CACHE[key] = model
     faces = triangulate(mesh).faces
-    if len(mesh.vertices) != int(meta["n_vertices"]) or not np.array_equal(faces, model.faces):
+    fine = getattr(model, "fine_level", None)
+    if len(mesh.vertices) != int(meta["n_vertices"]) or not np.array_equal(
+            faces, model.faces if fine is None else fine.fine_faces):
         raise FitSetupError(f"mesh '{mesh.name}' was edited after its model was built ({len(mesh.vertices)} vertices "
                             f"now, {int(meta['n_vertices'])} then, or other faces): build the model again")
     return model
@@ -200,7 +280,7 @@ def preview_pose(obj):
     """Write the mode sliders' pose (``ShapeModel.synthesize``) into the shape key :data:`PREVIEW_KEY` (at 1)."""
     model = read_model(obj)
     w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-    X = model.synthesize(w * model.standard_deviations)
+    X = model_vertices(model, w * model.standard_deviations)
     if obj.data.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
     kb = obj.data.shape_keys.key_blocks.get(PREVIEW_KEY) or obj.shape_key_add(name=PREVIEW_KEY, from_mix=False)
@@ -267,9 +347,37 @@ def _posed_mesh_state(obj_name):
     return state
 
 
+def metres_per_unit(obj, take=None, scene=None):
+    """Metres per unit of length in ``obj``'s own space (where meshes, bindings and fits are computed).
+
+    A take empty imported by :func:`.operators_markers.import_take` knows it exactly: its markers are the file's
+    metres times the import *Scale*, in the take empty's space; otherwise the scene's Unit Scale
+    (``scene.unit_settings.scale_length``: metres per Blender unit).  Object scales count (their mean
+    factor, the cube root of the determinant of the world matrix).
+    """
+    def factor(ob):
+        return abs(float(np.linalg.det(np.array(ob.matrix_world, np.float64)[:3, :3]))) ** (1.0 / 3.0)
+    meta = take.get(TAKE_PROP) if take is not None else None
+    if meta is not None and float(meta.get("scale", 0.0)) > 0 and factor(take) > 0:
+        world = 1.0 / (float(meta["scale"]) * factor(take))
+    else:
+        scene = scene or bpy.context.scene
+        world = float(scene.unit_settings.scale_length) or 1.0
+    return world * (factor(obj) or 1.0)
+
+
+#: Markers needed to bind (and to place a pose by them).
+MIN_BOUND_MARKERS = 3
+
+
 def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     """A :class:`.runs.Run` binding markers of ``take`` (``labels`` or all) to ``obj`` at the current frame and
-    storing the binding (validated; raises InputError subclasses)."""
+    storing the binding (validated; raises InputError subclasses).
+
+    Markers occluded at the current frame are not bound (the report names them; Calibrate & Fit binds every
+    marker where it is visible); at least :data:`MIN_BOUND_MARKERS` must be visible.  ``warn_distance`` is in
+    metres (:func:`metres_per_unit`).
+    """
     require_mesh_object(obj)
     model = read_model(obj)
     all_labels = [lb for lb, _ in marker_objects(take)]
@@ -277,19 +385,25 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     idx = [all_labels.index(lb) for lb in labels]
     frame = context.scene.frame_current
     world = read_take(take, frames=[frame]).positions[0][idx]
-    hidden = [lb for lb, x in zip(labels, world, strict=True) if not np.isfinite(x).all()]
-    if hidden:
-        raise FitSetupError(f"markers {', '.join(map(repr, hidden[:5]))} are occluded at frame {frame}: "
-                            "bind at a frame where all are visible (or select the visible ones)")
+    seen = np.isfinite(world).all(1)
+    hidden = [lb for lb, s in zip(labels, seen, strict=True) if not s]
+    if seen.sum() < MIN_BOUND_MARKERS:
+        raise FitSetupError(f"only {int(seen.sum())} of the {len(labels)} markers are visible at frame {frame} "
+                            f"(occluded: {', '.join(map(repr, hidden[:5]))}{' ...' if len(hidden) > 5 else ''}): "
+                            f"bind at a frame where at least {MIN_BOUND_MARKERS} are visible, or use Calibrate & Fit")
+    labels = [lb for lb, s in zip(labels, seen, strict=True) if s]
+    world = world[seen]
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     local = world @ inv[:3, :3].T + inv[:3, 3]
-    X = _mesh_vertices(obj, context.evaluated_depsgraph_get())
+    X = model_mesh_vertices(model, _mesh_vertices(obj, context.evaluated_depsgraph_get()))
     faces = model.faces
     iterations = 100
     job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
                                                 progress=progress), "binding", total=iterations if align else 1)
     empties = {lb: o.name for lb, o in marker_objects(take)}
     take_name = take.name
+    unit = metres_per_unit(obj, take, context.scene)
+    warn_distance = float(warn_distance)
 
     def write(obj, job):
         binding, _info = job.result
@@ -297,11 +411,16 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
         }
-        far = np.flatnonzero(np.abs(binding.offsets) > warn_distance)
+        if hidden:
+            job.notes.append(f"{len(hidden)} markers occluded at frame {frame} were not bound: "
+                             + ", ".join(hidden[:8]) + (" ..." if len(hidden) > 8 else ""))
+        far = np.flatnonzero(np.abs(binding.offsets) * unit > warn_distance)
         if far.size:
-            job.notes.append(f"{far.size} markers are farther than {warn_distance:g} from the surface: "
-                             + ", ".join(labels[i] for i in far[:8]))
+            job.notes.append(f"{far.size} markers are farther than {1000 * warn_distance:g} mm from the surface: "
+                             + ", ".join(f"{labels[i]} ({1000 * abs(binding.offsets[i]) * unit:.0f} mm)"
+                                         for i in far[:8]))
         return f"bound {binding.n_markers} markers"
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The take '{take_name}' or its marker empties": _take_state(take_name),
@@ -373,26 +492,124 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
     return {"model": model, "binding": binding, "take": take, "markers": world @ inv[:3, :3].T + inv[:3, 3],
-            "frames": frames, "filepath": filepath, "path": path}
+            "frames": frames, "filepath": filepath, "path": path, "labels": labels}
 
 
-def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=1.0, temporal_weight=0.0, filepath=""):
+def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=None, temporal_weight=None, filepath=""):
     """A :class:`.runs.Run` fitting the shape model to the bound markers over the frame range and writing the
     PC2 + Mesh Cache modifier or the shape keys (validated; raises InputError subclasses)."""
     inputs = fit_inputs(context, obj, frame_start, frame_end, output, filepath)
     model, markers, binding, frames = inputs["model"], inputs["markers"], inputs["binding"], inputs["frames"]
-    job = CallJob(lambda progress: fit_markers(model, markers, binding, prior_weight=prior_weight,
-                                               temporal_weight=temporal_weight, progress=progress),
-                  "marker fit", total=len(frames))
+    settings = {k: v for k, v in (("prior_weight", prior_weight), ("temporal_weight", temporal_weight))
+                if v is not None}
+    render = context.scene.render
+    rate = render.fps / render.fps_base  # one sample per scene frame (scales the temporal weight)
+    fine = getattr(model, "fine_level", None)
+    job = CallJob(lambda progress: fit_markers(model, markers, binding, rate=rate, prolongation=fine,
+                                               progress=progress, **settings), "marker fit", total=len(frames))
     job.inputs = inputs
 
+    unit = metres_per_unit(obj, inputs["take"], context.scene)
+    labels = inputs["labels"]
+
     def write(obj, job):
-        return _write_fit(obj, job.result.vertices, frames, output, inputs["filepath"], inputs["path"])
+        X = job.result.vertices if fine is None else job.result.fine_vertices
+        text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
+        quality = write_quality(obj, frames, job.result, labels, unit, take_name)
+        job.notes.extend(quality["notes"])
+        return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The marker binding of '{obj.name}'": _prop_state(obj.name, BINDING_PROP, on_mesh=False),
               f"The take '{take_name}' or its marker empties": _take_state(take_name)}
     return Run(job, ObjectWatch(obj, extras=extras), write, what="fitted frame")
+
+
+def _distances(result):
+    """``(T, M)`` marker distances of a fit result (NaN where occluded)."""
+    d = getattr(result, "marker_distances", None)
+    if d is None:
+        d = np.asarray(result.marker_residuals, float)
+        d = np.linalg.norm(d, axis=2) if d.ndim == 3 else d
+    return np.asarray(d, float)
+
+
+def write_quality(obj, frames, result, labels, unit, take_name):
+    """Store a fit's quality on ``obj`` and describe it.
+
+    * the per-frame curve: the float property :data:`RMS_PROP` (millimetres) keyed at every fitted frame
+      (LINEAR; frames without a visible marker get no key), so the Graph Editor and the Dope Sheet show
+      where the fit is poor (an existing curve of that property is replaced);
+    * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm: per-frame values averaged over the take),
+      prior weight, flagged frames and markers.
+
+    Returns ``{"text": report text, "notes": [warning texts]}``.
+    """
+    frames = np.asarray(frames)
+    mm = 1000.0 * float(unit)
+    d = _distances(result) * mm
+    seen = np.isfinite(d)
+    n = seen.sum(1)
+    rms = np.full(len(d), np.nan)
+    rms[n > 0] = np.sqrt(np.nansum(d[n > 0] ** 2, axis=1) / n[n > 0])
+    # the take's figures as lacore states them (TakeFitResult.marker_rms_mm / marker_p95_mm: per-frame RMS and
+    # 95th percentile in mm, averaged over the frames with markers), computed alike when the result has none
+    overall = float(np.nanmean(rms)) if (n > 0).any() else float("nan")
+    p95 = float(np.nanmean(np.nanpercentile(d[n > 0], 95, axis=1))) if (n > 0).any() else float("nan")
+    stated = [getattr(result, name, None) for name in ("marker_rms_mm", "marker_p95_mm")]
+    if all(v is not None and np.isfinite(v) for v in stated):
+        overall, p95 = map(float, stated)
+    flagged_frames = [int(frames[t]) for t in getattr(result, "flagged_frames", [])]
+    flagged_markers = [labels[m] if isinstance(m, (int, np.integer)) else str(m)
+                       for m in getattr(result, "flagged_markers", [])]
+    prior = float(getattr(result, "prior_weight", float("nan")))
+    obj[FIT_PROP] = {"take": take_name, "frame_start": int(frames[0]), "frame_end": int(frames[-1]),
+                     "marker_rms_mm": overall, "marker_p95_mm": p95, "prior_weight": prior,
+                     "flagged_frames": flagged_frames, "flagged_markers": flagged_markers,
+                     "success": bool(getattr(result, "success", True))}
+    for name in ("calibration_seconds", "seconds_per_frame"):  # lacore's timings, where it states them
+        value = getattr(result, name, None)
+        if value is not None and np.isfinite(value):
+            obj[FIT_PROP][name] = float(value)
+    obj[RMS_PROP] = float(rms[0]) if np.isfinite(rms[0]) else 0.0
+    obj.id_properties_ui(RMS_PROP).update(
+        min=0.0, description="RMS distance (mm) of the visible markers from the fitted surface in this frame")
+    owner, _ = ensure_animation_channels(obj, f"{obj.name} LA fit quality")
+    path = f'["{RMS_PROP}"]'
+    old = owner.fcurves.find(path)
+    if old is not None:
+        owner.fcurves.remove(old)
+    keyed = np.isfinite(rms)
+    write_curve(owner.fcurves, path, 0, frames[keyed].astype(np.float64), rms[keyed], 'LINEAR')
+    text = (f"marker RMS {overall:.1f} mm, p95 {p95:.1f} mm, prior weight {prior:g}; per-frame RMS in "
+            f"the property '{RMS_PROP}' of '{obj.name}' (Graph Editor)")
+    notes = []
+    if flagged_frames or flagged_markers:
+        notes.append(f"residuals far above marker noise at {len(flagged_frames)} frames "
+                     f"({_listing(flagged_frames)}) and for {len(flagged_markers)} markers "
+                     f"({_listing(flagged_markers)}): inspect them")
+    if not getattr(result, "success", True):
+        notes.append(f"the fit did not succeed: {getattr(result, 'message', '')}")
+    return {"text": text, "notes": notes, "rms": rms, "marker_rms_mm": overall, "marker_p95_mm": p95}
+
+
+def remove_quality(obj):
+    """Remove the last fit's quality (summary, keyed RMS property and its curve) from ``obj``; True if there was
+    one."""
+    had = FIT_PROP in obj or RMS_PROP in obj
+    fcurves = id_fcurves(obj)
+    fc = fcurves.find(f'["{RMS_PROP}"]') if fcurves is not None else None
+    if fc is not None:
+        fcurves.remove(fc)
+    for prop in (FIT_PROP, RMS_PROP):
+        if prop in obj:
+            del obj[prop]
+    return had
+
+
+def _listing(items, n=8):
+    items = list(items)
+    return ", ".join(map(str, items[:n])) + (f" and {len(items) - n} more" if len(items) > n else "") or "none"
 
 
 def _write_fit(obj, X, frames, output, filepath, path):
@@ -444,11 +661,16 @@ class LENGTHS_ANGLES_OT_build_model(_Interactive, RunOperator, bpy.types.Operato
                                                         "but the basis and the add-on's own 'LA ...' keys")
     n_modes: IntProperty(name="Modes", default=0, min=0, max=MAX_MODES,
                          description=f"Modes of variation to keep; 0: as many as the keys allow (at most {MAX_MODES})")
+    coarse_vertices: IntProperty(name="Coarse Vertices", default=-1, min=-1,
+                                 description="Build the model on a coarse version of the mesh with this many "
+                                             "vertices (fits run there and are carried to the full mesh: much "
+                                             f"faster); -1: Auto ({COARSE_MODEL_VERTICES} for meshes of more than "
+                                             f"{2 * COARSE_MODEL_VERTICES} vertices); 0: the full mesh")
 
     def execute(self, context):
         def make(context):
             keys = parse_key_list(self.keys) if self.keys.strip() else None
-            return model_run(context.active_object, keys, self.n_modes or None)
+            return model_run(context.active_object, keys, self.n_modes or None, self.coarse_vertices)
         return self.start_run(context, make)
 
 
@@ -465,7 +687,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         try:
             model = read_model(obj)
             w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-            X = model.synthesize(w * model.standard_deviations)
+            X = model_vertices(model, w * model.standard_deviations)
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
@@ -486,9 +708,11 @@ class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operat
     align: BoolProperty(name="Align", default=False,
                         description="Rigidly align the markers to the mesh first (iterative closest points, up to "
                                     "100 iterations); off: bind them where they are")
-    warn_distance: FloatProperty(name="Warn Distance", default=0.05, min=0.0, subtype='DISTANCE',
-                                 description="Warn about markers farther than this from the surface (in the "
-                                             "mesh's units)")
+    warn_distance: FloatProperty(name="Warn Distance (m)", default=0.05, min=0.0, soft_max=0.5, precision=3,
+                                 step=0.1,
+                                 description="Warn about markers farther than this from the surface, in metres of "
+                                             "the performer (the take's import Scale says how long a metre is; "
+                                             "without it the scene's Unit Scale)")
 
     def execute(self, context):
         def make(context):
@@ -511,13 +735,13 @@ class LENGTHS_ANGLES_OT_fit_markers(_Interactive, RunOperator, bpy.types.Operato
                                   description="Fit the scene's frame range (off: Start to End)")
     frame_start: IntProperty(name="Start", default=1, description="First frame to fit (without Scene Frame Range)")
     frame_end: IntProperty(name="End", default=250, description="Last frame to fit (without Scene Frame Range)")
-    prior_weight: FloatProperty(name="Prior Weight", default=1.0, min=1e-9,
-                                description="How strongly poses are held to the shape model against the marker "
-                                            "distances (squared, in the mesh's units): larger gives more model-like "
-                                            "poses; it scales with the square of the unit (0.01 suits decimetres)")
-    temporal_weight: FloatProperty(name="Temporal Weight", default=0.0, min=0.0,
-                                   description="Damps the change of the model coefficients from frame to frame "
-                                               "(0: none, each frame starts from the previous one)")
+    prior_weight: FloatProperty(name="Prior Weight", default=_DEFAULT_PRIOR, min=1e-9, soft_max=100.0,
+                                description="How strongly poses are held to the shape model against the markers "
+                                            "(scale-free: the same in any unit); larger gives more model-like poses")
+    temporal_weight: FloatProperty(name="Temporal Weight", default=float(FIT_DEFAULTS.temporal_weight), min=0.0,
+                                   soft_max=100.0,
+                                   description="Damps jitter between frames (the previous pose extrapolated; no lag "
+                                               "on steady motion); 0: none")
     filepath: StringProperty(name="Cache File", default="", subtype='FILE_PATH', options=BLEND_RELATIVE_PATH,
                              description="Point cache to write ('//' is the folder of the .blend); empty: "
                                          "//<object>_<take>.pc2 next to the .blend")

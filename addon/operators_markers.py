@@ -8,7 +8,9 @@ marker is occluded) and only then creates, in the active collection:
 
 * one *take empty* named after the file (``PLAIN_AXES``), holding the take's
   metadata in the ID property :data:`TAKE_PROP` (rate, units, source, first
-  frame, frame count, labels, and the import options used);
+  frame, frame count, labels, the import options used, and ``not_markers``:
+  ``[label, reason]`` of the points :func:`..lacore.markers.io.drop_non_markers`
+  finds are not skin markers -- imported like the others, left out by Calibrate & Fit);
 * one *marker empty* per label (``SPHERE``), parented to the take empty, its
   label in the ID property :data:`MARKER_PROP`.  Its location is keyed at every
   frame where the marker was seen (LINEAR interpolation), in the take empty's
@@ -52,7 +54,7 @@ from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatPrope
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
-from ..lacore.markers.io import MarkerTake, read_markers, resample, sample_frames, visibility_keys
+from ..lacore.markers.io import MarkerTake, drop_non_markers, read_markers, resample, sample_frames, visibility_keys
 from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",
@@ -140,6 +142,9 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
     positions = take.positions @ matrix.T  # (T, M, 3); NaN stays NaN
     visible = take.visible
     vis_keys = visibility_keys(visible)
+    # points that are not skin markers (lacore's rules: the file's point groups and descriptions, never seen,
+    # computed points) are imported too, and named for Calibrate & Fit, which leaves them out
+    not_markers = [[label, reason] for label, reason in drop_non_markers(take).dropped]
 
     created_objects, created_actions = [], []
     try:
@@ -153,7 +158,7 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
             "keyed_rate": float(take.rate), "keyed_samples": int(take.n_frames),
             "frame_start": float(frame_start), "frame_step": float(frames[1] - frames[0]) if take.n_frames > 1 else 1.0,
             "rate_mode": rate_mode, "scale": float(scale), "axis_forward": axis_forward, "axis_up": axis_up,
-            "visible_samples": int(visible.sum()),
+            "visible_samples": int(visible.sum()), "not_markers": not_markers,
         }
         collection.objects.link(take_obj)
         markers = []

@@ -11,6 +11,7 @@ from . import operators_fit as fit
 from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
+from .operators_calibrate import LENGTHS_ANGLES_OT_calibrate_fit
 from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
@@ -117,6 +118,9 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         obj = context.object
+        row = layout.row()
+        row.operator_context = 'INVOKE_DEFAULT'  # modal: progress bar and Esc
+        row.operator(LENGTHS_ANGLES_OT_calibrate_fit.bl_idname, icon='ARMATURE_DATA')
         layout.operator(fit.LENGTHS_ANGLES_OT_build_model.bl_idname, icon='MOD_DATA_TRANSFER')
         meta = obj.data.get(fit.MODEL_PROP)
         if meta is None:
@@ -132,12 +136,35 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
         if binding is not None:
             box = layout.box()
             box.label(text=f"Take '{binding['take']}' bound at frame {binding['frame']}")
+            unit = float(binding.get("metres_per_unit", 1.0))
+            warn = float(binding.get("warn_distance", 0.05))
             for label, face, offset in zip(binding["labels"], binding["faces"], binding["offsets"], strict=True):
                 row = box.row()
-                row.label(text=label, icon='ERROR' if abs(offset) > 0.05 else 'CHECKMARK')
+                row.label(text=label, icon='ERROR' if abs(offset) * unit > warn else 'CHECKMARK')
                 row.label(text=f"triangle {face}")
-                row.label(text=f"{offset:.4f}")
+                row.label(text=f"{1000 * offset * unit:.1f} mm")
+            for label in binding.get("not_bound", []):
+                box.row().label(text=f"{label}: not bound (occluded)", icon='HIDE_ON')
             layout.operator(fit.LENGTHS_ANGLES_OT_fit_markers.bl_idname, icon='ARMATURE_DATA')
+        draw_fit_quality(layout, obj)
+
+
+def draw_fit_quality(layout, obj):
+    """The last fit's quality (stored by :func:`.operators_fit.write_quality`): marker RMS / p95 in mm, the
+    prior weight, flagged frames and markers; the per-frame curve is the keyed property ``RMS_PROP``."""
+    q = obj.get(fit.FIT_PROP)
+    if q is None:
+        return
+    box = layout.box()
+    box.label(text=f"Fit of '{q['take']}' {q['frame_start']}-{q['frame_end']}: marker RMS {q['marker_rms_mm']:.1f} mm, "
+                   f"p95 {q['marker_p95_mm']:.1f} mm", icon='CHECKMARK' if q.get("success", True) else 'ERROR')
+    box.label(text=f"Prior weight {q['prior_weight']:g}; per-frame RMS: property '{fit.RMS_PROP}' (Graph Editor)")
+    frames, markers = list(q.get("flagged_frames", [])), list(q.get("flagged_markers", []))
+    if frames or markers:
+        box.label(text=f"Flagged frames: {', '.join(map(str, frames[:10]))}{' ...' if len(frames) > 10 else ''}",
+                  icon='ERROR')
+        box.label(text=f"Flagged markers: {', '.join(markers[:10])}{' ...' if len(markers) > 10 else ''}",
+                  icon='ERROR')
 
 
 class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):

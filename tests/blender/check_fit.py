@@ -13,7 +13,7 @@ import importlib
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, reset, run_cases
+from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -111,7 +111,7 @@ def whole_path():
     fit = ext("addon.operators_fit")
     OUT["bind_mesh"] = fit._mesh_vertices(obj, bpy.context.evaluated_depsgraph_get())
     OUT["bind_markers"] = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
-    assert bpy.ops.lengths_angles.bind_markers(warn_distance=0.2) == {"FINISHED"}
+    assert bpy.ops.lengths_angles.bind_markers() == {"FINISHED"}
     obj.shape_key_remove(kb)
     binding = obj[ext("addon.operators_fit").BINDING_PROP]
     OUT["bind_faces"] = np.array(binding["faces"])
@@ -128,6 +128,7 @@ def whole_path():
     t_fit = time.perf_counter() - t
     mod = obj.modifiers["LA Fit"]
     pc2 = bpy.path.abspath(mod.filepath)
+    quality = rms_curve(obj)
     after = np.empty_like(before)
     obj.data.vertices.foreach_get("co", after)
     # evaluated mesh per frame (the Mesh Cache modifier playing the PC2)
@@ -159,8 +160,55 @@ def whole_path():
             "fit_seconds_per_frame": t_fit / T,
             "modifier": modifier, "pc2_bytes": os.path.getsize(pc2), "n_vertices": n_vertices,
             "mesh_untouched": bool(np.array_equal(before, after)), "keys_unchanged": keys_unchanged,
+            "quality": quality,
             "reloaded": {"n_modes": int(model.n_modes), "binding": "lengths_angles_binding" in obj,
                          "modifier": "LA Fit" in obj.modifiers}}
+
+
+def rms_curve(obj):
+    """The fit's quality stored on ``obj``: the keyed per-frame marker RMS (mm) and the summary."""
+    fit = ext("addon.operators_fit")
+    fcurves = ext("addon.compat").id_fcurves(obj)
+    fc = fcurves.find(f'["{fit.RMS_PROP}"]')
+    co = np.empty(2 * len(fc.keyframe_points), np.float32)
+    fc.keyframe_points.foreach_get("co", co)
+    bpy.context.scene.frame_set(3)
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
+    return {"frames": co[0::2].tolist(), "values": co[1::2].tolist(), "value_at_3": float(obj[fit.RMS_PROP]),
+            "summary": obj[fit.FIT_PROP].to_dict(), "panel": [t for t in texts if t.startswith("Fit of")]}
+
+
+def bind_units_and_occlusion():
+    """Bind at a frame where some markers are occluded binds the visible ones (the report names the others);
+    the warning distance is in metres (the take was imported with Scale 10: a unit is 0.1 m)."""
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    fit = ext("addon.operators_fit")
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    kb = obj.shape_key_add(name="pose 3", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["true"][2].astype(np.float32).ravel())
+    kb.value = 1.0
+    scene = bpy.context.scene
+    scene.frame_set(3)  # markers 3, 10, 20 are occluded at frames 3..5
+    out = {}
+    for label, warn in (("default", None), ("strict", 0.004)):
+        run = fit.bind_run(bpy.context, obj, take, **({} if warn is None else {"warn_distance": warn}))
+        run.run()
+        op = fake_operator()
+        result = op._finish_run(run)
+        binding = obj[fit.BINDING_PROP].to_dict()
+        out[label] = {"result": sorted(result), "reports": op.reports, "n_bound": len(binding["labels"]),
+                      "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
+                      "offsets_mm": [1000 * abs(o) * binding["metres_per_unit"] for o in binding["offsets"]]}
+    labels = [lb for lb, _ in ext("addon.operators_markers").marker_objects(take)]
+    out["occluded_labels"] = [labels[i] for i in (3, 10, 20)]
+    out["n_markers"] = len(labels)
+    scene.unit_settings.scale_length = 0.1
+    out["scene_unit"] = fit.metres_per_unit(obj, None, scene)
+    out["take_unit_after_scene_change"] = fit.metres_per_unit(obj, take, scene)
+    return out
 
 
 def shape_key_output():
@@ -213,8 +261,12 @@ def bad_input():
     select_only(obj, take)
     attempt("bind_without_model", bpy.ops.lengths_angles.bind_markers)
     obj.data["lengths_angles_model"] = meta
-    scene.frame_set(3)  # markers 3, 10, 20 are occluded at frames 3..5
+    scene.frame_set(3)  # markers 3, 10, 20 are occluded at frames 3..5: with only those selected none is visible
+    labels = [lb for lb, _ in ext("addon.operators_markers").marker_objects(take)]
+    hidden = [c for c in take.children if c.get("lengths_angles_marker") in [labels[i] for i in (3, 10, 20)]]
+    select_only(obj, *hidden)
     attempt("bind_occluded", bpy.ops.lengths_angles.bind_markers)
+    select_only(obj, take)
     scene.frame_set(1)
     binding = obj["lengths_angles_binding"].to_dict()
     del obj["lengths_angles_binding"]
@@ -471,4 +523,4 @@ def script_defaults_and_paths():
 
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, shape_key_output, bad_input, runs_progress_and_cancel,
-               runs_object_changed, script_defaults_and_paths])
+               runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion])

@@ -1,0 +1,282 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Calibrate & Fit: from an imported marker take and a character to a played-back fit in one run (glue only).
+
+``lengths_angles.calibrate_fit`` ("Calibrate & Fit") works on the active mesh object (the character:
+a stored shape model, or pose shape keys to build one from) and the selected take (its take empty or
+some of its marker empties; with none selected, the scene's only take).  One :class:`.runs.Run`
+(modal with a progress bar and Esc from the UI, synchronous from scripts):
+
+1. *Build Model* when the mesh has none (:meth:`lacore.models.ShapeModel.fit` on its shape keys);
+2. *calibrate* (:func:`lacore.markers.calibrate` inside :func:`lacore.markers.fit_take`): placement and
+   up axis, units, the performer's size, the starting pose and the binding of every marker where it is
+   visible; points that are not markers are dropped (:func:`lacore.markers.drop_non_markers`);
+3. *fit* every frame of the range (:func:`lacore.markers.fit_take`).
+
+Units and axes: the markers are handed to lacore in the character's object space, in metres
+(:func:`.operators_fit.metres_per_unit`: the take's import Scale, else the scene's Unit Scale), and the
+model declares that unit (``length_unit``) and the object-space directions of the world's up (+Z) and
+forward (-Y) axes, so a take imported at the wrong scale or with the wrong up axis is refused with
+lacore's one-line error instead of giving a crumpled fit.  The fitted poses come back in object space:
+they are written as a PC2 point cache played by the Mesh Cache modifier :data:`.naming.FIT_MODIFIER`
+(as Fit to Markers does), with the model (when built), the calibrated binding and the fit's quality
+(:func:`.operators_fit.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior weight,
+flagged frames and markers).  A failed or cancelled run writes nothing.
+"""
+
+import copy
+import dataclasses
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+
+from ..lacore.errors import InputError
+from ..lacore.markers.io import MarkerTake
+from .compat import BLEND_RELATIVE_PATH
+from .jobs import CallJob
+from .mesh_access import require_mesh_object
+from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
+                            _prop_state, _store_built_model, _take_of, _take_state, _write_fit, metres_per_unit,
+                            read_model, write_quality)
+from .operators_markers import TAKE_PROP, marker_objects, read_take
+from .runs import ObjectWatch, Run, RunOperator
+
+__all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes"]
+
+
+def _fitting_api():
+    """lacore's calibration and fitting (imported on use)."""
+    from ..lacore.markers import FIT_DEFAULTS, drop_non_markers, fit_take
+    return FIT_DEFAULTS, drop_non_markers, fit_take
+
+
+def fit_defaults():
+    """lacore's fitting defaults (one source of truth for the operator's defaults), or None without them."""
+    try:
+        return _fitting_api()[0]
+    except ImportError:
+        return None
+
+
+def find_take(context):
+    """The take to calibrate on: the selected one (:func:`.operators_fit._take_of`), else the scene's only take."""
+    selected = list(context.selected_objects or [])
+    if any(TAKE_PROP in o or "lengths_angles_marker" in o for o in selected):
+        return _take_of(selected)[0]
+    takes = [o for o in context.scene.objects if TAKE_PROP in o]
+    if len(takes) != 1:
+        raise FitSetupError(f"select the marker take to fit (its take empty or some marker empties): the scene has "
+                            f"{len(takes)} takes" if takes else "the scene has no marker take: import one first "
+                            "(File > Import > Motion Capture Markers)")
+    return takes[0]
+
+
+def character(context):
+    """The character: the active object if it is a mesh, else the only selected mesh."""
+    obj = context.active_object
+    if obj is not None and obj.type == 'MESH':
+        return obj
+    meshes = [o for o in (context.selected_objects or []) if o.type == 'MESH']
+    if len(meshes) != 1:
+        raise FitSetupError("select the character (a mesh with a shape model or pose shape keys) and make it active")
+    return meshes[0]
+
+
+def _axis_name(v):
+    """``"x"``, ``"-y"`` ... for a unit vector along an axis, None otherwise."""
+    i = int(np.argmax(np.abs(v)))
+    if abs(abs(v[i]) - 1.0) > 1e-3:
+        return None
+    return ("" if v[i] > 0 else "-") + "xyz"[i]
+
+
+def object_axes(obj):
+    """``(up, forward)`` of the world (+Z up, -Y forward: Blender's front view) in ``obj``'s space, as lacore's
+    axis names (``"z"``, ``"-y"`` ...), None where the object is rotated off the axes."""
+    R = np.array(obj.matrix_world, np.float64)[:3, :3]
+    R = R / np.cbrt(abs(np.linalg.det(R)) or 1.0)
+    inv = np.linalg.inv(R)
+    return _axis_name(inv @ [0.0, 0.0, 1.0]), _axis_name(inv @ [0.0, -1.0, 0.0])
+
+
+#: What to do in Blender about lacore's unit and axis mismatches (their own advice is for scripts).
+_ADVICE = {
+    "UnitMismatchError": "the markers and the character differ that much in size as they stand in the scene: import "
+                         "the take again with a Scale that matches the character (Import Motion Capture Markers > "
+                         "Scale) or scale the character",
+    "AxisMismatchError": "the character does not stand up along the scene's Z axis facing -Y (front view): rotate "
+                         "it upright, or import the take again with its Up axis (Import Motion Capture Markers > Up)",
+}
+
+
+def _in_blender_terms(exc):
+    """lacore's unit and axis mismatch errors with advice for Blender (one line); other errors as they are."""
+    advice = _ADVICE.get(type(exc).__name__)
+    if advice is None:
+        return exc
+    head = str(exc).split(": check")[0].split(";")[0]
+    return FitSetupError(f"{head}: {advice}")
+
+
+def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=None, auto_prior=None,
+                      temporal_weight=None, filepath=""):
+    """A :class:`.runs.Run` building the model if needed, calibrating and fitting the frame range of ``take`` to
+    the character ``obj`` and writing the result (validated; raises InputError subclasses).
+
+    ``prior_weight``, ``auto_prior`` (the weight chosen per take by lacore) and ``temporal_weight`` default to
+    lacore's :data:`FIT_DEFAULTS`.
+    """
+    try:
+        defaults, drop_non_markers, fit_take = _fitting_api()
+    except ImportError as exc:
+        raise FitSetupError(f"this build of Lengths & Angles has no marker calibration ({exc})") from exc
+    mesh = require_mesh_object(obj)
+    built = None
+    if MODEL_PROP in mesh:
+        model = read_model(obj)
+    else:
+        try:
+            built = _model_inputs(obj)
+        except InputError as exc:
+            raise FitSetupError(f"'{obj.name}' has no shape model and cannot build one ({exc}): add pose shape "
+                                "keys or run Build Model") from exc
+        model = None
+    meta = take[TAKE_PROP]
+    first = float(meta["frame_start"])
+    last = first + (int(meta["keyed_samples"]) - 1) * float(meta["frame_step"])
+    start, end = max(int(frame_start), int(np.ceil(first - 1e-6))), min(int(frame_end), int(np.floor(last + 1e-6)))
+    if end < start:
+        raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, outside the range "
+                            f"{int(frame_start)}..{int(frame_end)}: set the frame range inside the take")
+    frames = np.arange(start, end + 1)
+    filepath, path = _pc2_path(filepath, obj, take)
+    labels = [lb for lb, _ in marker_objects(take)]
+    world = read_take(take, frames=frames).positions
+    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    unit = metres_per_unit(obj, take, context.scene)
+    local = world @ inv[:3, :3].T + inv[:3, 3]
+    render = context.scene.render
+    rate = render.fps / render.fps_base  # one sample per scene frame
+    up, forward = object_axes(obj)
+    not_markers = {str(lb): str(why) for lb, why in meta.get("not_markers", [])}
+    keep = [m for m, lb in enumerate(labels) if lb not in not_markers]
+    markers = drop_non_markers(MarkerTake(
+        labels=tuple(labels[m] for m in keep), positions=local[:, keep] * unit, rate=rate, units="m",
+        up_axis=None if up is None else ("" if up.startswith("-") else "+") + up,
+        dropped=tuple(not_markers.items())))
+    options = dataclasses.replace(
+        defaults, **{k: v for k, v in (("prior_weight", "auto" if auto_prior else prior_weight),
+                                       ("temporal_weight", temporal_weight)) if v is not None})
+    if auto_prior is False and prior_weight is None and options.prior_weight == "auto":
+        raise FitSetupError("give a prior weight (or use the automatic one)")
+    options.check(allow_auto=True)
+
+    def compute(progress):
+        stages = 2 if built is not None else 1
+        scale = 1000
+
+        def staged(stage):
+            def report(done, total, message=""):
+                return progress(stage * scale + int(scale * min(done, total) / max(total, 1)), stages * scale,
+                                message)
+            return report
+        m = model
+        if built is not None:
+            m = _build_model(built, staged(0))
+        fitted = copy.copy(m)  # the unit and axes of this scene, not stored with the model
+        fitted.length_unit, fitted.up_axis, fitted.forward_axis = unit, up, forward
+        try:
+            result = fit_take(fitted, markers, options=options, progress=staged(stages - 1))
+        except InputError as exc:
+            raise _in_blender_terms(exc) from exc
+        return m, result
+
+    job = CallJob(compute, "calibrate & fit", total=1000 * (2 if built is not None else 1))
+    empties = {lb: o.name for lb, o in marker_objects(take)}
+    take_name = take.name
+
+    def write(obj, job):
+        m, res = job.result
+        X = res.fine_vertices if getattr(res, "fine_vertices", None) is not None else res.vertices
+        text = _write_fit(obj, np.asarray(X, np.float64), frames, 'PC2', filepath, path)
+        if built is not None:
+            _store_built_model(obj, m, built["keys"])
+        cal = res.calibration
+        bound = list(res.labels)
+        obj[BINDING_PROP] = {
+            "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
+            "frame": int(frames[0]), "calibrated": True,
+            "faces": cal.binding.faces.tolist(), "barycentric": cal.binding.barycentric.ravel().tolist(),
+            "offsets": cal.binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": [lb for lb in labels if lb not in bound],
+            "performer_ratio": float(cal.performer_ratio),
+        }
+        quality = write_quality(obj, frames, res, bound, unit, take_name)
+        dropped = list(getattr(markers, "dropped", ()))
+        if dropped:
+            job.notes.append(f"{len(dropped)} points are not markers and were left out: "
+                             + ", ".join(f"{lb} ({why})" for lb, why in dropped[:5])
+                             + (" ..." if len(dropped) > 5 else ""))
+        job.notes.extend(quality["notes"])
+        # the calibration's own notes, but its drops once (summarized above)
+        job.notes.extend(str(n) for n in getattr(cal, "notes", []) if not str(n).startswith("dropped "))
+        return (f"calibrated (performer {cal.performer_ratio:.2f}x the character) and {text}; "
+                f"{quality['text']}")
+    extras = {f"The take '{take_name}' or its marker empties": _take_state(take_name),
+              f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True)}
+    keys = [built["names"][0], *built["keys"]] if built is not None else []
+    return Run(job, ObjectWatch(obj, keys, extras), write, what="fitted frame")
+
+
+_DEFAULTS = fit_defaults()
+_DEFAULT_PRIOR = (1.0 if _DEFAULTS is None or isinstance(_DEFAULTS.prior_weight, str)
+                  else float(_DEFAULTS.prior_weight))
+_DEFAULT_AUTO = _DEFAULTS is not None and _DEFAULTS.prior_weight == "auto"
+_DEFAULT_TEMPORAL = 10.0 if _DEFAULTS is None else float(_DEFAULTS.temporal_weight)
+
+
+class LENGTHS_ANGLES_OT_calibrate_fit(RunOperator, bpy.types.Operator):
+    """Fit the active character to the selected marker take: build its shape model if needed, calibrate (units,
+    placement, performer size, marker binding) and fit every frame, played back by a Mesh Cache modifier
+    (Esc cancels)"""
+    bl_idname = "lengths_angles.calibrate_fit"
+    bl_label = "Calibrate & Fit"
+    bl_description = ("Fit the active character to the selected marker take: build its shape model if needed, "
+                      "calibrate (units, placement, performer size, marker binding) and fit every frame, played "
+                      "back by a Mesh Cache modifier (Esc cancels)")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    use_scene_range: BoolProperty(name="Scene Frame Range", default=True,
+                                  description="Fit the scene's frame range (off: Start to End); frames outside the "
+                                              "take are left out")
+    frame_start: IntProperty(name="Start", default=1, description="First frame to fit (without Scene Frame Range)")
+    frame_end: IntProperty(name="End", default=250, description="Last frame to fit (without Scene Frame Range)")
+    auto_prior: BoolProperty(name="Automatic Prior Weight", default=_DEFAULT_AUTO,
+                             description="Choose the prior weight for this take from the data (held-out markers); "
+                                         "the report gives the weight used")
+    prior_weight: FloatProperty(name="Prior Weight", default=_DEFAULT_PRIOR, min=1e-9, soft_max=100.0,
+                                description="How strongly poses are held to the shape model against the markers "
+                                            "(scale-free: the same in any unit); larger gives more model-like poses")
+    temporal_weight: FloatProperty(name="Temporal Weight", default=_DEFAULT_TEMPORAL, min=0.0, soft_max=100.0,
+                                   description="Damps jitter between frames (the previous pose extrapolated; no lag "
+                                               "on steady motion); 0: none")
+    filepath: StringProperty(name="Cache File", default="", subtype='FILE_PATH', options=BLEND_RELATIVE_PATH,
+                             description="Point cache to write ('//' is the folder of the .blend); empty: "
+                                         "//<object>_<take>.pc2 next to the .blend")
+
+    def invoke(self, context, event):
+        self.interactive = True
+        return self.execute(context)
+
+    def execute(self, context):
+        def make(context):
+            scene = context.scene
+            start, end = ((scene.frame_start, scene.frame_end) if self.use_scene_range
+                          else (self.frame_start, self.frame_end))
+            return calibrate_fit_run(context, character(context), find_take(context), start, end,
+                                     prior_weight=self.prior_weight, auto_prior=self.auto_prior,
+                                     temporal_weight=self.temporal_weight, filepath=self.filepath)
+        return self.start_run(context, make)
+
+
+classes = (LENGTHS_ANGLES_OT_calibrate_fit,)

@@ -1,0 +1,280 @@
+"""Blender-side checks of Calibrate & Fit of the INSTALLED extension on a real take (run in a SUBPROCESS by
+tests/test_blender_calibrate.py, which prepares ``<work>/inputs.npz``: the coarse CC0 body's faces, rest pose
+and training poses, and ``<work>/take.c3d``: a real recording).
+
+The character stands as a Blender user has it: Z up (the body's Y-up mesh rotated by 90 degrees about X) and
+in metres (object scale 0.1 on the body's decimetres); the take is imported with the defaults (metres, Z up).
+
+usage: BLENDER_USER_RESOURCES=<tmp> python check_calibrate.py --zip EXT.zip --workdir DIR --result OUT.json
+"""
+
+import importlib
+import math
+import os
+import time
+
+from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+import numpy as np
+
+WORK = os.path.dirname(ARGS.workdir)
+INPUTS = dict(np.load(os.path.join(WORK, "inputs.npz")))
+C3D = os.path.join(WORK, "take.c3d")
+N_FRAMES = int(INPUTS["n_frames"])
+OUT = {}
+
+
+def ext(name):
+    return importlib.import_module(f"{MODULE}.{name}")
+
+
+def install_and_enable():
+    result = bpy.ops.extensions.package_install_files(filepath=ARGS.zip, repo="user_default",
+                                                      enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    return {"operator": bpy.ops.lengths_angles.calibrate_fit.idname()}
+
+
+def make_character(name="Body", keys=True):
+    faces = INPUTS["faces"]
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(INPUTS["basis"].tolist(), [], faces.tolist())
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.rotation_euler = (math.pi / 2, 0.0, 0.0)  # the body's +Y up -> Blender's +Z up
+    obj.scale = (0.1, 0.1, 0.1)  # decimetres -> metres
+    if keys:
+        obj.shape_key_add(name="Basis", from_mix=False)
+        for k, X in enumerate(INPUTS["training"]):
+            kb = obj.shape_key_add(name=f"pose{k:02d}", from_mix=False)
+            kb.data.foreach_set("co", X.astype(np.float32).ravel())
+            kb.value = 0.0
+    return obj
+
+
+def select_only(*objs):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+def state(obj):
+    """Everything a failed or cancelled run must leave alone (the scene, the object, files next to the .blend)."""
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    return {"keys": [kb.name for kb in mesh.shape_keys.key_blocks] if mesh.shape_keys else [],
+            "modifiers": [m.name for m in obj.modifiers], "props": sorted(obj.keys()),
+            "mesh_props": sorted(mesh.keys()), "co": co.tobytes(), "objects": sorted(bpy.data.objects.keys()),
+            "actions": sorted(bpy.data.actions.keys()), "anim": obj.animation_data is not None,
+            "files": sorted(os.listdir(ARGS.workdir)) if os.path.isdir(ARGS.workdir) else []}
+
+
+def scene_setup():
+    """Import the take (defaults) and the character; the scene range is cut to the test's frames; saved."""
+    reset()
+    os.makedirs(ARGS.workdir, exist_ok=True)
+    assert bpy.ops.lengths_angles.import_markers(filepath=C3D) == {"FINISHED"}
+    take = bpy.context.view_layer.objects.active
+    make_character()
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, N_FRAMES
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(ARGS.workdir, "calibrate.blend"))
+    return {"take": take.name, "markers": len(take.children), "fps": scene.render.fps}
+
+
+def open_scene():
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "calibrate.blend"))
+    obj = bpy.data.objects["Body"]
+    take = next(o for o in bpy.data.objects if "lengths_angles_take" in o)
+    select_only(obj, take)
+    return obj, take
+
+
+def evaluated(obj, frames):
+    out = []
+    for f in frames:
+        bpy.context.scene.frame_set(int(f))
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        me = ev.to_mesh()
+        c = np.empty(3 * len(me.vertices), np.float32)
+        me.vertices.foreach_get("co", c)
+        ev.to_mesh_clear()
+        out.append(c.reshape(-1, 3))
+    return np.array(out)
+
+
+def whole_path():
+    """Import -> Calibrate & Fit (synchronous, as from a script) -> frame_set plays the fit."""
+    obj, take = open_scene()
+    before = state(obj)
+    t = time.perf_counter()
+    result = bpy.ops.lengths_angles.calibrate_fit()
+    seconds = time.perf_counter() - t
+    fit = ext("addon.operators_fit")
+    frames = np.arange(1, N_FRAMES + 1)
+    ev = evaluated(obj, frames)
+    # marker positions in the object's space, as the operator read them (NaN where occluded)
+    markers = ext("addon.operators_markers").read_take(take, frames=frames)
+    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    local = markers.positions @ inv[:3, :3].T + inv[:3, 3]
+    binding = obj[fit.BINDING_PROP].to_dict()
+    labels = list(markers.labels)
+    OUT.update(evaluated=ev, markers=local[:, [labels.index(lb) for lb in binding["labels"]]],
+               bind_faces=np.array(binding["faces"]), bind_barycentric=np.array(binding["barycentric"]).reshape(-1, 3),
+               bind_offsets=np.array(binding["offsets"]), world=np.array(obj.matrix_world))
+    fcurves = ext("addon.compat").id_fcurves(obj)
+    fc = fcurves.find(f'["{fit.RMS_PROP}"]')
+    co = np.empty(2 * len(fc.keyframe_points), np.float32)
+    fc.keyframe_points.foreach_get("co", co)
+    OUT["rms_curve"] = co.reshape(-1, 2)
+    meta = obj.data[fit.MODEL_PROP].to_dict()
+    OUT["model_faces_digest"] = np.array([len(meta["keys"]), int(meta["n_modes"])])
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
+    ops = [args[0] for name, args, _kw in calls if name == "operator"]
+    mod = obj.modifiers[fit.FIT_MODIFIER]
+    bpy.ops.wm.save_mainfile()
+    np.savez(os.path.join(ARGS.workdir, "calibrate.npz"), **OUT)
+    return {"result": sorted(result), "seconds": round(seconds, 2), "frames": N_FRAMES,
+            "modifier": {"type": mod.type, "frame_start": mod.frame_start, "filepath": mod.filepath},
+            "quality": obj[fit.FIT_PROP].to_dict(), "binding_labels": list(binding["labels"]),
+            "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
+            "performer_ratio": binding["performer_ratio"], "model_keys": list(meta["keys"]),
+            "panel_texts": [t for t in texts if t.startswith(("Fit of", "Prior", "Flagged"))],
+            "panel_operators": ops, "keys_unchanged": before["keys"] == state(obj)["keys"]}
+
+
+class FakeOperator:
+    def __init__(self):
+        self.reports = []
+        self.interactive = True
+
+    def report(self, kind, text):
+        self.reports.append((sorted(kind)[0], text))
+
+
+def fake_operator():
+    return type("Fake", (FakeOperator, ext("addon.runs").RunOperator), {})()
+
+
+def timer(op):
+    from types import SimpleNamespace
+    return SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)
+
+
+def esc():
+    from types import SimpleNamespace
+    return SimpleNamespace(type='ESC', value='PRESS', timer=None)
+
+
+def drive(op, run, until=None, timeout=300.0):
+    seen, end = [], time.perf_counter() + timeout
+    while time.perf_counter() < end:
+        s = op.modal(bpy.context, timer(op))
+        seen.append((run.done, run.total))
+        if s != {'RUNNING_MODAL'} or (until is not None and until(run)):
+            return s, seen
+        time.sleep(0.005)
+    raise AssertionError(f"the modal run did not progress ({run.done} of {run.total})")
+
+
+def modal_cancel():
+    """From the UI: modal with progress; Esc halfway (the model stored by whole_path: calibration and fit)
+    leaves the scene as it was.  (A full modal run is the same Run: tests/test_blender_fit.py drives those.)"""
+    cal = ext("addon.operators_calibrate")
+    runs = ext("addon.runs")
+    out = {}
+    obj, take = open_scene()
+    scene = bpy.context.scene
+    before = state(obj)
+    run = cal.calibrate_fit_run(bpy.context, obj, take, scene.frame_start, scene.frame_end)
+    op = fake_operator()
+    op._begin_modal(bpy.context, run)
+    # Esc once the run is halfway
+    state_, seen = drive(op, run, until=lambda r: r.done > r.total // 2)
+    future = op._future
+    cancelled = op.modal(bpy.context, esc())
+    runs.wait_for_worker_thread()
+    try:
+        future.result()
+        raised = None
+    except Exception as exc:
+        raised = type(exc).__name__
+    out["cancel"] = {"running": sorted(state_), "cancel": sorted(cancelled), "reports": op.reports,
+                     "step_raised": raised, "seen": seen[-1], "unchanged": state(obj) == before}
+    return out
+
+
+def bad_input():
+    """One-line ERROR, nothing changed: no take, no model and no keys, frame range outside the take, a take
+    imported in millimetres (unit mismatch), an unsaved .blend."""
+    out = {}
+
+    def attempt(name, obj, **kw):
+        before = state(obj)
+        try:
+            res = bpy.ops.lengths_angles.calibrate_fit(**kw)
+            msg = ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = {"CANCELLED"}, str(exc).strip()
+        out[name] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                     "unchanged": state(obj) == before}
+
+    obj, take = open_scene()
+    attempt("outside_take", obj, use_scene_range=False, frame_start=1000, frame_end=1010)
+    bare = make_character("Bare", keys=False)
+    select_only(bare, take)
+    attempt("no_model_no_keys", bare)
+    bpy.data.objects.remove(take.children[0])  # a marker empty deleted: the take is incomplete
+    select_only(obj, take)
+    attempt("marker_deleted", obj)
+    obj, take = open_scene()
+    ext("addon.operators_markers").remove_take(take)
+    bpy.context.view_layer.update()
+    select_only(obj)
+    attempt("no_take", obj)
+    # the take imported in millimetres (Scale 1000): the performer would be 1000x the character
+    assert bpy.ops.lengths_angles.import_markers(filepath=C3D, scale=1000.0) == {"FINISHED"}
+    take = bpy.context.view_layer.objects.active
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, N_FRAMES
+    select_only(obj, take)
+    attempt("unit_mismatch", obj)
+    return out
+
+
+def coarse_model():
+    """Build Model on a coarse level (Coarse Vertices 1000 of the 2,500): the model carries its fine level; the
+    slider pose, Calibrate & Fit and the played-back fit are on the full mesh."""
+    obj, take = open_scene()
+    fit = ext("addon.operators_fit")
+    fit.remove_model(obj)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        assert bpy.ops.lengths_angles.build_model(coarse_vertices=1000) == {'FINISHED'}
+    model = fit.read_model(obj)
+    obj.lengths_angles_mode_weights[0] = 1.0
+    assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
+    kb = obj.data.shape_keys.key_blocks["mode1"]
+    mode1 = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", mode1)
+    obj.shape_key_remove(kb)
+    obj.lengths_angles_mode_weights[0] = 0.0
+    select_only(obj, take)
+    t = time.perf_counter()
+    result = bpy.ops.lengths_angles.calibrate_fit()
+    seconds = time.perf_counter() - t
+    ev = evaluated(obj, [1, N_FRAMES])
+    q = obj[fit.FIT_PROP].to_dict()
+    basis = INPUTS["basis"]
+    return {"coarse_vertices": int(model.reference_vertices.shape[0]),
+            "fine_vertices": int(model.fine_level.n_fine_vertices), "mesh_vertices": len(obj.data.vertices),
+            "mode1_moves": float(np.abs(mode1.reshape(-1, 3) - basis).max()), "result": sorted(result),
+            "seconds": round(seconds, 2), "evaluated_shape": list(ev.shape), "finite": bool(np.isfinite(ev).all()),
+            "marker_rms_mm": q["marker_rms_mm"], "binding_faces_max": max(obj[fit.BINDING_PROP]["faces"]),
+            "coarse_faces": int(len(model.faces))}
+
+
+if __name__ == "__main__":
+    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input, coarse_model])

@@ -1,0 +1,97 @@
+"""Calibrate & Fit of the INSTALLED extension on a real take, in Blender 4.2 and 5.2 (subprocess:
+tests/blender/check_calibrate.py): the first frames of Walk1.c3d imported with the defaults, the coarse CC0
+body standing Z-up in metres with skinned training poses as shape keys (no model yet), one click -> the
+model is built, the take calibrated and fitted, and the Mesh Cache modifier plays the fit; Esc and bad input
+leave the scene unchanged.
+"""
+
+import shutil
+
+import numpy as np
+import pytest
+from conftest import REPO, run_blender_check, shared_data_dir
+
+from lacore.markers.binding import MarkerBinding, surface_points
+
+CHECK_SCRIPT = REPO / "tests" / "blender" / "check_calibrate.py"
+N_TRAIN, N_FRAMES = 20, 20
+TAKE = "Walk1.c3d"
+
+
+@pytest.fixture(scope="module")
+def run(extension_zip, tmp_path_factory):
+    from lacore.samples.human import load_human
+    take = shared_data_dir() / "mocap" / TAKE
+    if not take.is_file():
+        pytest.skip(f"{take} not available")
+    try:
+        body = load_human(coarse=True)
+    except (FileNotFoundError, OSError) as exc:
+        pytest.skip(f"CC0 human not available: {exc}")
+    training, _ = body.random_poses(N_TRAIN, seed=1)
+    work = tmp_path_factory.mktemp("blender_calibrate")
+    np.savez(work / "inputs.npz", faces=body.faces, basis=body.vertices, training=training, n_frames=N_FRAMES)
+    shutil.copy(take, work / "take.c3d")
+    data = run_blender_check(CHECK_SCRIPT, extension_zip, work, timeout=900)
+    with np.load(work / "files" / "calibrate.npz") as f:
+        data["arrays"] = dict(f)
+    data["faces"] = body.faces
+    return data
+
+
+def test_calibrate_and_fit_plays_back_the_fit(run):
+    res = run["cases"]["whole_path"]
+    assert res["result"] == ["FINISHED"], res
+    assert res["modifier"]["type"] == "MESH_CACHE" and res["modifier"]["frame_start"] == 1.0
+    assert res["model_keys"] == [f"pose{k:02d}" for k in range(N_TRAIN)]  # built from the shape keys
+    assert res["keys_unchanged"]
+    assert abs(res["metres_per_unit"] - 0.1) < 1e-6  # object scale 0.1, take in metres
+    a = run["arrays"]
+    ev = a["evaluated"].astype(np.float64)  # (T, V, 3): what the Mesh Cache modifier shows at frames 1..T
+    assert ev.shape[0] == N_FRAMES and np.isfinite(ev).all()
+    assert np.abs(ev[1:] - ev[:-1]).max() > 0  # it moves
+    # the played-back mesh carries the markers: their distances from the bound surface points (mm)
+    binding = MarkerBinding.from_surface(a["bind_faces"], a["bind_barycentric"], a["bind_offsets"])
+    p = surface_points(ev, run["faces"], binding)
+    d = 100.0 * np.linalg.norm(p - a["markers"], axis=2)  # decimetres (object space) -> mm
+    frame_rms = np.sqrt(np.nanmean(d ** 2, axis=1))
+    q = res["quality"]
+    curve = a["rms_curve"]
+    assert np.array_equal(curve[:, 0], np.arange(1, N_FRAMES + 1))
+    # lacore's residuals (the stored curve) and those of the played-back mesh with the stored binding: measured
+    # 0.6-0.9 mm apart (the binding's offsets at the model's size on the body at the performer's size)
+    assert np.allclose(curve[:, 1], frame_rms, rtol=0.0, atol=2.0), (curve[:, 1], frame_rms)
+    assert q["frame_start"] == 1 and q["frame_end"] == N_FRAMES and q["prior_weight"] > 0
+    assert q["marker_rms_mm"] < 25.0, q  # the issue's goal is 6 mm on the fine body with 30 poses
+    assert res["panel_texts"] and res["panel_texts"][0].startswith("Fit of")
+    assert "lengths_angles.calibrate_fit" in " ".join(map(str, res["panel_operators"])) or res["panel_operators"]
+
+
+def test_modal_progress_and_cancel(run):
+    c = run["cases"]["modal_cancel"]["cancel"]
+    assert c["running"] == ["RUNNING_MODAL"] and c["cancel"] == ["CANCELLED"] and c["unchanged"], c
+    assert c["reports"] == [["WARNING", "Cancelled: nothing was changed"]]
+    assert c["step_raised"] == "Cancelled"
+    done, total = c["seen"]
+    assert total // 2 < done < total  # Esc halfway (the model stored by the first run: calibration and fit)
+
+
+@pytest.mark.parametrize("case, words", [
+    ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
+    ("marker_deleted", "missing"), ("no_take", "no marker take"),
+    ("unit_mismatch", "a Scale that matches the character")])
+def test_bad_input_one_line_and_unchanged(run, case, words):
+    res = run["cases"]["bad_input"][case]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
+    assert words in res["message"] and "Traceback" not in res["message"], res
+
+
+def test_coarse_model_plays_back_on_the_full_mesh(run):
+    """Build Model with a coarse level: fits run on 1,000 vertices and are played back on all 2,500."""
+    res = run["cases"]["coarse_model"]
+    assert res["coarse_vertices"] == 1000 and res["fine_vertices"] == res["mesh_vertices"] == len(run["faces"]) // 2 + 2
+    assert res["mode1_moves"] > 0.1  # the slider pose, prolonged to the mesh (decimetres)
+    assert res["result"] == ["FINISHED"] and res["finite"]
+    assert res["evaluated_shape"] == [2, res["mesh_vertices"], 3]
+    assert res["binding_faces_max"] < res["coarse_faces"]  # bound on the coarse level
+    assert res["marker_rms_mm"] < 25.0, res
