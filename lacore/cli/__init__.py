@@ -104,9 +104,7 @@ def main(argv=None):
     try:
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
-        _ignore_further_interrupts(owns_process=argv is None)
-        print("lacore: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _interrupted("lacore", owns_process=argv is None)
     cmd = args._subcommand
     try:
         with warnings.catch_warnings():
@@ -115,9 +113,7 @@ def main(argv=None):
             warnings.filterwarnings("ignore", message=_FLOATING_POINT_WARNINGS, category=RuntimeWarning)
             return int(cmd.run(args) or 0)
     except KeyboardInterrupt:
-        _ignore_further_interrupts(owns_process=argv is None)
-        print(f"lacore {cmd.name}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _interrupted(f"lacore {cmd.name}", owns_process=argv is None)
     except BrokenPipeError:  # stdout closed by the reader (`lacore ... --json | head`): nothing left to say
         _silence_stdout()
         return 141  # as a shell reports a process ended by SIGPIPE (128 + 13)
@@ -127,6 +123,22 @@ def main(argv=None):
 
 
 _FLOATING_POINT_WARNINGS = r"(overflow|underflow|invalid value|divide by zero) encountered"
+
+
+def _interrupted(who, owns_process):
+    """Say ``<who>: interrupted`` and return :data:`EXIT_INTERRUPTED`.  As the process's program, the command
+    has cleaned up (outputs are atomic, workers joined): it ignores further Ctrl-C and leaves at once with 130,
+    so that a late signal during the interpreter's teardown cannot end it by signal instead."""
+    _ignore_further_interrupts(owns_process)
+    print(f"{who}: interrupted", file=sys.stderr)
+    if owns_process:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(EXIT_INTERRUPTED)
+    return EXIT_INTERRUPTED
 
 
 def _ignore_further_interrupts(owns_process):

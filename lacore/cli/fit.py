@@ -88,6 +88,9 @@ def configure(parser):
     parser.add_argument("--temporal-weight", type=float, default=FIT_DEFAULTS.temporal_weight, metavar="W",
                         help=f"weight of the vertex temporal term at {FIT_DEFAULTS.reference_rate:g} Hz, scaled "
                              f"with the square of the frame rate (default {FIT_DEFAULTS.temporal_weight:g})")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="frames per second of MARKERS.npz positions that form a recording: enables the temporal "
+                             "term (a take's own rate is used; without one, frames are fitted independently)")
     parser.add_argument("--frames", metavar="A:B", help="fit only the take's frames A to B-1 (takes only)")
     parser.add_argument("--units", metavar="UNIT", help="the take's length unit if its file lacks or misstates it")
     add_allow_failure(parser)
@@ -123,7 +126,11 @@ def run(args):
     if str(args.markers).lower().endswith(".npz"):
         if gamma == "auto":
             raise InputError("--prior-weight auto needs a take (.c3d or .trc): a markers .npz has no calibration")
+        if args.rate is not None and not (np.isfinite(args.rate) and args.rate > 0):
+            raise InputError(f"--rate must be a positive number of frames per second, got {args.rate}")
         return _run_binding(args, model, gamma, start)
+    if args.rate is not None:
+        raise InputError("--rate is for a markers .npz: a take (.c3d or .trc) has its own frame rate")
     take = read_take(args.markers, units=args.units)
     static = read_take(args.static, units=args.units) if args.static else None
     res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v),
@@ -170,7 +177,7 @@ def _run_binding(args, model, gamma, start):
     """``--markers MARKERS.npz``: positions and a precomputed binding, fitted without calibration."""
     x, binding = load_marker_file(args.markers, model)
     t_load = time.perf_counter() - start
-    res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight)
+    res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight, rate=args.rate)
     t = time.perf_counter()
     save_npz_atomic(args.output, vertices=res.vertices, faces=model.faces, coefficients=res.coefficients,
                     marker_residuals=res.marker_residuals, frame_status=res.frame_status, frame_rms=res.frame_rms)

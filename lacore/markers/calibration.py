@@ -659,7 +659,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     yt = y[track].copy()
     yt[:, ~pinned] = np.nan
     tr = fit_markers(model, yt, binding, FIT_DEFAULTS, prior_weight=o.track_prior_weight, max_iterations=10,
-                     temporal_weight=10.0, initial_vertices=X0)
+                     temporal_weight=10.0, rate=FIT_DEFAULTS.reference_rate, initial_vertices=X0)
     sel = np.searchsorted(track, frames)
     Xs, As = tr.vertices[sel].copy(), tr.coefficients[sel].copy()
     timings["tracking"] = time.perf_counter() - t_start - timings["placement"]

@@ -107,8 +107,8 @@ class FitOptions:
         Use the first ``n_modes`` modes (0: mean-only prior).
     solver : {"cholmod", "scipy"} or None
     reuse_schur : bool
-        Make the Schur complement's ``J`` solves at a frame's first step only and reuse them
-        for its further steps (the gradient stays exact; a failed step refreshes them).
+        Reuse the Schur complement's ``J`` solves of an earlier step of the frame (the gradient
+        stays exact); a failed or cut step, and every third step, makes them afresh.
     """
 
     prior_weight: object = 1.0
@@ -528,6 +528,7 @@ class FrameSolver:
             dec = E0 - Et
             X, a, E0, fresh = Xt, at, Et, False
             need = True                        # full Gauss-Newton: a stale factor only adds failed steps
+            schur = t < 1.0 or it % 3 == 0     # a cut step or every third: the Schur solves afresh too
             P1 = surface_points(X, self.faces, self._sub(vis))
             move = float(np.sqrt(np.max(np.sum((P1 - P0) ** 2, 1)))) if len(vis) else 0.0
             P0 = P1
@@ -560,7 +561,9 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     **settings
         Fields of :class:`FitOptions` overriding ``options`` (``prior_weight=0.5``...).
     rate : float, optional
-        Frames per second (scales the temporal weight); default the options' ``reference_rate``.
+        Frames per second of the recording (scales the temporal weight).  Default None: the
+        frames are not known to be a continuous recording and are fitted without the temporal
+        term (a take's own rate is passed by :func:`lacore.markers.fit_take`).
     initial_vertices : (V, 3) array_like, optional
         Start of frame 0 (default: the reference mesh placed by a Kabsch fit).
     initial_coefficients : (J,) array_like, optional
@@ -589,11 +592,12 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     if options.n_modes is not None and not (int(options.n_modes) == options.n_modes
                                             and 0 <= options.n_modes <= model.n_modes):
         raise InputError(f"n_modes must be an integer from 0 to {model.n_modes}, got {options.n_modes!r}")
-    rate = options.reference_rate if rate is None else float(rate)
-    if not (np.isfinite(rate) and rate > 0):
-        raise InputError(f"rate must be a positive number of frames per second, got {rate!r}")
+    if rate is not None:
+        rate = float(rate)
+        if not (np.isfinite(rate) and rate > 0):
+            raise InputError(f"rate must be a positive number of frames per second, got {rate!r}")
     prolong = None if prolongation is None else as_fit_prolongation(prolongation)
-    kappa = options.temporal_weight * (rate / options.reference_rate) ** 2
+    kappa = 0.0 if rate is None else options.temporal_weight * (rate / options.reference_rate) ** 2
     if mean_z is not None and np.shape(mean_z) != np.shape(model.mean_z):
         raise InputError(f"mean_z must have shape {np.shape(model.mean_z)}, got {np.shape(mean_z)}")
     solver = FrameSolver(model, binding, options, temporal=kappa, mean_z=mean_z)
@@ -661,7 +665,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         success=bool(fitted and np.all((status == 0) | (status == 2))),
         status=int(worst), message=message if (fitted or message) else "no frame was fitted to markers",
         iterations=int(iters.sum()), timings=timings,
-        prior_weight=float(options.prior_weight), temporal_weight=float(options.temporal_weight),
+        prior_weight=float(options.prior_weight),
+        temporal_weight=float(options.temporal_weight) if rate is not None else 0.0,
         fine_vertices=out_fine, regularized_frames=[int(t) for t in np.flatnonzero(status == 2)],
         topology=model.topology)
 
