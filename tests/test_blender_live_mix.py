@@ -24,8 +24,9 @@ CHECK_SCRIPT = REPO / "tests" / "blender" / "check_live_mix.py"
 # Blender's evaluated mix vs lacore's on a 6-unit bar: float32 coordinates and the reduced solve warm-started from the
 # previous mix (Blender) or not (here): measured up to 1.8e-6
 TOL = 1e-5
-# In-betweens by the mixer vs converged Gauss-Newton, RMS over the bounding-box diagonal
-GN_TOL = 3e-3
+# In-betweens by the mixer vs converged Gauss-Newton on the bar, RMS over the bounding-box diagonal: measured up to
+# 5.3e-7 (bpy 4.2 and 5.2; the issue's goal is 3e-3)
+GN_TOL = 5e-6
 
 
 @pytest.fixture(scope="module")
@@ -223,7 +224,7 @@ def _placed_mix(mixer, inputs, a, b, t):
 
 def test_inbetweens_use_the_live_mixer(run, inputs):
     """On a live mesh In-betweens default to the mixer: every in-between is lacore's mix of the blended weights,
-    and close to converged Gauss-Newton (measured RMS up to MEASURED_RMS of the bounding-box diagonal)."""
+    and close to converged Gauss-Newton (:data:`GN_TOL`)."""
     res, a = run["cases"]["inbetweens_and_bake_with_mixer"], run["arrays"]
     assert res["default_without_mixer"] == "FAST" and res["default_with_mixer"] == "MIXER"
     assert res["default_other_key"] == "FAST"  # a key the mixer does not mix
@@ -236,7 +237,7 @@ def test_inbetweens_use_the_live_mixer(run, inputs):
             want = _placed_mix(mixer, inputs, k0, k1, t)
             assert np.abs(X - want).max() < TOL, (k0, k1, t, np.abs(X - want).max())
             rms.append(np.sqrt(np.mean(np.sum((X - G) ** 2, axis=1))) / diag)
-    print("RMS to Gauss-Newton / diagonal:", np.round(rms, 6))
+    print("RMS to Gauss-Newton / diagonal:", ["%.2e" % r for r in rms])
     assert max(rms) < GN_TOL, rms
 
 
