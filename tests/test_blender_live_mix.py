@@ -237,7 +237,6 @@ def test_inbetweens_use_the_live_mixer(run, inputs):
             want = _placed_mix(mixer, inputs, k0, k1, t)
             assert np.abs(X - want).max() < TOL, (k0, k1, t, np.abs(X - want).max())
             rms.append(np.sqrt(np.mean(np.sum((X - G) ** 2, axis=1))) / diag)
-    print("RMS to Gauss-Newton / diagonal:", ["%.2e" % r for r in rms])
     assert max(rms) < GN_TOL, rms
 
 
