@@ -48,7 +48,8 @@ from .runs import ObjectWatch, Run, RunOperator
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "LENGTHS_ANGLES_OT_clear_bake",
            "classes", "METHOD_ITEMS", "METHOD_OPTIONS", "inbetween_run", "bake_run", "interpolate_object",
-           "bake_object", "inbetween_shapes", "read_mesh", "key_items", "key_flag_items", "default_pair"]
+           "bake_object", "inbetween_shapes", "read_mesh", "key_items", "key_flag_items", "default_pair",
+           "default_method", "mixer_note"]
 
 NO_KEY = "__NONE__"
 MAX_NEW_KEYS = 1000
@@ -291,6 +292,23 @@ def default_method(obj, keys):
     return 'MIXER'
 
 
+def mixer_note(obj, keys):
+    """Why a live mesh's mixer cannot compute these in-betweens (the dialog shows it under Method), else None."""
+    if obj is None or obj.type != 'MESH' or not live_mix.is_live(obj.data):
+        return None
+    try:
+        live_mix.mixer_for_keys(obj, keys)
+    except InputError as exc:
+        return f"Live Mixer not available: {exc}"
+    return None
+
+
+def _draw_mixer_note(layout, obj, keys):
+    note = mixer_note(obj, keys)
+    if note:
+        layout.label(text=note, icon='INFO')
+
+
 def _warn_transform(op, obj):
     """Lengths and angles are measured in the mesh's own coordinates; warn if the object scales non-uniformly."""
     if obj is None or obj.type != 'MESH':
@@ -341,6 +359,7 @@ class LENGTHS_ANGLES_OT_interpolate(RunOperator, bpy.types.Operator):
         row.enabled = not self.factors.strip()
         row.prop(self, "count")
         layout.prop(self, "method")
+        _draw_mixer_note(layout, context.object, [self.key_from, self.key_to])
         layout.prop(self, "processes")
 
     def _fill_defaults(self, obj):
@@ -452,6 +471,10 @@ class LENGTHS_ANGLES_OT_bake_keyframes(RunOperator, bpy.types.Operator):
         layout.prop(self, "smooth")
         layout.prop(self, "playback")
         layout.prop(self, "method")
+        try:
+            _draw_mixer_note(layout, context.object, self.bake_inputs(context.object)[0])
+        except InputError:
+            pass
         layout.prop(self, "processes")
         layout.label(text=self.summary(context.object), icon='INFO')
 

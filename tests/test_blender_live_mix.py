@@ -256,6 +256,10 @@ def test_live_mixer_method_refused_without_a_usable_mixer(run):
     assert result == ["CANCELLED"] and "has no live mixer" in message and "Gauss-Newton" in message, res["refused"]
     assert "\n" not in message and res["refused_unchanged"]
     assert res["default_stale"] == "FAST"
+    # the dialog says why under Method on a live mesh (nothing on a mesh without a mixer or with a usable one)
+    assert res["note_without_mixer"] is None and res["notes"][0] is None
+    assert res["notes"][1].startswith("Live Mixer not available:") and "does not mix 'LA live mix'" in res["notes"][1]
+    assert "is stale (shape key 'Twist' was edited)" in res["note_stale"], res["note_stale"]
     result, message = res["refused_stale"]
     assert result == ["CANCELLED"] and "is stale (shape key 'Twist' was edited)" in message, res["refused_stale"]
 

@@ -545,7 +545,8 @@ def inbetweens_and_bake_with_mixer():
     ops_mod, runs, jobs = ext("operators_interpolate"), ext("runs"), ext("jobs")
     reset()
     obj = make_bar()
-    out = {"default_without_mixer": ops_mod.default_method(obj, ["Basis", "Bend"])}
+    out = {"default_without_mixer": ops_mod.default_method(obj, ["Basis", "Bend"]),
+           "note_without_mixer": ops_mod.mixer_note(obj, ["Basis", "Bend"])}
     before = snapshot(obj)
     out["refused"] = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from="Basis", key_to="Bend",
                             factors="0.5", method='MIXER')
@@ -554,6 +555,7 @@ def inbetweens_and_bake_with_mixer():
     OUT["inb_mixer_npz"] = stored_mixer(obj)
     out["default_with_mixer"] = ops_mod.default_method(obj, ["Basis", "Bend"])
     out["default_other_key"] = ops_mod.default_method(obj, ["Basis", "LA live mix"])
+    out["notes"] = [ops_mod.mixer_note(obj, ["Basis", "Bend"]), ops_mod.mixer_note(obj, ["Basis", "LA live mix"])]
     pairs = [("Basis", "Bend"), ("Twist", "Both")]
     factors = (0.25, 0.5, 0.75)
     for method in ('GAUSS_NEWTON', None):
@@ -587,6 +589,7 @@ def inbetweens_and_bake_with_mixer():
     kb.points.foreach_set("co", co)
     obj.data.update()
     out["default_stale"] = ops_mod.default_method(obj, ["Basis", "Bend"])
+    out["note_stale"] = ops_mod.mixer_note(obj, ["Basis", "Bend"])
     out["refused_stale"] = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from="Basis", key_to="Bend",
                                   factors="0.5", method='MIXER')
     return out
