@@ -27,6 +27,8 @@ worker thread, scripts and background mode to the end):
     cache (:mod:`.session`) are not computed again: they join the keys as known shapes.
 :class:`MultiresJob`
     The same frames by coarse solve + prolongation + fine steps (not offered in the UI).
+:class:`MixerJob`
+    The same frames by a live mixer of the keys (:class:`lacore.shapes.ShapeMixer`): one mix per frame.
 :class:`CallJob`
     One lacore call that takes a progress callback (shape model, binding, marker fit): a job
     of one step whose progress and cancellation go through :mod:`lacore.progress`.
@@ -261,6 +263,61 @@ def projection_job(data, keys, keyframes, times, smooth, method, options, label,
     if method == MULTIRES:
         return MultiresJob(data, keys, keyframes, times, smooth, options, label)
     return ProjectionJob(data, keys, keyframes, times, smooth, options, label, workers)
+
+
+class MixerJob(_FrameJob):
+    """Frames of a motion through shape keys by a :class:`lacore.shapes.ShapeMixer` of those keys: one mix each.
+
+    The targets are linear in the keys' lengths and angles, so the frame at ``t`` is the mix of the keys'
+    weight vectors blended like the keys (basis: all zero, mixer key ``k``: ``e_k``), piecewise linearly or by
+    the cubic spline (:func:`lacore.shapes.interpolation.keyframe_targets` is linear in its data).  Results are
+    placed like the other jobs' (:class:`_FrameJob`).  A mix outside the mixer's accurate range is written and
+    listed in :attr:`failures` (the operator's WARNING suggests Gauss-Newton).
+
+    Parameters
+    ----------
+    data, keys, keyframes, times, smooth, label
+        As :class:`ProjectionJob`.
+    mixer : lacore.shapes.ShapeMixer
+        Built from the mesh's basis and the keys ``mixer_keys`` (its weights, in order).
+    key_weights : (len(keys), K-1) array_like
+        The mixer weights of every key of ``keys``.
+    token : str
+        Identifies the mixer (cached results of another mixer are not reused).
+    lock : context manager, optional
+        Held during each mix (the live-mix handlers use the same mixer).
+    """
+
+    def __init__(self, data, keys, keyframes, times, smooth, label, mixer, key_weights, token, lock=None):
+        super().__init__(data, keys, keyframes, times, smooth, f"{label}:{token}")
+        self.mixer = mixer
+        self.lock = lock
+        self.weights = keyframe_targets(np.asarray(key_weights, float), self.keyframes, self.times, smooth)
+        self._todo = [i for i in range(self.total) if self.results[i] is None]
+
+    def step(self):
+        """The next frame: one mix, placed."""
+        if self.cancelled:
+            raise Cancelled("the job was cancelled")
+        if not self._todo:
+            return
+        i = self._todo.pop(0)
+        if self.lock is not None:
+            with self.lock:
+                result = self.mixer.mix(self.weights[i])
+        else:
+            result = self.mixer.mix(self.weights[i])
+        t = float(self.times[i])
+        X = np.asarray(result.vertices, float)
+        if not np.all(np.isfinite(X)):
+            raise LengthsAnglesError(f"the mix at {t:g} is not finite (weights {np.round(self.weights[i], 3)}): "
+                                     "use the Gauss-Newton method")
+        note = None if result.in_range else (f"factor {t:g} (weights {', '.join(f'{w:.3g}' for w in self.weights[i])}"
+                                             f"): {result.message}")
+        X = rigid_align(X, self._placement[i])
+        session.store_result(self._frame_key(i), X, note)
+        self.computed += 1
+        self._record(i, X, note)
 
 
 class CallJob:

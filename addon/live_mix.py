@@ -71,7 +71,7 @@ from .runs import ObjectWatch, Run
 
 __all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
            "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
-           "live_meshes"]
+           "live_meshes", "mixer_for_keys"]
 
 MIXER_PROP = "lengths_angles_live_mix"
 FORMAT_VERSION = 1
@@ -570,6 +570,32 @@ def disable(obj):
         obj.active_shape_key_index = max(0, min(active - (active > index), len(mesh.shape_keys.key_blocks) - 1))
     mesh.update()
     return True
+
+
+def mixer_for_keys(obj, keys):
+    """``(mixer, key weights (len(keys), K-1), token, lock)`` of ``obj``'s live mixer for blends of ``keys``.
+
+    The weights of the basis are all zero, those of the mixer's key ``k`` are ``e_k``, so an in-between of keys
+    ``A`` and ``B`` at ``t`` is the mix of ``(1 - t) w_A + t w_B``.  Raises :class:`LiveMixError` saying why
+    there is no usable mixer: none, unreadable, stale (the mesh or a key edited since the build), or a key of
+    ``keys`` that it does not mix.
+    """
+    mesh = require_mesh_object(obj)
+    if not is_live(mesh):
+        raise LiveMixError(f"mesh '{mesh.name}' has no live mixer (Live Mixing > Enable builds one)")
+    live = _live(mesh)
+    if live is None:
+        raise LiveMixError(f"the live mixer of '{mesh.name}' cannot be read: Rebuild it")
+    why = live.check(mesh)
+    if why:
+        raise LiveMixError(f"the live mixer of '{mesh.name}' is stale ({why}): Rebuild it")
+    order = [live.basis, *live.names]
+    missing = [k for k in keys if k not in order]
+    if missing:
+        raise LiveMixError(f"the live mixer of '{mesh.name}' does not mix {', '.join(map(repr, missing))} (it mixes "
+                           f"{', '.join(map(repr, live.names))} on the basis '{live.basis}')")
+    eye = np.eye(len(order))[:, 1:]
+    return live.mixer, eye[[order.index(k) for k in keys]], live.token, _LOCK
 
 
 def require_live(obj):

@@ -41,14 +41,15 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 from ..lacore.errors import InputError
 from ..lacore.reconstruction.settings import FAST
 from ..lacore.shapes.projection import ProjectionOptions
-from . import bake, jobs, mesh_access, session
+from . import bake, jobs, live_mix, mesh_access, session
 from .naming import (OperatorInputError, inbetween_key_name, is_own_key, parse_factors, parse_frames,
                      parse_key_list)
 from .runs import ObjectWatch, Run, RunOperator
 
 __all__ = ["LENGTHS_ANGLES_OT_interpolate", "LENGTHS_ANGLES_OT_bake_keyframes", "LENGTHS_ANGLES_OT_clear_bake",
            "classes", "METHOD_ITEMS", "METHOD_OPTIONS", "inbetween_run", "bake_run", "interpolate_object",
-           "bake_object", "inbetween_shapes", "read_mesh", "key_items", "key_flag_items", "default_pair"]
+           "bake_object", "inbetween_shapes", "read_mesh", "key_items", "key_flag_items", "default_pair",
+           "default_method", "mixer_note"]
 
 NO_KEY = "__NONE__"
 MAX_NEW_KEYS = 1000
@@ -62,6 +63,9 @@ METHOD_ITEMS = [
                      "twist, are closer with Gauss-Newton)"),
     ('GAUSS_NEWTON', "Gauss-Newton", "Energy-based projection: Gauss-Newton run to convergence (slowest, "
                                      "most accurate)"),
+    ('MIXER', "Live Mixer", "One mix of the mesh's live mixer per in-between (the default when the mesh mixes "
+                            "live and its mixer is up to date and mixes the keys): milliseconds per in-between, "
+                            "close to Gauss-Newton within the keys' range"),
 ]
 #: How each Method item computes its frames: lacore's projection options, or (``'MULTIRES'``, not offered in the
 #: UI: coarse solve, prolongation, three fine Gauss-Newton steps, the hierarchy built once per keys) the keywords of
@@ -97,7 +101,13 @@ def _require_keys(names, wanted, what):
         raise OperatorInputError(f"{what}: no shape key {shown} (the mesh has {have})")
 
 
-def _job(data, keys, keyframes, times, smooth, method, workers=1):
+def _job(data, keys, keyframes, times, smooth, method, workers=1, obj=None):
+    if method == 'MIXER':
+        try:
+            mixer, weights, token, lock = live_mix.mixer_for_keys(obj, keys)
+        except InputError as exc:
+            raise OperatorInputError(f"Method Live Mixer: {exc}; or choose Fast or Gauss-Newton") from None
+        return jobs.MixerJob(data, keys, keyframes, times, smooth, method, mixer, weights, token, lock)
     lacore_method = jobs.MULTIRES if method == 'MULTIRES' else METHOD_OPTIONS[method].method
     return jobs.projection_job(data, keys, keyframes, times, smooth, lacore_method, METHOD_OPTIONS[method], method,
                                workers)
@@ -124,7 +134,7 @@ def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
     unique = list(dict.fromkeys(out_names))
     if len(unique) > MAX_NEW_KEYS:
         raise OperatorInputError(f"{len(unique)} in-betweens requested; at most {MAX_NEW_KEYS}")
-    job = _job(data, [key_from, key_to], [0.0, 1.0], [seen[n] for n in unique], False, method, workers)
+    job = _job(data, [key_from, key_to], [0.0, 1.0], [seen[n] for n in unique], False, method, workers, obj)
     return data, unique, job
 
 
@@ -133,7 +143,7 @@ def _bake_plan(obj, keys, frames, smooth, method, workers=1):
     inbetween = bake.bake_frames(keys, frames)
     data = session.read_mesh(obj, "interpolated")
     plan = bake.check_bake(obj, data.names, keys, frames)
-    job = _job(data, keys, frames, inbetween, smooth, method, workers) if inbetween else None
+    job = _job(data, keys, frames, inbetween, smooth, method, workers, obj) if inbetween else None
     return data, plan, job
 
 
@@ -273,6 +283,32 @@ def default_pair(obj):
     return None if active is None else (ref, active)
 
 
+def default_method(obj, keys):
+    """'MIXER' when ``obj`` has an up-to-date live mixer that mixes ``keys``, else 'FAST'."""
+    try:
+        live_mix.mixer_for_keys(obj, keys)
+    except InputError:
+        return 'FAST'
+    return 'MIXER'
+
+
+def mixer_note(obj, keys):
+    """Why a live mesh's mixer cannot compute these in-betweens (the dialog shows it under Method), else None."""
+    if obj is None or obj.type != 'MESH' or not live_mix.is_live(obj.data):
+        return None
+    try:
+        live_mix.mixer_for_keys(obj, keys)
+    except InputError as exc:
+        return f"Live Mixer not available: {exc}"
+    return None
+
+
+def _draw_mixer_note(layout, obj, keys):
+    note = mixer_note(obj, keys)
+    if note:
+        layout.label(text=note, icon='INFO')
+
+
 def _warn_transform(op, obj):
     """Lengths and angles are measured in the mesh's own coordinates; warn if the object scales non-uniformly."""
     if obj is None or obj.type != 'MESH':
@@ -323,6 +359,7 @@ class LENGTHS_ANGLES_OT_interpolate(RunOperator, bpy.types.Operator):
         row.enabled = not self.factors.strip()
         row.prop(self, "count")
         layout.prop(self, "method")
+        _draw_mixer_note(layout, context.object, [self.key_from, self.key_to])
         layout.prop(self, "processes")
 
     def _fill_defaults(self, obj):
@@ -333,6 +370,8 @@ class LENGTHS_ANGLES_OT_interpolate(RunOperator, bpy.types.Operator):
             self.key_from = pair[0]
         if not self.properties.is_property_set("key_to"):
             self.key_to = pair[1]
+        if not self.properties.is_property_set("method"):
+            self.method = default_method(obj, [self.key_from, self.key_to])
 
     def _factors(self):
         if self.factors.strip():
@@ -432,6 +471,10 @@ class LENGTHS_ANGLES_OT_bake_keyframes(RunOperator, bpy.types.Operator):
         layout.prop(self, "smooth")
         layout.prop(self, "playback")
         layout.prop(self, "method")
+        try:
+            _draw_mixer_note(layout, context.object, self.bake_inputs(context.object)[0])
+        except InputError:
+            pass
         layout.prop(self, "processes")
         layout.label(text=self.summary(context.object), icon='INFO')
 
@@ -445,6 +488,8 @@ class LENGTHS_ANGLES_OT_bake_keyframes(RunOperator, bpy.types.Operator):
 
         def make(context):
             keys, frames = self.bake_inputs(context.object)
+            if not self.properties.is_property_set("method"):
+                self.method = default_method(context.object, keys)
             run = bake_run(context.object, keys, frames, smooth=self.smooth, method=self.method,
                            playback=self.playback, workers=self.processes)
             _warn_transform(self, context.object)

@@ -72,6 +72,7 @@ BENCHMARKS = {
     "bench_blender_interpolate": Benchmark(full=("--methods", "FAST", "--no-profile"), blender=True,
                                            json_option=True, long=True),
     "bench_blender_live_mix": Benchmark(blender=True, json_option=True, long=True),
+    "bench_blender_mixer_inbetweens": Benchmark(full=("bar50k",), blender=True, json_option=True, long=True),
 }
 
 

@@ -115,7 +115,7 @@ def install_and_enable():
                    "LENGTHS_ANGLES_OT_clear_bake"}, ids
     props = bpy.ops.lengths_angles.interpolate.get_rna_type().properties
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
-    assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON"]
+    assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON", "MIXER"]
     assert props["method"].default == "FAST"
     import importlib
     ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")

@@ -520,10 +520,85 @@ def renders():
             "still_vs_frame2": diff(still, live[1])}
 
 
+def key_coords(obj, names):
+    out = []
+    for n in names:
+        kb = obj.data.shape_keys.key_blocks[n]
+        c = np.empty(3 * len(kb.points), np.float32)
+        kb.points.foreach_get("co", c)
+        out.append(c.reshape(-1, 3))
+    return np.array(out)
+
+
+def try_op(obj, op, **kw):
+    try:
+        with ops_context(obj):
+            return sorted(op(**kw)), ""
+    except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+        return ["CANCELLED"], str(exc).strip()
+
+
+def inbetweens_and_bake_with_mixer():
+    """In-betweens and Bake with the live mixer (the default on a live mesh): one mix per in-between, placed like
+    the other methods; Gauss-Newton for comparison; without a mixer (or a stale one) the default stays Fast and
+    the Live Mixer method is refused in one line; an extrapolated factor outside the mixer's range is named."""
+    ops_mod, runs, jobs = ext("operators_interpolate"), ext("runs"), ext("jobs")
+    reset()
+    obj = make_bar()
+    out = {"default_without_mixer": ops_mod.default_method(obj, ["Basis", "Bend"]),
+           "note_without_mixer": ops_mod.mixer_note(obj, ["Basis", "Bend"])}
+    before = snapshot(obj)
+    out["refused"] = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from="Basis", key_to="Bend",
+                            factors="0.5", method='MIXER')
+    out["refused_unchanged"] = snapshot(obj) == before
+    assert enable(obj) == ["FINISHED"]
+    OUT["inb_mixer_npz"] = stored_mixer(obj)
+    out["default_with_mixer"] = ops_mod.default_method(obj, ["Basis", "Bend"])
+    out["default_other_key"] = ops_mod.default_method(obj, ["Basis", "LA live mix"])
+    out["notes"] = [ops_mod.mixer_note(obj, ["Basis", "Bend"]), ops_mod.mixer_note(obj, ["Basis", "LA live mix"])]
+    pairs = [("Basis", "Bend"), ("Twist", "Both")]
+    factors = (0.25, 0.5, 0.75)
+    for method in ('GAUSS_NEWTON', None):
+        shapes = []
+        for a, b in pairs:
+            kw = {} if method is None else {"method": method}
+            t = time.perf_counter()
+            res, msg = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from=a, key_to=b,
+                              factors=" ".join(map(str, factors)), **kw)
+            out[f"seconds_{method or 'default'}_{a}"] = round(time.perf_counter() - t, 3)
+            assert res == ["FINISHED"], (res, msg)
+            shapes.append(key_coords(obj, [ext("naming").inbetween_key_name(a, b, f) for f in factors]))
+        OUT[f"inb_{(method or 'default').lower()}"] = np.array(shapes)
+    OUT["inb_factors"] = np.array(factors)
+    # Bake through Basis, Bend, Twist at frames 1, 5, 9 (default method: the mixer)
+    keys_before = ext("mesh_access").key_names(obj.data)
+    res, msg = try_op(obj, bpy.ops.lengths_angles.bake_keyframes, keys="Basis, Bend, Twist", frames="1, 5, 9")
+    assert res == ["FINISHED"], (res, msg)
+    baked = [n for n in ext("mesh_access").key_names(obj.data) if n not in keys_before]
+    out["baked_names"] = baked
+    OUT["baked"] = key_coords(obj, baked)
+    # an extrapolated factor far outside the keys: written, and the warning names it and suggests Gauss-Newton
+    run = ops_mod.inbetween_run(obj, "Basis", "Bend", [2.5], 'MIXER')
+    jobs.run_job(run.job)
+    out["far_warning"] = runs.failure_warning(run.job.failures)
+    # a stale mixer: the default goes back to Fast and the Live Mixer method says why
+    kb = obj.data.shape_keys.key_blocks["Twist"]
+    co = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", co)
+    co[:3] += 0.1
+    kb.points.foreach_set("co", co)
+    obj.data.update()
+    out["default_stale"] = ops_mod.default_method(obj, ["Basis", "Bend"])
+    out["note_stale"] = ops_mod.mixer_note(obj, ["Basis", "Bend"])
+    out["refused_stale"] = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from="Basis", key_to="Bend",
+                                  factors="0.5", method='MIXER')
+    return out
+
+
 def finish():
     np.savez(os.path.join(ARGS.workdir, "live_mix.npz"), **OUT)
 
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo, bad_input,
-           modal_run_and_cancel, renders, finish])
+           modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
