@@ -11,7 +11,8 @@ from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
 from . import bake, live_mix, session, storage
 from .mesh_access import object_mode, require_mesh_object
-from .operators_fit import BINDING_PROP, remove_model, remove_quality
+from .fit_quality import remove_quality
+from .operators_fit import BINDING_PROP, remove_model
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]

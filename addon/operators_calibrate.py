@@ -19,7 +19,7 @@ forward (-Y) axes, so a take imported at the wrong scale or with the wrong up ax
 lacore's one-line error instead of giving a crumpled fit.  The fitted poses come back in object space:
 they are written as a PC2 point cache played by the Mesh Cache modifier :data:`.naming.FIT_MODIFIER`
 (as Fit to Markers does), with the model (when built), the calibrated binding and the fit's quality
-(:func:`.operators_fit.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior weight,
+(:func:`.fit_quality.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior weight,
 flagged frames and markers).  A failed or cancelled run writes nothing.
 """
 
@@ -33,11 +33,12 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 from ..lacore.errors import InputError
 from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
+from .fit_quality import write_quality
 from .jobs import CallJob
 from .mesh_access import require_mesh_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
                             _prop_state, _store_built_model, _take_of, _take_state, _write_fit, metres_per_unit,
-                            read_model, write_quality)
+                            read_model)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .runs import ObjectWatch, Run, RunOperator
 

@@ -9,7 +9,7 @@ marker is occluded) and only then creates, in the active collection:
 * one *take empty* named after the file (``PLAIN_AXES``), holding the take's
   metadata in the ID property :data:`TAKE_PROP` (rate, units, source, first
   frame, frame count, labels, the import options used, and ``not_markers``:
-  ``[label, reason]`` of the points :func:`..lacore.markers.io.drop_non_markers`
+  ``[label, reason]`` of the points :func:`..lacore.markers.takes.drop_non_markers`
   finds are not skin markers -- imported like the others, left out by Calibrate & Fit);
 * one *marker empty* per label (``SPHERE``), parented to the take empty, its
   label in the ID property :data:`MARKER_PROP`.  Its location is keyed at every
@@ -28,7 +28,7 @@ Timing: by default the scene's frame rate is set to the take's (``fps`` /
 ``frame_start``.  With ``rate_mode='RETIME'`` the scene keeps its rate and
 sample ``i`` is keyed at ``frame_start + i * scene_fps / take_rate`` (fractional
 frames): every sample is kept, none merged or dropped.  With ``'RESAMPLE'`` the take
-is resampled to the scene's rate (:func:`..lacore.markers.io.resample`: linear in
+is resampled to the scene's rate (:func:`..lacore.markers.takes.resample`: linear in
 time; a frame between an occluded and a visible sample is occluded), one key
 per frame; the take empty records both the file's rate and frame count and
 the keyed ones (``keyed_rate``, ``keyed_samples``).
@@ -54,7 +54,8 @@ from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatPrope
 from bpy_extras.io_utils import ImportHelper, axis_conversion, orientation_helper
 
 from ..lacore.errors import InputError
-from ..lacore.markers.io import MarkerTake, drop_non_markers, read_markers, resample, sample_frames, visibility_keys
+from ..lacore.markers.io import MarkerTake, read_markers
+from ..lacore.markers.takes import drop_non_markers, resample, sample_frames, visibility_keys
 from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",

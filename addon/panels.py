@@ -7,6 +7,7 @@ Panel and operators act on ``context.object`` (which follows a pinned Properties
 import bpy
 
 from . import live_mix, storage
+from . import fit_quality
 from . import operators_fit as fit
 from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
@@ -150,15 +151,16 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
 
 
 def draw_fit_quality(layout, obj):
-    """The last fit's quality (stored by :func:`.operators_fit.write_quality`): marker RMS / p95 in mm, the
+    """The last fit's quality (stored by :func:`.fit_quality.write_quality`): marker RMS / p95 in mm, the
     prior weight, flagged frames and markers; the per-frame curve is the keyed property ``RMS_PROP``."""
-    q = obj.get(fit.FIT_PROP)
+    q = obj.get(fit_quality.FIT_PROP)
     if q is None:
         return
     box = layout.box()
     box.label(text=f"Fit of '{q['take']}' {q['frame_start']}-{q['frame_end']}: marker RMS {q['marker_rms_mm']:.1f} mm, "
                    f"p95 {q['marker_p95_mm']:.1f} mm", icon='CHECKMARK' if q.get("success", True) else 'ERROR')
-    box.label(text=f"Prior weight {q['prior_weight']:g}; per-frame RMS: property '{fit.RMS_PROP}' (Graph Editor)")
+    box.label(text=f"Prior weight {q['prior_weight']:g}; per-frame RMS: property '{fit_quality.RMS_PROP}' "
+                   "(Graph Editor)")
     frames, markers = list(q.get("flagged_frames", [])), list(q.get("flagged_markers", []))
     if frames or markers:
         box.label(text=f"Flagged frames: {', '.join(map(str, frames[:10]))}{' ...' if len(frames) > 10 else ''}",

@@ -75,7 +75,7 @@ def test_options(run):
     assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0
     assert ret["frame_range"] == [1, 61]  # 150 samples * 24/60 = frame 61
     assert ret["read_back_same_mask"] and ret["read_back_max_abs"] < FLOAT32_METRES and ret["read_back_rate"] == 60
-    # resampled to 24 fps: one key per scene frame, values = lacore.markers.io.resample
+    # resampled to 24 fps: one key per scene frame, values = lacore.markers.takes.resample
     res_ = res["resampled"]
     assert res["resampled_frames"] == 61 and res_["frames"] == 61 and res_["fps_unchanged"]
     assert res_["location_keys"] == 3 * res["resampled_visible"] and res_["visible_mismatches"] == 0

@@ -29,7 +29,7 @@ MAIN_ENTRY_POINTS = [
     "lacore.models.shape_model.ShapeModel.fit", "lacore.models.shape_model.ShapeModel.synthesize",
     "lacore.models.shape_model.ShapeModel.coefficients", "lacore.models.shape_model.ShapeModel.save",
     "lacore.samples.bar.bar_mesh", "lacore.samples.bar.bar_pose", "lacore.cli.main",
-    "lacore.markers.calibration.calibrate", "lacore.markers.calibration.fit_take",
+    "lacore.markers.calibration.calibrate", "lacore.markers.take_fit.fit_take",
 ]
 
 

@@ -14,7 +14,8 @@ from conftest import shared_data_dir
 
 from lacore.errors import InputError
 from lacore.markers.io import (MODEL_OUTPUT_GROUPS, MarkerError, MarkerFileError, MarkerTake, read_c3d, read_markers,
-                               read_trc, resample, sample_frames, visibility_keys, write_c3d, write_trc)
+                               read_trc, write_c3d, write_trc)
+from lacore.markers.takes import resample, sample_frames, visibility_keys
 
 pytestmark = pytest.mark.filterwarnings("ignore:No analog data found")
 

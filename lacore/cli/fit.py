@@ -46,9 +46,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.atomic import check_writable, save_npz_atomic
-from ..markers.calibration import fit_take
+from ..markers.take_fit import fit_take
 from ..markers.fitting import FIT_DEFAULTS, fit_markers
-from ..markers.io import read_marker_arrays, read_take
+from ..markers.io import read_marker_arrays
+from ..markers.takes import read_take
 from ..models.shape_model import ShapeModel
 from ..result import json_value
 from .common import add_allow_failure, finish, print_json

@@ -1,7 +1,7 @@
 """Automatic calibration of a marker take to a shape model, and the fit of the whole take.
 
 :func:`calibrate` finds, from the take alone (positions in metres, as
-:func:`lacore.markers.io.read_take` gives them):
+:func:`lacore.markers.takes.read_take` gives them):
 
 1. **the model's axes** (declared in the model file, else the longest axis of the
    reference mesh is up and the forward direction is the one whose hints fit best);
@@ -28,7 +28,7 @@
    as extra, weakly penalized modes, whose median over the frames is folded into the
    prior's mean (:attr:`Calibration.mean_z`).
 
-:func:`fit_takes` fits every frame with the calibrated binding and mean
+:func:`lacore.markers.take_fit.fit_take` fits every frame with the calibrated binding and mean
 (:func:`lacore.markers.fitting.fit_markers`), prolongs to the model's fine level if it
 has one, and reports residuals, flagged frames and markers.
 
@@ -48,14 +48,14 @@ from ..errors import InputError
 from ..geometry.lengths_angles import face_normals
 from ..progress import report
 from .binding import MarkerBinding, closest_surface_points, surface_points
-from .fitting import (FIT_DEFAULTS, FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics,
-                      mean_edge_length)
-from .io import MarkerTake, drop_non_markers
+from .fitting import (FIT_DEFAULTS, FrameSolver, fit_markers, fit_options, mean_edge_length)
+from .io import MarkerTake
+from .takes import drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
 
-__all__ = ["calibrate", "fit_take", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "TakeFitResult",
-           "CalibrationError", "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES",
-           "atlas_distance", "MAX_ATLAS_DISTANCE"]
+__all__ = ["calibrate", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "CalibrationError",
+           "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES", "atlas_distance",
+           "MAX_ATLAS_DISTANCE"]
 
 
 class CalibrationError(InputError):
@@ -227,69 +227,6 @@ class Calibration:
                                                       d["binding_offsets"]), **kw)
 
 
-@dataclass(kw_only=True, repr=False)
-class TakeFitResult(MarkerFitResult):
-    """Outcome of :func:`fit_take` (a :class:`~lacore.markers.fitting.MarkerFitResult`).
-
-    Geometry (``vertices``, ``fine_vertices``, ``markers``, ``marker_residuals``,
-    ``frame_rms``...) is in the take's axes and the model's unit, with the performer's
-    size (the fitted body scaled by ``calibration.performer_ratio``), i.e. over the take's
-    markers converted to model units.
-
-    Attributes
-    ----------
-    markers : (T, M, 3) ndarray
-        The take's positions in model units.
-    labels : list of str
-    frames : (T,) int ndarray
-        Take frames fitted.
-    calibration : Calibration
-    marker_rms_mm, marker_p95_mm : float
-        Mean over frames of the per-frame marker RMS and 95th percentile, millimetres.
-    marker_rms_by_marker_mm : (M,) ndarray
-        Each marker's RMS over the take, millimetres.
-    flagged_frames : list of int
-        Take frames whose RMS is far above marker noise (> 3x the take's median and > 10 mm).
-    flagged_markers : list of str
-        Markers whose RMS is far above the others' (> 3x the median and > 10 mm).
-    warnings : list of str
-        One line per flag.
-    seconds_per_frame : float
-        Fitting time per frame (calibration not included).
-    calibration_seconds : float
-    """
-
-    markers: np.ndarray = None
-    labels: list = field(default_factory=list)
-    frames: np.ndarray = None
-    calibration: Calibration = None
-    marker_rms_mm: float = float("nan")
-    marker_p95_mm: float = float("nan")
-    marker_rms_by_marker_mm: np.ndarray = None
-    flagged_frames: list = field(default_factory=list)
-    flagged_markers: list = field(default_factory=list)
-    warnings: list = field(default_factory=list)
-    seconds_per_frame: float = float("nan")
-    calibration_seconds: float = 0.0
-    _summary_exclude = MarkerFitResult._summary_exclude + ("markers", "calibration")
-
-    def summary(self):
-        """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
-        s = super().summary()
-
-        def f(x):
-            return None if x is None or not np.isfinite(x) else float(x)
-        s.update(marker_rms_mm=f(self.marker_rms_mm), marker_p95_mm=f(self.marker_p95_mm),
-                 flagged_frames=[int(t) for t in self.flagged_frames], flagged_markers=list(self.flagged_markers),
-                 warnings=list(self.warnings), seconds_per_frame=f(self.seconds_per_frame),
-                 calibration_seconds=f(self.calibration_seconds), markers=len(self.labels),
-                 performer_ratio=f(self.calibration.performer_ratio) if self.calibration else None,
-                 length_unit=f(self.calibration.length_unit) if self.calibration else None,
-                 notes=list(self.calibration.notes) if self.calibration else [])
-        return s
-
-
-# ----------------------------------------------------------------------------- helpers
 def _axis(name):
     try:
         return np.asarray(AXES[str(name).lower()], float)
@@ -709,144 +646,3 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
                        forward_axis=fwd, take_up=take_up, frames=frames, poses=Xs, coefficients=As,
                        mean_z=mean_z if nD else None, frame_rms=rms, seconds=time.perf_counter() - t_start,
                        timings=timings, notes=notes)
-
-
-def _auto_prior_weight(model, cal, y_frames, fo, notes):
-    """The candidate of :data:`PRIOR_WEIGHT_CHOICES` with the least error on held-out markers (calibration frames)."""
-    M = y_frames.shape[1]
-    rng = np.random.default_rng(0)
-    folds = np.array_split(rng.permutation(M), 4)
-    errors = []
-    for g in PRIOR_WEIGHT_CHOICES:
-        opts = dataclasses.replace(fo, prior_weight=g)
-        sq, n = 0.0, 0
-        for held in folds:
-            y = y_frames.copy()
-            y[:, held] = np.nan
-            solver = FrameSolver(model, cal.binding, opts, mean_z=cal.mean_z)
-            for i in range(len(y)):
-                X, _, _, _, _ = solver.solve_frame(cal.poses[i], cal.coefficients[i], y[i])
-                d = surface_points(X, model.faces, cal.binding)[held] - y_frames[i, held]
-                ok = np.isfinite(d[:, 0])
-                sq += float(np.sum(d[ok] ** 2))
-                n += int(ok.sum())
-        errors.append(np.sqrt(sq / max(n, 1)) / cal.scale * 1000)
-    best = PRIOR_WEIGHT_CHOICES[int(np.argmin(errors))]
-    notes.append("prior_weight auto: " + ", ".join(f"{g:g}: {e:.2f} mm" for g, e in
-                                                   zip(PRIOR_WEIGHT_CHOICES, errors, strict=True)) + f" -> {best:g}")
-    return best
-
-
-def fit_take(model, take, calibration=None, options=None, *, frames=None, static=None, calibration_options=None,
-             progress=None):
-    """Calibrate (unless given) and fit every frame of a take; full resolution if the model has a fine level.
-
-    Parameters
-    ----------
-    model : lacore.models.ShapeModel
-    take : MarkerTake
-        Positions in metres (:func:`lacore.markers.io.read_take`).
-    calibration : Calibration, optional
-        Default: :func:`calibrate` on ``static`` if given, else on the take.
-    options : FitOptions, optional
-        Default :data:`lacore.markers.fitting.FIT_DEFAULTS`; ``prior_weight="auto"``
-        picks from :data:`PRIOR_WEIGHT_CHOICES` by held-out markers.
-    frames : slice or array_like of int, optional
-        Take frames to fit (default all).
-    static : MarkerTake, optional
-        A static trial to calibrate on.
-    calibration_options : CalibrationOptions, optional
-    progress : callable, optional
-        ``progress(done, total, message)`` over calibration and frames (:mod:`lacore.progress`).
-
-    Returns
-    -------
-    TakeFitResult
-
-    Examples
-    --------
-    >>> from lacore.markers import read_take, fit_take
-    >>> from lacore.samples.human import human_model
-    >>> res = fit_take(human_model(), read_take("Walk1.c3d"), frames=slice(0, 30))  # doctest: +SKIP
-    >>> res.success, res.marker_rms_mm < 6, res.fine_vertices.shape                   # doctest: +SKIP
-    (True, True, (30, 13380, 3))
-    """
-    t_start = time.perf_counter()
-    fo = fit_options(options, allow_auto=True)
-    if not isinstance(take, MarkerTake):
-        raise InputError(f"take must be a MarkerTake (lacore.markers.read_take), got {type(take).__name__}")
-    take = drop_non_markers(take)
-    T_all = take.n_frames
-    idx = np.arange(T_all)[frames] if frames is not None else np.arange(T_all)
-    idx = np.atleast_1d(np.asarray(idx, np.int64))
-    if not len(idx):
-        raise InputError("frames selects no frame of the take")
-    n_cal = 2 + (calibration_options or CALIBRATION_DEFAULTS).rounds if calibration is None else 0
-    total = n_cal + len(idx)
-
-    def shifted(offset):
-        if progress is None:
-            return None
-        return lambda done, _total, message: progress(offset + done, total, message)
-
-    if calibration is None:
-        calibration = calibrate(model, static if static is not None else take, calibration_options, fit=fo,
-                                progress=shifted(0))
-    cal = calibration
-    notes = list(cal.notes)
-    missing = [lab for lab in cal.labels if lab not in take.labels]
-    if missing:
-        raise InputError(f"the calibration's markers {', '.join(missing)} are not in the take")
-    extra = [lab for lab in take.labels if lab not in cal.labels]
-    if extra:
-        notes.append(f"markers not calibrated, left out: {', '.join(extra)}")
-    order = [take.labels.index(lab) for lab in cal.labels]
-    x = take.positions[idx][:, order]
-    k, u = cal.scale, cal.length_unit
-    y = x * k
-    if isinstance(fo.prior_weight, str):
-        fo = dataclasses.replace(fo, prior_weight=_auto_prior_weight(
-            model, cal, take.positions[cal.frames][:, order] * k, fo, notes))
-    X0, a0 = cal.start(int(idx[0]))
-    t_fit = time.perf_counter()
-    res = fit_markers(model, y, cal.binding, fo, rate=take.rate, initial_vertices=X0, initial_coefficients=a0,
-                      prolongation=model.fine_level, mean_z=cal.mean_z, progress=shifted(n_cal))
-    fit_seconds = time.perf_counter() - t_fit
-    c = 1.0 / (k * u)                                   # fitted (body-size) units -> model units at performer size
-    dist_m = res.marker_distances / k
-    stats = marker_statistics(dist_m)
-    frame_rms_mm = stats["frame_rms"] * 1000
-    frame_p95_mm = stats["frame_p95"] * 1000
-    with np.errstate(invalid="ignore"):
-        by_marker = np.sqrt(np.nanmean(dist_m ** 2, axis=0)) * 1000
-    flagged_frames, flagged_markers, warns = [], [], []
-    if np.isfinite(frame_rms_mm).any():
-        med = float(np.nanmedian(frame_rms_mm))
-        bad = np.flatnonzero(frame_rms_mm > max(3 * med, 10.0))
-        flagged_frames = [int(idx[t]) for t in bad]
-        if len(bad):
-            warns.append(f"{len(bad)} frame(s) with marker RMS far above the take's ({med:.1f} mm median): "
-                         + ", ".join(f"{int(idx[t])} ({frame_rms_mm[t]:.0f} mm)" for t in bad[:10])
-                         + (" ..." if len(bad) > 10 else ""))
-    if np.isfinite(by_marker).any():
-        medm = float(np.nanmedian(by_marker))
-        badm = np.flatnonzero(by_marker > max(3 * medm, 10.0))
-        flagged_markers = [cal.labels[m] for m in badm]
-        if len(badm):
-            warns.append("markers far from the surface (RMS): " + ", ".join(
-                f"{cal.labels[m]} ({by_marker[m]:.0f} mm)" for m in badm))
-    timings = dict(res.timings, calibration=cal.seconds, total=time.perf_counter() - t_start)
-    fields_ = {f.name: getattr(res, f.name) for f in dataclasses.fields(MarkerFitResult)}
-    fields_.update(
-        vertices=res.vertices * c, marker_residuals=res.marker_residuals * c, marker_distances=res.marker_distances * c,
-        frame_rms=res.frame_rms * c, frame_p95=res.frame_p95 * c, marker_rms=res.marker_rms * c,
-        fine_vertices=None if res.fine_vertices is None else res.fine_vertices * c, timings=timings,
-        prior_weight=float(fo.prior_weight))
-    out = TakeFitResult(**fields_, markers=x / u, labels=list(cal.labels), frames=idx, calibration=cal,
-                        marker_rms_mm=float(np.nanmean(frame_rms_mm)) if np.isfinite(frame_rms_mm).any() else np.nan,
-                        marker_p95_mm=float(np.nanmean(frame_p95_mm)) if np.isfinite(frame_p95_mm).any() else np.nan,
-                        marker_rms_by_marker_mm=by_marker, flagged_frames=flagged_frames,
-                        flagged_markers=flagged_markers, warnings=warns,
-                        seconds_per_frame=fit_seconds / len(idx), calibration_seconds=cal.seconds)
-    out.calibration = dataclasses.replace(cal, notes=notes)
-    return out

@@ -112,7 +112,7 @@ def whole_path():
     t = time.perf_counter()
     result = bpy.ops.lengths_angles.calibrate_fit()
     seconds = time.perf_counter() - t
-    fit = ext("addon.operators_fit")
+    fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
     frames = np.arange(1, N_FRAMES + 1)
     ev = evaluated(obj, frames)
     # marker positions in the object's space, as the operator read them (NaN where occluded)
@@ -125,7 +125,7 @@ def whole_path():
                bind_faces=np.array(binding["faces"]), bind_barycentric=np.array(binding["barycentric"]).reshape(-1, 3),
                bind_offsets=np.array(binding["offsets"]), world=np.array(obj.matrix_world))
     fcurves = ext("addon.compat").id_fcurves(obj)
-    fc = fcurves.find(f'["{fit.RMS_PROP}"]')
+    fc = fcurves.find(f'["{quality.RMS_PROP}"]')
     co = np.empty(2 * len(fc.keyframe_points), np.float32)
     fc.keyframe_points.foreach_get("co", co)
     OUT["rms_curve"] = co.reshape(-1, 2)
@@ -140,7 +140,7 @@ def whole_path():
     np.savez(os.path.join(ARGS.workdir, "calibrate.npz"), **OUT)
     return {"result": sorted(result), "seconds": round(seconds, 2), "frames": N_FRAMES,
             "modifier": {"type": mod.type, "frame_start": mod.frame_start, "filepath": mod.filepath},
-            "quality": obj[fit.FIT_PROP].to_dict(), "binding_labels": list(binding["labels"]),
+            "quality": obj[quality.FIT_PROP].to_dict(), "binding_labels": list(binding["labels"]),
             "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
             "performer_ratio": binding["performer_ratio"], "model_keys": list(meta["keys"]),
             "panel_texts": [t for t in texts if t.startswith(("Fit of", "Prior", "Flagged"))],
@@ -266,7 +266,7 @@ def coarse_model():
     result = bpy.ops.lengths_angles.calibrate_fit()
     seconds = time.perf_counter() - t
     ev = evaluated(obj, [1, N_FRAMES])
-    q = obj[fit.FIT_PROP].to_dict()
+    q = obj[ext("addon.fit_quality").FIT_PROP].to_dict()
     basis = INPUTS["basis"]
     return {"coarse_vertices": int(model.reference_vertices.shape[0]),
             "fine_vertices": int(model.fine_level.n_fine_vertices), "mesh_vertices": len(obj.data.vertices),

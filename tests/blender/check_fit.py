@@ -167,17 +167,17 @@ def whole_path():
 
 def rms_curve(obj):
     """The fit's quality stored on ``obj``: the keyed per-frame marker RMS (mm) and the summary."""
-    fit = ext("addon.operators_fit")
+    quality = ext("addon.fit_quality")
     fcurves = ext("addon.compat").id_fcurves(obj)
-    fc = fcurves.find(f'["{fit.RMS_PROP}"]')
+    fc = fcurves.find(f'["{quality.RMS_PROP}"]')
     co = np.empty(2 * len(fc.keyframe_points), np.float32)
     fc.keyframe_points.foreach_get("co", co)
     bpy.context.scene.frame_set(3)
     from types import SimpleNamespace
     calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
     texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
-    return {"frames": co[0::2].tolist(), "values": co[1::2].tolist(), "value_at_3": float(obj[fit.RMS_PROP]),
-            "summary": obj[fit.FIT_PROP].to_dict(), "panel": [t for t in texts if t.startswith("Fit of")]}
+    return {"frames": co[0::2].tolist(), "values": co[1::2].tolist(), "value_at_3": float(obj[quality.RMS_PROP]),
+            "summary": obj[quality.FIT_PROP].to_dict(), "panel": [t for t in texts if t.startswith("Fit of")]}
 
 
 def bind_units_and_occlusion():
