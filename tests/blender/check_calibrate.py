@@ -13,7 +13,7 @@ import math
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -145,40 +145,6 @@ def whole_path():
             "performer_ratio": binding["performer_ratio"], "model_keys": list(meta["keys"]),
             "panel_texts": [t for t in texts if t.startswith(("Fit of", "Prior", "Flagged"))],
             "panel_operators": ops, "keys_unchanged": before["keys"] == state(obj)["keys"]}
-
-
-class FakeOperator:
-    def __init__(self):
-        self.reports = []
-        self.interactive = True
-
-    def report(self, kind, text):
-        self.reports.append((sorted(kind)[0], text))
-
-
-def fake_operator():
-    return type("Fake", (FakeOperator, ext("addon.runs").RunOperator), {})()
-
-
-def timer(op):
-    from types import SimpleNamespace
-    return SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)
-
-
-def esc():
-    from types import SimpleNamespace
-    return SimpleNamespace(type='ESC', value='PRESS', timer=None)
-
-
-def drive(op, run, until=None, timeout=300.0):
-    seen, end = [], time.perf_counter() + timeout
-    while time.perf_counter() < end:
-        s = op.modal(bpy.context, timer(op))
-        seen.append((run.done, run.total))
-        if s != {'RUNNING_MODAL'} or (until is not None and until(run)):
-            return s, seen
-        time.sleep(0.005)
-    raise AssertionError(f"the modal run did not progress ({run.done} of {run.total})")
 
 
 def modal_cancel():

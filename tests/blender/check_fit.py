@@ -13,7 +13,7 @@ import importlib
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -289,44 +289,6 @@ def bad_input():
     select_only(obj)
     attempt("mesh_edited", bpy.ops.lengths_angles.fit_markers)
     return out
-
-
-class FakeOperator:
-    """A long operator's run logic (the runs.RunOperator mixin) on a plain object: modal() driven by the test."""
-
-    def __init__(self):
-        self.reports = []
-        self.interactive = True
-
-    def report(self, kind, text):
-        self.reports.append((sorted(kind)[0], text))
-
-
-def fake_operator():
-    return type("Fake", (FakeOperator, ext("addon.runs").RunOperator), {})()
-
-
-def timer(op):
-    from types import SimpleNamespace
-    return SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)
-
-
-def esc():
-    from types import SimpleNamespace
-    return SimpleNamespace(type='ESC', value='PRESS', timer=None)
-
-
-def drive(op, run, until=None, timeout=300.0):
-    """Timer events to the operator's modal() every 5 ms until it returns something other than RUNNING_MODAL
-    or ``until(run)``; returns (state, [(done, total) seen while running])."""
-    seen, end = [], time.perf_counter() + timeout
-    while time.perf_counter() < end:
-        state = op.modal(bpy.context, timer(op))
-        seen.append((run.done, run.total))
-        if state != {'RUNNING_MODAL'} or (until is not None and until(run)):
-            return state, seen
-        time.sleep(0.005)
-    raise AssertionError(f"the modal run did not progress ({run.done} of {run.total})")
 
 
 def make_runs(context, obj, take):

@@ -13,7 +13,7 @@ import os
 import time
 from types import SimpleNamespace
 
-from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+from harness import ARGS, MODULE, bpy, draw_panel, esc, fake_operator, reset, run_cases, timer
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -413,25 +413,12 @@ def bad_input():
     return out
 
 
-class FakeOperator:
-    """The run logic of the enable operator (the runs.RunOperator mixin) on a plain object: modal() driven here."""
-
-    def __init__(self):
-        self.reports = []
-        self.interactive = True
-
-    def report(self, kind, text):
-        self.reports.append((sorted(kind)[0], text))
-
-
 def modal_run_and_cancel():
     """From the UI the mixer is built in the worker thread (timer events drive modal()); Esc writes nothing."""
     runs = ext("runs")
     reset()
     obj = make_bar()
-    fake = type("Fake", (FakeOperator, runs.RunOperator), {})
-    timer = lambda op: SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)  # noqa: E731
-    op, run = fake(), ext("live_mix").enable_run(obj)
+    op, run = fake_operator(), ext("live_mix").enable_run(obj)
     op._begin_modal(bpy.context, run)
     state, end = {'RUNNING_MODAL'}, time.perf_counter() + 120
     ticks = 0
@@ -443,10 +430,10 @@ def modal_run_and_cancel():
                 "live": ext("live_mix").is_live(obj.data)}
     assert disable(obj) == ["FINISHED"]
     before = snapshot(obj)
-    op, run = fake(), ext("live_mix").enable_run(obj)
+    op, run = fake_operator(), ext("live_mix").enable_run(obj)
     op._begin_modal(bpy.context, run)
     op.modal(bpy.context, timer(op))  # the build starts in the worker thread
-    cancelled = op.modal(bpy.context, SimpleNamespace(type='ESC', value='PRESS', timer=None))
+    cancelled = op.modal(bpy.context, esc())
     runs.wait_for_worker_thread()
     return {"finished": finished, "cancelled": sorted(cancelled), "cancel_reports": op.reports,
             "unchanged": snapshot(obj) == before}

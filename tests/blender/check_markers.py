@@ -191,7 +191,7 @@ def options():
     reset()
     bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
     assert import_markers(path, rate_mode='RESAMPLE') == {"FINISHED"}
-    resampled_take = ext("lacore.markers.io").resample(take, 24.0)
+    resampled_take = ext("lacore.markers.takes").resample(take, 24.0)
     resampled = check_take(path, resampled_take, file_take=take)
     resampled["fps_unchanged"] = scene_fps() == 24
     # TRC: the same take written as TRC (mm) imports to the same keys

@@ -10,7 +10,7 @@ import time
 from types import MethodType, SimpleNamespace
 
 # harness first: it checks the environment and imports bpy
-from harness import ARGS, MODULE, bpy, draw_panel, reset, run_cases
+from harness import ARGS, MODULE, FakeOperator, bpy, draw_panel, fake_operator, reset, run_cases
 import numpy as np
 import blend_sample_cases as cases
 import blender_samples as samples
@@ -26,21 +26,6 @@ def install_and_enable():
                                                       enable_on_install=True)
     assert result == {"FINISHED"}, result
     return {}
-
-
-class FakeOperator:
-    """The operators' run logic (the runs.RunOperator mixin) on a plain object: modal() driven by the test."""
-
-    def __init__(self):
-        self.reports = []
-        self.interactive = True
-
-    def report(self, kind, text):
-        self.reports.append((sorted(kind)[0], text))
-
-
-def fake_operator():
-    return type("Fake", (FakeOperator, mod("runs").RunOperator), {})()
 
 
 def wait_for_worker_thread():

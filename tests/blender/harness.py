@@ -12,11 +12,13 @@ exits non-zero.  pytest asserts on the JSON (tests/conftest.py: ``run_blender_ch
 """
 
 import argparse
+import importlib
 import json
 import os
 import sys
 import time
 import traceback
+from types import SimpleNamespace
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(HERE))
@@ -96,3 +98,45 @@ def run_cases(cases):
     with open(ARGS.result, "w") as fh:
         json.dump({"ok": True, "cases": RESULTS, "seconds": round(time.perf_counter() - t0, 3),
                    "blender": bpy.app.version_string}, fh, indent=1)
+
+
+# ----------------------------------------------------------------------------- modal runs driven by a test
+class FakeOperator:
+    """A long operator's run logic (the ``addon.runs.RunOperator`` mixin) on a plain object: modal() driven by
+    the test (headless Blender has no window to send events)."""
+
+    def __init__(self):
+        self.reports = []
+        self.interactive = True
+
+    def report(self, kind, text):
+        self.reports.append((sorted(kind)[0], text))
+
+
+def fake_operator():
+    """A :class:`FakeOperator` with the installed extension's ``RunOperator`` mixed in."""
+    runs = importlib.import_module(f"{MODULE}.addon.runs")
+    return type("Fake", (FakeOperator, runs.RunOperator), {})()
+
+
+def timer(op):
+    """The timer event that polls ``op``'s worker thread."""
+    return SimpleNamespace(type='TIMER', value='NOTHING', timer=op._timer)
+
+
+def esc():
+    """An Esc key press."""
+    return SimpleNamespace(type='ESC', value='PRESS', timer=None)
+
+
+def drive(op, run, until=None, timeout=300.0):
+    """Timer events to the operator's modal() every 5 ms until it returns something other than RUNNING_MODAL
+    or ``until(run)``; returns (state, [(done, total) seen while running])."""
+    seen, end = [], time.perf_counter() + timeout
+    while time.perf_counter() < end:
+        state = op.modal(bpy.context, timer(op))
+        seen.append((run.done, run.total))
+        if state != {'RUNNING_MODAL'} or (until is not None and until(run)):
+            return state, seen
+        time.sleep(0.005)
+    raise AssertionError(f"the modal run did not progress ({run.done} of {run.total})")
