@@ -403,3 +403,15 @@ def test_dec_float_decoding_matches_the_c3d_package():
     ref = DEC_to_IEEE_BYTES(raw.tobytes())
     assert np.array_equal(ours.view(np.uint32), ref.view(np.uint32))
     assert ours[0] == 0.0 and ours[1] == 0.0
+
+
+def test_a_take_moving_rigidly_as_a_whole_keeps_its_markers():
+    """Noise-free markers on one rigid object: every point is rigid to two others, yet none is a computed point."""
+    from lacore.markers.takes import drop_non_markers
+    rng = np.random.default_rng(0)
+    P = rng.normal(size=(4, 3)) * 0.1
+    angles = np.linspace(0, 1, 20)
+    R = np.array([[[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]] for a in angles])
+    take = MarkerTake(labels=["A", "B", "C", "D"], positions=np.einsum("tij,mj->tmi", R, P) + [0, 0, 1], rate=60.0)
+    kept = drop_non_markers(take)
+    assert list(kept.labels) == ["A", "B", "C", "D"] and tuple(kept.dropped) == ()

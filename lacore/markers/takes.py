@@ -45,7 +45,9 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
        ``rigid_tolerance`` times the take's size (standard deviation of the
        distances over the take): a computed point.  Real markers move against
        each other by at least their noise (>= 0.03 mm in the shared takes,
-       computed points <= 1e-5 mm).
+       computed points <= 1e-5 mm).  Not applied when it would leave fewer than
+       three markers: a take that moves rigidly as a whole (noise-free synthetic
+       data) keeps its points.
 
     Returns
     -------
@@ -85,9 +87,13 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
                 sd = np.sqrt(np.where(n > 0, np.nansum((d - mean) ** 2, 0) / np.maximum(n, 1), np.inf))
             rig[i] = (n >= 3) & (sd <= rigid_tolerance * size)
         np.fill_diagonal(rig, False)
+        computed = []
         for i in range(len(rest)):
             nb = np.flatnonzero(rig[i])
             if any(rig[b, c] for j, b in enumerate(nb) for c in nb[j + 1:]):
+                computed.append(i)
+        if len(rest) - len(computed) >= 3:  # else the whole take moves rigidly (noise-free data): keep its points
+            for i in computed:
                 notes.setdefault(take.labels[rest[i]], "rigid to two other points to rounding error: computed")
     keep = np.array([lab not in notes for lab in take.labels], bool)
     if not keep.any():
