@@ -6,8 +6,8 @@ seconds and give the same output under NumPy 1.26 and 2.x.
 
 import doctest
 import importlib
-import io
 import pkgutil
+import io
 import tempfile
 
 import pytest
@@ -33,19 +33,6 @@ MAIN_ENTRY_POINTS = [
 ]
 
 
-def _resolve(dotted):
-    parts = dotted.split(".")
-    for i in range(len(parts), 0, -1):
-        try:
-            obj = importlib.import_module(".".join(parts[:i]))
-        except ImportError:
-            continue
-        for name in parts[i:]:
-            obj = getattr(obj, name)
-        return obj
-    raise ImportError(dotted)
-
-
 @pytest.mark.parametrize("name", MODULES)
 def test_docstring_examples_run(name, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the examples' temporary folders go there
@@ -59,6 +46,6 @@ def test_docstring_examples_run(name, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("name", [f"lacore.{n}" for n in lacore.__all__] + MAIN_ENTRY_POINTS)
 def test_public_entry_point_has_an_example(name):
-    obj = getattr(lacore, name[len("lacore."):]) if name.count(".") == 1 else _resolve(name)
+    obj = getattr(lacore, name[len("lacore."):]) if name.count(".") == 1 else pkgutil.resolve_name(name)
     doc = obj.__doc__ or ""
     assert "Examples\n" in doc and ">>> " in doc, f"{name} has no Examples section with a doctest"

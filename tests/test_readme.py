@@ -18,7 +18,7 @@ A section between ``<!-- lead: NAME -->`` and ``<!-- /lead -->`` that still hold
 :func:`test_lead_sections` says so.
 """
 
-import importlib
+import pkgutil
 import os
 import re
 import shlex
@@ -184,20 +184,6 @@ def test_readme_cli_claims():
     assert args.prior_weight == 1.0
 
 
-def resolve(dotted):
-    """Import ``lacore.a.b`` then get attributes for the rest; raise if any part is missing."""
-    parts = dotted.split(".")
-    for i in range(len(parts), 0, -1):
-        try:
-            obj = importlib.import_module(".".join(parts[:i]))
-        except ImportError:
-            continue
-        for name in parts[i:]:
-            obj = getattr(obj, name)
-        return obj
-    raise ImportError(dotted)
-
-
 def test_readme_python_names_exist():
     names = set(re.findall(r"`(lacore(?:\.\w+)+)", prose()))
     for lang, code in blocks():
@@ -206,7 +192,7 @@ def test_readme_python_names_exist():
                          for n in m[1].split(","))
     assert len(names) >= 8, names
     for name in sorted(names):
-        resolve(name)
+        pkgutil.resolve_name(name)
 
 
 def registered_operators():

@@ -13,7 +13,7 @@ import math
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases
+from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases, select_only
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -49,14 +49,6 @@ def make_character(name="Body", keys=True):
             kb.data.foreach_set("co", X.astype(np.float32).ravel())
             kb.value = 0.0
     return obj
-
-
-def select_only(*objs):
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    for o in objs:
-        o.select_set(True)
-    bpy.context.view_layer.objects.active = objs[0]
 
 
 def state(obj):

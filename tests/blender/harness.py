@@ -100,6 +100,15 @@ def run_cases(cases):
                    "blender": bpy.app.version_string}, fh, indent=1)
 
 
+def select_only(*objs):
+    """Select exactly ``objs`` and make the first the active object."""
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
 # ----------------------------------------------------------------------------- modal runs driven by a test
 class FakeOperator:
     """A long operator's run logic (the ``addon.runs.RunOperator`` mixin) on a plain object: modal() driven by
