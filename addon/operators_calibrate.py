@@ -40,7 +40,7 @@ from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
 from .fit_quality import write_quality
 from .jobs import CallJob
-from .mesh_access import require_mesh_object
+from .mesh_access import require_mesh_object, triangulate
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
                             _prop_state, _store_built_model, _take_of, _take_state, _write_fit, metres_per_unit,
                             read_model)
@@ -124,8 +124,9 @@ _ADVICE = {
                          "Scale) or scale the character",
     "AxisMismatchError": "the character does not stand up along the scene's Z axis facing -Y (front view): rotate "
                          "it upright, or import the take again with its Up axis (Import Motion Capture Markers > Up)",
-    "CalibrationError": "pin 3 or more markers visible there to vertices (Edit Mode: Pin Marker), or place the "
-                        "character over the markers at the take's first frame and set Placement to As Placed",
+    "CalibrationError": "pin 3 or more markers seen at the take's first frames to vertices (Edit Mode: Pin Marker), "
+                        "or place the character over the markers at the take's first frame and set Placement to As "
+                        "Placed",
 }
 
 
@@ -156,7 +157,7 @@ def first_calibration_frame(visible):
 MAX_PLACED_DISTANCE = 0.2
 
 
-def _placement(obj, markers, labels, pins, mode, rest):
+def _placement(obj, markers, labels, pins, mode, rest, frame_of):
     """How to place the character: ``(kind, pins)`` with kind ``'HINTS'`` (lacore, by marker names),
     ``'PINS'`` or ``'PLACED'`` (:data:`.operators_pins.PLACEMENT_ITEMS`), and the pins as
     ``{label: (vertex, rest position)}`` (validated: one-line FitSetupError naming what to do)."""
@@ -173,16 +174,23 @@ def _placement(obj, markers, labels, pins, mode, rest):
         return 'PLACED', pinned
     if has_hints(markers.labels):
         return 'HINTS', pinned
-    return ('PINS' if len(pinned) >= 3 else 'PLACED'), pinned
+    if len(pinned) < 3:
+        return 'PLACED', pinned
+    f0 = first_calibration_frame(markers.visible)
+    seen = [lb for lb in pinned if markers.visible[f0, markers.labels.index(lb)]]
+    if len(seen) < 3:
+        raise FitSetupError(f"{len(seen)} of the {len(pinned)} pinned markers are seen at frame {frame_of(f0)}, "
+                            "where the character is placed: pin 3 or more markers seen there (Edit Mode: Pin "
+                            "Marker), or place the character over the markers and set Placement to As Placed")
+    return 'PINS', pinned
 
 
-def _check_placed(model, markers, unit, take_name, frame_of):
-    """FitSetupError unless the markers at the first calibration frame lie near the character as placed."""
+def _check_placed(X, faces, markers, unit, take_name, frame_of):
+    """FitSetupError unless the markers at the first calibration frame lie near the rest mesh ``X`` as placed."""
     from ..lacore.markers.binding import closest_surface_points
     f0 = first_calibration_frame(markers.visible)
-    X = np.asarray(model.reference_vertices, float)
     x = markers.positions[f0][markers.visible[f0]] / unit
-    q = closest_surface_points(X, model.faces, x)[0]
+    q = closest_surface_points(X, faces, x)[0]
     d = float(np.median(np.linalg.norm(q - x, axis=1)))
     diag = float(np.linalg.norm(np.ptp(X, axis=0)))
     if d > MAX_PLACED_DISTANCE * diag:
@@ -241,7 +249,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     rest = (mesh.shape_keys.reference_key.data if mesh.shape_keys else mesh.vertices)
     co = np.empty(3 * len(rest), np.float32)
     rest.foreach_get("co", co)
-    kind, pinned = _placement(obj, markers, labels, pins, mode, co.reshape(-1, 3).astype(np.float64))
+    rest = co.reshape(-1, 3).astype(np.float64)
+    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]))
+    if kind == 'PLACED':
+        _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
     # the axes of the world's up and forward in the character's space: exact (checked by lacore) for a
     # humanoid placed by marker names, else the nearest axes (the user placed or pinned the character)
     up, forward = object_axes(obj) if kind == 'HINTS' else _nearest_axes(obj)
@@ -271,10 +282,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         # pins on the model's vertices: the same on the mesh, the nearest rest vertex on a coarse level
         model_pins = {lb: (int(np.argmin(np.sum((X - p) ** 2, 1))) if getattr(m, "fine_level", None) is not None else v)
                       for lb, (v, p) in pinned.items()}
-        where = None
-        if kind == 'PLACED':
-            _check_placed(m, markers, unit, take_name, lambda f: int(frames[f]))
-            where = (unit, np.eye(3), np.zeros(3))  # the rest mesh in the character's space, in metres
+        # As Placed: the rest mesh in the character's space, in metres
+        where = (unit, np.eye(3), np.zeros(3)) if kind == 'PLACED' else None
         try:
             cal = calibrate(fitted, markers, fit=options, placement=where, pins=model_pins or None,
                             progress=staged(stages - 2))

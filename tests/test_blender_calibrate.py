@@ -45,7 +45,7 @@ def run(extension_zip, tmp_path_factory):
 
 #: The creature: the finger of shared/data as a 46 cm tentacle (object scale 0.1), turned 30 degrees about Z.
 CREATURE_SCALE, CREATURE_TURN, CREATURE_AT = 0.1, np.radians(30.0), np.array([0.3, -0.2, 0.1])
-CREATURE_FRAMES, CREATURE_PINS = 8, (0, 4, 8, 11)
+CREATURE_FRAMES, CREATURE_PINS = 8, (0, 5, 11)
 
 
 def creature_inputs():
@@ -73,7 +73,7 @@ def creature_inputs():
     x = CREATURE_SCALE * x @ R.T + CREATURE_AT + rng.normal(0.0, 0.0005, x.shape)
     labels = [f"m{i + 1:02d}" for i in range(12)]
     take = MarkerTake(labels=labels, positions=x, rate=30.0, units="m")
-    # pins: markers 1, 5, 9 and 12 to the vertex of their triangle nearest to them
+    # pins: markers 1, 6 and 12 to the vertex of their triangle nearest to them
     pins = {labels[i]: int(faces[marker_faces[i], np.argmax(bary[i])]) for i in CREATURE_PINS}
     return {"faces": faces, "basis": shapes[0][0], "training": training, "world": world, "take": take,
             "pin_labels": np.array(list(pins)), "pin_vertices": np.array(list(pins.values())),
@@ -140,20 +140,20 @@ def test_coarse_model_plays_back_on_the_full_mesh(run):
 
 def test_creature_without_marker_names_as_placed(run):
     """No standard marker names, no pins: Automatic places the character as the user placed it (3 degrees and
-    1 cm off); measured 8.3 mm mean vertex error on the 52 cm tentacle (the rest mesh as placed: 38 mm),
-    marker RMS 0.16 mm, 16-32 s for 8 frames with the model built."""
+    1 cm off); measured 8.3 mm mean vertex error on the 52 cm tentacle (the rest mesh as placed: 23.3 mm),
+    marker RMS 0.16 mm, 28-32 s for 8 frames with the model built (Blender 4.2, 5.2)."""
     res = run["cases"]["creature_as_placed"]
     assert res["result"] == ["FINISHED"] and res["placement"] == "AUTO" and res["success"], res
     assert res["frames"] == CREATURE_FRAMES and res["bound"] == 12
     assert res["performer_ratio"] == pytest.approx(1.0)  # the size as placed
-    assert res["mean_error_m"] < 0.03 * res["size_m"] and res["mean_error_m"] < 0.5 * res["rest_error_m"], res
+    assert res["mean_error_m"] < 0.03 * res["size_m"] and res["mean_error_m"] < 0.6 * res["rest_error_m"], res
     assert res["marker_rms_mm"] < 2.0, res
 
 
 def test_creature_pins(run):
     """Far from its markers the character is refused (one line naming what to do; nothing changed); Pin Marker
-    (Edit Mode and by label) stores the pins, listed in the panel with remove buttons; 4 pins place it:
-    measured 5.0 mm mean vertex error (52 cm tentacle), marker RMS 0.13 mm, size ratio 0.998."""
+    (Edit Mode and by label) stores the pins, listed in the panel with remove buttons; 3 pins place it:
+    measured 6.4 mm mean vertex error (52 cm tentacle), marker RMS 0.13 mm, size ratio 1.0001."""
     res = run["cases"]["creature_pins"]
     bad = res["not_placed"]
     assert bad["result"] == ["CANCELLED"] and bad["unchanged"] and bad["lines"] == 1, bad
@@ -162,6 +162,7 @@ def test_creature_pins(run):
     assert "no take in the scene has a marker 'nope'" in res["unknown_label"]
     labels = [f"m{i + 1:02d}" for i in CREATURE_PINS]
     assert sorted(res["pins"]) == labels and res["after_remove"] == labels
+    assert len(res["pins"]) == 3  # the README's "3 or more markers"
     assert len(res["panel_pins"]) == len(labels) and res["panel_remove"] == len(labels)
     assert res["panel_placement"] == ["lengths_angles_placement"]
     unknown = res["unknown_pin"]
