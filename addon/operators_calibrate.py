@@ -12,6 +12,11 @@ some of its marker empties; with none selected, the scene's only take).  One :cl
    visible; points that are not markers are dropped (:func:`lacore.markers.drop_non_markers`);
 3. *fit* every frame of the range (:func:`lacore.markers.fit_take`).
 
+Placement (the object's Placement option, :mod:`.operators_pins`): standard marker-set names place a humanoid
+(Automatic); a take without them is placed by the markers pinned to vertices (3 or more), else by the
+character's transform as the user placed it over the markers at the take's first frame (As Placed: the
+rest mesh in the character's space is the placement, ``x = metres_per_unit * X``).
+
 Units and axes: the markers are handed to lacore in the character's object space, in metres
 (:func:`.operators_fit.metres_per_unit`: the take's import Scale, else the scene's Unit Scale), and the
 model declares that unit (``length_unit``) and the object-space directions of the world's up (+Z) and
@@ -35,11 +40,12 @@ from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
 from .fit_quality import write_quality
 from .jobs import CallJob
-from .mesh_access import require_mesh_object
+from .mesh_access import require_mesh_object, triangulate
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
                             _prop_state, _store_built_model, _take_of, _take_state, _write_fit, metres_per_unit,
                             read_model)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
+from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
 
 __all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes"]
@@ -47,8 +53,8 @@ __all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_de
 
 def _fitting_api():
     """lacore's calibration and fitting (imported on use)."""
-    from ..lacore.markers import FIT_DEFAULTS, drop_non_markers, fit_take
-    return FIT_DEFAULTS, drop_non_markers, fit_take
+    from ..lacore.markers import FIT_DEFAULTS, calibrate, drop_non_markers, fit_take
+    return FIT_DEFAULTS, drop_non_markers, (calibrate, fit_take)
 
 
 def fit_defaults():
@@ -91,6 +97,17 @@ def _axis_name(v):
     return ("" if v[i] > 0 else "-") + "xyz"[i]
 
 
+def _nearest_axes(obj):
+    """``(up, forward)`` like :func:`object_axes`, rounded to the object-space axes nearest to the world's."""
+    R = np.array(obj.matrix_world, np.float64)[:3, :3]
+    inv = np.linalg.inv(R / np.cbrt(abs(np.linalg.det(R)) or 1.0))
+    up, fwd = inv @ [0.0, 0.0, 1.0], inv @ [0.0, -1.0, 0.0]
+    i = int(np.argmax(np.abs(up)))
+    fwd[i] = 0.0
+    j = int(np.argmax(np.abs(fwd)))
+    return (("" if up[i] > 0 else "-") + "xyz"[i]), (("" if fwd[j] > 0 else "-") + "xyz"[j])
+
+
 def object_axes(obj):
     """``(up, forward)`` of the world (+Z up, -Y forward: Blender's front view) in ``obj``'s space, as lacore's
     axis names (``"z"``, ``"-y"`` ...), None where the object is rotated off the axes."""
@@ -107,6 +124,9 @@ _ADVICE = {
                          "Scale) or scale the character",
     "AxisMismatchError": "the character does not stand up along the scene's Z axis facing -Y (front view): rotate "
                          "it upright, or import the take again with its Up axis (Import Motion Capture Markers > Up)",
+    "CalibrationError": "pin 3 or more markers seen at the take's first frames to vertices (Edit Mode: Pin Marker), "
+                        "or place the character over the markers at the take's first frame and set Placement to As "
+                        "Placed",
 }
 
 
@@ -115,20 +135,81 @@ def _in_blender_terms(exc):
     advice = _ADVICE.get(type(exc).__name__)
     if advice is None:
         return exc
-    head = str(exc).split(": check")[0].split(";")[0]
+    head = str(exc).split(": check")[0].split(": give pins")[0].split(";")[0]
     return FitSetupError(f"{head}: {advice}")
 
 
+def has_hints(labels):
+    """Whether any of ``labels`` is a standard marker-set name that places a humanoid."""
+    from ..lacore.markers.marker_sets import match_label
+    return any(match_label(lb) is not None for lb in labels)
+
+
+def first_calibration_frame(visible):
+    """Index of the first frame lacore's calibration places the model at: the first with >= 80 % of the most
+    markers seen in one frame (:func:`lacore.markers.calibrate`)."""
+    counts = np.asarray(visible).sum(1)
+    return int(np.flatnonzero(counts >= 0.8 * counts.max())[0])
+
+
+#: Largest median distance of the markers from the character's surface, in its bounding-box diagonals, for
+#: the character to count as placed over them (As Placed).
+MAX_PLACED_DISTANCE = 0.2
+
+
+def _placement(obj, markers, labels, pins, mode, rest, frame_of):
+    """How to place the character: ``(kind, pins)`` with kind ``'HINTS'`` (lacore, by marker names),
+    ``'PINS'`` or ``'PLACED'`` (:data:`.operators_pins.PLACEMENT_ITEMS`), and the pins as
+    ``{label: (vertex, rest position)}`` (validated: one-line FitSetupError naming what to do)."""
+    pinned = {}
+    for label, v in pins.items():
+        if label not in markers.labels:
+            why = "is not a marker (left out)" if label in labels else "is not a marker of the take"
+            raise FitSetupError(f"pin '{label}' of '{obj.name}' {why}: remove it (Pins in the Lengths & Angles: "
+                                "Model and Markers panel) or pin a marker of the take")
+        if not 0 <= v < len(rest):
+            raise FitSetupError(f"pin '{label}': '{obj.name}' has no vertex {v} (it has {len(rest)}): pin it again")
+        pinned[label] = (v, rest[v])
+    if mode == 'PLACED':
+        return 'PLACED', pinned
+    if has_hints(markers.labels):
+        return 'HINTS', pinned
+    if len(pinned) < 3:
+        return 'PLACED', pinned
+    f0 = first_calibration_frame(markers.visible)
+    seen = [lb for lb in pinned if markers.visible[f0, markers.labels.index(lb)]]
+    if len(seen) < 3:
+        raise FitSetupError(f"{len(seen)} of the {len(pinned)} pinned markers are seen at frame {frame_of(f0)}, "
+                            "where the character is placed: pin 3 or more markers seen there (Edit Mode: Pin "
+                            "Marker), or place the character over the markers and set Placement to As Placed")
+    return 'PINS', pinned
+
+
+def _check_placed(X, faces, markers, unit, take_name, frame_of):
+    """FitSetupError unless the markers at the first calibration frame lie near the rest mesh ``X`` as placed."""
+    from ..lacore.markers.binding import closest_surface_points
+    f0 = first_calibration_frame(markers.visible)
+    x = markers.positions[f0][markers.visible[f0]] / unit
+    q = closest_surface_points(X, faces, x)[0]
+    d = float(np.median(np.linalg.norm(q - x, axis=1)))
+    diag = float(np.linalg.norm(np.ptp(X, axis=0)))
+    if d > MAX_PLACED_DISTANCE * diag:
+        raise FitSetupError(
+            f"the take '{take_name}' has no standard marker names and the character is not over its markers at "
+            f"frame {frame_of(f0)} (median distance {d * unit:.3g} m, {d / diag:.0%} of its size): move, rotate and "
+            "scale it over the markers there, or pin 3 or more markers to vertices (Edit Mode: Pin Marker)")
+
+
 def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=None, auto_prior=None,
-                      temporal_weight=None, filepath=""):
+                      temporal_weight=None, filepath="", placement=None):
     """A :class:`.runs.Run` building the model if needed, calibrating and fitting the frame range of ``take`` to
     the character ``obj`` and writing the result (validated; raises InputError subclasses).
 
     ``prior_weight``, ``auto_prior`` (the weight chosen per take by lacore) and ``temporal_weight`` default to
-    lacore's :data:`FIT_DEFAULTS`.
+    lacore's :data:`FIT_DEFAULTS`; ``placement`` (``'AUTO'`` or ``'PLACED'``) to the object's Placement option.
     """
     try:
-        defaults, drop_non_markers, fit_take = _fitting_api()
+        defaults, drop_non_markers, (calibrate, fit_take) = _fitting_api()
     except ImportError as exc:
         raise FitSetupError(f"this build of Lengths & Angles has no marker calibration ({exc})") from exc
     mesh = require_mesh_object(obj)
@@ -150,6 +231,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, outside the range "
                             f"{int(frame_start)}..{int(frame_end)}: set the frame range inside the take")
     frames = np.arange(start, end + 1)
+    take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
     labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions
@@ -158,13 +240,23 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     local = world @ inv[:3, :3].T + inv[:3, 3]
     render = context.scene.render
     rate = render.fps / render.fps_base  # one sample per scene frame
-    up, forward = object_axes(obj)
     not_markers = {str(lb): str(why) for lb, why in meta.get("not_markers", [])}
     keep = [m for m, lb in enumerate(labels) if lb not in not_markers]
-    markers = drop_non_markers(MarkerTake(
-        labels=tuple(labels[m] for m in keep), positions=local[:, keep] * unit, rate=rate, units="m",
-        up_axis=None if up is None else ("" if up.startswith("-") else "+") + up,
-        dropped=tuple(not_markers.items())))
+    markers = drop_non_markers(MarkerTake(labels=tuple(labels[m] for m in keep), positions=local[:, keep] * unit,
+                                          rate=rate, units="m", dropped=tuple(not_markers.items())))
+    mode = placement or getattr(obj, PLACEMENT_PROP, 'AUTO')
+    pins = pins_of(obj)
+    rest = (mesh.shape_keys.reference_key.data if mesh.shape_keys else mesh.vertices)
+    co = np.empty(3 * len(rest), np.float32)
+    rest.foreach_get("co", co)
+    rest = co.reshape(-1, 3).astype(np.float64)
+    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]))
+    if kind == 'PLACED':
+        _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
+    # the axes of the world's up and forward in the character's space: exact (checked by lacore) for a
+    # humanoid placed by marker names, else the nearest axes (the user placed or pinned the character)
+    up, forward = object_axes(obj) if kind == 'HINTS' else _nearest_axes(obj)
+    markers = dataclasses.replace(markers, up_axis=None if up is None else ("" if up.startswith("-") else "+") + up)
     options = dataclasses.replace(
         defaults, **{k: v for k, v in (("prior_weight", "auto" if auto_prior else prior_weight),
                                        ("temporal_weight", temporal_weight)) if v is not None})
@@ -173,7 +265,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     options.check(allow_auto=True)
 
     def compute(progress):
-        stages = 2 if built is not None else 1
+        stages = 3 if built is not None else 2
         scale = 1000
 
         def staged(stage):
@@ -186,15 +278,22 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             m = _build_model(built, staged(0))
         fitted = copy.copy(m)  # the unit and axes of this scene, not stored with the model
         fitted.length_unit, fitted.up_axis, fitted.forward_axis = unit, up, forward
+        X = np.asarray(m.reference_vertices, float)
+        # pins on the model's vertices: the same on the mesh, the nearest rest vertex on a coarse level
+        model_pins = {lb: (int(np.argmin(np.sum((X - p) ** 2, 1))) if getattr(m, "fine_level", None) is not None else v)
+                      for lb, (v, p) in pinned.items()}
+        # As Placed: the rest mesh in the character's space, in metres
+        where = (unit, np.eye(3), np.zeros(3)) if kind == 'PLACED' else None
         try:
-            result = fit_take(fitted, markers, options=options, progress=staged(stages - 1))
+            cal = calibrate(fitted, markers, fit=options, placement=where, pins=model_pins or None,
+                            progress=staged(stages - 2))
+            result = fit_take(fitted, markers, cal, options=options, progress=staged(stages - 1))
         except InputError as exc:
             raise _in_blender_terms(exc) from exc
         return m, result
 
-    job = CallJob(compute, "calibrate & fit", total=1000 * (2 if built is not None else 1))
+    job = CallJob(compute, "calibrate & fit", total=1000 * (3 if built is not None else 2))
     empties = {lb: o.name for lb, o in marker_objects(take)}
-    take_name = take.name
 
     def write(obj, job):
         m, res = job.result
@@ -221,12 +320,24 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         job.notes.extend(quality["notes"])
         # the calibration's own notes, but its drops once (summarized above)
         job.notes.extend(str(n) for n in getattr(cal, "notes", []) if not str(n).startswith("dropped "))
-        return (f"calibrated (performer {cal.performer_ratio:.2f}x the character) and {text}; "
+        placed = {'HINTS': "", 'PINS': f" by {len(pinned)} pins", 'PLACED': " as placed"}[kind]
+        return (f"calibrated{placed} (performer {cal.performer_ratio:.2f}x the character) and {text}; "
                 f"{quality['text']}")
     extras = {f"The take '{take_name}' or its marker empties": _take_state(take_name),
-              f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True)}
+              f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
+              f"The placement and pins of '{obj.name}'": _placement_state(obj.name)}
     keys = [built["names"][0], *built["keys"]] if built is not None else []
     return Run(job, ObjectWatch(obj, keys, extras), write, what="fitted frame")
+
+
+def _placement_state(obj_name):
+    """Getter of the character's transform and pins (a watch extra: the placement the run used)."""
+    def state():
+        obj = bpy.data.objects.get(obj_name)
+        if obj is None:
+            return None
+        return tuple(map(tuple, obj.matrix_world)), tuple(sorted(pins_of(obj).items()))
+    return state
 
 
 _DEFAULTS = fit_defaults()

@@ -13,6 +13,7 @@ from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
 from .operators_calibrate import LENGTHS_ANGLES_OT_calibrate_fit
+from .operators_pins import draw_pins
 from .operators_interpolate import (LENGTHS_ANGLES_OT_bake_keyframes, LENGTHS_ANGLES_OT_clear_bake,
                                     LENGTHS_ANGLES_OT_interpolate)
 
@@ -119,6 +120,7 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         obj = context.object
+        draw_pins(layout, obj)
         row = layout.row()
         row.operator_context = 'INVOKE_DEFAULT'  # modal: progress bar and Esc
         row.operator(LENGTHS_ANGLES_OT_calibrate_fit.bl_idname, icon='ARMATURE_DATA')

@@ -310,6 +310,7 @@ NUMBER_CLAIMS = [
     (r"0 on boundary edges", "tests/test_lengths_angles.py", r"theta\[topo\.boundary_edges\] == 0"),
     (r"exits 3 with a message", "tests/test_mixing.py", r'code == 3 and err\.startswith\("lacore mix: failed: "\)'),
     (r"reduced space \(0: automatic\)", "addon/operators_live_mix.py", r"0: chosen automatically"),
+    (r"pin 3 or more markers", "tests/test_blender_calibrate.py", r'len\(res\["pins"\]\) == 3'),
 ]
 #: numbers that are not claims: list numbering, the factors of an example, the licence's name
 NOT_CLAIMS = re.compile(r"^\s*\d\. |`0\.25 0\.5 0\.75 1\.5`|GPL-3\.0")

@@ -234,5 +234,123 @@ def coarse_model():
             "coarse_faces": int(len(model.faces))}
 
 
+def creature_scene():
+    """A creature without standard marker names: the finger as a tentacle with training poses as shape keys,
+    placed by hand over its take (m01..m12, imported with the defaults) roughly: 3 degrees and 1 cm off."""
+    reset()
+    c = dict(np.load(os.path.join(WORK, "creature.npz")))
+    assert bpy.ops.lengths_angles.import_markers(filepath=os.path.join(WORK, "creature.c3d")) == {"FINISHED"}
+    take = bpy.context.view_layer.objects.active
+    mesh = bpy.data.meshes.new("Tentacle")
+    mesh.from_pydata(c["basis"].tolist(), [], c["faces"].tolist())
+    obj = bpy.data.objects.new("Tentacle", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.shape_key_add(name="Basis", from_mix=False)
+    for k, X in enumerate(c["training"]):
+        obj.shape_key_add(name=f"pose{k}", from_mix=False).data.foreach_set("co", X.astype(np.float32).ravel())
+    turn = math.atan2(c["rotation"][1, 0], c["rotation"][0, 0])
+    obj.rotation_euler = (0.0, 0.0, turn + math.radians(3.0))
+    obj.location = c["location"] + [0.01, 0.0, 0.0]
+    obj.scale = (float(c["scale"]),) * 3
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(ARGS.workdir, "creature.blend"))
+    return obj, take, c
+
+
+def world_error(obj, c):
+    """Mean distance of the played-back mesh from the true poses in metres (world), that of the rest mesh as
+    placed by hand (3 degrees and 1 cm off), and the frames."""
+    n = len(c["world"])
+    ev = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    M = np.array(obj.matrix_world, np.float64)
+    world = ev @ M[:3, :3].T + M[:3, 3]
+    turn = math.atan2(c["rotation"][1, 0], c["rotation"][0, 0]) + math.radians(3.0)
+    R = np.array([[math.cos(turn), -math.sin(turn), 0.0], [math.sin(turn), math.cos(turn), 0.0], [0.0, 0.0, 1.0]])
+    rest = float(c["scale"]) * c["basis"] @ R.T + c["location"] + [0.01, 0.0, 0.0]
+    return (float(np.linalg.norm(world - c["world"], axis=2).mean()),
+            float(np.linalg.norm(rest - c["world"], axis=2).mean()), ev.shape[0])
+
+
+def creature_as_placed():
+    """Placement As Placed (Automatic picks it: no marker names, no pins): one click calibrates and fits."""
+    obj, take, c = creature_scene()
+    select_only(obj, take)
+    auto = obj.lengths_angles_placement
+    t = time.perf_counter()
+    result = bpy.ops.lengths_angles.calibrate_fit()
+    seconds = time.perf_counter() - t
+    err, rest, n = world_error(obj, c)
+    q = obj[ext("addon.fit_quality").FIT_PROP].to_dict()
+    binding = obj[ext("addon.operators_fit").BINDING_PROP].to_dict()
+    return {"result": sorted(result), "placement": auto, "seconds": round(seconds, 2), "frames": n,
+            "mean_error_m": err, "rest_error_m": rest, "size_m": float(np.linalg.norm(np.ptp(c["world"][0], axis=0))),
+            "marker_rms_mm": q["marker_rms_mm"], "success": q.get("success", True),
+            "performer_ratio": binding["performer_ratio"], "bound": len(binding["labels"])}
+
+
+def creature_pins():
+    """The character far from its markers (1 m away): Automatic without pins refuses (one line, nothing
+    changed); Pin Marker in Edit Mode (the selected marker empty to the selected vertex) and by label, listed
+    in the panel with remove buttons; 4 pins place the character."""
+    import bmesh
+    obj, take, c = creature_scene()
+    obj.location = obj.location + type(obj.location)((1.0, 0.0, 0.0))
+    out = {}
+
+    def attempt(name):
+        before = state(obj)
+        try:
+            res, msg = bpy.ops.lengths_angles.calibrate_fit(), ""
+        except RuntimeError as exc:
+            res, msg = {"CANCELLED"}, str(exc).strip()
+        out[name] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                     "unchanged": state(obj) == before}
+
+    select_only(obj, take)
+    attempt("not_placed")
+    labels, vertices = [str(s) for s in c["pin_labels"]], [int(v) for v in c["pin_vertices"]]
+    empty = next(o for o in take.children if o.get("lengths_angles_marker") == labels[0])
+    select_only(obj, empty)  # the marker empty selected, the character active: Edit Mode, one vertex selected
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj, empty]):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bpy.ops.mesh.select_all(action='DESELECT')
+    bm = bmesh.from_edit_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    bm.verts[vertices[0]].select = True
+    bmesh.update_edit_mesh(obj.data)
+    out["edit_mode_pin"] = sorted(bpy.ops.lengths_angles.pin_marker())
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    select_only(obj, take)
+    for label, v in zip(labels[1:], vertices[1:], strict=True):
+        assert bpy.ops.lengths_angles.pin_marker(label=label, vertex=v) == {"FINISHED"}
+    try:
+        bpy.ops.lengths_angles.pin_marker(label="nope", vertex=3)
+        out["unknown_label"] = ""
+    except RuntimeError as exc:
+        out["unknown_label"] = str(exc).strip()
+    pins = ext("addon.operators_pins")
+    out["pins"] = pins.pins_of(obj)
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    out["panel_pins"] = [kw["text"] for name, _a, kw in calls if name == "label" and "-> vertex" in kw.get("text", "")]
+    out["panel_remove"] = sum(1 for name, args, _kw in calls if name == "operator" and "remove_pin" in str(args))
+    out["panel_placement"] = [args[1] for name, args, _kw in calls if name == "prop"][:1]
+    # a pin naming no marker of the take: one line, nothing changed
+    obj[pins.PINS_PROP] = {**out["pins"], "m99": 5}
+    attempt("unknown_pin")
+    with bpy.context.temp_override(object=obj):
+        assert bpy.ops.lengths_angles.remove_pin(label="m99") == {"FINISHED"}
+    out["after_remove"] = sorted(pins.pins_of(obj))
+    t = time.perf_counter()
+    out["result"] = sorted(bpy.ops.lengths_angles.calibrate_fit())
+    out["seconds"] = round(time.perf_counter() - t, 2)
+    out["mean_error_m"], out["rest_error_m"], out["frames"] = world_error(obj, c)
+    q = obj[ext("addon.fit_quality").FIT_PROP].to_dict()
+    out["marker_rms_mm"], out["success"] = q["marker_rms_mm"], q.get("success", True)
+    out["performer_ratio"] = obj[ext("addon.operators_fit").BINDING_PROP]["performer_ratio"]
+    return out
+
+
 if __name__ == "__main__":
-    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input, coarse_model])
+    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input, coarse_model,
+               creature_as_placed, creature_pins])
