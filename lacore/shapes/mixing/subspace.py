@@ -22,6 +22,12 @@ blind, are not in the problem, and every vector below vanishes on the fixed coor
   the space misses, to first order.  Rounds repeat this with the enlarged space.  On the box bar
   (4.6k vertices, K = 3) one round brings the largest RMS error in ``[0, 1]^2`` from 0.26 % to
   0.03 % of the diagonal and in ``[-0.5, 1.5]^2`` from 1.9 % to 0.7 %; two rounds to 0.03 % and 0.35 %.
+  The factorization of each Newton vector also gives, for ``K-1`` more right-hand sides, the first
+  derivatives of the projection by the weights there (the formula at the keys, at the reduced
+  minimizer): the space then follows the projection between the candidates to first order.  The
+  space's energy gap (the full energy of the exact minimizer in the space over that of converged
+  Gauss-Newton) is what keeps a mix's energy above Gauss-Newton's, far more than the cubature or the
+  reduced solver; on the 5k bar these derivatives bring its median in ``[0, 1]^2`` from ~1.5 to ~1.04.
 * **Chord vectors** (optional, ``chord_steps``): steps ``d = -H_k^{-1} g`` from the best Taylor
   prediction with the Hessian of a key (no new factorization).  They did not improve the space on the
   bar (the keys' Hessians precondition the soft bending modes far from the keys badly) and are off by
