@@ -64,8 +64,8 @@ __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targe
            "FORMAT", "FORMAT_VERSION"]
 
 #: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
-#: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``~12 r`` cubature edges); 35 columns take ~3 ms on the
-#: 2-core AMD EPYC we benchmark on, within the 4 ms per mix of the 13k goal.
+#: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``12 r`` to ``20 r`` cubature edges); 35 columns take 3-4 ms
+#: CPU per mix at 13k vertices on the 2-core AMD EPYC we benchmark on (``benchmarks/bench_mixer.py``), the 4 ms goal.
 AUTO_SIZE = 40
 
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
@@ -108,8 +108,9 @@ class MixerOptions:
         factorizations; :func:`.subspace.newton_vectors`) join the space.  They close most of the
         energy gap of the space between the candidate weights: on the 5k bar (K = 3) the median ratio
         of the mix's full energy to that of converged Gauss-Newton in ``[0, 1]^2`` fell from 1.65 to
-        1.08.  None (the default): on when the space stays within :data:`AUTO_SIZE` vectors (K <= 3);
-        beyond that the cost of a mix (``O(r^3)`` per iteration with the cubature) outweighs them.
+        1.04 (with the ``20 r`` cubature below), on the 50k bar from 6.0 to 2.1.  None (the default):
+        on when the space stays within :data:`AUTO_SIZE` vectors (K <= 3); beyond that the cost of a
+        mix (``O(r^3)`` per iteration with the cubature) outweighs them.
     cubature_points : int or None
         Largest number of edges of the cubature; None: ``max(300, 12 r)``, ``20 r`` with the Newton
         vectors' derivatives in the space (stiffer directions: on the MakeHuman body, 13k, K = 3,
