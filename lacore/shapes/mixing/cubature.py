@@ -21,33 +21,12 @@ def _cholesky(gram):
     return sl.cholesky(gram + shift * np.eye(n), lower=False, check_finite=False)
 
 
-def _positive_fit(gram, atb, rounds=8):
-    """Non-negative weights minimizing ``|A c - b|`` on a support given by ``gram = A^T A`` and ``atb = A^T b``:
-    the least-squares weights, with the non-positive ones dropped and the rest refitted until all are positive
-    (a few rounds; exact NNLS, :func:`scipy.optimize.nnls`, when that does not settle)."""
-    on = np.ones(len(atb), bool)
-    for _ in range(rounds):
-        idx = np.flatnonzero(on)
-        c = np.zeros(len(atb))
-        if not idx.size:
-            return c
-        c[idx] = sl.cho_solve((_cholesky(gram[np.ix_(idx, idx)]), False), atb[idx], check_finite=False)
-        bad = on & (c <= 0)
-        if not bad.any():
-            return c
-        on &= ~bad
-    R = _cholesky(gram)
-    y = sl.solve_triangular(R, atb, trans="T", check_finite=False)
-    return so.nnls(R, y, maxiter=50 * max(len(atb), 1))[0]
-
-
 def greedy_nnls(A, b, max_points, batch=16, passes=3):
     """A sparse non-negative ``c`` with ``A[:, sel] @ c ~ b``, at most ``max_points`` columns.
 
     Columns are added in batches by their correlation with the residual (orthogonal matching
-    pursuit with least-squares refits), then the weights on the support are made non-negative
-    (:func:`_positive_fit`: least squares with the non-positive weights dropped) and columns with
-    weight 0 dropped; repeated ``passes`` times while the support is short.
+    pursuit with least-squares refits), then the weights on the support are fitted by NNLS and
+    columns with weight 0 dropped; repeated ``passes`` times while the support is short.
 
     Parameters
     ----------
@@ -87,7 +66,9 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
             C = np.hstack([C, A.T @ A[:, new]])
             sel = np.r_[sel, new]
             c = sl.cho_solve((_cholesky(C[sel]), False), Atb[sel], check_finite=False)
-        c = _positive_fit(C[sel], Atb[sel])
+        R = _cholesky(C[sel])
+        y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
+        c, _ = so.nnls(R, y, maxiter=50 * max(len(sel), 1))
         keep = c > 0
         sel, c, C = sel[keep], c[keep], C[:, keep]
         if len(sel) >= 0.97 * max_points:
