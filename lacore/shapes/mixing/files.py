@@ -17,7 +17,7 @@ __all__ = ["save_mixer", "load_mixer", "FORMAT", "FORMAT_VERSION"]
 #: Value of the ``format`` entry of a saved mixer.
 FORMAT = "lacore.shape_mixer"
 #: Version of the layout :func:`save_mixer` writes; :func:`load_mixer` reads this one.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 def save_mixer(mixer, path):

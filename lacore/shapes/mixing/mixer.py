@@ -18,7 +18,8 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
 * offline (:meth:`ShapeMixer.build`): a subspace of vertex positions spanned by the keys, the first
   derivatives of the projection at the keys and Newton vectors (a full Gauss-Newton step from the
   reduced minimizer at the centre, all ones, pairs of keys and the corners of the accurate box, in
-  two rounds; :mod:`.subspace`), and a cubature of the reduced energy, a weighted subset of edges
+  two rounds, with the projection's first derivatives there from the same factorization;
+  :mod:`.subspace`), and a cubature of the reduced energy, a weighted subset of edges
   (:mod:`.cubature`);
 * online (:meth:`ShapeMixer.mix`): Gauss-Newton in the subspace on the cubature edges
   (:mod:`.reduced`), started from the previous mix or the Taylor prediction of the nearest key; an
@@ -62,6 +63,11 @@ from .subspace import (Expansion, FullProblem, build_space, candidate_weights, n
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
            "FORMAT", "FORMAT_VERSION"]
 
+#: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
+#: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``12 r`` to ``20 r`` cubature edges); 35 columns take 3-4 ms
+#: CPU per mix at 13k vertices on the 2-core AMD EPYC we benchmark on (``benchmarks/bench_mixer.py``), the 4 ms goal.
+AUTO_SIZE = 40
+
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
 
@@ -96,8 +102,20 @@ class MixerOptions:
     newton_pcg_iterations : int
         0: every Newton vector with a fresh factorization; else that many conjugate-gradient
         iterations preconditioned by the nearest key's factorization (fewer factorizations).
+    newton_derivatives : bool or None
+        With every Newton vector's factorization, also the first derivatives of the projection by the
+        weights at the reduced minimizer (``K-1`` more right-hand sides of the same solve, no more
+        factorizations; :func:`.subspace.newton_vectors`) join the space.  They close most of the
+        energy gap of the space between the candidate weights: on the 5k bar (K = 3) the median ratio
+        of the mix's full energy to that of converged Gauss-Newton in ``[0, 1]^2`` fell from 1.65 to
+        1.04 (with the ``20 r`` cubature below), on the 50k bar from 6.0 to 2.1.  None (the default):
+        on when the space stays within :data:`AUTO_SIZE` vectors (K <= 3); beyond that the cost of a
+        mix (``O(r^3)`` per iteration with the cubature) outweighs them.
     cubature_points : int or None
-        Largest number of edges of the cubature; None: ``max(300, 12 r)``.  Meshes with fewer than
+        Largest number of edges of the cubature; None: ``max(300, 12 r)``, ``20 r`` with the Newton
+        vectors' derivatives in the space (stiffer directions: on the MakeHuman body, 13k, K = 3,
+        r = 35, the median energy ratio to Gauss-Newton in ``[0, 1]^2`` is 1.135 with ``12 r`` and
+        1.039 with ``20 r``).  Meshes with fewer than
         twice as many edges use all (the exact reduced energy).
     cubature_correction : bool
         Correct the cubature's gradient by the exact one at its minimizers of the training weights,
@@ -134,6 +152,7 @@ class MixerOptions:
     chord_steps: int = 0
     newton_rounds: int = 2
     newton_pcg_iterations: int = 0
+    newton_derivatives: bool | None = None
     cubature_points: int | None = None
     cubature_correction: bool = False
     max_iterations: int = 50
@@ -192,7 +211,8 @@ class MixerOptions:
 
 
 _OPTION_FIELDS = ("reduced_size", "low", "high", "second_order", "chord_steps", "newton_rounds",
-                  "newton_pcg_iterations", "cubature_points", "cubature_correction", "max_iterations",
+                  "newton_pcg_iterations", "newton_derivatives",
+                  "cubature_points", "cubature_correction", "max_iterations",
                   "polish_iterations", "step_tolerance", "max_indicator", "bending_weight")
 
 
@@ -367,6 +387,7 @@ class ShapeMixer:
         self.basis = None
         self._error_w = self._error_v = None
         self._corr_w = self._corr = None
+        self._derivatives = False
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -409,6 +430,13 @@ class ShapeMixer:
             mixer._set_basis(U, exps)
         x0 = mixer._key_x[0]
         all_cands = candidate_weights(mixer.n_keys - 1, o.low, o.high)
+        derivatives = o.newton_derivatives
+        if derivatives is None:
+            m = mixer.n_keys - 1
+            starts = sum(len(all_cands) if rnd == 0 else max(1, (len(all_cands) + 1) // 2)
+                         for rnd in range(o.newton_rounds))
+            derivatives = m * (1 + mixer.n_keys) + starts * (1 + m) <= AUTO_SIZE
+        mixer._derivatives = bool(derivatives and o.newton_rounds and not o.newton_pcg_iterations)
         latest = {}  # the last error estimate at every candidate
         for rnd in range(o.newton_rounds):
             report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
@@ -423,6 +451,7 @@ class ShapeMixer:
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
                                                      pcg_iterations=o.newton_pcg_iterations,
+                                                     derivatives=derivatives,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))
@@ -512,7 +541,7 @@ class ShapeMixer:
     def _fit_cubature(self):
         r = self.basis.shape[1]
         E = self.n_edges
-        n = self.options.cubature_points or max(300, 12 * r)
+        n = self.options.cubature_points or max(300, (20 if self._derivatives else 12) * r)
         self._corr_w = self._corr = None
         if E <= 2 * n:
             self._cubature = self._make_energy(None, None)
