@@ -7,8 +7,8 @@ skin pressed together (a hand on the thigh).  Per frame:
 
 1. the face pairs of :func:`lacore.geometry.self_intersection.self_intersections`,
    less those the rest mesh (the model's reference) already has: *new* pairs;
-2. a new pair is a *contact* when each of its faces has, within
-   :data:`CONTACT_RADIUS` of the model's size, the skin point of one of two visible
+2. a new pair is a *contact* when each of its faces has a corner within
+   :data:`CONTACT_RADIUS` of the model's size of the skin point of one of two visible
    markers closer than the sum of their offsets; the others are *unexplained*.
 """
 
@@ -71,8 +71,8 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     rest_vertices : (V, 3) array_like
         The rest mesh (e.g. the model's reference): its own pairs are not reported.
     contact_radius : float
-        Fraction of the rest mesh's bounding-box diagonal within which a face is near a
-        marker's skin point (scale-free).
+        Fraction of the rest mesh's bounding-box diagonal within which a face (one of its
+        corners) is near a marker's skin point (scale-free).
 
     Returns
     -------
@@ -115,9 +115,9 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
             pairs.append(P), contacts.append(P), nearest.append(np.zeros(0, np.int64))
             continue
         skin = np.einsum("mk,mkc->mc", binding.barycentric, X[t][corners])          # (M, 3)
-        centre = X[t][F].mean(axis=1)
-        da = np.linalg.norm(centre[P[:, 0], None] - skin[None], axis=2)             # (P, M)
-        db = np.linalg.norm(centre[P[:, 1], None] - skin[None], axis=2)
+        corner = X[t][F]                                                            # (F, 3, 3)
+        da = np.linalg.norm(corner[P[:, 0], :, None] - skin, axis=3).min(axis=1)    # (P, M): nearest corner
+        db = np.linalg.norm(corner[P[:, 1], :, None] - skin, axis=3).min(axis=1)
         y = Y[t]
         gap = np.linalg.norm(y[:, None] - y[None], axis=2)                          # NaN if occluded
         with np.errstate(invalid="ignore"):
