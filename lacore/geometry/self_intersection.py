@@ -82,15 +82,28 @@ def self_intersections(vertices, faces, *, check=True):
         F = check_faces(faces, len(X))
     else:
         X, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
-    empty = np.zeros((0, 2), np.int64)
-    if len(F) < 2:
-        return empty
+    return _exact(X, F, _Candidates(X, F))
+
+
+class _Candidates:
+    """The broad phase: face pairs with overlapping boxes, split by the number of common vertices."""
+
+    def __init__(self, X, F):
+        T = X[F]
+        i, j = _candidate_pairs(T.min(axis=1), T.max(axis=1)) if len(F) > 1 else (np.zeros(0, int),) * 2
+        same = F[i][:, :, None] == F[j][:, None, :]                 # (P, 3, 3)
+        shared = same.sum(axis=(1, 2))
+        k = np.flatnonzero(shared == 0)
+        self.disjoint = (i[k], j[k])
+        k = np.flatnonzero(shared == 1)
+        sm = same[k]
+        # faces with one common vertex: its corner in face i and in face j
+        self.one = (i[k], np.argmax(sm.any(axis=2), axis=1), j[k], np.argmax(sm.any(axis=1), axis=1))
+
+
+def _exact(X, F, cand):
+    """The candidate pairs that pass through each other at positions ``X``, sorted ``(P, 2)``."""
     T = X[F]                                                        # (F, 3, 3)
-    i, j = _candidate_pairs(T)
-    if not len(i):
-        return empty
-    same = F[i][:, :, None] == F[j][:, None, :]                     # (P, 3, 3)
-    shared = same.sum(axis=(1, 2))
     normal = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
     area2 = np.linalg.norm(normal, axis=1)
     normal /= np.where(area2 > 0, area2, 1.0)[:, None]
@@ -98,16 +111,11 @@ def self_intersections(vertices, faces, *, check=True):
     e = np.roll(T, -1, axis=1) - T
     size = np.sqrt(np.einsum("fkc,fkc->fk", e, e).max(axis=1))    # longest edge
     faces_ = _Faces(T, normal, offset, area2 > 0, size)
-    hit = np.zeros(len(i), bool)
-    k = np.flatnonzero(shared == 0)
-    hit[k] = _triangles_cross(faces_, i[k], j[k])
-    k = np.flatnonzero(shared == 1)
-    if len(k):
-        sm = same[k]
-        ca = np.argmax(sm.any(axis=2), axis=1)                       # the common vertex's corner in face i
-        cb = np.argmax(sm.any(axis=1), axis=1)                       # ... and in face j
-        hit[k] = (_edge_crosses(faces_, i[k], ca, j[k]) | _edge_crosses(faces_, j[k], cb, i[k]))
-    out = np.stack([i[hit], j[hit]], axis=1).astype(np.int64)
+    i, j = cand.disjoint
+    hit = _triangles_cross(faces_, i, j)
+    a, ca, b, cb = cand.one
+    hit1 = _edge_crosses(faces_, a, ca, b) | _edge_crosses(faces_, b, cb, a)
+    out = np.concatenate([np.stack([i[hit], j[hit]], axis=1), np.stack([a[hit1], b[hit1]], axis=1)]).astype(np.int64)
     return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
@@ -132,9 +140,8 @@ def intersecting_faces(vertices, faces):
 # ----------------------------------------------------------------------------- broad phase
 
 
-def _candidate_pairs(T):
-    """Face pairs ``(i, j)``, ``i < j``, whose bounding boxes overlap (each pair once)."""
-    lo, hi = T.min(axis=1), T.max(axis=1)                           # (F, 3)
+def _candidate_pairs(lo, hi):
+    """Pairs ``(i, j)``, ``i < j``, of the boxes ``lo, hi (F, 3)`` that overlap (each pair once)."""
     ext = (hi - lo).max(axis=1)
     h = float(ext.mean())
     if not np.isfinite(h) or h <= 0:
@@ -145,7 +152,7 @@ def _candidate_pairs(T):
     n3 = chi - clo + 1                                              # cells per axis of each box
     n = n3.prod(axis=1)
     dims = chi.max(axis=0) + 1
-    face = np.repeat(np.arange(len(T)), n)
+    face = np.repeat(np.arange(len(lo)), n)
     start = np.cumsum(n) - n
     k = np.arange(len(face)) - np.repeat(start, n)                  # index of the cell within the box
     nx, ny = n3[face, 0], n3[face, 1]

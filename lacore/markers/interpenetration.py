@@ -100,7 +100,6 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     F = np.asarray(faces, np.int64)
     Y = np.asarray(markers, float)
     R = np.asarray(rest_vertices, float)
-    T = len(X)
     n_faces = len(F)
     rest = self_intersections(R, F)
     rest_keys = rest[:, 0] * n_faces + rest[:, 1]
@@ -108,7 +107,7 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     corners = binding.corner_vertices(F)
     offsets = np.abs(np.asarray(binding.offsets, float))
     pairs, contacts, nearest = [], [], []
-    for t in range(T):
+    for t in range(len(X)):
         P = self_intersections(X[t], F, check=False)
         P = P[~np.isin(P[:, 0] * n_faces + P[:, 1], rest_keys)]
         if not len(P):
