@@ -162,7 +162,8 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
         ``success`` as :func:`fit_markers` (every frame converged, something fitted);
         frames far from the markers, markers far from the surface and frames where the
         surface passes through itself with no marker contact are warnings
-        (``warnings``, and a clause of ``message``), not failures.
+        (``warnings``; the last also a clause of ``message``), not failures: the fit
+        still follows the markers, and the frames say where to look.
 
     Examples
     --------
