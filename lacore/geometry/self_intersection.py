@@ -1,7 +1,7 @@
 """Self-intersections of a triangle mesh: the pairs of faces that pass through each other.
 
-A pair of faces *intersects* when one passes through the other: the two closed
-triangles cannot be told apart by a plane that touches both.  Faces that merely
+A pair of faces *intersects* when one passes through the other: no plane separates
+the two closed triangles, not even one touching both.  Faces that merely
 touch (a vertex or an edge lying on the other face, two faces lying flat on each
 other) are not reported, nor are faces sharing an edge (which meet along it).
 Faces sharing one vertex are reported when they meet beyond that vertex (a fold
