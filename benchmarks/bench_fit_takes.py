@@ -4,7 +4,9 @@ Prints ONE JSON object: per take, the marker RMS and p95 (millimetres; per-frame
 values averaged over the fitted frames), the jitter ratio (99th percentile of the
 coarse vertices' second differences between frames over the markers' own), the
 smallest edge length over the smallest of the training poses (a collapsed limb
-shows as a small ratio), flagged frames and markers, the calibration's seconds,
+shows as a small ratio), flagged frames and markers, the frames where the surface
+passes through itself and the markers do not (``self_intersection_frames``: their
+count; the take frames in ``self_intersection_frame_list``), the calibration's seconds,
 and the fitting seconds per frame (CPU: ``time.process_time``; wall:
 ``time.perf_counter``, which a shared machine's load inflates), plus the machine.
 
@@ -98,6 +100,8 @@ def main():
             "min_edge_over_training_min": float((lengths / train.min(0)).min()),
             "max_edge_over_training_max": float((lengths / train.max(0)).max()),
             "flagged_frames": res.flagged_frames, "flagged_markers": res.flagged_markers,
+            "self_intersection_frames": len(res.self_intersection_frames),
+            "self_intersection_frame_list": res.self_intersection_frames,
             "performer_ratio": cal.performer_ratio, "prior_weight": res.prior_weight,
             "calibration_seconds_wall": cal.seconds, "calibration_timings": cal.timings,
             "fit_seconds_per_frame_wall": res.seconds_per_frame,

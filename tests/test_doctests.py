@@ -30,6 +30,7 @@ MAIN_ENTRY_POINTS = [
     "lacore.models.shape_model.ShapeModel.coefficients", "lacore.models.shape_model.ShapeModel.save",
     "lacore.samples.bar.bar_mesh", "lacore.samples.bar.bar_pose", "lacore.cli.main",
     "lacore.markers.calibration.calibrate", "lacore.markers.take_fit.fit_take",
+    "lacore.geometry.self_intersection.self_intersections", "lacore.markers.interpenetration.new_self_intersections",
 ]
 
 

@@ -19,10 +19,13 @@ the performer's size), ``faces``, ``coarse_vertices``, ``coarse_faces``,
 ``marker_residuals`` ``(T, M, 3)`` (NaN where occluded), ``markers`` ``(T, M, 3)``,
 ``labels``, the binding on the coarse mesh (``binding_faces``,
 ``binding_barycentric``, ``binding_offsets``), ``frame_rms_mm``, ``frame_status``,
-``coefficients`` and ``length_unit``.  ``--json`` prints ``frames``, ``seconds``,
+``coefficients``, ``length_unit`` and ``self_intersections`` ``(T,)`` (face pairs of
+the coarse fit passing through each other where the rest mesh does not and the
+markers show no contact).  ``--json`` prints ``frames``, ``seconds``,
 ``calibration_seconds``, ``seconds_per_frame`` (fitting only), ``prior_weight``,
 ``marker_rms`` and ``marker_p95`` (millimetres: mean over frames of the per-frame
-values), ``flagged_frames``, ``flagged_markers``, ``warnings`` and ``notes``.
+values), ``flagged_frames``, ``flagged_markers``, ``self_intersection_frames`` (take
+frames with such pairs), ``warnings`` and ``notes``.
 
 ``MARKERS.npz`` is a precomputed binding: ``positions`` ``(T, M, 3)`` in the model's
 unit (NaN where occluded) and either ``vertices`` ``(M,)`` int, or ``faces`` ``(M,)``
@@ -146,7 +149,8 @@ def run(args):
                     marker_residuals=res.marker_residuals, markers=res.markers, labels=np.array(res.labels, str),
                     binding_faces=b.faces, binding_barycentric=b.barycentric, binding_offsets=b.offsets,
                     frame_rms_mm=res.frame_rms * cal.length_unit * 1000, frame_status=res.frame_status,
-                    frames=res.frames, length_unit=np.array(cal.length_unit))
+                    frames=res.frames, length_unit=np.array(cal.length_unit),
+                    self_intersections=res.self_intersections)
     t_save = time.perf_counter() - t
     seconds = time.perf_counter() - start
     s = res.summary()
@@ -157,6 +161,7 @@ def run(args):
         "seconds_per_frame": res.seconds_per_frame, "prior_weight": res.prior_weight,
         "temporal_weight": res.temporal_weight, "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
         "units": "mm", "flagged_frames": s["flagged_frames"], "flagged_markers": s["flagged_markers"],
+        "self_intersection_frames": s["self_intersection_frames"],
         "success": s["success"], "status": s["status"], "message": s["message"],
         "frame_status_counts": s["frame_status_counts"], "performer_ratio": s["performer_ratio"],
         "length_unit": s["length_unit"], "warnings": s["warnings"], "notes": s["notes"], "save_seconds": t_save,

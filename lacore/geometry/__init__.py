@@ -8,6 +8,7 @@
 * :mod:`.trigonometry` -- triangle quantities from edge lengths alone (interior angles, areas)
   and their derivatives.
 * :mod:`.rigid` -- the one rigid (Kabsch) fit used everywhere.
+* :mod:`.self_intersection` -- the pairs of faces passing through each other.
 """
 
 from .lengths_angles import (
@@ -21,8 +22,9 @@ from .lengths_angles import (
                              split_z,
                              )
 from .rigid import apply_rigid, rigid_align, rigid_fit, rigid_rms
+from .self_intersection import intersecting_faces, self_intersections
 from .topology import MeshTopology, check_faces, check_vertices
 
 __all__ = ["MeshTopology", "check_faces", "check_vertices", "face_normals", "face_areas", "edge_lengths",
            "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z", "check_z",
-           "rigid_fit", "rigid_align", "apply_rigid", "rigid_rms"]
+           "rigid_fit", "rigid_align", "apply_rigid", "rigid_rms", "self_intersections", "intersecting_faces"]

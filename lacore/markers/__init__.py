@@ -11,6 +11,7 @@
 * :mod:`.calibration` -- :func:`calibrate`: a take calibrated to a model (axes, units, size,
   binding, proportions) with no hand work.
 * :mod:`.take_fit` -- :func:`fit_take`: the whole take calibrated and fitted.
+* :mod:`.interpenetration` -- where a fit passes through itself and the markers do not.
 * :mod:`.marker_sets` -- standard marker-set labels as hints for a humanoid.
 * :mod:`.prolongation` -- coarse fits prolonged to the full mesh.
 * :mod:`.baselines` -- the vertex-PCA baseline the fits are measured against.

@@ -4,8 +4,10 @@
 trial if given) unless a calibration is passed, fits every frame with the calibrated
 binding and mean (:func:`lacore.markers.fitting.fit_markers`, the take's own frame rate
 for the temporal term), prolongs to the model's fine level if it has one, and reports
-residuals in millimetres, flagged frames and markers, and the prior weight used
-(``prior_weight="auto"``: chosen by held-out markers on the calibration frames).
+residuals in millimetres, flagged frames and markers, frames where the surface passes
+through itself and the markers do not (:mod:`lacore.markers.interpenetration`), and
+the prior weight used (``prior_weight="auto"``: chosen by held-out markers on the
+calibration frames).
 """
 
 import dataclasses
@@ -18,6 +20,7 @@ from ..errors import InputError
 from .binding import surface_points
 from .calibration import CALIBRATION_DEFAULTS, PRIOR_WEIGHT_CHOICES, Calibration, calibrate
 from .fitting import FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics
+from .interpenetration import new_self_intersections
 from .io import MarkerTake
 from .takes import drop_non_markers
 
@@ -49,6 +52,17 @@ class TakeFitResult(MarkerFitResult):
         Take frames whose RMS is far above marker noise (> 3x the take's median and > 10 mm).
     flagged_markers : list of str
         Markers whose RMS is far above the others' (> 3x the median and > 10 mm).
+    self_intersections : (T,) int ndarray
+        Per frame, the face pairs of the fitted (coarse) mesh that pass through each
+        other where the rest mesh does not and the markers show no contact
+        (:func:`lacore.markers.interpenetration.new_self_intersections`).
+    self_contacts : (T,) int ndarray
+        New face pairs at two markers in contact (closer than their offsets): expected, not flagged.
+    self_intersection_pairs : list of (P_t, 2) int ndarray
+        The pairs counted by ``self_intersections``.
+    self_intersection_frames : list of int
+        Take frames with ``self_intersections > 0``: a quality warning, not a failure
+        (``success`` keeps its meaning: every frame converged to the markers).
     warnings : list of str
         One line per flag.
     seconds_per_frame : float
@@ -65,10 +79,14 @@ class TakeFitResult(MarkerFitResult):
     marker_rms_by_marker_mm: np.ndarray = None
     flagged_frames: list = field(default_factory=list)
     flagged_markers: list = field(default_factory=list)
+    self_intersections: np.ndarray = None
+    self_contacts: np.ndarray = None
+    self_intersection_pairs: list = field(default_factory=list)
+    self_intersection_frames: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     seconds_per_frame: float = float("nan")
     calibration_seconds: float = 0.0
-    _summary_exclude = MarkerFitResult._summary_exclude + ("markers", "calibration")
+    _summary_exclude = MarkerFitResult._summary_exclude + ("markers", "calibration", "self_intersection_pairs")
 
     def summary(self):
         """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
@@ -78,6 +96,7 @@ class TakeFitResult(MarkerFitResult):
             return None if x is None or not np.isfinite(x) else float(x)
         s.update(marker_rms_mm=f(self.marker_rms_mm), marker_p95_mm=f(self.marker_p95_mm),
                  flagged_frames=[int(t) for t in self.flagged_frames], flagged_markers=list(self.flagged_markers),
+                 self_intersection_frames=[int(t) for t in self.self_intersection_frames],
                  warnings=list(self.warnings), seconds_per_frame=f(self.seconds_per_frame),
                  calibration_seconds=f(self.calibration_seconds), markers=len(self.labels),
                  performer_ratio=f(self.calibration.performer_ratio) if self.calibration else None,
@@ -140,6 +159,11 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     Returns
     -------
     TakeFitResult
+        ``success`` as :func:`fit_markers` (every frame converged, something fitted);
+        frames far from the markers, markers far from the surface and frames where the
+        surface passes through itself with no marker contact are warnings
+        (``warnings``; the last also a clause of ``message``), not failures: the fit
+        still follows the markers, and the frames say where to look.
 
     Examples
     --------
@@ -213,18 +237,32 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
         if len(badm):
             warns.append("markers far from the surface (RMS): " + ", ".join(
                 f"{cal.labels[m]} ({by_marker[m]:.0f} mm)" for m in badm))
-    timings = dict(res.timings, calibration=cal.seconds, total=time.perf_counter() - t_start)
+    t_si = time.perf_counter()
+    si = new_self_intersections(res.vertices, model.faces, cal.binding, y, model.reference_vertices)
+    si_frames = [int(idx[t]) for t in si.frames]
+    message = res.message
+    if si_frames:
+        near = np.concatenate([m for m in si.nearest_marker if len(m)])
+        labels, n = np.unique(near, return_counts=True)
+        where = ", ".join(cal.labels[m] if m >= 0 else "none near" for m in labels[np.argsort(-n, kind="stable")][:4])
+        warns.append(f"{len(si_frames)} frame(s) where the surface passes through itself and the markers do not "
+                     f"(up to {int(si.counts.max())} face pairs, nearest markers {where}): "
+                     + ", ".join(str(t) for t in si_frames[:10]) + (" ..." if len(si_frames) > 10 else ""))
+        message += f"; the surface passes through itself in {len(si_frames)} frame(s)"
+    timings = dict(res.timings, calibration=cal.seconds, self_intersections=time.perf_counter() - t_si,
+                   total=time.perf_counter() - t_start)
     fields_ = {f.name: getattr(res, f.name) for f in dataclasses.fields(MarkerFitResult)}
     fields_.update(
         vertices=res.vertices * c, marker_residuals=res.marker_residuals * c, marker_distances=res.marker_distances * c,
         frame_rms=res.frame_rms * c, frame_p95=res.frame_p95 * c, marker_rms=res.marker_rms * c,
         fine_vertices=None if res.fine_vertices is None else res.fine_vertices * c, timings=timings,
-        prior_weight=float(fo.prior_weight))
+        prior_weight=float(fo.prior_weight), message=message)
     out = TakeFitResult(**fields_, markers=x / u, labels=list(cal.labels), frames=idx, calibration=cal,
                         marker_rms_mm=float(np.nanmean(frame_rms_mm)) if np.isfinite(frame_rms_mm).any() else np.nan,
                         marker_p95_mm=float(np.nanmean(frame_p95_mm)) if np.isfinite(frame_p95_mm).any() else np.nan,
                         marker_rms_by_marker_mm=by_marker, flagged_frames=flagged_frames,
-                        flagged_markers=flagged_markers, warnings=warns,
+                        flagged_markers=flagged_markers, self_intersections=si.counts, self_contacts=si.contact_counts,
+                        self_intersection_pairs=si.pairs, self_intersection_frames=si_frames, warnings=warns,
                         seconds_per_frame=fit_seconds / len(idx), calibration_seconds=cal.seconds)
     out.calibration = dataclasses.replace(cal, notes=notes)
     return out
