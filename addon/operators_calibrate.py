@@ -306,8 +306,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
             "frame": int(frames[0]), "calibrated": True,
-            "faces": cal.binding.faces.tolist(), "barycentric": cal.binding.barycentric.ravel().tolist(),
-            "offsets": cal.binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            "faces": res.binding.faces.tolist(), "barycentric": res.binding.barycentric.ravel().tolist(),
+            "offsets": res.binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": [lb for lb in labels if lb not in bound],
             "performer_ratio": float(cal.performer_ratio),
         }

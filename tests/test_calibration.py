@@ -101,6 +101,10 @@ def test_takes_calibrate_and_fit_with_the_defaults(model, name):
     assert res.fine_vertices.shape == (n, model.fine_level.n_fine_vertices, 3)
     assert res.marker_residuals.shape == (n, kept, 3)
     assert np.array_equal(np.isnan(res.marker_residuals[..., 0]), ~take.visible)
+    # the result's binding (offsets at the performer's size) gives the residuals on the result's vertices
+    from lacore.markers.binding import surface_points
+    r = surface_points(res.vertices[-1], model.faces, res.binding) - res.markers[-1]
+    assert np.allclose(r, res.marker_residuals[-1], rtol=0, atol=1e-9, equal_nan=True)
     # no collapsed limb: coarse edge lengths within the training range (with the performer's size)
     from lacore.geometry.lengths_angles import lengths_and_angles
     E = model.topology.n_edges

@@ -17,7 +17,7 @@ level, prolonged to full resolution.  ``OUT.npz`` gets ``vertices`` ``(T, V, 3)`
 (full resolution if the model has a fine level; the take's axes, the model's unit,
 the performer's size), ``faces``, ``coarse_vertices``, ``coarse_faces``,
 ``marker_residuals`` ``(T, M, 3)`` (NaN where occluded), ``markers`` ``(T, M, 3)``,
-``labels``, the binding on the coarse mesh (``binding_faces``,
+``labels``, the binding on the coarse mesh at the performer's size (``binding_faces``,
 ``binding_barycentric``, ``binding_offsets``), ``frame_rms_mm``, ``frame_status``,
 ``coefficients``, ``length_unit`` and ``self_intersections`` ``(T,)`` (face pairs of
 the coarse fit passing through each other where the rest mesh does not and the
@@ -141,7 +141,7 @@ def run(args):
                    frames=_frames(args.frames), static=static)
     cal = res.calibration
     fine = res.fine_vertices is not None
-    b = cal.binding
+    b = res.binding
     t = time.perf_counter()
     save_npz_atomic(args.output, vertices=res.fine_vertices if fine else res.vertices,
                     faces=model.fine_level.fine_faces if fine else model.faces,

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .binding import surface_points
+from .binding import MarkerBinding, surface_points
 from .calibration import CALIBRATION_DEFAULTS, PRIOR_WEIGHT_CHOICES, Calibration, calibrate
 from .fitting import FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics
 from .interpenetration import new_self_intersections
@@ -87,6 +87,16 @@ class TakeFitResult(MarkerFitResult):
     seconds_per_frame: float = float("nan")
     calibration_seconds: float = 0.0
     _summary_exclude = MarkerFitResult._summary_exclude + ("markers", "calibration", "self_intersection_pairs")
+
+    @property
+    def binding(self):
+        """The calibration's binding at the result's size (offsets times the performer ratio).
+
+        ``surface_points(vertices[t], faces, binding) - markers[t]`` is ``marker_residuals[t]``
+        (model's coarse faces).
+        """
+        b = self.calibration.binding
+        return MarkerBinding(b.faces, b.barycentric, b.offsets * self.calibration.performer_ratio, b.vertices)
 
     def summary(self):
         """JSON-ready dict: :meth:`MarkerFitResult.summary` plus the take's figures."""
