@@ -40,22 +40,17 @@ mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and t
 until Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
 
 Storage (saved in the .blend, decoded once per session: :func:`live_meshes` after ``load_post``): the
-mixer's ``.npz`` (:meth:`ShapeMixer.save`), base64-encoded, in a text datablock ``"LA live mixer <mesh>"``
-(fake user; its first line names the mixer's token), and ``mesh["lengths_angles_live_mix"]`` a small
-record: the text's name, the token, the key names, a fingerprint digest and the build time.  Not in the
-mesh itself: Blender copies a mesh's custom properties into every evaluation (tens of megabytes per
-frame at 50k vertices).
+mixer's ``.npz`` (:meth:`ShapeMixer.save`) is a payload of :func:`.storage.store_payload` (a text
+datablock ``"LA live mixer <mesh>"``), and ``mesh["lengths_angles_live_mix"]`` its record: the text's
+name, the token, the key names, a fingerprint digest and the build time.
 """
 
-import base64
-import binascii
 import hashlib
 import io
 import os
 import tempfile
 import threading
 import time
-import uuid
 
 import bpy
 import numpy as np
@@ -64,6 +59,7 @@ from bpy.app.handlers import persistent
 from ..lacore.errors import InputError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.shapes import MixerOptions, ShapeMixer
+from . import storage
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
 from .naming import LIVE_MIX_KEY, is_own_key
@@ -205,38 +201,17 @@ _GUARD = [False]  # a handler writing: the updates it causes are not handled aga
 _LOCK = threading.Lock()  # one update at a time (a render thread and the main thread)
 
 
-#: First line of the text datablock holding a mixer (followed by the token).
+#: First line of the text datablock holding a mixer (followed by the token): :func:`.storage.store_payload`.
 TEXT_HEADER = "Lengths & Angles live mixer (do not edit)"
-_LINE = 65536  # base64 characters per line of the text
-
-
-def _write_text(data, token, name):
-    """A new text datablock (fake user: kept without users) holding ``data`` (bytes) base64-encoded."""
-    text = bpy.data.texts.new(name)
-    text.use_fake_user = True
-    encoded = base64.b64encode(data).decode("ascii")
-    lines = [encoded[i:i + _LINE] for i in range(0, len(encoded), _LINE)]
-    text.from_string("\n".join([f"{TEXT_HEADER} {token}", *lines]))
-    return text
 
 
 def stored_npz(meta):
     """The mixer ``.npz`` (bytes) of the stored mixer ``meta`` (``mesh[MIXER_PROP]``), :class:`LiveMixError` if its
     text datablock is gone or is not it."""
-    text = bpy.data.texts.get(str(meta["text"]))
-    head, _, body = ("" if text is None else text.as_string()).partition("\n")
-    if head != f"{TEXT_HEADER} {meta['token']}":
-        raise LiveMixError(f"the live mixer's text '{meta['text']}' is missing or was edited: Rebuild")
-    return base64.b64decode(body.replace("\n", ""))
-
-
-def _remove_text(meta):
-    """Remove the text of ``meta`` unless another mesh (a duplicate) still uses it."""
-    name = str(meta["text"])
-    users = [m for m in bpy.data.meshes if MIXER_PROP in m and str(m[MIXER_PROP].get("text", "")) == name]
-    text = bpy.data.texts.get(name)
-    if text is not None and not users:
-        bpy.data.texts.remove(text)
+    try:
+        return storage.load_payload(meta, TEXT_HEADER)
+    except storage.PayloadError as exc:
+        raise LiveMixError(f"the live mixer cannot be read ({exc}): Rebuild") from None
 
 
 def _decode(meta):
@@ -259,7 +234,7 @@ def _live(mesh):
         return live
     try:
         live = _Live(mesh, meta, _decode(meta))
-    except (InputError, KeyError, ValueError, binascii.Error) as exc:
+    except (InputError, KeyError, ValueError) as exc:
         if mesh.name_full not in _BROKEN:
             print(f"Lengths & Angles: the live mixer of '{mesh.name}' cannot be read ({exc}): rebuild it")
         _LIVE.pop(mesh.name_full, None)
@@ -515,18 +490,11 @@ def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_siz
         with open(path, "rb") as fh:
             data = fh.read()
     coords = _key_coords(mesh.shape_keys, [basis, *nonlinear], len(mesh.vertices))
-    token = uuid.uuid4().hex
-    old = mesh.get(MIXER_PROP)
-    old = None if old is None else old.to_dict()
-    text = _write_text(data, token, f"LA live mixer {mesh.name}")
-    mesh[MIXER_PROP] = {"format_version": FORMAT_VERSION, "text": text.name, "token": token, "basis": basis,
-                        "keys": list(nonlinear), "linear": list(linear), "n_vertices": len(mesh.vertices),
-                        "fingerprint": _digest(coords, _corners(mesh)), "build_seconds": float(build_seconds),
-                        "reduced_size": int(reduced_size)}
-    if old is not None and "text" in old:  # a rebuild: the previous mixer's text goes, the new one takes its name
-        _remove_text(old)
-        text.name = f"LA live mixer {mesh.name}"
-        mesh[MIXER_PROP]["text"] = text.name
+    record = {"format_version": FORMAT_VERSION, "basis": basis, "keys": list(nonlinear), "linear": list(linear),
+              "n_vertices": len(mesh.vertices), "fingerprint": _digest(coords, _corners(mesh)),
+              "build_seconds": float(build_seconds), "reduced_size": int(reduced_size)}
+    token = storage.store_payload(mesh, MIXER_PROP, data, header=TEXT_HEADER, name=f"LA live mixer {mesh.name}",
+                                  record=record)
     _MIXERS[token] = mixer
     key = mesh.shape_keys
     kb = key.key_blocks.get(LIVE_MIX_KEY)
@@ -559,8 +527,7 @@ def disable(obj):
         return False
     meta = mesh[MIXER_PROP].to_dict()
     del mesh[MIXER_PROP]
-    if "text" in meta:
-        _remove_text(meta)
+    storage.release_payload(meta)
     _LIVE.pop(mesh.name_full, None)
     kb = mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) if mesh.shape_keys is not None else None
     if kb is not None:

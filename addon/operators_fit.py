@@ -7,9 +7,11 @@ Operators
     Builds a :class:`..lacore.models.shape_model.ShapeModel` from the active mesh's shape
     keys (default all but the basis and the add-on's own ``"LA ..."`` keys; ``keys`` a
     comma-separated list chooses), on the fan triangulation of :func:`.mesh_access.triangulate`.
-    The model is stored IN THE .blend: ``mesh["lengths_angles_model"]`` holds the model's
-    ``.npz`` (:meth:`ShapeModel.save`) base64-encoded in a string ID property, plus the key
-    names and vertex count; it survives save/reload and is read back by :func:`read_model`.
+    The model is stored IN THE .blend: its ``.npz`` (:meth:`ShapeModel.save`) in a text datablock
+    ``"LA shape model <mesh>"`` (:func:`.storage.store_payload`), ``mesh["lengths_angles_model"]`` the
+    record (text, token, key names, vertex and mode counts); it survives save/reload and is read back by
+    :func:`read_model`.  Files of earlier versions (the ``.npz`` inside the record) are read and migrated
+    on the next save (:func:`migrate_models`).
 Mode sliders
     Dragging a slider previews its pose: at most every :data:`PREVIEW_INTERVAL` seconds (a timer) the
     pose is synthesized (:meth:`ShapeModel.synthesize`, one reconstruction) into the shape key
@@ -53,6 +55,7 @@ import tempfile
 
 import bpy
 import numpy as np
+from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
@@ -62,6 +65,7 @@ from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers
 from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
 from ..lacore.multiresolution import coarsen
+from . import storage
 from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
@@ -71,9 +75,12 @@ from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
 __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run",
-           "bind_run", "fit_run", "fit_inputs", "store_model", "read_model", "read_binding", "remove_model", "classes"]
+           "bind_run", "fit_run", "fit_inputs", "store_model", "read_model", "migrate_models", "read_binding",
+           "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
+#: First line of the text datablock holding a shape model (followed by its token).
+MODEL_HEADER = "Lengths & Angles shape model (do not edit)"
 BINDING_PROP = "lengths_angles_binding"
 MAX_MODES = 32
 #: Auto coarse level of Build Model: meshes of more than twice as many vertices get a model on a coarse mesh of
@@ -202,22 +209,49 @@ def _store_built_model(obj, model, keys):
 
 
 def store_model(mesh, model, keys):
-    """Store ``model`` in ``mesh[MODEL_PROP]`` (base64 .npz; saved with the .blend)."""
+    """Store ``model`` with ``mesh`` (saved with the .blend): its ``.npz`` a payload of
+    :func:`.storage.store_payload` (text ``"LA shape model <mesh>"``), ``mesh[MODEL_PROP]`` the record (key names,
+    vertex and mode counts)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "model.npz")
         model.save(path)
         with open(path, "rb") as fh:
-            data = base64.b64encode(fh.read()).decode("ascii")
-    mesh[MODEL_PROP] = {"npz_base64": data, "keys": list(keys), "n_vertices": len(mesh.vertices),
-                        "n_modes": int(model.n_modes)}
+            data = fh.read()
+    storage.store_payload(mesh, MODEL_PROP, data, header=MODEL_HEADER, name=f"LA shape model {mesh.name}",
+                          record={"keys": list(keys), "n_vertices": len(mesh.vertices),
+                                  "n_modes": int(model.n_modes)})
+
+
+def migrate_models():
+    """Move every model stored inside its mesh record (``"npz_base64"``, add-on versions before the text
+    datablocks) into a payload text (:func:`store_model`'s layout); returns the meshes migrated."""
+    moved = []
+    for mesh in bpy.data.meshes:
+        meta = mesh.get(MODEL_PROP)
+        if meta is None or "npz_base64" not in meta:
+            continue
+        record = meta.to_dict()
+        data = base64.b64decode(record.pop("npz_base64"))
+        storage.store_payload(mesh, MODEL_PROP, data, header=MODEL_HEADER, name=f"LA shape model {mesh.name}",
+                              record=record)
+        moved.append(mesh.name)
+    return moved
+
+
+@persistent
+def _on_save_pre(*_args):
+    migrate_models()
 
 
 def remove_model(obj):
     """Remove the stored model of ``obj``'s mesh, its preview key and the slider values; True if there was one."""
     mesh = obj.data
-    had = MODEL_PROP in mesh
+    meta = mesh.get(MODEL_PROP)
+    had = meta is not None
     if had:
+        meta = meta.to_dict()
         del mesh[MODEL_PROP]
+        storage.release_payload(meta)
     kb = mesh.shape_keys.key_blocks.get(PREVIEW_KEY) if mesh.shape_keys is not None else None
     if kb is not None:
         obj.shape_key_remove(kb)
@@ -228,17 +262,29 @@ def remove_model(obj):
 _MODEL_CACHE = {}
 
 
+def _model_npz(mesh, meta):
+    """The stored model's ``.npz`` bytes (a payload text, or inside the record in files of earlier versions)."""
+    legacy = meta.get("npz_base64")
+    if legacy is not None:
+        return base64.b64decode(legacy)
+    try:
+        return storage.load_payload(meta, MODEL_HEADER)
+    except storage.PayloadError as exc:
+        raise FitSetupError(f"the shape model of mesh '{mesh.name}' cannot be read ({exc}): run Build Model "
+                            "again") from None
+
+
 def read_model(obj):
     """The ShapeModel stored on ``obj``'s mesh, checked against the mesh as it is now."""
     mesh = require_mesh_object(obj)
     meta = mesh.get(MODEL_PROP)
     if meta is None:
         raise FitSetupError(f"mesh '{mesh.name}' has no shape model: run Build Model first")
-    data = meta["npz_base64"]
-    key = (mesh.name_full, hash(data))
+    legacy = meta.get("npz_base64")
+    key = (mesh.name_full, str(meta.get("token")) if legacy is None else hash(legacy))
     model = _MODEL_CACHE.get(key)
     if model is None:  # decoded once per stored model (the sliders' preview reads it often)
-        model = ShapeModel.load(io.BytesIO(base64.b64decode(data)))
+        model = ShapeModel.load(io.BytesIO(_model_npz(mesh, meta)))
         _MODEL_CACHE.clear()
         _MODEL_CACHE[key] = model
     faces = triangulate(mesh).faces
@@ -675,7 +721,11 @@ def register_properties():
         update=_mode_weights_changed,
         description="Shape-model coefficients in standard deviations: dragging previews the pose in the "
                     f"shape key '{PREVIEW_KEY}' (at most every {PREVIEW_INTERVAL} s); Model Pose to Shape Key keeps it")
+    if _on_save_pre not in bpy.app.handlers.save_pre:
+        bpy.app.handlers.save_pre.append(_on_save_pre)
 
 
 def unregister_properties():
+    if _on_save_pre in bpy.app.handlers.save_pre:
+        bpy.app.handlers.save_pre.remove(_on_save_pre)
     del bpy.types.Object.lengths_angles_mode_weights

@@ -24,13 +24,27 @@ The interpolation operators reuse a stored ``z`` when the topology hash and the
 key's coordinate hash still match (:func:`..session.key_z`), so what is stored is used.
 
 ID properties cannot be attached to shape-key blocks, hence the Mesh.
+
+Payloads (the live mixer's and the shape model's ``.npz``, megabytes) are NOT ID properties of the mesh:
+Blender copies a mesh's custom properties into every evaluated copy and every undo step.  A payload is
+stored base64-encoded in a text datablock (fake user: kept without users; first line
+``"<header> <token>"``), and the mesh holds a small record ``{"text": name, "token": token, ...}``
+(:func:`store_payload`, :func:`load_payload`, :func:`release_payload`).  A duplicated mesh shares its
+original's text until one of them is rebuilt or removed; a text is removed with its last record.
 """
 
+import base64
+import binascii
+import uuid
+
+import bpy
 import numpy as np
 
+from ..lacore.errors import InputError
 from ..lacore.integrability.checks import LOCAL_TOLERANCE
 
-__all__ = ["PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "write_encoding", "read_encoding",
+__all__ = ["store_payload", "load_payload", "release_payload", "PayloadError",
+           "PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "write_encoding", "read_encoding",
            "key_status", "clear_encoding", "encoding_mismatch"]
 
 PROP = "lengths_angles"
@@ -38,6 +52,72 @@ FORMAT_VERSION = 1
 #: Largest per-vertex violation ``|tr I_v - 3|`` counted as closing (lacore.integrability.checks.LOCAL_TOLERANCE):
 #: round-off of lengths and angles measured on a real shape gives ~1e-30 .. 1e-14.
 INTEGRABLE_TOLERANCE = LOCAL_TOLERANCE
+
+
+class PayloadError(InputError):
+    """A stored payload whose text datablock is missing, was edited or does not decode."""
+
+
+_LINE = 65536  # base64 characters per line of a payload's text
+
+
+def _references(name):
+    """Meshes with a payload record (a top-level ID property group) naming the text ``name``."""
+    out = []
+    for mesh in bpy.data.meshes:
+        for prop in mesh.keys():
+            value = mesh[prop]
+            if hasattr(value, "to_dict") and str(value.get("text", "")) == name:
+                out.append(mesh)
+                break
+    return out
+
+
+def _new_text(data, header, name):
+    token = uuid.uuid4().hex
+    text = bpy.data.texts.new(name)
+    text.use_fake_user = True
+    encoded = base64.b64encode(bytes(data)).decode("ascii")
+    text.from_string("\n".join([f"{header} {token}", *(encoded[i:i + _LINE] for i in range(0, len(encoded), _LINE))]))
+    return text, token
+
+
+def store_payload(mesh, prop, data, *, header, name, record=None):
+    """Store ``data`` (bytes) for ``mesh``: a new text datablock ``name`` (Blender adds ``.001`` if taken) and
+    ``mesh[prop] = {**record, "text": <its name>, "token": <a new token>}``; a payload ``mesh[prop]`` had before
+    is released (:func:`release_payload`) and the new text takes its name.  Returns the token."""
+    old = mesh.get(prop)
+    old = None if old is None else old.to_dict()
+    text, token = _new_text(data, header, name)
+    mesh[prop] = {**(record or {}), "text": text.name, "token": token}
+    if old is not None and "text" in old:
+        release_payload(old)
+        text.name = name
+        mesh[prop]["text"] = text.name
+    return token
+
+
+def load_payload(record, header):
+    """The bytes stored for ``record`` (a mesh's payload record); :class:`PayloadError` if its text is missing,
+    is another payload's or was edited."""
+    name = str(record.get("text", ""))
+    text = bpy.data.texts.get(name)
+    head, _, body = ("" if text is None else text.as_string()).partition("\n")
+    if head != f"{header} {record.get('token', '')}":
+        raise PayloadError(f"the text '{name}' holding it is missing or was edited")
+    try:
+        return base64.b64decode(body.replace("\n", ""), validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise PayloadError(f"the text '{name}' holding it was edited ({exc})") from None
+
+
+def release_payload(record):
+    """Remove the text of ``record`` (a payload record already deleted from its mesh, as a dict) unless another
+    mesh (a duplicate) still refers to it."""
+    name = str(record.get("text", ""))
+    text = bpy.data.texts.get(name)
+    if text is not None and not _references(name):
+        bpy.data.texts.remove(text)
 
 
 def is_integrable(violation, integrable=None):

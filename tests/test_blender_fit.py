@@ -78,6 +78,25 @@ def test_model_from_shape_keys_survives_reload(run, inputs):
     assert np.abs(run["arrays"]["preview"] - expected).max() < 1e-4
 
 
+def test_model_payload_text_undo_duplicate_and_old_records(run):
+    res = run["cases"]["model_storage"]
+    n = res["n_modes"]
+    # the mesh holds a small record; the .npz is in a text datablock kept by a fake user
+    assert res["record"] == ["keys", "n_modes", "n_vertices", "text", "token"]
+    assert res["text"] == "LA shape model Body" and res["fake_user"]
+    assert res["record_chars"] < 1000 < res["text_chars"]
+    # removing the model removes its text; undo brings both back
+    assert res["removed_text_gone"] and res["undo_n_modes"] == n
+    # Shift+D: the copy's mesh shares the text; removing the copy's model keeps the original's
+    assert res["copy_mesh_differs"] and res["copy_n_modes"] == n and res["text_kept_for_original"]
+    # two objects, one model each; removing the original's keeps the copy's
+    assert res["two_texts"] == ["LA shape model Body", "LA shape model Body.001"]
+    assert res["after_removing_original"] == ["LA shape model Body.001"] and res["copy_still_reads"] == n
+    # a record of earlier versions (.npz inside) is read, and the next save moves it into a text, bytes unchanged
+    assert res["legacy_n_modes"] == n == res["migrated_n_modes"]
+    assert res["migrated_record"] == res["record"] and res["migrated_same_bytes"]
+
+
 def test_pc2_and_mesh_cache_settings(run):
     res = run["cases"]["whole_path"]
     V, T = res["n_vertices"], res["frames"]

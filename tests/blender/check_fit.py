@@ -72,7 +72,8 @@ def whole_path():
     assert bpy.ops.lengths_angles.build_model() == {"FINISHED"}
     t_model = time.perf_counter() - t
     meta = obj.data[ext("addon.operators_fit").MODEL_PROP].to_dict()
-    OUT["model_npz"] = np.frombuffer(base64.b64decode(meta["npz_base64"]), np.uint8)
+    OUT["model_npz"] = np.frombuffer(ext("addon.storage").load_payload(meta, ext("addon.operators_fit").MODEL_HEADER),
+                                     np.uint8)
     # the mode sliders as a shape key: mode 1 at +1 std
     obj.lengths_angles_mode_weights[0] = 1.0
     fit = ext("addon.operators_fit")
@@ -283,6 +284,63 @@ def bad_input():
     return out
 
 
+def model_storage():
+    """The model's .npz is a payload text, not in the mesh record: it survives undo, a duplicate shares it until
+    either is removed, two objects have one each; a record of earlier versions (.npz inside) is read and
+    migrated to a text on the next save."""
+    fit, storage = ext("addon.operators_fit"), ext("addon.storage")
+    path = os.path.join(ARGS.workdir, "fit.blend")
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Body"]
+    meta = obj.data[fit.MODEL_PROP].to_dict()
+    text = bpy.data.texts[meta["text"]]
+    n_modes = fit.read_model(obj).n_modes
+    out = {"record": sorted(meta), "record_chars": len(repr(meta)), "text_chars": len(text.as_string()),
+           "text": text.name, "fake_user": text.use_fake_user}
+    # undo brings a removed model back
+    bpy.ops.ed.undo_push(message="model")
+    fit.remove_model(obj)
+    out["removed_text_gone"] = meta["text"] not in bpy.data.texts
+    bpy.ops.ed.undo_push(message="model removed")
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["Body"]
+    out["undo_n_modes"] = int(fit.read_model(obj).n_modes) if fit.MODEL_PROP in obj.data else None
+    # a duplicate (Shift+D copies the mesh) shares the text; removing one model keeps the other's
+    select_only(obj)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.duplicate()
+    copy = bpy.context.view_layer.objects.active
+    out["copy_mesh_differs"] = copy.data != obj.data
+    out["copy_n_modes"] = int(fit.read_model(copy).n_modes)
+    fit.remove_model(copy)
+    out["text_kept_for_original"] = meta["text"] in bpy.data.texts and fit.read_model(obj).n_modes == n_modes
+    # two objects with a model each: two texts
+    fit.store_model(copy.data, fit.read_model(obj), meta["keys"])
+    out["two_texts"] = sorted(t.name for t in bpy.data.texts)
+    fit.remove_model(obj)
+    out["after_removing_original"] = sorted(t.name for t in bpy.data.texts)
+    out["copy_still_reads"] = int(fit.read_model(copy).n_modes)
+    # a record of earlier versions: the .npz base64-encoded inside it
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Body"]
+    meta = obj.data[fit.MODEL_PROP].to_dict()
+    data = storage.load_payload(meta, fit.MODEL_HEADER)
+    bpy.data.texts.remove(bpy.data.texts[meta["text"]])
+    obj.data[fit.MODEL_PROP] = {"npz_base64": base64.b64encode(data).decode("ascii"), "keys": meta["keys"],
+                                "n_vertices": meta["n_vertices"], "n_modes": meta["n_modes"]}
+    out["legacy_n_modes"] = int(fit.read_model(obj).n_modes)
+    legacy = os.path.join(ARGS.workdir, "legacy_model.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=legacy)
+    bpy.ops.wm.open_mainfile(filepath=legacy)
+    obj = bpy.data.objects["Body"]
+    migrated = obj.data[fit.MODEL_PROP].to_dict()
+    out["migrated_record"] = sorted(migrated)
+    out["migrated_n_modes"] = int(fit.read_model(obj).n_modes)
+    out["migrated_same_bytes"] = storage.load_payload(migrated, fit.MODEL_HEADER) == data
+    out["n_modes"] = int(n_modes)
+    return out
+
+
 def make_runs(context, obj, take):
     """Build model (all keys), Bind (with ICP: one progress unit per iteration) and Fit (one per frame) runs."""
     fit = ext("addon.operators_fit")
@@ -476,5 +534,5 @@ def script_defaults_and_paths():
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, whole_path, shape_key_output, bad_input, runs_progress_and_cancel,
+    run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion])
