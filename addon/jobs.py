@@ -41,7 +41,7 @@ import numpy as np
 from ..lacore.errors import LengthsAnglesError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.multiresolution import MultiresolutionReconstruction
-from ..lacore.parallel import default_workers
+from ..lacore.parallel import call_in_process, default_workers
 from ..lacore.progress import Cancelled, report
 from ..lacore.shapes.interpolation import keyframe_targets, piecewise_linear_z
 from ..lacore.shapes.projection import SequenceProjection
@@ -333,6 +333,11 @@ class CallJob:
         What it computes (status bar), e.g. ``"shape model"``.
     total : int
         Units of work until the call reports its own total.
+    process : tuple, optional
+        ``(lacore_function, args, convert)``: the same call in a worker process
+        (:func:`lacore.parallel.call_in_process`, the result ``convert(value)``), used when
+        :attr:`all_in_workers` is set (a modal run: CHOLMOD holds the interpreter lock, so
+        a long call in a thread would freeze Blender's Python; Esc kills the process at once).
 
     Attributes
     ----------
@@ -340,8 +345,10 @@ class CallJob:
         The call's return value (after the step).
     """
 
-    def __init__(self, function, label, total=1):
+    def __init__(self, function, label, total=1, process=None):
         self.function = function
+        self.process = process
+        self.all_in_workers = False
         self.label = label
         self.total = max(int(total), 1)
         self.done = 0
@@ -366,7 +373,11 @@ class CallJob:
         if self.cancelled:
             raise Cancelled(f"{self.label} cancelled")
         if not self.finished:
-            self.result = self.function(self._progress)
+            if self.all_in_workers and self.process is not None:
+                function, args, convert = self.process
+                self.result = convert(call_in_process(function, args, progress=self._progress))
+            else:
+                self.result = self.function(self._progress)
             self.done, self.finished = self.total, True
 
     def cancel(self):

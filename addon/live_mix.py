@@ -47,8 +47,6 @@ name, the token, the key names, a fingerprint digest and the build time.
 
 import hashlib
 import io
-import os
-import tempfile
 import threading
 import time
 
@@ -59,6 +57,7 @@ from bpy.app.handlers import persistent
 from ..lacore.errors import InputError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.shapes import MixerOptions, ShapeMixer
+from ..lacore.shapes.mixing.files import build_mixer_bytes, mixer_bytes
 from . import storage
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, triangulate
@@ -471,7 +470,8 @@ def enable_run(obj, reduced_size=0):
     raises InputError subclasses).  ``reduced_size`` 0: automatic (:class:`MixerOptions`)."""
     basis, nonlinear, linear, coords, faces = _inputs(obj)
     options = MixerOptions(reduced_size=int(reduced_size) or None)
-    job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress), "live mixer")
+    job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress), "live mixer",
+                  process=(build_mixer_bytes, (coords, faces, options), lambda data: ShapeMixer.load(io.BytesIO(data))))
     t0 = time.perf_counter()
 
     def write(obj, job):
@@ -485,10 +485,7 @@ def enable_run(obj, reduced_size=0):
 def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_size=0):
     """Store ``mixer`` with ``obj``'s mesh, add the mix key (if missing) and show the mix of the current values."""
     mesh = obj.data
-    with tempfile.TemporaryDirectory() as tmp:
-        path = mixer.save(os.path.join(tmp, "mixer.npz"))
-        with open(path, "rb") as fh:
-            data = fh.read()
+    data = mixer_bytes(mixer)
     coords = _key_coords(mesh.shape_keys, [basis, *nonlinear], len(mesh.vertices))
     record = {"format_version": FORMAT_VERSION, "basis": basis, "keys": list(nonlinear), "linear": list(linear),
               "n_vertices": len(mesh.vertices), "fingerprint": _digest(coords, _corners(mesh)),

@@ -9,6 +9,10 @@ process computes the first chain and every other chain runs in a
 factorization, a frame's main cost, runs on one core in cvxopt's CHOLMOD and
 holds the interpreter lock, so threads would take turns.
 
+:func:`call_in_process` runs one long call (e.g. a shape mixer's build) in a worker so
+that the caller's interpreter stays responsive (progress, a cancel that kills the
+worker at once).
+
 A worker is a fresh interpreter (``sys.executable``, so Blender's own Python inside
 Blender) with the caller's ``sys.path``, importing this ``lacore`` under the same
 package name (inside Blender ``bl_ext.<repository>.<extension>.lacore``: the parent
@@ -36,7 +40,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["frame_chains", "WorkerProcess", "WorkerError", "check_workers", "close_workers", "default_workers"]
+__all__ = ["frame_chains", "WorkerProcess", "WorkerError", "call_in_process", "check_workers", "close_workers",
+           "default_workers"]
 
 _LACORE_PACKAGE = __package__  # "lacore", or "bl_ext.<repository>.<extension>.lacore" inside Blender
 _LACORE_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -234,6 +239,62 @@ def raise_worker_error(payload):
     raise WorkerError(f"a worker process failed: {name}: {message}" + (f"\n{trace}" if trace else ""))
 
 
+def _call_with_progress(function, args, kwargs, send):
+    """The worker's side of :func:`call_in_process`: ``function(*args, progress=..., **kwargs)`` sending every
+    progress report back as ``(done, total, message)``."""
+    def progress(done, total, message=""):
+        send((int(done), int(total), str(message)))
+    return function(*args, progress=progress, **kwargs)
+
+
+def call_in_process(function, args=(), kwargs=None, progress=None, poll=0.1):
+    """``function(*args, progress=..., **kwargs)`` run in a :class:`WorkerProcess`; returns its value.
+
+    The worker's progress reports are relayed to ``progress`` (:mod:`lacore.progress`) and,
+    between them, ``progress`` is asked every ``poll`` seconds with the last report; when it
+    returns True the worker is killed at once and :class:`lacore.progress.Cancelled` is
+    raised.  Errors come back as in :func:`raise_worker_error`.  The value must pickle.
+
+    Parameters
+    ----------
+    function : callable
+        A module-level lacore function taking ``progress=`` (pickled by reference).
+    args : tuple
+    kwargs : dict, optional
+    progress : callable, optional
+    poll : float
+        Seconds between checks for a cancel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.parallel import call_in_process
+    >>> from lacore.shapes.mixing.files import build_mixer_bytes
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, F = bar_mesh(n_along=6, n_side=2)
+    >>> data = call_in_process(build_mixer_bytes, (np.stack([X, bar_pose(X, 1.0, 0.0)]), F))  # doctest: +SKIP
+    """
+    from .progress import report
+    worker = WorkerProcess(_call_with_progress, (function, tuple(args), dict(kwargs or {})))
+    last = (0, 1, "starting a worker process")
+    try:
+        while True:
+            try:
+                _, kind, payload = worker.messages.get(timeout=poll)
+            except queue.Empty:
+                report(progress, *last)
+                continue
+            if kind == "message":
+                last = payload
+                report(progress, *last)
+            elif kind == "done":
+                return payload
+            else:
+                raise_worker_error(payload)
+    finally:
+        worker.close()
+
+
 def _lacore_errors():
     from . import errors
     return {name: obj for name, obj in vars(errors).items()
@@ -272,7 +333,10 @@ def serve(channel_in, channel_out):
         except _CALLER_GONE:
             raise
         except BaseException as exc:  # every failure goes back to the caller, named
-            send("error", (type(exc).__name__, str(exc), traceback.format_exc()))
+            name = type(exc).__name__
+            if isinstance(exc, InputError) and name not in _LACORE_ERRORS:
+                name = "InputError"  # e.g. a MixerError: the caller gets its one-line message
+            send("error", (name, str(exc), traceback.format_exc()))
             return
         send("done", value)
     except _CALLER_GONE:

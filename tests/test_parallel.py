@@ -184,3 +184,27 @@ def test_cli_workers(tmp_path, capsys):
         main(["interpolate", *map(str, plates), "--t", "0.5", "--workers", "0", "-o", str(tmp_path / "bad")])
     assert exc.value.code == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def test_call_in_process_builds_a_mixer_relays_progress_and_cancels_at_once():
+    """A mixer built in a worker process (what Blender's modal Enable Live Mixing does) is the one built here;
+    its stage reports arrive; a cancel kills the worker; a lacore input error comes back as its one line."""
+    import io
+
+    from lacore.samples.bar import bar_mesh, bar_pose
+    from lacore.shapes.mixing import ShapeMixer
+    from lacore.shapes.mixing.files import build_mixer_bytes
+    X, F = bar_mesh(n_along=12, n_side=2)
+    keys = np.stack([X, bar_pose(X, 1.2, 0.0), bar_pose(X, 0.0, 1.0)])
+    seen = []
+    data = parallel.call_in_process(build_mixer_bytes, (keys, F), progress=lambda *r: seen.append(r))
+    mixer = ShapeMixer.load(io.BytesIO(data))
+    here = ShapeMixer.build(keys, F)
+    w = [0.4, 0.7]
+    assert np.abs(mixer.mix(w).vertices - here.mix(w).vertices).max() < 1e-9 * np.ptp(X)
+    assert seen[-1][0] == seen[-1][1] and len({m for _, _, m in seen}) >= 3
+    with pytest.raises(Cancelled):
+        parallel.call_in_process(build_mixer_bytes, (keys, F), progress=lambda done, total, message: done >= 1)
+    assert not parallel._RUNNING
+    with pytest.raises(InputError, match="keys"):
+        parallel.call_in_process(build_mixer_bytes, (keys[:1], F))

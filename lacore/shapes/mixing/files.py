@@ -5,6 +5,7 @@ finiteness and raises :class:`MixerError` naming the file and what to do.
 """
 
 import os
+import tempfile
 
 import numpy as np
 
@@ -12,7 +13,7 @@ from ...errors import InputError
 from ...io.atomic import save_npz_atomic
 from ...io.npz import open_npz, read_array
 
-__all__ = ["save_mixer", "load_mixer", "FORMAT", "FORMAT_VERSION"]
+__all__ = ["save_mixer", "load_mixer", "mixer_bytes", "build_mixer_bytes", "FORMAT", "FORMAT_VERSION"]
 
 #: Value of the ``format`` entry of a saved mixer.
 FORMAT = "lacore.shape_mixer"
@@ -108,3 +109,18 @@ def load_mixer(cls, path):
     mixer._cubature = mixer._make_energy(edges, c)
     mixer.build_seconds = dict(zip(stages.tolist(), secs.tolist(), strict=True))
     return mixer
+
+
+def mixer_bytes(mixer):
+    """The file :func:`save_mixer` writes for ``mixer``, as bytes (``ShapeMixer.load(io.BytesIO(data))`` reads it)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = save_mixer(mixer, os.path.join(tmp, "mixer.npz"))
+        with open(path, "rb") as fh:
+            return fh.read()
+
+
+def build_mixer_bytes(keys, faces, options=None, *, progress=None):
+    """:meth:`ShapeMixer.build` returning :func:`mixer_bytes`: what crosses a process boundary
+    (:func:`lacore.parallel.call_in_process`; a built mixer holds sparse factorizations, which do not pickle)."""
+    from .mixer import ShapeMixer
+    return mixer_bytes(ShapeMixer.build(keys, faces, options, progress=progress))
