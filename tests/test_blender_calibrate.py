@@ -64,10 +64,9 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
     q = res["quality"]
     curve = a["rms_curve"]
     assert np.array_equal(curve[:, 0], np.arange(1, N_FRAMES + 1))
-    # lacore's residuals (the stored curve) and those of the played-back mesh with the stored binding: measured
-    # 0.6-0.9 mm apart (the binding's offsets at the model's size on the body at the performer's size)
-    print("BINDING-DIFF", np.abs(curve[:, 1] - frame_rms).max())
-    assert np.allclose(curve[:, 1], frame_rms, rtol=0.0, atol=2.0), (curve[:, 1], frame_rms)
+    # lacore's residuals (the stored curve) are those of the played-back mesh with the stored binding (offsets at
+    # the performer's size): measured 1.2e-5 mm apart (float32 vertices)
+    assert np.allclose(curve[:, 1], frame_rms, rtol=0.0, atol=0.01), (curve[:, 1], frame_rms)
     assert q["frame_start"] == 1 and q["frame_end"] == N_FRAMES and q["prior_weight"] > 0
     assert q["marker_rms_mm"] < 25.0, q  # the goal is 6 mm on the fine body with 30 poses
     assert res["panel_texts"] and res["panel_texts"][0].startswith("Fit of")
