@@ -195,6 +195,8 @@ def test_modal_build_and_cancel(run):
     assert res["finished"]["reports"] == ["INFO"]
     assert res["cancelled"] == ["CANCELLED"] and res["unchanged"], res
     assert res["cancel_reports"] == [["WARNING", "Cancelled: nothing was changed"]]
+    # the build ran in a worker process, killed by Esc within a poll (0.1 s) and a kill: measured 0.1-0.2 s
+    assert res["workers_started"] == 1 and res["workers_left"] == 0 and res["cancel_seconds"] < 2.0, res
 
 
 def test_animation_and_still_renders_show_the_mix(run):

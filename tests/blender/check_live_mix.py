@@ -414,7 +414,8 @@ def bad_input():
 
 
 def modal_run_and_cancel():
-    """From the UI the mixer is built in the worker thread (timer events drive modal()); Esc writes nothing."""
+    """From the UI the mixer is built in a worker process (timer events drive modal()); Esc kills it at once and
+    writes nothing."""
     runs = ext("runs")
     reset()
     obj = make_bar()
@@ -432,11 +433,16 @@ def modal_run_and_cancel():
     before = snapshot(obj)
     op, run = fake_operator(), ext("live_mix").enable_run(obj)
     op._begin_modal(bpy.context, run)
-    op.modal(bpy.context, timer(op))  # the build starts in the worker thread
+    op.modal(bpy.context, timer(op))  # the build starts in a worker process (from the worker thread)
+    time.sleep(1.0)
+    parallel = importlib.import_module(f"{MODULE}.lacore.parallel")
+    started = len(parallel._RUNNING)
+    t = time.perf_counter()
     cancelled = op.modal(bpy.context, esc())
     runs.wait_for_worker_thread()
     return {"finished": finished, "cancelled": sorted(cancelled), "cancel_reports": op.reports,
-            "unchanged": snapshot(obj) == before}
+            "unchanged": snapshot(obj) == before, "workers_started": started,
+            "workers_left": len(parallel._RUNNING), "cancel_seconds": time.perf_counter() - t}
 
 
 def render_png(scene, path, animation=False):
