@@ -30,15 +30,13 @@ Solver
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; with CHOLMOD
     the Schur complement ``B^T A^-1 B = W^T D^-1 W``, ``W = L^-1 P B``, takes ``J`` forward
-    substitutions only.  After a step with a fresh factorization up to :data:`CHORD_STEPS`
-    steps reuse it with the exact gradient.  Armijo backtracking.  The compression
+    substitutions only.  Armijo backtracking.  The compression
     safeguard's Gauss-Newton term also covers faces within :data:`COMPRESSION_MARGIN` of
     the ratio, so a step does not crush a face the penalty does not see yet (without it the
     first step of a frame was cut to 1/8 or 1/16 and frames took more steps).
     A frame has converged when a step moved no marker's surface point by more than
     :attr:`FitOptions.marker_tolerance` times ``l`` (after two steps), or the energy decreased
-    by less than ``ftol`` relative with such a move, or the next step computed with the
-    current factorization would move no marker by more than that: the
+    by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
     ``W_q`` without moving the markers.
 Start
@@ -85,13 +83,10 @@ ANCHOR_WEIGHT = 1.0
 COLD_START_FACTOR = 4
 _SEVERITY = {-2: 5, 1: 2, 2: 3, 0: 0}
 _I9, _J9 = np.triu_indices(9)
-#: Steps after a fresh factorization that reuse it (exact gradient; ``benchmarks/bench_fit_takes.py``).
-CHORD_STEPS = 3
 #: The compression safeguard's Gauss-Newton term also covers faces this far (in area ratio) above
 #: ``compression_ratio``: a step then does not crush a face the penalty does not see yet.
 COMPRESSION_MARGIN = 0.1
-_FULL_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625)
-_CHORD_STEPS = (1.0, 0.5)
+_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625)
 
 
 @dataclass(frozen=True)
@@ -539,9 +534,6 @@ class FrameSolver:
         """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``.
 
         ``max_iterations`` overrides the options' bound (a cold start needs more steps).
-        After every step with a fresh factorization, up to :data:`CHORD_STEPS` steps reuse it
-        with the exact gradient; the first of them also tells convergence: when it would move
-        no marker by more than the tolerance, the frame has converged without a new factorization.
         """
         o = self.options
         limit = o.max_iterations if max_iterations is None else int(max_iterations)
@@ -563,7 +555,7 @@ class FrameSolver:
                 return X, a, -2, it, E0
             dX, da = self.step(gX, ga)
             it += 1
-            found = self._line_search(X, a, dX, da, float(gX @ dX + ga @ da), E0, y, vis, _FULL_STEPS)
+            found = self._line_search(X, a, dX, da, float(gX @ dX + ga @ da), E0, y, vis, _STEPS)
             if found is None:
                 if fresh:                      # no decrease even with a fresh matrix: converged at this precision
                     status = 0
@@ -572,33 +564,11 @@ class FrameSolver:
                 continue
             X, a, Et, t = found
             dec, E0, fresh = E0 - Et, Et, False
-            need = True                        # the next round refactorizes (after the chord steps)
+            need = True                        # full Gauss-Newton: a stale factor only adds failed steps
             schur = t < 1.0 or it % 3 == 0     # a cut step or every third: the Schur solves afresh too
             P1 = surface_points(X, self.faces, sub)
             move, P0 = _largest_move(P1, P0), P1
             if move <= tol and (it >= 2 or dec <= o.ftol * E0):
-                status = 0
-                break
-            converged = False
-            for _ in range(CHORD_STEPS):       # steps with this factorization and the exact gradient
-                if it >= limit:
-                    break
-                gX, ga = self.gradient(X, a, y, vis)
-                dX, da = self.step(gX, ga)
-                if _largest_move(surface_points(X + dX.reshape(-1, 3), self.faces, sub), P0) <= tol:
-                    converged = True           # the next step would move no marker by more than tol
-                    break
-                found = self._line_search(X, a, dX, da, float(gX @ dX + ga @ da), E0, y, vis, _CHORD_STEPS)
-                if found is None:
-                    break
-                it += 1
-                X, a, E0, _ = found
-                P1 = surface_points(X, self.faces, sub)
-                move, P0 = _largest_move(P1, P0), P1
-                if move <= tol:
-                    converged = True
-                    break
-            if converged:
                 status = 0
                 break
         return X, a, status, it, E0
