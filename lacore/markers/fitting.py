@@ -32,8 +32,8 @@ Solver
     the Schur complement ``B^T A^-1 B = W^T D^-1 W``, ``W = L^-1 P B``, takes ``J`` forward
     substitutions only.  Armijo backtracking.  The compression
     safeguard's Gauss-Newton term also covers faces within :data:`COMPRESSION_MARGIN` of
-    the ratio, so a step does not crush a face the penalty does not see yet (without it the
-    first step of a frame was cut to 1/8 or 1/16 and frames took more steps).
+    the ratio, so a step does not crush a face the penalty does not see yet (full steps are
+    then accepted where the line search would cut them to 1/8 or 1/16).
     A frame has converged when a step moved no marker's surface point by more than
     :attr:`FitOptions.marker_tolerance` times ``l`` (after two steps), or the energy decreased
     by less than ``ftol`` relative with such a move: the
@@ -479,8 +479,8 @@ class FrameSolver:
     def factorize(self, X, a, y, vis, schur=True):
         """Gauss-Newton matrix at ``(X, a)``: sparse factor and Schur complement; returns the gradients.
 
-        ``schur=False`` keeps the previous border ``B``, ``A^-1 B`` and Schur complement (``J``
-        solves saved; the step is then inexact, the gradient exact).
+        ``schur=False`` keeps the previous border ``B`` and Schur complement (``J`` solves
+        saved; the step is then inexact, the gradient exact).
         """
         gX, ga, vals, B = self.gradient(X, a, y, vis, matrix=True)
         if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(gX)) and np.all(np.isfinite(B))):
