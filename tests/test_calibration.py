@@ -161,6 +161,22 @@ def _copy(model, **changes):
     return m
 
 
+def test_calibration_reports_progress_while_tracking_and_stops_on_cancel(model):
+    """The tracking stage reports every tracked frame (a Blender Esc is honoured between them, not after ~30 s)."""
+    from lacore.progress import Cancelled
+    take = read("Walk1.c3d")
+    seen = []
+
+    def progress(done, total, message):
+        seen.append(message)
+        return "tracking the starting poses: frame 3/" in message
+
+    with pytest.raises(Cancelled):
+        calibrate(model, take, progress=progress)
+    tracking = [m for m in seen if m.startswith("tracking the starting poses: frame")]
+    assert [m.split("/")[0] for m in tracking] == [f"tracking the starting poses: frame {i}" for i in (1, 2, 3)]
+
+
 def test_calibration_saves_and_loads(model, tmp_path):
     take = excerpt(read("Static_Pose.c3d"), 8)
     cal = calibrate(model, take)

@@ -304,6 +304,43 @@ class SparseCholesky:
             return np.diff(np.asarray(L.CCS[0]).ravel()).astype(np.int64)
         return np.diff(self._factor.L.tocsc().indptr).astype(np.int64)
 
+    @property
+    def has_triangular_solves(self):
+        """Whether :meth:`forward`, :meth:`diagonal_solve` and :meth:`backward` are available (CHOLMOD)."""
+        return self.backend == "cholmod"
+
+    def _cholmod_sys(self, b, systems):
+        if self._factor is None:
+            raise RuntimeError("factorize() must succeed before solve()")
+        if not self.has_triangular_solves:
+            raise NotImplementedError("triangular solves need the CHOLMOD backend")
+        b = np.asarray(b, dtype=np.float64)
+        if b.shape[0] != self.n:
+            raise ValueError(f"right-hand side has {b.shape[0]} rows, the matrix {self.n}")
+        cvxopt = self._cvxopt
+        B = cvxopt.matrix(b.reshape(self.n, -1))
+        for sys_ in systems:
+            cvxopt.cholmod.solve(self._factor, B, sys=sys_)
+        return np.array(B).reshape(b.shape)
+
+    def forward(self, b):
+        """``L^-1 P b`` for the factorization ``P A P^T = L D L^T`` (``D = I`` for a supernodal ``L L^T``).
+
+        With :meth:`diagonal_solve` and :meth:`backward`: ``A^-1 b = backward(diagonal_solve(forward(b)))``,
+        and ``b^T A^-1 c = forward(b)^T diagonal_solve(forward(c))``: a quadratic form in
+        ``A^-1`` over ``k`` right-hand sides costs ``k`` forward substitutions only.
+        CHOLMOD backend only (:attr:`has_triangular_solves`).
+        """
+        return self._cholmod_sys(b, (7, 4))
+
+    def diagonal_solve(self, w):
+        """``D^-1 w`` (see :meth:`forward`; a copy of ``w`` for an ``L L^T`` factor)."""
+        return self._cholmod_sys(w, (6,))
+
+    def backward(self, w):
+        """``P^T L^-T w`` (see :meth:`forward`)."""
+        return self._cholmod_sys(w, (5, 8))
+
     def solve(self, b):
         """Solve ``A x = b`` with the last factorization; ``b`` of shape (n,) or (n, k)."""
         if self._factor is None:

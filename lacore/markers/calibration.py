@@ -595,8 +595,12 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     track = np.unique(np.concatenate([span[::stride], frames]))
     yt = y[track].copy()
     yt[:, ~pinned] = np.nan
+    def tracking_progress(done, total, message):       # Esc is honoured between tracked frames
+        return progress(1, n_steps, f"tracking the starting poses: {message}")
+
     tr = fit_markers(model, yt, binding, FIT_DEFAULTS, prior_weight=o.track_prior_weight, max_iterations=10,
-                     temporal_weight=10.0, rate=FIT_DEFAULTS.reference_rate, initial_vertices=X0)
+                     temporal_weight=10.0, rate=FIT_DEFAULTS.reference_rate, initial_vertices=X0,
+                     progress=None if progress is None else tracking_progress)
     sel = np.searchsorted(track, frames)
     Xs, As = tr.vertices[sel].copy(), tr.coefficients[sel].copy()
     timings["tracking"] = time.perf_counter() - t_start - timings["placement"]
@@ -628,6 +632,8 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         solver = FrameSolver(model, binding, options_cal, temporal=0.0, extra_modes=D if nD else None,
                              extra_penalty=penalty if nD else 0.0, mean_z=mean_z)
         for i, f in enumerate(frames):
+            if i:
+                report(progress, 1 + r, n_steps, f"binding round {r} of {o.rounds}: frame {i + 1}/{len(frames)}")
             Xs[i], As[i], _, it, _ = solver.solve_frame(Xs[i], As[i], y[f])
             round_iterations += it
             P = surface_points(Xs[i], F, binding)
