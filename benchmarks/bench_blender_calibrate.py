@@ -89,7 +89,7 @@ def main(argv=None):
     assert bpy.ops.lengths_angles.calibrate_fit() == {"FINISHED"}
     t_fit = time.perf_counter() - t
     end_to_end = time.perf_counter() - t0
-    quality = obj[fit_ops.FIT_PROP].to_dict()
+    quality = obj[pkg.addon.fit_quality.FIT_PROP].to_dict()
     binding = obj[fit_ops.BINDING_PROP].to_dict()
     meta = obj.data[fit_ops.MODEL_PROP].to_dict()
     t_refit = None

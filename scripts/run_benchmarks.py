@@ -74,6 +74,7 @@ BENCHMARKS = {
                                            json_option=True, long=True),
     "bench_blender_live_mix": Benchmark(blender=True, json_option=True, long=True),
     "bench_blender_mixer_inbetweens": Benchmark(full=("bar50k",), blender=True, json_option=True, long=True),
+    "bench_blender_calibrate": Benchmark(blender=True, long=True),
 }
 
 

@@ -234,6 +234,13 @@ def test_bench_blocks_match_the_stored_runs():
         assert "Machine: " in block and "| " in block  # a table, and the machine it ran on
 
 
+def test_every_benchmark_script_is_run_by_make_bench():
+    """A script under benchmarks/ that run_benchmarks does not know never gets a stored run (and can rot)."""
+    import run_benchmarks
+    scripts = sorted(p.stem for p in (REPO / "benchmarks").glob("bench_*.py") if p.stem != "bench_common")
+    assert scripts == sorted(run_benchmarks.BENCHMARKS)
+
+
 def test_benchmarks_md_matches_the_stored_runs():
     path = REPO / "docs" / "benchmarks.md"
     assert path.read_text() == benchmark_docs.render_benchmarks_md(), \
