@@ -33,7 +33,8 @@ def write_quality(obj, frames, result, labels, unit, take_name):
       (LINEAR; frames without a visible marker get no key), so the Graph Editor and the Dope Sheet show
       where the fit is poor (an existing curve of that property is replaced);
     * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm: per-frame values averaged over the take),
-      prior weight, flagged frames and markers.
+      prior weight, flagged frames and markers, frames where the surface passes through itself and the markers
+      do not (:func:`lacore.markers.interpenetration.new_self_intersections`).
 
     Returns ``{"text": report text, "notes": [warning texts]}``.
     """
@@ -54,10 +55,12 @@ def write_quality(obj, frames, result, labels, unit, take_name):
     flagged_frames = [int(frames[t]) for t in getattr(result, "flagged_frames", [])]
     flagged_markers = [labels[m] if isinstance(m, (int, np.integer)) else str(m)
                        for m in getattr(result, "flagged_markers", [])]
+    crossing = [int(frames[t]) for t in getattr(result, "self_intersection_frames", [])]
     prior = float(getattr(result, "prior_weight", float("nan")))
     obj[FIT_PROP] = {"take": take_name, "frame_start": int(frames[0]), "frame_end": int(frames[-1]),
                      "marker_rms_mm": overall, "marker_p95_mm": p95, "prior_weight": prior,
                      "flagged_frames": flagged_frames, "flagged_markers": flagged_markers,
+                     "self_intersection_frames": crossing,
                      "success": bool(getattr(result, "success", True))}
     for name in ("calibration_seconds", "seconds_per_frame"):  # lacore's timings, where it states them
         value = getattr(result, name, None)
@@ -80,6 +83,9 @@ def write_quality(obj, frames, result, labels, unit, take_name):
         notes.append(f"residuals far above marker noise at {len(flagged_frames)} frames "
                      f"({_listing(flagged_frames)}) and for {len(flagged_markers)} markers "
                      f"({_listing(flagged_markers)}): inspect them")
+    if crossing:
+        notes.append(f"the surface passes through itself where the markers do not at {len(crossing)} frames "
+                     f"({_listing(crossing)}): inspect them")
     if not getattr(result, "success", True):
         notes.append(f"the fit did not succeed: {getattr(result, 'message', '')}")
     return {"text": text, "notes": notes, "rms": rms, "marker_rms_mm": overall, "marker_p95_mm": p95}
