@@ -301,13 +301,13 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         text = _write_fit(obj, np.asarray(X, np.float64), frames, 'PC2', filepath, path)
         if built is not None:
             _store_built_model(obj, m, built["keys"])
-        cal = res.calibration
+        cal, b = res.calibration, res.binding
         bound = list(res.labels)
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
             "frame": int(frames[0]), "calibrated": True,
-            "faces": res.binding.faces.tolist(), "barycentric": res.binding.barycentric.ravel().tolist(),
-            "offsets": res.binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            "faces": b.faces.tolist(), "barycentric": b.barycentric.ravel().tolist(), "offsets": b.offsets.tolist(),
+            "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": [lb for lb in labels if lb not in bound],
             "performer_ratio": float(cal.performer_ratio),
         }
