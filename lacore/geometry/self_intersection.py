@@ -321,18 +321,22 @@ def _candidate_pairs(lo, hi):
     # the pairs (p, p + d) of the sweep, one offset d at a time; kept in the column of the low corner
     # of the boxes' overlap (each pair once) if the boxes overlap on the other two axes
     out_a, out_b = [], []
-    p = np.flatnonzero(count > 0)
-    p = p[np.argsort(-count[p], kind="stable")].astype(np.int32)   # active at offset d: a prefix
-    active = np.searchsorted(-count[p], -np.arange(1, count.max(initial=0) + 1), side="right")
-    fp, bits = face[p], first[p]
-    for d, m in enumerate(active, start=1):
-        q = p[:m] + d
-        fq = face[q]
-        own = (bits[:m] | first[q]) == 3
-        a, b = fp[:m][own], fq[own]
-        keep = (ylo[a] <= yhi[b]) & (ylo[b] <= yhi[a]) & (zlo[a] <= zhi[b]) & (zlo[b] <= zhi[a])
-        out_a.append(a[keep])
-        out_b.append(b[keep])
+
+    def keep(p, q):
+        own = (first[p] | first[q]) == 3
+        a, b = face[p[own]], face[q[own]]
+        box = (ylo[a] <= yhi[b]) & (ylo[b] <= yhi[a]) & (zlo[a] <= zhi[b]) & (zlo[b] <= zhi[a])
+        out_a.append(a[box])
+        out_b.append(b[box])
+
+    p = np.flatnonzero(count > 0).astype(np.int32)
+    for d in range(1, 9):                                           # the first offsets: most entries
+        keep(p, p + d)
+        p = p[count[p] > d]
+    if len(p):                                                      # the rest at once
+        c = count[p] - 8
+        q = np.repeat(p + 8, c) + 1 + np.arange(c.sum(), dtype=np.int32) - np.repeat(np.cumsum(c) - c, c)
+        keep(np.repeat(p, c), q)
     a, b = np.concatenate(out_a or [empty[0]]), np.concatenate(out_b or [empty[0]])
     return np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
 
