@@ -321,13 +321,13 @@ def _candidate_pairs(lo, hi):
     # the pairs (p, p + d) of the sweep, one offset d at a time; kept in the column of the low corner
     # of the boxes' overlap (each pair once) if the boxes overlap on the other two axes
     out_a, out_b = [], []
+    ylo_, yhi_, zlo_, zhi_ = ylo[face], yhi[face], zlo[face], zhi[face]   # per entry, in sweep order
 
     def keep(p, q):
-        own = (first[p] | first[q]) == 3
-        a, b = face[p[own]], face[q[own]]
-        box = (ylo[a] <= yhi[b]) & (ylo[b] <= yhi[a]) & (zlo[a] <= zhi[b]) & (zlo[b] <= zhi[a])
-        out_a.append(a[box])
-        out_b.append(b[box])
+        k = np.flatnonzero(((first[p] | first[q]) == 3) & (ylo_[p] <= yhi_[q]) & (ylo_[q] <= yhi_[p])
+                           & (zlo_[p] <= zhi_[q]) & (zlo_[q] <= zhi_[p]))
+        out_a.append(face[p[k]])
+        out_b.append(face[q[k]])
 
     p = np.flatnonzero(count > 0).astype(np.int32)
     for d in range(1, 9):                                           # the first offsets: most entries
