@@ -205,9 +205,9 @@ def _search(X, F, stars):
     Ft = np.ascontiguousarray(F.T)
     shared = np.zeros(len(a), bool)
     for s in range(3):
-        fa = Ft[s][a]
+        fa = np.take(Ft[s], a)
         for t in range(3):
-            shared |= fa == Ft[t][b]
+            shared |= fa == np.take(Ft[t], b)
     a, b = a[~shared], b[~shared]
     hit = _triangles_cross(fc, a, b)
     out = np.concatenate([np.stack([a[hit], b[hit]], axis=1), np.stack([i[hit1], j[hit1]], axis=1)])
@@ -240,7 +240,7 @@ class _Faces:
         P = np.empty((3, 3, len(F)))
         for k in range(3):
             for c in range(3):
-                P[k, c] = Xt[c][Ft[k]]
+                np.take(Xt[c], Ft[k], out=P[k, c])
         self.P = P
         self.lo = np.minimum(np.minimum(P[0], P[1]), P[2]).T
         self.hi = np.maximum(np.maximum(P[0], P[1]), P[2]).T
@@ -276,7 +276,7 @@ class _Faces:
         turn = np.zeros(n_vertices)
         flat = np.zeros(n_vertices)
         for k in range(3):
-            u = unit[:, Ft[k]]                                      # (3, F): the vertex normal at corner k
+            u = np.take(unit, Ft[k], axis=1)                        # (3, F): the vertex normal at corner k
             e1, e2 = E[k], -E[(k + 2) % 3]                          # x_{k+1} - x_k, x_{k+2} - x_k
             y = _dot(u, N)                                          # n . (e1 x e2)
             x = _dot(e1, e2) - _dot(e1, u) * _dot(e2, u)            # projected e1 . projected e2
@@ -307,27 +307,28 @@ def _candidate_pairs(lo, hi):
     rows = int(z1.max()) + 1
     face = np.repeat(np.arange(len(lo), dtype=np.int32), n)
     k = np.arange(len(face), dtype=np.int32) - np.repeat((np.cumsum(n) - n).astype(np.int32), n)
-    nzf = nz[face]
+    nzf = np.take(nz, face)
     ky, kz = k // nzf, k % nzf                                      # the column within the box
-    column = (y0[face] + ky) * rows + z0[face] + kz
+    column = (np.take(y0, face) + ky) * rows + np.take(z0, face) + kz
     first = (ky == 0).view(np.uint8) | ((kz == 0).view(np.uint8) << 1)   # the box starts there (per axis)
     # sort and sweep along x in each column: keys column + [0, 1/2], a monotone map (safe under rounding)
     scale = 0.5 / float(span[x]) if span[x] > 0 else 0.0
-    key = column + (lo[:, x] - origin[x])[face] * scale
+    key = column + np.take((lo[:, x] - origin[x]) * scale, face)
     order = np.argsort(key)
-    key, face, first = key[order], face[order], first[order]
-    bound = column[order] + (hi[:, x] - origin[x])[face] * scale
+    key, face, first = np.take(key, order), np.take(face, order), np.take(first, order)
+    bound = np.take(column, order) + np.take((hi[:, x] - origin[x]) * scale, face)
     count = np.searchsorted(key, bound, side="right") - np.arange(len(key)) - 1
     # the pairs (p, p + d) of the sweep, one offset d at a time; kept in the column of the low corner
     # of the boxes' overlap (each pair once) if the boxes overlap on the other two axes
     out_a, out_b = [], []
-    ylo_, yhi_, zlo_, zhi_ = ylo[face], yhi[face], zlo[face], zhi[face]   # per entry, in sweep order
+    ylo_, yhi_, zlo_, zhi_ = (np.take(v, face) for v in (ylo, yhi, zlo, zhi))   # per entry, in sweep order
 
     def keep(p, q):
-        k = np.flatnonzero(((first[p] | first[q]) == 3) & (ylo_[p] <= yhi_[q]) & (ylo_[q] <= yhi_[p])
-                           & (zlo_[p] <= zhi_[q]) & (zlo_[q] <= zhi_[p]))
-        out_a.append(face[p[k]])
-        out_b.append(face[q[k]])
+        t = np.take
+        k = np.flatnonzero(((t(first, p) | t(first, q)) == 3) & (t(ylo_, p) <= t(yhi_, q)) & (t(ylo_, q) <= t(yhi_, p))
+                           & (t(zlo_, p) <= t(zhi_, q)) & (t(zlo_, q) <= t(zhi_, p)))
+        out_a.append(t(face, t(p, k)))
+        out_b.append(t(face, t(q, k)))
 
     p = np.flatnonzero(count > 0).astype(np.int32)
     for d in range(1, 9):                                           # the first offsets: most entries
@@ -346,8 +347,8 @@ def _candidate_pairs(lo, hi):
 
 def _plane_distances(fc, f, Q):
     """Signed distances ``(K, P)`` of the points ``Q (K, 3, P)`` to the planes of faces ``f (P,)``."""
-    n = fc.normal[:, f]
-    return Q[:, 0] * n[0] + Q[:, 1] * n[1] + Q[:, 2] * n[2] - fc.offset[f]
+    n = np.take(fc.normal, f, axis=1)
+    return Q[:, 0] * n[0] + Q[:, 1] * n[1] + Q[:, 2] * n[2] - np.take(fc.offset, f)
 
 
 def _crosses_plane(d, eps):
@@ -365,13 +366,13 @@ def _triangles_cross(fc, i, j):
     eps = TOLERANCE * np.maximum(fc.size[i], fc.size[j])
     keep = fc.ok[i] & fc.ok[j]
     idx, i, j, eps = np.flatnonzero(keep), i[keep], j[keep], eps[keep]
-    keep = _crosses_plane(_plane_distances(fc, i, fc.P[:, :, j]), eps)
+    keep = _crosses_plane(_plane_distances(fc, i, np.take(fc.P, j, axis=2)), eps)
     idx, i, j, eps = idx[keep], i[keep], j[keep], eps[keep]
-    A, B = fc.P[:, :, i], fc.P[:, :, j]                             # (3, 3, P)
+    A, B = np.take(fc.P, i, axis=2), np.take(fc.P, j, axis=2)       # (3, 3, P)
     keep = _crosses_plane(_plane_distances(fc, j, A), eps)
     idx, i, j, eps, A, B = idx[keep], i[keep], j[keep], eps[keep], A[:, :, keep], B[:, :, keep]
     # the separating-axis test on the nine axes edge of A x edge of B, all at once
-    eA, eB = fc.E[:, :, i][:, None], fc.E[:, :, j][None]           # (3 s, 1, 3, P), (1, 3 t, 3, P)
+    eA, eB = np.take(fc.E, i, axis=2)[:, None], np.take(fc.E, j, axis=2)[None]   # (3 s, 1, 3, P), (1, 3 t, 3, P)
     axis = np.stack([eA[:, :, 1] * eB[:, :, 2] - eA[:, :, 2] * eB[:, :, 1],
                      eA[:, :, 2] * eB[:, :, 0] - eA[:, :, 0] * eB[:, :, 2],
                      eA[:, :, 0] * eB[:, :, 1] - eA[:, :, 1] * eB[:, :, 0]], axis=2)   # (3, 3, 3, P)
