@@ -158,19 +158,18 @@ class _Stars:
         n = int(n_vertices)
         F = np.asarray(F, np.int64)
         v = F.ravel()
-        a = np.roll(F, -1, axis=1).ravel()
-        b = np.roll(F, -2, axis=1).ravel()
+        a = F[:, [1, 2, 0]].ravel()
+        b = F[:, [2, 0, 1]].ravel()
         key_a = v * n + a
-        corner = np.argsort(key_a)                                  # corners grouped by vertex
+        corner = _argsort(key_a, n * n)                             # corners grouped by vertex
         sorted_a = key_a[corner]
         self.valence = np.bincount(v, minlength=n)
         self.start = np.cumsum(self.valence) - self.valence
         self.corner = corner
         closed = self.valence >= 3
         closed[v[corner[1:][sorted_a[1:] == sorted_a[:-1]]]] = False          # a neighbour twice as a start
-        key_b = v * n + b
-        pos = np.minimum(np.searchsorted(sorted_a, key_b), len(sorted_a) - 1)
-        closed[v[sorted_a[pos] != key_b]] = False                   # an end that is no face's start
+        sorted_b = np.sort(v * n + b)                               # the same groups: equal iff the same ends
+        closed[sorted_a[sorted_a != sorted_b] // n] = False
         degenerate = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
         closed[F[degenerate].ravel()] = False
         self.closed = closed
@@ -189,6 +188,14 @@ class _Stars:
         ap, bp, aq, bq = F[fp, (kp + 1) % 3], F[fp, (kp + 2) % 3], F[fq, (kq + 1) % 3], F[fq, (kq + 2) % 3]
         one = ~((ap == aq) | (ap == bq) | (bp == aq) | (bp == bq)) & (fp != fq)   # else they share an edge
         return np.stack([fp[one], kp[one], fq[one], kq[one]])
+
+
+def _argsort(key, bound):
+    """Stable ``argsort`` of non-negative integers ``key < bound`` (two 16-bit radix passes when they fit 32 bits)."""
+    if bound > 2 ** 32:
+        return np.argsort(key, kind="stable")
+    low = np.argsort((key & 0xFFFF).astype(np.uint16), kind="stable")
+    return low[np.argsort((key >> 16).astype(np.uint16)[low], kind="stable")]
 
 
 # ----------------------------------------------------------------------------- search
