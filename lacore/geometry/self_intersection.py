@@ -312,18 +312,20 @@ def _candidate_pairs(lo, hi):
     nz = z1 - z0 + 1
     n = (y1 - y0 + 1) * nz                                          # columns per box
     rows = int(z1.max()) + 1
-    face = np.repeat(np.arange(len(lo), dtype=np.int32), n)
+    by_x = np.argsort(lo[:, x]).astype(np.int32)                   # boxes by their low end along x
+    n = n[by_x]
+    face = np.repeat(by_x, n)
     k = np.arange(len(face), dtype=np.int32) - np.repeat((np.cumsum(n) - n).astype(np.int32), n)
     nzf = np.take(nz, face)
     ky, kz = k // nzf, k % nzf                                      # the column within the box
     column = (np.take(y0, face) + ky) * rows + np.take(z0, face) + kz
     first = (ky == 0).view(np.uint8) | ((kz == 0).view(np.uint8) << 1)   # the box starts there (per axis)
     # sort and sweep along x in each column: keys column + [0, 1/2], a monotone map (safe under rounding)
+    order = _argsort(column, (int(y1.max()) + 1) * rows)          # stable: by column, then along x
+    column, face, first = np.take(column, order), np.take(face, order), np.take(first, order)
     scale = 0.5 / float(span[x]) if span[x] > 0 else 0.0
     key = column + np.take((lo[:, x] - origin[x]) * scale, face)
-    order = np.argsort(key)
-    key, face, first = np.take(key, order), np.take(face, order), np.take(first, order)
-    bound = np.take(column, order) + np.take((hi[:, x] - origin[x]) * scale, face)
+    bound = column + np.take((hi[:, x] - origin[x]) * scale, face)
     count = np.searchsorted(key, bound, side="right") - np.arange(len(key)) - 1
     # the pairs (p, p + d) of the sweep, kept in the column of the low corner of the boxes' overlap (each
     # pair once) if the boxes overlap on the other two axes: the offsets d that at least a tenth of the
