@@ -157,6 +157,7 @@ class _Stars:
     def __init__(self, F, n_vertices):
         n = int(n_vertices)
         F = np.asarray(F, np.int64)
+        self.Ft = np.ascontiguousarray(F.T, dtype=np.int32 if n < 2 ** 31 else np.int64)   # (3, F)
         v = F.ravel()
         a = F[:, [1, 2, 0]].ravel()
         b = F[:, [2, 0, 1]].ravel()
@@ -203,18 +204,18 @@ def _argsort(key, bound):
 
 def _search(X, F, stars):
     """The intersecting face pairs at positions ``X``, sorted ``(P, 2)``."""
-    fc = _Faces(X, F)
+    Ft = stars.Ft
+    fc = _Faces(X, Ft)
     # faces sharing one vertex, where the fan around it is not a graph
-    i, ci, j, cj = stars.pairs(F, np.flatnonzero(~fc.graph_fans(F, stars.closed)))
+    i, ci, j, cj = stars.pairs(F, np.flatnonzero(~fc.graph_fans(Ft, stars.closed)))
     hit1 = _edge_crosses(fc, i, ci, j) | _edge_crosses(fc, j, cj, i)
     # faces sharing no vertex
     a, b = _candidate_pairs(fc.lo, fc.hi) if len(F) > 1 else (np.zeros(0, np.int64),) * 2
-    Ft = np.ascontiguousarray(F.T)
+    A, B = [np.take(f, a) for f in Ft], [np.take(f, b) for f in Ft]
     shared = np.zeros(len(a), bool)
     for s in range(3):
-        fa = np.take(Ft[s], a)
         for t in range(3):
-            shared |= fa == np.take(Ft[t], b)
+            shared |= A[s] == B[t]
     a, b = a[~shared], b[~shared]
     hit = _triangles_cross(fc, a, b)
     out = np.concatenate([np.stack([a[hit], b[hit]], axis=1), np.stack([i[hit1], j[hit1]], axis=1)])
@@ -241,10 +242,9 @@ class _Faces:
     and ``ok`` (non-degenerate) ``(F,)``.
     """
 
-    def __init__(self, X, F):
+    def __init__(self, X, Ft):
         Xt = np.ascontiguousarray(X.T)
-        Ft = np.ascontiguousarray(F.T)
-        P = np.empty((3, 3, len(F)))
+        P = np.empty((3, 3, Ft.shape[1]))
         for k in range(3):
             for c in range(3):
                 np.take(Xt[c], Ft[k], out=P[k, c])
@@ -264,7 +264,7 @@ class _Faces:
         self.sq_edges = np.stack([_dot(E[k], E[k]) for k in range(3)])          # (3, F)
         self.size = np.sqrt(self.sq_edges.max(axis=0))
 
-    def graph_fans(self, F, closed):
+    def graph_fans(self, Ft, closed):
         """Vertices ``(V,)`` whose closed fan is a graph over the plane normal to the vertex normal.
 
         Every face ``(v, a, b)`` of the fan faces the side of the (area-weighted) vertex
@@ -273,7 +273,6 @@ class _Faces:
         """
         n_vertices = len(closed)
         N, E = self.cross, self.E
-        Ft = np.ascontiguousarray(F.T)
         normal = np.zeros((3, n_vertices))
         for c in range(3):
             for k in range(3):
@@ -297,7 +296,7 @@ class _Faces:
 
 def _candidate_pairs(lo, hi):
     """Pairs ``(a, b)`` of the boxes ``lo, hi (F, 3)`` that overlap (each pair once; module docstring)."""
-    empty = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    empty = np.zeros(0, np.int32), np.zeros(0, np.int32)
     h = float((hi - lo).max(axis=1).mean())
     span = hi.max(axis=0) - lo.min(axis=0)
     if not (np.isfinite(h) and np.isfinite(span).all()) or h <= 0:
@@ -354,7 +353,7 @@ def _candidate_pairs(lo, hi):
         out_a.append(t(face, t(p, k)))
         out_b.append(t(face, t(q, k)))
     a, b = np.concatenate(out_a or [empty[0]]), np.concatenate(out_b or [empty[0]])
-    return np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
+    return np.minimum(a, b), np.maximum(a, b)
 
 
 # ----------------------------------------------------------------------------- exact tests
