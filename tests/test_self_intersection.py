@@ -95,6 +95,15 @@ def test_touching_is_not_crossing(other):
     assert self_intersections(V, [[0, 1, 2], [3, 4, 5]]).shape == (0, 2)
 
 
+def test_degenerate_faces_never_intersect():
+    V = np.array([[0.0, 0, 0], [2, 0, 0], [0, 2, 0],
+                  [0.5, 0.5, -1], [0.5, 0.5, 1], [0.5, 0.5, 0.3],        # a segment through the first face
+                  [0.4, 0.4, -1], [0.4, 0.4, -1], [0.4, 0.4, -1]])       # a point
+    assert self_intersections(V, [[0, 1, 2], [3, 4, 5], [6, 7, 8]]).shape == (0, 2)
+    V[5] = [1.5, 0.5, 0]                                                  # no longer degenerate: it crosses
+    assert self_intersections(V, [[0, 1, 2], [3, 4, 5], [6, 7, 8]]).tolist() == [[0, 1]]
+
+
 def test_adjacent_faces():
     v = [0.0, 0, 0]
     a1, a2 = [2.0, 0, 0], [0.0, 2, 0]

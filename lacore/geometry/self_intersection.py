@@ -377,14 +377,15 @@ def _triangles_cross(fc, i, j):
     out = np.zeros(len(i), bool)
     if not len(i):
         return out
-    eps = TOLERANCE * np.maximum(fc.size[i], fc.size[j])
-    keep = fc.ok[i] & fc.ok[j]
-    idx, i, j, eps = np.flatnonzero(keep), i[keep], j[keep], eps[keep]
-    keep = _crosses_plane(_plane_distances(fc, i, np.take(fc.P, j, axis=2)), eps)
-    idx, i, j, eps = idx[keep], i[keep], j[keep], eps[keep]
-    A, B = np.take(fc.P, i, axis=2), np.take(fc.P, j, axis=2)       # (3, 3, P)
-    keep = _crosses_plane(_plane_distances(fc, j, A), eps)
-    idx, i, j, eps, A, B = idx[keep], i[keep], j[keep], eps[keep], A[:, :, keep], B[:, :, keep]
+    # a degenerate face has a zero normal and offset: no point crosses its plane
+    eps = TOLERANCE * np.maximum(np.take(fc.size, i), np.take(fc.size, j))
+    B = np.take(fc.P, j, axis=2)                                    # (3, 3, P)
+    idx = np.flatnonzero(_crosses_plane(_plane_distances(fc, i, B), eps))
+    i, j, eps, B = np.take(i, idx), np.take(j, idx), np.take(eps, idx), np.take(B, idx, axis=2)
+    A = np.take(fc.P, i, axis=2)
+    keep = np.flatnonzero(_crosses_plane(_plane_distances(fc, j, A), eps))
+    idx, i, j, eps = np.take(idx, keep), np.take(i, keep), np.take(j, keep), np.take(eps, keep)
+    A, B = np.take(A, keep, axis=2), np.take(B, keep, axis=2)
     # the separating-axis test on the nine axes edge of A x edge of B, all at once
     eA, eB = np.take(fc.E, i, axis=2)[:, None], np.take(fc.E, j, axis=2)[None]   # (3 s, 1, 3, P), (1, 3 t, 3, P)
     axis = np.stack([eA[:, :, 1] * eB[:, :, 2] - eA[:, :, 2] * eB[:, :, 1],
