@@ -31,7 +31,7 @@ handled apart:
    vertex intersect when the edge opposite that vertex in one face crosses the
    interior of the other.
 
-The connectivity-only part (the fans and the face pairs sharing one vertex) is
+The connectivity-only part (the faces around each vertex, which fans are closed) is
 computed once per :class:`~lacore.geometry.topology.MeshTopology` when one is given
 for ``faces`` (kept in its :attr:`~lacore.geometry.topology.MeshTopology.cache`), else
 once per call.  Everything is relative: the same mesh in millimetres or metres gives
