@@ -225,6 +225,8 @@ def test_new_self_intersections_ignore_the_rest_mesh_and_marker_contact():
     res = new_self_intersections(pushed[None], F, binding, apart, rest)
     assert res.counts.tolist() == [len(self_intersections(pushed, F))] and res.contact_counts.tolist() == [0]
     assert res.frames.tolist() == [0]
+    topo = new_self_intersections(pushed[None], MeshTopology.from_faces(F), binding, apart, rest)
+    assert np.array_equal(topo.pairs[0], res.pairs[0])             # faces given as a topology: the same
     # the same markers touching (closer than their offsets) explain the pairs near both
     binding = MarkerBinding.from_vertices([top, bottom], F, offsets=[0.05, 0.05])
     touching = np.array([[[0.0, 0, -1.05], [0.0, 0, -1.1]]])
