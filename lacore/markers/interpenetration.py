@@ -16,7 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import MeshError
 from ..geometry.self_intersection import self_intersections
+from ..geometry.topology import MeshTopology
 
 __all__ = ["new_self_intersections", "SelfIntersections", "CONTACT_RADIUS"]
 
@@ -63,7 +65,7 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     ----------
     vertices : (T, V, 3) array_like
         Fitted frames.
-    faces : (F, 3) array_like of int
+    faces : (F, 3) array_like of int or MeshTopology
     binding : lacore.markers.MarkerBinding
         The ``M`` markers on ``faces`` (skin point and offset).
     markers : (T, M, 3) array_like
@@ -97,26 +99,31 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     (array([[0, 2]]), array([1]))
     """
     X = np.asarray(vertices, float)
-    F = np.asarray(faces, np.int64)
     Y = np.asarray(markers, float)
     R = np.asarray(rest_vertices, float)
+    mesh = faces
+    if not isinstance(mesh, MeshTopology):      # the search's connectivity part once for all frames
+        try:
+            mesh = MeshTopology.from_faces(faces, n_vertices=len(R), allow_unreferenced=True)
+        except MeshError:
+            mesh = np.asarray(faces, np.int64)
+    F = mesh.faces if isinstance(mesh, MeshTopology) else mesh
     n_faces = len(F)
-    rest = self_intersections(R, F)
+    rest = self_intersections(R, mesh)
     rest_keys = rest[:, 0] * n_faces + rest[:, 1]
     radius = contact_radius * float(np.linalg.norm(np.ptp(R, axis=0)))
     corners = binding.corner_vertices(F)
     offsets = np.abs(np.asarray(binding.offsets, float))
     pairs, contacts, nearest = [], [], []
     for t in range(len(X)):
-        P = self_intersections(X[t], F, check=False)
+        P = self_intersections(X[t], mesh, check=False)
         P = P[~np.isin(P[:, 0] * n_faces + P[:, 1], rest_keys)]
         if not len(P):
             pairs.append(P), contacts.append(P), nearest.append(np.zeros(0, np.int64))
             continue
         skin = np.einsum("mk,mkc->mc", binding.barycentric, X[t][corners])          # (M, 3)
-        corner = X[t][F]                                                            # (F, 3, 3)
-        da = np.linalg.norm(corner[P[:, 0], :, None] - skin, axis=3).min(axis=1)    # (P, M): nearest corner
-        db = np.linalg.norm(corner[P[:, 1], :, None] - skin, axis=3).min(axis=1)
+        da = np.linalg.norm(X[t][F[P[:, 0]]][:, :, None] - skin, axis=3).min(axis=1)   # (P, M): nearest corner
+        db = np.linalg.norm(X[t][F[P[:, 1]]][:, :, None] - skin, axis=3).min(axis=1)
         y = Y[t]
         gap = np.linalg.norm(y[:, None] - y[None], axis=2)                          # NaN if occluded
         with np.errstate(invalid="ignore"):
