@@ -46,35 +46,45 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
         ``|A[:, sel] c - b| / |b|``.
     """
     A = np.asarray(A, float)
-    N = A.shape[1]
+    R_, N = A.shape
     max_points = min(int(max_points), N)
     norms = np.sqrt(np.einsum("ij,ij->j", A, A))
     norms[norms == 0] = np.inf
     Atb = A.T @ b
-    C = np.empty((N, 0))
+    # the selected columns and their Gram matrix: a batch costs one product A^T (A_sel c) and the Gram of the new
+    # columns with the selected ones, not a product of A^T with the new columns
+    AS = np.empty((R_, max_points))
+    G = np.empty((max_points, max_points))
     sel = np.zeros(0, np.int64)
     c = np.zeros(0)
     for _ in range(passes):
         while len(sel) < max_points:
-            corr = np.abs(Atb - C @ c) / norms
+            n = len(sel)
+            corr = np.abs(Atb - A.T @ (AS[:, :n] @ c)) / norms
             corr[sel] = -np.inf
-            k = min(batch, max_points - len(sel))
+            k = min(batch, max_points - n)
             new = np.argpartition(-corr, k - 1)[:k]
             new = new[np.isfinite(corr[new]) & (corr[new] > 0)]
             if not new.size:
                 break
-            C = np.hstack([C, A.T @ A[:, new]])
+            k = len(new)
+            AS[:, n:n + k] = A[:, new]
+            G[:n + k, n:n + k] = AS[:, :n + k].T @ AS[:, n:n + k]
+            G[n:n + k, :n] = G[:n, n:n + k].T
             sel = np.r_[sel, new]
-            c = sl.cho_solve((_cholesky(C[sel]), False), Atb[sel], check_finite=False)
-        R = _cholesky(C[sel])
+            c = sl.cho_solve((_cholesky(G[:n + k, :n + k]), False), Atb[sel], check_finite=False)
+        n = len(sel)
+        R = _cholesky(G[:n, :n])
         y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
-        c, _ = so.nnls(R, y, maxiter=50 * max(len(sel), 1))
-        keep = c > 0
-        sel, c, C = sel[keep], c[keep], C[:, keep]
+        c, _ = so.nnls(R, y, maxiter=50 * max(n, 1))
+        keep = np.flatnonzero(c > 0)
+        sel, c = sel[keep], c[keep]
+        AS[:, :len(keep)] = AS[:, keep]
+        G[:len(keep), :len(keep)] = G[np.ix_(keep, keep)]
         if len(sel) >= 0.97 * max_points:
             break
     bn = float(np.linalg.norm(b)) or 1.0
-    return sel, c, float(np.linalg.norm(b - A[:, sel] @ c)) / bn
+    return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
 def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0):
@@ -112,14 +122,17 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         rest = np.setdiff1d(np.arange(E), top)
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
     model = make_energy(cand, None)
-    rows, rhs = [], []
-    for q, tot in zip(samples, totals, strict=True):
-        P = model.gradient_pieces(q)
-        for k in range(P.shape[0]):
-            s = np.sqrt((P[k] * P[k]).sum() / P.shape[2]) or 1.0
-            rows.append(P[k] / s)
-            rhs.append(tot[k] / s)
-    A, b = np.concatenate(rows), np.concatenate(rhs)
+    A = b = None
+    for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
+        P = model.gradient_pieces(q)                              # (m+1, r, n)
+        s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
+        s[s == 0] = 1.0
+        if A is None:
+            A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]))
+            b = np.empty((len(samples), P.shape[0], P.shape[1]))
+        np.divide(P, s[:, None, None], out=A[i])
+        b[i] = np.asarray(tot) / s[:, None]
+    A, b = A.reshape(-1, A.shape[-1]), b.ravel()
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
     order = np.argsort(cand[sel])
     return cand[sel][order], c[order], rel
