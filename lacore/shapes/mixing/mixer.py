@@ -466,6 +466,8 @@ class ShapeMixer:
                 U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
                                          keep=mixer.n_keys - 1)
                 mixer._set_basis(U, exps)
+        with watch("basis"):
+            mixer._output_basis()                            # of the final basis only
         report(progress, 3, 4, "cubature")
         with watch("cubature"):
             mixer._fit_cubature()
@@ -475,7 +477,8 @@ class ShapeMixer:
         return mixer
 
     def _set_basis(self, U, exps):
-        """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones."""
+        """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones (the output basis
+        follows with :meth:`_output_basis`)."""
         self.basis = U
         x0 = self._key_x[0]
         self._exp_w = np.array([e.w for e in exps])
@@ -485,7 +488,6 @@ class ShapeMixer:
         self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
         self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
                                 for e in exps])
-        self._output_basis()
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
