@@ -26,7 +26,10 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
 
     Columns are added in batches by their correlation with the residual (orthogonal matching
     pursuit with least-squares refits), then the weights on the support are fitted by NNLS and
-    columns with weight 0 dropped; repeated ``passes`` times while the support is short.
+    columns with weight 0 dropped; repeated ``passes`` times while the support is short.  A batch of
+    ``k`` columns costs one product ``A^T (A[:, sel] c)`` (the correlations) and the Gram products of
+    the new columns with the selected ones, ``O(R N + R n k)`` for ``A`` of shape ``(R, N)`` and ``n``
+    selected columns (not ``O(R N k)``).
 
     Parameters
     ----------
