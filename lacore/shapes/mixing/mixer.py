@@ -27,8 +27,12 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
   Gauss-Newton projection.
 
 The build costs ``K + C + ceil(C / 2)`` sparse factorizations (``C`` candidate weights: 6 for
-``K = 3``, 13 for ``K = 4``); a mix costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n``
-the cubature's edges, both independent of the mesh size) plus ``O(V r)`` to write the vertices.
+``K = 3``, 13 for ``K = 4``), numeric ones of the reconstruction context's solver (one symbolic
+analysis for all): they are most of the build at 50k vertices (about 2 s CPU each on the 50k bar,
+whose factor has 47 million nonzeros, of 36 s in all on the 2-core AMD EPYC we benchmark on), with
+the cubature fit (:mod:`.cubature`, 2-3 s at 5k to 50k vertices) the next largest stage at 13k.  A mix
+costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent
+of the mesh size) plus ``O(V r)`` to write the vertices.
 
 Examples: ``benchmarks/bench_mixer.py`` measures build, time per mix and the distance to converged
 full Gauss-Newton on a bar and two bodies.
