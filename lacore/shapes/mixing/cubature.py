@@ -12,13 +12,56 @@ import numpy as np
 import scipy.linalg as sl
 import scipy.optimize as so
 
-__all__ = ["greedy_nnls", "fit_cubature"]
+__all__ = ["greedy_nnls", "nnls_gram", "fit_cubature"]
 
 
 def _cholesky(gram):
     n = len(gram)
     shift = 1e-13 * np.trace(gram) / max(n, 1)
     return sl.cholesky(gram + shift * np.eye(n), lower=False, check_finite=False)
+
+
+def nnls_gram(G, h, start=None, max_iterations=12):
+    """``argmin c^T G c - 2 h^T c`` over ``c >= 0`` for a positive definite ``G`` ``(n, n)``, or None.
+
+    Block principal pivoting (Kim and Park 2011): the free set's least-squares solution and the
+    gradient on the others are checked, and every variable that breaks the optimality conditions
+    changes set at once (one at a time after three exchanges that did not reduce their number);
+    ``start`` (bool ``(n,)``, default all) is the first free set: from the least-squares weights of a
+    greedy support, whose signs are nearly right, a few Cholesky factorizations.  None when the sets
+    did not settle in ``max_iterations`` (the caller falls back to Lawson-Hanson).  On the mixer's fits
+    it settles in 2-4 exchanges on the 13k bodies (10x faster than Lawson-Hanson there) and not on the
+    5k bar, whose Gram matrix is far worse conditioned (condition number ~1e15).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> nnls_gram(np.eye(3), np.array([1.0, -1.0, 0.5]))
+    array([1. , 0. , 0.5])
+    """
+    n = len(h)
+    free = np.ones(n, bool) if start is None else np.array(start, bool)
+    tol = 1e-12 * max(float(np.abs(h).max()) if n else 0.0, 1e-300)
+    best, backup = n + 1, 3
+    for _ in range(max_iterations):
+        c = np.zeros(n)
+        F = np.flatnonzero(free)
+        if F.size:
+            c[F] = sl.cho_solve((sl.cholesky(G[np.ix_(F, F)], lower=False, check_finite=False), False), h[F],
+                                check_finite=False)
+        y = G @ c - h                                   # the gradient / 2; >= 0 where c = 0 at the minimizer
+        bad = np.flatnonzero((free & (c < 0)) | (~free & (y < -tol)))
+        if not bad.size:
+            return c
+        if bad.size < best:
+            best, backup = bad.size, 3
+            free[bad] = ~free[bad]
+        elif backup > 0:
+            backup -= 1
+            free[bad] = ~free[bad]
+        else:
+            free[bad[-1]] = ~free[bad[-1]]
+    return None
 
 
 def greedy_nnls(A, b, max_points, batch=16, passes=3):
@@ -77,9 +120,12 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
             sel = np.r_[sel, new]
             c = sl.cho_solve((_cholesky(G[:n + k, :n + k]), False), Atb[sel], check_finite=False)
         n = len(sel)
-        R = _cholesky(G[:n, :n])
-        y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
-        c, _ = so.nnls(R, y, maxiter=50 * max(n, 1))
+        Gs = G[:n, :n] + 1e-13 * np.trace(G[:n, :n]) / max(n, 1) * np.eye(n)    # the shift of _cholesky
+        c = nnls_gram(Gs, Atb[sel], start=c > 0)
+        if c is None:
+            R = _cholesky(G[:n, :n])
+            y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
+            c, _ = so.nnls(R, y, maxiter=50 * max(n, 1))
         keep = np.flatnonzero(c > 0)
         sel, c = sel[keep], c[keep]
         AS[:, :len(keep)] = AS[:, keep]
