@@ -29,8 +29,9 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
 The build costs ``K + C + ceil(C / 2)`` sparse factorizations (``C`` candidate weights: 6 for
 ``K = 3``, 13 for ``K = 4``), numeric ones of the reconstruction context's solver (one symbolic
 analysis for all): they are most of the build at 50k vertices (about 2 s CPU each on the 50k bar,
-whose factor has 47 million nonzeros, of 36 s in all on the 2-core AMD EPYC we benchmark on), with
-the cubature fit (:mod:`.cubature`, 2-3 s at 5k to 50k vertices) the next largest stage at 13k.  A mix
+whose factor has 47 million nonzeros, of about 40 s in all on the 2-core AMD EPYC we benchmark on;
+``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
+1.4-2 s there, 3-4 s at 50k) comes next.  A mix
 costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent
 of the mesh size) plus ``O(V r)`` to write the vertices.
 
