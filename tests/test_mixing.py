@@ -409,3 +409,31 @@ def test_a_key_equal_to_the_basis():
     r = mixer.mix([0.5, 1.0])
     ref = _reference(np.stack([X, bar_pose(X, 0.8, 0.0), X]), F, [0.5, 0.0])
     assert np.sqrt(np.mean(np.sum((r.vertices - ref.vertices) ** 2, axis=1))) < 1e-3 * _diag(X)
+
+
+def test_cubature_nnls_matches_lawson_hanson():
+    import scipy.linalg as sl
+    import scipy.optimize as so
+
+    from lacore.shapes.mixing.cubature import greedy_nnls, nnls_gram
+
+    rng = np.random.default_rng(3)
+    settled = 0
+    for n in (1, 7, 60, 200):
+        A = np.abs(rng.standard_normal((3 * n + 5, n))) + 0.5 * rng.standard_normal((3 * n + 5, n))
+        b = A @ rng.uniform(-0.5, 1.0, n)
+        G, h = A.T @ A, A.T @ b
+        R = sl.cholesky(G)
+        ref, _ = so.nnls(R, sl.solve_triangular(R, h, trans="T"), maxiter=50 * n)
+        c = nnls_gram(G, h, start=np.linalg.solve(G, h) > 0, max_iterations=4 * n + 10)
+        if c is not None:
+            settled += 1
+            assert np.all(c >= 0)
+            assert np.abs(c - ref).max() <= 1e-11 * max(np.abs(ref).max(), 1.0)     # measured 5e-14
+    assert settled >= 3
+    # the greedy fit recovers a sparse non-negative combination of 20 of 400 columns
+    A = np.abs(rng.standard_normal((600, 400)))
+    truth = np.zeros(400)
+    truth[rng.choice(400, 20, replace=False)] = rng.uniform(0.5, 2.0, 20)
+    sel, c, rel = greedy_nnls(A, A @ truth, 60, batch=4)
+    assert rel < 1e-11 and np.all(c > 0) and len(sel) <= 60                    # measured 5e-14

@@ -12,7 +12,7 @@ import numpy as np
 import scipy.linalg as sl
 import scipy.optimize as so
 
-__all__ = ["greedy_nnls", "fit_cubature"]
+__all__ = ["greedy_nnls", "nnls_gram", "fit_cubature"]
 
 
 def _cholesky(gram):
@@ -21,12 +21,58 @@ def _cholesky(gram):
     return sl.cholesky(gram + shift * np.eye(n), lower=False, check_finite=False)
 
 
+def nnls_gram(G, h, start=None, max_iterations=12):
+    """``argmin c^T G c - 2 h^T c`` over ``c >= 0`` for a positive definite ``G`` ``(n, n)``, or None.
+
+    Block principal pivoting (Kim and Park 2011): the free set's least-squares solution and the
+    gradient on the others are checked, and every variable that breaks the optimality conditions
+    changes set at once (one at a time after three exchanges that did not reduce their number);
+    ``start`` (bool ``(n,)``, default all) is the first free set: from the least-squares weights of a
+    greedy support, whose signs are nearly right, a few Cholesky factorizations.  None when the sets
+    did not settle in ``max_iterations`` (the caller falls back to Lawson-Hanson).  On the mixer's fits
+    it settles in 2-4 exchanges on the 13k bodies (10x faster than Lawson-Hanson there) and not on the
+    5k bar, whose Gram matrix is far worse conditioned (condition number ~1e15).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> nnls_gram(np.eye(3), np.array([1.0, -1.0, 0.5]))
+    array([1. , 0. , 0.5])
+    """
+    n = len(h)
+    free = np.ones(n, bool) if start is None else np.array(start, bool)
+    tol = 1e-12 * max(float(np.abs(h).max()) if n else 0.0, 1e-300)
+    best, backup = n + 1, 3
+    for _ in range(max_iterations):
+        c = np.zeros(n)
+        F = np.flatnonzero(free)
+        if F.size:
+            c[F] = sl.cho_solve((sl.cholesky(G[np.ix_(F, F)], lower=False, check_finite=False), False), h[F],
+                                check_finite=False)
+        y = G @ c - h                                   # the gradient / 2; >= 0 where c = 0 at the minimizer
+        bad = np.flatnonzero((free & (c < 0)) | (~free & (y < -tol)))
+        if not bad.size:
+            return c
+        if bad.size < best:
+            best, backup = bad.size, 3
+            free[bad] = ~free[bad]
+        elif backup > 0:
+            backup -= 1
+            free[bad] = ~free[bad]
+        else:
+            free[bad[-1]] = ~free[bad[-1]]
+    return None
+
+
 def greedy_nnls(A, b, max_points, batch=16, passes=3):
     """A sparse non-negative ``c`` with ``A[:, sel] @ c ~ b``, at most ``max_points`` columns.
 
     Columns are added in batches by their correlation with the residual (orthogonal matching
     pursuit with least-squares refits), then the weights on the support are fitted by NNLS and
-    columns with weight 0 dropped; repeated ``passes`` times while the support is short.
+    columns with weight 0 dropped; repeated ``passes`` times while the support is short.  A batch of
+    ``k`` columns costs one product ``A^T (A[:, sel] c)`` (the correlations) and the Gram products of
+    the new columns with the selected ones, ``O(R N + R n k)`` for ``A`` of shape ``(R, N)`` and ``n``
+    selected columns (not ``O(R N k)``).
 
     Parameters
     ----------
@@ -46,35 +92,48 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
         ``|A[:, sel] c - b| / |b|``.
     """
     A = np.asarray(A, float)
-    N = A.shape[1]
+    R_, N = A.shape
     max_points = min(int(max_points), N)
     norms = np.sqrt(np.einsum("ij,ij->j", A, A))
     norms[norms == 0] = np.inf
     Atb = A.T @ b
-    C = np.empty((N, 0))
+    # the selected columns and their Gram matrix: a batch costs one product A^T (A_sel c) and the Gram of the new
+    # columns with the selected ones, not a product of A^T with the new columns
+    AS = np.empty((R_, max_points))
+    G = np.empty((max_points, max_points))
     sel = np.zeros(0, np.int64)
     c = np.zeros(0)
     for _ in range(passes):
         while len(sel) < max_points:
-            corr = np.abs(Atb - C @ c) / norms
+            n = len(sel)
+            corr = np.abs(Atb - A.T @ (AS[:, :n] @ c)) / norms
             corr[sel] = -np.inf
-            k = min(batch, max_points - len(sel))
+            k = min(batch, max_points - n)
             new = np.argpartition(-corr, k - 1)[:k]
             new = new[np.isfinite(corr[new]) & (corr[new] > 0)]
             if not new.size:
                 break
-            C = np.hstack([C, A.T @ A[:, new]])
+            k = len(new)
+            AS[:, n:n + k] = A[:, new]
+            G[:n + k, n:n + k] = AS[:, :n + k].T @ AS[:, n:n + k]
+            G[n:n + k, :n] = G[:n, n:n + k].T
             sel = np.r_[sel, new]
-            c = sl.cho_solve((_cholesky(C[sel]), False), Atb[sel], check_finite=False)
-        R = _cholesky(C[sel])
-        y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
-        c, _ = so.nnls(R, y, maxiter=50 * max(len(sel), 1))
-        keep = c > 0
-        sel, c, C = sel[keep], c[keep], C[:, keep]
+            c = sl.cho_solve((_cholesky(G[:n + k, :n + k]), False), Atb[sel], check_finite=False)
+        n = len(sel)
+        Gs = G[:n, :n] + 1e-13 * np.trace(G[:n, :n]) / max(n, 1) * np.eye(n)    # the shift of _cholesky
+        c = nnls_gram(Gs, Atb[sel], start=c > 0)
+        if c is None:
+            R = _cholesky(G[:n, :n])
+            y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
+            c, _ = so.nnls(R, y, maxiter=50 * max(n, 1))
+        keep = np.flatnonzero(c > 0)
+        sel, c = sel[keep], c[keep]
+        AS[:, :len(keep)] = AS[:, keep]
+        G[:len(keep), :len(keep)] = G[np.ix_(keep, keep)]
         if len(sel) >= 0.97 * max_points:
             break
     bn = float(np.linalg.norm(b)) or 1.0
-    return sel, c, float(np.linalg.norm(b - A[:, sel] @ c)) / bn
+    return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
 def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0):
@@ -112,14 +171,17 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         rest = np.setdiff1d(np.arange(E), top)
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
     model = make_energy(cand, None)
-    rows, rhs = [], []
-    for q, tot in zip(samples, totals, strict=True):
-        P = model.gradient_pieces(q)
-        for k in range(P.shape[0]):
-            s = np.sqrt((P[k] * P[k]).sum() / P.shape[2]) or 1.0
-            rows.append(P[k] / s)
-            rhs.append(tot[k] / s)
-    A, b = np.concatenate(rows), np.concatenate(rhs)
+    A = b = None
+    for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
+        P = model.gradient_pieces(q)                              # (m+1, r, n)
+        s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
+        s[s == 0] = 1.0
+        if A is None:
+            A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]))
+            b = np.empty((len(samples), P.shape[0], P.shape[1]))
+        np.divide(P, s[:, None, None], out=A[i])
+        b[i] = np.asarray(tot) / s[:, None]
+    A, b = A.reshape(-1, A.shape[-1]), b.ravel()
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
     order = np.argsort(cand[sel])
     return cand[sel][order], c[order], rel

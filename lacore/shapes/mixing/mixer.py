@@ -27,8 +27,13 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
   Gauss-Newton projection.
 
 The build costs ``K + C + ceil(C / 2)`` sparse factorizations (``C`` candidate weights: 6 for
-``K = 3``, 13 for ``K = 4``); a mix costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n``
-the cubature's edges, both independent of the mesh size) plus ``O(V r)`` to write the vertices.
+``K = 3``, 13 for ``K = 4``), numeric ones of the reconstruction context's solver (one symbolic
+analysis for all): they are most of the build at 50k vertices (about 2 s CPU each on the 50k bar,
+whose factor has 47 million nonzeros, of about 40 s in all on the 2-core AMD EPYC we benchmark on;
+``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
+1.4-2 s there, 3-4 s at 50k) comes next.  A mix
+costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent
+of the mesh size) plus ``O(V r)`` to write the vertices.
 
 Examples: ``benchmarks/bench_mixer.py`` measures build, time per mix and the distance to converged
 full Gauss-Newton on a bar and two bodies.
@@ -98,10 +103,17 @@ class MixerOptions:
     newton_rounds : int
         Rounds of Newton vectors (:func:`.subspace.newton_vectors`: a full Gauss-Newton step from the
         reduced minimizer at every candidate weight; rounds after the first at the half of the
-        candidates with the largest steps in the round before); 0 for none.
+        candidates with the largest steps in the round before); 0 for none.  Two by default: with one,
+        the build of the MakeHuman body (13k, K = 3) took 5.3 s CPU instead of 8.3 s, but its largest
+        RMS error in ``[0, 1]^2`` grew from 0.005 % to 0.013 %, the median energy ratio to Gauss-Newton
+        from 1.039 to 1.055, and on the CC0 body (K = 4) six of 20 test weights had an indicator above
+        ``max_indicator`` instead of one.
     newton_pcg_iterations : int
         0: every Newton vector with a fresh factorization; else that many conjugate-gradient
-        iterations preconditioned by the nearest key's factorization (fewer factorizations).
+        iterations preconditioned by the nearest key's factorization (fewer factorizations, no
+        derivatives).  0 by default: with 20 iterations the Newton stage was not cheaper on the 13k
+        bodies (PCG iterations cost as much as the factorizations saved) and the CC0 body's largest RMS
+        error in ``[0, 1]^3`` grew from 0.03 % to 0.46 %.
     newton_derivatives : bool or None
         With every Newton vector's factorization, also the first derivatives of the projection by the
         weights at the reduced minimizer (``K-1`` more right-hand sides of the same solve, no more
@@ -466,6 +478,8 @@ class ShapeMixer:
                 U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
                                          keep=mixer.n_keys - 1)
                 mixer._set_basis(U, exps)
+        with watch("basis"):
+            mixer._output_basis()                            # of the final basis only
         report(progress, 3, 4, "cubature")
         with watch("cubature"):
             mixer._fit_cubature()
@@ -475,7 +489,8 @@ class ShapeMixer:
         return mixer
 
     def _set_basis(self, U, exps):
-        """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones."""
+        """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones (the output basis
+        follows with :meth:`_output_basis`)."""
         self.basis = U
         x0 = self._key_x[0]
         self._exp_w = np.array([e.w for e in exps])
@@ -485,7 +500,6 @@ class ShapeMixer:
         self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
         self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
                                 for e in exps])
-        self._output_basis()
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
