@@ -13,6 +13,7 @@ from . import bake, live_mix, session, storage
 from .mesh_access import object_mode, require_mesh_object
 from .fit_quality import remove_quality
 from .operators_fit import BINDING_PROP, remove_model
+from .operators_calibrate import remove_calibration
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -73,6 +74,8 @@ def remove_data(obj):
     if BINDING_PROP in obj:
         del obj[BINDING_PROP]
         removed.append("marker binding")
+    if remove_calibration(mesh):
+        removed.append("calibration")
     if remove_quality(obj):
         removed.append("fit quality")
     if live_mix.disable(obj):
