@@ -96,11 +96,6 @@ class CalibrationOptions:
         Prior weight of the tracking round (stiff: a safe, rough pose).
     track_iterations : int
         Bound on the Gauss-Newton steps per tracked frame.
-    track_tolerance : float
-        Convergence of a tracked frame: largest marker move of a step, in mean edge lengths
-        (:attr:`FitOptions.marker_tolerance`); coarser than the fit's, the rounds refine the poses.
-    round_tolerance : float
-        The same for the rebinding rounds before the last (the last uses the fit's).
     ratio_limits : (float, float)
         Accepted performer / model size ratios with a declared unit.
     """
@@ -116,8 +111,6 @@ class CalibrationOptions:
     max_tracked: int = 60
     track_prior_weight: float = 10.0
     track_iterations: int = 10
-    track_tolerance: float = 0.02
-    round_tolerance: float = 0.02
     ratio_limits: tuple = (0.5, 2.0)
 
     def check(self):
@@ -126,8 +119,7 @@ class CalibrationOptions:
             v = getattr(self, name)
             if int(v) != v or v < (1 if name in ("n_frames", "max_tracked", "track_iterations") else 0):
                 raise InputError(f"{name} must be a non-negative integer, got {v!r}")
-        for name in ("proportion_penalty", "offset_sigma", "hint_weight", "track_prior_weight", "track_tolerance",
-                     "round_tolerance"):
+        for name in ("proportion_penalty", "offset_sigma", "hint_weight", "track_prior_weight"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a finite number > 0, got {v!r}")
@@ -610,8 +602,8 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         return progress(1, n_steps, f"tracking the starting poses: {message}")
 
     tr = fit_markers(model, yt, binding, FIT_DEFAULTS, prior_weight=o.track_prior_weight,
-                     max_iterations=o.track_iterations, marker_tolerance=o.track_tolerance, temporal_weight=10.0,
-                     rate=FIT_DEFAULTS.reference_rate, initial_vertices=X0,
+                     max_iterations=o.track_iterations, temporal_weight=10.0, rate=FIT_DEFAULTS.reference_rate,
+                     initial_vertices=X0,
                      progress=None if progress is None else tracking_progress)
     sel = np.searchsorted(track, frames)
     Xs, As = tr.vertices[sel].copy(), tr.coefficients[sel].copy()
@@ -641,8 +633,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
             dev = (nb.offsets - o0) / (o.offset_sigma * k)
             lam = lam0 * np.minimum(1.0, 1.5 / np.maximum(np.abs(dev), 1e-12))
         binding = nb
-        opts_r = options_cal if r == o.rounds else dataclasses.replace(options_cal, marker_tolerance=o.round_tolerance)
-        solver = FrameSolver(model, binding, opts_r, temporal=0.0, extra_modes=D if nD else None,
+        solver = FrameSolver(model, binding, options_cal, temporal=0.0, extra_modes=D if nD else None,
                              extra_penalty=penalty if nD else 0.0, mean_z=mean_z)
         for i, f in enumerate(frames):
             if i:
