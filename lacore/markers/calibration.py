@@ -418,23 +418,25 @@ MAX_ATLAS_DISTANCE = 0.03
 def _model_axes(model, notes):
     """The model's (up, forward): declared (checked against the atlas), or the pair the atlas fits best."""
     X, F = np.asarray(model.reference_vertices, float), model.faces
-    scores = {}
-    for up in ("y", "z", "x", "-y", "-z", "-x"):
-        for fwd in ("z", "-z", "y", "-y", "x", "-x"):
-            if up.strip("-") != fwd.strip("-") and (model.up_axis is None or up == str(model.up_axis).strip("+")):
-                scores[(up, fwd)] = atlas_distance(X, F, up, fwd)
-    best = min(scores, key=scores.get)
+
+    def all_scores():
+        scores = {}
+        for up in ("y", "z", "x", "-y", "-z", "-x"):
+            for fwd in ("z", "-z", "y", "-y", "x", "-x"):
+                if up.strip("-") != fwd.strip("-") and (model.up_axis is None or up == str(model.up_axis).strip("+")):
+                    scores[(up, fwd)] = atlas_distance(X, F, up, fwd)
+        return scores, min(scores, key=scores.get)
     if model.up_axis is not None and model.forward_axis is not None:
         declared = (str(model.up_axis).strip("+"), str(model.forward_axis).strip("+"))
-        d = scores.get(declared)
-        if d is None:
-            d = atlas_distance(X, F, *declared)
+        d = atlas_distance(X, F, *declared)             # the other pairs only to name the best in an error
         if d > MAX_ATLAS_DISTANCE:
+            scores, best = all_scores()
             raise AxisMismatchError(
                 f"axis mismatch: the model's declared axes (up {declared[0]}, forward {declared[1]}) do not fit a "
                 f"humanoid's landmarks ({100 * d:.1f} % of its height off the surface; up {best[0]}, forward "
                 f"{best[1]} fit with {100 * scores[best]:.2f} %): check the model's up_axis / forward_axis")
         return declared
+    scores, best = all_scores()
     notes.append(f"model axes inferred: up {best[0]}, forward {best[1]} (declare model.up_axis/forward_axis)")
     return best
 
