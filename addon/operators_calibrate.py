@@ -361,10 +361,12 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
 def calibration_key(model_token, markers, unit, up, forward, kind, pins, options):
     """Digest of everything a calibration depends on: the stored model (its token), the markers (labels and
     positions in the character's space, metres), the unit, the axes, the placement kind and pins, and the
-    fit's and calibration's settings (lacore's defaults included: a new version calibrates afresh)."""
+    fit's settings the calibration uses (all but the temporal weight, which only the fit of the frames uses)
+    and the calibration's (lacore's defaults included: a new version calibrates afresh)."""
     from ..lacore.markers.calibration import CALIBRATION_DEFAULTS
+    used = dataclasses.replace(options, temporal_weight=0.0, reference_rate=1.0)
     h = hashlib.blake2b(digest_size=16)
-    for part in (model_token, markers.labels, f"{unit!r}", up, forward, kind, sorted(pins.items()), repr(options),
+    for part in (model_token, markers.labels, f"{unit!r}", up, forward, kind, sorted(pins.items()), repr(used),
                  repr(CALIBRATION_DEFAULTS), markers.positions.shape):
         h.update(repr(part).encode())
         h.update(b"\0")

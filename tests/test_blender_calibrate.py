@@ -78,13 +78,14 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
 
 def test_second_run_reuses_the_stored_calibration(run):
     """Calibrate & Fit again with take, model and placement unchanged: the calibration stored with the result is
-    reused (the panel says so; no calibration time) and the played-back fit is the same (float32); the
-    character moved by 1 cm is calibrated afresh."""
+    reused (the panel says so; no calibration time) and the played-back fit is the same (float32), also with
+    another temporal weight (used by the fit only); the character moved by 1 cm is calibrated afresh."""
     res = run["cases"]["refit_reuses_calibration"]
     assert res["stored"] and res["result"] == ["FINISHED"], res
     assert res["reused"] is True and res["calibration_seconds"] == 0.0, res
     assert res["max_difference"] < 1e-4, res        # decimetres (object space); the same computation
     assert res["panel"] == ["Calibration reused (take, model and placement unchanged)"], res
+    assert res["temporal_result"] == ["FINISHED"] and res["temporal_reused"] is True, res   # the fit's setting only
     assert res["moved_result"] == ["FINISHED"] and res["moved_reused"] is False, res
 
 

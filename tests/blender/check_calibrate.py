@@ -141,7 +141,8 @@ def whole_path():
 
 def refit_reuses_calibration():
     """Calibrate & Fit again on the saved scene (take, model and placement unchanged): the stored calibration is
-    reused (said in the panel) and the fit is the same; the character moved by 1 cm calibrates afresh."""
+    reused (said in the panel) and the fit is the same; with another temporal weight it is reused too; the
+    character moved by 1 cm calibrates afresh."""
     obj, take = open_scene()
     quality, cal = ext("addon.fit_quality"), ext("addon.operators_calibrate")
     out = {"stored": cal.CALIBRATION_PROP in obj.data}
@@ -156,6 +157,10 @@ def refit_reuses_calibration():
     calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
     out["panel"] = [kw.get("text", "") for name, _a, kw in calls if name == "label"
                     and kw.get("text", "").startswith("Calibration")]
+    # another temporal weight (the fit's only): the calibration is still the stored one
+    select_only(obj, take)
+    out["temporal_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit(temporal_weight=5.0))
+    out["temporal_reused"] = obj[quality.FIT_PROP].to_dict().get("calibration_reused")
     obj.location.x += 0.01
     bpy.context.view_layer.update()
     select_only(obj, take)
