@@ -57,10 +57,10 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity), the shape model (with its preview key and slider values), the marker binding, the last
-    fit's quality (summary and per-frame RMS curve), the live mixer (with its key: Blender's linear mixing again)
-    and the session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
-    short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding, the stored
+    calibration, the last fit's quality (summary and per-frame RMS curve), the live mixer (with its key:
+    Blender's linear mixing again) and the session cache.  Results you asked for (in-between keys, fitted keys
+    or point caches) stay.  Returns a short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
