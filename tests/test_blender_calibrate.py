@@ -87,6 +87,7 @@ def test_second_run_reuses_the_stored_calibration(run):
     assert res["panel"] == ["Calibration reused (take, model and placement unchanged)"], res
     assert res["temporal_result"] == ["FINISHED"] and res["temporal_reused"] is True, res   # the fit's setting only
     assert res["moved_result"] == ["FINISHED"] and res["moved_reused"] is False, res
+    assert "calibration" in res["removed"] and res["after_remove"] == [False, False], res   # Remove Data
 
 
 def test_modal_progress_and_cancel(run):

@@ -168,6 +168,10 @@ def refit_reuses_calibration():
     out["moved_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit())
     out["moved_seconds"] = round(time.perf_counter() - t, 2)
     out["moved_reused"] = obj[quality.FIT_PROP].to_dict().get("calibration_reused")
+    # Remove Data removes the stored calibration with its text datablock
+    text = obj.data[cal.CALIBRATION_PROP]["text"]
+    out["removed"] = ext("addon.operators").remove_data(obj)
+    out["after_remove"] = [cal.CALIBRATION_PROP in obj.data, text in bpy.data.texts]
     return out
 
 
