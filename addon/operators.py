@@ -13,6 +13,7 @@ from . import bake, live_mix, session, storage
 from .mesh_access import object_mode, require_mesh_object
 from .fit_quality import remove_quality
 from .operators_fit import BINDING_PROP, remove_model
+from .operators_calibrate import remove_calibration
 
 __all__ = ["LENGTHS_ANGLES_OT_encode", "LENGTHS_ANGLES_OT_remove_data", "LENGTHS_ANGLES_OT_integrability_info",
            "encode_object", "remove_data", "classes"]
@@ -56,10 +57,10 @@ def encode_object(obj):
 
 def remove_data(obj):
     """Remove everything the extension stored for ``obj``: the encoding, the bake (its keys and keyframes,
-    by identity), the shape model (with its preview key and slider values), the marker binding, the last
-    fit's quality (summary and per-frame RMS curve), the live mixer (with its key: Blender's linear mixing again)
-    and the session cache.  Results you asked for (in-between keys, fitted keys or point caches) stay.  Returns a
-    short description of what was removed."""
+    by identity), the shape model (with its preview key and slider values), the marker binding, the stored
+    calibration, the last fit's quality (summary and per-frame RMS curve), the live mixer (with its key:
+    Blender's linear mixing again) and the session cache.  Results you asked for (in-between keys, fitted keys
+    or point caches) stay.  Returns a short description of what was removed."""
     mesh = obj.data
     removed = []
     if storage.PROP in mesh:
@@ -73,6 +74,8 @@ def remove_data(obj):
     if BINDING_PROP in obj:
         del obj[BINDING_PROP]
         removed.append("marker binding")
+    if remove_calibration(mesh):
+        removed.append("calibration")
     if remove_quality(obj):
         removed.append("fit quality")
     if live_mix.disable(obj):

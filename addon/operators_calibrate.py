@@ -26,10 +26,19 @@ they are written as a PC2 point cache played by the Mesh Cache modifier :data:`.
 (as Fit to Markers does), with the model (when built), the calibrated binding and the fit's quality
 (:func:`.fit_quality.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior weight,
 flagged frames and markers).  A failed or cancelled run writes nothing.
+
+The calibration is stored with the result (a payload of the mesh, :data:`CALIBRATION_PROP`, keyed by
+:func:`calibration_key`: the take's markers as the run reads them in the character's space, the stored
+model, the unit, axes, placement, pins and the fit's settings).  Calibrate & Fit again with all of them
+unchanged reuses it and only fits (the report and the panel say so); any change calibrates afresh.
 """
 
 import copy
 import dataclasses
+import hashlib
+import io
+import os
+import tempfile
 
 import bpy
 import numpy as np
@@ -38,7 +47,7 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 from ..lacore.errors import InputError
 from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
-from .fit_quality import write_quality
+from .fit_quality import FIT_PROP, write_quality
 from .jobs import CallJob
 from .mesh_access import require_mesh_object, triangulate
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
@@ -47,8 +56,14 @@ from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_mode
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
+from .storage import PayloadError, load_payload, release_payload, store_payload
 
-__all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes"]
+__all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes",
+           "CALIBRATION_PROP", "calibration_key", "stored_calibration", "remove_calibration"]
+
+#: The mesh's record of the last Calibrate & Fit's calibration (a payload: :func:`.storage.store_payload`).
+CALIBRATION_PROP = "lengths_angles_calibration"
+CALIBRATION_HEADER = "Lengths & Angles calibration (do not edit)"
 
 
 def _fitting_api():
@@ -263,9 +278,15 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     if auto_prior is False and prior_weight is None and options.prior_weight == "auto":
         raise FitSetupError("give a prior weight (or use the automatic one)")
     options.check(allow_auto=True)
+    pin_vertices = {lb: int(v) for lb, (v, _) in pinned.items()}
+
+    def key_of(token):
+        return calibration_key(str(token), markers, unit, up, forward, kind, pin_vertices, options)
+    reused = None if built is not None else stored_calibration(mesh, key_of(mesh[MODEL_PROP].get("token", "")))
+
+    stages = 1 + (built is not None) + (reused is None)   # build model, calibrate (unless reused), fit
 
     def compute(progress):
-        stages = 3 if built is not None else 2
         scale = 1000
 
         def staged(stage):
@@ -285,14 +306,16 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         # As Placed: the rest mesh in the character's space, in metres
         where = (unit, np.eye(3), np.zeros(3)) if kind == 'PLACED' else None
         try:
-            cal = calibrate(fitted, markers, fit=options, placement=where, pins=model_pins or None,
-                            progress=staged(stages - 2))
+            cal = reused
+            if cal is None:
+                cal = calibrate(fitted, markers, fit=options, placement=where, pins=model_pins or None,
+                                progress=staged(stages - 2))
             result = fit_take(fitted, markers, cal, options=options, progress=staged(stages - 1))
         except InputError as exc:
             raise _in_blender_terms(exc) from exc
         return m, result
 
-    job = CallJob(compute, "calibrate & fit", total=1000 * (3 if built is not None else 2))
+    job = CallJob(compute, "calibrate & fit", total=1000 * stages)
     empties = {lb: o.name for lb, o in marker_objects(take)}
 
     def write(obj, job):
@@ -302,6 +325,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         if built is not None:
             _store_built_model(obj, m, built["keys"])
         cal, b = res.calibration, res.binding
+        if reused is None:
+            _store_calibration(obj.data, cal, key_of(obj.data[MODEL_PROP].get("token", "")))
         bound = list(res.labels)
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
@@ -312,6 +337,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             "performer_ratio": float(cal.performer_ratio),
         }
         quality = write_quality(obj, frames, res, bound, unit, take_name)
+        obj[FIT_PROP]["calibration_reused"] = reused is not None
         dropped = list(getattr(markers, "dropped", ()))
         if dropped:
             job.notes.append(f"{len(dropped)} points are not markers and were left out: "
@@ -321,13 +347,66 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         # the calibration's own notes, but its drops once (summarized above)
         job.notes.extend(str(n) for n in getattr(cal, "notes", []) if not str(n).startswith("dropped "))
         placed = {'HINTS': "", 'PINS': f" by {len(pinned)} pins", 'PLACED': " as placed"}[kind]
-        return (f"calibrated{placed} (performer {cal.performer_ratio:.2f}x the character) and {text}; "
+        how = ("reused the stored calibration (take, model and placement unchanged)" if reused is not None
+               else f"calibrated{placed}")
+        return (f"{how} (performer {cal.performer_ratio:.2f}x the character) and {text}; "
                 f"{quality['text']}")
     extras = {f"The take '{take_name}' or its marker empties": _take_state(take_name),
               f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The placement and pins of '{obj.name}'": _placement_state(obj.name)}
     keys = [built["names"][0], *built["keys"]] if built is not None else []
     return Run(job, ObjectWatch(obj, keys, extras), write, what="fitted frame")
+
+
+def calibration_key(model_token, markers, unit, up, forward, kind, pins, options):
+    """Digest of everything a calibration depends on: the stored model (its token), the markers (labels and
+    positions in the character's space, metres), the unit, the axes, the placement kind and pins, and the
+    fit's settings the calibration uses (all but the temporal weight, which only the fit of the frames uses)
+    and the calibration's (lacore's defaults included: a new version calibrates afresh)."""
+    from ..lacore.markers.calibration import CALIBRATION_DEFAULTS
+    used = dataclasses.replace(options, temporal_weight=0.0, reference_rate=1.0)
+    h = hashlib.blake2b(digest_size=16)
+    for part in (model_token, markers.labels, f"{unit!r}", up, forward, kind, sorted(pins.items()), repr(used),
+                 repr(CALIBRATION_DEFAULTS), markers.positions.shape):
+        h.update(repr(part).encode())
+        h.update(b"\0")
+    h.update(np.ascontiguousarray(markers.positions, np.float64).tobytes())
+    return h.hexdigest()
+
+
+def stored_calibration(mesh, key):
+    """The calibration stored with ``mesh`` by the last Calibrate & Fit if its key is ``key`` (``seconds`` 0: none
+    spent now), else None."""
+    from ..lacore.errors import InputError as _InputError
+    from ..lacore.markers import Calibration
+    record = mesh.get(CALIBRATION_PROP)
+    if record is None or str(record.get("key", "")) != key:
+        return None
+    try:
+        cal = Calibration.load(io.BytesIO(load_payload(record, CALIBRATION_HEADER)))
+    except (PayloadError, _InputError):
+        return None
+    return dataclasses.replace(cal, seconds=0.0)   # no time spent calibrating in this run
+
+
+def _store_calibration(mesh, cal, key):
+    with tempfile.TemporaryDirectory() as tmp:
+        path = cal.save(os.path.join(tmp, "calibration.npz"))
+        with open(path, "rb") as fh:
+            data = fh.read()
+    store_payload(mesh, CALIBRATION_PROP, data, header=CALIBRATION_HEADER, name=f"LA calibration {mesh.name}",
+                  record={"key": key})
+
+
+def remove_calibration(mesh):
+    """Remove the calibration stored with ``mesh``; True if there was one."""
+    record = mesh.get(CALIBRATION_PROP)
+    if record is None:
+        return False
+    record = record.to_dict()
+    del mesh[CALIBRATION_PROP]
+    release_payload(record)
+    return True
 
 
 def _placement_state(obj_name):

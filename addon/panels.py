@@ -163,6 +163,9 @@ def draw_fit_quality(layout, obj):
                    f"p95 {q['marker_p95_mm']:.1f} mm", icon='CHECKMARK' if q.get("success", True) else 'ERROR')
     box.label(text=f"Prior weight {q['prior_weight']:g}; per-frame RMS: property '{fit_quality.RMS_PROP}' "
                    "(Graph Editor)")
+    if "calibration_reused" in q:
+        box.label(text="Calibration reused (take, model and placement unchanged)" if q["calibration_reused"] else
+                  "Calibration stored: Calibrate & Fit again reuses it while take, model and placement are unchanged")
     frames, markers = list(q.get("flagged_frames", [])), list(q.get("flagged_markers", []))
     if frames or markers:
         box.label(text=f"Flagged frames: {', '.join(map(str, frames[:10]))}{' ...' if len(frames) > 10 else ''}",

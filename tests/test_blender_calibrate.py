@@ -76,6 +76,20 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
     assert "lengths_angles.calibrate_fit" in " ".join(map(str, res["panel_operators"])) or res["panel_operators"]
 
 
+def test_second_run_reuses_the_stored_calibration(run):
+    """Calibrate & Fit again with take, model and placement unchanged: the calibration stored with the result is
+    reused (the panel says so; no calibration time) and the played-back fit is the same (float32), also with
+    another temporal weight (used by the fit only); the character moved by 1 cm is calibrated afresh."""
+    res = run["cases"]["refit_reuses_calibration"]
+    assert res["stored"] and res["result"] == ["FINISHED"], res
+    assert res["reused"] is True and res["calibration_seconds"] == 0.0, res
+    assert res["max_difference"] < 1e-4, res        # decimetres (object space); the same computation
+    assert res["panel"] == ["Calibration reused (take, model and placement unchanged)"], res
+    assert res["temporal_result"] == ["FINISHED"] and res["temporal_reused"] is True, res   # the fit's setting only
+    assert res["moved_result"] == ["FINISHED"] and res["moved_reused"] is False, res
+    assert "calibration" in res["removed"] and res["after_remove"] == [False, False], res   # Remove Data
+
+
 def test_modal_progress_and_cancel(run):
     c = run["cases"]["modal_cancel"]["cancel"]
     assert c["running"] == ["RUNNING_MODAL"] and c["cancel"] == ["CANCELLED"] and c["unchanged"], c

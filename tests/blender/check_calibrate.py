@@ -139,8 +139,44 @@ def whole_path():
             "panel_operators": ops, "keys_unchanged": before["keys"] == state(obj)["keys"]}
 
 
+def refit_reuses_calibration():
+    """Calibrate & Fit again on the saved scene (take, model and placement unchanged): the stored calibration is
+    reused (said in the panel) and the fit is the same; with another temporal weight it is reused too; the
+    character moved by 1 cm calibrates afresh."""
+    obj, take = open_scene()
+    quality, cal = ext("addon.fit_quality"), ext("addon.operators_calibrate")
+    out = {"stored": cal.CALIBRATION_PROP in obj.data}
+    t = time.perf_counter()
+    out["result"] = sorted(bpy.ops.lengths_angles.calibrate_fit())
+    out["seconds"] = round(time.perf_counter() - t, 2)
+    q = obj[quality.FIT_PROP].to_dict()
+    out["reused"], out["calibration_seconds"] = q.get("calibration_reused"), q.get("calibration_seconds")
+    ev = evaluated(obj, np.arange(1, N_FRAMES + 1))
+    out["max_difference"] = float(np.abs(ev - OUT["evaluated"]).max())
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    out["panel"] = [kw.get("text", "") for name, _a, kw in calls if name == "label"
+                    and kw.get("text", "").startswith("Calibration")]
+    # another temporal weight (the fit's only): the calibration is still the stored one
+    select_only(obj, take)
+    out["temporal_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit(temporal_weight=5.0))
+    out["temporal_reused"] = obj[quality.FIT_PROP].to_dict().get("calibration_reused")
+    obj.location.x += 0.01
+    bpy.context.view_layer.update()
+    select_only(obj, take)
+    t = time.perf_counter()
+    out["moved_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit())
+    out["moved_seconds"] = round(time.perf_counter() - t, 2)
+    out["moved_reused"] = obj[quality.FIT_PROP].to_dict().get("calibration_reused")
+    # Remove Data removes the stored calibration with its text datablock
+    text = obj.data[cal.CALIBRATION_PROP]["text"]
+    out["removed"] = ext("addon.operators").remove_data(obj)
+    out["after_remove"] = [cal.CALIBRATION_PROP in obj.data, text in bpy.data.texts]
+    return out
+
+
 def modal_cancel():
-    """From the UI: modal with progress; Esc halfway (the model stored by whole_path: calibration and fit)
+    """From the UI: modal with progress; Esc halfway (model and calibration stored by whole_path: the fit only)
     leaves the scene as it was.  (A full modal run is the same Run: tests/test_blender_fit.py drives those.)"""
     cal = ext("addon.operators_calibrate")
     runs = ext("addon.runs")
@@ -352,5 +388,5 @@ def creature_pins():
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, scene_setup, whole_path, modal_cancel, bad_input, coarse_model,
-               creature_as_placed, creature_pins])
+    run_cases([install_and_enable, scene_setup, whole_path, refit_reuses_calibration, modal_cancel, bad_input,
+               coarse_model, creature_as_placed, creature_pins])
