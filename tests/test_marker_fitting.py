@@ -299,3 +299,12 @@ def test_penetration_term_pushes_crossing_corners_out():
     X2, a, st, it, E = solver.solve_frame(Xf, a, y)
     assert st == 0 and solver._penetration(X2)[0].max() < 0.15                         # measured 0.09
     assert solver.add_penetrations(X2, y)[1] >= 0
+
+
+def test_fit_reports_self_intersections_only_with_the_term(bar):
+    X0, F, model, binding = bar
+    x = surface_points(np.array([bar_pose(X0, 0.3 * k, 0.0) for k in range(3)]), F, binding)
+    assert fit_markers(model, x, binding, prior_weight=1.0).frame_self_intersections is None     # default: off
+    res = fit_markers(model, x, binding, prior_weight=1.0, penetration_weight=10.0)
+    assert res.frame_self_intersections.tolist() == [0, 0, 0]          # a bent bar does not pass through itself
+    assert res.summary()["frame_self_intersections"] == [0, 0, 0]

@@ -283,10 +283,11 @@ class MarkerFitResult(SolverResult):
     fine_vertices : (T, V_fine, 3) ndarray or None
     regularized_frames : list of int
         Frames with fewer than 3 usable markers (status 2): pose from the prior and the temporal term.
-    frame_self_intersections : (T,) int ndarray
+    frame_self_intersections : (T,) int ndarray or None
         With the non-penetration term on, the face pairs of each fitted frame passing through each
         other that the rest mesh and the markers do not explain
-        (:class:`lacore.markers.interpenetration.IntersectionCheck`); -1 where the term is off.
+        (:class:`lacore.markers.interpenetration.IntersectionCheck`); -1 for a frame whose linear
+        system failed; None when the term is off.
     z : (T, 2E) ndarray
         Lengths and angles of ``vertices`` (a property, computed when read).
     """
@@ -871,7 +872,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         prior_weight=float(options.prior_weight),
         temporal_weight=float(options.temporal_weight) if rate is not None else 0.0,
         fine_vertices=out_fine, regularized_frames=[int(t) for t in np.flatnonzero(status == 2)],
-        frame_self_intersections=pen, topology=model.topology)
+        frame_self_intersections=pen if solver.w_p else None, topology=model.topology)
 
 
 def marker_statistics(distances):
