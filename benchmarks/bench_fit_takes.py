@@ -21,6 +21,7 @@ calibration <= 60 s; fitting <= 0.1 s per frame.
 Usage::
 
     python benchmarks/bench_fit_takes.py [--takes Walk1.c3d,...] [--frames N] [--prior-weight G|auto]
+        [--penetration-weight MU]
 """
 
 import argparse
@@ -60,6 +61,8 @@ def main():
     parser.add_argument("--takes", default=None, help="comma-separated file names (default: all .c3d files)")
     parser.add_argument("--frames", type=int, default=150, help="fit at most the first N frames (default 150)")
     parser.add_argument("--prior-weight", default=None, help="number or auto (default: the library default)")
+    parser.add_argument("--penetration-weight", type=float, default=None,
+                        help="weight of the fit's non-penetration term (default: the library default)")
     args = parser.parse_args()
     mocap = human_data_dir().parent / "mocap"
     names = args.takes.split(",") if args.takes else sorted(p.name for p in mocap.glob("*.c3d"))
@@ -73,6 +76,9 @@ def main():
         import dataclasses
         g = args.prior_weight if args.prior_weight == "auto" else float(args.prior_weight)
         options = dataclasses.replace(FIT_DEFAULTS, prior_weight=g)
+    if args.penetration_weight is not None:
+        import dataclasses
+        options = dataclasses.replace(options, penetration_weight=args.penetration_weight)
     out = {"benchmark": "fit_takes", "frames_limit": args.frames, "model_seconds": model_seconds,
            "model": {"coarse_vertices": int(model.topology.n_vertices), "modes": int(model.n_modes),
                      "fine_vertices": int(model.fine_level.n_fine_vertices)},
@@ -109,6 +115,7 @@ def main():
             "fit_seconds_per_frame_cpu": res.timings["cpu"] / n,
             "calibration_seconds_cpu": cal.timings["cpu"],
             "mean_iterations": float(np.mean(res.frame_iterations)),
+            "penetration_weight": options.penetration_weight,
             "prolongation_seconds_per_frame": res.timings.get("prolongation", 0.0) / n,
         }
         print(json.dumps({name: json_value(out["takes"][name])}), file=sys.stderr, flush=True)

@@ -235,3 +235,76 @@ def test_safeguard_keeps_triangles_from_collapsing(bar):
     assert ratio_off < 0.15, ratio_off    # measured 0.047 (7e-10 before angle residuals were wrapped)
     assert ratio_on > 0.2, ratio_on       # measured 0.24999 (a penalty, not a hard bound)
     assert on.frame_energy[0] < 1.05 * off.frame_energy[0]  # measured 0.02289 vs 0.02248
+
+
+# ----------------------------------------------------------------------------- non-penetration term
+
+
+def _crossing_bars():
+    """Bar A along x held by markers; bar B across it, bent so that its middle dips into A's top, held at its
+    ends; the prior's mean is B bent (mean-only prior): the fit keeps B's middle inside A unless the
+    non-penetration term pushes it out."""
+    from lacore.geometry.lengths_angles import lengths_and_angles
+    X0, F0 = bar_mesh(n_along=12)
+    V0 = len(X0)
+    B = bar_pose(X0, 0.8, 0.0)
+    e = B[-1] - B[-2]                                      # level the chord between the cap centres
+    t = -np.arctan2(e[2], e[0])
+    B = B @ np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+    B = B[:, [1, 0, 2]] + [3.0, 0.0, 0.0]
+    B[:, 1] -= 0.5 * (B[:, 1].min() + B[:, 1].max())
+    B[:, 2] += 0.5 - 0.1 - B[:, 2].min()                   # 0.1 into A's top face (z = 0.5)
+    rest = np.vstack([X0, X0 + [0, 0, 3.0]])
+    F = np.vstack([F0, F0 + V0])
+    X = np.vstack([X0, B])
+    train = np.array([np.vstack([bar_pose(X0, b, 0), bar_pose(X0, b, 0) + [0, 0, 3]]) for b in np.linspace(-1, 1, 5)])
+    model = ShapeModel.fit(train, F, n_modes=2, reference_vertices=rest)
+    held = np.concatenate([np.arange(V0), V0 + np.flatnonzero(np.abs(X0[:, 0] - 3) > 2.0)])
+    return model, X, F, MarkerBinding.from_vertices(held, F), X[held], lengths_and_angles(X, model.topology)
+
+
+def test_penetration_term_derivatives_match_finite_differences(bar):
+    X0, F, model, binding = bar
+    solver = FrameSolver(model, binding, FitOptions(prior_weight=0.7, penetration_weight=3.0))
+    X = bar_pose(X0, 0.5, -0.3)
+    x = surface_points(bar_pose(X0, 0.7, -0.2), F, binding)
+    vis = np.arange(len(x))
+    rng = np.random.default_rng(5)
+    K = 30
+    solver.pen_v, solver.pen_f = rng.integers(0, len(X), K), rng.integers(0, len(F), K)
+    solver.pen_n = np.linalg.qr(rng.standard_normal((3, 3)))[0][rng.integers(0, 3, K)]
+    r, act = solver._penetration(X)
+    assert 0 < len(act) < K
+    g, dofs = solver._penetration_jacobian(act)
+    d = rng.standard_normal(X.shape)
+    fd = directional_fd(lambda Y: solver._penetration(Y)[0][act], X, d, 1e-4)
+    assert relative_error(np.einsum("kj,kj->k", g, d.ravel()[dofs]), fd) < 1e-9        # measured 1e-11
+    a = np.zeros(model.n_modes)
+    gX, _ = solver.gradient(X, a, x, vis)
+    fde = directional_fd(lambda Y: solver.energy(Y, a, x, vis)[0], X, d, 1e-4)
+    assert abs(gX @ d.ravel() - fde) < 1e-7 * abs(fde)                                 # measured 4e-10
+
+
+def test_penetration_term_pushes_crossing_corners_out():
+    model, X, F, binding, y, mean_z = _crossing_bars()
+    off = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0), mean_z=mean_z)
+    assert off.solve_frame_apart(X, np.zeros(0), y)[5] == -1                          # off by default
+    solver = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0, penetration_weight=10.0),
+                         mean_z=mean_z)
+    Xf, a, st, it, E = solver.solve_frame(X, np.zeros(0), y)
+    pairs, added = solver.add_penetrations(Xf, y)
+    assert len(pairs) > 0 and added > 0
+    r0 = solver._penetration(Xf)[0]
+    assert r0.max() > 0.5                                  # corners 0.2-0.8 edge lengths below the other face
+    X2, a, st, it, E = solver.solve_frame(Xf, a, y)
+    assert st == 0 and solver._penetration(X2)[0].max() < 0.15                         # measured 0.09
+    assert solver.add_penetrations(X2, y)[1] >= 0
+
+
+def test_fit_reports_self_intersections_only_with_the_term(bar):
+    X0, F, model, binding = bar
+    x = surface_points(np.array([bar_pose(X0, 0.3 * k, 0.0) for k in range(3)]), F, binding)
+    assert fit_markers(model, x, binding, prior_weight=1.0).frame_self_intersections is None     # default: off
+    res = fit_markers(model, x, binding, prior_weight=1.0, penetration_weight=10.0)
+    assert res.frame_self_intersections.tolist() == [0, 0, 0]          # a bent bar does not pass through itself
+    assert res.summary()["frame_self_intersections"] == [0, 0, 0]

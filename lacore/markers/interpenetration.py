@@ -20,7 +20,7 @@ from ..errors import MeshError
 from ..geometry.self_intersection import self_intersections
 from ..geometry.topology import MeshTopology
 
-__all__ = ["new_self_intersections", "SelfIntersections", "CONTACT_RADIUS"]
+__all__ = ["new_self_intersections", "SelfIntersections", "IntersectionCheck", "CONTACT_RADIUS"]
 
 #: A face "near" a marker: within this fraction of the rest mesh's bounding-box diagonal of its skin point.
 CONTACT_RADIUS = 0.05
@@ -100,43 +100,57 @@ def new_self_intersections(vertices, faces, binding, markers, rest_vertices, *, 
     """
     X = np.asarray(vertices, float)
     Y = np.asarray(markers, float)
-    R = np.asarray(rest_vertices, float)
-    mesh = faces
-    if not isinstance(mesh, MeshTopology):      # the search's connectivity part once for all frames
-        try:
-            mesh = MeshTopology.from_faces(faces, n_vertices=len(R), allow_unreferenced=True)
-        except MeshError:
-            mesh = np.asarray(faces, np.int64)
-    F = mesh.faces if isinstance(mesh, MeshTopology) else mesh
-    n_faces = len(F)
-    rest = self_intersections(R, mesh)
-    rest_keys = rest[:, 0] * n_faces + rest[:, 1]
-    radius = contact_radius * float(np.linalg.norm(np.ptp(R, axis=0)))
-    corners = binding.corner_vertices(F)
-    offsets = np.abs(np.asarray(binding.offsets, float))
-    pairs, contacts, nearest = [], [], []
-    for t in range(len(X)):
-        P = self_intersections(X[t], mesh, check=False)
-        P = P[~np.isin(P[:, 0] * n_faces + P[:, 1], rest_keys)]
+    check = IntersectionCheck(faces, binding, rest_vertices, contact_radius=contact_radius)
+    per_frame = [check(X[t], Y[t]) for t in range(len(X))]
+    pairs, contacts, nearest = ([f[k] for f in per_frame] for k in range(3))
+    counts = np.array([len(p) for p in pairs], np.int64)
+    contact_counts = np.array([len(p) for p in contacts], np.int64)
+    return SelfIntersections(pairs, contacts, counts, contact_counts, nearest, check.rest_pairs)
+
+
+class IntersectionCheck:
+    """The per-frame test of :func:`new_self_intersections` for one mesh, binding and rest mesh.
+
+    The rest mesh's own pairs are found once; calling the check on a frame ``(X (V, 3),
+    y (M, 3))`` returns ``(pairs, contact_pairs, nearest_marker)`` of that frame, as the
+    fields of :class:`SelfIntersections` (:class:`lacore.markers.fitting.FrameSolver` uses
+    it between Gauss-Newton rounds).
+    """
+
+    def __init__(self, faces, binding, rest_vertices, *, contact_radius=CONTACT_RADIUS):
+        R = np.asarray(rest_vertices, float)
+        mesh = faces
+        if not isinstance(mesh, MeshTopology):      # the search's connectivity part once for all frames
+            try:
+                mesh = MeshTopology.from_faces(faces, n_vertices=len(R), allow_unreferenced=True)
+            except MeshError:
+                mesh = np.asarray(faces, np.int64)
+        F = mesh.faces if isinstance(mesh, MeshTopology) else mesh
+        self.faces, self.binding, self._mesh = F, binding, mesh
+        self.rest_pairs = self_intersections(R, mesh)
+        self._rest_keys = self.rest_pairs[:, 0] * len(F) + self.rest_pairs[:, 1]
+        self.radius = contact_radius * float(np.linalg.norm(np.ptp(R, axis=0)))
+        self._corners = binding.corner_vertices(F)
+        self._offsets = np.abs(np.asarray(binding.offsets, float))
+
+    def __call__(self, X, y):
+        F, binding, radius, n_faces = self.faces, self.binding, self.radius, len(self.faces)
+        P = self_intersections(X, self._mesh, check=False)
+        P = P[~np.isin(P[:, 0] * n_faces + P[:, 1], self._rest_keys)]
         if not len(P):
-            pairs.append(P), contacts.append(P), nearest.append(np.zeros(0, np.int64))
-            continue
-        skin = np.einsum("mk,mkc->mc", binding.barycentric, X[t][corners])          # (M, 3)
-        da = np.linalg.norm(X[t][F[P[:, 0]]][:, :, None] - skin, axis=3).min(axis=1)   # (P, M): nearest corner
-        db = np.linalg.norm(X[t][F[P[:, 1]]][:, :, None] - skin, axis=3).min(axis=1)
-        y = Y[t]
-        gap = np.linalg.norm(y[:, None] - y[None], axis=2)                          # NaN if occluded
+            return P, P, np.zeros(0, np.int64)
+        skin = np.einsum("mk,mkc->mc", binding.barycentric, X[self._corners])          # (M, 3)
+        corner = X[F]                                                                  # (F, 3, 3)
+        da = np.linalg.norm(corner[P[:, 0], :, None] - skin, axis=3).min(axis=1)       # (P, M): nearest corner
+        db = np.linalg.norm(corner[P[:, 1], :, None] - skin, axis=3).min(axis=1)
+        gap = np.linalg.norm(y[:, None] - y[None], axis=2)                             # NaN if occluded
+        offsets = self._offsets
         with np.errstate(invalid="ignore"):
             touch = gap < offsets[:, None] + offsets[None]
         np.fill_diagonal(touch, False)
         near_a, near_b = da < radius, db < radius
         # a contact: markers m1 near face a and m2 near face b with touch[m1, m2]
         explained = np.einsum("pm,mn,pn->p", near_a.astype(float), touch.astype(float), near_b.astype(float)) > 0
-        pairs.append(P[~explained])
-        contacts.append(P[explained])
         dmin = np.minimum(da, db)[~explained]
         m = np.argmin(dmin, axis=1)
-        nearest.append(np.where(dmin[np.arange(len(m)), m] <= 4 * radius, m, -1))
-    counts = np.array([len(p) for p in pairs], np.int64)
-    contact_counts = np.array([len(p) for p in contacts], np.int64)
-    return SelfIntersections(pairs, contacts, counts, contact_counts, nearest, rest)
+        return P[~explained], P[explained], np.where(dmin[np.arange(len(m)), m] <= 4 * radius, m, -1)
