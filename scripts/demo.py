@@ -275,8 +275,8 @@ def blender_mocap_fit(out_dir):
     x = observe_markers(take, body.faces, binding, seed=3)
     x[0] = observe_markers(take[:1], body.faces, binding, occlusion=0.0, seed=3)[0]  # all seen at the bind frame
     c3d = os.path.join(out_dir, "human_take.c3d")
-    # 20 poses far apart (median 12 cm per frame): at 10 Hz a brisk motion; at a capture rate such as 100 Hz the fit's
-    # temporal term (which trusts the rate) would rightly hold the mesh back
+    # 20 poses far apart (median 12 cm per frame): at 10 Hz a brisk motion (at a capture rate such as 100 Hz the
+    # markers' own prediction would miss by 1-3 mean edge lengths and the fit's temporal term would give way)
     write_c3d(c3d, MarkerTake(labels=tuple(names), positions=x / 10.0, rate=10.0, units="m"), units="mm")
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
         inputs = os.path.join(user_dir, "inputs.npz")

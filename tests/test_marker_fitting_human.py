@@ -54,3 +54,27 @@ def test_la_model_beats_vertex_pca_on_a_held_out_take(body):
     assert res.success
     assert ratio < 0.35, (e_la, e_pca)    # measured 0.23 (9.4 mm vs 41 mm), default prior weight
     assert e_la.mean() < 20, e_la         # measured 9.4 mm
+
+
+def test_the_temporal_term_gives_way_to_motion_too_fast_for_the_rate(body):
+    """20 poses a median 12 cm apart written at 100 Hz: the constant-velocity prediction misses the markers by
+    1.3-3.2 mean edge lengths, so the temporal term weakens instead of holding the mesh back (61 mm mean vertex
+    error over these 12 frames at full weight)."""
+    from lacore.markers.fitting import marker_prediction_errors
+    train, _ = body.random_poses(30, seed=0)
+    model = ShapeModel.fit(train, body.faces, reference_vertices=body.vertices)
+    _, binding = place_markers(body)
+    X, *_ = body.take(20, seed=2)
+    X = X[:12]
+    x = observe_markers(X, body.faces, binding, seed=3)
+    e = marker_prediction_errors(x)
+    assert np.isnan(e[:2]).all() and np.all(e[2:] > 0.3)          # dm; measured 0.41-0.92
+    fast = fit_markers(model, x, binding, rate=100.0)
+    still = fit_markers(model, x, binding)                         # no rate: no temporal term
+    err_fast = np.linalg.norm(fast.vertices - X, axis=2).mean() * 100      # mm
+    err_still = np.linalg.norm(still.vertices - X, axis=2).mean() * 100
+    assert fast.success and still.frame_temporal_scale is None
+    assert np.all(fast.frame_temporal_scale[2:] < 0.1), fast.frame_temporal_scale   # measured <= 0.018
+    assert "temporal term weakened" in fast.message
+    assert err_fast < 1.3 * err_still and err_fast < 15, (err_fast, err_still)      # measured 9.2 and 8.9 mm
+    assert fast.summary()["temporal_lowered_frames"] >= 10

@@ -162,6 +162,7 @@ def run(args):
         "temporal_weight": res.temporal_weight, "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
         "units": "mm", "flagged_frames": s["flagged_frames"], "flagged_markers": s["flagged_markers"],
         "self_intersection_frames": s["self_intersection_frames"],
+        "temporal_lowered_frames": s["temporal_lowered_frames"],
         "success": s["success"], "status": s["status"], "message": s["message"],
         "frame_status_counts": s["frame_status_counts"], "performer_ratio": s["performer_ratio"],
         "length_unit": s["length_unit"], "warnings": s["warnings"], "notes": s["notes"], "save_seconds": t_save,
