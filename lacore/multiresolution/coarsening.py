@@ -54,6 +54,7 @@ import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
 from ..geometry.topology import MeshTopology, check_faces
@@ -308,6 +309,20 @@ def _plane_quadrics(n, d, w):
     return w[..., None, None] * h[..., :, None] * h[..., None, :]
 
 
+def _incidence(*columns, n_vertices):
+    """Sparse (V, k) matrix with a 1 at ``(columns[j][i], i)`` for every ``j``: its product with per-item rows sums
+    them onto the vertices."""
+    k = len(columns[0])
+    rows = np.concatenate(columns)
+    cols = np.tile(np.arange(k), len(columns))
+    return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, k))
+
+
+#: Upper-triangle entries ``(i, j)`` of a symmetric 4x4 quadric, and the weight of their products in ``h^T Q h``.
+_SYM_I, _SYM_J = np.triu_indices(4)
+_SYM_W = np.where(_SYM_I == _SYM_J, 1.0, 2.0)
+
+
 def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     """Groupwise Garland-Heckbert quadrics of every vertex in every shape.
 
@@ -327,11 +342,8 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     N, V = P.shape[:2]
     faces = topology.faces
     n, d, area = _face_planes(P, faces)
-    Kf = _plane_quadrics(n, d, area)  # (N,F,4,4)
-    Q = np.zeros((V, N, 16))
-    Kf = Kf.reshape(N, -1, 16).transpose(1, 0, 2)  # (F,N,16)
-    for i in range(3):
-        np.add.at(Q, faces[:, i], Kf)
+    Kf = _plane_quadrics(n, d, area).reshape(N, -1, 16).transpose(1, 0, 2).reshape(len(faces), N * 16)
+    Q = _incidence(faces[:, 0], faces[:, 1], faces[:, 2], n_vertices=V) @ Kf  # sum over each vertex's faces
     be = topology.boundary_edges
     if be.size and boundary_weight > 0:
         ea, eb = topology.edges[be, 0], topology.edges[be, 1]
@@ -342,9 +354,8 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
         m = m / np.maximum(mn, 1e-300)[..., None]
         dm = -np.einsum("nfi,nfi->nf", m, P[:, ea])
         Kb = _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf", e, e))
-        Kb = Kb.reshape(N, -1, 16).transpose(1, 0, 2)
-        np.add.at(Q, ea, Kb)
-        np.add.at(Q, eb, Kb)
+        Kb = Kb.reshape(N, -1, 16).transpose(1, 0, 2).reshape(len(be), N * 16)
+        Q += _incidence(ea, eb, n_vertices=V) @ Kb
     return Q.reshape(V, N, 4, 4)
 
 
@@ -428,8 +439,12 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     if target != n_vertices or not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
     topo = MeshTopology.from_faces(faces, n_vertices=V)
-    Q = vertex_quadrics(P, topo, boundary_weight)
-    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2).copy()  # (V,N,4)
+    # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
+    # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
+    Q = vertex_quadrics(P, topo, boundary_weight)[:, :, _SYM_I, _SYM_J].reshape(V, N * 10)
+    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
+    M = (H[:, :, _SYM_I] * H[:, :, _SYM_J] * _SYM_W).reshape(V, N * 10)
+    self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
     Pv = P.transpose(1, 0, 2).copy()  # (V,N,3)
 
     F = len(faces)
@@ -440,9 +455,9 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         vf[a].add(f)
         vf[b].add(f)
         vf[c].add(f)
-    is_bd = topo.is_boundary_vertex.copy()
-    valive = np.ones(V, bool)
-    stamp = np.zeros(V, np.int64)
+    is_bd = topo.is_boundary_vertex.tolist()
+    valive = [True] * V  # Python lists: read one entry at a time in the loop
+    stamp = [0] * V
     blocked = [set() for _ in range(V)]  # blocked[y]: directed candidates (a, b) touching y
 
     def nbrs(a):
@@ -450,10 +465,12 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         s.discard(a)
         return s
 
-    def costs(src, dst):
-        Qs = Q[src] + Q[dst]
-        h = H[dst]
-        return np.einsum("mni,mnij,mnj->m", h, Qs, h)
+    def costs(src, dst, chunk=2048):
+        out = np.empty(len(src))
+        for i in range(0, len(src), chunk):  # in chunks: the rows gathered stay in cache
+            s, d = src[i:i + chunk], dst[i:i + chunk]
+            out[i:i + chunk] = np.einsum("mk,mk->m", M[d], Q[s]) + self_cost[d]
+        return out
 
     heap = []
 
@@ -461,9 +478,8 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if not len(src):
             return
         c = costs(src, dst).tolist()
-        st = stamp[src].tolist()
-        sd = stamp[dst].tolist()
-        for item in zip(c, src.tolist(), dst.tolist(), st, sd, strict=True):
+        src, dst = src.tolist(), dst.tolist()
+        for item in zip(c, src, dst, [stamp[i] for i in src], [stamp[i] for i in dst], strict=True):
             heapq.heappush(heap, item)
 
     E = topo.edges
@@ -563,6 +579,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         vf[a] = set()
         valive[a] = False
         Q[b] += Q[a]
+        self_cost[b] = M[b] @ Q[b]
         stamp[b] += 1
         sources.append(a)
         targets.append(b)
@@ -588,7 +605,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             report(progress, done, n_remove, "coarsening")
             next_report = done + max(1, n_remove // 100)
 
-    keep = np.flatnonzero(valive)
+    keep = np.flatnonzero(np.array(valive, bool))
     new_index = np.full(V, -1, np.int64)
     new_index[keep] = np.arange(len(keep))
     cfaces = new_index[fcur[falive]]
