@@ -293,6 +293,11 @@ def _parents(V, keep, sources, targets):
     return parent
 
 
+#: Upper-triangle entries ``(i, j)`` of a symmetric 4x4 quadric, and the weight of their products in ``h^T Q h``.
+_SYM_I, _SYM_J = np.triu_indices(4)
+_SYM_W = np.where(_SYM_I == _SYM_J, 1.0, 2.0)
+
+
 def _face_planes(P, faces):
     """Unit normals (N,F,3), offsets (N,F), areas (N,F) and raw cross products of faces in every shape."""
     a, b, c = (P[:, faces[:, i]] for i in range(3))
@@ -304,9 +309,11 @@ def _face_planes(P, faces):
 
 
 def _plane_quadrics(n, d, w):
-    """Quadrics ``w [n; d][n; d]^T`` as (..., 4, 4)."""
-    h = np.concatenate([n, d[..., None]], axis=-1)
-    return w[..., None, None] * h[..., :, None] * h[..., None, :]
+    """Upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`) of the quadrics ``w [n; d][n; d]^T`` of (N,k)
+    planes, as (k, N * 10) rows (item by item, shape by shape)."""
+    h = np.concatenate([n, d[..., None]], axis=-1).transpose(1, 0, 2)  # (k,N,4)
+    k, N = h.shape[:2]
+    return (w.T[..., None] * h[..., _SYM_I] * h[..., _SYM_J]).reshape(k, N * 10)
 
 
 def _incidence(*columns, n_vertices):
@@ -316,11 +323,6 @@ def _incidence(*columns, n_vertices):
     rows = np.concatenate(columns)
     cols = np.tile(np.arange(k), len(columns))
     return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, k))
-
-
-#: Upper-triangle entries ``(i, j)`` of a symmetric 4x4 quadric, and the weight of their products in ``h^T Q h``.
-_SYM_I, _SYM_J = np.triu_indices(4)
-_SYM_W = np.where(_SYM_I == _SYM_J, 1.0, 2.0)
 
 
 def vertex_quadrics(shapes, topology, boundary_weight=10.0):
@@ -338,12 +340,20 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     -------
     (V, N, 4, 4) ndarray
     """
-    P = shapes
+    N, V = shapes.shape[:2]
+    q = _quadric_entries(shapes, topology, boundary_weight).reshape(V, N, 10)
+    Q = np.empty((V, N, 4, 4))
+    Q[..., _SYM_I, _SYM_J] = q
+    Q[..., _SYM_J, _SYM_I] = q
+    return Q
+
+
+def _quadric_entries(P, topology, boundary_weight):
+    """:func:`vertex_quadrics` as the upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`): (V, N * 10)."""
     N, V = P.shape[:2]
     faces = topology.faces
     n, d, area = _face_planes(P, faces)
-    Kf = _plane_quadrics(n, d, area).reshape(N, -1, 16).transpose(1, 0, 2).reshape(len(faces), N * 16)
-    Q = _incidence(faces[:, 0], faces[:, 1], faces[:, 2], n_vertices=V) @ Kf  # sum over each vertex's faces
+    Q = _incidence(faces[:, 0], faces[:, 1], faces[:, 2], n_vertices=V) @ _plane_quadrics(n, d, area)
     be = topology.boundary_edges
     if be.size and boundary_weight > 0:
         ea, eb = topology.edges[be, 0], topology.edges[be, 1]
@@ -353,10 +363,9 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
         mn = np.linalg.norm(m, axis=-1)
         m = m / np.maximum(mn, 1e-300)[..., None]
         dm = -np.einsum("nfi,nfi->nf", m, P[:, ea])
-        Kb = _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf", e, e))
-        Kb = Kb.reshape(N, -1, 16).transpose(1, 0, 2).reshape(len(be), N * 16)
-        Q += _incidence(ea, eb, n_vertices=V) @ Kb
-    return Q.reshape(V, N, 4, 4)
+        Q += _incidence(ea, eb, n_vertices=V) @ _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf",
+                                                                                                  e, e))
+    return Q
 
 
 def _cross_and_l2(T):
@@ -441,17 +450,17 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     topo = MeshTopology.from_faces(faces, n_vertices=V)
     # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
     # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
-    Q = vertex_quadrics(P, topo, boundary_weight)[:, :, _SYM_I, _SYM_J].reshape(V, N * 10)
+    Q = _quadric_entries(P, topo, boundary_weight)
     H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
     M = (H[:, :, _SYM_I] * H[:, :, _SYM_J] * _SYM_W).reshape(V, N * 10)
     self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
     Pv = P.transpose(1, 0, 2).copy()  # (V,N,3)
 
     F = len(faces)
-    fcur = faces.copy()
+    fcur = faces.tolist()  # current faces, as Python lists: read and changed a few at a time in the loop
     falive = np.ones(F, bool)
     vf = [set() for _ in range(V)]
-    for f, (a, b, c) in enumerate(faces.tolist()):
+    for f, (a, b, c) in enumerate(fcur):
         vf[a].add(f)
         vf[b].add(f)
         vf[c].add(f)
@@ -461,7 +470,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     blocked = [set() for _ in range(V)]  # blocked[y]: directed candidates (a, b) touching y
 
     def nbrs(a):
-        s = set(fcur[list(vf[a])].ravel().tolist())
+        s = {x for f in vf[a] for x in fcur[f]}
         s.discard(a)
         return s
 
@@ -493,8 +502,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
 
     def geometry(a, b, moved):
         """(ok, cross products, squared lengths) of the faces ``moved`` after moving their corner a to b."""
-        tri = fcur[moved]
-        cr, l2 = _cross_and_l2(Pv[np.where(tri == a, b, tri)])
+        cr, l2 = _cross_and_l2(Pv[np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()])])
         nn = np.sqrt((cr * cr).sum(-1))
         no = fnorm[moved]
         if not np.all((fcr[moved] * cr).sum(-1) > cos_max * no * nn):
@@ -527,7 +535,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                 lst.clear()
             failures.clear()
             al = falive.nonzero()[0]
-            fa = fcur[al]
+            fa = np.array(fcur)[al]
             src = np.concatenate([fa[:, 0], fa[:, 1], fa[:, 2]])
             dst = np.concatenate([fa[:, 1], fa[:, 2], fa[:, 0]])
             push(src, dst)
@@ -545,11 +553,11 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if ok:
             Na = nbrs(a)
             common = Na & nbrs(b)
-            opp = set(fcur[list(shared)].ravel().tolist()) - {a, b}
+            opp = {x for f in shared for x in fcur[f]} - {a, b}
             ok = common == opp
             if ok:
-                moved = [f for f in Fa if f not in shared]
-                ok, cr, l2 = geometry(a, b, moved) if moved else (True, None, None)
+                moved = np.array([f for f in Fa if f not in shared], np.int64)
+                ok, cr, l2 = geometry(a, b, moved) if len(moved) else (True, None, None)
                 if not ok:  # geometry changes only with the faces around a; retried a few times
                     n_fail = failures.get((a, b), 0) + 1
                     failures[(a, b)] = n_fail
@@ -562,17 +570,16 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             continue
         # --- collapse a -> b
         ring_chunks.append([(q, r) if p == a else (r, p) if q == a else (p, q)
-                            for p, q, r in fcur[list(Fa)].tolist()])
+                            for p, q, r in (fcur[f] for f in Fa)])
         for f in shared:
             falive[f] = False
-            for x in fcur[f].tolist():
+            for x in fcur[f]:
                 if x != a:
                     vf[x].discard(f)
-        for f in moved:
-            row = fcur[f]
-            row[row == a] = b
+        for f in moved.tolist():
+            fcur[f] = [b if x == a else x for x in fcur[f]]
             vf[b].add(f)
-        if moved:
+        if len(moved):
             fcr[moved] = cr
             fl2[moved] = l2
             fnorm[moved] = np.sqrt((cr * cr).sum(-1))
@@ -608,7 +615,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     keep = np.flatnonzero(np.array(valive, bool))
     new_index = np.full(V, -1, np.int64)
     new_index[keep] = np.arange(len(keep))
-    cfaces = new_index[fcur[falive]]
+    cfaces = new_index[np.array(fcur, np.int64)[falive]]
     sources = np.asarray(sources, np.int64)
     targets = np.asarray(targets, np.int64)
     parent = _parents(V, keep, sources, targets)
