@@ -369,15 +369,18 @@ def _quadric_entries(P, topology, boundary_weight):
 
 
 def _cross_and_l2(T):
-    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,N,3) and sums of squared edge lengths (k,N) of (k,3,N,3)."""
+    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,3,N) and sums of squared edge lengths (k,N) of triangles
+    (k,3,3,N) (corner, coordinate, shape: the coordinates of all shapes contiguous)."""
     e0 = T[:, 1] - T[:, 0]
     e1 = T[:, 2] - T[:, 0]
     e2 = T[:, 2] - T[:, 1]
+    x0, y0, z0 = e0[:, 0], e0[:, 1], e0[:, 2]
+    x1, y1, z1 = e1[:, 0], e1[:, 1], e1[:, 2]
     cr = np.empty_like(e0)
-    cr[..., 0] = e0[..., 1] * e1[..., 2] - e0[..., 2] * e1[..., 1]
-    cr[..., 1] = e0[..., 2] * e1[..., 0] - e0[..., 0] * e1[..., 2]
-    cr[..., 2] = e0[..., 0] * e1[..., 1] - e0[..., 1] * e1[..., 0]
-    return cr, (e0 * e0).sum(-1) + (e1 * e1).sum(-1) + (e2 * e2).sum(-1)
+    np.subtract(y0 * z1, z0 * y1, out=cr[:, 0])
+    np.subtract(z0 * x1, x0 * z1, out=cr[:, 1])
+    np.subtract(x0 * y1, y0 * x1, out=cr[:, 2])
+    return cr, (e0 * e0).sum(1) + (e1 * e1).sum(1) + (e2 * e2).sum(1)
 
 
 def _check_shapes(shapes, faces):
@@ -454,7 +457,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
     M = (H[:, :, _SYM_I] * H[:, :, _SYM_J] * _SYM_W).reshape(V, N * 10)
     self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
-    Pv = P.transpose(1, 0, 2).copy()  # (V,N,3)
+    Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
 
     F = len(faces)
     fcur = faces.tolist()  # current faces, as Python lists: read and changed a few at a time in the loop
@@ -497,20 +500,21 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                     strict=True))
     heapq.heapify(heap)
 
-    fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,N,3), sums of squared lengths (F,N)
-    fnorm = np.sqrt((fcr * fcr).sum(-1))
+    fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,3,N), sums of squared lengths (F,N)
+    fnorm = np.sqrt((fcr * fcr).sum(1))
 
     def geometry(a, b, moved):
-        """(ok, cross products, squared lengths) of the faces ``moved`` after moving their corner a to b."""
+        """(ok, cross products, squared lengths, norms of the cross products) of the faces ``moved`` after moving
+        their corner a to b."""
         cr, l2 = _cross_and_l2(Pv[np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()])])
-        nn = np.sqrt((cr * cr).sum(-1))
+        nn = np.sqrt((cr * cr).sum(1))
         no = fnorm[moved]
-        if not np.all((fcr[moved] * cr).sum(-1) > cos_max * no * nn):
-            return False, None, None  # flipped, degenerate or turned too far in some shape
+        if not np.all((fcr[moved] * cr).sum(1) > cos_max * no * nn):
+            return False, None, None, None  # flipped, degenerate or turned too far in some shape
         q_new = nn / l2
         # a face may not get worse than min_quality (unless it gets no worse than it was)
         ok = bool(np.all((q_new >= qmin_scaled) | (q_new >= no / fl2[moved])))
-        return ok, cr, l2
+        return ok, cr, l2, nn
 
     sources, targets, cost_list, ring_chunks = [], [], [], []
     n_alive = V
@@ -557,7 +561,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             ok = common == opp
             if ok:
                 moved = np.array([f for f in Fa if f not in shared], np.int64)
-                ok, cr, l2 = geometry(a, b, moved) if len(moved) else (True, None, None)
+                ok, cr, l2, nn = geometry(a, b, moved) if len(moved) else (True, None, None, None)
                 if not ok:  # geometry changes only with the faces around a; retried a few times
                     n_fail = failures.get((a, b), 0) + 1
                     failures[(a, b)] = n_fail
@@ -582,7 +586,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if len(moved):
             fcr[moved] = cr
             fl2[moved] = l2
-            fnorm[moved] = np.sqrt((cr * cr).sum(-1))
+            fnorm[moved] = nn
         vf[a] = set()
         valive[a] = False
         Q[b] += Q[a]
