@@ -70,6 +70,10 @@ _MAX_RETRIES = 3
 #: Rows handled at once by the vectorized steps over all faces or edges (bounded temporaries).
 _CHUNK = 4096
 
+#: The heap is purged of outdated entries when the outdated entries popped since the last purge exceed this
+#: fraction of its size (popping one costs a logarithmic sift, dropping it a constant).
+_PURGE_FRACTION = 64
+
 #: ``format`` entry of a stored coarsening (:meth:`Coarsening.to_arrays`).
 RECORD_FORMAT = "lacore.multiresolution.coarsening"
 #: Version of the stored layout; :meth:`Coarsening.from_arrays` reads this version.
@@ -540,6 +544,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     relax_rounds = 0
     failures = {}
     next_report = 0
+    n_stale = 0  # outdated entries popped since the heap was last purged
     while n_alive > target:
         if not heap:
             # relax the geometric thresholds and retry everything still alive
@@ -561,6 +566,12 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             continue
         cost, a, b, sa, sb = heapq.heappop(heap)
         if not (valive[a] and valive[b]) or stamp[a] != sa or stamp[b] != sb:
+            n_stale += 1
+            if n_stale * _PURGE_FRACTION > len(heap):  # outdated entries pile up: drop them all at once
+                heap[:] = [e for e in heap if stamp[e[1]] == e[3] and stamp[e[2]] == e[4] and valive[e[1]]
+                           and valive[e[2]]]
+                heapq.heapify(heap)
+                n_stale = 0
             continue
         Fa = vf[a]
         shared = Fa & vf[b]
