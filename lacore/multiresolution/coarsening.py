@@ -72,7 +72,7 @@ _CHUNK = 4096
 
 #: The heap is purged of outdated entries when the outdated entries popped since the last purge exceed this
 #: fraction of its size (popping one costs a logarithmic sift, dropping it a constant).
-_PURGE_FRACTION = 64
+_PURGE_FRACTION = 16
 
 #: ``format`` entry of a stored coarsening (:meth:`Coarsening.to_arrays`).
 RECORD_FORMAT = "lacore.multiresolution.coarsening"
@@ -488,7 +488,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         vf[c].add(f)
     is_bd = topo.is_boundary_vertex.tolist()
     valive = [True] * V  # Python lists: read one entry at a time in the loop
-    stamp = [0] * V
+    stamp = [0] * V  # changes of each vertex's quadric; -1 once removed
     blocked = [set() for _ in range(V)]  # blocked[y]: directed candidates (a, b) touching y
 
     def nbrs(a):
@@ -565,11 +565,10 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             push(src, dst)
             continue
         cost, a, b, sa, sb = heapq.heappop(heap)
-        if not (valive[a] and valive[b]) or stamp[a] != sa or stamp[b] != sb:
+        if stamp[a] != sa or stamp[b] != sb:  # outdated (a removed vertex's stamp is -1)
             n_stale += 1
             if n_stale * _PURGE_FRACTION > len(heap):  # outdated entries pile up: drop them all at once
-                heap[:] = [e for e in heap if stamp[e[1]] == e[3] and stamp[e[2]] == e[4] and valive[e[1]]
-                           and valive[e[2]]]
+                heap[:] = [e for e in heap if stamp[e[1]] == e[3] and stamp[e[2]] == e[4]]
                 heapq.heapify(heap)
                 n_stale = 0
             continue
@@ -615,6 +614,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             fnorm[moved] = nn
         vf[a] = set()
         valive[a] = False
+        stamp[a] = -1
         Q[b] += Q[a]
         self_cost[b] = M[b] @ Q[b]
         stamp[b] += 1
