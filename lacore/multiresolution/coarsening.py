@@ -475,7 +475,10 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
     Q = _quadric_entries(P, topo, boundary_weight)
     H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
-    M = (H[:, :, _SYM_I] * H[:, :, _SYM_J] * _SYM_W).reshape(V, N * 10)
+    M = H[:, :, _SYM_I]
+    M *= H[:, :, _SYM_J]
+    M *= _SYM_W
+    M = M.reshape(V, N * 10)
     self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
     Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
 
@@ -520,7 +523,9 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                     strict=True))
     heapq.heapify(heap)
 
-    fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,3,N), sums of squared lengths (F,N)
+    fcr, fl2 = np.empty((F, 3, N)), np.empty((F, N))  # current faces: cross products, sums of squared lengths
+    for i in range(0, F, _CHUNK):
+        fcr[i:i + _CHUNK], fl2[i:i + _CHUNK] = _cross_and_l2(Pv[faces[i:i + _CHUNK]])
     fnorm = np.sqrt((fcr * fcr).sum(1))
 
     def geometry(a, b, moved):
