@@ -501,6 +501,8 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         return s
 
     def costs(src, dst):
+        if len(src) <= _CHUNK:
+            return np.einsum("mk,mk->m", M[dst], Q[src]) + self_cost[dst]
         out = np.empty(len(src))
         for i in range(0, len(src), _CHUNK):  # in chunks: the rows gathered stay small
             s, d = src[i:i + _CHUNK], dst[i:i + _CHUNK]
@@ -510,10 +512,10 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     heap = []
 
     def push(src, dst):
-        if not len(src):
+        """Queue the candidates ``src[i] -> dst[i]`` (lists of vertices) at their current costs."""
+        if not src:
             return
-        c = costs(src, dst).tolist()
-        src, dst = src.tolist(), dst.tolist()
+        c = costs(np.array(src), np.array(dst)).tolist()
         for item in zip(c, src, dst, [stamp[i] for i in src], [stamp[i] for i in dst], strict=True):
             heapq.heappush(heap, item)
 
@@ -569,7 +571,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             fa = np.array(fcur)[al]
             src = np.concatenate([fa[:, 0], fa[:, 1], fa[:, 2]])
             dst = np.concatenate([fa[:, 1], fa[:, 2], fa[:, 0]])
-            push(src, dst)
+            push(src.tolist(), dst.tolist())
             continue
         cost, a, b, sa, sb = heapq.heappop(heap)
         if stamp[a] != sa or stamp[b] != sb:  # outdated (a removed vertex's stamp is -1)
@@ -630,20 +632,14 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         cost_list.append(cost)
         n_alive -= 1
         # --- new costs: every half-edge at b; retry blocked candidates around b
-        nb = np.fromiter(nbrs(b), np.int64)
-        src = [np.full(len(nb), b), nb]
-        dst = [nb, np.full(len(nb), b)]
+        nb = list(nbrs(b))
         retry = set()
-        for y in [b, *nb.tolist()]:
+        for y in [b, *nb]:
             if blocked[y]:
                 retry |= blocked[y]
                 blocked[y].clear()
         retry = [(s_, d_) for s_, d_ in retry if valive[s_] and valive[d_] and s_ != b and d_ != b]
-        if retry:
-            r = np.array(retry, np.int64)
-            src.append(r[:, 0])
-            dst.append(r[:, 1])
-        push(np.concatenate(src), np.concatenate(dst))
+        push([b] * len(nb) + nb + [s_ for s_, _ in retry], nb + [b] * len(nb) + [d_ for _, d_ in retry])
         done = V - n_alive
         if progress is not None and done >= next_report:
             report(progress, done, n_remove, "coarsening")
