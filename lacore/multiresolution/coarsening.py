@@ -16,7 +16,7 @@ the edge perpendicular to its face, weighted by ``boundary_weight * l^2``, so
 collapses along the boundary keep its shape).  Collapsing ``u -> v`` costs
 ``sum_s [p_v^s; 1]^T (Q_u^s + Q_v^s) [p_v^s; 1]`` and hands ``Q_u`` on to
 ``v``.  Collapses are done cheapest first (a priority queue with lazily
-invalidated entries).
+invalidated entries, dropped in one pass when many have piled up).
 
 Validity (checked for every collapse, in every shape)
 -----------------------------------------------------
