@@ -16,7 +16,7 @@ the edge perpendicular to its face, weighted by ``boundary_weight * l^2``, so
 collapses along the boundary keep its shape).  Collapsing ``u -> v`` costs
 ``sum_s [p_v^s; 1]^T (Q_u^s + Q_v^s) [p_v^s; 1]`` and hands ``Q_u`` on to
 ``v``.  Collapses are done cheapest first (a priority queue with lazily
-invalidated entries, dropped in one pass when many have piled up).
+invalidated entries).
 
 Validity (checked for every collapse, in every shape)
 -----------------------------------------------------
@@ -54,7 +54,6 @@ import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
 from ..geometry.topology import MeshTopology, check_faces
@@ -66,13 +65,6 @@ __all__ = ["Coarsening", "coarsen", "vertex_quadrics", "RECORD_FORMAT", "RECORD_
 
 #: A candidate rejected for its geometry is retried (after changes around it) at most this often per round.
 _MAX_RETRIES = 3
-
-#: Rows handled at once by the vectorized steps over all faces or edges (bounded temporaries).
-_CHUNK = 4096
-
-#: The heap is purged of outdated entries when the outdated entries popped since the last purge exceed this
-#: fraction of its size (popping one costs a logarithmic sift, dropping it a constant).
-_PURGE_FRACTION = 16
 
 #: ``format`` entry of a stored coarsening (:meth:`Coarsening.to_arrays`).
 RECORD_FORMAT = "lacore.multiresolution.coarsening"
@@ -300,26 +292,10 @@ def _parents(V, keep, sources, targets):
     return parent
 
 
-#: Upper-triangle entries ``(i, j)`` of a symmetric 4x4 quadric, and the weight of their products in ``h^T Q h``.
-_SYM_I, _SYM_J = np.triu_indices(4)
-_SYM_W = np.where(_SYM_I == _SYM_J, 1.0, 2.0)
-
-
-def _cross(u, v):
-    """Cross products of (..., 3) arrays (:func:`numpy.cross` without its axis handling: faster on large arrays)."""
-    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
-    x0, y0, z0 = u[..., 0], u[..., 1], u[..., 2]
-    x1, y1, z1 = v[..., 0], v[..., 1], v[..., 2]
-    np.subtract(y0 * z1, z0 * y1, out=out[..., 0])
-    np.subtract(z0 * x1, x0 * z1, out=out[..., 1])
-    np.subtract(x0 * y1, y0 * x1, out=out[..., 2])
-    return out
-
-
 def _face_planes(P, faces):
     """Unit normals (N,F,3), offsets (N,F), areas (N,F) and raw cross products of faces in every shape."""
     a, b, c = (P[:, faces[:, i]] for i in range(3))
-    cr = _cross(b - a, c - a)
+    cr = np.cross(b - a, c - a)
     norm = np.linalg.norm(cr, axis=-1)
     n = cr / np.maximum(norm, 1e-300)[..., None]
     d = -np.einsum("nfi,nfi->nf", n, a)
@@ -327,20 +303,9 @@ def _face_planes(P, faces):
 
 
 def _plane_quadrics(n, d, w):
-    """Upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`) of the quadrics ``w [n; d][n; d]^T`` of (N,k)
-    planes, as (k, N * 10) rows (item by item, shape by shape)."""
-    h = np.concatenate([n, d[..., None]], axis=-1).transpose(1, 0, 2)  # (k,N,4)
-    k, N = h.shape[:2]
-    return (w.T[..., None] * h[..., _SYM_I] * h[..., _SYM_J]).reshape(k, N * 10)
-
-
-def _incidence(*columns, n_vertices):
-    """Sparse (V, k) matrix with a 1 at ``(columns[j][i], i)`` for every ``j``: its product with per-item rows sums
-    them onto the vertices."""
-    k = len(columns[0])
-    rows = np.concatenate(columns)
-    cols = np.tile(np.arange(k), len(columns))
-    return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, k))
+    """Quadrics ``w [n; d][n; d]^T`` as (..., 4, 4)."""
+    h = np.concatenate([n, d[..., None]], axis=-1)
+    return w[..., None, None] * h[..., :, None] * h[..., None, :]
 
 
 def vertex_quadrics(shapes, topology, boundary_weight=10.0):
@@ -358,49 +323,41 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     -------
     (V, N, 4, 4) ndarray
     """
-    N, V = shapes.shape[:2]
-    q = _quadric_entries(shapes, topology, boundary_weight).reshape(V, N, 10)
-    Q = np.empty((V, N, 4, 4))
-    Q[..., _SYM_I, _SYM_J] = q
-    Q[..., _SYM_J, _SYM_I] = q
-    return Q
-
-
-def _quadric_entries(P, topology, boundary_weight):
-    """:func:`vertex_quadrics` as the upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`): (V, N * 10)."""
+    P = shapes
     N, V = P.shape[:2]
     faces = topology.faces
-    Q = np.zeros((V, N * 10))
-    for i in range(0, len(faces), _CHUNK):  # in chunks of faces: the temporaries stay small
-        f = faces[i:i + _CHUNK]
-        Q += _incidence(f[:, 0], f[:, 1], f[:, 2], n_vertices=V) @ _plane_quadrics(*_face_planes(P, f))
+    n, d, area = _face_planes(P, faces)
+    Kf = _plane_quadrics(n, d, area)  # (N,F,4,4)
+    Q = np.zeros((V, N, 16))
+    Kf = Kf.reshape(N, -1, 16).transpose(1, 0, 2)  # (F,N,16)
+    for i in range(3):
+        np.add.at(Q, faces[:, i], Kf)
     be = topology.boundary_edges
     if be.size and boundary_weight > 0:
         ea, eb = topology.edges[be, 0], topology.edges[be, 1]
+        f = topology.edge_faces[be, 0]
         e = P[:, eb] - P[:, ea]
-        m = _cross(e, _face_planes(P, faces[topology.edge_faces[be, 0]])[0])
+        m = np.cross(e, n[:, f])
         mn = np.linalg.norm(m, axis=-1)
         m = m / np.maximum(mn, 1e-300)[..., None]
         dm = -np.einsum("nfi,nfi->nf", m, P[:, ea])
-        Q += _incidence(ea, eb, n_vertices=V) @ _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf",
-                                                                                                  e, e))
-    return Q
-
-
-#: Rows of a triangle's corners giving its edges ``p1 - p0, p2 - p0, p2 - p1``, and cyclic shifts of x, y, z.
-_EDGE_HEADS, _EDGE_TAILS = np.array([1, 2, 2]), np.array([0, 0, 1])
-_SHIFT1, _SHIFT2 = np.array([1, 2, 0]), np.array([2, 0, 1])
+        Kb = _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf", e, e))
+        Kb = Kb.reshape(N, -1, 16).transpose(1, 0, 2)
+        np.add.at(Q, ea, Kb)
+        np.add.at(Q, eb, Kb)
+    return Q.reshape(V, N, 4, 4)
 
 
 def _cross_and_l2(T):
-    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,3,N) and sums of squared edge lengths (k,N) of triangles
-    (k,3,3,N) (corner, coordinate, shape: the coordinates of all shapes contiguous)."""
-    E = T[:, _EDGE_HEADS] - T[:, _EDGE_TAILS]  # (k,3,3,N)
-    e0, e1 = E[:, 0], E[:, 1]
-    cr = e0[:, _SHIFT1] * e1[:, _SHIFT2]  # whole rows at a time: fewer, contiguous operations
-    cr -= e0[:, _SHIFT2] * e1[:, _SHIFT1]
-    E *= E
-    return cr, E.sum(2).sum(1)
+    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,N,3) and sums of squared edge lengths (k,N) of (k,3,N,3)."""
+    e0 = T[:, 1] - T[:, 0]
+    e1 = T[:, 2] - T[:, 0]
+    e2 = T[:, 2] - T[:, 1]
+    cr = np.empty_like(e0)
+    cr[..., 0] = e0[..., 1] * e1[..., 2] - e0[..., 2] * e1[..., 1]
+    cr[..., 1] = e0[..., 2] * e1[..., 0] - e0[..., 0] * e1[..., 2]
+    cr[..., 2] = e0[..., 0] * e1[..., 1] - e0[..., 1] * e1[..., 0]
+    return cr, (e0 * e0).sum(-1) + (e1 * e1).sum(-1) + (e2 * e2).sum(-1)
 
 
 def _check_shapes(shapes, faces):
@@ -471,52 +428,42 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     if target != n_vertices or not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
     topo = MeshTopology.from_faces(faces, n_vertices=V)
-    # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
-    # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
-    Q = _quadric_entries(P, topo, boundary_weight)
-    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
-    M = H[:, :, _SYM_I]
-    M *= H[:, :, _SYM_J]
-    M *= _SYM_W
-    M = M.reshape(V, N * 10)
-    self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
-    Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
+    Q = vertex_quadrics(P, topo, boundary_weight)
+    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2).copy()  # (V,N,4)
+    Pv = P.transpose(1, 0, 2).copy()  # (V,N,3)
 
     F = len(faces)
-    fcur = faces.tolist()  # current faces, as Python lists: read and changed a few at a time in the loop
+    fcur = faces.copy()
     falive = np.ones(F, bool)
     vf = [set() for _ in range(V)]
-    for f, (a, b, c) in enumerate(fcur):
+    for f, (a, b, c) in enumerate(faces.tolist()):
         vf[a].add(f)
         vf[b].add(f)
         vf[c].add(f)
-    is_bd = topo.is_boundary_vertex.tolist()
-    valive = [True] * V  # Python lists: read one entry at a time in the loop
-    stamp = [0] * V  # changes of each vertex's quadric; -1 once removed
+    is_bd = topo.is_boundary_vertex.copy()
+    valive = np.ones(V, bool)
+    stamp = np.zeros(V, np.int64)
     blocked = [set() for _ in range(V)]  # blocked[y]: directed candidates (a, b) touching y
 
     def nbrs(a):
-        s = {x for f in vf[a] for x in fcur[f]}
+        s = set(fcur[list(vf[a])].ravel().tolist())
         s.discard(a)
         return s
 
     def costs(src, dst):
-        if len(src) <= _CHUNK:
-            return np.einsum("mk,mk->m", M[dst], Q[src]) + self_cost[dst]
-        out = np.empty(len(src))
-        for i in range(0, len(src), _CHUNK):  # in chunks: the rows gathered stay small
-            s, d = src[i:i + _CHUNK], dst[i:i + _CHUNK]
-            out[i:i + _CHUNK] = np.einsum("mk,mk->m", M[d], Q[s]) + self_cost[d]
-        return out
+        Qs = Q[src] + Q[dst]
+        h = H[dst]
+        return np.einsum("mni,mnij,mnj->m", h, Qs, h)
 
     heap = []
 
     def push(src, dst):
-        """Queue the candidates ``src[i] -> dst[i]`` (lists of vertices) at their current costs."""
-        if not src:
+        if not len(src):
             return
-        c = costs(np.array(src), np.array(dst)).tolist()
-        for item in zip(c, src, dst, [stamp[i] for i in src], [stamp[i] for i in dst], strict=True):
+        c = costs(src, dst).tolist()
+        st = stamp[src].tolist()
+        sd = stamp[dst].tolist()
+        for item in zip(c, src.tolist(), dst.tolist(), st, sd, strict=True):
             heapq.heappush(heap, item)
 
     E = topo.edges
@@ -525,24 +472,21 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                     strict=True))
     heapq.heapify(heap)
 
-    fcr, fl2 = np.empty((F, 3, N)), np.empty((F, N))  # current faces: cross products, sums of squared lengths
-    for i in range(0, F, _CHUNK):
-        fcr[i:i + _CHUNK], fl2[i:i + _CHUNK] = _cross_and_l2(Pv[faces[i:i + _CHUNK]])
-    fnorm = np.sqrt((fcr * fcr).sum(1))
+    fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,N,3), sums of squared lengths (F,N)
+    fnorm = np.sqrt((fcr * fcr).sum(-1))
 
     def geometry(a, b, moved):
-        """(ok, cross products, squared lengths, norms of the cross products) of the faces ``moved`` after moving
-        their corner a to b."""
-        cr, l2 = _cross_and_l2(Pv[np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()])])
-        nn = cr * cr
-        nn = np.sqrt(nn.sum(1))
+        """(ok, cross products, squared lengths) of the faces ``moved`` after moving their corner a to b."""
+        tri = fcur[moved]
+        cr, l2 = _cross_and_l2(Pv[np.where(tri == a, b, tri)])
+        nn = np.sqrt((cr * cr).sum(-1))
         no = fnorm[moved]
-        if not ((fcr[moved] * cr).sum(1) > cos_max * no * nn).all():
-            return False, None, None, None  # flipped, degenerate or turned too far in some shape
-        # a face may not get worse than min_quality (unless it gets no worse than it was; fmin: a degenerate
-        # face's NaN quality leaves min_quality)
-        ok = bool((nn / l2 >= np.fmin(no / fl2[moved], qmin_scaled)).all())
-        return ok, cr, l2, nn
+        if not np.all((fcr[moved] * cr).sum(-1) > cos_max * no * nn):
+            return False, None, None  # flipped, degenerate or turned too far in some shape
+        q_new = nn / l2
+        # a face may not get worse than min_quality (unless it gets no worse than it was)
+        ok = bool(np.all((q_new >= qmin_scaled) | (q_new >= no / fl2[moved])))
+        return ok, cr, l2
 
     sources, targets, cost_list, ring_chunks = [], [], [], []
     n_alive = V
@@ -553,7 +497,6 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     relax_rounds = 0
     failures = {}
     next_report = 0
-    n_stale = 0  # outdated entries popped since the heap was last purged
     while n_alive > target:
         if not heap:
             # relax the geometric thresholds and retry everything still alive
@@ -568,18 +511,13 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                 lst.clear()
             failures.clear()
             al = falive.nonzero()[0]
-            fa = np.array(fcur)[al]
+            fa = fcur[al]
             src = np.concatenate([fa[:, 0], fa[:, 1], fa[:, 2]])
             dst = np.concatenate([fa[:, 1], fa[:, 2], fa[:, 0]])
-            push(src.tolist(), dst.tolist())
+            push(src, dst)
             continue
         cost, a, b, sa, sb = heapq.heappop(heap)
-        if stamp[a] != sa or stamp[b] != sb:  # outdated (a removed vertex's stamp is -1)
-            n_stale += 1
-            if n_stale * _PURGE_FRACTION > len(heap):  # outdated entries pile up: drop them all at once
-                heap[:] = [e for e in heap if stamp[e[1]] == e[3] and stamp[e[2]] == e[4]]
-                heapq.heapify(heap)
-                n_stale = 0
+        if not (valive[a] and valive[b]) or stamp[a] != sa or stamp[b] != sb:
             continue
         Fa = vf[a]
         shared = Fa & vf[b]
@@ -591,11 +529,11 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if ok:
             Na = nbrs(a)
             common = Na & nbrs(b)
-            opp = {x for f in shared for x in fcur[f]} - {a, b}
+            opp = set(fcur[list(shared)].ravel().tolist()) - {a, b}
             ok = common == opp
             if ok:
-                moved = np.array([f for f in Fa if f not in shared], np.int64)
-                ok, cr, l2, nn = geometry(a, b, moved) if len(moved) else (True, None, None, None)
+                moved = [f for f in Fa if f not in shared]
+                ok, cr, l2 = geometry(a, b, moved) if moved else (True, None, None)
                 if not ok:  # geometry changes only with the faces around a; retried a few times
                     n_fail = failures.get((a, b), 0) + 1
                     failures[(a, b)] = n_fail
@@ -608,47 +546,52 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             continue
         # --- collapse a -> b
         ring_chunks.append([(q, r) if p == a else (r, p) if q == a else (p, q)
-                            for p, q, r in (fcur[f] for f in Fa)])
+                            for p, q, r in fcur[list(Fa)].tolist()])
         for f in shared:
             falive[f] = False
-            for x in fcur[f]:
+            for x in fcur[f].tolist():
                 if x != a:
                     vf[x].discard(f)
-        for f in moved.tolist():
-            fcur[f] = [b if x == a else x for x in fcur[f]]
+        for f in moved:
+            row = fcur[f]
+            row[row == a] = b
             vf[b].add(f)
-        if len(moved):
+        if moved:
             fcr[moved] = cr
             fl2[moved] = l2
-            fnorm[moved] = nn
+            fnorm[moved] = np.sqrt((cr * cr).sum(-1))
         vf[a] = set()
         valive[a] = False
-        stamp[a] = -1
         Q[b] += Q[a]
-        self_cost[b] = M[b] @ Q[b]
         stamp[b] += 1
         sources.append(a)
         targets.append(b)
         cost_list.append(cost)
         n_alive -= 1
         # --- new costs: every half-edge at b; retry blocked candidates around b
-        nb = list(nbrs(b))
+        nb = np.fromiter(nbrs(b), np.int64)
+        src = [np.full(len(nb), b), nb]
+        dst = [nb, np.full(len(nb), b)]
         retry = set()
-        for y in [b, *nb]:
+        for y in [b, *nb.tolist()]:
             if blocked[y]:
                 retry |= blocked[y]
                 blocked[y].clear()
         retry = [(s_, d_) for s_, d_ in retry if valive[s_] and valive[d_] and s_ != b and d_ != b]
-        push([b] * len(nb) + nb + [s_ for s_, _ in retry], nb + [b] * len(nb) + [d_ for _, d_ in retry])
+        if retry:
+            r = np.array(retry, np.int64)
+            src.append(r[:, 0])
+            dst.append(r[:, 1])
+        push(np.concatenate(src), np.concatenate(dst))
         done = V - n_alive
         if progress is not None and done >= next_report:
             report(progress, done, n_remove, "coarsening")
             next_report = done + max(1, n_remove // 100)
 
-    keep = np.flatnonzero(np.array(valive, bool))
+    keep = np.flatnonzero(valive)
     new_index = np.full(V, -1, np.int64)
     new_index[keep] = np.arange(len(keep))
-    cfaces = new_index[np.array(fcur, np.int64)[falive]]
+    cfaces = new_index[fcur[falive]]
     sources = np.asarray(sources, np.int64)
     targets = np.asarray(targets, np.int64)
     parent = _parents(V, keep, sources, targets)
