@@ -37,8 +37,6 @@ import copy
 import dataclasses
 import hashlib
 import io
-import os
-import tempfile
 
 import bpy
 import numpy as np
@@ -56,7 +54,7 @@ from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_mode
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
-from .storage import PayloadError, load_payload, release_payload, store_payload
+from .storage import PayloadError, load_payload, release_payload, saved_bytes, store_payload
 
 __all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes",
            "CALIBRATION_PROP", "calibration_key", "stored_calibration", "remove_calibration"]
@@ -361,10 +359,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
 def calibration_key(model_token, markers, unit, up, forward, kind, pins, options):
     """Digest of everything a calibration depends on: the stored model (its token), the markers (labels and
     positions in the character's space, metres), the unit, the axes, the placement kind and pins, and the
-    fit's settings the calibration uses (all but the temporal weight, which only the fit of the frames uses)
+    fit's settings the calibration uses (all but the temporal ones, which only the fit of the frames uses)
     and the calibration's (lacore's defaults included: a new version calibrates afresh)."""
     from ..lacore.markers.calibration import CALIBRATION_DEFAULTS
-    used = dataclasses.replace(options, temporal_weight=0.0, reference_rate=1.0)
+    used = dataclasses.replace(options, temporal_weight=0.0, reference_rate=1.0, temporal_tolerance=None)
     h = hashlib.blake2b(digest_size=16)
     for part in (model_token, markers.labels, f"{unit!r}", up, forward, kind, sorted(pins.items()), repr(used),
                  repr(CALIBRATION_DEFAULTS), markers.positions.shape):
@@ -377,23 +375,19 @@ def calibration_key(model_token, markers, unit, up, forward, kind, pins, options
 def stored_calibration(mesh, key):
     """The calibration stored with ``mesh`` by the last Calibrate & Fit if its key is ``key`` (``seconds`` 0: none
     spent now), else None."""
-    from ..lacore.errors import InputError as _InputError
     from ..lacore.markers import Calibration
     record = mesh.get(CALIBRATION_PROP)
     if record is None or str(record.get("key", "")) != key:
         return None
     try:
         cal = Calibration.load(io.BytesIO(load_payload(record, CALIBRATION_HEADER)))
-    except (PayloadError, _InputError):
+    except (PayloadError, InputError):
         return None
     return dataclasses.replace(cal, seconds=0.0)   # no time spent calibrating in this run
 
 
 def _store_calibration(mesh, cal, key):
-    with tempfile.TemporaryDirectory() as tmp:
-        path = cal.save(os.path.join(tmp, "calibration.npz"))
-        with open(path, "rb") as fh:
-            data = fh.read()
+    data = saved_bytes(cal.save, "calibration.npz")
     store_payload(mesh, CALIBRATION_PROP, data, header=CALIBRATION_HEADER, name=f"LA calibration {mesh.name}",
                   record={"key": key})
 

@@ -51,7 +51,6 @@ import base64
 import hashlib
 import io
 import os
-import tempfile
 
 import bpy
 import numpy as np
@@ -212,11 +211,7 @@ def store_model(mesh, model, keys):
     """Store ``model`` with ``mesh`` (saved with the .blend): its ``.npz`` a payload of
     :func:`.storage.store_payload` (text ``"LA shape model <mesh>"``), ``mesh[MODEL_PROP]`` the record (key names,
     vertex and mode counts)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "model.npz")
-        model.save(path)
-        with open(path, "rb") as fh:
-            data = fh.read()
+    data = storage.saved_bytes(model.save, "model.npz")
     storage.store_payload(mesh, MODEL_PROP, data, header=MODEL_HEADER, name=f"LA shape model {mesh.name}",
                           record={"keys": list(keys), "n_vertices": len(mesh.vertices),
                                   "n_modes": int(model.n_modes)})

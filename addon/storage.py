@@ -35,6 +35,8 @@ original's text until one of them is rebuilt or removed; a text is removed with 
 
 import base64
 import binascii
+import os
+import tempfile
 import uuid
 
 import bpy
@@ -95,6 +97,16 @@ def store_payload(mesh, prop, data, *, header, name, record=None):
         text.name = name
         mesh[prop]["text"] = text.name
     return token
+
+
+def saved_bytes(save, filename):
+    """The bytes ``save(path)`` (a lacore object's ``save`` method) writes to ``filename`` (ending ``.npz``) in a
+    temporary folder, for :func:`store_payload`."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, filename)
+        save(path)
+        with open(path, "rb") as fh:
+            return fh.read()
 
 
 def load_payload(record, header):

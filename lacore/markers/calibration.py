@@ -606,6 +606,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
 
     tr = fit_markers(model, yt, binding, FIT_DEFAULTS, prior_weight=o.track_prior_weight,
                      max_iterations=o.track_iterations, temporal_weight=10.0, rate=FIT_DEFAULTS.reference_rate,
+                     temporal_tolerance=None,     # strided frames at a nominal rate: a fixed smoothing weight
                      initial_vertices=X0,
                      progress=None if progress is None else tracking_progress)
     sel = np.searchsorted(track, frames)

@@ -437,7 +437,6 @@ class FrameSolver:
         self.options = options
         self.w_p = float(options.penetration_weight)
         self.clear_penetration()
-        self._intersections = None
         self.set_binding(binding)
         self.X_hat = None
         self._factor_key = None
@@ -823,9 +822,8 @@ def _temporal_scale(errors, sigma, window=PREDICTION_WINDOW):
     h = window // 2
     padded = np.concatenate([np.full(h, np.nan), errors, np.full(h, np.nan)])
     runs = np.lib.stride_tricks.sliding_window_view(padded, 2 * h + 1)
-    seen = np.isfinite(runs)
     med = np.full(T, np.nan)
-    some = seen.any(axis=1)
+    some = np.isfinite(runs).any(axis=1)
     if some.any():
         med[some] = np.nanmedian(runs[some], axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -946,7 +944,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     worst = max(status.tolist(), key=lambda s: _SEVERITY[s]) if T else 0
     counts = {int(s): int(np.sum(status == s)) for s in np.unique(status)}
     message = "; ".join(f"{n} frame{'s' if n != 1 else ''}: {FRAME_STATUS[s]}" for s, n in counts.items())
-    lowered = 0 if kappa_scale is None else int(np.sum(kappa_scale < 0.5))
+    lowered = 0 if kappa_scale is None else int(np.sum(kappa_scale < 1.0))   # as the summary counts them
     if lowered:
         message += (f"; temporal term weakened in {lowered} frame{'s' if lowered != 1 else ''}: the markers move "
                     f"faster than the take's rate lets it predict")
