@@ -6,7 +6,10 @@ coarse vertices' second differences between frames over the markers' own), the
 smallest edge length over the smallest of the training poses (a collapsed limb
 shows as a small ratio), flagged frames and markers, the frames where the surface
 passes through itself and the markers do not (``self_intersection_frames``: their
-count; the take frames in ``self_intersection_frame_list``), the calibration's seconds,
+count; the take frames in ``self_intersection_frame_list``), where on the body these
+happen (``regions``: per body region of :data:`lacore.samples.human.LIMBS`, the frames
+with a crossing face pair there and the extreme edge ratios to the training range;
+a face's region is the one of its corners' dominant bones), the calibration's seconds,
 and the fitting seconds per frame (CPU: ``time.process_time``; wall:
 ``time.perf_counter``, which a shared machine's load inflates), plus the machine.
 
@@ -40,12 +43,35 @@ from bench_common import machine_info
 from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.markers import FIT_DEFAULTS, fit_take, read_take
 from lacore.result import json_value
-from lacore.samples.human import human_data_dir, human_model
+from lacore.samples.human import LIMBS, human_data_dir, human_model, load_human
 
 
 def second_differences(x):
     """Lengths of the second differences ``|x[t+1] - 2 x[t] + x[t-1]|`` (NaN where a point is missing)."""
     return np.linalg.norm(x[2:] - 2 * x[1:-1] + x[:-2], axis=-1)
+
+
+def vertex_regions():
+    """Region index (into ``LIMBS``) of every coarse-body vertex, by its dominant bone."""
+    body = load_human(coarse=True)
+    of_bone = {b: i for i, bones in enumerate(LIMBS.values()) for b in bones}
+    dominant = np.asarray(body.weights.argmax(axis=1)).ravel()
+    return np.array([of_bone[body.bones[b]] for b in dominant])
+
+
+def region_report(pairs, ratio_max, ratio_min, faces, edges, regions):
+    """Per region: frames with a crossing pair there, the largest and smallest edge ratios."""
+    counts = np.apply_along_axis(np.bincount, 1, regions[faces], minlength=len(LIMBS))
+    face_region = counts.argmax(1)
+    edge_region = regions[edges].max(1)
+    out = {}
+    for i, name in enumerate(LIMBS):
+        frames = sum(bool(len(p)) and bool(np.isin(face_region[np.asarray(p)], i).any()) for p in pairs)
+        e = edge_region == i
+        out[name] = {"self_intersection_frames": int(frames),
+                     "max_edge_over_training_max": float(ratio_max[:, e].max()) if e.any() else None,
+                     "min_edge_over_training_min": float(ratio_min[:, e].min()) if e.any() else None}
+    return out
 
 
 def jitter_ratio(vertices, markers):
@@ -71,6 +97,7 @@ def main():
     model_seconds = time.perf_counter() - t0
     E = model.topology.n_edges
     train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
+    regions = vertex_regions()
     options = FIT_DEFAULTS
     if args.prior_weight is not None:
         import dataclasses
@@ -105,6 +132,8 @@ def main():
             "jitter_ratio": jitter_ratio(res.vertices * u, res.markers * u),
             "min_edge_over_training_min": float((lengths / train.min(0)).min()),
             "max_edge_over_training_max": float((lengths / train.max(0)).max()),
+            "regions": region_report(res.self_intersection_pairs, lengths / train.max(0), lengths / train.min(0),
+                                     model.faces, model.edges, regions),
             "flagged_frames": res.flagged_frames, "flagged_markers": res.flagged_markers,
             "self_intersection_frames": len(res.self_intersection_frames),
             "self_intersection_frame_list": res.self_intersection_frames,

