@@ -43,6 +43,7 @@ def test_fit_writes_poses_and_json(files, capsys):
                               "--json", "--temporal-weight", "0.1"], capsys)
     assert code == 0, err
     summary = json.loads(stdout)
+    assert summary["penetration_weight"] == 0.0 and summary["temporal_weight"] == 0.1   # the defaults and the flag
     assert summary["frames"] == 4 and summary["seconds"] > 0 and summary["seconds_per_frame"] > 0
     assert summary["marker_rms"] < 0.01  # bar length 6; measured 0.0017
     with np.load(out) as r:
@@ -69,6 +70,7 @@ def test_fit_writes_poses_and_json(files, capsys):
     ("nobinding", "binds the markers to nothing"),
     ("shape", "positions must have shape (T, M, 3)"),
     ("weight", "--prior-weight"),
+    ("penetration", "--penetration-weight"),
     ("model", "not a readable"),
 ])
 def test_bad_input_exits_2_without_output(files, capsys, case, message):
@@ -89,6 +91,9 @@ def test_bad_input_exits_2_without_output(files, capsys, case, message):
     elif case == "weight":
         np.savez(markers, positions=x, vertices=verts)
         extra = ["--prior-weight", "-1"]
+    elif case == "penetration":
+        np.savez(markers, positions=x, vertices=verts)
+        extra = ["--penetration-weight", "nan"]
     elif case == "model":
         np.savez(markers, positions=x, vertices=verts)
         model_file = d / "not_a_model.npz"
@@ -108,3 +113,24 @@ def test_console_script_runs(files):
                        cwd=REPO)
     assert r.returncode == 0, r.stderr
     assert set(json.loads(r.stdout)) >= {"frames", "seconds", "seconds_per_frame", "marker_rms"}
+
+
+def test_take_options_reach_the_fit(files, capsys, monkeypatch):
+    """--prior-weight, --temporal-weight and --penetration-weight are the options fit_take gets for a take."""
+    import lacore.cli.fit as cli_fit
+    from lacore.errors import InputError
+
+    d, *_ = files
+    seen = {}
+
+    def fake_fit_take(model, take, options=None, **kw):
+        seen["options"] = options
+        raise InputError("stop here")
+
+    monkeypatch.setattr(cli_fit, "read_take", lambda path, units=None: path)
+    monkeypatch.setattr(cli_fit, "fit_take", fake_fit_take)
+    code, _, err = _run(["fit", str(d / "model.npz"), "--markers", str(d / "take.c3d"), "-o", str(d / "t.npz"),
+                         "--prior-weight", "0.5", "--temporal-weight", "3", "--penetration-weight", "10"], capsys)
+    assert code == 2 and "stop here" in err
+    o = seen["options"]
+    assert (o.prior_weight, o.temporal_weight, o.penetration_weight) == (0.5, 3.0, 10.0)

@@ -3,7 +3,8 @@
 Usage::
 
     lacore fit MODEL.npz --markers TAKE.c3d|TAKE.trc|MARKERS.npz -o OUT.npz [--json] [--static STATIC.c3d]
-               [--prior-weight G|auto] [--temporal-weight W] [--frames A:B] [--units mm|cm|m]
+               [--prior-weight G|auto] [--temporal-weight W] [--penetration-weight MU] [--frames A:B]
+               [--units mm|cm|m]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
 (:meth:`lacore.models.shape_model.ShapeModel.save`).
@@ -92,6 +93,11 @@ def configure(parser):
     parser.add_argument("--temporal-weight", type=float, default=FIT_DEFAULTS.temporal_weight, metavar="W",
                         help=f"weight of the vertex temporal term at {FIT_DEFAULTS.reference_rate:g} Hz, scaled "
                              f"with the square of the frame rate (default {FIT_DEFAULTS.temporal_weight:g})")
+    parser.add_argument("--penetration-weight", type=float, default=FIT_DEFAULTS.penetration_weight, metavar="MU",
+                        help="weight of the non-penetration term: frames whose surface passes through itself where "
+                             "the markers do not are fitted again holding the crossing faces apart (default "
+                             f"{FIT_DEFAULTS.penetration_weight:g}: off; 10 removes most elbow and knee creases, "
+                             "at 2-8 times the time per frame)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="frames per second of MARKERS.npz positions that form a recording: enables the temporal "
                              "term (a take's own rate is used; without one, frames are fitted independently)")
@@ -126,6 +132,9 @@ def run(args):
     v = args.temporal_weight
     if not np.isfinite(v) or v < 0:
         raise InputError(f"--temporal-weight must be a finite number >= 0, got {v}")
+    mu = args.penetration_weight
+    if not np.isfinite(mu) or mu < 0:
+        raise InputError(f"--penetration-weight must be a finite number >= 0, got {mu}")
     model = ShapeModel.load(args.model)
     if str(args.markers).lower().endswith(".npz"):
         if gamma == "auto":
@@ -137,7 +146,8 @@ def run(args):
         raise InputError("--rate is for a markers .npz: a take (.c3d or .trc) has its own frame rate")
     take = read_take(args.markers, units=args.units)
     static = read_take(args.static, units=args.units) if args.static else None
-    res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v),
+    res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v,
+                                                            penetration_weight=mu),
                    frames=_frames(args.frames), static=static)
     cal = res.calibration
     fine = res.fine_vertices is not None
@@ -159,7 +169,8 @@ def run(args):
         "vertices": int(res.fine_vertices.shape[1] if fine else res.vertices.shape[1]),
         "seconds": seconds, "calibration_seconds": res.calibration_seconds,
         "seconds_per_frame": res.seconds_per_frame, "prior_weight": res.prior_weight,
-        "temporal_weight": res.temporal_weight, "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
+        "temporal_weight": res.temporal_weight, "penetration_weight": mu,
+        "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
         "units": "mm", "flagged_frames": s["flagged_frames"], "flagged_markers": s["flagged_markers"],
         "self_intersection_frames": s["self_intersection_frames"],
         "temporal_lowered_frames": s["temporal_lowered_frames"],
@@ -184,7 +195,8 @@ def _run_binding(args, model, gamma, start):
     """``--markers MARKERS.npz``: positions and a precomputed binding, fitted without calibration."""
     x, binding = load_marker_file(args.markers, model)
     t_load = time.perf_counter() - start
-    res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight, rate=args.rate)
+    res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight, rate=args.rate,
+                      penetration_weight=args.penetration_weight)
     t = time.perf_counter()
     save_npz_atomic(args.output, vertices=res.vertices, faces=model.faces, coefficients=res.coefficients,
                     marker_residuals=res.marker_residuals, frame_status=res.frame_status, frame_rms=res.frame_rms)
@@ -200,7 +212,7 @@ def _run_binding(args, model, gamma, start):
         "success": s["success"], "status": s["status"], "message": s["message"],
         "frame_status_counts": s["frame_status_counts"], "iterations": s["iterations"],
         "stages": {"load": t_load, **{k: v for k, v in s["timings"].items() if k != "total"}, "save": t_save},
-        "prior_weight": gamma, "temporal_weight": args.temporal_weight,
+        "prior_weight": gamma, "temporal_weight": args.temporal_weight, "penetration_weight": args.penetration_weight,
     }
     if args.json:
         print_json(summary)
