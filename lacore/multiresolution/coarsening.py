@@ -20,11 +20,11 @@ invalidated entries, dropped in one pass when many have piled up).
 
 Order of equally cheap collapses
 --------------------------------
-Costs are compared after rounding to ``2**-40`` (about ``1e-12``) of
-the size of the terms summed into them, thousands of times their rounding
+Costs are compared after rounding to ``2**-30`` (about ``1e-9``) of
+the size of the terms summed into them, millions of times their rounding
 errors: costs equal in exact arithmetic -- every collapse of a flat region,
 the mirror images of a symmetric mesh -- compare equal however their sums
-were rounded (SIMD path, summation order, centring of the shapes).  Equal
+were rounded (SIMD path, summation order), in any unit of length.  Equal
 costs go shortest edge first (squared length summed over the shapes, rounded
 alike), which coarsens a flat or symmetric region evenly, then by vertex
 index.  The geometric checks below likewise decide a value equal to its
@@ -87,9 +87,9 @@ _CHUNK = 4096
 _PURGE_FRACTION = 16
 
 #: Collapse costs are compared after rounding to this many bits below the size of their terms (see
-#: :func:`_rounding_shift`): thousands of times their rounding errors (about 52 bits below the terms), below the
+#: :func:`_rounding_shift`): millions of times their rounding errors (about 52 bits below the terms), below the
 #: differences that shape a coarse mesh.
-_COST_BITS = 40
+_COST_BITS = 30
 
 #: Relative margin of the geometric checks (normal rotation, triangle quality): a value equal to its threshold in
 #: exact arithmetic is decided the same way whatever its rounding.
@@ -518,10 +518,13 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     if target != n_vertices or not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
     topo = MeshTopology.from_faces(faces, n_vertices=V)
-    # each shape centred on its bounding box: costs (translation invariant) are sums of terms of the size of the
-    # shape, not of its distance from the origin
+    # each shape centred on its bounding box, all in units of the largest box diagonal: costs are sums of terms
+    # of the size of the shape (not of its distance from the origin), and their rounding (_rounding_shift)
+    # does not depend on the unit of length
     lo, hi = P.min(axis=1), P.max(axis=1)
-    P = P - 0.5 * (lo + hi)[:, None]
+    unit = float(np.sqrt(((hi - lo) ** 2).sum(1).max())) or 1.0
+    P = (P - 0.5 * (lo + hi)[:, None]) / unit
+    lo, hi = P.min(axis=1), P.max(axis=1)
     # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
     # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
     Q = _quadric_entries(P, topo, boundary_weight)
@@ -744,4 +747,5 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         report(progress, n_remove, n_remove, "coarsening done")
     return Coarsening(n_fine_vertices=V, fine_faces=faces, vertex_indices=keep, faces=cfaces,
                       collapse_sources=sources, collapse_targets=targets, parent=parent, ring_offsets=offsets,
-                      ring_pairs=pairs, costs=np.asarray(cost_list, float), seconds=time.perf_counter() - t0)
+                      ring_pairs=pairs, costs=np.asarray(cost_list, float) * unit ** 4,
+                      seconds=time.perf_counter() - t0)
