@@ -48,12 +48,11 @@ remaining candidates are retried; flips and topology are never relaxed.
 
 Storing a coarsening
 --------------------
-The collapse order is greedy: a cost that falls within rounding error of a
-rounding boundary of the comparison above, or input that differs in its last
-bits, can still change one
-collapse and every later one, giving another (equally good) coarse mesh on
-another machine.  Whatever must be reproduced -- a coarse mesh that fits were made on, the
-prolongation back to the fine mesh -- is stored instead:
+The collapse order is greedy: a cost within rounding error of a rounding
+boundary of the comparison above, or input that differs in its last bits, can
+still change one collapse and every later one, giving another (equally good)
+coarse mesh.  Whatever must be reproduced -- a coarse mesh that fits were made
+on, the prolongation back to the fine mesh -- is stored instead:
 :meth:`Coarsening.to_arrays` / :meth:`Coarsening.from_arrays` give a versioned
 set of plain arrays (integers and the collapse costs) to embed in any ``.npz``,
 :meth:`Coarsening.save` / :meth:`Coarsening.load` a file of its own.
