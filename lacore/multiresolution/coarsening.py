@@ -16,7 +16,19 @@ the edge perpendicular to its face, weighted by ``boundary_weight * l^2``, so
 collapses along the boundary keep its shape).  Collapsing ``u -> v`` costs
 ``sum_s [p_v^s; 1]^T (Q_u^s + Q_v^s) [p_v^s; 1]`` and hands ``Q_u`` on to
 ``v``.  Collapses are done cheapest first (a priority queue with lazily
-invalidated entries).
+invalidated entries, dropped in one pass when many have piled up).
+
+Order of equally cheap collapses
+--------------------------------
+Costs are compared after rounding to ``2**-30`` (about ``1e-9``) of
+the size of the terms summed into them, millions of times their rounding
+errors: costs equal in exact arithmetic -- every collapse of a flat region,
+the mirror images of a symmetric mesh -- compare equal however their sums
+were rounded (SIMD path, summation order), in any unit of length.  Equal
+costs go shortest edge first (squared length summed over the shapes, rounded
+alike), which coarsens a flat or symmetric region evenly, then by vertex
+index.  The geometric checks below likewise decide a value equal to its
+threshold the same way whatever its rounding.
 
 Validity (checked for every collapse, in every shape)
 -----------------------------------------------------
@@ -36,12 +48,11 @@ remaining candidates are retried; flips and topology are never relaxed.
 
 Storing a coarsening
 --------------------
-The collapse order is greedy: a tie between two equally cheap collapses, or
-costs equal up to rounding, is decided by the last bits of floating-point sums,
-which differ between CPUs (SIMD paths, BLAS kernels).  Recomputing a coarsening
-on another machine can therefore give another (equally good) coarse mesh.
-Whatever must be reproduced -- a coarse mesh that fits were made on, the
-prolongation back to the fine mesh -- is stored instead:
+The collapse order is greedy: a cost within rounding error of a rounding
+boundary of the comparison above, or input that differs in its last bits, can
+still change one collapse and every later one, giving another (equally good)
+coarse mesh.  Whatever must be reproduced -- a coarse mesh that fits were made
+on, the prolongation back to the fine mesh -- is stored instead:
 :meth:`Coarsening.to_arrays` / :meth:`Coarsening.from_arrays` give a versioned
 set of plain arrays (integers and the collapse costs) to embed in any ``.npz``,
 :meth:`Coarsening.save` / :meth:`Coarsening.load` a file of its own.
@@ -54,6 +65,7 @@ import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import InputError, MeshError
 from ..geometry.topology import MeshTopology, check_faces
@@ -65,6 +77,22 @@ __all__ = ["Coarsening", "coarsen", "vertex_quadrics", "RECORD_FORMAT", "RECORD_
 
 #: A candidate rejected for its geometry is retried (after changes around it) at most this often per round.
 _MAX_RETRIES = 3
+
+#: Rows handled at once by the vectorized steps over all faces or edges (bounded temporaries).
+_CHUNK = 4096
+
+#: The heap is purged of outdated entries when the outdated entries popped since the last purge exceed this
+#: fraction of its size (popping one costs a logarithmic sift, dropping it a constant).
+_PURGE_FRACTION = 16
+
+#: Collapse costs are compared after rounding to this many bits below the size of their terms (see
+#: :func:`_rounding_shift`): millions of times their rounding errors (about 52 bits below the terms), below the
+#: differences that shape a coarse mesh.
+_COST_BITS = 30
+
+#: Relative margin of the geometric checks (normal rotation, triangle quality): a value equal to its threshold in
+#: exact arithmetic is decided the same way whatever its rounding.
+_GEOMETRY_TOLERANCE = 2.0 ** -30
 
 #: ``format`` entry of a stored coarsening (:meth:`Coarsening.to_arrays`).
 RECORD_FORMAT = "lacore.multiresolution.coarsening"
@@ -101,7 +129,8 @@ class Coarsening:
         ``(p, q)`` of each face ``(u, p, q)`` (counter-clockwise), in fine
         indices.  All of them exist when ``u`` is re-inserted in reverse order.
     costs : (K,) float64
-        Quadric error of each collapse.
+        Quadric error of each collapse, rounded as the queue compares them
+        (see the module docstring).
     seconds : float
     """
 
@@ -292,10 +321,51 @@ def _parents(V, keep, sources, targets):
     return parent
 
 
+#: Upper-triangle entries ``(i, j)`` of a symmetric 4x4 quadric, and the weight of their products in ``h^T Q h``.
+_SYM_I, _SYM_J = np.triu_indices(4)
+_SYM_W = np.where(_SYM_I == _SYM_J, 1.0, 2.0)
+#: Positions of ``Q[0, 0], Q[1, 1], Q[2, 2]`` among them.
+_SYM_TRACE = np.flatnonzero((_SYM_I == _SYM_J) & (_SYM_I < 3))
+
+
+def _rounding_shift(scales):
+    """Shifts ``k`` such that ``(x + k) - k`` rounds ``x`` to a multiple of ``2**-_COST_BITS * scales`` (``scales``
+    rounded up to powers of two), for ``|x| <= scales``.
+
+    ``k = 1.5 * 2**52 * step`` with ``step`` that power of two: the floating-point numbers around ``k`` are the
+    multiples of ``step``, so the sum rounds ``x`` (to nearest, ties to even) and the difference is exact.  With
+    ``scales`` bounding the terms summed into costs, their rounding errors are a few units of ``1e-16 * scales``:
+    costs that are equal in exact arithmetic (the mirror images of a symmetric mesh) round to the same value
+    however they were summed, and the queue orders them by its next keys (edge length, vertex indices).  Costs
+    that differ by more than ``2**-_COST_BITS`` of their terms keep their order.
+
+    Parameters
+    ----------
+    scales : (k,) ndarray or float
+        Positive.
+
+    Returns
+    -------
+    (k,) ndarray or float
+    """
+    return np.ldexp(1.5, np.frexp(scales)[1] + (52 - _COST_BITS))
+
+
+def _cross(u, v):
+    """Cross products of (..., 3) arrays (:func:`numpy.cross` without its axis handling: faster on large arrays)."""
+    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    x0, y0, z0 = u[..., 0], u[..., 1], u[..., 2]
+    x1, y1, z1 = v[..., 0], v[..., 1], v[..., 2]
+    np.subtract(y0 * z1, z0 * y1, out=out[..., 0])
+    np.subtract(z0 * x1, x0 * z1, out=out[..., 1])
+    np.subtract(x0 * y1, y0 * x1, out=out[..., 2])
+    return out
+
+
 def _face_planes(P, faces):
     """Unit normals (N,F,3), offsets (N,F), areas (N,F) and raw cross products of faces in every shape."""
     a, b, c = (P[:, faces[:, i]] for i in range(3))
-    cr = np.cross(b - a, c - a)
+    cr = _cross(b - a, c - a)
     norm = np.linalg.norm(cr, axis=-1)
     n = cr / np.maximum(norm, 1e-300)[..., None]
     d = -np.einsum("nfi,nfi->nf", n, a)
@@ -303,9 +373,20 @@ def _face_planes(P, faces):
 
 
 def _plane_quadrics(n, d, w):
-    """Quadrics ``w [n; d][n; d]^T`` as (..., 4, 4)."""
-    h = np.concatenate([n, d[..., None]], axis=-1)
-    return w[..., None, None] * h[..., :, None] * h[..., None, :]
+    """Upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`) of the quadrics ``w [n; d][n; d]^T`` of (N,k)
+    planes, as (k, N * 10) rows (item by item, shape by shape)."""
+    h = np.concatenate([n, d[..., None]], axis=-1).transpose(1, 0, 2)  # (k,N,4)
+    k, N = h.shape[:2]
+    return (w.T[..., None] * h[..., _SYM_I] * h[..., _SYM_J]).reshape(k, N * 10)
+
+
+def _incidence(*columns, n_vertices):
+    """Sparse (V, k) matrix with a 1 at ``(columns[j][i], i)`` for every ``j``: its product with per-item rows sums
+    them onto the vertices."""
+    k = len(columns[0])
+    rows = np.concatenate(columns)
+    cols = np.tile(np.arange(k), len(columns))
+    return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, k))
 
 
 def vertex_quadrics(shapes, topology, boundary_weight=10.0):
@@ -323,41 +404,49 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     -------
     (V, N, 4, 4) ndarray
     """
-    P = shapes
+    N, V = shapes.shape[:2]
+    q = _quadric_entries(shapes, topology, boundary_weight).reshape(V, N, 10)
+    Q = np.empty((V, N, 4, 4))
+    Q[..., _SYM_I, _SYM_J] = q
+    Q[..., _SYM_J, _SYM_I] = q
+    return Q
+
+
+def _quadric_entries(P, topology, boundary_weight):
+    """:func:`vertex_quadrics` as the upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`): (V, N * 10)."""
     N, V = P.shape[:2]
     faces = topology.faces
-    n, d, area = _face_planes(P, faces)
-    Kf = _plane_quadrics(n, d, area)  # (N,F,4,4)
-    Q = np.zeros((V, N, 16))
-    Kf = Kf.reshape(N, -1, 16).transpose(1, 0, 2)  # (F,N,16)
-    for i in range(3):
-        np.add.at(Q, faces[:, i], Kf)
+    Q = np.zeros((V, N * 10))
+    for i in range(0, len(faces), _CHUNK):  # in chunks of faces: the temporaries stay small
+        f = faces[i:i + _CHUNK]
+        Q += _incidence(f[:, 0], f[:, 1], f[:, 2], n_vertices=V) @ _plane_quadrics(*_face_planes(P, f))
     be = topology.boundary_edges
     if be.size and boundary_weight > 0:
         ea, eb = topology.edges[be, 0], topology.edges[be, 1]
-        f = topology.edge_faces[be, 0]
         e = P[:, eb] - P[:, ea]
-        m = np.cross(e, n[:, f])
+        m = _cross(e, _face_planes(P, faces[topology.edge_faces[be, 0]])[0])
         mn = np.linalg.norm(m, axis=-1)
         m = m / np.maximum(mn, 1e-300)[..., None]
         dm = -np.einsum("nfi,nfi->nf", m, P[:, ea])
-        Kb = _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf", e, e))
-        Kb = Kb.reshape(N, -1, 16).transpose(1, 0, 2)
-        np.add.at(Q, ea, Kb)
-        np.add.at(Q, eb, Kb)
-    return Q.reshape(V, N, 4, 4)
+        Q += _incidence(ea, eb, n_vertices=V) @ _plane_quadrics(m, dm, boundary_weight * np.einsum("nfi,nfi->nf",
+                                                                                                  e, e))
+    return Q
+
+
+#: Rows of a triangle's corners giving its edges ``p1 - p0, p2 - p0, p2 - p1``, and cyclic shifts of x, y, z.
+_EDGE_HEADS, _EDGE_TAILS = np.array([1, 2, 2]), np.array([0, 0, 1])
+_SHIFT1, _SHIFT2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 
 
 def _cross_and_l2(T):
-    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,N,3) and sums of squared edge lengths (k,N) of (k,3,N,3)."""
-    e0 = T[:, 1] - T[:, 0]
-    e1 = T[:, 2] - T[:, 0]
-    e2 = T[:, 2] - T[:, 1]
-    cr = np.empty_like(e0)
-    cr[..., 0] = e0[..., 1] * e1[..., 2] - e0[..., 2] * e1[..., 1]
-    cr[..., 1] = e0[..., 2] * e1[..., 0] - e0[..., 0] * e1[..., 2]
-    cr[..., 2] = e0[..., 0] * e1[..., 1] - e0[..., 1] * e1[..., 0]
-    return cr, (e0 * e0).sum(-1) + (e1 * e1).sum(-1) + (e2 * e2).sum(-1)
+    """Cross products ``(p1 - p0) x (p2 - p0)`` (k,3,N) and sums of squared edge lengths (k,N) of triangles
+    (k,3,3,N) (corner, coordinate, shape: the coordinates of all shapes contiguous)."""
+    E = T[:, _EDGE_HEADS] - T[:, _EDGE_TAILS]  # (k,3,3,N)
+    e0, e1 = E[:, 0], E[:, 1]
+    cr = e0[:, _SHIFT1] * e1[:, _SHIFT2]  # whole rows at a time: fewer, contiguous operations
+    cr -= e0[:, _SHIFT2] * e1[:, _SHIFT1]
+    E *= E
+    return cr, E.sum(2).sum(1)
 
 
 def _check_shapes(shapes, faces):
@@ -428,65 +517,112 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     if target != n_vertices or not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
     topo = MeshTopology.from_faces(faces, n_vertices=V)
-    Q = vertex_quadrics(P, topo, boundary_weight)
-    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2).copy()  # (V,N,4)
-    Pv = P.transpose(1, 0, 2).copy()  # (V,N,3)
+    # each shape centred on its bounding box, all in units of the largest box diagonal: costs are sums of terms
+    # of the size of the shape (not of its distance from the origin), and their rounding (_rounding_shift)
+    # does not depend on the unit of length
+    lo, hi = P.min(axis=1), P.max(axis=1)
+    unit = float(np.sqrt(((hi - lo) ** 2).sum(1).max())) or 1.0
+    P = (P - 0.5 * (lo + hi)[:, None]) / unit
+    lo, hi = P.min(axis=1), P.max(axis=1)
+    # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
+    # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
+    Q = _quadric_entries(P, topo, boundary_weight)
+    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
+    M = H[:, :, _SYM_I]
+    M *= H[:, :, _SYM_J]
+    M *= _SYM_W
+    M = M.reshape(V, N * 10)
+    self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
+    # the terms of h^T Q h at a point p of the bounding box, for planes (n, d) through points of it (|n| = 1,
+    # |p| <= R, |d| <= R): at most 4 R^2 times their weights, whose sum is trace(Q[:3, :3]), per shape
+    bound = np.zeros((N, 10))
+    bound[:, _SYM_TRACE] = ((hi - lo) ** 2).sum(1)[:, None]
+    bound = bound.ravel()
+    # per vertex, the rounding of the costs of its collapses (_rounding_shift): a collapse's terms are at most
+    # twice the larger of its two vertices' bounds
+    vshift = _rounding_shift(2.0 * (Q @ bound))
+    Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
 
     F = len(faces)
-    fcur = faces.copy()
+    fcur = faces.tolist()  # current faces, as Python lists: read and changed a few at a time in the loop
     falive = np.ones(F, bool)
     vf = [set() for _ in range(V)]
-    for f, (a, b, c) in enumerate(faces.tolist()):
+    for f, (a, b, c) in enumerate(fcur):
         vf[a].add(f)
         vf[b].add(f)
         vf[c].add(f)
-    is_bd = topo.is_boundary_vertex.copy()
-    valive = np.ones(V, bool)
-    stamp = np.zeros(V, np.int64)
+    is_bd = topo.is_boundary_vertex.tolist()
+    valive = [True] * V  # Python lists: read one entry at a time in the loop
+    stamp = [0] * V  # changes of each vertex's quadric; -1 once removed
     blocked = [set() for _ in range(V)]  # blocked[y]: directed candidates (a, b) touching y
 
     def nbrs(a):
-        s = set(fcur[list(vf[a])].ravel().tolist())
+        s = {x for f in vf[a] for x in fcur[f]}
         s.discard(a)
         return s
 
+    # the queue: (cost, squared length summed over the shapes, source, target, their stamps when queued), costs
+    # and lengths rounded (_rounding_shift); equally cheap collapses (e.g. all of a flat region's) go shortest edge
+    # first, which coarsens such a region evenly, then by vertex index
+    G = Pv.reshape(V, 3 * N)
+    length_shift = float(_rounding_shift(float(((hi - lo) ** 2).sum())))
+
     def costs(src, dst):
-        Qs = Q[src] + Q[dst]
-        h = H[dst]
-        return np.einsum("mni,mnij,mnj->m", h, Qs, h)
+        """Rounded costs of the collapses ``src[i] -> dst[i]`` (arrays), as a list."""
+        out = np.empty(len(src))
+        for i in range(0, len(src), _CHUNK):  # in chunks: the rows gathered stay small
+            s, d = src[i:i + _CHUNK], dst[i:i + _CHUNK]
+            shift = np.maximum(vshift[s], vshift[d])
+            c = np.einsum("mk,mk->m", M[d], Q[s])
+            c += self_cost[d]
+            c += shift
+            np.subtract(c, shift, out=out[i:i + _CHUNK])
+        return out.tolist()
 
-    heap = []
+    def lengths(src, dst):
+        """Rounded squared lengths (summed over the shapes) of the edges ``src[i], dst[i]``, as a list (``dst`` an
+        array or one vertex)."""
+        out = np.empty(len(src))
+        for i in range(0, len(src), _CHUNK):
+            e = G[src[i:i + _CHUNK]] - G[dst if np.ndim(dst) == 0 else dst[i:i + _CHUNK]]
+            out[i:i + _CHUNK] = np.einsum("mk,mk->m", e, e)
+        out += length_shift
+        out -= length_shift
+        return out.tolist()
 
-    def push(src, dst):
-        if not len(src):
-            return
-        c = costs(src, dst).tolist()
-        st = stamp[src].tolist()
-        sd = stamp[dst].tolist()
-        for item in zip(c, src.tolist(), dst.tolist(), st, sd, strict=True):
+    def push(src, dst, l2):
+        """Queue the candidates ``src[i] -> dst[i]`` (lists of vertices, squared lengths ``l2``) at their current
+        costs."""
+        items = zip(costs(np.array(src), np.array(dst)), l2, src, dst, [stamp[i] for i in src],
+                    [stamp[i] for i in dst], strict=True)
+        for item in items:
             heapq.heappush(heap, item)
 
     E = topo.edges
     src0, dst0 = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
-    heap = list(zip(costs(src0, dst0).tolist(), src0.tolist(), dst0.tolist(), [0] * len(src0), [0] * len(src0),
+    l0 = lengths(E[:, 0], E[:, 1])
+    heap = list(zip(costs(src0, dst0), l0 + l0, src0.tolist(), dst0.tolist(), [0] * len(src0), [0] * len(src0),
                     strict=True))
     heapq.heapify(heap)
 
-    fcr, fl2 = _cross_and_l2(Pv[faces])  # current faces: cross products (F,N,3), sums of squared lengths (F,N)
-    fnorm = np.sqrt((fcr * fcr).sum(-1))
+    fcr, fl2 = np.empty((F, 3, N)), np.empty((F, N))  # current faces: cross products, sums of squared lengths
+    for i in range(0, F, _CHUNK):
+        fcr[i:i + _CHUNK], fl2[i:i + _CHUNK] = _cross_and_l2(Pv[faces[i:i + _CHUNK]])
+    fnorm = np.sqrt((fcr * fcr).sum(1))
 
     def geometry(a, b, moved):
-        """(ok, cross products, squared lengths) of the faces ``moved`` after moving their corner a to b."""
-        tri = fcur[moved]
-        cr, l2 = _cross_and_l2(Pv[np.where(tri == a, b, tri)])
-        nn = np.sqrt((cr * cr).sum(-1))
+        """(ok, cross products, squared lengths, norms of the cross products) of the faces ``moved`` after moving
+        their corner a to b."""
+        cr, l2 = _cross_and_l2(Pv[np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()])])
+        nn = cr * cr
+        nn = np.sqrt(nn.sum(1))
         no = fnorm[moved]
-        if not np.all((fcr[moved] * cr).sum(-1) > cos_max * no * nn):
-            return False, None, None  # flipped, degenerate or turned too far in some shape
-        q_new = nn / l2
-        # a face may not get worse than min_quality (unless it gets no worse than it was)
-        ok = bool(np.all((q_new >= qmin_scaled) | (q_new >= no / fl2[moved])))
-        return ok, cr, l2
+        if not ((fcr[moved] * cr).sum(1) > (cos_max + _GEOMETRY_TOLERANCE) * no * nn).all():
+            return False, None, None, None  # flipped, degenerate or turned too far in some shape
+        # a face may not get worse than min_quality (unless it gets no worse than it was; fmin: a degenerate
+        # face's NaN quality leaves min_quality)
+        ok = bool((nn / l2 >= (1.0 - _GEOMETRY_TOLERANCE) * np.fmin(no / fl2[moved], qmin_scaled)).all())
+        return ok, cr, l2, nn
 
     sources, targets, cost_list, ring_chunks = [], [], [], []
     n_alive = V
@@ -497,6 +633,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     relax_rounds = 0
     failures = {}
     next_report = 0
+    n_stale = 0  # outdated entries popped since the heap was last purged
     while n_alive > target:
         if not heap:
             # relax the geometric thresholds and retry everything still alive
@@ -511,13 +648,18 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
                 lst.clear()
             failures.clear()
             al = falive.nonzero()[0]
-            fa = fcur[al]
+            fa = np.array(fcur)[al]
             src = np.concatenate([fa[:, 0], fa[:, 1], fa[:, 2]])
             dst = np.concatenate([fa[:, 1], fa[:, 2], fa[:, 0]])
-            push(src, dst)
+            push(src.tolist(), dst.tolist(), lengths(src, dst))
             continue
-        cost, a, b, sa, sb = heapq.heappop(heap)
-        if not (valive[a] and valive[b]) or stamp[a] != sa or stamp[b] != sb:
+        cost, _, a, b, sa, sb = heapq.heappop(heap)
+        if stamp[a] != sa or stamp[b] != sb:  # outdated (a removed vertex's stamp is -1)
+            n_stale += 1
+            if n_stale * _PURGE_FRACTION > len(heap):  # outdated entries pile up: drop them all at once
+                heap[:] = [e for e in heap if stamp[e[2]] == e[4] and stamp[e[3]] == e[5]]
+                heapq.heapify(heap)
+                n_stale = 0
             continue
         Fa = vf[a]
         shared = Fa & vf[b]
@@ -529,11 +671,11 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if ok:
             Na = nbrs(a)
             common = Na & nbrs(b)
-            opp = set(fcur[list(shared)].ravel().tolist()) - {a, b}
+            opp = {x for f in shared for x in fcur[f]} - {a, b}
             ok = common == opp
             if ok:
-                moved = [f for f in Fa if f not in shared]
-                ok, cr, l2 = geometry(a, b, moved) if moved else (True, None, None)
+                moved = np.array([f for f in Fa if f not in shared], np.int64)
+                ok, cr, l2, nn = geometry(a, b, moved) if len(moved) else (True, None, None, None)
                 if not ok:  # geometry changes only with the faces around a; retried a few times
                     n_fail = failures.get((a, b), 0) + 1
                     failures[(a, b)] = n_fail
@@ -546,52 +688,54 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
             continue
         # --- collapse a -> b
         ring_chunks.append([(q, r) if p == a else (r, p) if q == a else (p, q)
-                            for p, q, r in fcur[list(Fa)].tolist()])
+                            for p, q, r in (fcur[f] for f in Fa)])
         for f in shared:
             falive[f] = False
-            for x in fcur[f].tolist():
+            for x in fcur[f]:
                 if x != a:
                     vf[x].discard(f)
-        for f in moved:
-            row = fcur[f]
-            row[row == a] = b
+        for f in moved.tolist():
+            fcur[f] = [b if x == a else x for x in fcur[f]]
             vf[b].add(f)
-        if moved:
+        if len(moved):
             fcr[moved] = cr
             fl2[moved] = l2
-            fnorm[moved] = np.sqrt((cr * cr).sum(-1))
+            fnorm[moved] = nn
         vf[a] = set()
         valive[a] = False
+        stamp[a] = -1
         Q[b] += Q[a]
+        self_cost[b] = M[b] @ Q[b]
+        vshift[b] = _rounding_shift(2.0 * float(Q[b] @ bound))
         stamp[b] += 1
         sources.append(a)
         targets.append(b)
         cost_list.append(cost)
         n_alive -= 1
         # --- new costs: every half-edge at b; retry blocked candidates around b
-        nb = np.fromiter(nbrs(b), np.int64)
-        src = [np.full(len(nb), b), nb]
-        dst = [nb, np.full(len(nb), b)]
+        nb = list(nbrs(b))
         retry = set()
-        for y in [b, *nb.tolist()]:
+        for y in [b, *nb]:
             if blocked[y]:
                 retry |= blocked[y]
                 blocked[y].clear()
         retry = [(s_, d_) for s_, d_ in retry if valive[s_] and valive[d_] and s_ != b and d_ != b]
-        if retry:
-            r = np.array(retry, np.int64)
-            src.append(r[:, 0])
-            dst.append(r[:, 1])
-        push(np.concatenate(src), np.concatenate(dst))
+        if nb:
+            lb = lengths(np.array(nb), b)  # each edge at b queued both ways
+            src, dst, l2 = [b] * len(nb) + nb, nb + [b] * len(nb), lb + lb
+            if retry:
+                rs, rd = [s_ for s_, _ in retry], [d_ for _, d_ in retry]
+                src, dst, l2 = src + rs, dst + rd, l2 + lengths(np.array(rs), np.array(rd))
+            push(src, dst, l2)
         done = V - n_alive
         if progress is not None and done >= next_report:
             report(progress, done, n_remove, "coarsening")
             next_report = done + max(1, n_remove // 100)
 
-    keep = np.flatnonzero(valive)
+    keep = np.flatnonzero(np.array(valive, bool))
     new_index = np.full(V, -1, np.int64)
     new_index[keep] = np.arange(len(keep))
-    cfaces = new_index[fcur[falive]]
+    cfaces = new_index[np.array(fcur, np.int64)[falive]]
     sources = np.asarray(sources, np.int64)
     targets = np.asarray(targets, np.int64)
     parent = _parents(V, keep, sources, targets)
@@ -602,4 +746,5 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         report(progress, n_remove, n_remove, "coarsening done")
     return Coarsening(n_fine_vertices=V, fine_faces=faces, vertex_indices=keep, faces=cfaces,
                       collapse_sources=sources, collapse_targets=targets, parent=parent, ring_offsets=offsets,
-                      ring_pairs=pairs, costs=np.asarray(cost_list, float), seconds=time.perf_counter() - t0)
+                      ring_pairs=pairs, costs=np.asarray(cost_list, float) * unit ** 4,
+                      seconds=time.perf_counter() - t0)
