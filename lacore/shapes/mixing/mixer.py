@@ -453,7 +453,7 @@ class ShapeMixer:
         for rnd in range(o.newton_rounds):
             report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
             with watch("newton_vectors"):
-                if rnd == 0:  # the farthest from the middle of the keys first: the nearer ones see their steps
+                if rnd == 0:  # the farthest from the centre of [0, 1]^m first: the inner ones see their steps
                     cands = sorted(all_cands, key=lambda w: -float(np.abs(w - 0.5).max()))
                 else:  # later rounds: the half of the candidates where the space is worst
                     order = np.argsort([-latest[tuple(c)] for c in all_cands])
