@@ -386,7 +386,26 @@ def test_build_progress_and_cancel():
         ShapeMixer.build(keys, F, progress=lambda d, t, m: "Newton" in m)
 
 
+def test_build_factorizations(monkeypatch, bar):
+    """One numeric factorization per key and per candidate weight; a second round adds one per candidate of its
+    half."""
+    from lacore.linalg.sparse_cholesky import SparseCholesky
+    from lacore.shapes.mixing.subspace import candidate_weights
+
+    calls = []
+    numeric = SparseCholesky._numeric
+    monkeypatch.setattr(SparseCholesky, "_numeric", lambda self, v: calls.append(1) or numeric(self, v))
+    keys, F = bar
+    C = len(candidate_weights(2, -0.5, 1.5))
+    ShapeMixer.build(keys, F)
+    assert len(calls) == 3 + C
+    calls.clear()
+    ShapeMixer.build(keys, F, MixerOptions(newton_rounds=2))
+    assert len(calls) == 3 + C + (C + 1) // 2
+
+
 @pytest.mark.parametrize("options", [MixerOptions(second_order=True, chord_steps=1),
+                                     MixerOptions(newton_rounds=2),
                                      MixerOptions(newton_rounds=1, newton_pcg_iterations=20),
                                      MixerOptions(newton_rounds=0, reduced_size=6)])
 def test_optional_build_paths(options):

@@ -484,7 +484,10 @@ def jacobian_pattern(topology):
         ang_cols = (3 * np.repeat(quad, 3, axis=1) + np.tile(xyz, 4)).ravel()
         rows = np.r_[len_rows, ang_rows]
         cols = np.r_[len_cols, ang_cols]
-        order = np.lexsort((cols, rows))
+        # rows are already ascending (lengths by edge, then angles by interior edge): sort within each row only
+        order = np.r_[(np.argsort(len_cols.reshape(E, 6), axis=1, kind="stable") + 6 * np.arange(E)[:, None]).ravel(),
+                      (np.argsort(ang_cols.reshape(-1, 12), axis=1, kind="stable")
+                       + 6 * E + 12 * np.arange(len(ie))[:, None]).ravel()]
         indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=2 * E))]
         # value buffer of a block: row s holds local value s (0..5 length gradient, 6..17
         # angle gradient) of the block's edges, so value (s, e) sits at s * width + e - start

@@ -144,9 +144,10 @@ class SparseCholesky:
         n = P.shape[0]
         if P.shape != (n, n):
             raise ValueError(f"the pattern must be square, got shape {P.shape}")
-        P = sp.tril(sp.csc_matrix((np.ones(P.nnz), P.indices, P.indptr), shape=P.shape), format="csc")
-        P = (P + sp.eye(n, format="csc")).tocsc()
-        P.sort_indices()
+        if not _is_lower_with_diagonal(P):
+            P = sp.tril(sp.csc_matrix((np.ones(P.nnz), P.indices, P.indptr), shape=P.shape), format="csc")
+            P = (P + sp.eye(n, format="csc")).tocsc()
+            P.sort_indices()
         self.n = n
         self.indptr = P.indptr.astype(np.int64)
         self.indices = P.indices.astype(np.int64)
@@ -354,6 +355,16 @@ class SparseCholesky:
             cvxopt.cholmod.solve(self._factor, B)
             return np.array(B).reshape(b.shape)
         return self._factor.solve(b)
+
+
+def _is_lower_with_diagonal(P):
+    """Whether the CSC matrix ``P`` is already a lower-triangular structure in canonical form (sorted rows, no
+    duplicates) whose every column starts with its diagonal entry: then it is its own pattern."""
+    n = P.shape[0]
+    starts = P.indptr[:-1]
+    if not (P.has_canonical_format and np.all(np.diff(P.indptr) > 0)):
+        return False
+    return bool(np.array_equal(P.indices[starts], np.arange(n)))
 
 
 def _pymetis():
