@@ -465,20 +465,17 @@ class FrameSolver:
         r[self.E:] = np.where(np.abs(ang) < np.pi, ang, np.mod(ang + np.pi, 2 * np.pi) - np.pi)
         return r
 
+    def _area_ratio(self, X):
+        """Face areas over their reference areas ``(F,)``."""
+        return 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1) / self.rest_area
+
     def _compression(self, X):
         if not self.w_c:
             return np.zeros(0), np.zeros(0, np.int64), 0.0
-        a = 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1)
-        r = self.rho - a / self.rest_area
+        r = self.rho - self._area_ratio(X)
         act = np.flatnonzero(r > 0)
         r = r[act]
         return r, act, self.w_c * float(r @ r)
-
-    def _near_compression(self, X):
-        if not self.w_c:
-            return np.zeros(0, np.int64)
-        a = 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1)
-        return np.flatnonzero(self.rho + COMPRESSION_MARGIN - a / self.rest_area > 0)
 
     def _compression_jacobian(self, X, act):
         P = X[self.faces[act]]
@@ -582,7 +579,8 @@ class FrameSolver:
         return total, d, p
 
     def gradient(self, X, a, y, vis, matrix=False):
-        """Gradients ``(3V,)``, ``(J,)``; with ``matrix`` also the Gauss-Newton values of ``A`` and the border ``B``."""
+        """Gradients ``(3V,)``, ``(J,)``; with ``matrix`` also the Gauss-Newton values of ``A`` and the Jacobian
+        ``Jz`` of ``z`` (the border ``B`` is :meth:`border` of it)."""
         Jz, z = lengths_and_angles_jacobian(X, self.topology, return_z=True)
         rz = self._residual_z(z, a)
         wr = self.w * rz
@@ -595,9 +593,21 @@ class FrameSolver:
                               minlength=3 * self.V)
         if self.kappa and self.X_hat is not None:
             gX = gX + (2.0 * self.kappa * self.wd * self.mass[:, None] * (X - self.X_hat)).ravel()
-        rc, act, _ = self._compression(X)
+        # the compression safeguard: its penalized faces (act) lie among the faces its matrix covers (near)
+        near = act = np.zeros(0, np.int64)
+        if self.w_c:
+            ratio = self._area_ratio(X)
+            r_all = self.rho - ratio
+            if matrix:
+                near = np.flatnonzero(self.rho + COMPRESSION_MARGIN - ratio > 0)
+                gn = self._compression_jacobian(X, near)
+                inner = r_all[near] > 0
+                act, gc = near[inner], gn[inner]
+            else:
+                act = np.flatnonzero(r_all > 0)
+                gc = self._compression_jacobian(X, act)
+            rc = r_all[act]
         if act.size:
-            gc = self._compression_jacobian(X, act)
             gX = gX + np.bincount(self.face_dofs[act].ravel(), weights=(-2.0 * self.w_c * rc[:, None] * gc).ravel(),
                                   minlength=3 * self.V)
         rp, pact = self._penetration(X)
@@ -611,9 +621,7 @@ class FrameSolver:
         vals = QuadraticGNMatrix(obj, Jz, z, X)()
         H = 2.0 * self.wd * np.einsum("mki,mkj->mij", G, G)[:, _I9, _J9]
         vals = vals + np.bincount(self.data_slots[vis].ravel(), weights=H.ravel(), minlength=len(vals))
-        near = self._near_compression(X)
         if near.size:
-            gn = self._compression_jacobian(X, near)
             Hc = 2.0 * self.w_c * (gn[:, _I9] * gn[:, _J9])
             vals = vals + np.bincount(self.face_slots[near].ravel(), weights=Hc.ravel(), minlength=len(vals))
         if pact.size:
@@ -629,8 +637,11 @@ class FrameSolver:
             extra = extra + np.repeat(2.0 * self.kappa * self.wd * self.mass, 3)
         vals = vals.copy()
         vals[self.diag] += extra
-        B = -2.0 * self.gamma * np.asarray(Jz.T @ self.WU)
-        return gX, ga, vals, B
+        return gX, ga, vals, Jz
+
+    def border(self, Jz):
+        """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
+        return -2.0 * self.gamma * np.asarray(Jz.T @ self.WU)
 
     def factorize(self, X, a, y, vis, schur=True):
         """Gauss-Newton matrix at ``(X, a)``: sparse factor and Schur complement; returns the gradients.
@@ -638,14 +649,18 @@ class FrameSolver:
         ``schur=False`` keeps the previous border ``B`` and Schur complement (``J`` solves
         saved; the step is then inexact, the gradient exact).
         """
-        gX, ga, vals, B = self.gradient(X, a, y, vis, matrix=True)
-        if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(gX)) and np.all(np.isfinite(B))):
+        gX, ga, vals, Jz = self.gradient(X, a, y, vis, matrix=True)
+        if not (np.all(np.isfinite(vals)) and np.all(np.isfinite(gX))):
             # e.g. markers so far from the mesh's scale that its lengths lose all precision (frame status -2)
+            raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
+        schur = bool(self.J and (schur or getattr(self, "S", None) is None))
+        B = self.border(Jz) if schur else None                   # only a fresh Schur complement needs it
+        if schur and not np.all(np.isfinite(B)):
             raise NotPositiveDefiniteError("the Gauss-Newton matrix or gradient is not finite")
         chol = self.chol
         chol.factorize(vals)
         self.W = None                                              # W belongs to one factor
-        if self.J and (schur or getattr(self, "S", None) is None):
+        if schur:
             if chol.has_triangular_solves:
                 # B^T A^-1 B = W^T D^-1 W with W = L^-1 P B: J forward substitutions, no backward ones
                 self.W = chol.forward(B)

@@ -42,9 +42,14 @@ from .coarsening import Coarsening
 __all__ = ["Prolongation"]
 
 
-def _segment_sum(values, offsets):
-    """Sums of ``values[offsets[i]:offsets[i + 1]]`` for non-empty segments (axis 0)."""
-    return np.add.reduceat(values, offsets[:-1], axis=0)
+def _cross(a, b):
+    """Cross products over the first axis of ``a, b (3, ...)`` (np.cross costs more at these sizes)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _dot(a, b):
+    """Dot products over the first axis of ``a, b (3, ...)``."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 class Prolongation:
@@ -76,9 +81,11 @@ class Prolongation:
         K = len(c.collapse_sources)
         self.alpha = np.zeros((len(P), K, 3))
         for s in range(len(P)):
+            Ps = np.ascontiguousarray(P[s].T)
             for ks, u, v, pr, seg, sizes in self._level_data:
-                F = self._frames(P[s], v, pr, seg, sizes)
-                self.alpha[s, ks] = np.einsum("kij,kj->ki", F[1], P[s][u] - F[0])
+                centre, t1, t2, n = self._frames(Ps, v, pr, seg, sizes)
+                d = Ps[:, u] - centre
+                self.alpha[s, ks] = np.stack([_dot(t1, d), _dot(t2, d), _dot(n, d)], axis=-1)
 
     @classmethod
     def from_coordinates(cls, coarsening, alpha):
@@ -168,16 +175,19 @@ class Prolongation:
 
     @staticmethod
     def _frames(X, v, pr, seg, sizes):
-        """Centres (k,3) and frames (k,3,3) (rows t1, t2, n) of the rings of one level."""
-        Pp, Pq = X[pr[:, 0]], X[pr[:, 1]]
-        centre = _segment_sum(Pp + Pq, seg) / (2.0 * sizes)[:, None]
-        cr = np.repeat(centre, sizes, axis=0)
-        n = _segment_sum(np.cross(Pp - cr, Pq - cr), seg)
-        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-        t = X[v] - centre
-        t -= np.einsum("ki,ki->k", t, n)[:, None] * n
-        t /= np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
-        return centre, np.stack([t, np.cross(n, t), n], axis=1)
+        """Centres and frame rows ``t1, t2, n`` of the rings of one level, each ``(3, k)``.
+
+        ``X`` is ``(3, V)``: coordinates first, so every gather and product runs over contiguous rows.
+        """
+        Pp, Pq = np.take(X, pr[:, 0], axis=1), np.take(X, pr[:, 1], axis=1)
+        centre = np.add.reduceat(Pp + Pq, seg[:-1], axis=1) / (2.0 * sizes)
+        cr = np.repeat(centre, sizes, axis=1)
+        n = np.add.reduceat(_cross(Pp - cr, Pq - cr), seg[:-1], axis=1)
+        n /= np.maximum(np.sqrt(_dot(n, n)), 1e-300)
+        t = np.take(X, v, axis=1) - centre
+        t -= _dot(t, n) * n
+        t /= np.maximum(np.sqrt(_dot(t, t)), 1e-300)
+        return centre, t, _cross(n, t), n
 
     def __call__(self, coarse_vertices, weights=None):
         """Fine vertices from coarse ones.
@@ -198,16 +208,17 @@ class Prolongation:
         Xc = np.asarray(coarse_vertices, dtype=float)
         if Xc.shape != (c.n_vertices, 3):
             raise MeshError(f"coarse vertices must be ({c.n_vertices}, 3), got {Xc.shape}")
-        N = self.alpha.shape[0]
+        N, K = self.alpha.shape[:2]
         w = np.zeros(N) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
         if weights is None:
             w[0] = 1.0
         if w.shape != (N,):
             raise ValueError(f"weights must have shape ({N},), got {w.shape}")
-        alpha = np.einsum("s,ski->ki", w, self.alpha)
-        X = np.zeros((c.n_fine_vertices, 3))
-        X[c.vertex_indices] = Xc
+        alpha = (w @ self.alpha.reshape(N, 3 * K)).reshape(K, 3).T        # (3, K)
+        X = np.zeros((3, c.n_fine_vertices))                              # coordinates first
+        X[:, c.vertex_indices] = Xc.T
         for ks, u, v, pr, seg, sizes in self._level_data:
-            centre, F = self._frames(X, v, pr, seg, sizes)
-            X[u] = centre + np.einsum("kji,kj->ki", F, alpha[ks])
-        return X
+            centre, t1, t2, n = self._frames(X, v, pr, seg, sizes)
+            a = alpha[:, ks]
+            X[:, u] = centre + t1 * a[0] + t2 * a[1] + n * a[2]
+        return np.ascontiguousarray(X.T)
