@@ -46,6 +46,8 @@ from .topology import check_vertices
 __all__ = [
     "face_normals",
     "face_areas",
+    "cross_rows",
+    "dot_rows",
     "edge_lengths",
     "dihedral_angles",
     "lengths_and_angles",
@@ -80,6 +82,36 @@ def _dot_rows(u, v, out):
     out += u[1] * v[1]
     out += u[2] * v[2]
     return out
+
+
+def cross_rows(u, v):
+    """Cross products of component-row arrays ``u, v (3, N)``: ``(3, N)``, ``out[:, i] = u[:, i] x v[:, i]``.
+
+    Cheaper than :func:`numpy.cross` on rows of this layout (coordinates first, every product over
+    a contiguous row).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cross_rows(np.array([[1.0], [0.0], [0.0]]), np.array([[0.0], [1.0], [0.0]])).ravel()
+    array([0., 0., 1.])
+    """
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    return _cross_rows(u, v, out, np.empty(out.shape[1:]))
+
+
+def dot_rows(u, v):
+    """Dot products of component-row arrays ``u, v (3, N)``: ``(N,)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> float(dot_rows(np.array([[1.0], [2.0], [3.0]]), np.array([[4.0], [5.0], [6.0]]))[0])
+    32.0
+    """
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    return _dot_rows(u, v, np.empty(np.broadcast_shapes(u.shape, v.shape)[1:]))
 
 
 def _as_vertices(vertices, n_vertices):

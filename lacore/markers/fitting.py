@@ -83,7 +83,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, format_indices
-from ..geometry.lengths_angles import face_normals, lengths_and_angles, lengths_and_angles_jacobian
+from ..geometry.lengths_angles import face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 from ..progress import report
@@ -428,7 +428,7 @@ class FrameSolver:
         self.buffer = np.empty(len(pat["slots"]))
         self.face_dofs = (3 * self.faces[:, :, None] + np.arange(3)).reshape(-1, 9)
         self.face_slots = self._slots(self.face_dofs)
-        self.rest_area = 0.5 * np.linalg.norm(face_normals(Xr, self.faces, unit=False), axis=1)
+        self.rest_area = face_areas(Xr, self.faces)
         self.rho = float(options.compression_ratio or 0.0)
         self.w_c = float(options.compression_weight) if self.rho > 0 else 0.0
         mass = np.zeros(self.V)
@@ -467,7 +467,7 @@ class FrameSolver:
 
     def _area_ratio(self, X):
         """Face areas over their reference areas ``(F,)``."""
-        return 0.5 * np.linalg.norm(face_normals(X, self.faces, unit=False), axis=1) / self.rest_area
+        return face_areas(X, self.faces) / self.rest_area
 
     def _compression(self, X):
         if not self.w_c:
@@ -549,17 +549,14 @@ class FrameSolver:
         v, f = v[order], f[order]
         first = np.r_[True, v[1:] != v[:-1]]
         v, f = v[first], f[first]
-        T = X[self.faces[f]]
-        below = np.einsum("kc,kc->k", np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), X[v] - T.mean(1)) < 0
+        below = np.einsum("kc,kc->k", face_normals(X, self.faces[f], unit=False), X[v] - X[self.faces[f]].mean(1)) < 0
         n_faces = len(self.faces)
         old = self.pen_v * n_faces + self.pen_f
         new = np.setdiff1d(v[below] * n_faces + f[below], old)
         if len(new):
             self.pen_v = np.concatenate([self.pen_v, new // n_faces])
             self.pen_f = np.concatenate([self.pen_f, new % n_faces])
-            T = X[self.faces[self.pen_f]]                          # every constraint's normal: at X
-            c = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-            self.pen_n = c / np.linalg.norm(c, axis=1)[:, None]
+            self.pen_n = face_normals(X, self.faces[self.pen_f])   # every constraint's normal: at X
         return pairs, int(len(new))
 
     def energy(self, X, a, y, vis):

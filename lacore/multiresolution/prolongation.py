@@ -35,21 +35,13 @@ import os
 import numpy as np
 
 from ..errors import InputError, MeshError
+from ..geometry.lengths_angles import cross_rows as _cross
+from ..geometry.lengths_angles import dot_rows as _dot
 from ..io.atomic import save_npz_atomic
 from ..io.npz import open_npz
 from .coarsening import Coarsening
 
 __all__ = ["Prolongation"]
-
-
-def _cross(a, b):
-    """Cross products over the first axis of ``a, b (3, ...)`` (np.cross costs more at these sizes)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _dot(a, b):
-    """Dot products over the first axis of ``a, b (3, ...)``."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 class Prolongation:

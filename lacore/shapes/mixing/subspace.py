@@ -267,6 +267,12 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
     return vectors, exps
 
 
+def _unit_columns(vectors, rows):
+    """The non-zero ``vectors`` scaled to unit length, as the columns of a ``(rows, k)`` array."""
+    out = [v / n for v in vectors if (n := np.linalg.norm(v)) > 0]
+    return np.array(out).T if out else np.zeros((rows, 0))
+
+
 def orthonormal_basis(vectors, max_size=None, rtol=1e-8, keep=0):
     """Orthonormal columns ``(3V, r)`` spanning the unit-scaled ``vectors``, the first ``keep`` of them exactly.
 
@@ -274,11 +280,7 @@ def orthonormal_basis(vectors, max_size=None, rtol=1e-8, keep=0):
     removed, by an SVD whose singular values below ``rtol`` times the largest are dropped, and only
     the largest ones up to ``max_size`` columns in all are kept.  Returns ``(U, singular values)``.
     """
-    def unit(vs):
-        out = [v / n for v in vs if (n := np.linalg.norm(v)) > 0]
-        return np.array(out).T if out else np.zeros((len(vectors[0]), 0))
-
-    K, A = unit(vectors[:keep]), unit(vectors[keep:])
+    K, A = _unit_columns(vectors[:keep], len(vectors[0])), _unit_columns(vectors[keep:], len(vectors[0]))
     Q = np.zeros((A.shape[0], 0))
     if K.shape[1]:
         Q, Rk = np.linalg.qr(K)
@@ -325,10 +327,9 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4):
 
 def _extend(U, vectors, rtol=1e-8):
     """``U`` ``(n, r)`` (orthonormal columns) followed by orthonormal columns for what ``vectors`` add to its span."""
-    units = [v / n for v in vectors if (n := np.linalg.norm(v)) > 0]
-    if not units:
+    V = _unit_columns(vectors, U.shape[0])
+    if not V.shape[1]:
         return U
-    V = np.column_stack(units)
     for _ in range(2):                                        # twice: orthogonal to U to rounding
         V -= U @ (U.T @ V)
     Q, R = np.linalg.qr(V)
