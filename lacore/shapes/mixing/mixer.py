@@ -455,26 +455,6 @@ class ShapeMixer:
             derivatives = m * (1 + mixer.n_keys) + starts * (1 + m) <= AUTO_SIZE
         mixer._derivatives = bool(derivatives and o.newton_rounds and not o.newton_pcg_iterations)
         latest = {}  # the last error estimate at every candidate
-        import os
-        exp = os.environ.get("LACORE_MIXER_ROT")
-        rotated, rotate, exp_its = None, True, 0
-        if exp:
-            mode, exp_its = exp.split(":")
-            exp_its = int(exp_its)
-            rotate = not mode.endswith("norot")
-            with watch("newton_vectors"):
-                from ...linalg.sparse_cholesky import SparseCholesky
-                from ...reconstruction.assembly import dof_ordering
-                ctx = mixer._context
-                pat = ctx.pattern
-                order, _ = dof_ordering(ctx.topology, pat, ctx.internal_reference, ctx.settings.ordering)
-                keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
-                rotated = []
-                for k in (range(mixer.n_keys) if mode.startswith("nearest") else [0]):
-                    ch = SparseCholesky(pat["matrix"], backend=ctx.backend, ordering=order)
-                    _, _, mat = ctx.objective(P._external_target(keys_w[k])).linearize(mixer._key_x[k].reshape(-1, 3))
-                    ch.factorize(ctx.eliminate_fixed(mat(second_order=False)), regularize=True)
-                    rotated.append((keys_w[k], mixer._key_x[k], ch.solve))
         for rnd in range(o.newton_rounds):
             report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
             with watch("newton_vectors"):
@@ -487,9 +467,8 @@ class ShapeMixer:
                 new, points, errors = newton_vectors(P, x0, mixer.basis,
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
-                                                     pcg_iterations=exp_its or o.newton_pcg_iterations,
-                                                     derivatives=derivatives, rotated=rotated, rotate=rotate,
-                                                     reduced_iterations=int(os.environ.get("LACORE_MIXER_RI", "2")),
+                                                     pcg_iterations=o.newton_pcg_iterations,
+                                                     derivatives=derivatives,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))

@@ -47,7 +47,6 @@ import numpy as np
 from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ...linalg.sparse_cholesky import NotPositiveDefiniteError
 from ...progress import report
-from ...multiresolution.reconstruction import vertex_rotations
 from ...reconstruction.pcg import preconditioned_cg
 
 __all__ = ["FullProblem", "build_space", "candidate_weights"]
@@ -338,7 +337,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2, rotated=None, rotate=True):
+                   reduced_iterations=2):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -372,7 +371,7 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     """
     topo, w = problem.topology, problem.w
     solved, steps, extra = [], [None] * len(starts), []
-    if not pcg_iterations and rotated is None:
+    if not pcg_iterations:
         space = U
         for i, (wk, q0) in enumerate(starts):
             report(progress, i, len(starts), f"Newton vector {i + 1} of {len(starts)}")
@@ -381,26 +380,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
             solved.append((np.asarray(wk, float), x))
             J = problem.factorize(x, wk)
             steps[i], *more = problem.newton_step(J, x, wk, derivatives)
-            extra += more
-            space = _extend(space, [steps[i]] + more)
-    elif rotated is not None:
-        space = U
-        edges = topo.edges
-        for i, (wk, q0) in enumerate(starts):
-            report(progress, i, len(starts), f"Newton vector {i + 1} of {len(starts)}")
-            q0 = np.concatenate([q0, np.zeros(space.shape[1] - U.shape[1])])
-            _, x, _ = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations)
-            solved.append((np.asarray(wk, float), x))
-            k = int(np.argmin([np.abs(wk - kw).sum() for kw, _, _ in rotated]))
-            kw, kx, solve = rotated[k]
-            R = vertex_rotations(kx.reshape(-1, 3), x.reshape(-1, 3), edges) if rotate else None
-            J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), topo, return_z=True)
-            C = w[:, None] * np.column_stack([-problem._residual(z, wk)] + ([problem.dz.T] if derivatives else []))
-            B = 2.0 * (J.T @ C)
-            w2 = 2.0 * w
-            X = block_pcg(lambda V, J=J, w2=w2: J.T @ (w2[:, None] * (J @ V)), B,
-                          rotated_preconditioner(solve, R, problem.fixed), problem.fixed, pcg_iterations)
-            steps[i], *more = list(X.T)
             extra += more
             space = _extend(space, [steps[i]] + more)
     else:
@@ -427,43 +406,3 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
                 steps[i] = d
     sizes = np.array([float(np.linalg.norm(d)) / np.sqrt(len(d) / 3) / size for d in steps])
     return steps + extra, solved, sizes
-
-
-def rotated_preconditioner(solve, R, fixed):
-    """``B -> R A^-1 R^T B`` for columns ``B`` ``(3V, c)``: ``solve`` applies ``A^-1``, ``R`` ``(V, 3, 3)`` per-vertex
-    rotations (None: no rotation)."""
-    def apply(B):
-        n, c = B.shape
-        Y = B if R is None else np.einsum("vji,vjc->vic", R, B.reshape(-1, 3, c)).reshape(n, c)
-        Y = np.array(Y)
-        Y[fixed] = 0.0
-        Y = np.asarray(solve(Y)).reshape(n, c)
-        Y[fixed] = 0.0
-        return Y if R is None else np.einsum("vij,vjc->vic", R, Y.reshape(-1, 3, c)).reshape(n, c)
-    return apply
-
-
-def block_pcg(matvec, B, precondition, fixed, iterations):
-    """``iterations`` steps of preconditioned conjugate gradients on every column of ``B`` ``(n, c)`` at once (one
-    preconditioner application and one product for all columns per step)."""
-    B = np.array(B, float)
-    B[fixed] = 0.0
-    X = np.zeros_like(B)
-    Rs = B
-    Z = precondition(Rs)
-    P = Z.copy()
-    rz = np.einsum("ic,ic->c", Rs, Z)
-    for _ in range(int(iterations)):
-        AP = matvec(P)
-        AP[fixed] = 0.0
-        curv = np.einsum("ic,ic->c", P, AP)
-        ok = (curv > 0) & (rz > 0)
-        alpha = np.where(ok, rz / np.where(ok, curv, 1.0), 0.0)
-        X += alpha * P
-        Rs = Rs - alpha * AP
-        Z = precondition(Rs)
-        rz_new = np.einsum("ic,ic->c", Rs, Z)
-        beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
-        P = Z + beta * P
-        rz = rz_new
-    return X
