@@ -140,7 +140,11 @@ class MixerOptions:
         the median energy ratio to Gauss-Newton from 1.08 to 12; on the 50k bar (6 iterations) from
         0.21 % to 0.67 % and 1.56 to 11.6.  Nor is it cheaper: a factorization costs about as much as 13
         solves with it at 13k vertices (0.17 s, 13 ms) and 30 at 50k (2.5 s, 86 ms; three right-hand
-        sides 0.24 s), and the Newton stage took 2-4 times as long at 5k-13k.
+        sides 0.24 s), and the Newton stage took 2-4 times as long at 5k-13k.  One reference
+        factorization fails at the keys too: the first derivatives at the other keys (residual 0, near
+        isometric to the basis) by PCG with the basis key's factorization rotated are still 80-100 %
+        off (largest relative error of the columns) after 30 iterations on the 5k bar and the CC0
+        body (unrotated: 100-240 %).
     newton_derivatives : bool or None
         With every Newton vector's factorization, also the first derivatives of the projection by the
         weights at the reduced minimizer (``K-1`` more right-hand sides of the same solve, no more
