@@ -16,6 +16,11 @@ weights of :func:`reference_weights`, computed here (hours at 50k vertices) or r
 first ``n_in`` weights lie in [0, 1]), ``vertices (N, V, 3)``, ``energy (N,)``).  RMS vertex
 distance after the best rigid motion, in % of the bounding-box diagonal of the basis.
 
+The continuation can stop in a worse local minimum than the projection: where a mix's full energy is below the
+reference's or its distance misses the goal, full Gauss-Newton from the mix (a polish) is run, and if it ends at a
+lower energy it is the reference there (``references_checked``; on the CC0 body at ``w = (1.5, 1.5, 1.5)`` the
+continuation ends at ``W_q`` = 4.48, the polished mix at 0.150, 1.96 % of the diagonal away).
+
 Energy: the full ``W_q`` at the mix over that at the converged Gauss-Newton mix (``energy_ratio``),
 and the goal as a margin, ``energy_goal`` = ``(E_mix - E_gn) / (0.02 E_gn + floor)`` (at most 1: within
 the goal), with ``floor`` = :data:`ENERGY_FLOOR` times ``E_gn`` at the centre of ``[0, 1]^(K-1)``.  Near a
@@ -46,6 +51,14 @@ from bench_common import machine_info  # noqa: E402
 from lacore.geometry.rigid import rigid_align  # noqa: E402
 from lacore.samples.simple_deform import box_bar, simple_deform_bend  # noqa: E402
 from lacore.shapes.mixing import ShapeMixer, blend_targets  # noqa: E402
+
+#: A mix whose full energy is below the reference's by more than this fraction, or whose RMS distance to it misses the
+#: goal (:data:`GOALS`), is polished (full Gauss-Newton from the mix); a lower energy so found replaces the reference
+#: (the continuation's local minimum was not the projection).
+LOWER_ENERGY = 1e-3
+
+#: Accuracy goals, RMS % of the diagonal: in [0, 1]^(K-1), outside.
+GOALS = (0.3, 1.0)
 
 #: Floor of the energy goal, as a fraction of the converged energy at the centre of [0, 1]^(K-1) (see above).
 ENERGY_FLOOR = 1e-3
@@ -144,7 +157,8 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     out["cubature_fit_residual"] = round(float(getattr(mixer, "cubature_residual", 0.0)), 5)
     out["mixer_megabytes"] = round(mixer.nbytes / 2 ** 20, 1)
     out["peak_rss_growth_megabytes"] = round((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024, 1)
-    errs, ratios, exacts, inds, flags, its, wall, cpu = [], [], [], [], [], [], [], []
+    errs, ratios, exacts, inds, flags, its, wall, cpu, checked = [], [], [], [], [], [], [], [], []
+    Xref, Eref = np.array(Xref, float), np.array(Eref, float)
     for i, w in enumerate(W):
         mixer.mix(np.zeros(len(w)), warm_start=False)
         ws, cs = [], []
@@ -155,8 +169,20 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
             ws.append(time.perf_counter() - t1)
         wall.append(min(ws))
         cpu.append(min(cs))
-        errs.append(rms_percent(r.vertices, Xref[i], diag))
         exact = mixer.full_energy(w, r.vertices)
+        err = rms_percent(r.vertices, Xref[i], diag)
+        if exact < (1.0 - LOWER_ENERGY) * Eref[i] or err > GOALS[i >= n_in]:
+            # a lower energy than the reference or a missed goal: full Gauss-Newton from the mix (a polish); if it
+            # ends lower than the reference, the continuation stopped in a worse local minimum and it is the reference
+            p = mixer.mix(w, warm_start=False, polish=True)
+            e_p = mixer.full_energy(w, p.vertices)
+            checked.append({"w": [round(float(a), 3) for a in w], "energy_reference": round(float(Eref[i]), 6),
+                            "energy_polished": round(float(e_p), 6), "replaced": bool(e_p < Eref[i]),
+                            "rms_percent_polished_to_reference": round(rms_percent(p.vertices, Xref[i], diag), 4)})
+            if e_p < Eref[i]:
+                Xref[i], Eref[i] = p.vertices, e_p
+                err = rms_percent(r.vertices, Xref[i], diag)
+        errs.append(err)
         exacts.append(exact)
         ratios.append(exact / Eref[i] if Eref[i] > 0 else float("nan"))
         inds.append(r.indicator)
@@ -193,6 +219,7 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
         "energy_goal_extrapolated": {"median": round(float(np.median(excess[n_in:])), 3),
                                      "max": round(float(excess[n_in:].max()), 3),
                                      "within": int(np.sum(excess[n_in:] <= 1.0)), "of": int(len(W) - n_in)},
+        "references_checked": checked,
         "per_weight": [{"w": [round(float(a), 3) for a in w], "rms_percent": round(float(e), 4),
                         "energy_ratio": round(float(q), 4), "energy_goal": round(float(g), 3),
                         "indicator": round(float(d), 5), "in_range": f}

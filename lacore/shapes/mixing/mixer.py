@@ -32,7 +32,13 @@ ones of the reconstruction context's solver (one symbolic analysis for all): the
 build at 50k vertices (about 2 s CPU each on the 50k bar, whose factor has 47 million nonzeros, with
 an assembly and a solve of 0.2-0.3 s each, of about 30 s in all on the 2-core AMD EPYC we benchmark
 on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
-1.4-2 s there, 3-4 s at 50k) comes next.  A mix
+1.4-2 s there, 3-4 s at 50k) comes next.  At 13k vertices the first factorization's pattern, ordering and
+symbolic analysis take about 1.2 s more, and each Newton vector's reduced minimizer (two Gauss-Newton steps
+in the space with the full Jacobian) about 0.1 s.  Cheaper variants all lost accuracy on the bar and the
+CC0 body: Newton vectors by preconditioned conjugate gradients (:attr:`MixerOptions.newton_pcg_iterations`),
+derivatives at the basis key only (the CC0 body's median energy ratio to Gauss-Newton in ``[0, 1]^3``
+from 1.27 to 2.86 for 0.3 s), no Newton vector at the centre of ``[0, 1]^(K-1)`` (1.27 to 1.64), one
+reduced step instead of two (the 5k bar's largest error in ``[-0.5, 1.5]^2`` from 0.44 % to 0.56 %).  A mix
 costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent
 of the mesh size) plus ``O(V r)`` to write the vertices.
 
@@ -112,13 +118,33 @@ class MixerOptions:
         the median energy ratio to Gauss-Newton 1.56 instead of 2.07; the MakeHuman body (13k, K = 3)
         4.3 s instead of 5.2 s (0.008 % / 0.011 %, was 0.005 % / 0.014 %), the CC0 body (13k, K = 4)
         7.2 s instead of 10.0 s (0.024 % / 1.89 %, was 0.029 % / 1.88 %; median energy ratio 1.27,
-        was 1.17).
+        was 1.17).  The CC0 body's 1.89 % is the distance to a worse local minimum of the benchmark's
+        continuation at ``w = (1.5, 1.5, 1.5)`` (``W_q`` 4.48; full Gauss-Newton from the mix ends at
+        0.15): against the lower minimizer at every weight its largest error in ``[-0.5, 1.5]^3`` is
+        0.53 %, at ``w = (-0.5, -0.5, -0.5)`` (mix energy 2.1, Gauss-Newton 0.74).
     newton_pcg_iterations : int
         0: every Newton vector with a fresh factorization; else that many conjugate-gradient
         iterations preconditioned by the nearest key's factorization (fewer factorizations, no
         derivatives).  0 by default: with 20 iterations the Newton stage was not cheaper on the 13k
         bodies (PCG iterations cost as much as the factorizations saved) and the CC0 body's largest RMS
-        error in ``[0, 1]^3`` grew from 0.03 % to 0.46 %.
+        error in ``[0, 1]^3`` grew from 0.03 % to 0.46 %.  Rotating the key's factorization to the pose
+        vertex by vertex (``M^-1 = R A_k^-1 R^T``, ``R`` the polar rotations of the one-ring covariances,
+        :func:`lacore.multiresolution.vertex_rotations`, as the multiresolution reconstruction's
+        ``"reference"`` fine solver does) does not rescue it: a Newton vector spans the missing part of
+        the projection only if it is solved nearly exactly.  Of the exact Gauss-Newton step at a
+        candidate, the space with one PCG iterate still misses 30-60 % (5k bar) and ~70 % (50k bar)
+        after 1 to 20 iterations, rotated or not (the exact step: 0 %; the space without it: 37-80 %);
+        the Gauss-Newton matrix's soft bending modes change with the pose far more than a field of
+        rotations.  As the mixer's Newton vectors (nearest key rotated, 10 iterations, derivatives by
+        block PCG) the largest RMS error in ``[0, 1]^2`` grew on the 5k bar from 0.043 % to 0.61 % and
+        the median energy ratio to Gauss-Newton from 1.08 to 12; on the 50k bar (6 iterations) from
+        0.21 % to 0.67 % and 1.56 to 11.6.  Nor is it cheaper: a factorization costs about as much as 13
+        solves with it at 13k vertices (0.17 s, 13 ms) and 30 at 50k (2.5 s, 86 ms; three right-hand
+        sides 0.24 s), and the Newton stage took 2-4 times as long at 5k-13k.  One reference
+        factorization fails at the keys too: the first derivatives at the other keys (residual 0, near
+        isometric to the basis) by PCG with the basis key's factorization rotated are still 80-100 %
+        off (largest relative error of the columns) after 30 iterations on the 5k bar and the CC0
+        body (unrotated: 100-240 %).
     newton_derivatives : bool or None
         With every Newton vector's factorization, also the first derivatives of the projection by the
         weights at the reduced minimizer (``K-1`` more right-hand sides of the same solve, no more
