@@ -128,23 +128,8 @@ class MixerOptions:
         derivatives).  0 by default: with 20 iterations the Newton stage was not cheaper on the 13k
         bodies (PCG iterations cost as much as the factorizations saved) and the CC0 body's largest RMS
         error in ``[0, 1]^3`` grew from 0.03 % to 0.46 %.  Rotating the key's factorization to the pose
-        vertex by vertex (``M^-1 = R A_k^-1 R^T``, ``R`` the polar rotations of the one-ring covariances,
-        :func:`lacore.multiresolution.vertex_rotations`, as the multiresolution reconstruction's
-        ``"reference"`` fine solver does) does not rescue it: a Newton vector spans the missing part of
-        the projection only if it is solved nearly exactly.  Of the exact Gauss-Newton step at a
-        candidate, the space with one PCG iterate still misses 30-60 % (5k bar) and ~70 % (50k bar)
-        after 1 to 20 iterations, rotated or not (the exact step: 0 %; the space without it: 37-80 %);
-        the Gauss-Newton matrix's soft bending modes change with the pose far more than a field of
-        rotations.  As the mixer's Newton vectors (nearest key rotated, 10 iterations, derivatives by
-        block PCG) the largest RMS error in ``[0, 1]^2`` grew on the 5k bar from 0.043 % to 0.61 % and
-        the median energy ratio to Gauss-Newton from 1.08 to 12; on the 50k bar (6 iterations) from
-        0.21 % to 0.67 % and 1.56 to 11.6.  Nor is it cheaper: a factorization costs about as much as 13
-        solves with it at 13k vertices (0.17 s, 13 ms) and 30 at 50k (2.5 s, 86 ms; three right-hand
-        sides 0.24 s), and the Newton stage took 2-4 times as long at 5k-13k.  One reference
-        factorization fails at the keys too: the first derivatives at the other keys (residual 0, near
-        isometric to the basis) by PCG with the basis key's factorization rotated are still 80-100 %
-        off (largest relative error of the columns) after 30 iterations on the 5k bar and the CC0
-        body (unrotated: 100-240 %).
+        vertex by vertex (as the multiresolution reconstruction's ``"reference"`` fine solver does) does not
+        rescue it (measurements: docs/shape-space.md, "What the build cannot skip").
     newton_derivatives : bool or None
         With every Newton vector's factorization, also the first derivatives of the projection by the
         weights at the reduced minimizer (``K-1`` more right-hand sides of the same solve, no more
