@@ -74,7 +74,11 @@ Start
     extrapolation doubles the previous fits' differences in the directions the markers
     leave free; on Walk1 the choice takes 2.5 instead of 3.5 steps per frame on average, with
     marker RMS and p95 within their spread over stopping tolerances 0.018-0.022 and fewer
-    stretched edges and self-intersecting frames (``benchmarks/bench_fit_takes.py``).
+    stretched edges and self-intersecting frames (``benchmarks/bench_fit_takes.py``).  A fit
+    capped at fewer than :data:`START_MIN_ITERATIONS` steps per frame keeps the full
+    extrapolation: it stops where its start leads it, and the least-energy start may lag
+    behind the markers (the calibration's tracking, 6 steps on strided frames, bound the
+    Eb015 markers to 3.2-3.3 mm marker RMS with the choice instead of 2.7).
     Frames with fewer than 3 usable markers keep the pose of the temporal prediction (status 2).
 Multiresolution
     Give ``prolongation`` (a model's :class:`lacore.models.FineLevel`, a
@@ -104,7 +108,8 @@ from .prolongation import as_fit_prolongation
 
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
-           "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS"]
+           "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
+           "START_MIN_ITERATIONS"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -129,6 +134,9 @@ PREDICTION_WINDOW = 15
 #: A frame starts from the previous pose extrapolated by each of these fractions of the last velocity
 #: (moved rigidly onto the markers), whichever has the least energy (:meth:`FrameSolver.start`).
 START_EXTRAPOLATIONS = (1.0, 0.5, 0.0)
+#: ... when a frame may take at least this many steps (:attr:`FitOptions.max_iterations`); a fit capped
+#: at fewer stops where its start leads it, and keeps the full extrapolation, the nearest to the markers.
+START_MIN_ITERATIONS = 10
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
@@ -153,7 +161,8 @@ class FitOptions:
         of the frame falls by ``(sigma / e)^2`` (module docstring); None: never lowered.
     max_iterations : int
         Bound on the Gauss-Newton steps per frame (frames stop when converged: 1-5 steps on
-        the shared takes, up to 19 measured).
+        the shared takes, up to 19 measured); below :data:`START_MIN_ITERATIONS` frames start
+        from the full extrapolation only (module docstring, Start).
     marker_tolerance : float
         Convergence: largest marker move of the last step, in mean edge lengths (0.02: about
         0.6 mm on the CC0 body's coarse level).
@@ -972,7 +981,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
         solver.kappa = kappa_t if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
-        if X_prev is not None and usable:
+        if X_prev is not None and usable and options.max_iterations >= START_MIN_ITERATIONS:
             Xs, as_ = solver.start(X, a, X_prev, a_prev, y, Xs, as_)
         cold = t == 0 and initial_vertices is None        # from the rest pose: a longer way to go
         Xn, an, st, it, E, pen[t] = solver.solve_frame_apart(
