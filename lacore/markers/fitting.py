@@ -77,8 +77,8 @@ Start
     stretched edges and self-intersecting frames (``benchmarks/bench_fit_takes.py``).  A fit
     capped at fewer than :data:`START_MIN_ITERATIONS` steps per frame keeps the full
     extrapolation: it stops where its start leads it, and the least-energy start may lag
-    behind the markers (the calibration's tracking, 6 steps on strided frames, bound the
-    Eb015 markers to 3.2-3.3 mm marker RMS with the choice instead of 2.7).
+    behind the markers (with the choice in the calibration's tracking, 6 steps on strided
+    frames, Eb015pr and Eb015si fitted to 3.2 and 3.3 mm marker RMS instead of 2.7).
     Frames with fewer than 3 usable markers keep the pose of the temporal prediction (status 2).
 Multiresolution
     Give ``prolongation`` (a model's :class:`lacore.models.FineLevel`, a
