@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lacore.errors import InputError
+from lacore.errors import InputError, MeshError
 from lacore.markers.binding import MarkerBinding, surface_points
 from lacore.markers.fitting import fit_markers
 from lacore.markers.prolongation import NearestKeysProlongation
@@ -89,6 +89,43 @@ def test_prolongation_errors(coarse_bar):
         NearestKeysProlongation(keys.prolongation, model.training_coefficients, n_nearest=0, offset=1)
     with pytest.raises(InputError, match="do not fit"):
         NearestKeysProlongation(keys.prolongation, model.training_coefficients, offset=2)
+
+
+def test_poses_prolonged_together_as_one_at_a_time(coarse_bar):
+    """Prolongation, NearestKeysProlongation and FineLevel on a batch of poses; fit_markers prolongs in batches."""
+    from lacore.models import FineLevel
+    from lacore.multiresolution.prolongation import POSE_BATCH
+
+    X0, F, train, c, model, binding, keys = coarse_bar
+    T = POSE_BATCH + 3                                   # two batches, the second partial
+    rng = np.random.default_rng(5)
+    coarse = train[rng.integers(0, len(train), T)][:, c.vertex_indices] @ ROT.T + SHIFT
+    coarse = coarse + 0.01 * rng.standard_normal(coarse.shape)
+    A = model.training_coefficients[rng.integers(0, len(train), T)] + 0.1 * rng.standard_normal((T, model.n_modes))
+    size = np.linalg.norm(np.ptp(X0, axis=0))
+    one = np.stack([keys(x, a) for x, a in zip(coarse, A, strict=True)])
+    assert np.abs(keys(coarse, A) - one).max() < 1e-12 * size
+    P = keys.prolongation
+    W = np.stack([keys.weights(a) for a in A])
+    assert np.abs(P(coarse, W) - one).max() < 1e-12 * size
+    assert np.abs(P(coarse, W[0]) - np.stack([P(x, W[0]) for x in coarse])).max() < 1e-12 * size   # one blend
+    assert np.abs(P(coarse) - np.stack([P(x) for x in coarse])).max() < 1e-12 * size              # first key
+    assert P(coarse[:0], W[:0]).shape == (0, len(X0), 3)
+    with pytest.raises(ValueError, match="weights"):
+        P(coarse, W[:2])
+    with pytest.raises(ValueError, match="weights"):
+        P(coarse[0], W[:2])
+    with pytest.raises(MeshError, match="coarse vertices"):
+        P(coarse[:, :5])
+    fine = FineLevel.build(c, X0, train, model.training_coefficients)
+    assert np.abs(fine(coarse, A) - np.stack([fine(x, a) for x, a in zip(coarse, A, strict=True)])).max() < 1e-12 * size
+    # fit_markers: a model's fine level and a callable taking one pose give the same fine vertices
+    x = surface_points(coarse[:4], c.faces, binding)
+    res = fit_markers(model, x, binding, prolongation=fine)
+    each = fit_markers(model, x, binding, prolongation=lambda X, a: fine(X, a))
+    assert np.array_equal(res.vertices, each.vertices)
+    assert np.abs(res.fine_vertices - each.fine_vertices).max() < 1e-12 * size
+    assert res.timings["prolongation"] > 0 and np.all(res.frame_seconds > 0)
 
 
 @pytest.mark.numerics

@@ -67,13 +67,24 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 0 by default)
     2.4-8x the time per frame; hence off by default.
 Start
     Frame 0: ``initial_vertices`` or the model's reference mesh, moved by a Kabsch fit of
-    its marker points onto the visible markers; later frames: the previous pose
-    extrapolated and moved likewise.  Frames with fewer than 3 usable markers keep the
-    pose of the temporal prediction (status 2).
+    its marker points onto the visible markers; later frames: of the previous pose
+    extrapolated at full, half and no velocity (``X + beta (X - X_prev)``, ``beta`` in
+    :data:`START_EXTRAPOLATIONS`, ``alpha`` likewise) and moved likewise, the one of least
+    ``J_t`` (:meth:`FrameSolver.start`; ``Xhat`` stays the full extrapolation).  The full
+    extrapolation doubles the previous fits' differences in the directions the markers
+    leave free; on Walk1 the choice takes 2.5 instead of 3.5 steps per frame on average, with
+    marker RMS and p95 within their spread over stopping tolerances 0.018-0.022 and fewer
+    stretched edges and self-intersecting frames (``benchmarks/bench_fit_takes.py``).  A fit
+    capped at fewer than :data:`START_MIN_ITERATIONS` steps per frame keeps the full
+    extrapolation: it stops where its start leads it, and the least-energy start may lag
+    behind the markers (with the choice in the calibration's tracking, 6 steps on strided
+    frames, Eb015pr and Eb015si fitted to 3.2 and 3.3 mm marker RMS instead of 2.7).
+    Frames with fewer than 3 usable markers keep the pose of the temporal prediction (status 2).
 Multiresolution
     Give ``prolongation`` (a model's :class:`lacore.models.FineLevel`, a
     :class:`lacore.multiresolution.Prolongation` or a callable ``(X, alpha) -> X_fine``) to
-    get every pose on the fine mesh (``fine_vertices``).
+    get every pose on the fine mesh (``fine_vertices``); the first two prolong
+    :data:`lacore.multiresolution.prolongation.POSE_BATCH` fitted frames at a time.
 """
 
 import time
@@ -86,6 +97,7 @@ from ..errors import InputError, format_indices
 from ..geometry.lengths_angles import face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
+from ..multiresolution.prolongation import POSE_BATCH
 from ..progress import report
 from ..reconstruction.assembly import dof_ordering, gauss_newton_pattern
 from ..reconstruction.objectives import QuadraticGNMatrix, QuadraticObjective
@@ -96,7 +108,8 @@ from .prolongation import as_fit_prolongation
 
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
-           "marker_statistics", "MAX_MARKER_COORDINATE"]
+           "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
+           "START_MIN_ITERATIONS"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -118,6 +131,12 @@ COMPRESSION_MARGIN = 0.1
 _STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625)
 #: Frames (centred) over which :func:`fit_markers` takes the median of the markers' prediction error.
 PREDICTION_WINDOW = 15
+#: A frame starts from the previous pose extrapolated by each of these fractions of the last velocity
+#: (moved rigidly onto the markers), whichever has the least energy (:meth:`FrameSolver.start`).
+START_EXTRAPOLATIONS = (1.0, 0.5, 0.0)
+#: ... when a frame may take at least this many steps (:attr:`FitOptions.max_iterations`); a fit capped
+#: at fewer stops where its start leads it, and keeps the full extrapolation, the nearest to the markers.
+START_MIN_ITERATIONS = 10
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
@@ -142,7 +161,8 @@ class FitOptions:
         of the frame falls by ``(sigma / e)^2`` (module docstring); None: never lowered.
     max_iterations : int
         Bound on the Gauss-Newton steps per frame (frames stop when converged: 1-5 steps on
-        the shared takes, up to 19 measured).
+        the shared takes, up to 19 measured); below :data:`START_MIN_ITERATIONS` frames start
+        from the full extrapolation only (module docstring, Start).
     marker_tolerance : float
         Convergence: largest marker move of the last step, in mean edge lengths (0.02: about
         0.6 mm on the CC0 body's coarse level).
@@ -698,6 +718,37 @@ class FrameSolver:
                     return Xt, at, Et, t
         return None
 
+    def start(self, X, a, X_prev, a_prev, y, X_full=None, a_full=None):
+        """The start of a frame: the previous pose extrapolated by each of :data:`START_EXTRAPOLATIONS`, least energy.
+
+        Candidate ``beta`` is ``(X + beta (X - X_prev), a + beta (a - a_prev))`` with ``X`` moved
+        rigidly (Kabsch) onto the visible markers ``y (M, 3)``; the one of least :meth:`energy`
+        (with the frame's temporal target :attr:`X_hat` and weight already set) is returned as
+        ``(X_start, a_start)``.  ``X_full, a_full``: the ``beta = 1`` candidate when already at hand.
+
+        Notes
+        -----
+        The constant-velocity prediction ``beta = 1`` doubles what changed between the two
+        previous fits in the directions the markers leave free (the prior's flat valleys); on
+        Walk1 it starts some frames with 5-10 times the energy they end with, crushed faces
+        among it, and they take up to 10 Gauss-Newton steps.  Comparing energies keeps the
+        choice scale-free.
+        """
+        vis = np.flatnonzero(np.isfinite(y[:, 0]))
+        sub = self._sub(vis)
+        best = None
+        for beta in START_EXTRAPOLATIONS:
+            if beta == 1.0 and X_full is not None:
+                Xb, ab = X_full, a_full
+            else:
+                Xb, ab = X + beta * (X - X_prev), a + beta * (a - a_prev)
+                R, tr = rigid_fit(surface_points(Xb, self.faces, sub), y[vis])
+                Xb = apply_rigid(Xb, R, tr)
+            e = self.energy(Xb, ab, y, vis)[0]
+            if best is None or e < best[0]:
+                best = (e, Xb, ab)
+        return best[1], best[2]
+
     def solve_frame(self, X, a, y, max_iterations=None):
         """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``.
 
@@ -914,6 +965,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
     cpu_start = time.process_time()
     out_fine = None
     X_prev = a_prev = None
+    prolonged = 0                                           # frames prolonged so far (POSE_BATCH at a time)
     for t in range(T):
         report(progress, t, T, f"frame {t + 1}/{T}")
         t0 = time.perf_counter()
@@ -929,6 +981,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
         solver.kappa = kappa_t if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
+        if X_prev is not None and usable and options.max_iterations >= START_MIN_ITERATIONS:
+            Xs, as_ = solver.start(X, a, X_prev, a_prev, y, Xs, as_)
         cold = t == 0 and initial_vertices is None        # from the rest pose: a longer way to go
         Xn, an, st, it, E, pen[t] = solver.solve_frame_apart(
             Xs, as_, y, options.max_iterations * (COLD_START_FACTOR if cold else 1))
@@ -938,16 +992,19 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         X, a = Xn, an
         out_X[t], out_a[t], status[t], iters[t], energy[t] = X, a, st, it, E
         timings["frames"] += time.perf_counter() - t0
-        if prolong is not None:
-            tp = time.perf_counter()
-            fine = np.asarray(prolong(X, a), float)
-            if out_fine is None:
-                if fine.ndim != 2 or fine.shape[1] != 3:
-                    raise InputError(f"prolongation must return (V_fine, 3) vertices, got {fine.shape}")
-                out_fine = np.empty((T,) + fine.shape)
-            out_fine[t] = fine
-            timings["prolongation"] += time.perf_counter() - tp
         seconds[t] = time.perf_counter() - t0
+        if prolong is not None and (t + 1 - prolonged == POSE_BATCH or t == T - 1):
+            tp = time.perf_counter()
+            fine = np.asarray(prolong(out_X[prolonged:t + 1], out_a[prolonged:t + 1]), float)
+            if fine.ndim != 3 or fine.shape[0] != t + 1 - prolonged or fine.shape[2] != 3:
+                raise InputError(f"prolongation must return (V_fine, 3) vertices per pose, got {fine.shape[1:]}")
+            if out_fine is None:
+                out_fine = np.empty((T,) + fine.shape[1:])
+            out_fine[prolonged:t + 1] = fine
+            spent = time.perf_counter() - tp
+            timings["prolongation"] += spent
+            seconds[prolonged:t + 1] += spent / (t + 1 - prolonged)
+            prolonged = t + 1
     report(progress, T, T, "done")
     P = surface_points(out_X, solver.faces, binding)
     resid = P - x_all

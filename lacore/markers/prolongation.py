@@ -21,6 +21,7 @@ slightly better one (README, marker fitting).
 import numpy as np
 
 from ..errors import InputError
+from ..models.fine_level import FineLevel
 from ..multiresolution import Prolongation
 
 __all__ = ["NearestKeysProlongation", "as_fit_prolongation"]
@@ -43,7 +44,8 @@ class NearestKeysProlongation:
         Index of the first training key in ``prolongation``'s key shapes.
 
     Calling it with ``(coarse_vertices (Vc, 3), coefficients (J,))`` returns
-    the fine vertices ``(V, 3)``.
+    the fine vertices ``(V, 3)``; with ``(T, Vc, 3)`` and ``(T, J)``, the ``T``
+    poses ``(T, V, 3)``, prolonged together.
     """
 
     def __init__(self, prolongation, key_coefficients, n_nearest=3, offset=0):
@@ -77,18 +79,26 @@ class NearestKeysProlongation:
         return w
 
     def __call__(self, coarse_vertices, coefficients):
-        return self.prolongation(coarse_vertices, self.weights(coefficients))
+        X = np.asarray(coarse_vertices, float)
+        if X.ndim == 3:
+            A = np.asarray(coefficients, float).reshape(len(X), -1)
+            return self.prolongation(X, np.stack([self.weights(a) for a in A]) if len(X) else None)
+        return self.prolongation(X, self.weights(coefficients))
 
 
 def as_fit_prolongation(prolongation):
-    """A callable ``f(coarse_vertices (Vc, 3), coefficients (J,)) -> (V, 3)`` from what ``fit_markers`` accepts.
+    """A callable ``f(coarse_vertices (T, Vc, 3), coefficients (T, J)) -> (T, V, 3)`` from what ``fit_markers`` accepts.
 
-    A :class:`~lacore.multiresolution.Prolongation` is used with its first key
-    shape (its default weights); any other callable must take
-    ``(coarse_vertices, coefficients)``.
+    A :class:`~lacore.multiresolution.Prolongation` is used with its first key shape (its
+    default weights); a :class:`lacore.models.FineLevel` or a :class:`NearestKeysProlongation`
+    prolongs the ``T`` poses together (several times cheaper per pose than one at a time);
+    any other callable must take one pose ``(coarse_vertices (Vc, 3), coefficients (J,))``
+    and is called once per pose.
     """
     if isinstance(prolongation, Prolongation):
         return lambda X, a: prolongation(X)
+    if isinstance(prolongation, (FineLevel, NearestKeysProlongation)):
+        return prolongation
     if not callable(prolongation):
         raise InputError(f"prolongation must be a Prolongation or a callable, got {type(prolongation).__name__}")
-    return prolongation
+    return lambda X, a: np.stack([np.asarray(prolongation(x, c), float) for x, c in zip(X, a, strict=True)])

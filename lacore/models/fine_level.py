@@ -89,9 +89,16 @@ class FineLevel:
         return w
 
     def __call__(self, coarse_vertices, coefficients=None):
-        """Fine vertices ``(V, 3)`` of one coarse pose ``(Vc, 3)`` (its coefficients choose the keys' detail)."""
-        w = self.weights(np.zeros(0) if coefficients is None else coefficients)
-        return self._prolongation(coarse_vertices, w)
+        """Fine vertices ``(V, 3)`` of one coarse pose ``(Vc, 3)`` (its coefficients choose the keys' detail).
+
+        ``T`` poses ``(T, Vc, 3)`` with their coefficients ``(T, J)`` give ``(T, V, 3)``, prolonged
+        together (:meth:`lacore.multiresolution.Prolongation.__call__`).
+        """
+        X = np.asarray(coarse_vertices, float)
+        if X.ndim == 3:
+            A = np.zeros((len(X), 0)) if coefficients is None else np.asarray(coefficients, float).reshape(len(X), -1)
+            return self._prolongation(X, np.stack([self.weights(a) for a in A]) if len(X) else None)
+        return self._prolongation(X, self.weights(np.zeros(0) if coefficients is None else coefficients))
 
     # ------------------------------------------------------------------ files
     def to_arrays(self):
