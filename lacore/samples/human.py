@@ -569,17 +569,18 @@ def coarse_human_coarsening(path=None):
     return c
 
 
-def human_model(n_poses=30, seed=0, path=None, clean=False):
+def human_model(n_poses=30, seed=0, path=None, clean=True):
     """A shape model of the coarse body trained on ``n_poses`` random poses, carrying its fine level.
 
-    The poses are :meth:`HumanBody.random_poses` of the full body; with ``clean=True``
-    none passes through itself, on the full mesh or on the coarse one.
+    The poses are :meth:`HumanBody.random_poses` of the full body; with ``clean`` (the
+    default) none passes through itself, on the full mesh or on the coarse one, so the
+    model learns no fold of the skin; ``clean=False`` gives the plain draw.
 
     The model (:class:`lacore.models.ShapeModel`, ambient tangent, rest pose as
     reference) declares its unit (decimetres: ``length_unit = 0.1``) and axes (``+y``
     up, ``+z`` forward) and holds a :class:`lacore.models.FineLevel` (the stored
     coarsening, the rest pose and the training poses as keys), so
-    :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds (15 s CPU more with ``clean``);
+    :func:`lacore.markers.fit_take` returns full-resolution poses.  About 15 s CPU with ``clean`` (a few without);
     cached per process (treat the result as read-only).
 
     Examples
