@@ -14,7 +14,7 @@ and the fitting seconds per frame (CPU: ``time.process_time``; wall:
 ``time.perf_counter``, which a shared machine's load inflates), plus the machine.
 
 Model: the CC0 body at its coarse level with a shape model of 30 of its own random
-poses and its fine level (:func:`lacore.samples.human.human_model`); every take is
+poses that do not pass through themselves and its fine level (:func:`lacore.samples.human.human_model`); every take is
 read with :func:`lacore.markers.read_take` and fitted with
 :func:`lacore.markers.fit_take` at the defaults.
 

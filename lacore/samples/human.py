@@ -3,7 +3,8 @@
 Sample data, not shipped data: everything is read from ``shared/data/human``
 (the CC0 MakeHuman base mesh "hm08", its 31-bone CMU-style skeleton and
 skinning weights; see that folder's README) and generated reproducibly from a
-seed.  Independent of the rest of lacore (NumPy/SciPy only).
+seed.  Independent of the rest of lacore (NumPy/SciPy only) but for the
+self-intersection test of clean poses and the shape model of :func:`human_model`.
 
 * :func:`load_human` -- the ``body`` group of ``base.obj`` (vertices 0..13379;
   its 13,378 quads fan-triangulated ``(a, b, c), (a, c, d)``: 26,756 outward
@@ -19,7 +20,8 @@ seed.  Independent of the rest of lacore (NumPy/SciPy only).
   ``W (V, B) @ M (B, 12 T)``.
 * :func:`open_body` -- the body with five openings (eyes, mouth, both wrists):
   a surface of genus 0 with five boundary loops, posable like the body.
-* :meth:`HumanBody.random_poses` (training sets) and :meth:`HumanBody.take`
+* :meth:`HumanBody.random_poses` (training sets; ``clean=`` for poses whose skin does
+  not pass through itself) and :meth:`HumanBody.take`
   (held-out motion: smooth joint curves reaching beyond the training range,
   plus a walk of the whole body), all from a seed.
 
@@ -307,15 +309,114 @@ class HumanBody:
         return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
     # ------------------------------------------------------------------ random poses and takes
-    def random_angles(self, n, seed=0, spread=0.8):
+    def random_angles(self, n, seed=0, spread=0.8, clean=False):
         """``(n, P)`` joint angles drawn uniformly in the middle ``spread`` fraction of every joint's range.
 
         One-sided joints (knees, elbows, fingers: lower limit 0) stay on their
         side; ``spread=1`` uses the full range.
+
+        Parameters
+        ----------
+        n : int
+        seed : int
+        spread : float
+        clean : bool or sequence of HumanBody
+            Poses whose skinned surface does not pass through itself.  Linear-blend
+            skinning folds the skin at large angles (inside a bent elbow or knee, under
+            the chin when the head turns beyond about 17 degrees, between the fingers):
+            after the draw, the poses are skinned and every pose with a pair of faces
+            passing through each other (:func:`lacore.geometry.self_intersection.self_intersections`,
+            less the pairs the rest pose already has) gets new angles for the joints of
+            the bones of those faces (the whole pose when none of them has a joint), until
+            no pose has one.  ``True`` checks this body's mesh; a sequence of bodies
+            (restrictions of this one, :meth:`restrict`, e.g. the coarse body) checks
+            their meshes too.  The joints' distribution is then the uniform one less
+            the poses that pass through themselves.  The first draw is the one of
+            ``clean=False``; the same ``seed`` gives the same poses.
+
+        Returns
+        -------
+        (n, P) ndarray
+            Radians, in the order of :data:`JOINT_DOFS`.
+
+        Examples
+        --------
+        >>> from lacore.samples.human import load_human
+        >>> body = load_human()                                     # doctest: +SKIP
+        >>> angles = body.random_angles(30, seed=0, clean=True)      # doctest: +SKIP
         """
         rng = np.random.default_rng(seed)
         lo, hi = self._limits(spread)
-        return lo + (hi - lo) * rng.random((int(n), self.n_dofs))
+        angles = lo + (hi - lo) * rng.random((int(n), self.n_dofs))
+        if clean is not False:
+            self._redraw_crossings(angles, rng, lo, hi, () if clean is True else tuple(clean))
+        return angles
+
+    def crossing_bones(self, vertices, bodies=()):
+        """Bones of the faces passing through each other in a posed body and not in the rest pose.
+
+        Parameters
+        ----------
+        vertices : (V, 3) array_like
+            A pose of this body.
+        bodies : sequence of HumanBody
+            Restrictions of this body (:meth:`restrict`) whose meshes are checked too.
+
+        Returns
+        -------
+        set of int
+            Indices into :attr:`bones` of the dominant bones (:attr:`vertex_bone`) of the
+            corners of every new pair of :func:`lacore.geometry.self_intersection.self_intersections`;
+            empty when the pose passes through itself nowhere the rest pose does not.
+        """
+        out = set()
+        X = np.asarray(vertices, float)
+        for topology, subset, rest_keys, face_bones in self._crossing_checks(tuple(bodies)):
+            out.update(_new_crossings(X if subset is None else X[subset], topology, rest_keys, face_bones))
+        return out
+
+    def _crossing_checks(self, bodies):
+        """Per mesh checked (this body's and ``bodies``'): topology, vertex subset, rest pairs, face bones."""
+        from ..geometry.self_intersection import self_intersections
+        from ..geometry.topology import MeshTopology
+
+        where = np.full(int(self.vertex_ids.max()) + 1, -1, np.int64)
+        where[self.vertex_ids] = np.arange(self.n_vertices)
+        checks = []
+        for body in (self,) + bodies:
+            subset = None if body is self else where[body.vertex_ids]
+            if subset is not None and (subset < 0).any():
+                raise ValueError("clean: a body to check is not a restriction of this one")
+            topology = MeshTopology.from_faces(body.faces, n_vertices=body.n_vertices, allow_unreferenced=True)
+            rest = self_intersections(body.vertices, topology, check=False)
+            checks.append((topology, subset, rest[:, 0] * len(body.faces) + rest[:, 1], body.vertex_bone[body.faces]))
+        return checks
+
+    def _redraw_crossings(self, angles, rng, lo, hi, bodies, max_rounds=200):
+        """Redraw, in place, the joints of the bones where a pose of ``angles`` passes through itself."""
+        checks = self._crossing_checks(bodies)
+        todo = np.arange(len(angles))
+        for _ in range(max_rounds):
+            if not len(todo):
+                return
+            X = self.pose(angles[todo])
+            again = []
+            for i, k in enumerate(todo):
+                bones = set()
+                for topology, subset, rest_keys, face_bones in checks:
+                    bones.update(_new_crossings(X[i] if subset is None else X[i][subset], topology, rest_keys,
+                                                face_bones))
+                if not bones:
+                    continue
+                redraw = np.isin(self._dof_bone, list(bones))
+                if not redraw.any():
+                    redraw[:] = True
+                angles[k, redraw] = lo[redraw] + (hi[redraw] - lo[redraw]) * rng.random(int(redraw.sum()))
+                again.append(k)
+            todo = np.array(again, np.int64)
+        if len(todo):
+            raise RuntimeError(f"random_angles(clean=...): {len(todo)} pose(s) still pass through themselves after "
+                               f"{max_rounds} redraws: use a smaller spread")
 
     def _limits(self, spread):
         lo, hi = self.lower, self.upper
@@ -324,9 +425,12 @@ class HumanBody:
         half = np.where(one_sided, hi, 0.5 * (hi - lo)) * spread
         return np.where(one_sided, 0.0, mid - half), np.where(one_sided, half, mid + half)
 
-    def random_poses(self, n, seed=0, spread=0.8):
-        """A training set: ``(n, V, 3)`` skinned vertices of :meth:`random_angles` and the angles ``(n, P)``."""
-        angles = self.random_angles(n, seed, spread)
+    def random_poses(self, n, seed=0, spread=0.8, clean=False):
+        """A training set: ``(n, V, 3)`` skinned vertices of :meth:`random_angles` and the angles ``(n, P)``.
+
+        ``clean``: poses that do not pass through themselves (see :meth:`random_angles`).
+        """
+        angles = self.random_angles(n, seed, spread, clean)
         return self.pose(angles), angles
 
     def take_angles(self, n_frames, seed=0, spread=1.2, cycles=(0.5, 2.0)):
@@ -378,6 +482,15 @@ class HumanBody:
         keep = np.asarray(keep, np.int64)
         return HumanBody(self.vertices[keep], np.asarray(faces, np.int64), self.vertex_ids[keep], self.bones,
                          self.parents, self.heads, self.tails, self.weights[keep])
+
+
+def _new_crossings(X, topology, rest_keys, face_bones):
+    """Dominant bones of the faces of the pairs of ``X`` passing through each other that the rest pose lacks."""
+    from ..geometry.self_intersection import self_intersections
+
+    pairs = self_intersections(X, topology, check=False)
+    pairs = pairs[~np.isin(pairs[:, 0] * len(face_bones) + pairs[:, 1], rest_keys)]
+    return np.unique(face_bones[pairs.ravel()]).tolist()
 
 
 @functools.lru_cache(maxsize=4)
@@ -456,14 +569,18 @@ def coarse_human_coarsening(path=None):
     return c
 
 
-def human_model(n_poses=30, seed=0, path=None):
+def human_model(n_poses=30, seed=0, path=None, clean=True):
     """A shape model of the coarse body trained on ``n_poses`` random poses, carrying its fine level.
+
+    The poses are :meth:`HumanBody.random_poses` of the full body; with ``clean`` (the
+    default) none passes through itself, on the full mesh or on the coarse one, so the
+    model learns no fold of the skin; ``clean=False`` gives the plain draw.
 
     The model (:class:`lacore.models.ShapeModel`, ambient tangent, rest pose as
     reference) declares its unit (decimetres: ``length_unit = 0.1``) and axes (``+y``
     up, ``+z`` forward) and holds a :class:`lacore.models.FineLevel` (the stored
     coarsening, the rest pose and the training poses as keys), so
-    :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds;
+    :func:`lacore.markers.fit_take` returns full-resolution poses.  About 15 s CPU with ``clean`` (a few without);
     cached per process (treat the result as read-only).
 
     Examples
@@ -473,17 +590,17 @@ def human_model(n_poses=30, seed=0, path=None):
     >>> model.length_unit, model.up_axis, model.fine_level.n_fine_vertices  # doctest: +SKIP
     (0.1, 'y', 13380)
     """
-    return _human_model(int(n_poses), int(seed), None if path is None else str(path))
+    return _human_model(int(n_poses), int(seed), None if path is None else str(path), bool(clean))
 
 
 @functools.lru_cache(maxsize=2)
-def _human_model(n_poses, seed, path):
+def _human_model(n_poses, seed, path, clean=True):
     from ..models import FineLevel, ShapeModel
 
     full = load_human(path)
     coarse = load_human(path, coarse=True)
     c = coarse_human_coarsening(path)
-    fine_poses, _ = full.random_poses(n_poses, seed=seed)
+    fine_poses, _ = full.random_poses(n_poses, seed=seed, clean=(coarse,) if clean else False)
     model = ShapeModel.fit(fine_poses[:, c.vertex_indices], coarse.faces, reference_vertices=coarse.vertices)
     model.fine_level = FineLevel.build(c, full.vertices, fine_poses, model.training_coefficients)
     model.length_unit, model.up_axis, model.forward_axis = 0.1, "y", "z"
