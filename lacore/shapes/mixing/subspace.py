@@ -43,8 +43,6 @@ import contextlib
 import itertools
 
 import numpy as np
-import scipy.linalg as sl
-import scipy.sparse as sp
 
 from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ...linalg.sparse_cholesky import NotPositiveDefiniteError
@@ -318,9 +316,10 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     minimizer, approximately (``iterations`` steps with backtracking).
 
     Every point is evaluated with its Jacobian (:meth:`FullProblem.linearize`, the lengths and angles from the
-    same intermediates): the energy of an accepted step and the next step's Jacobian come from one evaluation.
-    The reduced Gauss-Newton matrix ``2 (W^(1/2) J U)^T (W^(1/2) J U)`` is formed with the rows of ``J`` scaled
-    before the product with ``U`` (a sparse scaling instead of a dense one) and a symmetric rank-k update.
+    same intermediates): the energy of an accepted step and the next step's Jacobian come from one evaluation, and
+    the last one is handed on with ``linearized`` (the factorization and the Newton step there need no second
+    evaluation).  A trial point is ``x0 + U q`` of its ``q``, so the points, steps and the result are those of
+    evaluating energies and Jacobians separately, to the last bit.
 
     Returns ``(q, x, energy)``, and with ``linearized`` also ``(J, z)`` at ``x`` (for the factorization there,
     :meth:`FullProblem.factorize`).
@@ -329,20 +328,18 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     x = x0 + U @ q
     J, z = problem.linearize(x)
     e = problem.energy_z(z, wk)
-    sw_nz = np.repeat(sw, np.diff(J.indptr))                        # the row scale of every entry of J
     for _ in range(iterations):
-        Jw = sp.csr_matrix((J.data * sw_nz, J.indices, J.indptr), shape=J.shape)    # W^(1/2) J
-        A = Jw @ U                                                  # W^(1/2) J U
+        A = sw[:, None] * (J @ U)                                   # W^(1/2) J U
         g = 2.0 * (A.T @ (sw * problem._residual(z, wk)))
-        H = _gram(A)
+        H = 2.0 * (A.T @ A)
         try:
             d = -np.linalg.solve(H + 1e-12 * np.trace(H) / len(H) * np.eye(len(H)), g)
         except np.linalg.LinAlgError:
             break
         step = 1.0
-        Ud = U @ d
         while step > 1e-6:
-            xn = x + step * Ud
+            qn = q + step * d
+            xn = x0 + U @ qn
             Jn, zn = problem.linearize(xn)
             en = problem.energy_z(zn, wk)
             if en < e:
@@ -350,8 +347,7 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
             step *= 0.5
         if not step > 1e-6:
             break
-        q = q + step * d
-        x, J, z = xn, Jn, zn
+        q, x, J, z = qn, xn, Jn, zn
         small = e - en <= 1e-4 * e
         e = en
         if small:
@@ -359,13 +355,6 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     if linearized:
         return q, x, e, (J, z)
     return q, x, e
-
-
-def _gram(A):
-    """``2 A^T A`` ``(r, r)`` of a C-ordered ``A`` by a symmetric rank-k update (BLAS ``syrk`` on ``A^T``, which is
-    Fortran-ordered: no copy)."""
-    H = sl.blas.dsyrk(2.0, A.T, trans=0)                            # upper triangle
-    return np.triu(H) + np.triu(H, 1).T
 
 
 def _extend(U, vectors, rtol=1e-8):
