@@ -329,7 +329,8 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     J, z = problem.linearize(x)
     e = problem.energy_z(z, wk)
     for _ in range(iterations):
-        A = sw[:, None] * (J @ U)                                   # W^(1/2) J U
+        A = J @ U
+        A *= sw[:, None]                                            # W^(1/2) J U, in place
         g = 2.0 * (A.T @ (sw * problem._residual(z, wk)))
         H = 2.0 * (A.T @ A)
         try:
