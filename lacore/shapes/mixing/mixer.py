@@ -37,10 +37,11 @@ symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its o
 has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
 minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
 0.1 s: every point it tries is evaluated with its Jacobian, so its last evaluation also serves the
-factorization and the Newton step there (the Newton stage of the CC0 body from 3.9 s to 3.6 s CPU, the same
-vectors to the last bit).  Scaling the rows of ``J`` before the product ``J U`` instead of the product's rows
-saved 0.4 s more there but changes the vectors in the last bits, and through the greedy cubature the 50k
-body's cubature (276 edges instead of 290; largest error in ``[-0.5, 1.5]^2`` 0.022 % instead of 0.015 %).  Fewer
+factorization and the Newton step there, and ``W^(1/2)`` scales ``J U`` in place (the Newton stage of the CC0
+body from 4.2 s to 3.3 s CPU, of the MakeHuman body from 2.0 s to 1.7 s, the same vectors to the last bit).
+Scaling the rows of ``J`` before the product instead saved no more (3.9 s to 3.2 s) and changes the vectors in
+the last bits, and through the greedy cubature the 50k body's cubature (276 edges instead of 290; largest error
+in ``[-0.5, 1.5]^2`` 0.022 % instead of 0.015 %).  Fewer
 training points of the cubature (``2 (K-1)`` random weights in each box instead of ``3 (K-1)``) saved 0.3 s
 there but lost accuracy on the MakeHuman body (largest error in ``[-0.5, 1.5]^2`` 0.011 % to 0.023 %, largest
 energy ratio in ``[0, 1]^2`` 1.08 to 1.16).  Cheaper variants all lost accuracy on the bar and the
