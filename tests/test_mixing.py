@@ -456,3 +456,28 @@ def test_cubature_nnls_matches_lawson_hanson():
     truth[rng.choice(400, 20, replace=False)] = rng.uniform(0.5, 2.0, 20)
     sel, c, rel = greedy_nnls(A, A @ truth, 60, batch=4)
     assert rel < 1e-11 and np.all(c > 0) and len(sel) <= 60                    # measured 5e-14
+
+
+def test_reduced_solve_hands_its_linearization_to_the_newton_step(long_bar):
+    """The reduced minimizer's Jacobian and lengths and angles at its point are those of a fresh evaluation there,
+    its energy descends, its point is ``x0 + U q``, and the Newton step from the factorization they build equals
+    the step of a factorization that evaluates them itself."""
+    from lacore.shapes.mixing.subspace import reduced_solve
+
+    keys, F, mixer = long_bar
+    P, U, x0 = mixer._problem, mixer.basis, mixer._key_x[0]
+    w = np.array([0.6, 0.8])
+    q0 = mixer.predict(w)
+    e0 = P.energy(x0 + U @ q0, w)
+    q, x, e, (J, z) = reduced_solve(P, x0, U, q0.copy(), w, iterations=2, linearized=True)
+    assert e < e0 and e == pytest.approx(P.energy(x, w), rel=1e-12)
+    assert np.abs(x - (x0 + U @ q)).max() < 1e-12 * np.abs(x).max()
+    J1, z1 = P.linearize(x)
+    assert np.array_equal(J.indptr, J1.indptr) and np.abs(J.data - J1.data).max() < 1e-12 * np.abs(J1.data).max()
+    assert np.abs(z - z1).max() < 1e-13
+    q_plain, x_plain, e_plain = reduced_solve(P, x0, U, q0.copy(), w, iterations=2)
+    assert np.array_equal(x_plain, x) and e_plain == e
+    step = P.newton_step(P.factorize(x, w, linearized=(J, z)), x, w, z=z)[0]
+    fresh = P.newton_step(P.factorize(x, w), x, w)[0]
+    assert np.linalg.norm(step) > 1e-8 * np.linalg.norm(x)                     # a real step (the space misses some)
+    assert np.linalg.norm(step - fresh) < 1e-10 * np.linalg.norm(fresh)

@@ -72,7 +72,8 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     columns with weight 0 dropped; repeated ``passes`` times while the support is short.  A batch of
     ``k`` columns costs one product ``A^T (A[:, sel] c)`` (the correlations) and the Gram products of
     the new columns with the selected ones, ``O(R N + R n k)`` for ``A`` of shape ``(R, N)`` and ``n``
-    selected columns (not ``O(R N k)``).
+    selected columns (not ``O(R N k)``); the selected columns are kept column-major, so that the Gram
+    products and the refits read one contiguous block.
 
     Parameters
     ----------
@@ -99,7 +100,7 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     Atb = A.T @ b
     # the selected columns and their Gram matrix: a batch costs one product A^T (A_sel c) and the Gram of the new
     # columns with the selected ones, not a product of A^T with the new columns
-    AS = np.empty((R_, max_points))
+    AS = np.empty((R_, max_points), order="F")         # column-major: the selected columns are one block
     G = np.empty((max_points, max_points))
     sel = np.zeros(0, np.int64)
     c = np.zeros(0)

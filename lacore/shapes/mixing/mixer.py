@@ -33,8 +33,18 @@ build at 50k vertices (about 2 s CPU each on the 50k bar, whose factor has 47 mi
 an assembly and a solve of 0.2-0.3 s each, of about 30 s in all on the 2-core AMD EPYC we benchmark
 on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
 1.4-2 s there, 3-4 s at 50k) comes next.  At 13k vertices the first factorization's pattern, ordering and
-symbolic analysis take about 1.2 s more, and each Newton vector's reduced minimizer (two Gauss-Newton steps
-in the space with the full Jacobian) about 0.1 s.  Cheaper variants all lost accuracy on the bar and the
+symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its own AMD ordering, whose factor
+has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
+minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
+0.1 s: every point it tries is evaluated with its Jacobian, so its last evaluation also serves the
+factorization and the Newton step there, and ``W^(1/2)`` scales ``J U`` in place (the Newton stage of the CC0
+body from 4.2 s to 3.3 s CPU, of the MakeHuman body from 2.0 s to 1.7 s, the same vectors to the last bit).
+Scaling the rows of ``J`` before the product instead saved no more (3.9 s to 3.2 s) and changes the vectors in
+the last bits, and through the greedy cubature the 50k body's cubature (276 edges instead of 290; largest error
+in ``[-0.5, 1.5]^2`` 0.022 % instead of 0.015 %).  Fewer
+training points of the cubature (``2 (K-1)`` random weights in each box instead of ``3 (K-1)``) saved 0.3 s
+there but lost accuracy on the MakeHuman body (largest error in ``[-0.5, 1.5]^2`` 0.011 % to 0.023 %, largest
+energy ratio in ``[0, 1]^2`` 1.08 to 1.16).  Cheaper variants all lost accuracy on the bar and the
 CC0 body: Newton vectors by preconditioned conjugate gradients (:attr:`MixerOptions.newton_pcg_iterations`),
 derivatives at the basis key only (the CC0 body's median energy ratio to Gauss-Newton in ``[0, 1]^3``
 from 1.27 to 2.86 for 0.3 s), no Newton vector at the centre of ``[0, 1]^(K-1)`` (1.27 to 1.64), one

@@ -47,6 +47,7 @@ import numpy as np
 from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
 from ...linalg.sparse_cholesky import NotPositiveDefiniteError
 from ...progress import report
+from ...reconstruction.objectives import QuadraticGNMatrix
 from ...reconstruction.pcg import preconditioned_cg
 
 __all__ = ["FullProblem", "build_space", "candidate_weights"]
@@ -76,9 +77,16 @@ class FullProblem:
         return r
 
     def energy(self, x, wk):
-        z = lengths_and_angles(x.reshape(-1, 3), self.topology, check=False)
+        return self.energy_z(lengths_and_angles(x.reshape(-1, 3), self.topology, check=False), wk)
+
+    def energy_z(self, z, wk):
+        """The energy from the lengths and angles ``z = Z(x)`` ``(2E,)``."""
         r = self._residual(z, wk)
         return float(np.dot(self.w * r, r))
+
+    def linearize(self, x):
+        """The Jacobian ``J`` (CSR ``(2E, 3V)``) and ``z = Z(x)``, from the same intermediates."""
+        return lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
 
     def gradient(self, x, wk):
         J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
@@ -86,10 +94,17 @@ class FullProblem:
         g[self.fixed] = 0.0
         return g
 
-    def factorize(self, x, wk):
-        """Factorize the Gauss-Newton matrix at ``x`` in the context's solver; returns the Jacobian."""
+    def factorize(self, x, wk, linearized=None):
+        """Factorize the Gauss-Newton matrix at ``x`` in the context's solver; returns the Jacobian.
+
+        ``linearized``: ``(J, z)`` at ``x`` (:meth:`linearize`) when the caller has them (no second
+        evaluation of the Jacobian); the matrix values are the same.
+        """
         obj = self.ctx.objective(self._external_target(wk))
-        _, _, mat = obj.linearize(x.reshape(-1, 3))
+        if linearized is None:
+            _, _, mat = obj.linearize(x.reshape(-1, 3))
+        else:
+            mat = QuadraticGNMatrix(obj, linearized[0], linearized[1], x.reshape(-1, 3))
         vals = self.ctx.eliminate_fixed(mat(second_order=False))
         try:
             self.ctx.solver.factorize(vals, regularize=False)
@@ -119,11 +134,14 @@ class FullProblem:
         X[self.fixed] = 0.0
         return np.asarray(X).T.reshape(len(self.dz), -1)
 
-    def newton_step(self, J, x, wk, derivatives=False):
+    def newton_step(self, J, x, wk, derivatives=False, z=None):
         """The Gauss-Newton step ``-H^{-1} g`` at ``x`` and, with ``derivatives``, the first derivatives
         ``H^{-1} 2 J^T W dz_j`` of the projection there: one solve with ``m + 1`` right-hand sides (the current
-        factorization, of ``H`` at ``x``; ``J`` the Jacobian at ``x``).  A list of 1 or ``m + 1`` arrays ``(3V,)``."""
-        r = self._residual(lengths_and_angles(x.reshape(-1, 3), self.topology, check=False), wk)
+        factorization, of ``H`` at ``x``; ``J`` the Jacobian at ``x``, ``z = Z(x)`` when known).  A list of 1 or
+        ``m + 1`` arrays ``(3V,)``."""
+        if z is None:
+            z = lengths_and_angles(x.reshape(-1, 3), self.topology, check=False)
+        r = self._residual(z, wk)
         C = self.w[:, None] * np.column_stack([-r] + ([self.dz.T] if derivatives else []))   # (2E, 1 or m+1)
         B = 2.0 * (J.T @ C)
         B[self.fixed] = 0.0
@@ -293,15 +311,26 @@ def orthonormal_basis(vectors, max_size=None, rtol=1e-8, keep=0):
     return np.ascontiguousarray(np.hstack([Q, U[:, :n]])), s
 
 
-def reduced_solve(problem, x0, U, q, wk, iterations=4):
+def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     """Gauss-Newton on ``W_q[z(w), Z(x0 + U q)]`` with the full Jacobian (every edge): ``q`` of the exact reduced
-    minimizer, approximately (``iterations`` steps with backtracking)."""
-    topo, sw = problem.topology, np.sqrt(problem.w)
+    minimizer, approximately (``iterations`` steps with backtracking).
+
+    Every point is evaluated with its Jacobian (:meth:`FullProblem.linearize`, the lengths and angles from the
+    same intermediates): the energy of an accepted step and the next step's Jacobian come from one evaluation, and
+    the last one is handed on with ``linearized`` (the factorization and the Newton step there need no second
+    evaluation).  A trial point is ``x0 + U q`` of its ``q``, so the points, steps and the result are those of
+    evaluating energies and Jacobians separately, to the last bit.
+
+    Returns ``(q, x, energy)``, and with ``linearized`` also ``(J, z)`` at ``x`` (for the factorization there,
+    :meth:`FullProblem.factorize`).
+    """
+    sw = np.sqrt(problem.w)
     x = x0 + U @ q
-    e = problem.energy(x, wk)
+    J, z = problem.linearize(x)
+    e = problem.energy_z(z, wk)
     for _ in range(iterations):
-        J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), topo, return_z=True)
-        A = sw[:, None] * (J @ U)                                   # W^(1/2) J U
+        A = J @ U
+        A *= sw[:, None]                                            # W^(1/2) J U, in place
         g = 2.0 * (A.T @ (sw * problem._residual(z, wk)))
         H = 2.0 * (A.T @ A)
         try:
@@ -310,18 +339,22 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4):
             break
         step = 1.0
         while step > 1e-6:
-            en = problem.energy(x + step * (U @ d), wk)
+            qn = q + step * d
+            xn = x0 + U @ qn
+            Jn, zn = problem.linearize(xn)
+            en = problem.energy_z(zn, wk)
             if en < e:
                 break
             step *= 0.5
         if not step > 1e-6:
             break
-        q = q + step * d
-        x = x0 + U @ q
+        q, x, J, z = qn, xn, Jn, zn
         small = e - en <= 1e-4 * e
         e = en
         if small:
             break
+    if linearized:
+        return q, x, e, (J, z)
     return q, x, e
 
 
@@ -376,10 +409,11 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
         for i, (wk, q0) in enumerate(starts):
             report(progress, i, len(starts), f"Newton vector {i + 1} of {len(starts)}")
             q0 = np.concatenate([q0, np.zeros(space.shape[1] - U.shape[1])])   # the new columns come last
-            _, x, _ = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations)
+            _, x, _, (J, z) = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations,
+                                            linearized=True)
             solved.append((np.asarray(wk, float), x))
-            J = problem.factorize(x, wk)
-            steps[i], *more = problem.newton_step(J, x, wk, derivatives)
+            J = problem.factorize(x, wk, linearized=(J, z))
+            steps[i], *more = problem.newton_step(J, x, wk, derivatives, z=z)
             extra += more
             space = _extend(space, [steps[i]] + more)
     else:
