@@ -392,10 +392,16 @@ def test_point_caches(tmp_path):
 
 
 # --------------------------------------------------------------------------- Ctrl-C and worker processes
+def _default_sigint():
+    """In the child: Ctrl-C as in a terminal, even when the suite runs with SIGINT ignored (a shell's `make test &`
+    without job control ignores it, and children inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(argv, **kw):
     return subprocess.Popen([sys.executable, "-m", "lacore.cli", *map(str, argv)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, start_new_session=True,
-                            env={**os.environ, "PYTHONPATH": str(REPO)}, **kw)
+                            preexec_fn=_default_sigint, env={**os.environ, "PYTHONPATH": str(REPO)}, **kw)
 
 
 def test_ctrl_c_stops_a_run_with_workers_in_one_line(tmp_path):
