@@ -89,6 +89,14 @@ def test_prolongation_errors(coarse_bar):
         NearestKeysProlongation(keys.prolongation, model.training_coefficients, n_nearest=0, offset=1)
     with pytest.raises(InputError, match="do not fit"):
         NearestKeysProlongation(keys.prolongation, model.training_coefficients, offset=2)
+    P, Vc = keys.prolongation, c.n_vertices
+    N = P.alpha.shape[0]
+    with pytest.raises(MeshError, match=rf"coarse vertices must be \({Vc}, 3\) or \(T, {Vc}, 3\), got \(2, {Vc}, 2\)"):
+        P(np.zeros((2, Vc, 2)))
+    with pytest.raises(ValueError, match=rf"weights must have shape \({N},\) or \(2, {N}\), got \(3, {N}\)"):
+        P(np.zeros((2, Vc, 3)), np.zeros((3, N)))
+    with pytest.raises(ValueError, match=rf"weights must have shape \({N},\), got \(2, {N}\)"):
+        P(np.zeros((Vc, 3)), np.zeros((2, N)))
 
 
 def test_poses_prolonged_together_as_one_at_a_time(coarse_bar):

@@ -89,7 +89,7 @@ class FullProblem:
         return lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
 
     def gradient(self, x, wk):
-        J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
+        J, z = self.linearize(x)
         g = 2.0 * (J.T @ (self.w * self._residual(z, wk)))
         g[self.fixed] = 0.0
         return g
@@ -402,7 +402,7 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     ``[(w, x)]`` and the RMS lengths of the steps relative to ``size`` (the error of the space there
     before the step joined it, to first order).
     """
-    topo, w = problem.topology, problem.w
+    w = problem.w
     solved, steps, extra = [], [None] * len(starts), []
     if not pcg_iterations:
         space = U
@@ -429,7 +429,7 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
             problem.factorize(kx, kw)
             for i in mine:
                 wk, x = solved[i]
-                J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), topo, return_z=True)
+                J, z = problem.linearize(x)
                 g = 2.0 * (J.T @ (w * problem._residual(z, wk)))
                 w2 = 2.0 * w
 
