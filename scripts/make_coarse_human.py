@@ -27,7 +27,6 @@ usage: python scripts/make_coarse_human.py [--vertices 2500] [--poses 8] [--seed
 """
 
 import argparse
-import hashlib
 import json
 import os
 import sys
@@ -41,7 +40,7 @@ sys.path.insert(0, REPO)
 from lacore import MeshTopology  # noqa: E402
 from lacore.io.atomic import save_npz_atomic  # noqa: E402
 from lacore.multiresolution import Coarsening, Prolongation, coarsen  # noqa: E402
-from lacore.samples.human import coarse_body_file, human_data_dir, load_human  # noqa: E402
+from lacore.samples.human import base_obj_sha256, coarse_body_file, load_human  # noqa: E402
 
 #: Relative tolerance of the collapse costs (sum and largest) of a recomputed coarsening (measured across
 #: kernels: 2.2e-4 for the sum, 1.6e-12 for the largest; against the stored file, made when equal costs were
@@ -92,7 +91,7 @@ def main():
     shapes = np.concatenate([body.vertices[None], poses])
     result = coarsen(shapes, body.faces, args.vertices)
     topo = MeshTopology.from_faces(result.faces, n_vertices=result.n_vertices)  # validates: manifold, oriented
-    digest = hashlib.sha256((human_data_dir() / "base.obj").read_bytes()).hexdigest()
+    digest = base_obj_sha256()
     made = {"seed": np.array(args.seed), "n_poses": np.array(args.poses), "target_vertices": np.array(args.vertices),
             "base_obj_sha256": np.array(digest)}
     summary = {"vertices": int(result.n_vertices), "faces": int(len(result.faces)), "edges": int(topo.n_edges),

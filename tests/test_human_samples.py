@@ -5,7 +5,8 @@ import pytest
 from conftest import shared_data_dir
 
 from lacore import MeshTopology
-from lacore.samples.human import JOINT_DOFS, LIMBS, N_BODY_VERTICES, human_data_dir, load_human
+from lacore.samples.human import (JOINT_DOFS, LIMBS, N_BODY_VERTICES, TRAINING_SPREAD, base_obj_sha256,
+                                  human_data_dir, load_human, training_angles, training_file)
 
 
 @pytest.fixture(scope="module")
@@ -147,3 +148,25 @@ def test_clean_random_poses_do_not_pass_through_themselves(body):
         assert _new_pairs(coarse, Y[coarse.vertex_ids]) == []
     # only the joints of folding bones were redrawn: the first draw's other angles stay
     assert 0.3 < np.mean(raw == angles) < 1.0
+
+
+def test_stored_training_angles_are_the_clean_draw(body):
+    """human_model's training angles are read from tests/data/human_training.npz (made by
+    scripts/make_human_training.py): the inputs it records are this base.obj's and the default draw's, its poses
+    pass through themselves nowhere on either mesh, and other inputs are drawn, not read."""
+    coarse = load_human(shared_data_dir(), coarse=True)
+    with np.load(training_file()) as d:
+        assert int(d["n_poses"]) == 30 and int(d["seed"]) == 0 and float(d["spread"]) == TRAINING_SPREAD
+        assert str(d["base_obj_sha256"]) == base_obj_sha256(shared_data_dir())
+        stored = np.array(d["angles"])
+    angles = training_angles(30, 0, shared_data_dir())
+    np.testing.assert_array_equal(angles, stored)
+    assert angles.shape == (30, len(JOINT_DOFS))
+    lo, hi = body._limits(TRAINING_SPREAD)
+    assert np.all((angles >= lo) & (angles <= hi))
+    # the stored poses are clean with this CPU's kernels (the plain draw of seed 0 is not: measured 30 of 30 fold)
+    assert all(body.crossing_bones(Y, (coarse,)) == set() for Y in body.pose(angles))
+    assert np.mean(body.random_angles(30, seed=0) == angles) < 1.0
+    # other inputs are drawn
+    np.testing.assert_array_equal(training_angles(2, 5, shared_data_dir()),
+                                  body.random_angles(2, seed=5, clean=(coarse,)))

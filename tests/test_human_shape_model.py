@@ -56,6 +56,18 @@ def test_coarse_body_is_reproducible_from_the_script():
     assert out["prolongation_relative_difference"] <= 0.05 and max(out["prolongation_error_mm"]) < 1.5
 
 
+@pytest.mark.numerics
+def test_training_record_is_checked_by_the_script():
+    """The stored training angles of human_model are still clean with this CPU's kernels and were made from this
+    base.obj with the default draw (on the machine that made them the draw is reproduced exactly)."""
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "make_human_training.py"), "--check"],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["same_inputs"] is True and out["stored_clean"] is True and out["poses_crossing"] == []
+    assert out["poses"] == 30 and isinstance(out["largest_angle_difference"], float)
+
+
 def test_model_of_the_coarse_body(model, coarse):
     assert model.n_samples == 120 and model.n_modes == 10
     ratio = model.explained_variance_ratio

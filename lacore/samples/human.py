@@ -36,6 +36,7 @@ the rigid root motion, which is all such a function needs.
 """
 
 import functools
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -45,11 +46,14 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 __all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_model", "human_data_dir",
-           "JOINT_DOFS", "LIMBS",
-           "N_BODY_VERTICES"]
+           "training_angles", "training_file", "base_obj_sha256", "JOINT_DOFS", "LIMBS", "N_BODY_VERTICES",
+           "TRAINING_SPREAD"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
 N_BODY_VERTICES = 13380
+
+#: Fraction of every joint's range that training poses are drawn from (:meth:`HumanBody.random_angles`).
+TRAINING_SPREAD = 0.8
 
 #: Degrees of freedom of a pose: ``(bone, kind, toward, low, high)`` with angles in degrees.
 #: ``kind="swing"`` rotates the bone about ``bone_direction x toward`` (positive angles move the
@@ -309,7 +313,7 @@ class HumanBody:
         return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
     # ------------------------------------------------------------------ random poses and takes
-    def random_angles(self, n, seed=0, spread=0.8, clean=False):
+    def random_angles(self, n, seed=0, spread=TRAINING_SPREAD, clean=False):
         """``(n, P)`` joint angles drawn uniformly in the middle ``spread`` fraction of every joint's range.
 
         One-sided joints (knees, elbows, fingers: lower limit 0) stay on their
@@ -425,7 +429,7 @@ class HumanBody:
         half = np.where(one_sided, hi, 0.5 * (hi - lo)) * spread
         return np.where(one_sided, 0.0, mid - half), np.where(one_sided, half, mid + half)
 
-    def random_poses(self, n, seed=0, spread=0.8, clean=False):
+    def random_poses(self, n, seed=0, spread=TRAINING_SPREAD, clean=False):
         """A training set: ``(n, V, 3)`` skinned vertices of :meth:`random_angles` and the angles ``(n, P)``.
 
         ``clean``: poses that do not pass through themselves (see :meth:`random_angles`).
@@ -569,19 +573,78 @@ def coarse_human_coarsening(path=None):
     return c
 
 
+def training_file():
+    """Path of the committed training record of :func:`human_model`, ``tests/data/human_training.npz``.
+
+    It holds the clean joint angles (``angles``, ``(n_poses, P)`` radians) that
+    :meth:`HumanBody.random_angles` draws with ``clean=(coarse body,)`` and the draw's
+    inputs (``seed``, ``n_poses``, ``spread``, ``base_obj_sha256``); made and checked by
+    ``scripts/make_human_training.py``.
+    """
+    return Path(__file__).resolve().parents[2] / "tests" / "data" / "human_training.npz"
+
+
+def training_angles(n_poses=30, seed=0, path=None):
+    """The clean joint angles ``(n_poses, P)`` of :func:`human_model`'s training poses.
+
+    Read from :func:`training_file` when it was made with these inputs from this
+    ``base.obj``, else drawn (:meth:`HumanBody.random_angles` with ``clean=(coarse
+    body,)``).  Stored because the draw is decided by a geometric test (does a skinned
+    pose pass through itself?) whose answer for a nearly touching pair of faces can
+    depend on the CPU's rounding; a different answer redraws a joint and changes every
+    later pose of the set.
+
+    Parameters
+    ----------
+    n_poses, seed : int
+    path : str or path-like, optional
+        Data folder, see :func:`human_data_dir`.
+
+    Returns
+    -------
+    (n_poses, P) ndarray
+        Radians, in the order of :data:`JOINT_DOFS`.
+
+    Examples
+    --------
+    >>> from lacore.samples.human import training_angles
+    >>> training_angles(30, seed=0).shape                # doctest: +SKIP
+    (30, 47)
+    """
+    f = training_file()
+    if f.is_file():
+        with np.load(f) as d:
+            if (int(d["n_poses"]) == int(n_poses) and int(d["seed"]) == int(seed)
+                    and float(d["spread"]) == TRAINING_SPREAD and str(d["base_obj_sha256"]) == base_obj_sha256(path)):
+                return np.array(d["angles"], float)
+    coarse = load_human(path, coarse=True)
+    return load_human(path).random_angles(int(n_poses), seed=int(seed), spread=TRAINING_SPREAD, clean=(coarse,))
+
+
+@functools.lru_cache(maxsize=2)
+def _base_obj_sha256(folder):
+    return hashlib.sha256((Path(folder) / "base.obj").read_bytes()).hexdigest()
+
+
+def base_obj_sha256(path=None):
+    """SHA-256 of the data folder's ``base.obj`` (hex): what stored records of the body were made from."""
+    return _base_obj_sha256(str(human_data_dir(path)))
+
+
 def human_model(n_poses=30, seed=0, path=None, clean=True):
     """A shape model of the coarse body trained on ``n_poses`` random poses, carrying its fine level.
 
     The poses are :meth:`HumanBody.random_poses` of the full body; with ``clean`` (the
     default) none passes through itself, on the full mesh or on the coarse one, so the
-    model learns no fold of the skin; ``clean=False`` gives the plain draw.
+    model learns no fold of the skin (their angles are stored, :func:`training_angles`);
+    ``clean=False`` gives the plain draw.
 
     The model (:class:`lacore.models.ShapeModel`, ambient tangent, rest pose as
     reference) declares its unit (decimetres: ``length_unit = 0.1``) and axes (``+y``
     up, ``+z`` forward) and holds a :class:`lacore.models.FineLevel` (the stored
     coarsening, the rest pose and the training poses as keys), so
-    :func:`lacore.markers.fit_take` returns full-resolution poses.  About 15 s CPU with ``clean`` (a few without);
-    cached per process (treat the result as read-only).
+    :func:`lacore.markers.fit_take` returns full-resolution poses.  A few seconds CPU (the clean angles are read,
+    not drawn); cached per process (treat the result as read-only).
 
     Examples
     --------
@@ -600,7 +663,8 @@ def _human_model(n_poses, seed, path, clean=True):
     full = load_human(path)
     coarse = load_human(path, coarse=True)
     c = coarse_human_coarsening(path)
-    fine_poses, _ = full.random_poses(n_poses, seed=seed, clean=(coarse,) if clean else False)
+    angles = training_angles(n_poses, seed, path) if clean else full.random_angles(n_poses, seed, TRAINING_SPREAD)
+    fine_poses = full.pose(angles)
     model = ShapeModel.fit(fine_poses[:, c.vertex_indices], coarse.faces, reference_vertices=coarse.vertices)
     model.fine_level = FineLevel.build(c, full.vertices, fine_poses, model.training_coefficients)
     model.length_unit, model.up_axis, model.forward_axis = 0.1, "y", "z"
