@@ -8,6 +8,7 @@ from lacore.errors import InputError, MeshError
 from lacore.markers.binding import MarkerBinding, surface_points
 from lacore.markers.fitting import fit_markers
 from lacore.markers.prolongation import NearestKeysProlongation
+from lacore.models.fine_level import FineLevel, nearest_key_weights
 from lacore.multiresolution import Prolongation, coarsen
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
@@ -152,3 +153,32 @@ def test_stored_human_coarsening_gives_the_coarse_body_and_prolongs_true_poses()
     Y = np.array([Prolongation(c, full.vertices)(x[c.vertex_indices]) for x in X])
     err_mm = np.linalg.norm(Y - X, axis=2).mean(1) * 100.0    # decimetres -> mm
     assert err_mm.max() < 1.5, err_mm                          # the prolongation's own share; measured 0.36-0.52
+
+
+def test_nearest_key_weights_of_a_batch_are_those_of_each_pose(coarse_bar):
+    """FineLevel and NearestKeysProlongation share lacore.models.fine_level.nearest_key_weights: T poses at once
+    give the rows of one pose at a time; inverse squared distances of the n nearest keys; a key's own
+    coefficients weigh that key alone."""
+    X0, F, train, c, model, binding, keys = coarse_bar
+    C = model.training_coefficients
+    rng = np.random.default_rng(3)
+    A = np.concatenate([C[[2]], C[:3] + 0.1 * rng.standard_normal((3, C.shape[1]))])
+    W = nearest_key_weights(C, A, 3)
+    assert W.shape == (4, len(C))
+    for a, w in zip(A, W, strict=True):
+        np.testing.assert_array_equal(nearest_key_weights(C, a, 3), w)
+        d2 = np.sum((C - a) ** 2, axis=1)
+        near = np.argsort(d2)[:3]
+        if d2[near[0]] > 0:
+            np.testing.assert_allclose(w[near], (1 / d2[near]) / np.sum(1 / d2[near]), rtol=1e-14)
+        assert np.count_nonzero(w) == (1 if d2[near[0]] == 0 else 3) and abs(w.sum() - 1) < 1e-14
+    assert W[0, 2] == 1.0
+    # the prolongations' batch weights: their keys after the offset, the same rows
+    np.testing.assert_array_equal(keys.weights(A)[:, keys.offset:], W)
+    assert keys.offset == 1                        # key 0 is the rest pose, as in a FineLevel
+    fine = FineLevel(c, keys.prolongation.alpha, C, 3)
+    np.testing.assert_array_equal(fine.weights(A)[:, 1:], W)
+    np.testing.assert_array_equal(fine.weights(A[1]), fine.weights(A)[1])
+    assert fine.weights(np.zeros(C.shape[1] + 1)).tolist() == [1.0] + [0.0] * len(C)   # no match: the reference
+    with pytest.raises(InputError, match=r"coefficients must have shape \(\d+,\) or \(T, \d+\)"):
+        keys.weights(np.zeros((2, 3, C.shape[1])))

@@ -11,7 +11,7 @@ coordinates of key shapes).  Which key shapes' detail to use:
 * :class:`NearestKeysProlongation`: the training poses as keys, blended by
   inverse squared distance of the fitted coefficients ``alpha`` to the
   ``n_nearest`` training poses' coefficients (``g``-distance of the poses in
-  the model's subspace).
+  the model's subspace; :func:`lacore.models.fine_level.nearest_key_weights`).
 
 On the sample human (``benchmarks/bench_marker_fitting.py --prolong``) both are
 within 0.1 mm of each other; the blend of the 3 nearest training poses is the
@@ -21,7 +21,7 @@ slightly better one (README, marker fitting).
 import numpy as np
 
 from ..errors import InputError
-from ..models.fine_level import FineLevel
+from ..models.fine_level import FineLevel, nearest_key_weights
 from ..multiresolution import Prolongation
 
 __all__ = ["NearestKeysProlongation", "as_fit_prolongation"]
@@ -64,26 +64,23 @@ class NearestKeysProlongation:
         self.offset = int(offset)
 
     def weights(self, coefficients):
-        """Key weights ``(n_keys,)`` for one pose's coefficients ``(J,)``."""
-        a = np.asarray(coefficients, float).reshape(-1)
-        if a.shape != self.key_coefficients.shape[1:]:
-            raise InputError(f"coefficients must have shape {self.key_coefficients.shape[1:]}, got {a.shape}")
-        d2 = np.sum((self.key_coefficients - a) ** 2, axis=1)
-        idx = np.argsort(d2, kind="stable")[:self.n_nearest]
-        w = np.zeros(self.prolongation.alpha.shape[0])
-        if d2[idx[0]] <= 1e-24 * max(1.0, float(a @ a)):
-            w[self.offset + idx[0]] = 1.0
-            return w
-        inv = 1.0 / d2[idx]
-        w[self.offset + idx] = inv / inv.sum()
-        return w
+        """Key weights ``(n_keys,)`` for one pose's coefficients ``(J,)``, or ``(T, n_keys)`` for ``(T, J)``."""
+        a = np.asarray(coefficients, float)
+        J = self.key_coefficients.shape[1]
+        if a.shape[-1:] != (J,) or a.ndim > 2:
+            raise InputError(f"coefficients must have shape ({J},) or (T, {J}), got {a.shape}")
+        A = a.reshape(-1, J)
+        w = np.zeros((len(A), self.prolongation.alpha.shape[0]))
+        w[:, self.offset:self.offset + len(self.key_coefficients)] = nearest_key_weights(
+            self.key_coefficients, A, self.n_nearest)
+        return w if a.ndim == 2 else w[0]
 
     def __call__(self, coarse_vertices, coefficients):
         X = np.asarray(coarse_vertices, float)
         if X.ndim == 3:
             A = np.asarray(coefficients, float).reshape(len(X), -1)
-            return self.prolongation(X, np.stack([self.weights(a) for a in A]) if len(X) else None)
-        return self.prolongation(X, self.weights(coefficients))
+            return self.prolongation(X, self.weights(A) if len(X) else None)
+        return self.prolongation(X, self.weights(np.asarray(coefficients, float).reshape(-1)))
 
 
 def as_fit_prolongation(prolongation):

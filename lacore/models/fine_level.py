@@ -11,7 +11,7 @@ everything that takes, so a model file is self-contained:
 * the local coordinates ``alpha (N, K, 3)`` of the removed vertices in ``N`` fine key
   shapes (key 0: the fine reference mesh, then the training poses), float32;
 * the model coefficients of the training keys: a fitted pose is prolonged with the detail
-  of the ``n_nearest`` training poses nearest to its coefficients (weights ``1 / d^2``),
+  of the ``n_nearest`` training poses nearest to its coefficients (:func:`nearest_key_weights`),
   as :class:`lacore.markers.prolongation.NearestKeysProlongation` does.
 """
 
@@ -22,10 +22,49 @@ import numpy as np
 from ..errors import MeshError
 from ..multiresolution import Coarsening, Prolongation
 
-__all__ = ["FineLevel", "FINE_LEVEL_VERSION"]
+__all__ = ["FineLevel", "FINE_LEVEL_VERSION", "nearest_key_weights"]
 
 #: Version of the stored fine-level record (keys ``fine_*`` of a model file).
 FINE_LEVEL_VERSION = 1
+
+
+def nearest_key_weights(key_coefficients, coefficients, n_nearest):
+    """Weights of the keys nearest to model coefficients: inverse squared distance of the ``n_nearest``.
+
+    Parameters
+    ----------
+    key_coefficients : (N, J) array_like
+        Model coefficients of the keys (e.g. ``ShapeModel.training_coefficients``).
+    coefficients : (J,) or (T, J) array_like
+        One pose's coefficients, or ``T`` poses'.
+    n_nearest : int
+        Keys blended per pose, ``1 <= n_nearest <= N``.
+
+    Returns
+    -------
+    (N,) or (T, N) ndarray
+        Per pose, ``1 / d^2`` normalized over its ``n_nearest`` nearest keys (ties: the lower
+        index first), zero elsewhere; a pose at a key (``d^2 <= 1e-24 max(1, |a|^2)``) gets
+        that key's weight 1.
+
+    Examples
+    --------
+    >>> nearest_key_weights([[0.0], [1.0], [3.0]], [0.5], 2)
+    array([0.5, 0.5, 0. ])
+    """
+    C = np.atleast_2d(np.asarray(key_coefficients, float))
+    a = np.asarray(coefficients, float)
+    A = a.reshape(-1, C.shape[1])
+    d2 = np.sum((C[None] - A[:, None]) ** 2, axis=2)
+    idx = np.argsort(d2, axis=1, kind="stable")[:, :int(n_nearest)]
+    near = np.take_along_axis(d2, idx, axis=1)
+    exact = near[:, 0] <= 1e-24 * np.maximum(1.0, np.sum(A * A, axis=1))
+    inv = 1.0 / np.where(exact[:, None], 1.0, near)
+    inv[exact] = 0.0
+    inv[exact, 0] = 1.0
+    w = np.zeros(d2.shape)
+    np.put_along_axis(w, idx, inv / inv.sum(axis=1, keepdims=True), axis=1)
+    return w[0] if a.ndim == 1 else w
 
 
 @dataclass(eq=False)
@@ -72,21 +111,20 @@ class FineLevel:
         return cls(coarsening, alpha.astype(np.float32).astype(float), key_coefficients, n_nearest)
 
     def weights(self, coefficients):
-        """Key weights ``(N,)``: inverse squared distance of the ``n_nearest`` training keys (the reference if none)."""
-        w = np.zeros(self.alpha.shape[0])
+        """Key weights ``(N,)`` of one pose's coefficients ``(J,)``, or ``(T, N)`` of ``(T, J)``.
+
+        The ``n_nearest`` training keys by inverse squared distance (:func:`nearest_key_weights`);
+        the reference alone when the model has no modes or the coefficients do not match them.
+        """
+        a = np.asarray(coefficients, float)
         C = self.key_coefficients
-        a = np.asarray(coefficients, float).reshape(-1)
-        if C.shape[1] == 0 or a.shape[0] != C.shape[1]:
-            w[0] = 1.0
-            return w
-        d2 = np.sum((C - a) ** 2, axis=1)
-        idx = np.argsort(d2, kind="stable")[:self.n_nearest]
-        if d2[idx[0]] <= 1e-24 * max(1.0, float(a @ a)):
-            w[1 + idx[0]] = 1.0
-            return w
-        inv = 1.0 / d2[idx]
-        w[1 + idx] = inv / inv.sum()
-        return w
+        A = a.reshape(len(a) if a.ndim == 2 else 1, -1)
+        w = np.zeros((len(A), self.alpha.shape[0]))
+        if C.shape[1] == 0 or A.shape[1] != C.shape[1]:
+            w[:, 0] = 1.0
+        else:
+            w[:, 1:] = nearest_key_weights(C, A, self.n_nearest)
+        return w if a.ndim == 2 else w[0]
 
     def __call__(self, coarse_vertices, coefficients=None):
         """Fine vertices ``(V, 3)`` of one coarse pose ``(Vc, 3)`` (its coefficients choose the keys' detail).
@@ -97,8 +135,9 @@ class FineLevel:
         X = np.asarray(coarse_vertices, float)
         if X.ndim == 3:
             A = np.zeros((len(X), 0)) if coefficients is None else np.asarray(coefficients, float).reshape(len(X), -1)
-            return self._prolongation(X, np.stack([self.weights(a) for a in A]) if len(X) else None)
-        return self._prolongation(X, self.weights(np.zeros(0) if coefficients is None else coefficients))
+            return self._prolongation(X, self.weights(A) if len(X) else None)
+        return self._prolongation(X, self.weights(np.zeros(0) if coefficients is None
+                                                  else np.asarray(coefficients, float).reshape(-1)))
 
     # ------------------------------------------------------------------ files
     def to_arrays(self):
