@@ -76,12 +76,13 @@ class Prolongation:
         self._set_levels(c)
         K = len(c.collapse_sources)
         self.alpha = np.zeros((len(P), K, 3))
-        for s in range(len(P)):
-            Ps = np.ascontiguousarray(P[s].T)
+        for s in range(0, len(P), POSE_BATCH):  # the shapes of a batch together (coordinates first)
+            Ps = np.ascontiguousarray(P[s:s + POSE_BATCH].transpose(2, 1, 0))  # (3, V, n)
             for ks, u, v, pr, seg, sizes in self._level_data:
                 centre, t1, t2, n = self._frames(Ps, v, pr, seg, sizes)
                 d = Ps[:, u] - centre
-                self.alpha[s, ks] = np.stack([_dot(t1, d), _dot(t2, d), _dot(n, d)], axis=-1)
+                local = np.stack([_dot(t1, d), _dot(t2, d), _dot(n, d)], axis=-1)  # (k, n, 3)
+                self.alpha[s:s + POSE_BATCH, ks] = local.swapaxes(0, 1)
 
     @classmethod
     def from_coordinates(cls, coarsening, alpha):
@@ -165,7 +166,8 @@ class Prolongation:
         K = len(c.collapse_sources)
         if alpha.ndim != 3 or alpha.shape[1:] != (K, 3):
             raise MeshError(f"local coordinates must be (N, {K}, 3) for {K} collapses, got {alpha.shape}")
-        obj = cls(c, np.zeros((1, c.n_fine_vertices, 3)))
+        obj = cls.__new__(cls)
+        obj._set_levels(c)
         obj.alpha = alpha
         return obj
 
