@@ -32,9 +32,9 @@ selection (a few passes of "cheapest among the candidates it interferes
 with") and every update are array operations, a few dozen rounds for a
 13k-vertex body instead of a loop over every collapse.  The costs of
 collapses beyond a round's changes are kept from round to round.  The
-coarse meshes are as good as those of one collapse at a time (total and
-largest collapse cost within about 2 % on the sample meshes and the human
-body's shape keys).  ``batched=False`` does one collapse at a time, cheapest
+coarse meshes are as good as those of one collapse at a time (measured on
+the sample meshes and the human body's shape keys: total collapse cost
+within 2 %, the largest within 4 %).  ``batched=False`` does one collapse at a time, cheapest
 first (a priority queue with lazily invalidated entries, dropped in one pass
 when many have piled up), several times slower.
 
@@ -177,6 +177,8 @@ class Coarsening:
     costs: np.ndarray
     seconds: float = 0.0
     _topology: object = field(default=None, repr=False)
+    #: Insertion levels and ring data of :class:`~lacore.multiresolution.Prolongation` (integers; built once).
+    _prolongation_levels: object = field(default=None, repr=False, compare=False)
 
     @property
     def n_vertices(self):
@@ -405,10 +407,10 @@ def _face_planes(P, faces):
 
 def _plane_quadrics(n, d, w):
     """Upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`) of the quadrics ``w [n; d][n; d]^T`` of (N,k)
-    planes, as (k, N * 10) rows (item by item, shape by shape)."""
+    planes, as (k, 10 * N) rows (entry by entry, shape by shape)."""
     h = np.concatenate([n, d[..., None]], axis=-1).transpose(1, 0, 2)  # (k,N,4)
     k, N = h.shape[:2]
-    return (w.T[..., None] * h[..., _SYM_I] * h[..., _SYM_J]).reshape(k, N * 10)
+    return (w.T[..., None] * h[..., _SYM_I] * h[..., _SYM_J]).transpose(0, 2, 1).reshape(k, 10 * N)
 
 
 def _incidence(*columns, n_vertices):
@@ -436,21 +438,34 @@ def vertex_quadrics(shapes, topology, boundary_weight=10.0):
     (V, N, 4, 4) ndarray
     """
     N, V = shapes.shape[:2]
-    q = _quadric_entries(shapes, topology, boundary_weight).reshape(V, N, 10)
+    q = _quadric_entries(shapes, topology, boundary_weight).reshape(V, 10, N).transpose(0, 2, 1)
     Q = np.empty((V, N, 4, 4))
     Q[..., _SYM_I, _SYM_J] = q
     Q[..., _SYM_J, _SYM_I] = q
     return Q
 
 
-def _quadric_entries(P, topology, boundary_weight):
-    """:func:`vertex_quadrics` as the upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`): (V, N * 10)."""
+def _quadric_entries(P, topology, boundary_weight, cross=None):
+    """:func:`vertex_quadrics` as the upper-triangle entries (:data:`_SYM_I`, :data:`_SYM_J`): (V, 10 * N), entry
+    by entry, shape by shape.
+
+    ``cross`` (F, 3, N), if given, holds the faces' cross products ``(p1 - p0) x (p2 - p0)`` (see
+    :func:`_cross_and_l2`).  A face's plane quadric ``area [n; d][n; d]^T`` is ``c c^T / (2 |x|)`` with ``x`` the
+    cross product and ``c = [x; -x . p0]``.
+    """
     N, V = P.shape[:2]
     faces = topology.faces
-    Q = np.zeros((V, N * 10))
+    Pv = P.transpose(1, 2, 0)  # (V,3,N)
+    Q = np.zeros((V, 10 * N))
     for i in range(0, len(faces), _CHUNK):  # in chunks of faces: the temporaries stay small
         f = faces[i:i + _CHUNK]
-        Q += _incidence(f[:, 0], f[:, 1], f[:, 2], n_vertices=V) @ _plane_quadrics(*_face_planes(P, f))
+        x = _cross_and_l2(Pv, f)[0] if cross is None else cross[i:i + _CHUNK]  # (k,3,N)
+        c = np.empty((len(f), 4, N))
+        c[:, :3] = x
+        c[:, 3] = -(x * Pv[f[:, 0]]).sum(1)
+        c *= np.sqrt(0.5 / np.maximum(np.sqrt((x * x).sum(1)), 1e-300))[:, None]
+        q = c[:, _SYM_I] * c[:, _SYM_J]  # (k,10,N)
+        Q += _incidence(f[:, 0], f[:, 1], f[:, 2], n_vertices=V) @ q.reshape(len(f), 10 * N)
     be = topology.boundary_edges
     if be.size and boundary_weight > 0:
         ea, eb = topology.edges[be, 0], topology.edges[be, 1]
@@ -464,20 +479,24 @@ def _quadric_entries(P, topology, boundary_weight):
     return Q
 
 
-#: Rows of a triangle's corners giving its edges ``p1 - p0, p2 - p0, p2 - p1``, and cyclic shifts of x, y, z.
-_EDGE_HEADS, _EDGE_TAILS = np.array([1, 2, 2]), np.array([0, 0, 1])
-_SHIFT1, _SHIFT2 = np.array([1, 2, 0]), np.array([2, 0, 1])
-
-
-def _cross_and_l2(T):
+def _cross_and_l2(Pv, tri):
     """Cross products ``(p1 - p0) x (p2 - p0)`` (k,3,N) and sums of squared edge lengths (k,N) of triangles
-    (k,3,3,N) (corner, coordinate, shape: the coordinates of all shapes contiguous)."""
-    E = T[:, _EDGE_HEADS] - T[:, _EDGE_TAILS]  # (k,3,3,N)
-    e0, e1 = E[:, 0], E[:, 1]
-    cr = e0[:, _SHIFT1] * e1[:, _SHIFT2]  # whole rows at a time: fewer, contiguous operations
-    cr -= e0[:, _SHIFT2] * e1[:, _SHIFT1]
-    E *= E
-    return cr, E.sum(2).sum(1)
+    ``tri`` (k,3) of vertices ``Pv`` (V,3,N) (coordinate, shape: the coordinates of all shapes contiguous)."""
+    p0, e0, e1 = Pv[tri[:, 0]], Pv[tri[:, 1]], Pv[tri[:, 2]]
+    e2 = e1 - e0
+    e0 -= p0
+    e1 -= p0
+    cr = np.empty_like(e0)
+    for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # whole rows (all shapes) at a time
+        np.multiply(e0[:, j], e1[:, m], out=cr[:, i])
+        cr[:, i] -= e0[:, m] * e1[:, j]
+    e0 *= e0
+    e1 *= e1
+    e2 *= e2
+    l2 = e0.sum(1)
+    l2 += e1.sum(1)
+    l2 += e2.sum(1)
+    return cr, l2
 
 
 def _check_shapes(shapes, faces):
@@ -558,26 +577,31 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     unit = float(np.sqrt(((hi - lo) ** 2).sum(1).max())) or 1.0
     P = (P - 0.5 * (lo + hi)[:, None]) / unit
     lo, hi = P.min(axis=1), P.max(axis=1)
+    Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
+    F = len(faces)
+    fcr, fl2 = np.empty((F, 3, N)), np.empty((F, N))  # current faces: cross products, sums of squared lengths
+    for i in range(0, F, _CHUNK):
+        fcr[i:i + _CHUNK], fl2[i:i + _CHUNK] = _cross_and_l2(Pv, faces[i:i + _CHUNK])
+    fnorm = np.sqrt((fcr * fcr).sum(1))
+    Q = _quadric_entries(P, topo, boundary_weight, cross=fcr)
     # h^T Q h = M(h) . q(Q) with q the 10 upper-triangle entries of the symmetric Q and M(h) the products
-    # h_i h_j (doubled off the diagonal): per vertex and shape, flattened over the shapes to rows of 10 N.
-    Q = _quadric_entries(P, topo, boundary_weight)
-    H = np.concatenate([P, np.ones((N, V, 1))], axis=-1).transpose(1, 0, 2)  # (V,N,4)
-    M = H[:, :, _SYM_I]
-    M *= H[:, :, _SYM_J]
-    M *= _SYM_W
-    M = M.reshape(V, N * 10)
+    # h_i h_j (doubled off the diagonal): per vertex, entry by entry and shape by shape, rows of 10 N.
+    H = np.ones((V, 4, N))
+    H[:, :3] = Pv
+    M = H[:, _SYM_I]
+    M *= H[:, _SYM_J]
+    M *= _SYM_W[:, None]
+    M = M.reshape(V, 10 * N)
     self_cost = np.einsum("vk,vk->v", M, Q)  # cost of the quadric of v at v itself
     # the terms of h^T Q h at a point p of the bounding box, for planes (n, d) through points of it (|n| = 1,
     # |p| <= R, |d| <= R): at most 4 R^2 times their weights, whose sum is trace(Q[:3, :3]), per shape
-    bound = np.zeros((N, 10))
-    bound[:, _SYM_TRACE] = ((hi - lo) ** 2).sum(1)[:, None]
+    bound = np.zeros((10, N))
+    bound[_SYM_TRACE] = ((hi - lo) ** 2).sum(1)
     bound = bound.ravel()
     # per vertex, the rounding of the costs of its collapses (_rounding_shift): a collapse's terms are at most
     # twice the larger of its two vertices' bounds
     vshift = _rounding_shift(2.0 * (Q @ bound))
-    Pv = P.transpose(1, 2, 0).copy()  # (V,3,N)
 
-    F = len(faces)
     n_remove = V - target
     # the queue: (cost, squared length summed over the shapes, source, target, their stamps when queued), costs
     # and lengths rounded (_rounding_shift); equally cheap collapses (e.g. all of a flat region's) go shortest edge
@@ -616,10 +640,6 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         for item in items:
             heapq.heappush(heap, item)
 
-    fcr, fl2 = np.empty((F, 3, N)), np.empty((F, N))  # current faces: cross products, sums of squared lengths
-    for i in range(0, F, _CHUNK):
-        fcr[i:i + _CHUNK], fl2[i:i + _CHUNK] = _cross_and_l2(Pv[faces[i:i + _CHUNK]])
-    fnorm = np.sqrt((fcr * fcr).sum(1))
     if batched:
         state = {"faces": faces, "topo": topo, "Q": Q, "M": M, "self_cost": self_cost, "vshift": vshift,
                  "bound": bound, "Pv": Pv, "fcr": fcr, "fl2": fl2, "fnorm": fnorm, "costs": costs, "lengths": lengths}
@@ -656,7 +676,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     def geometry(a, b, moved):
         """(ok, cross products, squared lengths, norms of the cross products) of the faces ``moved`` after moving
         their corner a to b."""
-        cr, l2 = _cross_and_l2(Pv[np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()])])
+        cr, l2 = _cross_and_l2(Pv, np.array([[b if x == a else x for x in fcur[f]] for f in moved.tolist()]))
         nn = cr * cr
         nn = np.sqrt(nn.sum(1))
         no = fnorm[moved]
@@ -829,7 +849,8 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
     hs, hd, hc = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]]), np.concatenate([ne, ne])
     keep = ~(is_bd[hs] & (hc == 2))
     hs, hd, hc = hs[keep], hd[keep], hc[keep]
-    hcost, hl2, hfail = costs(hs, hd), lengths(hs, hd), np.full(len(hs), -1, np.int64)
+    le = lengths(E[:, 0], E[:, 1])
+    hcost, hl2, hfail = costs(hs, hd), np.concatenate([le, le])[keep], np.full(len(hs), -1, np.int64)
     out_src, out_dst, out_cost, rings = [], [], [], []
     n_alive, n_remove, relax_rounds = V, V - target, 0
     while n_alive > target:
@@ -953,10 +974,11 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
         eb, ex = np.divmod(ekey, V)
         ns, nd, nc = np.concatenate([eb, ex]), np.concatenate([ex, eb]), np.concatenate([ecount, ecount])
         ok = ~(is_bd[ns] & (nc == 2))
-        ns, nd, nc = ns[ok], nd[ok], nc[ok]
+        le = lengths(eb, ex)
+        ns, nd, nc, nl = ns[ok], nd[ok], nc[ok], np.concatenate([le, le])[ok]
         hs, hd, hc = np.concatenate([hs[keep], ns]), np.concatenate([hd[keep], nd]), np.concatenate([hc[keep], nc])
         hcost = np.concatenate([hcost[keep], costs(ns, nd)])
-        hl2 = np.concatenate([hl2[keep], lengths(ns, nd)])
+        hl2 = np.concatenate([hl2[keep], nl])
         hfail = np.concatenate([hfail[keep], np.full(len(ns), -1, np.int64)])
         out_src.append(a)
         out_dst.append(b)
@@ -1013,7 +1035,7 @@ def _collapse_geometry(a, b, cur, vf_ptr, vf_faces, Pv, fcr, fl2, fnorm, cos_max
     cr = np.empty((m,) + fcr.shape[1:])
     l2 = np.empty((m,) + fl2.shape[1:])
     for i in range(0, m, _CHUNK):
-        cr[i:i + _CHUNK], l2[i:i + _CHUNK] = _cross_and_l2(Pv[tri[i:i + _CHUNK]])
+        cr[i:i + _CHUNK], l2[i:i + _CHUNK] = _cross_and_l2(Pv, tri[i:i + _CHUNK])
     nn = np.sqrt((cr * cr).sum(1))
     no = fnorm[f_of]
     face_ok = ((fcr[f_of] * cr).sum(1) > (cos_max + _GEOMETRY_TOLERANCE) * no * nn).all(1)

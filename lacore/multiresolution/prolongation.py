@@ -132,6 +132,10 @@ class Prolongation:
     def _set_levels(self, c):
         """Insertion levels and the ring data of every level (integers only)."""
         self.coarsening = c
+        cached = getattr(c, "_prolongation_levels", None)  # integers that depend on the coarsening only
+        if cached is not None:
+            self.levels, self._level_data = cached
+            return
         K = len(c.collapse_sources)
         # insertion levels, by one pass over the collapses in reverse order
         level = np.zeros(c.n_fine_vertices, np.int64)
@@ -157,6 +161,7 @@ class Prolongation:
             idx = np.repeat(c.ring_offsets[ks] - np.r_[0, np.cumsum(sizes)[:-1]], sizes) + np.arange(sizes.sum())
             seg = np.r_[0, np.cumsum(sizes)]
             self._level_data.append((ks, c.collapse_sources[ks], c.collapse_targets[ks], pairs[idx], seg, sizes))
+        c._prolongation_levels = (self.levels, self._level_data)
 
     @classmethod
     def from_local_coordinates(cls, coarsening, alpha):
