@@ -19,24 +19,27 @@ collapses along the boundary keep its shape).  Collapsing ``u -> v`` costs
 
 Order of collapses
 ------------------
-By default (``batched=True``) collapses are done in rounds.  A round's
-candidates are the collapses no dearer than the cheapest collapse of the
-cheapest 5 % of the remaining vertices (compared as below); taken cheapest
-first, a candidate ``u -> v`` is collapsed unless a cheaper one of the round
-interferes with it: collapse ``a -> b`` changes only the faces around ``a``
-and the quadric of ``b``, so two collapses are independent when neither's two
-vertices lie in the other's closed one-ring of ``a``.  Independent collapses
-give the same mesh in any order, so a round is equivalent to doing its
-collapses one at a time, cheapest first, each valid in the mesh it meets; the
-selection (a few passes of "cheapest among the candidates it interferes
-with") and every update are array operations, a few dozen rounds for a
-13k-vertex body instead of a loop over every collapse.  The costs of
-collapses beyond a round's changes are kept from round to round.  The
-coarse meshes are as good as those of one collapse at a time (measured on
-the sample meshes and the human body's shape keys: total collapse cost
-within 2 %, the largest within 4 %).  ``batched=False`` does one collapse at a time, cheapest
-first (a priority queue with lazily invalidated entries, dropped in one pass
-when many have piled up), several times slower.
+By default (``batched=True``) collapses are done in rounds, each a set of
+collapses that do not interfere.  Collapse ``a -> b`` changes only the faces
+around ``a`` (and with them the rings of ``a``'s neighbours) and the quadric
+of ``b``; two collapses are independent when neither's two vertices lie in
+the other's closed ring of ``a``, and independent collapses give the same
+mesh in any order.  A round's candidates are the collapses up to the
+cheapest one of the cheapest 5 % of the remaining vertices (compared as
+below); in a few passes, each vertex's cheapest open candidate is collapsed
+if it is the cheapest of the candidates it interferes with and valid
+(below), and candidates that interfere with a collapse of the round wait
+for the next round.  A round is thus equivalent to doing its collapses one
+at a time, cheapest first, each valid in the mesh it meets; the selection
+and the updates are array operations (about 50 rounds for a 13k-vertex body
+to 2,500 vertices instead of a loop over 10,880 collapses), and the costs
+of the collapses a round did not touch are kept.  A rejected candidate is
+retried once the ring of either vertex has changed.  The coarse meshes are
+as good as those of one collapse at a time (measured on the sample meshes
+and the human body's shape keys: total collapse cost within 2 %, the
+largest within 4 %).  ``batched=False`` does one collapse at a time,
+cheapest first (a priority queue with lazily invalidated entries, dropped
+in one pass when many have piled up), several times slower.
 
 Order of equally cheap collapses
 --------------------------------
@@ -62,7 +65,7 @@ Validity (checked for every collapse, in every shape)
   falls below the triangle quality ``min_quality``
   (``4 sqrt(3) area / sum l^2``, 1 for an equilateral triangle).
 
-If the queue empties before the target count, the geometric thresholds are
+If no candidate is left before the target count, the geometric thresholds are
 relaxed (quality halved, normal angle widened towards 90 degrees) and the
 remaining candidates are retried; flips and topology are never relaxed.
 
