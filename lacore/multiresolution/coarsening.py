@@ -646,10 +646,10 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     if batched:
         state = {"faces": faces, "topo": topo, "Q": Q, "M": M, "self_cost": self_cost, "vshift": vshift,
                  "bound": bound, "Pv": Pv, "fcr": fcr, "fl2": fl2, "fnorm": fnorm, "costs": costs, "lengths": lengths}
-        cur, falive, valive, sources, targets, cost_arr, ring_chunks = _batched_collapses(
+        cur, falive, valive, sources, targets, cost_arr, ring_pairs, ring_sizes = _batched_collapses(
             state, target, np.cos(np.radians(max_normal_angle)), float(min_quality), progress)
-        return _result(V, faces, cur, falive, valive, sources, targets, cost_arr, ring_chunks, unit, n_remove,
-                       progress, t0)
+        return _result(V, faces, cur, falive, valive, sources, targets, cost_arr, ring_pairs, ring_sizes, unit,
+                       n_remove, progress, t0)
 
     fcur = faces.tolist()  # current faces, as Python lists: read and changed a few at a time in the loop
     falive = np.ones(F, bool)
@@ -799,19 +799,21 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
 
     return _result(V, faces, np.array(fcur, np.int64), falive, np.array(valive, bool), np.asarray(sources, np.int64),
                    np.asarray(targets, np.int64), np.asarray(cost_list, float),
-                   [np.array(c, np.int64).reshape(-1, 2) for c in ring_chunks], unit, n_remove, progress, t0)
+                   np.array([pq for c in ring_chunks for pq in c], np.int64).reshape(-1, 2),
+                   np.array([len(c) for c in ring_chunks], np.int64), unit, n_remove, progress, t0)
 
 
-def _result(V, faces, cur, falive, valive, sources, targets, costs, rings, unit, n_remove, progress, t0):
+def _result(V, faces, cur, falive, valive, sources, targets, costs, ring_pairs, ring_sizes, unit, n_remove, progress,
+            t0):
     """The :class:`Coarsening` of a finished collapse loop (costs in units of the scaled shapes)."""
     keep = np.flatnonzero(valive)
     new_index = np.full(V, -1, np.int64)
     new_index[keep] = np.arange(len(keep))
     cfaces = new_index[cur[falive]]
     parent = _parents(V, keep, sources, targets)
-    offsets = np.zeros(len(rings) + 1, np.int64)
-    np.cumsum([len(r) for r in rings], out=offsets[1:])
-    pairs = np.concatenate(rings).astype(np.int64) if rings else np.empty((0, 2), np.int64)
+    offsets = np.zeros(len(ring_sizes) + 1, np.int64)
+    np.cumsum(ring_sizes, out=offsets[1:])
+    pairs = np.asarray(ring_pairs, np.int64).reshape(-1, 2)
     if progress is not None:
         report(progress, n_remove, n_remove, "coarsening done")
     return Coarsening(n_fine_vertices=V, fine_faces=faces, vertex_indices=keep, faces=cfaces,
@@ -833,7 +835,8 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
     do not interfere are collapsed at once.
 
     ``state`` holds the scaled arrays of :func:`coarsen` (``faces, topo, Q, M, self_cost, vshift, bound, Pv,
-    fcr, fl2, fnorm, costs, lengths``).  Returns ``(faces, falive, valive, sources, targets, costs, rings)``.
+    fcr, fl2, fnorm, costs, lengths``).  Returns ``(faces, falive, valive, sources, targets, costs, ring_pairs,
+    ring_sizes)``.
     """
     faces, Q, M, self_cost, vshift, bound = (state[k] for k in ("faces", "Q", "M", "self_cost", "vshift", "bound"))
     Pv, fcr, fl2, fnorm = state["Pv"], state["fcr"], state["fl2"], state["fnorm"]
@@ -854,7 +857,7 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
     hs, hd, hc = hs[keep], hd[keep], hc[keep]
     le = lengths(E[:, 0], E[:, 1])
     hcost, hl2, hfail = costs(hs, hd), np.concatenate([le, le])[keep], np.full(len(hs), -1, np.int64)
-    out_src, out_dst, out_cost, rings = [], [], [], []
+    out_src, out_dst, out_cost, rings, ring_sizes = [], [], [], [], []
     n_alive, n_remove, relax_rounds = V, V - target, 0
     while n_alive > target:
         valid = hfail != version[hs] + version[hd]
@@ -945,9 +948,8 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
         at = np.argmax(tri == a[owner, None], axis=1)
         rows = np.arange(len(tri))
         ring = np.stack([tri[rows, _NEXT[at]], tri[rows, _NEXT[_NEXT[at]]]], 1)
-        off = np.zeros(len(a) + 1, np.int64)
-        np.cumsum(f_count, out=off[1:])
-        rings.extend(ring[off[k]:off[k + 1]] for k in range(len(a)))
+        rings.append(ring)
+        ring_sizes.append(f_count)
         ring_v, _ = _rings(a, cur, vf_ptr, vf_faces)
         version[ring_v] += 1
         # --- the collapses: faces, their geometry, quadrics
@@ -990,7 +992,8 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
     empty = np.empty(0, np.int64)
     return (cur, falive, valive, np.concatenate(out_src) if out_src else empty,
             np.concatenate(out_dst) if out_dst else empty, np.concatenate(out_cost) if out_cost else np.empty(0),
-            rings)
+            np.concatenate(rings) if rings else np.empty((0, 2), np.int64),
+            np.concatenate(ring_sizes) if ring_sizes else empty)
 
 
 def _adjacency(rows, cols, n):
