@@ -76,12 +76,13 @@ class Prolongation:
         self._set_levels(c)
         K = len(c.collapse_sources)
         self.alpha = np.zeros((len(P), K, 3))
-        for s in range(len(P)):
-            Ps = np.ascontiguousarray(P[s].T)
+        for s in range(0, len(P), POSE_BATCH):  # the shapes of a batch together (coordinates first)
+            Ps = np.ascontiguousarray(P[s:s + POSE_BATCH].transpose(2, 1, 0))  # (3, V, n)
             for ks, u, v, pr, seg, sizes in self._level_data:
                 centre, t1, t2, n = self._frames(Ps, v, pr, seg, sizes)
                 d = Ps[:, u] - centre
-                self.alpha[s, ks] = np.stack([_dot(t1, d), _dot(t2, d), _dot(n, d)], axis=-1)
+                local = np.stack([_dot(t1, d), _dot(t2, d), _dot(n, d)], axis=-1)  # (k, n, 3)
+                self.alpha[s:s + POSE_BATCH, ks] = local.swapaxes(0, 1)
 
     @classmethod
     def from_coordinates(cls, coarsening, alpha):
@@ -131,6 +132,10 @@ class Prolongation:
     def _set_levels(self, c):
         """Insertion levels and the ring data of every level (integers only)."""
         self.coarsening = c
+        cached = getattr(c, "_prolongation_levels", None)  # integers that depend on the coarsening only
+        if cached is not None:
+            self.levels, self._level_data = cached
+            return
         K = len(c.collapse_sources)
         # insertion levels, by one pass over the collapses in reverse order
         level = np.zeros(c.n_fine_vertices, np.int64)
@@ -156,6 +161,7 @@ class Prolongation:
             idx = np.repeat(c.ring_offsets[ks] - np.r_[0, np.cumsum(sizes)[:-1]], sizes) + np.arange(sizes.sum())
             seg = np.r_[0, np.cumsum(sizes)]
             self._level_data.append((ks, c.collapse_sources[ks], c.collapse_targets[ks], pairs[idx], seg, sizes))
+        c._prolongation_levels = (self.levels, self._level_data)
 
     @classmethod
     def from_local_coordinates(cls, coarsening, alpha):
@@ -165,7 +171,8 @@ class Prolongation:
         K = len(c.collapse_sources)
         if alpha.ndim != 3 or alpha.shape[1:] != (K, 3):
             raise MeshError(f"local coordinates must be (N, {K}, 3) for {K} collapses, got {alpha.shape}")
-        obj = cls(c, np.zeros((1, c.n_fine_vertices, 3)))
+        obj = cls.__new__(cls)
+        obj._set_levels(c)
         obj.alpha = alpha
         return obj
 
