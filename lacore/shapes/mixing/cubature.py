@@ -138,7 +138,7 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
-def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=2000, seed=0, metrics=None):
+def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metrics=None):
     """Edges and weights of a cubature of the reduced energy, trained at the subspace points ``samples``.
 
     Parameters
@@ -154,8 +154,8 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=2
         Largest number of edges of the cubature.
     max_candidates : int
         Edges offered to the selection: all when there are not more, else the half with the largest
-        ``score`` and a seeded random draw of the others.  2000 by default: the greedy fit costs about
-        in proportion, and with 3000 the mixer's energies on the 13k bodies and the 5k bar were no better.
+        ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion (the
+        mixer offers :func:`~lacore.shapes.mixing.mixer.cubature_candidates`).
     seed : int
         Seed of that draw.
     metrics : list of (r, r) ndarrays, optional

@@ -91,6 +91,22 @@ __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targe
 #: CPU per mix at 13k vertices on the 2-core AMD EPYC we benchmark on (``benchmarks/bench_mixer.py``), the 4 ms goal.
 AUTO_SIZE = 40
 
+def cubature_candidates(n_edges):
+    """Edges offered to the cubature's greedy fit (:func:`.cubature.fit_cubature`): 2 % of the edges, at least 2000.
+
+    The fit costs about in proportion.  2000 instead of 3000 saved 0.2-0.3 s CPU at 13k vertices (40k edges) for
+    energies as close to Gauss-Newton's (the cubature's share of the excess, median in ``[0, 1]^(K-1)``: 2.5 % and
+    1.9 % on the two bodies, 3.5 % and 2.4 % with 3000), but on the 50k bar (147k edges) it grew from 3.9 % to
+    5.3 % (``benchmarks/bench_mixer.py``).
+
+    Examples
+    --------
+    >>> cubature_candidates(40_000), cubature_candidates(150_000)
+    (2000, 3000)
+    """
+    return max(2000, int(n_edges) // 50)
+
+
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
 
@@ -438,6 +454,7 @@ class ShapeMixer:
         self._error_w = self._error_v = None
         self._corr_w = self._corr = None
         self._derivatives = False
+        self._terms = {}             # weights -> FullProblem.training_terms at the build's points (until the cubature)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -471,7 +488,7 @@ class ShapeMixer:
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
-                                    chord_steps=o.chord_steps, size=size, stage=watch,
+                                    chord_steps=o.chord_steps, size=size, stage=watch, terms=mixer._terms,
                                     progress=None if progress is None else (
                                         lambda d, t, m: progress(1, 4, m)))
         report(progress, 2, 4, "basis")
@@ -501,7 +518,7 @@ class ShapeMixer:
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
                                                      pcg_iterations=o.newton_pcg_iterations,
-                                                     derivatives=derivatives,
+                                                     derivatives=derivatives, terms=mixer._terms,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))
@@ -567,12 +584,13 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False):
+    def _training(self, samples, metrics=False, cached=None):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)`` for every sample, ``C C^T``
         the reduced Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
-        more at 13k vertices, for the same energies on the 13k bodies)."""
+        more at 13k vertices, for the same energies on the 13k bodies).  ``cached``: per sample None or its
+        :meth:`.subspace.FullProblem.training_terms`, kept from the build (no Jacobian evaluated again)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
@@ -582,21 +600,24 @@ class ShapeMixer:
         st = self._stencils
         reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
         totals, score = [], np.zeros(E)
-        for q in samples:
-            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-            r0 = z - P.z0
-            r0[E:] = _wrap(r0[E:])
+        for i, q in enumerate(samples):
+            J = None
+            if cached is not None and cached[i] is not None:
+                JtC, rown, r0 = cached[i]
+            else:
+                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+                JtC, rown, r0 = P.training_terms(J, z)
             C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
-            totals.append((U.T @ (J.T @ C)).T)
+            totals.append((U.T @ JtC).T)
             if metrics and not inverse_factors:
+                if J is None:
+                    J = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo)
                 A = J @ U
                 A *= sw[:, None]
                 H = 2.0 * (A.T @ A)
                 H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / len(H)
                 inverse_factors.append(sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
                                                            check_finite=False))
-            rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(2 * E)
-            rown[np.diff(J.indptr) == 0] = 0.0
             bound = np.abs(C) * (rown * reach)[:, None]
             bound /= np.maximum(bound.sum(axis=0), 1e-300)
             score += (bound[:E] + bound[E:]).sum(axis=1)
@@ -609,16 +630,21 @@ class ShapeMixer:
         E = self.n_edges
         n = self.options.cubature_points or max(300, (20 if self._derivatives else 12) * r)
         self._corr_w = self._corr = None
+        terms, self._terms = self._terms, {}
         if E <= 2 * n:
             self._cubature = self._make_energy(None, None)
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
+        # the build's points are in the space (unless a reduced_size cut it): their terms need no new Jacobian
+        cached = None if self.options.reduced_size is not None else (
+            [terms.get(tuple(w)) for w in W[:len(self._exp_w)]] + [None] * (len(W) - len(self._exp_w)))
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(list(Q), metrics=True)
+            totals, score, metrics = self._training(list(Q), metrics=True, cached=cached)
         else:
-            (totals, score), metrics = self._training(list(Q)), None
-        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metrics=metrics)
+            (totals, score), metrics = self._training(list(Q), cached=cached), None
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metrics=metrics,
+                                     max_candidates=cubature_candidates(E))
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel
         if not self.options.cubature_correction:
