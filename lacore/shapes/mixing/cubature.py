@@ -154,8 +154,7 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         Largest number of edges of the cubature.
     max_candidates : int
         Edges offered to the selection: all when there are not more, else the half with the largest
-        ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion (the
-        mixer offers :func:`~lacore.shapes.mixing.mixer.cubature_candidates`).
+        ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion.
     seed : int
         Seed of that draw.
     metrics : list of (r, r) ndarrays, optional

@@ -91,22 +91,6 @@ __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targe
 #: CPU per mix at 13k vertices on the 2-core AMD EPYC we benchmark on (``benchmarks/bench_mixer.py``), the 4 ms goal.
 AUTO_SIZE = 40
 
-def cubature_candidates(n_edges):
-    """Edges offered to the cubature's greedy fit (:func:`.cubature.fit_cubature`): 2 % of the edges, at least 2000.
-
-    The fit costs about in proportion.  2000 instead of 3000 saved 0.2-0.3 s CPU at 13k vertices (40k edges) for
-    energies as close to Gauss-Newton's (the cubature's share of the excess, median in ``[0, 1]^(K-1)``: 2.5 % and
-    1.9 % on the two bodies, 3.5 % and 2.4 % with 3000), but on the 50k bar (147k edges) it grew from 3.9 % to
-    5.3 % (``benchmarks/bench_mixer.py``).
-
-    Examples
-    --------
-    >>> cubature_candidates(40_000), cubature_candidates(150_000)
-    (2000, 3000)
-    """
-    return max(2000, int(n_edges) // 50)
-
-
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
 
@@ -185,8 +169,10 @@ class MixerOptions:
         On by default: the cubature's share of a mix's energy excess over converged Gauss-Newton (the
         cubature's minimizer against the exact one in the space, median in ``[0, 1]^(K-1)``) fell from
         5.8 % to 2.5 % on the CC0 body (13k, K = 4), 4.3 % to 1.9 % on the MakeHuman body (13k, K = 3),
-        0.9 % to 0.7 % on the 5k bar and to 5.3 % on the 50k bar (6.8 % without it), for the same
-        cubature sizes and times per mix (``benchmarks/bench_mixer.py``; docs/shape-space.md).
+        0.9 % to 1.1 % on the 5k bar and 3.9 % to 2.5 % on the 50k bar (extrapolated weights there: 7.3 % to
+        9.1 %, at 3 weights), for about the same cubature sizes and times per mix; the seeded draw of candidate
+        edges (:func:`.cubature.fit_cubature`) moves these figures by as much (MakeHuman body, four draws: 1.6-3.6 %
+        with, 2.7-5.5 % without; ``benchmarks/bench_mixer.py``; docs/shape-space.md).
     max_iterations : int
         Iterations of one mix (reduced Gauss-Newton).
     polish_iterations : int
@@ -643,8 +629,7 @@ class ShapeMixer:
             totals, score, metrics = self._training(list(Q), metrics=True, cached=cached)
         else:
             (totals, score), metrics = self._training(list(Q), cached=cached), None
-        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metrics=metrics,
-                                     max_candidates=cubature_candidates(E))
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metrics=metrics)
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel
         if not self.options.cubature_correction:
