@@ -489,11 +489,14 @@ def test_cubature_energy_norm(long_bar, tmp_path):
     keys, F, mixer = long_bar
     assert mixer.options.cubature_energy_norm
     W, Q = mixer._cubature_samples()
-    _, _, metrics = mixer._training(list(Q[:3]), metrics=True)
-    assert len(metrics) == 3 and np.allclose(metrics[0], metrics[2])          # one metric, at the first sample
+    _, _, M = mixer._training(list(Q[:3]), metrics=True)                     # at the first sample, the basis key
     _, _, H = mixer._make_energy(None, None).linearize(Q[0], W[0])           # all edges: the exact reduced energy
-    M = metrics[0]
     assert np.abs(M @ H @ M.T - np.eye(len(H))).max() < 1e-8
+    # the pieces in the whitened basis U M^T at M^-T q are M times those in U at q (what the fit uses)
+    edges = np.arange(0, mixer.n_edges, 7)
+    P = mixer._make_energy(edges, None).gradient_pieces(Q[5])
+    Pm = mixer._make_energy(edges, None, M).gradient_pieces(np.linalg.solve(M.T, Q[5]))
+    assert np.abs(Pm - np.matmul(M, P)).max() < 1e-9 * np.abs(Pm).max()
     exact = mixer._make_energy(None, None)
     for w in ([0.5, 0.5], [0.8, 0.3], [1.5, -0.5]):
         r = mixer.mix(w, warm_start=False)

@@ -5,7 +5,7 @@ The reduced gradient is a sum over edges of pieces affine in the weights ``w``
 the subspace the exact sums over all edges are matched by a non-negative combination of a few
 edges' pieces (non-negative least squares, greedy selection): the cubature of the reduced energy
 (An, Kim and James 2008; von Tycowicz et al. 2015).  Matching every piece separately makes the
-cubature valid for all ``w`` at once.  The match can be measured in the energy norm (``metrics`` of
+cubature valid for all ``w`` at once.  The match can be measured in the energy norm (``metric`` of
 :func:`fit_cubature`): what a gradient error costs in energy at a minimizer.
 """
 
@@ -138,13 +138,14 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
-def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metrics=None):
+def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metric=None):
     """Edges and weights of a cubature of the reduced energy, trained at the subspace points ``samples``.
 
     Parameters
     ----------
     make_energy : callable
-        ``make_energy(edges, c)`` -> :class:`~lacore.shapes.mixing.reduced.ReducedEnergy` on those edges.
+        ``make_energy(edges, c, metric=None)`` -> :class:`~lacore.shapes.mixing.reduced.ReducedEnergy` on those
+        edges, with the basis ``U metric^T`` when ``metric`` is given.
     samples : list of (r,) ndarrays
     totals : list of (m+1, r) ndarrays
         The exact gradient pieces (sums over all edges) at the samples.
@@ -157,12 +158,13 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion.
     seed : int
         Seed of that draw.
-    metrics : list of (r, r) ndarrays, optional
-        One matrix ``M`` per sample: the gradient errors are measured as ``|M e|`` instead of ``|e|``.
+    metric : (r, r) ndarray, optional
+        A matrix ``M``: the gradient errors are measured as ``|M e|`` instead of ``|e|``.
         With ``M = C^{-1}``, ``C C^T`` the reduced Gauss-Newton matrix there, ``|M e|^2 = e^T H^{-1} e``
         is twice the energy an error ``e`` of the gradient costs at a minimizer, to second order (the
         minimizer moves by ``H^{-1} e``): the fit weighs the soft directions of the space, where a small
-        gradient error moves the minimizer far, above the stiff ones, whose pieces are the largest.
+        gradient error moves the minimizer far, above the stiff ones, whose pieces are the largest.  The
+        pieces ``M P`` are those of the basis ``U M^T`` at ``M^{-T} q`` (the same points): no product per sample.
 
     Returns
     -------
@@ -180,14 +182,14 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         top = np.argpartition(-score, n_top)[:n_top]
         rest = np.setdiff1d(np.arange(E), top)
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
-    model = make_energy(cand, None)
+    model = make_energy(cand, None) if metric is None else make_energy(cand, None, metric)
     A = b = None
     for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
-        P = model.gradient_pieces(q)                              # (m+1, r, n)
         tot = np.asarray(tot)
-        if metrics is not None:
-            P = np.matmul(metrics[i], P)
-            tot = tot @ metrics[i].T
+        if metric is not None:
+            q = np.linalg.solve(metric.T, q)                       # the same point in the basis U M^T
+            tot = tot @ metric.T
+        P = model.gradient_pieces(q)                              # (m+1, r, n)
         s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
         s[s == 0] = 1.0
         if A is None:

@@ -441,7 +441,6 @@ class ShapeMixer:
         self._error_w = self._error_v = None
         self._corr_w = self._corr = None
         self._derivatives = False
-        self._terms = {}             # weights -> FullProblem.training_terms at the build's points (until the cubature)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -475,7 +474,7 @@ class ShapeMixer:
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
-                                    chord_steps=o.chord_steps, size=size, stage=watch, terms=mixer._terms,
+                                    chord_steps=o.chord_steps, size=size, stage=watch,
                                     progress=None if progress is None else (
                                         lambda d, t, m: progress(1, 4, m)))
         report(progress, 2, 4, "basis")
@@ -505,7 +504,7 @@ class ShapeMixer:
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
                                                      pcg_iterations=o.newton_pcg_iterations,
-                                                     derivatives=derivatives, terms=mixer._terms,
+                                                     derivatives=derivatives,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))
@@ -555,9 +554,11 @@ class ShapeMixer:
             B[:, :, j] = ctx.from_canonical(Ur[:, :, j]) - zero
         self._B = B.reshape(3 * V, r)
 
-    def _make_energy(self, edges, c):
+    def _make_energy(self, edges, c, metric=None):
+        """The reduced energy on ``edges`` with cubature weights ``c``; with ``metric`` ``M`` on the basis ``U M^T``."""
         P = self._problem
-        return ReducedEnergy(self._stencils, self._key_x[0], self.basis, P.w, P.z0, P.dz, P.floor, edges, c)
+        U = self.basis if metric is None else self.basis @ metric.T
+        return ReducedEnergy(self._stencils, self._key_x[0], U, P.w, P.z0, P.dz, P.floor, edges, c)
 
     def _cubature_samples(self):
         """Training points ``(weights (S, m), q (S, r))``: the points the build solved and Taylor predictions at
@@ -571,13 +572,12 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False, cached=None):
+    def _training(self, samples, metrics=False):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
-        edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)`` for every sample, ``C C^T``
-        the reduced Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
+        edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
+        Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
-        more at 13k vertices, for the same energies on the 13k bodies).  ``cached``: per sample None or its
-        :meth:`.subspace.FullProblem.training_terms`, kept from the build (no Jacobian evaluated again)."""
+        more at 13k vertices, for the same energies on the 13k bodies)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
@@ -587,18 +587,12 @@ class ShapeMixer:
         st = self._stencils
         reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
         totals, score = [], np.zeros(E)
-        for i, q in enumerate(samples):
-            J = None
-            if cached is not None and cached[i] is not None:
-                JtC, rown, r0 = cached[i]
-            else:
-                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-                JtC, rown, r0 = P.training_terms(J, z)
+        for q in samples:
+            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            JtC, rown, r0 = P.training_terms(J, z)
             C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
             totals.append((U.T @ JtC).T)
             if metrics and not inverse_factors:
-                if J is None:
-                    J = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo)
                 A = J @ U
                 A *= sw[:, None]
                 H = 2.0 * (A.T @ A)
@@ -609,7 +603,7 @@ class ShapeMixer:
             bound /= np.maximum(bound.sum(axis=0), 1e-300)
             score += (bound[:E] + bound[E:]).sum(axis=1)
         if metrics:
-            return totals, score, inverse_factors * len(samples)
+            return totals, score, inverse_factors[0]
         return totals, score
 
     def _fit_cubature(self):
@@ -617,20 +611,16 @@ class ShapeMixer:
         E = self.n_edges
         n = self.options.cubature_points or max(300, (20 if self._derivatives else 12) * r)
         self._corr_w = self._corr = None
-        terms, self._terms = self._terms, {}
         if E <= 2 * n:
             self._cubature = self._make_energy(None, None)
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
-        # the build's points are in the space (unless a reduced_size cut it): their terms need no new Jacobian
-        cached = None if self.options.reduced_size is not None else (
-            [terms.get(tuple(w)) for w in W[:len(self._exp_w)]] + [None] * (len(W) - len(self._exp_w)))
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(list(Q), metrics=True, cached=cached)
+            totals, score, metrics = self._training(list(Q), metrics=True)
         else:
-            (totals, score), metrics = self._training(list(Q), cached=cached), None
-        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metrics=metrics)
+            (totals, score), metrics = self._training(list(Q)), None
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics)
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel
         if not self.options.cubature_correction:

@@ -89,7 +89,7 @@ class FullProblem:
         return lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
 
     def training_terms(self, J, z):
-        """What the cubature's training (:meth:`ShapeMixer._training`) needs of the full problem at a point with
+        """What the cubature's training (``ShapeMixer._training``) needs of the full problem at a point with
         Jacobian ``J`` and ``z = Z(x)``: ``J^T C`` ``(3V, m+1)`` with ``C = W [r_0, dz^T]`` (``r_0 = z - z_0``,
         angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and ``r_0``."""
         r0 = z - self.z0
@@ -205,7 +205,7 @@ class Expansion:
 
 
 def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, size=1.0, progress=None,
-                stage=None, terms=None):
+                stage=None):
     """Vectors spanning the reduced space and the expansions of the keys.
 
     Parameters
@@ -222,9 +222,6 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
         Bounding-box diagonal (context units), the scale of finite differences.
     stage : callable, optional
         ``stage(name)`` -> context manager timing a stage (``"derivatives"``, ``"chord_vectors"``).
-    terms : dict, optional
-        Filled with ``tuple(w) -> FullProblem.training_terms`` at the keys (from the Jacobians the
-        factorizations evaluate anyway).
 
     Returns
     -------
@@ -245,8 +242,6 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
     for k in range(K):
         report(progress, k, total, f"derivatives at key {k}")
         J = problem.factorize(key_x[k], keys_w[k])
-        if terms is not None:
-            terms[tuple(keys_w[k])] = problem.training_terms(J, problem.z0 + (problem.dz[k - 1] if k else 0.0))
         D1 = problem.first_derivatives(J)
         vectors += list(D1)
         T = None
@@ -386,7 +381,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2, terms=None):
+                   reduced_iterations=2):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -413,8 +408,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     solve (:meth:`FullProblem.newton_step`), no more factorizations.  They join the steps in the returned vectors.
 
     ``progress(done, total, message)`` is reported before every start (:func:`lacore.progress.report`).
-    ``terms`` (a dict, with a factorization per start) is filled with ``tuple(w) ->``
-    :meth:`FullProblem.training_terms` at the reduced minimizers, from the Jacobians evaluated there anyway.
 
     Returns the vectors (the steps, then the derivatives when asked), the reduced minimizers
     ``[(w, x)]`` and the RMS lengths of the steps relative to ``size`` (the error of the space there
@@ -430,8 +423,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
             _, x, _, (J, z) = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations,
                                             linearized=True)
             solved.append((np.asarray(wk, float), x))
-            if terms is not None:
-                terms[tuple(np.asarray(wk, float))] = problem.training_terms(J, z)
             J = problem.factorize(x, wk, linearized=(J, z))
             steps[i], *more = problem.newton_step(J, x, wk, derivatives, z=z)
             extra += more
