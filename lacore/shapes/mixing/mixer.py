@@ -168,12 +168,12 @@ class MixerOptions:
         error ``e`` moves the minimizer by ``H^{-1} e``, so the soft directions of the space matter most.
         On by default: the cubature's share of a mix's energy excess over converged Gauss-Newton (the
         cubature's minimizer against the exact one in the space, median in ``[0, 1]^(K-1)``) fell from
-        5.8 % to 3.6 % on the CC0 body (13k, K = 4), 4.3 % to 2.1 % on the MakeHuman body (13k, K = 3),
+        5.8 % to 3.5 % on the CC0 body (13k, K = 4), 4.3 % to 2.4 % on the MakeHuman body (13k, K = 3),
         3.9 % to 2.5 % on the 50k bar, and stayed at 1 % on the 5k bar (extrapolated weights gain less and
         sometimes lose: on the 50k bar 7.3 % to 9.1 %), for about the same cubature sizes and times per mix;
         the seeded draw of candidate edges (:func:`.cubature.fit_cubature`) moves these figures by as much
-        (MakeHuman body, four draws: 1.6-3.6 % with, 2.7-5.5 % without; ``benchmarks/bench_mixer.py``;
-        docs/shape-space.md).
+        (MakeHuman body, four draws: 1.6-3.6 % with, 2.7-5.5 % without and 2000 candidates;
+        ``benchmarks/bench_mixer.py``; docs/shape-space.md).
     max_iterations : int
         Iterations of one mix (reduced Gauss-Newton).
     polish_iterations : int
