@@ -5,7 +5,8 @@ The reduced gradient is a sum over edges of pieces affine in the weights ``w``
 the subspace the exact sums over all edges are matched by a non-negative combination of a few
 edges' pieces (non-negative least squares, greedy selection): the cubature of the reduced energy
 (An, Kim and James 2008; von Tycowicz et al. 2015).  Matching every piece separately makes the
-cubature valid for all ``w`` at once.
+cubature valid for all ``w`` at once.  The match can be measured in the energy norm (``metric`` of
+:func:`fit_cubature`): what a gradient error costs in energy at a minimizer.
 """
 
 import numpy as np
@@ -137,13 +138,14 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
-def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0):
+def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metric=None):
     """Edges and weights of a cubature of the reduced energy, trained at the subspace points ``samples``.
 
     Parameters
     ----------
     make_energy : callable
-        ``make_energy(edges, c)`` -> :class:`~lacore.shapes.mixing.reduced.ReducedEnergy` on those edges.
+        ``make_energy(edges, c, metric=None)`` -> :class:`~lacore.shapes.mixing.reduced.ReducedEnergy` on those
+        edges, with the basis ``U metric^T`` when ``metric`` is given.
     samples : list of (r,) ndarrays
     totals : list of (m+1, r) ndarrays
         The exact gradient pieces (sums over all edges) at the samples.
@@ -153,7 +155,16 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         Largest number of edges of the cubature.
     max_candidates : int
         Edges offered to the selection: all when there are not more, else the half with the largest
-        ``score`` and a seeded random draw of the others.
+        ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion.
+    seed : int
+        Seed of that draw.
+    metric : (r, r) ndarray, optional
+        A matrix ``M``: the gradient errors are measured as ``|M e|`` instead of ``|e|``.
+        With ``M = C^{-1}``, ``C C^T`` the reduced Gauss-Newton matrix there, ``|M e|^2 = e^T H^{-1} e``
+        is twice the energy an error ``e`` of the gradient costs at a minimizer, to second order (the
+        minimizer moves by ``H^{-1} e``): the fit weighs the soft directions of the space, where a small
+        gradient error moves the minimizer far, above the stiff ones, whose pieces are the largest.  The
+        pieces ``M P`` are those of the basis ``U M^T`` at ``M^{-T} q`` (the same points): no product per sample.
 
     Returns
     -------
@@ -171,9 +182,13 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         top = np.argpartition(-score, n_top)[:n_top]
         rest = np.setdiff1d(np.arange(E), top)
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
-    model = make_energy(cand, None)
+    model = make_energy(cand, None) if metric is None else make_energy(cand, None, metric)
     A = b = None
     for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
+        tot = np.asarray(tot)
+        if metric is not None:
+            q = np.linalg.solve(metric.T, q)                       # the same point in the basis U M^T
+            tot = tot @ metric.T
         P = model.gradient_pieces(q)                              # (m+1, r, n)
         s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
         s[s == 0] = 1.0
@@ -181,7 +196,7 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
             A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]))
             b = np.empty((len(samples), P.shape[0], P.shape[1]))
         np.divide(P, s[:, None, None], out=A[i])
-        b[i] = np.asarray(tot) / s[:, None]
+        b[i] = tot / s[:, None]
     A, b = A.reshape(-1, A.shape[-1]), b.ravel()
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
     order = np.argsort(cand[sel])

@@ -75,6 +75,8 @@ def load_mixer(cls, path):
         cc = read("correction", "f", 3)
         stages = read("build_stages", "U", 1)
         secs = read("build_seconds", "f", 1)
+    if opt.shape == (len(_OPTION_FIELDS) - 1,):          # written before cubature_energy_norm: fitted without it
+        opt = np.append(opt, 0.0)
     if opt.shape != (len(_OPTION_FIELDS),):
         raise MixerError(f"{name}: 'options' must hold {len(_OPTION_FIELDS)} numbers, got {opt.size}")
     try:

@@ -69,6 +69,7 @@ import time
 from dataclasses import dataclass, fields
 
 import numpy as np
+import scipy.linalg as sl
 
 from ...errors import InputError, MeshError
 from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
@@ -161,6 +162,18 @@ class MixerOptions:
         body (13k) it brought the largest RMS error from 0.008 % to 0.0014 % and the median energy
         excess from 6 % to 1 %, but near the keys (mixes of very low energy) it made the energy up
         to 6 times worse on the bar and did not help on the CC0 body.
+    cubature_energy_norm : bool
+        Fit the cubature's gradient in the energy norm (``e^T H^{-1} e``, ``H`` the reduced Gauss-Newton
+        matrix at the basis key; :func:`.cubature.fit_cubature`) instead of the Euclidean one: a gradient
+        error ``e`` moves the minimizer by ``H^{-1} e``, so the soft directions of the space matter most.
+        On by default: the cubature's share of a mix's energy excess over converged Gauss-Newton (the
+        cubature's minimizer against the exact one in the space, median in ``[0, 1]^(K-1)``) fell from
+        5.8 % to 3.5 % on the CC0 body (13k, K = 4), 4.3 % to 2.4 % on the MakeHuman body (13k, K = 3),
+        3.9 % to 2.5 % on the 50k bar, and stayed at 1 % on the 5k bar (extrapolated weights gain less and
+        sometimes lose: on the 50k bar 7.3 % to 9.1 %), for about the same cubature sizes and times per mix;
+        the seeded draw of candidate edges (:func:`.cubature.fit_cubature`) moves these figures by as much
+        (MakeHuman body, four draws: 1.6-3.6 % with, 2.7-5.5 % without and 2000 candidates;
+        ``benchmarks/bench_mixer.py``; docs/shape-space.md).
     max_iterations : int
         Iterations of one mix (reduced Gauss-Newton).
     polish_iterations : int
@@ -193,6 +206,7 @@ class MixerOptions:
     newton_derivatives: bool | None = None
     cubature_points: int | None = None
     cubature_correction: bool = False
+    cubature_energy_norm: bool = True
     max_iterations: int = 50
     polish_iterations: int = 300
     step_tolerance: float = 1e-4
@@ -251,7 +265,8 @@ class MixerOptions:
 _OPTION_FIELDS = ("reduced_size", "low", "high", "second_order", "chord_steps", "newton_rounds",
                   "newton_pcg_iterations", "newton_derivatives",
                   "cubature_points", "cubature_correction", "max_iterations",
-                  "polish_iterations", "step_tolerance", "max_indicator", "bending_weight")
+                  "polish_iterations", "step_tolerance", "max_indicator", "bending_weight",
+                  "cubature_energy_norm")
 
 
 @dataclass(frozen=True)
@@ -539,9 +554,11 @@ class ShapeMixer:
             B[:, :, j] = ctx.from_canonical(Ur[:, :, j]) - zero
         self._B = B.reshape(3 * V, r)
 
-    def _make_energy(self, edges, c):
+    def _make_energy(self, edges, c, metric=None):
+        """The reduced energy on ``edges`` with cubature weights ``c``; with ``metric`` ``M`` on the basis ``U M^T``."""
         P = self._problem
-        return ReducedEnergy(self._stencils, self._key_x[0], self.basis, P.w, P.z0, P.dz, P.floor, edges, c)
+        U = self.basis if metric is None else self.basis @ metric.T
+        return ReducedEnergy(self._stencils, self._key_x[0], U, P.w, P.z0, P.dz, P.floor, edges, c)
 
     def _cubature_samples(self):
         """Training points ``(weights (S, m), q (S, r))``: the points the build solved and Taylor predictions at
@@ -555,27 +572,38 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples):
+    def _training(self, samples, metrics=False):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
-        edge bounding the size of its pieces."""
+        edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
+        Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
+        :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
+        more at 13k vertices, for the same energies on the 13k bodies)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
+        sw = np.sqrt(P.w)
+        inverse_factors = []
         un = np.sqrt((U.reshape(-1, 3, U.shape[1]) ** 2).sum(axis=(1, 2)))        # per-vertex norm of U
         st = self._stencils
         reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
         totals, score = [], np.zeros(E)
         for q in samples:
             J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-            r0 = z - P.z0
-            r0[E:] = _wrap(r0[E:])
+            JtC, rown, r0 = P.training_terms(J, z)
             C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
-            totals.append((U.T @ (J.T @ C)).T)
-            rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(2 * E)
-            rown[np.diff(J.indptr) == 0] = 0.0
+            totals.append((U.T @ JtC).T)
+            if metrics and not inverse_factors:
+                A = J @ U
+                A *= sw[:, None]
+                H = 2.0 * (A.T @ A)
+                H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / len(H)
+                inverse_factors.append(sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
+                                                           check_finite=False))
             bound = np.abs(C) * (rown * reach)[:, None]
             bound /= np.maximum(bound.sum(axis=0), 1e-300)
             score += (bound[:E] + bound[E:]).sum(axis=1)
+        if metrics:
+            return totals, score, inverse_factors[0]
         return totals, score
 
     def _fit_cubature(self):
@@ -588,8 +616,11 @@ class ShapeMixer:
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
-        totals, score = self._training(list(Q))
-        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n)
+        if self.options.cubature_energy_norm:
+            totals, score, metrics = self._training(list(Q), metrics=True)
+        else:
+            (totals, score), metrics = self._training(list(Q)), None
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics)
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel
         if not self.options.cubature_correction:

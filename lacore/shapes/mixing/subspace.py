@@ -88,6 +88,17 @@ class FullProblem:
         """The Jacobian ``J`` (CSR ``(2E, 3V)``) and ``z = Z(x)``, from the same intermediates."""
         return lengths_and_angles_jacobian(x.reshape(-1, 3), self.topology, return_z=True)
 
+    def training_terms(self, J, z):
+        """What the cubature's training (``ShapeMixer._training``) needs of the full problem at a point with
+        Jacobian ``J`` and ``z = Z(x)``: ``J^T C`` ``(3V, m+1)`` with ``C = W [r_0, dz^T]`` (``r_0 = z - z_0``,
+        angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and ``r_0``."""
+        r0 = z - self.z0
+        r0[self.E:] = np.pi - np.mod(np.pi - r0[self.E:], 2.0 * np.pi)
+        C = self.w[:, None] * np.column_stack([r0, self.dz.T])                 # (2E, m+1)
+        rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(J.shape[0])
+        rown[np.diff(J.indptr) == 0] = 0.0
+        return J.T @ C, rown, r0
+
     def gradient(self, x, wk):
         J, z = self.linearize(x)
         g = 2.0 * (J.T @ (self.w * self._residual(z, wk)))
