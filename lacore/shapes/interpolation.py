@@ -43,6 +43,7 @@ jump.
 
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -579,8 +580,9 @@ def _path_run(Xs, topology, z_keys, keyframes, times, smooth, reference, referen
             messages.append(f"keys {s}-{s + 1}: {res.message}")
         done += len(idx)
         if on_frame is not None:
-            for i in idx:
-                on_frame(int(i), res)
+            for j, i in enumerate(idx):
+                on_frame(int(i), SimpleNamespace(vertices=V[j], energy=float(res.energy[j]),
+                                                 indicator=float(res.indicator[j]), success=bool(res.success)))
     targets = keyframe_targets(z_keys, keyframes, times, False)
     errors = [reconstruction_errors(X, z, topology) for X, z in zip(vertices, targets, strict=True)]
     total = time.perf_counter() - t_start
@@ -622,8 +624,9 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
         its path (:func:`lacore.shapes.mixing.path_inbetweens`: two or three sparse
         factorizations per segment whatever the number of frames, each frame with an error
         estimate in ``indicator``, full Gauss-Newton where the estimate is above its
-        tolerance); ``options`` is then a :class:`~lacore.shapes.mixing.PathOptions`, and
-        ``warm_start``, ``tree``, ``hybrid`` and ``workers`` do not apply.
+        tolerance); ``options`` is then a :class:`~lacore.shapes.mixing.PathOptions`,
+        ``warm_start``, ``tree``, ``hybrid`` and ``workers`` do not apply, and ``on_frame``
+        gets an object with ``vertices, energy, indicator, success`` (after its segment).
     reference : int
         Index of the shape defining the weights of ``W_q``, the fixed triangle and
         the output frame (default 0).
