@@ -21,12 +21,11 @@ made for that segment needs far fewer factorizations than a general mixer of the
   does not converge: the rolled plates of the shared data, estimates 10-20 % of the diagonal, go to
   the polish after two probes).
 
-Every in-between is the minimizer of the exact reduced energy (the full residual with the Jacobian
-times the basis, ``O(n r)`` per Gauss-Newton step for ``r`` columns, no cubature:
-:func:`.subspace.reduced_solve`).  When the estimate stays above the tolerance after
-:attr:`PathOptions.max_newton_vectors` probes, every in-between is polished by full Gauss-Newton from
-the reduced result (or, with ``polish=False``, returned with ``success`` False and a message), never a
-silently wrong shape.
+Every in-between is the minimizer of the exact reduced energy (every edge, ``O(n r)`` per Gauss-Newton
+step for ``r`` columns, no cubature: :class:`.reduced.ReducedEnergy`).  When the indicator stays above
+the tolerance after :attr:`PathOptions.max_newton_vectors` probes, the in-betweens where it does are
+polished by full Gauss-Newton from the reduced result (or, with ``polish=False``, returned with
+``success`` False and a message), never a silently wrong shape.
 
 Cost: ``2 + p`` factorizations for ``p`` probes (``p >= 1``: the estimate needs one), whatever the
 number of in-betweens.  Measurements: ``benchmarks/bench_path_inbetweens.py``.
@@ -118,12 +117,13 @@ class PathResult:
         ``W_q[z(t), Z(vertices)]`` on the whole mesh.
     indicator : (N,) ndarray
         Error estimate of every in-between (RMS distance to the projection over the bounding-box diagonal):
-        0 at the keys, the last probe's estimate elsewhere, 0 for polished in-betweens (converged full
-        Gauss-Newton).
+        0 at the keys and for polished in-betweens (converged full Gauss-Newton), else :data:`SAFETY` times the
+        last probe's estimate, scaled along the path (:func:`_error_shape`).
     estimates : list of (float, float)
         ``(t, estimate)`` of every probe, in order.
     polished : bool
-        Whether full Gauss-Newton produced the in-betweens (the estimate stayed above the tolerance).
+        Whether full Gauss-Newton produced in-betweens: those whose indicator stayed above the tolerance (their
+        indicator is then 0).
     success : bool
         The estimate is within the tolerance or every polish converged.
     message : str
@@ -295,17 +295,19 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
             polished = True
             failed = []
             gn = GaussNewtonOptions(max_iterations=o.polish_iterations)
+            over = np.flatnonzero(indicator > o.tolerance)       # the others are within the tolerance as they are
             with watch("polish"):
-                for j, t in enumerate(T):
+                for j in over:
+                    t = float(T[j])
                     res = reconstruct(mixer.target([t]), topology, mixer.keys[0], context=ctx, options=gn,
                                       initial_vertices=X[j])
                     X[j], energy[j] = res.vertices, float(res.energy)
                     if not res.success:
                         failed.append(f"t = {t:g}: {res.message}")
-            indicator = np.zeros(len(T))
+            indicator[over] = 0.0
             success = not failed
             message = (f"error estimate {estimate:.3g} above {o.tolerance:g} after {len(estimates)} Newton vectors: "
-                       "polished by full Gauss-Newton")
+                       f"{len(over)} of {len(T)} polished by full Gauss-Newton")
             if failed:
                 message += f"; {len(failed)} did not converge (first {failed[0]})"
         else:
