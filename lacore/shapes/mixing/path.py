@@ -250,10 +250,15 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
         if reduced.get("U") is not U:
             mixer.basis = U
             reduced.update(U=U, energy=mixer._make_energy(None, None))
-        near = min(solved, key=lambda s: abs(s - t))
-        q = solved[near]
-        q = np.concatenate([q, np.zeros(U.shape[1] - len(q))])
-        q, _, _ = reduced["energy"].solve(np.array([t]), q, iterations, step_tol)
+        def padded(s):
+            return np.concatenate([solved[s], np.zeros(U.shape[1] - len(solved[s]))])
+
+        s1, s2 = sorted(solved, key=lambda s: abs(s - t))[:2]
+        w, q = np.array([t]), padded(s1)
+        secant = q + (t - s1) / (s2 - s1) * (padded(s2) - q)     # through the two nearest solved points
+        if reduced["energy"].energy(secant, w) < reduced["energy"].energy(q, w):
+            q = secant
+        q, _, _ = reduced["energy"].solve(w, q, iterations, step_tol)
         return q, x0 + U @ q
 
     keys = (T == 0.0) | (T == 1.0)
