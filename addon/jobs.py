@@ -46,7 +46,7 @@ from ..lacore.geometry.rigid import rigid_align
 from ..lacore.multiresolution import MultiresolutionReconstruction
 from ..lacore.parallel import call_in_process, default_workers
 from ..lacore.progress import Cancelled, report
-from ..lacore.shapes.interpolation import PATH, keyframe_inbetweens, keyframe_targets, piecewise_linear_z
+from ..lacore.shapes.interpolation import PATH, keyframe_inbetweens, keyframe_targets, path_frames, piecewise_linear_z
 from ..lacore.shapes.projection import SequenceProjection
 from . import session
 
@@ -292,6 +292,7 @@ class PathJob(_FrameJob):
         self.summary = ""
         self.processes = 1
         self.local_frames = 0
+        self.all_in_workers = False
 
     @property
     def status(self):
@@ -302,31 +303,38 @@ class PathJob(_FrameJob):
         return self.cancelled
 
     def step(self):
-        """All frames not in the session cache, placed."""
+        """All frames not in the session cache, placed (in a worker process when :attr:`all_in_workers`: the
+        factorizations hold Python's lock, a modal run keeps Blender's Python free)."""
         if self.cancelled:
             raise Cancelled("the job was cancelled")
         if not self._todo:
             return
         todo, self._todo = self._todo, []
-        res = keyframe_inbetweens(self.key_vertices, self.data.topology, self.keyframes, frames=self.times[todo],
-                                  method=PATH, options=self.options, progress=self._progress)
-        self.local_frames = len(todo)
+        args = (self.key_vertices, self.data.topology.faces, self.keyframes, self.times[todo], self.options)
+        if self.all_in_workers:
+            vertices, indicator, success, message = call_in_process(path_frames, args, progress=self._progress)
+            self.processes = 2
+        else:  # the session's topology: its set-up (ordering, symbolic analysis) is cached for the next run
+            res = keyframe_inbetweens(self.key_vertices, self.data.topology, self.keyframes, self.times[todo],
+                                      method=PATH, options=self.options, progress=self._progress)
+            vertices, indicator, success, message = res.vertices, res.indicator, res.success, res.message
+        self.local_frames = 0 if self.all_in_workers else len(todo)
         for j, i in enumerate(todo):
-            X = np.asarray(res.vertices[j], float)
+            X = np.asarray(vertices[j], float)
             if not np.all(np.isfinite(X)):
                 raise LengthsAnglesError(f"the in-between at {float(self.times[i]):g} is not finite: use the "
                                          "Gauss-Newton method")
-            self.indicator[i] = res.indicator[j]
+            self.indicator[i] = indicator[j]
             note = None
-            if res.indicator[j] > self.options.tolerance or not res.success:
-                note = f"t = {float(self.times[i]):g}: path: {res.message}"
+            if indicator[j] > self.options.tolerance or not success:
+                note = f"t = {float(self.times[i]):g}: path: {message}"
             X = rigid_align(X, self._placement[i])
             session.store_result(self._frame_key(i), X, note)
             self.computed += 1
             self._record(i, X, note)
-        worst = float(res.indicator.max()) if len(todo) else 0.0
+        worst = float(np.max(indicator)) if len(todo) else 0.0
         self.summary = f"estimated error at most {100 * worst:.2g} % of the size"
-        if "polished" in res.message:
+        if "polished" in message:
             self.summary += " (the in-betweens above 0.3 % finished by Gauss-Newton)"
 
 

@@ -72,6 +72,8 @@ def test_path_method(run):
     assert (res["small_default"], res["big_default"], res["big_spline_default"]) == ("FAST", "PATH", "FAST")
     assert res["bake_keys"] == 6                          # frames 2-4 and 6-8
     assert "Spline" in res["spline_message"]
+    # a modal run computes in a worker process: the same in-betweens
+    assert res["worker_processes"] == 2 and res["worker_difference_per_diagonal"] < 1e-9
 
 
 def test_redo_replaces_keys(run):

@@ -164,3 +164,16 @@ def test_rolled_plates_are_polished():
     gn = _gauss_newton(A, B, topo, factors)
     rms = np.sqrt(((res.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(A)
     assert rms.max() < 1e-5                                  # both converged: measured 1.8e-6
+
+
+def test_path_frames_plain_arrays(bar):
+    """The worker-process form (plain arrays in and out) gives the frames of keyframe_inbetweens."""
+    from lacore.shapes.interpolation import path_frames
+
+    X, F, topo = bar
+    B = bar_pose(X, 1.0, 0.0)
+    V, ind, ok, msg = path_frames(np.stack([X, B]), F, [0.0, 1.0], [0.3, 0.6])
+    res = keyframe_inbetweens([X, B], topo, [0.0, 1.0], [0.3, 0.6], method="path")
+    np.testing.assert_allclose(V, res.vertices, atol=1e-9 * _diag(X))
+    np.testing.assert_allclose(ind, res.indicator)
+    assert ok and isinstance(msg, str)

@@ -58,6 +58,7 @@ from .projection import ProjectionOptions, SequenceProjection, check_times
 
 __all__ = [
     "PATH",
+    "path_frames",
     "InterpolationResult",
     "interpolate",
     "keyframe_inbetweens",
@@ -718,6 +719,31 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate")
     return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, opts, progress,
                 on_frame, workers, mixer)
+
+
+def path_frames(shapes, faces, keyframes, frames, options=None, *, progress=None):
+    """:func:`keyframe_inbetweens` with ``method="path"`` from plain arrays, returning plain arrays (what a worker
+    process of :func:`lacore.parallel.call_in_process` sends and returns).
+
+    Parameters
+    ----------
+    shapes : (K, V, 3) array_like
+    faces : (F, 3) int array_like
+    keyframes, frames : array_like
+    options : PathOptions, optional
+    progress : callable, optional
+
+    Returns
+    -------
+    vertices : (N, V, 3) ndarray
+    indicator : (N,) ndarray
+    success : bool
+    message : str
+    """
+    X = np.asarray(shapes, float)
+    topology = MeshTopology.from_faces(np.asarray(faces, np.int64), n_vertices=X.shape[1])
+    res = keyframe_inbetweens(X, topology, keyframes, frames, method=PATH, options=options, progress=progress)
+    return res.vertices, res.indicator, bool(res.success), res.message
 
 
 def _path_options(options, settings, reconstruct_kw):

@@ -202,6 +202,12 @@ def path_method():
     rms = np.sqrt(((path - gn) ** 2).sum(axis=2).mean(axis=1)) / diag
     run = ops_mod.inbetween_run(obj, "Basis", "Bend180", [0.3, 0.7], 'PATH')
     jobs_mod.run_job(run.job)
+    session = importlib.import_module(MODULE + ".addon.session")
+    session.clear_results()
+    in_worker = ops_mod.inbetween_run(obj, "Basis", "Bend180", [0.3, 0.7], 'PATH').job
+    in_worker.all_in_workers = True                   # as a modal run does: the frames in a worker process
+    jobs_mod.run_job(in_worker)
+    worker_difference = float(np.abs(np.array(in_worker.results) - np.array(run.job.results)).max() / diag)
     small_default = ops_mod.default_method(obj, ["Basis", "Bend180"])
     saved = ops_mod.PATH_MIN_VERTICES
     try:
@@ -218,7 +224,8 @@ def path_method():
     return {"rms_to_gauss_newton_per_diagonal": [float(r) for r in rms], "job_indicator": run.job.indicator.tolist(),
             "job_summary": run.job.summary, "job_failures": list(run.job.failures), "small_default": small_default,
             "big_default": big_default, "big_spline_default": big_spline_default, "bake_keys": len(bake_keys),
-            "spline_message": spline}
+            "spline_message": spline, "worker_processes": in_worker.processes,
+            "worker_difference_per_diagonal": worker_difference}
 
 
 def redo_replaces():
