@@ -177,3 +177,10 @@ def test_path_frames_plain_arrays(bar):
     np.testing.assert_allclose(V, res.vertices, atol=1e-9 * _diag(X))
     np.testing.assert_allclose(ind, res.indicator)
     assert ok and isinstance(msg, str)
+
+
+@pytest.mark.parametrize("factors", [[], [np.nan], [[0.5]]])
+def test_bad_factors(bar, factors):
+    X, F, topo = bar
+    with pytest.raises(InputError, match="factors"):
+        path_inbetweens(X, bar_pose(X, 1.0, 0.0), topo, factors)
