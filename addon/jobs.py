@@ -274,7 +274,8 @@ class PathJob(_FrameJob):
     of its path, all frames in one step (progress and Esc through :mod:`lacore.progress`).
 
     Every frame has an error estimate (:attr:`indicator`); where the estimate stays above the tolerance lacore
-    polishes by full Gauss-Newton, and a frame that is still off is written and listed in :attr:`failures`.
+    computes the frame by the full projection, and a frame that is still off is written and listed in
+    :attr:`failures`.
 
     Parameters
     ----------
@@ -335,7 +336,7 @@ class PathJob(_FrameJob):
         worst = float(np.max(indicator)) if len(todo) else 0.0
         self.summary = f"estimated error at most {100 * worst:.2g} % of the size"
         if "polished" in message:
-            self.summary += " (the in-betweens above 0.3 % finished by Gauss-Newton)"
+            self.summary += " (the in-betweens above 0.3 % computed by the full projection)"
 
 
 class MixerJob(_FrameJob):

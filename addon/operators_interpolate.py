@@ -66,7 +66,8 @@ METHOD_ITEMS = [
                                      "most accurate)"),
     ('PATH', "Path", "A reduced model of the path between the two keys: a few sparse solves for all in-betweens "
                      "(the default at 5,000 vertices and more), each with an error estimate; in-betweens whose "
-                     "estimate is above 0.3 % of the mesh size are finished by Gauss-Newton. Not with Spline"),
+                     "estimate is above 0.3 % of the mesh size are computed by Fast or Gauss-Newton instead. Not "
+                     "with Spline"),
     ('MIXER', "Live Mixer", "One mix of the mesh's live mixer per in-between (the default when the mesh mixes "
                             "live and its mixer is up to date and mixes the keys): milliseconds per in-between, "
                             "close to Gauss-Newton within the keys' range"),

@@ -80,11 +80,17 @@ def test_indicator_flags_and_polish_fixes(bar):
     gn = _gauss_newton(X, B, topo, FACTORS)
     rms = np.sqrt(((res.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(X)
     assert np.all(rms <= res.indicator)
-    fixed = path_inbetweens(X, B, topo, FACTORS, PathOptions(tolerance=1e-7, max_newton_vectors=1))
-    assert fixed.success and fixed.polished and "polished" in fixed.message
+    fixed = path_inbetweens(X, B, topo, FACTORS, PathOptions(tolerance=1e-7, max_newton_vectors=1,
+                                                             polish_method="gn"))
+    assert fixed.success and fixed.polished and "polished by full Gauss-Newton" in fixed.message
     assert np.all(fixed.indicator == 0.0)
     rms = np.sqrt(((fixed.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(X)
     assert rms.max() < 1e-6
+    fast = path_inbetweens(X, B, topo, FACTORS, PathOptions(tolerance=1e-7, max_newton_vectors=1,
+                                                            polish_method="fast"))
+    assert fast.success and "polished by Fast" in fast.message
+    rms = np.sqrt(((fast.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(X)
+    assert rms.max() < 1e-3
 
 
 def test_extrapolation_probes_further(bar):
@@ -160,6 +166,7 @@ def test_rolled_plates_are_polished():
     factors = [0.25, 0.5, 0.75]
     res = path_inbetweens(A, B, topo, factors)
     assert res.polished and res.success and res.factorizations == 3      # gave up after two probes
+    assert "polished by full Gauss-Newton" in res.message                # far off: not by Fast
     assert min(e for _, e in res.estimates) > 0.03
     gn = _gauss_newton(A, B, topo, factors)
     rms = np.sqrt(((res.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(A)
