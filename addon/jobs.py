@@ -327,7 +327,7 @@ class PathJob(_FrameJob):
                                          "Gauss-Newton method")
             self.indicator[i] = indicator[j]
             note = None
-            if indicator[j] > self.options.tolerance or not success:
+            if not success:                    # lacore computed those above the tolerance by the full projection
                 note = f"t = {float(self.times[i]):g}: path: {message}"
             X = rigid_align(X, self._placement[i])
             session.store_result(self._frame_key(i), X, note)

@@ -199,7 +199,7 @@ def test_auto_polish_by_fast_when_close(bar):
     B = bar_pose(X, 1.5, 0.0)
     res = path_inbetweens(X, B, topo, FACTORS, PathOptions(tolerance=1e-3, max_newton_vectors=1))
     assert res.success and res.polished and "polished by Fast" in res.message
-    assert 0 < np.count_nonzero(res.indicator == 0.0) < len(FACTORS)      # some kept, some polished
     gn = _gauss_newton(X, B, topo, FACTORS)
     rms = np.sqrt(((res.vertices - gn) ** 2).sum(axis=2).mean(axis=1)) / _diag(X)
     assert rms.max() < 1e-3
+    assert np.all(rms <= res.indicator)          # Fast's in-betweens keep the reduced ones' estimate, an upper one

@@ -135,8 +135,9 @@ class PathResult:
         ``W_q[z(t), Z(vertices)]`` on the whole mesh.
     indicator : (N,) ndarray
         Error estimate of every in-between (RMS distance to the projection over the bounding-box diagonal):
-        0 at the keys and for polished in-betweens (computed by the full projection, :attr:`PathOptions.polish_method`),
-        else :data:`SAFETY` times the
+        0 at the keys and for in-betweens polished by converged Gauss-Newton; for those polished by Fast the
+        reduced in-between's (an upper estimate: on the 50k bar twisted by 90 degrees Fast ended within 0.15 % of
+        Gauss-Newton where the reduced in-betweens were estimated up to 0.6 % off); else :data:`SAFETY` times the
         last probe's estimate, scaled along the path (:func:`_error_shape`).
     estimates : list of (float, float)
         ``(t, estimate)`` of every probe, in order.
@@ -351,7 +352,8 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
                         X[j], energy[j] = res.vertices, float(res.energy)
                         if not res.success:
                             failed.append(f"t = {t:g}: {res.message}")
-            indicator[over] = 0.0
+            if not fast:                                         # converged Gauss-Newton: the projection
+                indicator[over] = 0.0
             success = not failed
             message = (f"error estimate {estimate:.3g} above {o.tolerance:g} after {len(estimates)} Newton vectors: "
                        f"{len(over)} of {len(T)} polished by "
