@@ -27,6 +27,9 @@ worker thread, scripts and background mode to the end):
     cache (:mod:`.session`) are not computed again: they join the keys as known shapes.
 :class:`MultiresJob`
     The same frames by coarse solve + prolongation + fine steps (not offered in the UI).
+:class:`PathJob`
+    The same frames (piecewise linear only) by a reduced model of the path between every two keys
+    (:func:`lacore.shapes.mixing.path_inbetweens`): a few factorizations per segment, not per frame.
 :class:`MixerJob`
     The same frames by a live mixer of the keys (:class:`lacore.shapes.ShapeMixer`): one mix per frame.
 :class:`CallJob`
@@ -43,12 +46,12 @@ from ..lacore.geometry.rigid import rigid_align
 from ..lacore.multiresolution import MultiresolutionReconstruction
 from ..lacore.parallel import call_in_process, default_workers
 from ..lacore.progress import Cancelled, report
-from ..lacore.shapes.interpolation import keyframe_targets, piecewise_linear_z
+from ..lacore.shapes.interpolation import PATH, keyframe_inbetweens, keyframe_targets, path_frames, piecewise_linear_z
 from ..lacore.shapes.projection import SequenceProjection
 from . import session
 
-__all__ = ["ProjectionJob", "MultiresJob", "CallJob", "DoneJob", "projection_job", "run_job", "job_workers", "MULTIRES",
-           "AUTO_WORKERS_MIN_VERTICES", "AUTO_WORKERS_MIN_FRAMES"]
+__all__ = ["ProjectionJob", "MultiresJob", "PathJob", "CallJob", "DoneJob", "projection_job", "run_job", "job_workers",
+           "MULTIRES", "AUTO_WORKERS_MIN_VERTICES", "AUTO_WORKERS_MIN_FRAMES"]
 
 #: The method of :func:`projection_job` that solves coarse, prolongs and finishes with a few fine
 #: Gauss-Newton steps (:class:`lacore.multiresolution.MultiresolutionReconstruction`).
@@ -263,6 +266,77 @@ def projection_job(data, keys, keyframes, times, smooth, method, options, label,
     if method == MULTIRES:
         return MultiresJob(data, keys, keyframes, times, smooth, options, label)
     return ProjectionJob(data, keys, keyframes, times, smooth, options, label, workers)
+
+
+class PathJob(_FrameJob):
+    """Frames of a piecewise-linear motion through shape keys by lacore's ``method="path"``
+    (:func:`lacore.shapes.interpolation.keyframe_inbetweens`): every segment between two keys by a reduced model
+    of its path, all frames in one step (progress and Esc through :mod:`lacore.progress`).
+
+    Every frame has an error estimate (:attr:`indicator`); where the estimate stays above the tolerance lacore
+    computes the frame by the full projection, and a frame that is still off is written and listed in
+    :attr:`failures`.
+
+    Parameters
+    ----------
+    data, keys, keyframes, times, label
+        As :class:`ProjectionJob` (piecewise linear: the path method has no spline).
+    options : lacore.shapes.mixing.PathOptions
+    """
+
+    def __init__(self, data, keys, keyframes, times, options, label):
+        super().__init__(data, keys, keyframes, times, False, label)
+        self.options = options
+        self._todo = [i for i in range(self.total) if self.results[i] is None]
+        self._message = ""
+        self.indicator = np.zeros(self.total)
+        self.summary = ""
+        self.processes = 1
+        self.local_frames = 0
+        self.all_in_workers = False
+
+    @property
+    def status(self):
+        return f"path in-betweens: {self._message}" if self._message else super().status
+
+    def _progress(self, done, total, message=""):
+        self._message = message
+        return self.cancelled
+
+    def step(self):
+        """All frames not in the session cache, placed (in a worker process when :attr:`all_in_workers`: the
+        factorizations hold Python's lock, a modal run keeps Blender's Python free)."""
+        if self.cancelled:
+            raise Cancelled("the job was cancelled")
+        if not self._todo:
+            return
+        todo, self._todo = self._todo, []
+        args = (self.key_vertices, self.data.topology.faces, self.keyframes, self.times[todo], self.options)
+        if self.all_in_workers:
+            vertices, indicator, success, message = call_in_process(path_frames, args, progress=self._progress)
+            self.processes = 2
+        else:  # the session's topology: its set-up (ordering, symbolic analysis) is cached for the next run
+            res = keyframe_inbetweens(self.key_vertices, self.data.topology, self.keyframes, self.times[todo],
+                                      method=PATH, options=self.options, progress=self._progress)
+            vertices, indicator, success, message = res.vertices, res.indicator, res.success, res.message
+        self.local_frames = 0 if self.all_in_workers else len(todo)
+        for j, i in enumerate(todo):
+            X = np.asarray(vertices[j], float)
+            if not np.all(np.isfinite(X)):
+                raise LengthsAnglesError(f"the in-between at {float(self.times[i]):g} is not finite: use the "
+                                         "Gauss-Newton method")
+            self.indicator[i] = indicator[j]
+            note = None
+            if not success:                    # lacore computed those above the tolerance by the full projection
+                note = f"t = {float(self.times[i]):g}: path: {message}"
+            X = rigid_align(X, self._placement[i])
+            session.store_result(self._frame_key(i), X, note)
+            self.computed += 1
+            self._record(i, X, note)
+        worst = float(np.max(indicator)) if len(todo) else 0.0
+        self.summary = f"estimated error at most {100 * worst:.2g} % of the size"
+        if "polished" in message:
+            self.summary += " (the in-betweens above 0.3 % computed by the full projection)"
 
 
 class MixerJob(_FrameJob):

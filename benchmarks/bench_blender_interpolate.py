@@ -32,7 +32,7 @@ computes every chain in a worker process (``frames_computed_in_blender_process``
 the wait for the next frame and Blender's Python stays free.
 
 usage: python benchmarks/bench_blender_interpolate.py [--segments 400 30 30] [--count 10]
-                                                      [--methods FAST [GAUSS_NEWTON]] [--no-profile]
+                                                      [--methods FAST [GAUSS_NEWTON] [PATH]] [--no-profile]
                                                       [--processes N]
 """
 
@@ -98,7 +98,7 @@ def main(argv=None):
     parser.add_argument("--segments", type=int, nargs=3, default=(400, 30, 30))
     parser.add_argument("--count", type=int, default=10)
     parser.add_argument("--methods", nargs="+", default=["FAST"],
-                        choices=["PREVIEW", "FAST", "GAUSS_NEWTON", "MULTIRES"])
+                        choices=["PREVIEW", "FAST", "GAUSS_NEWTON", "PATH", "MULTIRES"])
     parser.add_argument("--no-profile", action="store_true")
     parser.add_argument("--processes", type=int, default=0,
                         help="the operators' Processes (default 0 = Auto: one per core for >= 20k vertices)")

@@ -3,17 +3,22 @@
 """Benchmark: In-betweens by the live mixer in Blender (bpy, headless), the mixer's build included.
 
 Mesh and keys as :mod:`bench_blender_live_mix` (``bar50k``: ~50k vertices, keys bent, twisted, both;
-``human13k``: the CC0 body with three pose keys).  Per mesh: ``lengths_angles.live_mix_enable``
+``human13k``: the CC0 body with three pose keys).  Per mesh, first without a live mixer:
+``lengths_angles.interpolate`` of ``--count`` evenly spaced in-betweens from the basis to the first key with the
+default method there (``path_method``: Path from 5,000 vertices), everything from the keys included
+(``path_seconds``, ``path_cpu_seconds``); the session cache is then cleared so that the mixer starts cold.
+Then ``lengths_angles.live_mix_enable``
 (synchronous: build + storing the mixer, ``enable_seconds``; the build by stage ``build_seconds``), then
 ``lengths_angles.interpolate`` of ``--count`` evenly spaced in-betweens from the basis to the first key
 with the default method (the mixer on a live mesh: ``method``), ``inbetweens_seconds``; ``total_seconds``
 = both.  Every ``*_seconds`` has its ``*_cpu_seconds`` (CPU time of the process): on a machine shared
 with other jobs the wall time is a multiple of it, and the CPU time is what the work costs.  Then the same in-betweens
 with the Gauss-Newton method (``gauss_newton_seconds``) and the RMS vertex distance of every mixer
-in-between to its Gauss-Newton one over the bounding-box diagonal (``rms_of_diagonal``, max and all).
+in-between to its Gauss-Newton one over the bounding-box diagonal (``rms_of_diagonal``, max and all; for the
+Path in-betweens ``path_rms_of_diagonal``).
 
 Prints one JSON object.  usage (bpy + SciPy in one Python, see ``make bench``):
-python benchmarks/bench_blender_mixer_inbetweens.py [bar50k] [human13k] [--count 10] [--json FILE]
+python benchmarks/bench_blender_mixer_inbetweens.py [bar50k] [human13k] [--count 10] [--no-mixer] [--json FILE]
 """
 
 import argparse
@@ -44,7 +49,7 @@ def key_coords(obj, names):
     return np.array(out)
 
 
-def bench_mesh(bpy, pkg, name, count):
+def bench_mesh(bpy, pkg, name, count, with_mixer=True):
     import numpy as np
     from bench_blender_live_mix import bench_keys
 
@@ -66,30 +71,42 @@ def bench_mesh(bpy, pkg, name, count):
     names = [naming.inbetween_key_name("Basis", "Key1", t) for t in factors]
     ctx = bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj])
     with ctx:
-        t, c = time.perf_counter(), time.process_time()
-        assert bpy.ops.lengths_angles.live_mix_enable() == {"FINISHED"}
-        enable, enable_cpu = time.perf_counter() - t, time.process_time() - c
-        method = ops_mod.default_method(obj, ["Basis", "Key1"])
+        path_method = ops_mod.default_method(obj, ["Basis", "Key1"])
         t, c = time.perf_counter(), time.process_time()
         assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Key1", count=count) == {"FINISHED"}
-        inb, inb_cpu = time.perf_counter() - t, time.process_time() - c
-        mixed = key_coords(obj, names)
+        path_seconds, path_cpu = time.perf_counter() - t, time.process_time() - c
+        path = key_coords(obj, names)
+        pkg.addon.session.clear()
+        if with_mixer:
+            t, c = time.perf_counter(), time.process_time()
+            assert bpy.ops.lengths_angles.live_mix_enable() == {"FINISHED"}
+            enable, enable_cpu = time.perf_counter() - t, time.process_time() - c
+            method = ops_mod.default_method(obj, ["Basis", "Key1"])
+            t, c = time.perf_counter(), time.process_time()
+            assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Key1", count=count) == {"FINISHED"}
+            inb, inb_cpu = time.perf_counter() - t, time.process_time() - c
+            mixed = key_coords(obj, names)
         t, c = time.perf_counter(), time.process_time()
         assert bpy.ops.lengths_angles.interpolate(key_from="Basis", key_to="Key1", count=count,
                                                   method='GAUSS_NEWTON') == {"FINISHED"}
         gn_seconds, gn_cpu = time.perf_counter() - t, time.process_time() - c
         gn = key_coords(obj, names)
     diag = float(np.linalg.norm(np.ptp(keys[0], axis=0)))
+    path_rms = np.sqrt(np.mean(np.sum((path - gn) ** 2, axis=2), axis=1)) / diag
+    out = {"vertices": int(len(keys[0])), "faces": int(len(faces)), "keys": int(len(keys)), "count": count,
+           "gauss_newton_seconds": round(gn_seconds, 3), "gauss_newton_cpu_seconds": round(gn_cpu, 3),
+           "path_method": path_method, "path_seconds": round(path_seconds, 3), "path_cpu_seconds": round(path_cpu, 3),
+           "path_rms_of_diagonal_max": float(path_rms.max()), "path_rms_of_diagonal": [float(r) for r in path_rms]}
+    if not with_mixer:
+        return out
     rms = np.sqrt(np.mean(np.sum((mixed - gn) ** 2, axis=2), axis=1)) / diag
     mixer = pkg.addon.live_mix._live(obj.data).mixer
-    return {"vertices": int(len(keys[0])), "faces": int(len(faces)), "keys": int(len(keys)), "count": count,
-            "method": method, "reduced_size": int(mixer.reduced_size), "enable_seconds": round(enable, 3),
+    return out | {"method": method, "reduced_size": int(mixer.reduced_size), "enable_seconds": round(enable, 3),
             "enable_cpu_seconds": round(enable_cpu, 3),
             "build_seconds": {k: round(v, 3) for k, v in mixer.build_seconds.items()},
             "build_cpu_seconds": {k: round(v, 3) for k, v in mixer.build_cpu_seconds.items()},
             "inbetweens_seconds": round(inb, 3), "inbetweens_cpu_seconds": round(inb_cpu, 3),
             "total_seconds": round(enable + inb, 3), "total_cpu_seconds": round(enable_cpu + inb_cpu, 3),
-            "gauss_newton_seconds": round(gn_seconds, 3), "gauss_newton_cpu_seconds": round(gn_cpu, 3),
             "rms_of_diagonal_max": float(rms.max()),
             "rms_of_diagonal": [float(r) for r in rms]}
 
@@ -98,6 +115,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("meshes", nargs="*", default=list(MESHES), help=f"of {', '.join(MESHES)}")
     parser.add_argument("--count", type=int, default=10)
+    parser.add_argument("--no-mixer", action="store_true", help="only the Path in-betweens and Gauss-Newton")
     parser.add_argument("--json", default=None, help="also write the result to this file")
     args = parser.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="lengths_angles_bench_"))
@@ -113,7 +131,7 @@ def main(argv=None):
                                                                            "OMP_NUM_THREADS")}),
            "meshes": {}}
     for name in args.meshes:
-        out["meshes"][name] = bench_mesh(bpy, pkg, name, args.count)
+        out["meshes"][name] = bench_mesh(bpy, pkg, name, args.count, not args.no_mixer)
         print(f"[bench_blender_mixer_inbetweens] {name}: {out['meshes'][name]}", file=sys.stderr, flush=True)
     text = json.dumps(out, indent=1)
     print(text)

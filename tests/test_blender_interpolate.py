@@ -61,6 +61,21 @@ def test_bar_blend_quality_vs_simple_deform_90(run):
     assert res["centroid_shift"] < 1e-6 * res["diagonal"]
 
 
+def test_path_method(run):
+    """Method Path on the 1058-vertex bar (Basis to a 180-degree bend): within 0.3 % of Gauss-Newton with an
+    estimate per in-between (measured RMS 1e-6 of the diagonal, estimates 0.05-0.15 %); the default from
+    PATH_MIN_VERTICES vertices, not with Spline."""
+    res = run["cases"]["path_method"]
+    assert max(res["rms_to_gauss_newton_per_diagonal"]) < 1e-4
+    assert all(0 < e <= 3e-3 for e in res["job_indicator"]) and not res["job_failures"]
+    assert res["job_summary"].startswith("estimated error at most")
+    assert (res["small_default"], res["big_default"], res["big_spline_default"]) == ("FAST", "PATH", "FAST")
+    assert res["bake_keys"] == 6                          # frames 2-4 and 6-8
+    assert "Spline" in res["spline_message"]
+    # a modal run computes in a worker process: the same in-betweens
+    assert res["worker_processes"] == 2 and res["worker_difference_per_diagonal"] < 1e-9
+
+
 def test_redo_replaces_keys(run):
     res = run["cases"]["redo_replaces"]
     assert res["keys"].count("LA Basis>Bend180 0.500") == 1

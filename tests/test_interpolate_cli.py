@@ -176,3 +176,25 @@ def test_a_failed_frame_write_keeps_finished_frames_whole(tmp_path, monkeypatch)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000.ply"]
     X, _ = mesh_io.load_mesh(tmp_path / "frame_000.ply")
     assert X.shape == (121, 3) and np.isfinite(X).all()
+
+
+def test_method_path(tmp_path, capsys):
+    """--method path: the same frames as --method gn within the path's tolerance, an indicator per frame."""
+    prefix = tmp_path / "path"
+    code, out, err = run_main(capsys, "interpolate", PLATES[0], PLATES[1], "--t", 0.25, 0.5, 0.75, "-o", prefix,
+                              "--method", "path", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["method"] == "path" and s["success"]
+    assert all(0 < o["indicator"] <= 3e-3 and o["success"] for o in s["outputs"])
+    code, out, err = run_main(capsys, "interpolate", PLATES[0], PLATES[1], "--t", 0.25, 0.5, 0.75, "-o",
+                              tmp_path / "gn", "--method", "gn", "--json")
+    assert code == 0, err
+    XA, _ = load_mesh(PLATES[0])
+    diag = float(np.linalg.norm(np.ptp(XA, axis=0)))
+    for o, g in zip(s["outputs"], json.loads(out)["outputs"], strict=True):
+        X, Y = load_mesh(o["file"])[0], load_mesh(g["file"])[0]
+        assert np.sqrt(((X - Y) ** 2).sum(axis=1).mean()) / diag < 3e-3
+    code, out, err = run_main(capsys, "interpolate", PLATES[1], PLATES[2], "--t", 0.5, "-o", tmp_path / "bad",
+                              "--method", "path", "--max-iterations", 5)
+    assert code == 2 and "--method path" in err

@@ -3,7 +3,7 @@
 Usage::
 
     lacore interpolate A.ply B.ply [C.ply ...] (--t T [T ...] | --frames N)
-                       [--keyframes K1 K2 ...] [--smooth-spline] [--method fast|gn|hybrid|bfs|mst|spt|lsq]
+                       [--keyframes K1 K2 ...] [--smooth-spline] [--method fast|gn|hybrid|bfs|mst|spt|lsq|path]
                        -o OUT_PREFIX [--format ply|obj|off|stl] [--json]
 
 The input meshes must be in dense correspondence (same vertex count and
@@ -21,7 +21,12 @@ projected onto the admissible set by reconstruction, see
 :mod:`lacore.shapes.interpolation`; by default with
 :data:`lacore.reconstruction.settings.DEFAULT_PROJECTION` (``fast``: continuation
 along ``t`` and one Gauss-Newton step per frame, the add-on's Fast), ``--method gn``
-runs Gauss-Newton to convergence from the same starts.  Frames are written in the order given to
+runs Gauss-Newton to convergence from the same starts.  ``--method path`` computes every
+segment between two keys by a reduced model of its path (:func:`lacore.shapes.mixing.path_inbetweens`:
+two or three sparse factorizations per segment instead of one or more per frame, so it pays for many
+frames of large meshes; each frame's error estimate is in the JSON as ``indicator``, and frames
+whose estimate stays above 0.3 % of the size are finished by Gauss-Newton; not with
+``--smooth-spline``).  Frames are written in the order given to
 ``OUT_PREFIX_000.ply``, ``OUT_PREFIX_001.ply``, ... (at least three digits), all
 in the frame of the reference shape (``--reference``, default the first).
 
@@ -52,6 +57,10 @@ from .common import (CliError, add_allow_failure, check_outputs, finish, frame_c
 
 __all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
 
+#: ``--method path`` (:data:`lacore.shapes.interpolation.PATH`; not imported from there: scipy.interpolate is slow to
+#: import)
+PATH = "path"
+
 HELP = "interpolate or extrapolate shapes in lengths and angles (in-betweens, keyframes)"
 
 _FORMATS = ("ply", "obj", "off", "stl")
@@ -72,11 +81,13 @@ def configure(parser):
                         help="strictly increasing keyframe times of the meshes (default 0 1 2 ...)")
     parser.add_argument("--smooth-spline", action="store_true",
                         help="natural cubic spline in lengths and angles through the keyframes (default: linear)")
-    parser.add_argument("--method", choices=(*PROJECTION_PRESETS, *METHODS), default=DEFAULT_PROJECTION.name,
+    parser.add_argument("--method", choices=(*PROJECTION_PRESETS, *METHODS, PATH), default=DEFAULT_PROJECTION.name,
                         help=f"projection by reconstruction: fast (continuation along t and one Gauss-Newton step "
                              f"per frame, the add-on's Fast), gn (Gauss-Newton to convergence from the same "
                              f"starts), hybrid (least-squares start + smoothing), bfs/mst/spt (frame-based, one "
-                             f"preassembled tree), lsq (default {DEFAULT_PROJECTION.name})")
+                             f"preassembled tree), lsq, path (a reduced model of the path between two keys: a few "
+                             f"factorizations for all frames, with an error estimate per frame; piecewise linear "
+                             f"only) (default {DEFAULT_PROJECTION.name})")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
                         help="index of the mesh giving the energy weights and the output frame (default 0)")
     parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
@@ -139,7 +150,13 @@ def run(args):
     paths = output_paths(args.output, len(times), args.format)
     check_outputs(paths)
     t_load = time.perf_counter() - start
-    method, options, hybrid = projection_preset(args.method)
+    if args.method == PATH:
+        if args.energy_weights != ReconstructionSettings().weights or args.solver or args.max_iterations is not None:
+            raise CliError("--method path takes --bending-weight only of the energy settings (not --energy-weights, "
+                           "--solver or --max-iterations)")
+        method, options, hybrid = PATH, None, None
+    else:
+        method, options, hybrid = projection_preset(args.method)
     if args.max_iterations is not None:
         options = replace(options or GaussNewtonOptions(), max_iterations=args.max_iterations)
 
@@ -151,11 +168,16 @@ def run(args):
         save_mesh(paths[i], res.vertices, topology.faces)
         t_save += time.perf_counter() - t
 
-    result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
-                                 method=method, reference=args.reference, warm_start=not args.no_warm_start,
-                                 settings=ReconstructionSettings(bending_weight=args.bending_weight,
-                                                                 weights=args.energy_weights, solver=args.solver),
-                                 options=options, hybrid=hybrid, on_frame=write_frame, workers=args.workers)
+    settings = ReconstructionSettings(bending_weight=args.bending_weight, weights=args.energy_weights,
+                                      solver=args.solver)
+    if method == PATH:
+        result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
+                                     method=PATH, reference=args.reference, settings=settings, on_frame=write_frame)
+    else:
+        result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
+                                     method=method, reference=args.reference, warm_start=not args.no_warm_start,
+                                     settings=settings, options=options, hybrid=hybrid, on_frame=write_frame,
+                                     workers=args.workers)
     seconds = time.perf_counter() - start
 
     outputs = []
@@ -167,9 +189,13 @@ def run(args):
                      "iterations": int(result.iterations[i]),
                      "max_length_error": json_float(result.max_length_error[i]),
                      "max_angle_error": json_float(result.max_angle_error[i]), "status": int(result.status[i]),
-                     "success": bool(result.reconstructions[i].success),
-                     "failure": result.reconstructions[i].failure,
                      "warm_start_from": json_float(result.warm_start_times[i])})
+        if result.indicator is not None:                  # --method path: no reconstruction per frame
+            item.update({"success": bool(result.success), "failure": "" if result.success else "indicator",
+                         "indicator": json_float(result.indicator[i])})
+        else:
+            item.update({"success": bool(result.reconstructions[i].success),
+                         "failure": result.reconstructions[i].failure})
         outputs.append(item)
     if args.json:
         summary = {

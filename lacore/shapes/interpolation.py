@@ -43,6 +43,7 @@ jump.
 
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -56,6 +57,8 @@ from ..result import SolverResult
 from .projection import ProjectionOptions, SequenceProjection, check_times
 
 __all__ = [
+    "PATH",
+    "path_frames",
     "InterpolationResult",
     "interpolate",
     "keyframe_inbetweens",
@@ -127,6 +130,9 @@ class InterpolationResult(SolverResult):
     total_seconds : float
         Wall time of the whole call (including encoding and set-up).
     total_iterations : int
+    indicator : (N,) ndarray or None
+        ``method="path"``: the error estimate of every frame (RMS distance to the projection over the
+        bounding-box diagonal, :func:`lacore.shapes.mixing.path_inbetweens`); None for the other methods.
     """
 
     vertices: np.ndarray
@@ -147,6 +153,7 @@ class InterpolationResult(SolverResult):
     total_seconds: float = 0.0
     total_iterations: int = 0
     workers: int = 1
+    indicator: np.ndarray | None = None
 
     _summary_exclude = ("vertices", "z_targets", "reconstructions", "context", "tree")
 
@@ -458,13 +465,16 @@ def keyframe_targets(z_keys, keyframes, times, smooth=False, bc_type="natural"):
 
 
 def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, reference_vertices, opts, progress,
-         on_frame, workers, mixer=None):
+         on_frame, workers, mixer=None, path_options=None):
     t_start = time.perf_counter()
     z_keys, Xs = shapes_to_z(shapes, topology)
     k = check_keyframes(keyframes, len(z_keys))
     if mixer is not None:
         return _mixer_run(mixer, z_keys, k, times, smooth, bc_type, reference, reference_vertices, progress, on_frame,
                           t_start)
+    if opts is PATH:
+        return _path_run(Xs, topology, z_keys, k, times, smooth, reference, reference_vertices, progress, on_frame,
+                         t_start, path_options)
     targets = keyframe_targets(z_keys, k, times, smooth, bc_type)
     X_ref = _reference(Xs, reference, reference_vertices, topology)
     anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
@@ -522,6 +532,71 @@ def _mixer_run(mixer, z_keys, keyframes, times, smooth, bc_type, reference, refe
         smooth=bool(smooth), timings={"total": total}, total_seconds=total, total_iterations=int(iterations.sum()))
 
 
+#: ``method="path"`` of :func:`interpolate` and :func:`keyframe_inbetweens`: every segment between two keys by a
+#: reduced model of its path (:func:`lacore.shapes.mixing.path_inbetweens`).
+PATH = "path"
+
+
+def _path_run(Xs, topology, z_keys, keyframes, times, smooth, reference, reference_vertices, progress, on_frame,
+              t_start, path_options):
+    """The frames segment by segment by :func:`~lacore.shapes.mixing.path_inbetweens` (piecewise linear only).
+
+    A segment's energy weights are those of its first key (for two shapes: the reference's); the frames are moved
+    into the frame of the reference shape."""
+    from ..reconstruction import get_context
+    from .mixing.path import path_inbetweens
+
+    if smooth:
+        raise InputError("method 'path' follows straight segments between two keys: use it without the cubic "
+                         "spline, or another method")
+    if any(X is None for X in Xs):
+        raise InputError("method 'path' needs every shape as vertices, not as lengths and angles")
+    if reference_vertices is not None:
+        raise InputError("method 'path': leave reference_vertices out (the reference is one of the shapes)")
+    X_ref = Xs[int(reference)]
+    out_ctx = get_context(topology, X_ref)
+    k = np.asarray(keyframes, float)
+    T = np.asarray(times, float)
+    seg = np.clip(np.searchsorted(k, T, side="right") - 1, 0, len(k) - 2)
+    N = len(T)
+    vertices = np.empty((N, topology.n_vertices, 3))
+    energy, indicator, seconds = np.empty(N), np.empty(N), np.empty(N)
+    timings, messages, ok = {}, [], True
+    done = 0
+    for s in np.unique(seg):
+        idx = np.flatnonzero(seg == s)
+        u = (T[idx] - k[s]) / (k[s + 1] - k[s])
+        n = len(idx)
+
+        def part(d, total, msg, base=done, n=n):
+            return progress(base + (n * d) // max(total, 1), N, msg)
+        res = path_inbetweens(Xs[s], Xs[s + 1], topology, u, path_options, progress=part if progress else None)
+        V = res.vertices if int(reference) == s else np.array([out_ctx.align(X) for X in res.vertices])
+        vertices[idx], energy[idx], indicator[idx] = V, res.energy, res.indicator
+        seconds[idx] = res.seconds["total"] / len(idx)
+        for name, v in res.seconds.items():
+            timings[name] = timings.get(name, 0.0) + v
+        ok &= bool(res.success)
+        if res.message:
+            messages.append(f"keys {s}-{s + 1}: {res.message}")
+        done += len(idx)
+        if on_frame is not None:
+            for j, i in enumerate(idx):
+                on_frame(int(i), SimpleNamespace(vertices=V[j], energy=float(res.energy[j]),
+                                                 indicator=float(res.indicator[j]), success=bool(res.success)))
+    targets = keyframe_targets(z_keys, keyframes, times, False)
+    errors = [reconstruction_errors(X, z, topology) for X, z in zip(vertices, targets, strict=True)]
+    total = time.perf_counter() - t_start
+    timings["total"] = total
+    return InterpolationResult(
+        vertices=vertices, times=T, z_targets=targets, energy=energy, iterations=np.zeros(N, np.int64),
+        seconds=seconds, max_length_error=np.array([e["max_length_error"] for e in errors]),
+        max_angle_error=np.array([e["max_angle_error"] for e in errors]), status=np.zeros(N, np.int64),
+        warm_start_times=np.full(N, np.nan), order=np.arange(N), reconstructions=[], context=out_ctx, method=PATH,
+        success=ok, message="; ".join(messages) or "all frames within the path tolerance", keyframes=keyframes,
+        smooth=False, timings=timings, total_seconds=total, total_iterations=0, indicator=indicator)
+
+
 def interpolate(shapes, topology, factors, keyframes=None, method=None, reference=0, reference_vertices=None,
                 warm_start=True, tree=None, *, settings=None, options=None, hybrid=None, progress=None,
                 on_frame=None, workers=1, mixer=None, **reconstruct_kw):
@@ -540,13 +615,19 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
         linear in ``z`` and extended linearly beyond the end keyframes.
     keyframes : (K,) array_like, optional
         Strictly increasing times of the shapes (default ``0..K-1``).
-    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq"}
+    method : {None, "fast", "gn", "hybrid", "bfs", "mst", "spt", "lsq", "path"}
         Projection by reconstruction (as in :func:`project_targets`); None (default):
         :data:`~lacore.reconstruction.settings.DEFAULT_PROJECTION`, the preset
         ``"fast"`` (continuation along ``t``, one Gauss-Newton step per frame);
         ``"gn"`` is the energy-based projection (Def. 4.3) run to convergence from
         the same warm starts; the frame-based methods share one preassembled
-        spanning tree.
+        spanning tree.  ``"path"``: every segment between two keys by a reduced model of
+        its path (:func:`lacore.shapes.mixing.path_inbetweens`: two or three sparse
+        factorizations per segment whatever the number of frames, each frame with an error
+        estimate in ``indicator``, full Gauss-Newton where the estimate is above its
+        tolerance); ``options`` is then a :class:`~lacore.shapes.mixing.PathOptions`,
+        ``warm_start``, ``tree``, ``hybrid`` and ``workers`` do not apply, and ``on_frame``
+        gets an object with ``vertices, energy, indicator, success`` (after its segment).
     reference : int
         Index of the shape defining the weights of ``W_q``, the fixed triangle and
         the output frame (default 0).
@@ -632,9 +713,56 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
     True
     """
     times = check_times(factors, "factors")
+    if method == PATH:
+        return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, PATH, progress,
+                    on_frame, workers, mixer, _path_options(options, settings, reconstruct_kw))
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate")
     return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, opts, progress,
                 on_frame, workers, mixer)
+
+
+def path_frames(shapes, faces, keyframes, frames, options=None, *, progress=None):
+    """:func:`keyframe_inbetweens` with ``method="path"`` from plain arrays, returning plain arrays (what a worker
+    process of :func:`lacore.parallel.call_in_process` sends and returns).
+
+    Parameters
+    ----------
+    shapes : (K, V, 3) array_like
+    faces : (F, 3) int array_like
+    keyframes, frames : array_like
+    options : PathOptions, optional
+    progress : callable, optional
+
+    Returns
+    -------
+    vertices : (N, V, 3) ndarray
+    indicator : (N,) ndarray
+    success : bool
+    message : str
+    """
+    X = np.asarray(shapes, float)
+    topology = MeshTopology.from_faces(np.asarray(faces, np.int64), n_vertices=X.shape[1])
+    res = keyframe_inbetweens(X, topology, keyframes, frames, method=PATH, options=options, progress=progress)
+    return res.vertices, res.indicator, bool(res.success), res.message
+
+
+def _path_options(options, settings, reconstruct_kw):
+    """The :class:`~lacore.shapes.mixing.PathOptions` of ``method="path"``: ``options`` when it is one (else
+    the defaults), with the bending weight of ``settings`` / ``bending_weight=``; other settings do not apply."""
+    from dataclasses import replace
+
+    from .mixing.path import PathOptions
+
+    kw = dict(reconstruct_kw)
+    eta = kw.pop("bending_weight", None)
+    if settings is not None and eta is None:
+        eta = settings.bending_weight
+    if kw:
+        raise InputError(f"method 'path' does not take {', '.join(sorted(kw))}")
+    if options is not None and not isinstance(options, PathOptions):
+        raise InputError(f"method 'path' takes PathOptions as options, got {type(options).__name__}")
+    o = options or PathOptions()
+    return o if eta is None else replace(o, bending_weight=float(eta))
 
 
 def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, bc_type="natural", method=None,
@@ -691,6 +819,9 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
     times = check_times(frames, "frames")
+    if method == PATH:
+        return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, PATH,
+                    progress, on_frame, workers, mixer, _path_options(options, settings, reconstruct_kw))
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw,
                               "keyframe_inbetweens")
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, opts,

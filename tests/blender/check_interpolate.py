@@ -115,7 +115,7 @@ def install_and_enable():
                    "LENGTHS_ANGLES_OT_clear_bake"}, ids
     props = bpy.ops.lengths_angles.interpolate.get_rna_type().properties
     assert {"key_from", "key_to", "factors", "count", "method"} <= set(props.keys()), props.keys()
-    assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON", "MIXER"]
+    assert [i.identifier for i in props["method"].enum_items] == ["PREVIEW", "FAST", "GAUSS_NEWTON", "PATH", "MIXER"]
     assert props["method"].default == "FAST"
     import importlib
     ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
@@ -180,6 +180,52 @@ def interpolate_bar():
             "simple_deform_90": ref, "gauss_newton": gn, "extrapolated_1_5_vs_simple_deform_270": extra,
             "placement_rms_vs_linear_blend_per_diagonal": placement, "centroid_shift": centroid_shift,
             "diagonal": diag}
+
+
+def path_method():
+    """Method Path: in-betweens within the tolerance of Gauss-Newton, the default from PATH_MIN_VERTICES vertices for
+    piecewise-linear motions, a bake through three keys, and no Path with Spline."""
+    import importlib
+
+    ops_mod = importlib.import_module(MODULE + ".addon.operators_interpolate")
+    jobs_mod = importlib.import_module(MODULE + ".addon.jobs")
+    reset()
+    obj = bar_with_keys()
+    A = coords(obj, "Basis")
+    diag = float(np.linalg.norm(A.max(0) - A.min(0)))
+    factors = "0.2 0.4 0.6 0.8"
+    names = [f"LA Basis>Bend180 {t}" for t in ("0.200", "0.400", "0.600", "0.800")]
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors=factors, method='GAUSS_NEWTON') == {"FINISHED"}
+    gn = np.array([coords(obj, n) for n in names])
+    assert interpolate(obj, key_from="Basis", key_to="Bend180", factors=factors, method='PATH') == {"FINISHED"}
+    path = np.array([coords(obj, n) for n in names])
+    rms = np.sqrt(((path - gn) ** 2).sum(axis=2).mean(axis=1)) / diag
+    run = ops_mod.inbetween_run(obj, "Basis", "Bend180", [0.3, 0.7], 'PATH')
+    jobs_mod.run_job(run.job)
+    session = importlib.import_module(MODULE + ".addon.session")
+    session.clear_results()
+    in_worker = ops_mod.inbetween_run(obj, "Basis", "Bend180", [0.3, 0.7], 'PATH').job
+    in_worker.all_in_workers = True                   # as a modal run does: the frames in a worker process
+    jobs_mod.run_job(in_worker)
+    worker_difference = float(np.abs(np.array(in_worker.results) - np.array(run.job.results)).max() / diag)
+    small_default = ops_mod.default_method(obj, ["Basis", "Bend180"])
+    saved = ops_mod.PATH_MIN_VERTICES
+    try:
+        ops_mod.PATH_MIN_VERTICES = len(A)
+        big_default = ops_mod.default_method(obj, ["Basis", "Bend180"])
+        big_spline_default = ops_mod.default_method(obj, ["Basis", "Bend180"], smooth=True)
+    finally:
+        ops_mod.PATH_MIN_VERTICES = saved
+    # a bake through three keys (piecewise linear), and Path with Spline is refused, changing nothing
+    assert bake(obj, keys="Basis, Bend180, SimpleDeform90", frames="1, 5, 9", method='PATH') == {"FINISHED"}
+    bake_keys = [n for n in key_names(obj) if n not in ("Basis", "Bend180", "SimpleDeform90") and n not in names]
+    spline = expect_error(lambda o: bake(o, keys="Basis, Bend180, SimpleDeform90", frames="1, 5, 9", smooth=True,
+                                         method='PATH'), obj, "Spline")
+    return {"rms_to_gauss_newton_per_diagonal": [float(r) for r in rms], "job_indicator": run.job.indicator.tolist(),
+            "job_summary": run.job.summary, "job_failures": list(run.job.failures), "small_default": small_default,
+            "big_default": big_default, "big_spline_default": big_spline_default, "bake_keys": len(bake_keys),
+            "spline_message": spline, "worker_processes": in_worker.processes,
+            "worker_difference_per_diagonal": worker_difference}
 
 
 def redo_replaces():
@@ -549,7 +595,7 @@ def processes_side_by_side():
 
 
 def main():
-    run_cases((install_and_enable, interpolate_bar, redo_replaces, quads_ngons_and_edit_mode,
+    run_cases((install_and_enable, interpolate_bar, path_method, redo_replaces, quads_ngons_and_edit_mode,
                errors_change_nothing, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons,
                processes_side_by_side))
 

@@ -5,11 +5,13 @@
 * :mod:`.subspace` -- the reduced space (keys, derivatives of the projection, chord vectors);
 * :mod:`.reduced` -- the reduced energy on a weighted subset of edges and its solver;
 * :mod:`.cubature` -- the choice of that subset (greedy non-negative least squares);
-* :mod:`.files` -- saving and loading mixers.
+* :mod:`.files` -- saving and loading mixers;
+* :mod:`.path` -- in-betweens of two keys by a reduced model of their path (:func:`path_inbetweens`).
 """
 
 from .mixer import (FORMAT, FORMAT_VERSION, MIN_LENGTH_RATIO, MixerError, MixerOptions, MixResult, ShapeMixer,
                     blend_targets)
+from .path import PathOptions, PathResult, path_inbetweens
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO", "FORMAT",
-           "FORMAT_VERSION"]
+           "FORMAT_VERSION", "PathOptions", "PathResult", "path_inbetweens"]

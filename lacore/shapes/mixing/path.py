@@ -1,0 +1,372 @@
+"""In-betweens of two keys by a reduced model of their path: few factorizations for many in-betweens.
+
+An in-between of the keys ``A`` (``t = 0``) and ``B`` (``t = 1``) is the projection of the target
+``z(t) = z_A + t (z_B - z_A)`` (angles on the circle, lengths floored: the blend of a two-key
+:class:`~lacore.shapes.mixing.ShapeMixer`, thesis 4.2), the minimizer of ``W_q[z(t), Z(X)]`` (3.19),
+the energy of :func:`lacore.reconstruction.reconstruct`.  The targets lie on a segment, so a subspace
+made for that segment needs far fewer factorizations than a general mixer of the keys
+(``K + C`` of them, :mod:`.mixer`) or the full projection (one or more per in-between):
+
+* the keys: ``X_B - X_A`` (the projection is ``A`` at ``t = 0`` and ``B`` at ``t = 1``);
+* the tangent of the path at ``A`` (and optionally ``B``), ``dX/dt = H^{-1} 2 J^T W (z_B - z_A)`` (one
+  factorization each, of the key's Hessian; :meth:`.subspace.FullProblem.first_derivatives`, as the
+  mixer's build computes them at its keys);
+* Newton vectors (:func:`.subspace.newton_vectors`, the mixer's), added only where needed: first at the
+  in-between where the error of the space is expected to be largest (:func:`_error_shape`), then at the
+  one farthest from the keys and the points already probed, one full Gauss-Newton step from the
+  minimizer in the space (a new numeric factorization, the symbolic analysis reused) and the tangent
+  there from the same factorization.  The step's RMS length over the bounding-box diagonal is the
+  *error estimate* of the reduced in-between there (to first order, the distance to the projection);
+  probing stops as soon as it is at most :attr:`PathOptions.tolerance` along the path (see
+  :func:`_error_shape`), or when a probe's estimate is not below half of the one before (a space that
+  does not converge: the rolled plates of the shared data, estimates 10-20 % of the diagonal, go to
+  the polish after two probes).
+
+Every in-between is the minimizer of the exact reduced energy (every edge, ``O(n r)`` per Gauss-Newton
+step for ``r`` columns, no cubature: :class:`.reduced.ReducedEnergy`).  When the indicator stays above
+the tolerance after :attr:`PathOptions.max_newton_vectors` probes, the in-betweens where it does are
+polished by full Gauss-Newton from the reduced result (or, with ``polish=False``, returned with
+``success`` False and a message), never a silently wrong shape.
+
+Cost: ``1 + p`` factorizations for ``p`` probes (``p >= 1``: the estimate needs one; one more with
+``tangents="both"``), whatever the number of in-betweens.  On the 50k bar (a 90-degree bend) and the CC0
+body's knee and torso keys two, on its raised arm three; the polish costs what full Gauss-Newton does.
+Measurements: ``benchmarks/bench_path_inbetweens.py``.
+"""
+
+import contextlib
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import InputError
+from ...progress import report
+from ...reconstruction import reconstruct
+from ...reconstruction.settings import GaussNewtonOptions
+from .mixer import MixerOptions, ShapeMixer
+from .subspace import _extend, newton_vectors, orthonormal_basis
+
+__all__ = ["PathOptions", "PathResult", "path_inbetweens", "SAFETY", "FAST_POLISH"]
+
+#: The indicator is this many times the probes' first-order estimate, scaled along the path
+#: (:func:`_error_shape`).  With the factor 1 it was down to 0.98 times the RMS distance to converged Gauss-Newton
+#: (a 302-vertex bar bent by 2.5 and twisted by 2 radians), 4 to 300 times on milder paths and on the CC0 body
+#: (``tests/test_path_inbetweens.py`` asserts that the indicator covers the error).
+SAFETY = 2.0
+
+#: ``polish_method="auto"`` polishes by Fast when the largest indicator is at most this many times the tolerance.
+FAST_POLISH = 10.0
+
+
+@dataclass(frozen=True)
+class PathOptions:
+    """Settings of :func:`path_inbetweens` (all scale-free).
+
+    Attributes
+    ----------
+    tolerance : float
+        Largest accepted indicator (the estimated RMS distance to the projection over the bounding-box
+        diagonal of ``A``, :data:`SAFETY` times a first-order estimate); default 0.003, the 0.3 % the
+        in-betweens are held to.
+    max_newton_vectors : int
+        Most probes (factorizations beyond the two at the keys) before falling back (at least 1).
+    iterations : int
+        Gauss-Newton steps of every reduced solve (they stop earlier when the energy stops decreasing).
+    polish : bool
+        When the estimate stays above ``tolerance``: polish every in-between by full Gauss-Newton from its
+        reduced result (the default), else return the reduced results with ``success`` False.
+    tangents : {"from", "both"}
+        The tangents of the path in the space: at ``A`` only (the default: one factorization fewer; the
+        Newton vector in the middle also brings the tangent there), or at both keys.
+    polish_method : {"auto", "fast", "gn"}
+        How in-betweens above the tolerance are polished: by lacore's default projection Fast, continuing from the
+        keys and the in-betweens within the tolerance (on the 5k bar twisted by 90 degrees 0.36 s instead of
+        1.5 s for converged Gauss-Newton from the reduced results, the same largest distance to Gauss-Newton,
+        0.075 % of the diagonal), or by converged Gauss-Newton from the reduced result.  ``"auto"`` (the
+        default): Fast when the indicator is within :data:`FAST_POLISH` times the tolerance (the reduced
+        in-betweens are close), else Gauss-Newton (between the rolled plates of the shared data, estimates of
+        10-20 %, Fast ended 1 % of the diagonal away from Gauss-Newton).
+    polish_iterations : int
+        Iterations of a polish.
+    bending_weight : float or None
+        ``eta`` of ``W_q`` (default: the reconstruction's default).
+
+    Examples
+    --------
+    >>> PathOptions().tolerance, PathOptions().max_newton_vectors
+    (0.003, 3)
+    """
+
+    tolerance: float = 3e-3
+    max_newton_vectors: int = 3
+    iterations: int = 20
+    polish: bool = True
+    tangents: str = "from"
+    polish_method: str = "auto"
+    polish_iterations: int = 300
+    bending_weight: float | None = None
+
+    def __post_init__(self):
+        if not (np.isfinite(self.tolerance) and self.tolerance > 0):
+            raise InputError(f"tolerance must be a positive number, got {self.tolerance!r}")
+        for name, low in (("max_newton_vectors", 1), ("iterations", 1), ("polish_iterations", 1)):
+            v = getattr(self, name)
+            if int(v) != v or v < low:
+                raise InputError(f"{name} must be an integer of at least {low}, got {v!r}")
+        if self.bending_weight is not None and not (np.isfinite(self.bending_weight) and self.bending_weight >= 0):
+            raise InputError(f"bending_weight must be a non-negative number, got {self.bending_weight!r}")
+        if self.tangents not in ("from", "both"):
+            raise InputError(f"tangents must be 'from' or 'both', got {self.tangents!r}")
+        if self.polish_method not in ("auto", "gn", "fast"):
+            raise InputError(f"polish_method must be 'auto', 'gn' or 'fast', got {self.polish_method!r}")
+
+
+@dataclass(frozen=True)
+class PathResult:
+    """In-betweens of :func:`path_inbetweens`.
+
+    Attributes
+    ----------
+    vertices : (N, V, 3) ndarray
+        The in-betweens, in the frame of ``A`` (its fixed face where ``A`` has it).
+    factors : (N,) ndarray
+    energy : (N,) ndarray
+        ``W_q[z(t), Z(vertices)]`` on the whole mesh.
+    indicator : (N,) ndarray
+        Error estimate of every in-between (RMS distance to the projection over the bounding-box diagonal):
+        0 at the keys and for in-betweens polished by converged Gauss-Newton; for those polished by Fast the
+        reduced in-between's (an upper estimate: on the 50k bar twisted by 90 degrees Fast ended within 0.15 % of
+        Gauss-Newton where the reduced in-betweens were estimated up to 0.6 % off); else :data:`SAFETY` times the
+        last probe's estimate, scaled along the path (:func:`_error_shape`).
+    estimates : list of (float, float)
+        ``(t, estimate)`` of every probe, in order.
+    polished : bool
+        Whether full Gauss-Newton produced in-betweens: those whose indicator stayed above the tolerance (their
+        indicator is then 0).
+    success : bool
+        The estimate is within the tolerance or every polish converged.
+    message : str
+    reduced_size : int
+    factorizations : int
+        Numeric factorizations of the Gauss-Newton matrix (one per tangent and one per probe; polishes not
+        included).
+    seconds, cpu_seconds : dict
+        Wall and CPU seconds by stage: ``setup``, ``derivatives`` (the tangents), ``newton_vectors``, ``reduced``
+        (the reduced solves and the output), ``polish`` and ``total``.
+    """
+
+    vertices: np.ndarray
+    factors: np.ndarray
+    energy: np.ndarray
+    indicator: np.ndarray
+    estimates: list
+    polished: bool
+    success: bool
+    message: str
+    reduced_size: int
+    factorizations: int
+    seconds: dict
+    cpu_seconds: dict
+
+
+class _Stopwatch:
+    def __init__(self):
+        self.wall, self.cpu = {}, {}
+
+    @contextlib.contextmanager
+    def __call__(self, name):
+        t, c = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - t
+            self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
+
+
+def _next_probe(factors, probed, shape=None):
+    """Index of the factor farthest from the keys and the probed factors (None when all are keys); with ``shape``
+    (:func:`_error_shape`), the factor in ``[0, 1]`` where it is largest."""
+    inside = (factors > 0.0) & (factors < 1.0)
+    if shape is not None and inside.any():
+        return int(np.argmax(np.where(inside, shape, -1.0)))
+    known = np.array([0.0, 1.0] + list(probed))
+    dist = np.abs(factors[:, None] - known[None, :]).min(axis=1)
+    i = int(np.argmax(dist))
+    return None if dist[i] <= 1e-12 else i
+
+
+def _error_shape(T, tangents):
+    """How the error of the space grows along the path, up to a factor: that of the polynomial interpolant of
+    ``X(t)`` the space holds (``X_A``, ``X_B`` and ``X'(0)``: ``t^2 |1 - t|``; also ``X'(1)``: ``t^2 (1 - t)^2``)."""
+    T = np.asarray(T, float)
+    return T * T * (np.abs(1.0 - T) if tangents == "from" else (1.0 - T) ** 2)
+
+
+def _polish_fast(mixer, topology, T, X, over):
+    """The in-betweens ``over`` by lacore's default projection (Fast: continuation along ``t``, one Gauss-Newton step
+    per in-between, more where a step disagrees with its quadratic model), started from the keys and the
+    in-betweens within the tolerance: ``(vertices, energy, failures)``."""
+    from ..interpolation import projection_options
+    from ..projection import SequenceProjection
+
+    keep = np.setdiff1d(np.arange(len(T)), over)
+    anchors = [(0.0, mixer.keys[0]), (1.0, mixer.keys[1])]
+    anchors += [(float(T[j]), X[j]) for j in keep if T[j] not in (0.0, 1.0)]
+    targets = np.array([mixer.target([T[j]]) for j in over])
+    opts = projection_options(None, True, None, mixer.options.settings, None, None, {}, "path_inbetweens")
+    run = SequenceProjection(targets, topology, mixer.keys[0], T[over], anchors, opts).run()
+    res = [f.result for f in run.frames]
+    failed = [f"t = {T[j]:g}: {r.message}" for j, r in zip(over, res, strict=True) if not r.success]
+    return np.array([r.vertices for r in res]), np.array([float(r.energy) for r in res]), failed
+
+
+def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progress=None):
+    """In-betweens (and extrapolations) of two keys by a reduced model of their path (module docstring).
+
+    Parameters
+    ----------
+    key_from, key_to : (V, 3) array_like
+        The keys ``A`` (``t = 0``, the reference: weights of ``W_q``, fixed face, output frame) and ``B``
+        (``t = 1``).
+    topology : MeshTopology
+    factors : (N,) array_like
+        ``t`` of the in-betweens (outside ``[0, 1]`` they extrapolate; the estimate covers them like the
+        others).
+    options : PathOptions, optional
+    progress : callable, optional
+        ``progress(done, total, message)`` (:mod:`lacore.progress`); returning True raises
+        :class:`lacore.progress.Cancelled`.
+
+    Returns
+    -------
+    PathResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore import MeshTopology
+    >>> from lacore.samples.bar import bar_mesh, bar_pose
+    >>> X, faces = bar_mesh(n_along=6, n_side=2)
+    >>> res = path_inbetweens(X, bar_pose(X, 0.6, 0.0), MeshTopology.from_faces(faces), [0.25, 0.5, 0.75])
+    >>> res.vertices.shape, res.success, res.polished, res.factorizations
+    ((3, 58, 3), True, False, 2)
+    >>> bool(res.indicator.max() <= PathOptions().tolerance)
+    True
+    """
+    o = PathOptions() if options is None else options
+    if not isinstance(o, PathOptions):
+        raise InputError(f"options must be PathOptions, got {type(o).__name__}")
+    T = np.atleast_1d(np.asarray(factors, float))
+    if T.ndim != 1 or not T.size or not np.all(np.isfinite(T)):
+        raise InputError("factors must be a non-empty list of finite numbers")
+    watch = _Stopwatch()
+    total = 3 + o.max_newton_vectors
+    report(progress, 0, total, "lengths and angles of the keys")
+    with watch("setup"):
+        mixer = ShapeMixer(np.stack([np.asarray(key_from, float), np.asarray(key_to, float)]), topology.faces,
+                           MixerOptions(bending_weight=o.bending_weight), _topology=topology)
+    P, ctx = mixer._problem, mixer._context
+    xk = mixer._key_x
+    x0, size = xk[0], ctx.size
+    report(progress, 1, total, "tangents of the path at the keys")
+    ends = [0, 1] if o.tangents == "both" else [0]
+    vectors = [xk[1] - x0]
+    with watch("derivatives"):
+        for k in ends:                                  # as the mixer's build (.subspace.build_space), at t = k
+            vectors += list(P.first_derivatives(P.factorize(xk[k], [float(k)])))
+    with watch("reduced"):
+        U, _ = orthonormal_basis(vectors, keep=1)
+    # solved points (t, q): the keys, then the probes; a solve starts from the nearest one
+    solved = {0.0: np.zeros(0), 1.0: U.T @ (xk[1] - x0)}
+
+    step_tol = mixer.options.step_tolerance * size * np.sqrt(mixer.n_vertices)
+    reduced = {}
+
+    def solve(U, t, iterations):
+        """The minimizer of the exact reduced energy (every edge, :class:`.reduced.ReducedEnergy`) at ``t``."""
+        if reduced.get("U") is not U:
+            mixer.basis = U
+            reduced.update(U=U, energy=mixer._make_energy(None, None))
+
+        def padded(s):
+            return np.concatenate([solved[s], np.zeros(U.shape[1] - len(solved[s]))])
+
+        s1, s2 = sorted(solved, key=lambda s: abs(s - t))[:2]
+        w, q = np.array([t]), padded(s1)
+        secant = q + (t - s1) / (s2 - s1) * (padded(s2) - q)     # through the two nearest solved points
+        if reduced["energy"].energy(secant, w) < reduced["energy"].energy(q, w):
+            q = secant
+        q, _, _ = reduced["energy"].solve(w, q, iterations, step_tol)
+        return q, x0 + U @ q
+
+    keys = (T == 0.0) | (T == 1.0)
+    shape = _error_shape(T, o.tangents)
+    estimates, indicator = [], np.zeros(len(T))
+    while len(estimates) < o.max_newton_vectors:
+        i = _next_probe(T, [t for t, _ in estimates], None if estimates else shape)
+        if i is None:
+            break
+        report(progress, 2 + len(estimates), total, f"Newton vector {len(estimates) + 1} (t = {T[i]:g})")
+        with watch("reduced"):
+            q, _ = solve(U, float(T[i]), o.iterations)
+        with watch("newton_vectors"):
+            new, _, sizes = newton_vectors(P, x0, U, [(np.array([T[i]]), q)], size, derivatives=True,
+                                           reduced_iterations=0)
+        estimates.append((float(T[i]), float(sizes[0])))
+        solved[float(T[i])] = q
+        with watch("reduced"):
+            U = _extend(U, new)
+        indicator = np.where(keys, 0.0, SAFETY * sizes[0] * shape / shape[i])
+        if indicator.max() <= o.tolerance:
+            break
+        if len(estimates) >= 2 and estimates[-1][1] > 0.5 * estimates[-2][1]:
+            break                                               # the space does not converge: polish
+    with watch("reduced"):
+        xs = [None] * len(T)
+        for i in np.argsort(np.abs(T - 0.5)):                       # from the middle out: near a solved point
+            q, xs[i] = solve(U, float(T[i]), o.iterations)
+            solved[float(T[i])] = q
+    estimate = float(indicator.max())
+    with watch("reduced"):
+        X = np.array([ctx.from_canonical(x.reshape(-1, 3)) for x in xs])
+        X[T == 0.0] = mixer.keys[0]
+        energy = np.array([mixer.full_energy([t], Xi) for t, Xi in zip(T, X, strict=True)])
+    polished, success, message = False, True, ""
+    if estimate > o.tolerance:
+        if o.polish:
+            report(progress, total - 1, total, "polishing: the path needs full Gauss-Newton")
+            polished = True
+            failed = []
+            gn = GaussNewtonOptions(max_iterations=o.polish_iterations)
+            over = np.flatnonzero(indicator > o.tolerance)       # the others are within the tolerance as they are
+            fast = o.polish_method == "fast" or (o.polish_method == "auto" and estimate <= FAST_POLISH * o.tolerance)
+            with watch("polish"):
+                if fast:
+                    X[over], energy[over], failed = _polish_fast(mixer, topology, T, X, over)
+                else:
+                    for j in over:
+                        t = float(T[j])
+                        res = reconstruct(mixer.target([t]), topology, mixer.keys[0], context=ctx, options=gn,
+                                          initial_vertices=X[j])
+                        X[j], energy[j] = res.vertices, float(res.energy)
+                        if not res.success:
+                            failed.append(f"t = {t:g}: {res.message}")
+            if not fast:                                         # converged Gauss-Newton: the projection
+                indicator[over] = 0.0
+            success = not failed
+            message = (f"error estimate {estimate:.3g} above {o.tolerance:g} after {len(estimates)} Newton vectors: "
+                       f"{len(over)} of {len(T)} polished by "
+                       + ("Fast" if fast else "full Gauss-Newton"))
+            if failed:
+                message += f"; {len(failed)} did not converge (first {failed[0]})"
+        else:
+            success = False
+            message = (f"error estimate {estimate:.3g} above the tolerance {o.tolerance:g} after {len(estimates)} "
+                       "Newton vectors: polish the in-betweens or use full Gauss-Newton")
+    report(progress, total, total, "done")
+    watch.wall["total"] = sum(watch.wall.values())
+    watch.cpu["total"] = sum(watch.cpu.values())
+    return PathResult(vertices=X, factors=T, energy=energy, indicator=indicator, estimates=estimates,
+                      polished=polished, success=success, message=message, reduced_size=int(U.shape[1]),
+                      factorizations=len(ends) + len(estimates), seconds=dict(watch.wall), cpu_seconds=dict(watch.cpu))
