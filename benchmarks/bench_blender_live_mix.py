@@ -25,7 +25,6 @@ python benchmarks/bench_blender_live_mix.py [human13k] [bar50k] [--frames 100] [
 """
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -136,7 +135,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="lengths_angles_bench_"))
     import bpy  # once per process, before the add-on
-    from bench_common import machine_info
+    from bench_common import emit, machine_info
 
     sys.path.insert(0, os.path.join(REPO, "scripts"))
     from addon_dev import load_addon
@@ -149,11 +148,7 @@ def main(argv=None):
     for name in args.meshes:
         out["meshes"][name] = bench_mesh(bpy, pkg, name, args.frames)
         print(f"[bench_blender_live_mix] {name}: {out['meshes'][name]}", file=sys.stderr, flush=True)
-    text = json.dumps(out, indent=1)
-    print(text)
-    if args.json:
-        with open(args.json, "w") as fh:
-            fh.write(text)
+    emit(out, args.json)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ python benchmarks/bench_blender_mixer_inbetweens.py [bar50k] [human13k] [--count
 """
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -120,7 +119,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="lengths_angles_bench_"))
     import bpy  # once per process, before the add-on
-    from bench_common import machine_info
+    from bench_common import emit, machine_info
 
     sys.path.insert(0, os.path.join(REPO, "scripts"))
     from addon_dev import load_addon
@@ -133,11 +132,7 @@ def main(argv=None):
     for name in args.meshes:
         out["meshes"][name] = bench_mesh(bpy, pkg, name, args.count, not args.no_mixer)
         print(f"[bench_blender_mixer_inbetweens] {name}: {out['meshes'][name]}", file=sys.stderr, flush=True)
-    text = json.dumps(out, indent=1)
-    print(text)
-    if args.json:
-        with open(args.json, "w") as fh:
-            fh.write(text)
+    emit(out, args.json)
 
 
 if __name__ == "__main__":

@@ -48,3 +48,14 @@ def machine_info(**extra):
         pass
     info.update(extra)
     return info
+
+
+def emit(result, path=None):
+    """Print ``result`` as one indented JSON object and, with ``path``, write the same text there."""
+    import json
+
+    text = json.dumps(result, indent=1)
+    print(text)
+    if path:
+        with open(path, "w") as fh:
+            fh.write(text)

@@ -18,7 +18,6 @@ python benchmarks/bench_path_inbetweens.py [bar50k] [body50k] [human13k] [--coun
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -31,7 +30,7 @@ for p in (REPO, HERE):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from bench_common import machine_info  # noqa: E402
+from bench_common import emit, machine_info  # noqa: E402
 from bench_mixer import mesh_keys  # noqa: E402
 
 from lacore import MeshTopology, interpolate  # noqa: E402
@@ -86,11 +85,7 @@ def main(argv=None):
             entry["pairs"][f"0-{k}"] = bench_pair(keys[0], keys[k], F, args.count, not args.no_fast)
             print(f"[bench_path_inbetweens] {name} 0-{k}: {entry['pairs'][f'0-{k}']}", file=sys.stderr, flush=True)
         out["meshes"][name] = entry
-    text = json.dumps(out, indent=1)
-    print(text)
-    if args.json:
-        with open(args.json, "w") as fh:
-            fh.write(text)
+    emit(out, args.json)
 
 
 if __name__ == "__main__":

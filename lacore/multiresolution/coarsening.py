@@ -112,6 +112,17 @@ _ROUND_FRACTION = 0.05
 #: The next corner of each corner of a triangle.
 _NEXT = np.array([1, 2, 0])
 
+def _relaxed_thresholds(relax_round, qmin, cos_max, n_alive, target):
+    """The geometric thresholds for relaxation round ``relax_round`` (1 to 6): ``(qmin, qmin / (2 sqrt 3), cos_max)``
+    with the quality halved and the normal angle widened (any angle below 90 degrees in the last round); InputError
+    after the last."""
+    if relax_round > 6:
+        raise InputError(f"coarsening stopped at {n_alive} vertices (target {target}): no further "
+                         "collapse keeps the mesh manifold and unflipped in every shape")
+    qmin *= 0.5
+    return qmin, qmin / (2.0 * np.sqrt(3.0)), (max(0.0, cos_max - 0.1) if relax_round < 6 else 0.0)
+
+
 #: Rows handled at once by the vectorized steps over all faces or edges (bounded temporaries).
 _CHUNK = 4096
 
@@ -703,12 +714,7 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
         if not heap:
             # relax the geometric thresholds and retry everything still alive
             relax_rounds += 1
-            if relax_rounds > 6:
-                raise InputError(f"coarsening stopped at {n_alive} vertices (target {target}): no further "
-                                 "collapse keeps the mesh manifold and unflipped in every shape")
-            qmin *= 0.5
-            qmin_scaled = qmin / (2.0 * np.sqrt(3.0))
-            cos_max = max(0.0, cos_max - 0.1) if relax_rounds < 6 else 0.0
+            qmin, qmin_scaled, cos_max = _relaxed_thresholds(relax_rounds, qmin, cos_max, n_alive, target)
             for lst in blocked:
                 lst.clear()
             failures.clear()
@@ -863,12 +869,7 @@ def _batched_collapses(state, target, cos_max, qmin, progress):
         valid = hfail != version[hs] + version[hd]
         if not valid.any():
             relax_rounds += 1
-            if relax_rounds > 6:
-                raise InputError(f"coarsening stopped at {n_alive} vertices (target {target}): no further "
-                                 "collapse keeps the mesh manifold and unflipped in every shape")
-            qmin *= 0.5
-            qmin_scaled = qmin / (2.0 * np.sqrt(3.0))
-            cos_max = max(0.0, cos_max - 0.1) if relax_rounds < 6 else 0.0
+            qmin, qmin_scaled, cos_max = _relaxed_thresholds(relax_rounds, qmin, cos_max, n_alive, target)
             hfail[:] = -1
             continue
         # --- this round's candidates: collapses no dearer than the cheapest collapse of the cheapest

@@ -34,8 +34,6 @@ body's knee and torso keys two, on its raised arm three; the polish costs what f
 Measurements: ``benchmarks/bench_path_inbetweens.py``.
 """
 
-import contextlib
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +42,7 @@ from ...errors import InputError
 from ...progress import report
 from ...reconstruction import reconstruct
 from ...reconstruction.settings import GaussNewtonOptions
-from .mixer import MixerOptions, ShapeMixer
+from .mixer import MixerOptions, ShapeMixer, _Stopwatch
 from .subspace import _extend, newton_vectors, orthonormal_basis
 
 __all__ = ["PathOptions", "PathResult", "path_inbetweens", "SAFETY", "FAST_POLISH"]
@@ -168,20 +166,6 @@ class PathResult:
     factorizations: int
     seconds: dict
     cpu_seconds: dict
-
-
-class _Stopwatch:
-    def __init__(self):
-        self.wall, self.cpu = {}, {}
-
-    @contextlib.contextmanager
-    def __call__(self, name):
-        t, c = time.perf_counter(), time.process_time()
-        try:
-            yield
-        finally:
-            self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - t
-            self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
 
 
 def _next_probe(factors, probed, shape=None):
