@@ -120,8 +120,14 @@ class ReducedEnergy:
         self.dl, self.dt = dz[:, edges], dz[:, E + edges]
         self.floor = floor[edges]
         self.r = U.shape[1]
+        # many edges (more stencil coordinates than vertex coordinates): a stencil is gathered from the vertices
+        # x0 + U q, which reads U once instead of its (12, n, r) copy per edge
+        self._gather = (x0, U, np.ascontiguousarray(cols.T)) if 12 * len(edges) >= 2 * len(x0) else None
 
     def stencil(self, q):
+        if self._gather is not None:
+            x0, U, cols = self._gather
+            return (x0 + U @ q)[cols]
         return self.xb + self.US @ q
 
     def targets(self, w):
