@@ -106,11 +106,11 @@ def triangulate(mesh):
             diag = np.stack([np.broadcast_to(verts[:, :1], (len(polys), n - 3)), verts[:, j]], axis=2)
             diagonals[(diag_offset[polys, None] + np.arange(n - 3)).ravel()] = diag.reshape(-1, 2)
 
-    # loose edges / vertices would make the edge list differ from the triangle edges
-    mesh_edge_keys = _edge_keys(mesh_edges, n_vertices)
-    poly_edge_keys = _edge_keys(np.stack([corner_vert, corner_vert[_next_corner(loop_start, loop_total)]], 1),
-                                n_vertices)
-    loose = np.flatnonzero(~np.isin(mesh_edge_keys, poly_edge_keys))
+    # loose edges / vertices would make the edge list differ from the triangle edges; every corner names the
+    # edge to the next corner (index arithmetic, no set operations on edge keys)
+    used_edge = np.zeros(len(mesh_edges), bool)
+    used_edge[_get(mesh.loops, "edge_index", np.int32, len(mesh.loops))] = True
+    loose = np.flatnonzero(~used_edge)
     if loose.size:
         raise MeshAccessError(f"Mesh '{mesh.name}' has {loose.size} loose edge(s) not used by any face "
                               f"(e.g. edges {_fmt(loose)}); delete them (Mesh > Clean Up > Delete Loose)")
@@ -120,7 +120,7 @@ def triangulate(mesh):
         bad = np.flatnonzero(~used)
         raise MeshAccessError(f"Mesh '{mesh.name}' has {bad.size} loose vertex(es) not used by any face "
                               f"(e.g. vertices {_fmt(bad)}); delete them (Mesh > Clean Up > Delete Loose)")
-    clash = np.flatnonzero(np.isin(_edge_keys(diagonals, n_vertices), mesh_edge_keys))
+    clash = _in_sorted(_edge_keys(diagonals, n_vertices), np.sort(_edge_keys(mesh_edges, n_vertices)))
     if clash.size:
         polys = np.searchsorted(diag_offset, clash, side="right") - 1
         raise MeshAccessError(f"Mesh '{mesh.name}': the triangulation diagonal of face(s) {_fmt(np.unique(polys))} "
@@ -144,13 +144,12 @@ def _check_repeated_triangles(mesh_name, faces, face_polygon, n_vertices):
                               "select those faces and Triangulate them (Face > Triangulate Faces, Ctrl+T)")
 
 
-def _next_corner(loop_start, loop_total):
-    """Index of the next corner (loop) within its polygon, for every loop."""
-    n_loops = int(loop_total.sum())
-    poly_of_loop = np.repeat(np.arange(len(loop_start)), loop_total)
-    corner = np.arange(n_loops)
-    local = corner - loop_start[poly_of_loop]
-    return loop_start[poly_of_loop] + (local + 1) % loop_total[poly_of_loop]
+def _in_sorted(keys, sorted_keys):
+    """Indices of the ``keys`` found in ``sorted_keys`` (ascending)."""
+    if not len(keys) or not len(sorted_keys):
+        return np.zeros(0, np.int64)
+    pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
+    return np.flatnonzero(sorted_keys[pos] == keys)
 
 
 def _edge_keys(pairs, n_vertices):

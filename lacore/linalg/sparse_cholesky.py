@@ -149,8 +149,8 @@ class SparseCholesky:
             P = (P + sp.eye(n, format="csc")).tocsc()
             P.sort_indices()
         self.n = n
-        self.indptr = P.indptr.astype(np.int64)
-        self.indices = P.indices.astype(np.int64)
+        self.indptr = P.indptr.astype(np.int64, copy=False)
+        self.indices = P.indices.astype(np.int64, copy=False)
         self.nnz = len(self.indices)
         cols = np.repeat(np.arange(n), np.diff(self.indptr))
         self._cols = cols
@@ -164,11 +164,10 @@ class SparseCholesky:
         if backend == "cholmod":
             cvxopt = _cholmod()
             self._cvxopt = cvxopt
-            self._A = cvxopt.spmatrix(np.ones(self.nnz), cvxopt.matrix(self.indices.astype(np.int64)),
-                                      cvxopt.matrix(cols.astype(np.int64)), (n, n))
-            self._A.V = cvxopt.matrix(np.arange(1.0, self.nnz + 1.0))
+            position = np.arange(1.0, self.nnz + 1.0)
+            self._A = cvxopt.spmatrix(position, cvxopt.matrix(self.indices), cvxopt.matrix(cols), (n, n))
             # the spmatrix must keep our (column-major, sorted) order so values can be assigned directly
-            if not np.array_equal(np.asarray(self._A.V).ravel(), np.arange(1.0, self.nnz + 1.0)):
+            if not np.array_equal(np.asarray(self._A.V).ravel(), position):
                 raise RuntimeError("cvxopt reordered the pattern")  # pragma: no cover
             if ordering is not None:
                 p = np.asarray(ordering, dtype=np.int64)

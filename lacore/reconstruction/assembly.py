@@ -56,13 +56,18 @@ def gauss_newton_pattern(topology):
         len_cols = (3 * topology.edges[:, [0, 0, 0, 1, 1, 1]] + np.tile(xyz, 2)).T   # (6, E)
         ang_cols = (3 * np.repeat(jp["quad"], 3, axis=1) + np.tile(xyz, 4)).T     # (12, E_int)
         V = topology.n_vertices
-        structure = _vertex_block_structure(V, [topology.edges, jp["quad"]])
-        slots = np.concatenate([structure.slots(topology.edges, _I6, _J6).ravel(),
-                                structure.slots(jp["quad"], _I12, _J12).ravel()])
+        # the quad of an interior edge couples its ends and opposite vertices: the mesh edges and the pair of
+        # opposite vertices; the slots of both element kinds fill one array (no concatenated copy)
+        structure = _VertexBlockStructure(V, (np.r_[topology.edges[:, 0], jp["quad"][:, 2]],
+                                              np.r_[topology.edges[:, 1], jp["quad"][:, 3]]))
+        slots = np.empty(len(_I6) * E + len(_I12) * Ei, np.intp)
+        structure.slots(topology.edges, _I6, _J6, out=slots[:len(_I6) * E].reshape(len(_I6), E))
+        structure.slots(jp["quad"], _I12, _J12, out=slots[len(_I6) * E:].reshape(len(_I12), Ei))
         indptr, indices, ucols = structure.indptr, structure.indices, structure.cols
         matrix = sp.csc_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
         return {"indptr": indptr, "indices": indices, "cols": ucols, "matrix": matrix, "slots": slots,
-                "local_order": local_order, "nnz": len(indices), "n": n, "len_cols": len_cols, "ang_cols": ang_cols}
+                "local_order": local_order, "nnz": len(indices), "n": n, "len_cols": len_cols, "ang_cols": ang_cols,
+                "vertex_pairs": structure.pairs()}
     return topology.cache.get((__name__, "gauss_newton_pattern"), compute)
 
 
@@ -78,7 +83,9 @@ class _VertexBlockStructure:
     def __init__(self, n_vertices, pairs):
         V = n_vertices
         lo, hi = np.minimum(pairs[0], pairs[1]), np.maximum(pairs[0], pairs[1])
-        keys = np.unique(np.concatenate([lo * V + hi, np.arange(V, dtype=np.int64) * (V + 1)]))
+        keys = np.concatenate([lo.astype(np.int64) * V + hi, np.arange(V, dtype=np.int64) * (V + 1)])
+        keys.sort()                                   # a sort and a comparison: faster than np.unique here
+        keys = keys[np.r_[True, keys[1:] != keys[:-1]]]
         self.V, self.keys = V, keys
         pu, pw = keys // V, keys % V
         self.group_start = np.searchsorted(pu, np.arange(V))          # index of (u, u) in keys
@@ -100,17 +107,23 @@ class _VertexBlockStructure:
         return np.where(u == w, start + beta - alpha, start + (3 - alpha) + 3 * (pair - self.group_start[u] - 1)
                         + beta)
 
-    def slots(self, element_vertices, ii, jj):
+    def pairs(self):
+        """``(2, P)`` the coupled vertex pairs ``u < w`` (the off-diagonal blocks), in column order."""
+        u, w = self.keys // self.V, self.keys % self.V
+        off = u != w
+        return np.stack([u[off], w[off]])
+
+    def slots(self, element_vertices, ii, jj, out=None):
         """Positions of the upper-triangle pairs ``(ii, jj)`` of every element's local outer product.
 
         ``element_vertices`` ``(m, k)``: the vertices of ``m`` elements, whose local coordinate ``3 a + c``
         is coordinate ``c`` of vertex ``a``; ``ii <= jj`` index local coordinates.  Returns
-        ``(len(ii), m)``.  Works per vertex pair of an element (one search each), then per coordinate pair
-        with vectors over the elements.
+        ``(len(ii), m)`` (into ``out`` when given).  Works per vertex pair of an element (one search each),
+        then per coordinate pair with vectors over the elements.
         """
         el = np.asarray(element_vertices, np.int64)
         m = el.shape[0]
-        out = np.empty((len(ii), m), np.intp)
+        out = np.empty((len(ii), m), np.intp) if out is None else out
         bases = {}
         for r, (p, q) in enumerate(zip(ii, jj, strict=True)):
             a, b, cp, cq = p // 3, q // 3, p % 3, q % 3
@@ -128,17 +141,6 @@ class _VertexBlockStructure:
             else:
                 out[r] = np.where(less, base[cp] + cq, base[cq] + cp)
         return out
-
-
-def _vertex_block_structure(n_vertices, elements):
-    """:class:`_VertexBlockStructure` of the vertex pairs of elements given as ``(m_i, k_i)`` vertex arrays."""
-    first, second = [], []
-    for el in elements:
-        el = np.asarray(el, np.int64)
-        i, j = np.triu_indices(el.shape[1], 1)
-        first.append(el[:, i].ravel())
-        second.append(el[:, j].ravel())
-    return _VertexBlockStructure(n_vertices, (np.concatenate(first), np.concatenate(second)))
 
 
 def upper_outer(g, gw, out):
@@ -177,7 +179,16 @@ def dof_ordering(topology, pattern, vertices, method=None):
 
 def coupled_vertex_graph(pattern, n_vertices):
     """``(V, V)`` symmetric CSR adjacency of the vertices a Gauss-Newton pattern couples (diagonal included)."""
-    rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
-    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
-    return (G + G.T).tocsr()
+    if "vertex_pairs" not in pattern:
+        rows, cols = pattern["indices"] // 3, pattern["cols"] // 3
+        G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
+        return (G + G.T).tocsr()
+    u, w = pattern["vertex_pairs"]
+    diagonal = np.arange(n_vertices)
+    rows, cols = np.r_[u, w, diagonal], np.r_[w, u, diagonal]
+    order = np.lexsort((cols, rows))               # CSR order without scipy summing duplicates (there are none)
+    indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n_vertices))]
+    G = sp.csr_matrix((np.ones(len(rows)), cols[order], indptr), shape=(n_vertices, n_vertices))
+    G.has_sorted_indices = True
+    return G
 

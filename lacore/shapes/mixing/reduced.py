@@ -111,17 +111,37 @@ class ReducedEnergy:
         self.edges = edges
         self.c = np.ones(len(edges)) if c is None else np.asarray(c, float)
         cols = (3 * stencils[edges][:, :, None] + np.arange(3)).reshape(len(edges), 12)
-        self.xb = np.ascontiguousarray(x0[cols].T)                      # (12, n)
-        self.US = np.ascontiguousarray(U[cols].transpose(1, 0, 2))      # (12, n, r)
+        self._cols, self._x0 = cols, x0
         self._USn = np.ascontiguousarray(U[cols])                          # (n, 12, r)
+        self._xb = self._US = None
         self.wl = residual_weights[edges] * self.c
         self.wt = residual_weights[E + edges] * self.c
         self.l0, self.t0 = z0[edges], z0[E + edges]
         self.dl, self.dt = dz[:, edges], dz[:, E + edges]
         self.floor = floor[edges]
         self.r = U.shape[1]
+        # many edges (more stencil coordinates than vertex coordinates): a stencil is gathered from the vertices
+        # x0 + U q, which reads U once instead of its (12, n, r) copy per edge
+        self._gather = (x0, U, np.ascontiguousarray(cols.T)) if 12 * len(edges) >= 2 * len(x0) else None
+
+    @property
+    def xb(self):
+        """``(12, n)`` stencil coordinates of ``x0`` (made on first use)."""
+        if self._xb is None:
+            self._xb = np.ascontiguousarray(self._x0[self._cols].T)
+        return self._xb
+
+    @property
+    def US(self):
+        """``(12, n, r)`` rows of ``U`` of the stencil coordinates (made on first use)."""
+        if self._US is None:
+            self._US = np.ascontiguousarray(self._USn.transpose(1, 0, 2))
+        return self._US
 
     def stencil(self, q):
+        if self._gather is not None:
+            x0, U, cols = self._gather
+            return (x0 + U @ q)[cols]
         return self.xb + self.US @ q
 
     def targets(self, w):
