@@ -14,12 +14,15 @@
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+import hashlib
+
 import numpy as np
 
 from ..lacore.errors import InputError
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "write_shape_key",
-           "set_shape_key", "key_names", "require_mesh_object", "object_mode", "mesh_counts"]
+           "set_shape_key", "key_names", "require_mesh_object", "object_mode", "mesh_counts",
+           "connectivity_digest"]
 
 
 class MeshAccessError(InputError):
@@ -234,6 +237,21 @@ def object_mode(obj):
     finally:
         with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
             bpy.ops.object.mode_set(mode='EDIT')
+
+
+def connectivity_digest(mesh):
+    """Digest of ``mesh``'s connectivity as Blender stores it (vertex count, edges, polygons' loops).
+
+    Equal digests mean the same :func:`triangulate` result; it reads the arrays without triangulating
+    (a few milliseconds at 50k vertices instead of about 0.1 s).
+    """
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.int64(len(mesh.vertices)).tobytes())
+    for collection, attr, width in ((mesh.edges, "vertices", 2), (mesh.polygons, "loop_start", 1),
+                                    (mesh.polygons, "loop_total", 1), (mesh.loops, "vertex_index", 1)):
+        h.update(_get(collection, attr, np.int32, len(collection), width).tobytes())
+        h.update(b"|")
+    return h.hexdigest()
 
 
 def mesh_counts(mesh):

@@ -50,8 +50,8 @@ from bpy.props import BoolProperty
 
 from ..lacore.errors import InputError
 from ..lacore.parallel import close_workers
-from . import jobs, session
-from .mesh_access import mesh_counts, triangulate
+from . import jobs
+from .mesh_access import connectivity_digest, mesh_counts
 
 __all__ = ["Run", "ObjectWatch", "RunOperator", "ChangedWhileRunning", "failure_warning", "error_text",
            "shutdown", "object_state", "TIMER_SECONDS", "NOTHING_WRITTEN"]
@@ -106,9 +106,7 @@ def _mesh_state(obj, keys):
     """``(connectivity digest, {key: coordinate digest})`` of a mesh object (Edit Mode changes included)."""
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
-    tri = triangulate(obj.data)
-    return (session.topology_hash(tri.faces, tri.edges, tri.n_vertices),
-            {k: _key_hash(obj.data, k) for k in keys})
+    return connectivity_digest(obj.data), {k: _key_hash(obj.data, k) for k in keys}
 
 
 class ObjectWatch:
@@ -154,11 +152,7 @@ class ObjectWatch:
             if changed:
                 raise ChangedWhileRunning(f"The mesh of '{obj.name}' changed while computing ({', '.join(changed)}); "
                                           f"{NOTHING_WRITTEN}")
-            try:
-                topology, keys = _mesh_state(obj, self.keys)
-            except InputError as exc:
-                raise ChangedWhileRunning(f"The mesh of '{obj.name}' changed while computing ({exc}); "
-                                          f"{NOTHING_WRITTEN}") from exc
+            topology, keys = _mesh_state(obj, self.keys)
             if topology != self.state[0]:
                 raise ChangedWhileRunning(f"The faces of '{obj.name}' changed while computing; {NOTHING_WRITTEN}")
             edited = [k for k in self.keys if keys[k] != self.state[1][k]]

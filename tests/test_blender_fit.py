@@ -214,6 +214,7 @@ def test_fit_run_writes_the_modifier(run):
     ("build_key_edited", "Shape key 'train03' was edited"), ("build_edit_mode", "from Object Mode to Edit Mode"),
     ("bind_other_frame", "The posed mesh of 'Body'"), ("bind_marker_deleted", "The take 'take' or its marker"),
     ("fit_mesh_edited", "The mesh of 'Body' changed while computing (vertices 2500 -> 2499"),
+    ("fit_face_flipped", "The faces of 'Body' changed while computing"),
     ("fit_model_rebuilt", "The shape model of 'Body' changed"),
     ("fit_marker_deleted", "The take 'take' or its marker empties changed"),
     ("fit_object_deleted", "Object 'Body' was deleted or renamed")])

@@ -451,6 +451,14 @@ def runs_object_changed():
         bm.to_mesh(obj.data)
         bm.free()
 
+    def flip_face(obj, take):            # the same counts, other connectivity
+        bm = bmesh.new()
+        bm.from_mesh(obj.data)
+        bm.faces.ensure_lookup_table()
+        bmesh.ops.reverse_faces(bm, faces=[bm.faces[0]])
+        bm.to_mesh(obj.data)
+        bm.free()
+
     def other_frame(obj, take):
         bpy.context.scene.frame_set(2)
 
@@ -473,6 +481,7 @@ def runs_object_changed():
     attempt("bind_other_frame", bind, other_frame)
     attempt("bind_marker_deleted", bind, delete_marker)
     attempt("fit_mesh_edited", fit_, delete_vertex)
+    attempt("fit_face_flipped", fit_, flip_face)
     attempt("fit_model_rebuilt", fit_, rebuild_model)
     attempt("fit_marker_deleted", fit_, delete_marker)
     attempt("fit_object_deleted", fit_, delete_object)
