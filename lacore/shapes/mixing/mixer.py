@@ -441,6 +441,7 @@ class ShapeMixer:
         self._error_w = self._error_v = None
         self._corr_w = self._corr = None
         self._derivatives = False
+        self._exp_terms = None
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -474,7 +475,7 @@ class ShapeMixer:
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
-                                    chord_steps=o.chord_steps, size=size, stage=watch,
+                                    chord_steps=o.chord_steps, size=size, stage=watch, training=True,
                                     progress=None if progress is None else (
                                         lambda d, t, m: progress(1, 4, m)))
         report(progress, 2, 4, "basis")
@@ -500,11 +501,12 @@ class ShapeMixer:
                     order = np.argsort([-latest[tuple(c)] for c in all_cands])
                     cands = [all_cands[i] for i in order[:max(1, (len(all_cands) + 1) // 2)]]
                 keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
+                terms = [] if not o.newton_pcg_iterations else None    # the cubature's training at the points
                 new, points, errors = newton_vectors(P, x0, mixer.basis,
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
                                                      pcg_iterations=o.newton_pcg_iterations,
-                                                     derivatives=derivatives,
+                                                     derivatives=derivatives, training=terms,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))
@@ -513,8 +515,9 @@ class ShapeMixer:
                 mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
                 vectors += new
                 done = {tuple(wc) for wc, _ in points}
-                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [Expansion(wc, x)
-                                                                                        for wc, x in points]
+                terms = terms or [None] * len(points)
+                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [
+                    Expansion(wc, x, terms=t) for (wc, x), t in zip(points, terms, strict=True)]
             with watch("basis"):
                 U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
                                          keep=mixer.n_keys - 1)
@@ -541,6 +544,7 @@ class ShapeMixer:
         self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
         self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
                                 for e in exps])
+        self._exp_terms = [e.terms for e in exps]              # the cubature's training there (build only)
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
@@ -572,38 +576,46 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False):
+    def _training(self, samples, metrics=False, terms=None):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
         Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
-        more at 13k vertices, for the same energies on the 13k bodies)."""
+        more at 13k vertices, for the same energies on the 13k bodies).  ``terms``: per sample the full problem's
+        training terms there (:meth:`.subspace.FullProblem.training_terms`) when the build has them (from the
+        Jacobians of its factorizations), else None: those samples need no Jacobian."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
-        sw = np.sqrt(P.w)
-        inverse_factors = []
         un = np.sqrt((U.reshape(-1, 3, U.shape[1]) ** 2).sum(axis=(1, 2)))        # per-vertex norm of U
         st = self._stencils
         reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
-        totals, score = [], np.zeros(E)
-        for q in samples:
-            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-            JtC, rown, r0 = P.training_terms(J, z)
-            C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
+        abs_wdz = np.abs(P.weighted_dz)                                             # |C| but its first column
+        totals, score = [], np.zeros(2 * E)
+        inverse_factor = None
+        for i, q in enumerate(samples):
+            given = None if terms is None else terms[i]
+            J = None
+            if given is None or (metrics and i == 0):
+                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            JtC, rown, c0 = P.training_terms(J, z) if given is None else given
             totals.append((U.T @ JtC).T)
-            if metrics and not inverse_factors:
+            if metrics and i == 0:
                 A = J @ U
-                A *= sw[:, None]
+                A *= np.sqrt(P.w)[:, None]
                 H = 2.0 * (A.T @ A)
                 H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / len(H)
-                inverse_factors.append(sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
-                                                           check_finite=False))
-            bound = np.abs(C) * (rown * reach)[:, None]
-            bound /= np.maximum(bound.sum(axis=0), 1e-300)
-            score += (bound[:E] + bound[E:]).sum(axis=1)
+                inverse_factor = sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
+                                                     check_finite=False)
+            # bound of the pieces of row j in column k of C: |C_jk| t_j, t = row norm of J times the reach of U there,
+            # normalized by its sum over the rows (every column counts alike)
+            t = rown * reach
+            a0 = np.abs(c0)
+            sums = np.maximum(np.r_[t @ a0, t @ abs_wdz], 1e-300)
+            score += t * (a0 / sums[0] + abs_wdz @ (1.0 / sums[1:]))
+        score = score[:E] + score[E:]
         if metrics:
-            return totals, score, inverse_factors[0]
+            return totals, score, inverse_factor
         return totals, score
 
     def _fit_cubature(self):
@@ -611,15 +623,17 @@ class ShapeMixer:
         E = self.n_edges
         n = self.options.cubature_points or max(300, (20 if self._derivatives else 12) * r)
         self._corr_w = self._corr = None
+        given, self._exp_terms = self._exp_terms, None            # (the build's memory)
         if E <= 2 * n:
             self._cubature = self._make_energy(None, None)
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
+        terms = None if given is None else given + [None] * (len(Q) - len(given))
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(list(Q), metrics=True)
+            totals, score, metrics = self._training(list(Q), metrics=True, terms=terms)
         else:
-            (totals, score), metrics = self._training(list(Q)), None
+            (totals, score), metrics = self._training(list(Q), terms=terms), None
         edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics)
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel

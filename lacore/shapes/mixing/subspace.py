@@ -64,6 +64,7 @@ class FullProblem:
         self.dz = dz
         self.floor = floor
         self.w = weights
+        self.weighted_dz = weights[:, None] * dz.T               # (2E, m): W dz^T
         self.fixed = context.fixed_dofs
 
     def target(self, wk):
@@ -91,13 +92,16 @@ class FullProblem:
     def training_terms(self, J, z):
         """What the cubature's training (``ShapeMixer._training``) needs of the full problem at a point with
         Jacobian ``J`` and ``z = Z(x)``: ``J^T C`` ``(3V, m+1)`` with ``C = W [r_0, dz^T]`` (``r_0 = z - z_0``,
-        angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and ``r_0``."""
+        angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and the first
+        column ``W r_0`` of ``C`` (the others, :attr:`weighted_dz`, are the same at every point)."""
         r0 = z - self.z0
         r0[self.E:] = np.pi - np.mod(np.pi - r0[self.E:], 2.0 * np.pi)
-        C = self.w[:, None] * np.column_stack([r0, self.dz.T])                 # (2E, m+1)
+        C = np.empty((len(r0), 1 + len(self.dz)))
+        np.multiply(self.w, r0, out=C[:, 0])
+        C[:, 1:] = self.weighted_dz
         rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(J.shape[0])
         rown[np.diff(J.indptr) == 0] = 0.0
-        return J.T @ C, rown, r0
+        return J.T @ C, rown, C[:, 0].copy()
 
     def gradient(self, x, wk):
         J, z = self.linearize(x)
@@ -189,10 +193,11 @@ def candidate_weights(m, low, high):
 
 class Expansion:
     """A point of the weight space with its shape ``x`` and optionally first (``D1 (m, 3V)``) and second
-    derivatives (``T (m, m, 3V)``, symmetric)."""
+    derivatives (``T (m, m, 3V)``, symmetric), and the cubature's training terms at ``x``
+    (:meth:`FullProblem.training_terms`, from the Jacobian the build evaluated there)."""
 
-    def __init__(self, w, x, D1=None, T=None):
-        self.w, self.x, self.D1, self.T = np.asarray(w, float), x, D1, T
+    def __init__(self, w, x, D1=None, T=None, terms=None):
+        self.w, self.x, self.D1, self.T, self.terms = np.asarray(w, float), x, D1, T, terms
 
     def predict(self, wk, order=2):
         d = np.asarray(wk, float) - self.w
@@ -205,7 +210,7 @@ class Expansion:
 
 
 def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, size=1.0, progress=None,
-                stage=None):
+                stage=None, training=False):
     """Vectors spanning the reduced space and the expansions of the keys.
 
     Parameters
@@ -222,6 +227,9 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
         Bounding-box diagonal (context units), the scale of finite differences.
     stage : callable, optional
         ``stage(name)`` -> context manager timing a stage (``"derivatives"``, ``"chord_vectors"``).
+    training : bool
+        Keep the cubature's training terms at the keys (:attr:`Expansion.terms`) from the Jacobians of
+        their factorizations.
 
     Returns
     -------
@@ -241,7 +249,8 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
     timer.__enter__()
     for k in range(K):
         report(progress, k, total, f"derivatives at key {k}")
-        J = problem.factorize(key_x[k], keys_w[k])
+        J, z = problem.linearize(key_x[k])
+        problem.factorize(key_x[k], keys_w[k], linearized=(J, z))
         D1 = problem.first_derivatives(J)
         vectors += list(D1)
         T = None
@@ -256,7 +265,8 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
                                                   size)
                     T[a, b] = T[b, a] = 0.5 * (S - T[a, a] - T[b, b])
                     vectors.append(S)
-        exps.append(Expansion(keys_w[k], key_x[k].copy(), D1, T))
+        exps.append(Expansion(keys_w[k], key_x[k].copy(), D1, T,
+                              problem.training_terms(J, z) if training else None))
     timer.__exit__(None, None, None)
     timer = stage("chord_vectors") if cands else contextlib.nullcontext()
     timer.__enter__()
@@ -381,7 +391,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2):
+                   reduced_iterations=2, training=None):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -408,6 +418,8 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     solve (:meth:`FullProblem.newton_step`), no more factorizations.  They join the steps in the returned vectors.
 
     ``progress(done, total, message)`` is reported before every start (:func:`lacore.progress.report`).
+    ``training``: a list to which the cubature's training terms at every reduced minimizer are appended
+    (:meth:`FullProblem.training_terms`, from the Jacobian of its factorization; with a factorization per start).
 
     Returns the vectors (the steps, then the derivatives when asked), the reduced minimizers
     ``[(w, x)]`` and the RMS lengths of the steps relative to ``size`` (the error of the space there
@@ -424,6 +436,8 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
                                             linearized=True)
             solved.append((np.asarray(wk, float), x))
             J = problem.factorize(x, wk, linearized=(J, z))
+            if training is not None:
+                training.append(problem.training_terms(J, z))
             steps[i], *more = problem.newton_step(J, x, wk, derivatives, z=z)
             extra += more
             space = _extend(space, [steps[i]] + more)
