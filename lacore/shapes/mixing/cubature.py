@@ -175,7 +175,11 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         Edges offered to the selection: all when there are not more, else the half with the largest
         ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion.
     seed : int
-        Seed of that draw.
+        Seed of that draw.  The candidates' pieces are stored in single precision (the largest array of
+        the build; the greedy fit ranks them in single precision and fits the weights in double precision
+        on the rounded columns, :func:`greedy_nnls`): on the 13k bodies the same edges as in double
+        precision; on the bars, whose regular meshes make near-ties of the ranking, another selection as
+        good as another seed's (``docs/shape-space.md``).
     metric : (r, r) ndarray, optional
         A matrix ``M``: the gradient errors are measured as ``|M e|`` instead of ``|e|``.
         With ``M = C^{-1}``, ``C C^T`` the reduced Gauss-Newton matrix there, ``|M e|^2 = e^T H^{-1} e``
