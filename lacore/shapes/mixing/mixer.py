@@ -524,6 +524,7 @@ class ShapeMixer:
                 mixer._set_basis(U, exps)
         with watch("basis"):
             mixer._output_basis()                            # of the final basis only
+        del vectors, exps                    # not needed by the cubature (its training terms are in mixer._exp_terms)
         report(progress, 3, 4, "cubature")
         with watch("cubature"):
             mixer._fit_cubature()
