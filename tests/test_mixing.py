@@ -463,32 +463,6 @@ def test_cubature_nnls_matches_lawson_hanson():
     assert rel32 < 1e-7 and np.abs(x32 - truth).max() < 4e-7                   # measured 7e-9, 4e-8
 
 
-def test_cubature_training_reuses_the_builds_jacobians(monkeypatch):
-    """The training terms the build keeps at the keys and the Newton points (from the Jacobians of their
-    factorizations) are those of a fresh evaluation at the cubature's samples there: the same exact gradient pieces
-    and edge scores."""
-    seen = {}
-    fit = ShapeMixer._fit_cubature
-
-    def spy(self):
-        seen["terms"] = list(self._exp_terms)
-        return fit(self)
-
-    monkeypatch.setattr(ShapeMixer, "_fit_cubature", spy)
-    X, F = bar_mesh(n_along=30, n_side=2)
-    mixer = ShapeMixer.build(np.stack([X, bar_pose(X, 1.2, 0.0), bar_pose(X, 0.0, 1.2)]), F)
-    terms = seen["terms"]
-    assert len(terms) == len(mixer._exp_w) == 3 + 6 and all(t is not None for t in terms)   # keys, Newton points
-    W, Q = mixer._cubature_samples()
-    n = len(terms)
-    tot_given, score_given, M_given = mixer._training(list(Q[:n]), metrics=True, terms=terms)
-    tot_fresh, score_fresh, M_fresh = mixer._training(list(Q[:n]), metrics=True)
-    for a, b in zip(tot_given, tot_fresh, strict=True):
-        assert np.abs(a - b).max() <= 3e-9 * np.abs(b).max()                            # measured 6e-10
-    assert np.abs(score_given - score_fresh).max() <= 3e-10 * score_fresh.max()          # measured 6e-11
-    assert np.array_equal(M_given, M_fresh)                                              # the basis key's, fresh
-
-
 def test_reduced_solve_hands_its_linearization_to_the_newton_step(long_bar):
     """The reduced minimizer's Jacobian and lengths and angles at its point are those of a fresh evaluation there,
     its energy descends, its point is ``x0 + U q``, and the Newton step from the factorization they build equals

@@ -441,7 +441,6 @@ class ShapeMixer:
         self._error_w = self._error_v = None
         self._corr_w = self._corr = None
         self._derivatives = False
-        self._exp_terms = None
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -475,7 +474,7 @@ class ShapeMixer:
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
-                                    chord_steps=o.chord_steps, size=size, stage=watch, training=True,
+                                    chord_steps=o.chord_steps, size=size, stage=watch,
                                     progress=None if progress is None else (
                                         lambda d, t, m: progress(1, 4, m)))
         report(progress, 2, 4, "basis")
@@ -501,12 +500,11 @@ class ShapeMixer:
                     order = np.argsort([-latest[tuple(c)] for c in all_cands])
                     cands = [all_cands[i] for i in order[:max(1, (len(all_cands) + 1) // 2)]]
                 keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
-                terms = [] if not o.newton_pcg_iterations else None    # the cubature's training at the points
                 new, points, errors = newton_vectors(P, x0, mixer.basis,
                                                      [(wc, mixer._start(wc)) for wc in cands], size,
                                                      keys=list(zip(keys_w, mixer._key_x, strict=True)),
                                                      pcg_iterations=o.newton_pcg_iterations,
-                                                     derivatives=derivatives, training=terms,
+                                                     derivatives=derivatives,
                                                      progress=None if progress is None else (
                                                          lambda d, t, msg, rnd=rnd: progress(
                                                              2, 4, f"round {rnd + 1}: {msg}")))
@@ -515,16 +513,14 @@ class ShapeMixer:
                 mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
                 vectors += new
                 done = {tuple(wc) for wc, _ in points}
-                terms = terms or [None] * len(points)
-                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [
-                    Expansion(wc, x, terms=t) for (wc, x), t in zip(points, terms, strict=True)]
+                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [Expansion(wc, x)
+                                                                                        for wc, x in points]
             with watch("basis"):
                 U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
                                          keep=mixer.n_keys - 1)
                 mixer._set_basis(U, exps)
         with watch("basis"):
             mixer._output_basis()                            # of the final basis only
-        del vectors, exps                    # not needed by the cubature (its training terms are in mixer._exp_terms)
         report(progress, 3, 4, "cubature")
         with watch("cubature"):
             mixer._fit_cubature()
@@ -545,7 +541,6 @@ class ShapeMixer:
         self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
         self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
                                 for e in exps])
-        self._exp_terms = [e.terms for e in exps]              # the cubature's training there (build only)
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
@@ -577,14 +572,14 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False, terms=None):
+    def _training(self, samples, metrics=False):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
         Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
-        more at 13k vertices, for the same energies on the 13k bodies).  ``terms``: per sample the full problem's
-        training terms there (:meth:`.subspace.FullProblem.training_terms`) when the build has them (from the
-        Jacobians of its factorizations), else None: those samples need no Jacobian."""
+        more at 13k vertices, for the same energies on the 13k bodies).  The build's own Jacobians at the keys and
+        the Newton points are not kept for it: holding their terms through the Newton stage cost more there (page
+        faults) than the 16 Jacobians saved here (docs/shape-space.md)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
@@ -595,11 +590,8 @@ class ShapeMixer:
         totals, score = [], np.zeros(2 * E)
         inverse_factor = None
         for i, q in enumerate(samples):
-            given = None if terms is None else terms[i]
-            J = None
-            if given is None or (metrics and i == 0):
-                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-            JtC, rown, c0 = P.training_terms(J, z) if given is None else given
+            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            JtC, rown, c0 = P.training_terms(J, z)
             totals.append((U.T @ JtC).T)
             if metrics and i == 0:
                 A = J @ U
@@ -624,17 +616,15 @@ class ShapeMixer:
         E = self.n_edges
         n = self.options.cubature_points or max(300, (20 if self._derivatives else 12) * r)
         self._corr_w = self._corr = None
-        given, self._exp_terms = self._exp_terms, None            # (the build's memory)
         if E <= 2 * n:
             self._cubature = self._make_energy(None, None)
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
-        terms = None if given is None else given + [None] * (len(Q) - len(given))
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(list(Q), metrics=True, terms=terms)
+            totals, score, metrics = self._training(list(Q), metrics=True)
         else:
-            (totals, score), metrics = self._training(list(Q), terms=terms), None
+            (totals, score), metrics = self._training(list(Q)), None
         edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics)
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel

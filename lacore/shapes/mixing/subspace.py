@@ -193,11 +193,10 @@ def candidate_weights(m, low, high):
 
 class Expansion:
     """A point of the weight space with its shape ``x`` and optionally first (``D1 (m, 3V)``) and second
-    derivatives (``T (m, m, 3V)``, symmetric), and the cubature's training terms at ``x``
-    (:meth:`FullProblem.training_terms`, from the Jacobian the build evaluated there)."""
+    derivatives (``T (m, m, 3V)``, symmetric)."""
 
-    def __init__(self, w, x, D1=None, T=None, terms=None):
-        self.w, self.x, self.D1, self.T, self.terms = np.asarray(w, float), x, D1, T, terms
+    def __init__(self, w, x, D1=None, T=None):
+        self.w, self.x, self.D1, self.T = np.asarray(w, float), x, D1, T
 
     def predict(self, wk, order=2):
         d = np.asarray(wk, float) - self.w
@@ -210,7 +209,7 @@ class Expansion:
 
 
 def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, size=1.0, progress=None,
-                stage=None, training=False):
+                stage=None):
     """Vectors spanning the reduced space and the expansions of the keys.
 
     Parameters
@@ -227,9 +226,6 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
         Bounding-box diagonal (context units), the scale of finite differences.
     stage : callable, optional
         ``stage(name)`` -> context manager timing a stage (``"derivatives"``, ``"chord_vectors"``).
-    training : bool
-        Keep the cubature's training terms at the keys (:attr:`Expansion.terms`) from the Jacobians of
-        their factorizations.
 
     Returns
     -------
@@ -249,8 +245,7 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
     timer.__enter__()
     for k in range(K):
         report(progress, k, total, f"derivatives at key {k}")
-        J, z = problem.linearize(key_x[k])
-        problem.factorize(key_x[k], keys_w[k], linearized=(J, z))
+        J = problem.factorize(key_x[k], keys_w[k])
         D1 = problem.first_derivatives(J)
         vectors += list(D1)
         T = None
@@ -265,8 +260,7 @@ def build_space(problem, key_x, low, high, *, second_order=True, chord_steps=0, 
                                                   size)
                     T[a, b] = T[b, a] = 0.5 * (S - T[a, a] - T[b, b])
                     vectors.append(S)
-        exps.append(Expansion(keys_w[k], key_x[k].copy(), D1, T,
-                              problem.training_terms(J, z) if training else None))
+        exps.append(Expansion(keys_w[k], key_x[k].copy(), D1, T))
     timer.__exit__(None, None, None)
     timer = stage("chord_vectors") if cands else contextlib.nullcontext()
     timer.__enter__()
@@ -391,7 +385,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2, training=None):
+                   reduced_iterations=2):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -418,8 +412,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     solve (:meth:`FullProblem.newton_step`), no more factorizations.  They join the steps in the returned vectors.
 
     ``progress(done, total, message)`` is reported before every start (:func:`lacore.progress.report`).
-    ``training``: a list to which the cubature's training terms at every reduced minimizer are appended
-    (:meth:`FullProblem.training_terms`, from the Jacobian of its factorization; with a factorization per start).
 
     Returns the vectors (the steps, then the derivatives when asked), the reduced minimizers
     ``[(w, x)]`` and the RMS lengths of the steps relative to ``size`` (the error of the space there
@@ -436,8 +428,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
                                             linearized=True)
             solved.append((np.asarray(wk, float), x))
             J = problem.factorize(x, wk, linearized=(J, z))
-            if training is not None:
-                training.append(problem.training_terms(J, z))
             steps[i], *more = problem.newton_step(J, x, wk, derivatives, z=z)
             extra += more
             space = _extend(space, [steps[i]] + more)
