@@ -32,7 +32,7 @@ ones of the reconstruction context's solver (one symbolic analysis for all): the
 build at 50k vertices (about 2 s CPU each on the 50k bar, whose factor has 47 million nonzeros, with
 an assembly and a solve of 0.2-0.3 s each, of about 30 s in all on the 2-core AMD EPYC we benchmark
 on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
-0.7-1.3 s there, about 2 s on the 50k bar) comes next.  At 13k vertices the first factorization's pattern, ordering and
+0.9-1.5 s there, 2.3 s on the 50k bar) comes next.  At 13k vertices the first factorization's pattern, ordering and
 symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its own AMD ordering, whose factor
 has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
 minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
