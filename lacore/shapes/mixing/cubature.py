@@ -71,14 +71,18 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     Columns are added in batches by their correlation with the residual (orthogonal matching
     pursuit with least-squares refits), then the weights on the support are fitted by NNLS and
     columns with weight 0 dropped; repeated ``passes`` times while the support is short.  A batch of
-    ``k`` columns costs one product ``A^T (A[:, sel] c)`` (the correlations) and the Gram products of
-    the new columns with the selected ones, ``O(R N + R n k)`` for ``A`` of shape ``(R, N)`` and ``n``
-    selected columns (not ``O(R N k)``); the selected columns are kept column-major, so that the Gram
-    products and the refits read one contiguous block.
+    ``k`` columns costs one product ``A^T r`` with the residual ``r = b - A[:, sel] c`` (the
+    correlations) and the Gram products of the new columns with the selected ones, ``O(R N + R n k)``
+    for ``A`` of shape ``(R, N)`` and ``n`` selected columns (not ``O(R N k)``); the selected columns
+    are kept column-major in double precision, so that the Gram products and the refits read one
+    contiguous block.  ``A`` may be single precision: only the correlations, which rank the
+    candidates, are then computed in single precision (half the memory traffic of the product that
+    dominates); the fit itself is in double precision on the columns as given.
 
     Parameters
     ----------
     A : (R, N) ndarray
+        float64 or float32.
     b : (R,) ndarray
     max_points : int
     batch : int
@@ -92,23 +96,35 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
         Their positive weights.
     relative_residual : float
         ``|A[:, sel] c - b| / |b|``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A = np.random.default_rng(0).normal(size=(40, 30))
+    >>> sel, c, rel = greedy_nnls(A, A[:, [3, 7]] @ [1.0, 2.0], 2, batch=1)
+    >>> sel.tolist(), c.round(6).tolist(), bool(rel < 1e-10)
+    ([7, 3], [2.0, 1.0], True)
     """
-    A = np.asarray(A, float)
+    A = np.asarray(A)
+    if A.dtype not in (np.float32, np.float64):
+        A = A.astype(float)
+    b = np.asarray(b, float)
     R_, N = A.shape
     max_points = min(int(max_points), N)
-    norms = np.sqrt(np.einsum("ij,ij->j", A, A))
+    norms = np.sqrt(np.einsum("ij,ij->j", A, A, dtype=float))
     norms[norms == 0] = np.inf
-    Atb = A.T @ b
-    # the selected columns and their Gram matrix: a batch costs one product A^T (A_sel c) and the Gram of the new
-    # columns with the selected ones, not a product of A^T with the new columns
+    # the selected columns, their Gram matrix and products with b: a batch costs one product A^T r and the Gram of
+    # the new columns with the selected ones, not a product of A^T with the new columns
     AS = np.empty((R_, max_points), order="F")         # column-major: the selected columns are one block
     G = np.empty((max_points, max_points))
+    atb = np.empty(max_points)
     sel = np.zeros(0, np.int64)
     c = np.zeros(0)
     for _ in range(passes):
         while len(sel) < max_points:
             n = len(sel)
-            corr = np.abs(Atb - A.T @ (AS[:, :n] @ c)) / norms
+            res = b - AS[:, :n] @ c if n else b
+            corr = np.abs(A.T @ res.astype(A.dtype, copy=False)) / norms
             corr[sel] = -np.inf
             k = min(batch, max_points - n)
             new = np.argpartition(-corr, k - 1)[:k]
@@ -119,19 +135,21 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
             AS[:, n:n + k] = A[:, new]
             G[:n + k, n:n + k] = AS[:, :n + k].T @ AS[:, n:n + k]
             G[n:n + k, :n] = G[:n, n:n + k].T
+            atb[n:n + k] = AS[:, n:n + k].T @ b
             sel = np.r_[sel, new]
-            c = sl.cho_solve((_cholesky(G[:n + k, :n + k]), False), Atb[sel], check_finite=False)
+            c = sl.cho_solve((_cholesky(G[:n + k, :n + k]), False), atb[:n + k], check_finite=False)
         n = len(sel)
         Gs = G[:n, :n] + 1e-13 * np.trace(G[:n, :n]) / max(n, 1) * np.eye(n)    # the shift of _cholesky
-        c = nnls_gram(Gs, Atb[sel], start=c > 0)
+        c = nnls_gram(Gs, atb[:n], start=c > 0)
         if c is None:
             R = _cholesky(G[:n, :n])
-            y = sl.solve_triangular(R, Atb[sel], trans="T", check_finite=False)
+            y = sl.solve_triangular(R, atb[:n], trans="T", check_finite=False)
             c, _ = so.nnls(R, y, maxiter=50 * max(n, 1))
         keep = np.flatnonzero(c > 0)
         sel, c = sel[keep], c[keep]
         AS[:, :len(keep)] = AS[:, keep]
         G[:len(keep), :len(keep)] = G[np.ix_(keep, keep)]
+        atb[:len(keep)] = atb[keep]
         if len(sel) >= 0.97 * max_points:
             break
     bn = float(np.linalg.norm(b)) or 1.0
@@ -157,7 +175,11 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         Edges offered to the selection: all when there are not more, else the half with the largest
         ``score`` and a seeded random draw of the others.  The greedy fit costs about in proportion.
     seed : int
-        Seed of that draw.
+        Seed of that draw.  The candidates' pieces are stored in single precision (the largest array of
+        the build; the greedy fit ranks them in single precision and fits the weights in double precision
+        on the rounded columns, :func:`greedy_nnls`): on the 13k bodies the same edges as in double
+        precision; on the bars, whose regular meshes make near-ties of the ranking, another selection as
+        good as another seed's (``docs/shape-space.md``).
     metric : (r, r) ndarray, optional
         A matrix ``M``: the gradient errors are measured as ``|M e|`` instead of ``|e|``.
         With ``M = C^{-1}``, ``C C^T`` the reduced Gauss-Newton matrix there, ``|M e|^2 = e^T H^{-1} e``
@@ -193,9 +215,11 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
         s[s == 0] = 1.0
         if A is None:
-            A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]))
+            # single precision: the pieces of all candidates at all samples are the build's largest array (100 MB at
+            # 13k vertices in double); rounding them to 6e-8 is far below the fit's residual (1e-3 to 1e-2)
+            A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]), np.float32)
             b = np.empty((len(samples), P.shape[0], P.shape[1]))
-        np.divide(P, s[:, None, None], out=A[i])
+        np.divide(P, s[:, None, None], out=A[i], casting="same_kind")
         b[i] = tot / s[:, None]
     A, b = A.reshape(-1, A.shape[-1]), b.ravel()
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))

@@ -32,7 +32,7 @@ ones of the reconstruction context's solver (one symbolic analysis for all): the
 build at 50k vertices (about 2 s CPU each on the 50k bar, whose factor has 47 million nonzeros, with
 an assembly and a solve of 0.2-0.3 s each, of about 30 s in all on the 2-core AMD EPYC we benchmark
 on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
-1.4-2 s there, 3-4 s at 50k) comes next.  At 13k vertices the first factorization's pattern, ordering and
+0.9-1.5 s there, 2.3 s on the 50k bar) comes next.  At 13k vertices the first factorization's pattern, ordering and
 symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its own AMD ordering, whose factor
 has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
 minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
@@ -577,33 +577,38 @@ class ShapeMixer:
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
         Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
-        more at 13k vertices, for the same energies on the 13k bodies)."""
+        more at 13k vertices, for the same energies on the 13k bodies).  The build's own Jacobians at the keys and
+        the Newton points are not kept for it: holding their terms through the Newton stage cost more there (page
+        faults) than the 16 Jacobians saved here (docs/shape-space.md)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
-        sw = np.sqrt(P.w)
-        inverse_factors = []
         un = np.sqrt((U.reshape(-1, 3, U.shape[1]) ** 2).sum(axis=(1, 2)))        # per-vertex norm of U
         st = self._stencils
         reach = np.concatenate([np.sqrt(un[st[:, 0]] ** 2 + un[st[:, 1]] ** 2), np.sqrt((un[st] ** 2).sum(axis=1))])
-        totals, score = [], np.zeros(E)
-        for q in samples:
+        abs_wdz = np.abs(P.weighted_dz)                                             # |C| but its first column
+        totals, score = [], np.zeros(2 * E)
+        inverse_factor = None
+        for i, q in enumerate(samples):
             J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
-            JtC, rown, r0 = P.training_terms(J, z)
-            C = P.w[:, None] * np.column_stack([r0, P.dz.T])                       # (2E, m+1)
+            JtC, rown, c0 = P.training_terms(J, z)
             totals.append((U.T @ JtC).T)
-            if metrics and not inverse_factors:
+            if metrics and i == 0:
                 A = J @ U
-                A *= sw[:, None]
+                A *= np.sqrt(P.w)[:, None]
                 H = 2.0 * (A.T @ A)
                 H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / len(H)
-                inverse_factors.append(sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
-                                                           check_finite=False))
-            bound = np.abs(C) * (rown * reach)[:, None]
-            bound /= np.maximum(bound.sum(axis=0), 1e-300)
-            score += (bound[:E] + bound[E:]).sum(axis=1)
+                inverse_factor = sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
+                                                     check_finite=False)
+            # bound of the pieces of row j in column k of C: |C_jk| t_j, t = row norm of J times the reach of U there,
+            # normalized by its sum over the rows (every column counts alike)
+            t = rown * reach
+            a0 = np.abs(c0)
+            sums = np.maximum(np.r_[t @ a0, t @ abs_wdz], 1e-300)
+            score += t * (a0 / sums[0] + abs_wdz @ (1.0 / sums[1:]))
+        score = score[:E] + score[E:]
         if metrics:
-            return totals, score, inverse_factors[0]
+            return totals, score, inverse_factor
         return totals, score
 
     def _fit_cubature(self):

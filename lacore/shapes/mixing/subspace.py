@@ -64,6 +64,7 @@ class FullProblem:
         self.dz = dz
         self.floor = floor
         self.w = weights
+        self.weighted_dz = weights[:, None] * dz.T               # (2E, m): W dz^T
         self.fixed = context.fixed_dofs
 
     def target(self, wk):
@@ -91,13 +92,16 @@ class FullProblem:
     def training_terms(self, J, z):
         """What the cubature's training (``ShapeMixer._training``) needs of the full problem at a point with
         Jacobian ``J`` and ``z = Z(x)``: ``J^T C`` ``(3V, m+1)`` with ``C = W [r_0, dz^T]`` (``r_0 = z - z_0``,
-        angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and ``r_0``."""
+        angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and the first
+        column ``W r_0`` of ``C`` (the others, :attr:`weighted_dz`, are the same at every point)."""
         r0 = z - self.z0
         r0[self.E:] = np.pi - np.mod(np.pi - r0[self.E:], 2.0 * np.pi)
-        C = self.w[:, None] * np.column_stack([r0, self.dz.T])                 # (2E, m+1)
+        C = np.empty((len(r0), 1 + len(self.dz)))
+        np.multiply(self.w, r0, out=C[:, 0])
+        C[:, 1:] = self.weighted_dz
         rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(J.shape[0])
         rown[np.diff(J.indptr) == 0] = 0.0
-        return J.T @ C, rown, r0
+        return J.T @ C, rown, C[:, 0].copy()
 
     def gradient(self, x, wk):
         J, z = self.linearize(x)
