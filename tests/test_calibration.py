@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import shared_data_dir
 
+from lacore.errors import InputError
 from lacore.markers import (AxisMismatchError, Calibration, CalibrationError, MarkerTake, UnitMismatchError,
                             calibrate, drop_non_markers, fit_take, read_take)
 from lacore.markers.io import write_trc
@@ -277,3 +278,29 @@ def test_pins_naming_unknown_markers_are_an_error(creature):
     c, model = creature
     with pytest.raises(CalibrationError, match="pins name markers not in the take: nope"):
         calibrate(model, c["take"], pins={"nope": 0, "m01": 1, "m02": 2})
+
+
+def test_tracking_takes_fewer_steps_between_calibration_frames(model):
+    """3 steps on the tracked frames between calibration frames (the default) against 6 on every tracked frame.
+
+    Measured on Walk1's first 60 frames (60 tracked, 8 calibration frames): 180 tracking steps instead of 252,
+    calibration frames' marker RMS 5.21 mm instead of 5.16, the bound points on the rest mesh 0.28 mm apart (median;
+    3 of 25 markers on another face, one 19 mm away), the calibration frames' poses 7.8 mm apart (RMS).
+    """
+    from lacore.markers.binding import surface_points
+    from lacore.markers.calibration import CALIBRATION_DEFAULTS
+    assert CALIBRATION_DEFAULTS.track_iterations_between < CALIBRATION_DEFAULTS.track_iterations
+    take = excerpt(read("Walk1.c3d"), 60)
+    every = calibrate(model, take, dataclasses.replace(CALIBRATION_DEFAULTS, track_iterations_between=6))
+    fast = calibrate(model, take)
+    assert fast.timings["tracked_frames"] == every.timings["tracked_frames"] == 60
+    assert fast.timings["tracking_iterations"] < 0.8 * every.timings["tracking_iterations"]
+    assert fast.performer_ratio == every.performer_ratio and np.array_equal(fast.frames, every.frames)
+    assert np.mean(fast.frame_rms) < 1.1 * np.mean(every.frame_rms)
+    X, F = model.reference_vertices, model.faces
+    d = np.linalg.norm(surface_points(X, F, fast.binding) - surface_points(X, F, every.binding), axis=1) / fast.scale
+    assert np.median(d) < 0.0015, d
+    pose = np.sqrt(np.mean(np.sum((fast.poses - every.poses) ** 2, -1))) / fast.scale
+    assert pose < 0.025, pose
+    with pytest.raises(InputError, match="track_iterations_between"):
+        dataclasses.replace(CALIBRATION_DEFAULTS, track_iterations_between=0).check()
