@@ -491,7 +491,8 @@ class FrameSolver:
     def _residual_z(self, z, a):
         r = z - self.zbar - a @ self.U
         ang = r[self.E:]
-        r[self.E:] = np.where(np.abs(ang) < np.pi, ang, np.mod(ang + np.pi, 2 * np.pi) - np.pi)
+        wrap = np.flatnonzero(np.abs(ang) >= np.pi)               # few: only those are wrapped
+        ang[wrap] = np.mod(ang[wrap] + np.pi, 2 * np.pi) - np.pi
         return r
 
     def _area_ratio(self, X):
