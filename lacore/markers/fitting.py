@@ -38,11 +38,13 @@ Solver
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; with CHOLMOD
     the Schur complement ``B^T A^-1 B = W^T D^-1 W``, ``W = L^-1 P B``, takes ``J`` forward
-    substitutions only.  Armijo backtracking.  A full step taken with a new factorization is
-    followed by one step with the same factorization and Schur complement at the new point
-    (the gradient exact; :attr:`FitOptions.reuse_factor`): a frame's second step usually only
-    confirms convergence (on Walk1 its markers move by 0.01 mean edge lengths against 0.1-0.2 in
-    the first), and a step that fails or is cut refactorizes.  The compression
+    substitutions only.  Armijo backtracking.  A full step taken with a new factorization that
+    moved no marker by more than :data:`REUSE_MOVE` times the stopping tolerance is followed by
+    one step with the same factorization and Schur complement at the new point (the gradient
+    exact; :attr:`FitOptions.reuse_factor`): a frame's second step usually only confirms
+    convergence (on Walk1 its markers move by 0.01 mean edge lengths against 0.1-0.2 in the
+    first), and a step that fails or is cut refactorizes.  After a longer step (a cold start)
+    the old matrix is too far off: its step can stop short of the minimum.  The compression
     safeguard's Gauss-Newton term also covers faces within :data:`COMPRESSION_MARGIN` of
     the ratio, so a step does not crush a face the penalty does not see yet (full steps are
     then accepted where the line search would cut them to 1/8 or 1/16).
@@ -113,7 +115,7 @@ from .prolongation import as_fit_prolongation
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
            "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
-           "START_MIN_ITERATIONS"]
+           "START_MIN_ITERATIONS", "REUSE_MOVE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -141,6 +143,9 @@ START_EXTRAPOLATIONS = (1.0, 0.5, 0.0)
 #: ... when a frame may take at least this many steps (:attr:`FitOptions.max_iterations`); a fit capped
 #: at fewer stops where its start leads it, and keeps the full extrapolation, the nearest to the markers.
 START_MIN_ITERATIONS = 10
+#: A full step on a new factorization moving no marker by more than this many times the stopping tolerance
+#: (:attr:`FitOptions.marker_tolerance`) is followed by a step on the same factorization (``reuse_factor``).
+REUSE_MOVE = 10.0
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
@@ -184,7 +189,8 @@ class FitOptions:
         Reuse the Schur complement's ``J`` solves of an earlier step of the frame (the gradient
         stays exact); a failed or cut step, and every third step, makes them afresh.
     reuse_factor : bool
-        After a full step taken with a new factorization, take the next step with the same
+        After a full step taken with a new factorization and moving no marker by more than
+        :data:`REUSE_MOVE` times ``marker_tolerance``, take the next step with the same
         factorization (the gradient stays exact; module docstring, Solver); a step that fails
         or is cut refactorizes.
     """
@@ -796,11 +802,11 @@ class FrameSolver:
                 continue
             X, a, Et, t = found
             dec, E0, fresh = E0 - Et, Et, False
-            # a full step with a new factor: the next step reuses it (once; it mostly confirms convergence)
-            need = t < 1.0 or reused or not o.reuse_factor
             schur = t < 1.0 or it % 3 == 0     # a cut step or every third: the Schur solves afresh too
             P1 = surface_points(X, self.faces, sub)
             move, P0 = _largest_move(P1, P0), P1
+            # a short full step on a new factor: the next step reuses it (once; it mostly confirms convergence)
+            need = t < 1.0 or reused or not o.reuse_factor or move > REUSE_MOVE * tol
             if move <= tol and (it >= 2 or dec <= o.ftol * E0):
                 status = 0
                 break
