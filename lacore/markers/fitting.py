@@ -633,6 +633,7 @@ class FrameSolver:
             r_all = self.rho - ratio
             if matrix:
                 near = np.flatnonzero(self.rho + COMPRESSION_MARGIN - ratio > 0)
+                self._near = near                                  # the faces this matrix covers
                 gn = self._compression_jacobian(X, near)
                 inner = r_all[near] > 0
                 act, gc = near[inner], gn[inner]
@@ -671,6 +672,13 @@ class FrameSolver:
         vals = vals.copy()
         vals[self.diag] += extra
         return gX, ga, vals, Jz
+
+    def _covers_compression(self, X):
+        """Whether the last Gauss-Newton matrix covers every face near the compression safeguard at ``X``."""
+        if not self.w_c:
+            return True
+        near = np.flatnonzero(self.rho + COMPRESSION_MARGIN - self._area_ratio(X) > 0)
+        return bool(np.all(np.isin(near, getattr(self, "_near", np.zeros(0, np.int64)))))
 
     def border(self, Jz):
         """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
@@ -805,8 +813,10 @@ class FrameSolver:
             schur = t < 1.0 or it % 3 == 0     # a cut step or every third: the Schur solves afresh too
             P1 = surface_points(X, self.faces, sub)
             move, P0 = _largest_move(P1, P0), P1
-            # a short full step on a new factor: the next step reuses it (once; it mostly confirms convergence)
-            need = t < 1.0 or reused or not o.reuse_factor or move > REUSE_MOVE * tol
+            # a short full step on a new factor, with the temporal term: the next step reuses the factor (once;
+            # it mostly confirms convergence) unless faces came near the compression safeguard it does not cover
+            need = (t < 1.0 or reused or not o.reuse_factor or move > REUSE_MOVE * tol
+                    or not (self.kappa and self.X_hat is not None) or not self._covers_compression(X))
             if move <= tol and (it >= 2 or dec <= o.ftol * E0):
                 status = 0
                 break
