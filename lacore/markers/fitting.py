@@ -38,13 +38,16 @@ Solver
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; with CHOLMOD
     the Schur complement ``B^T A^-1 B = W^T D^-1 W``, ``W = L^-1 P B``, takes ``J`` forward
-    substitutions only.  Armijo backtracking.  A full step taken with a new factorization that
-    moved no marker by more than :data:`REUSE_MOVE` times the stopping tolerance is followed by
-    one step with the same factorization and Schur complement at the new point (the gradient
-    exact; :attr:`FitOptions.reuse_factor`): a frame's second step usually only confirms
-    convergence (on Walk1 its markers move by 0.01 mean edge lengths against 0.1-0.2 in the
-    first), and a step that fails or is cut refactorizes.  After a longer step (a cold start)
-    the old matrix is too far off: its step can stop short of the minimum.  The compression
+    substitutions only.  Armijo backtracking.  With the temporal term on, a full step taken with a
+    new factorization that moved no marker by more than :data:`REUSE_MOVE` times the stopping
+    tolerance is followed by one step with the same factorization and Schur complement at the
+    new point (the gradient exact; :attr:`FitOptions.reuse_factor`), unless a face came near the
+    compression safeguard (below) outside the faces that matrix covers: a frame's second step
+    usually only confirms convergence (on Walk1 its markers move by 0.01 mean edge lengths
+    against 0.1-0.2 in the first), and a step that fails or is cut refactorizes.  Without these
+    conditions the old matrix's step stops short of the minimum (a cold start's long steps: 4
+    times the vertex error on the bar) or lets faces fold (more self-intersecting frames on
+    Walk1); without the temporal term the first frames of a static take then jitter.  The compression
     safeguard's Gauss-Newton term also covers faces within :data:`COMPRESSION_MARGIN` of
     the ratio, so a step does not crush a face the penalty does not see yet (full steps are
     then accepted where the line search would cut them to 1/8 or 1/16).
@@ -189,10 +192,10 @@ class FitOptions:
         Reuse the Schur complement's ``J`` solves of an earlier step of the frame (the gradient
         stays exact); a failed or cut step, and every third step, makes them afresh.
     reuse_factor : bool
-        After a full step taken with a new factorization and moving no marker by more than
-        :data:`REUSE_MOVE` times ``marker_tolerance``, take the next step with the same
-        factorization (the gradient stays exact; module docstring, Solver); a step that fails
-        or is cut refactorizes.
+        With the temporal term on, after a full step taken with a new factorization and moving
+        no marker by more than :data:`REUSE_MOVE` times ``marker_tolerance``, take the next step
+        with the same factorization (the gradient stays exact; module docstring, Solver); a step
+        that fails or is cut refactorizes.
     """
 
     prior_weight: object = 1.0
