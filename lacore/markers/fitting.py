@@ -41,8 +41,8 @@ Solver
     substitutions only.  Armijo backtracking.  With the temporal term on, a full step taken with a
     new factorization that moved no marker by more than :data:`REUSE_MOVE` times the stopping
     tolerance is followed by one step with the same factorization and Schur complement at the
-    new point (the gradient exact; :attr:`FitOptions.reuse_factor`), unless a face came near the
-    compression safeguard (below) outside the faces that matrix covers: a frame's second step
+    new point (the gradient exact; :attr:`FitOptions.reuse_factor`), unless the compression
+    safeguard (below) penalizes a face outside the faces that matrix covers: a frame's second step
     usually only confirms convergence (on Walk1 its markers move by 0.01 mean edge lengths
     against 0.1-0.2 in the first), and a step that fails or is cut refactorizes.  Without these
     conditions the old matrix's step stops short of the minimum (a cold start's long steps: 4
@@ -677,11 +677,11 @@ class FrameSolver:
         return gX, ga, vals, Jz
 
     def _covers_compression(self, X):
-        """Whether the last Gauss-Newton matrix covers every face near the compression safeguard at ``X``."""
+        """Whether the last Gauss-Newton matrix covers every face the compression safeguard penalizes at ``X``."""
         if not self.w_c:
             return True
-        near = np.flatnonzero(self.rho + COMPRESSION_MARGIN - self._area_ratio(X) > 0)
-        return bool(np.all(np.isin(near, getattr(self, "_near", np.zeros(0, np.int64)))))
+        act = np.flatnonzero(self.rho - self._area_ratio(X) > 0)
+        return bool(np.all(np.isin(act, getattr(self, "_near", np.zeros(0, np.int64)))))
 
     def border(self, Jz):
         """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
@@ -817,7 +817,7 @@ class FrameSolver:
             P1 = surface_points(X, self.faces, sub)
             move, P0 = _largest_move(P1, P0), P1
             # a short full step on a new factor, with the temporal term: the next step reuses the factor (once;
-            # it mostly confirms convergence) unless faces came near the compression safeguard it does not cover
+            # it mostly confirms convergence) unless the compression safeguard penalizes faces it does not cover
             need = (t < 1.0 or reused or not o.reuse_factor or move > REUSE_MOVE * tol
                     or not (self.kappa and self.X_hat is not None) or not self._covers_compression(X))
             if move <= tol and (it >= 2 or dec <= o.ftol * E0):
