@@ -478,6 +478,7 @@ class FrameSolver:
         self.set_binding(binding)
         self.X_hat = None
         self._factor_key = None
+        self._near = np.zeros(0, np.int64)          # faces the compression term of the last matrix covers
 
     def set_binding(self, binding):
         self.binding = binding
@@ -681,7 +682,7 @@ class FrameSolver:
         if not self.w_c:
             return True
         act = np.flatnonzero(self.rho - self._area_ratio(X) > 0)
-        return bool(np.all(np.isin(act, getattr(self, "_near", np.zeros(0, np.int64)))))
+        return bool(np.all(np.isin(act, self._near)))
 
     def border(self, Jz):
         """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
