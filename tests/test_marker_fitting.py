@@ -355,3 +355,70 @@ def test_frame_start_is_the_extrapolation_of_least_energy(bar):
 def _training_poses(X0, scale):
     """The bar fixture's 12 training poses, scaled."""
     return scale * np.array([bar_pose(X0, b, tw) for b in np.linspace(-1, 1, 4) for tw in np.linspace(-1, 1, 3)])
+
+
+def test_a_full_step_reuses_its_factorization_once(bar, monkeypatch):
+    """FitOptions.reuse_factor: after a short full step on a new factorization (temporal term on) the next step reuses
+    it; on a smooth noisy motion that saves factorizations and the fit stays where the one refactorizing every step
+    ends."""
+    X0, F, model, binding = bar
+    s = np.linspace(0, 1, 12)
+    true = np.array([bar_pose(X0, 0.6 * v, 0.3 * v) for v in s]) @ ROT.T + SHIFT
+    noisy = surface_points(true, F, binding) + 0.01 * np.random.default_rng(4).standard_normal((12, 20, 3))
+    calls = []
+    factorize = FrameSolver.factorize
+
+    def counted(self, *args, **kwargs):
+        calls.append(1)
+        return factorize(self, *args, **kwargs)
+    monkeypatch.setattr(FrameSolver, "factorize", counted)
+    runs = {}
+    for reuse in (False, True):
+        calls.clear()
+        res = fit_markers(model, noisy, binding, rate=60, reuse_factor=reuse)
+        runs[reuse] = res, len(calls), int(res.frame_iterations.sum())
+    (off, n_off, it_off), (on, n_on, it_on) = runs[False], runs[True]
+    assert off.success and on.success, (off.message, on.message)
+    assert n_off == it_off                         # without reuse: one factorization per step
+    assert n_on <= 0.75 * n_off, (n_on, n_off)     # measured 17 vs 27 (frames 0 and 1: no temporal term)
+    assert it_on <= 1.2 * it_off, (it_on, it_off)  # measured 27 vs 27 steps
+    gap = np.linalg.norm(on.vertices - off.vertices, axis=2).max()
+    assert gap < 0.005, gap                        # bar length 6; measured 0.00046
+    err = [np.linalg.norm(r.vertices - true, axis=2).mean() for r in (off, on)]
+    assert err[1] < 1.1 * err[0], err              # measured 0.00967 vs 0.00967 (marker noise 0.01)
+    assert abs(on.marker_rms - off.marker_rms) < 0.02 * off.marker_rms, (on.marker_rms, off.marker_rms)
+
+
+def test_factorization_reused_only_with_the_temporal_term_and_the_safeguard_covered(bar):
+    """Without the temporal term (a single frame from the rest pose: long steps) every step refactorizes: the fit is
+    the one of reuse_factor=False to the last bit; a factorization does not serve a point where the compression
+    safeguard penalizes a face outside the faces its matrix covers."""
+    X0, F, model, binding = bar
+    true = bar_pose(X0, 0.9, 0.6)
+    x = surface_points(true, F, binding)
+    on, off = fit_markers(model, x, binding), fit_markers(model, x, binding, reuse_factor=False)
+    assert np.array_equal(on.vertices, off.vertices) and np.array_equal(on.frame_iterations, off.frame_iterations)
+    solver = FrameSolver(model, binding, FitOptions(), temporal=10.0)
+    X = bar_pose(X0, 0.5, 0.2)
+    vis = np.arange(binding.n_markers)
+    solver.factorize(X, np.zeros(solver.J), x, vis)
+    assert solver._covers_compression(X)
+    f = int(np.argmax(face_areas(X, F)))
+    squashed = X.copy()
+    squashed[F[f, 2]] = X[F[f, :2]].mean(0) + 0.2 * (X[F[f, 2]] - X[F[f, :2]].mean(0))   # the face at 20 % area
+    ratio = face_areas(squashed, F) / face_areas(model.reference_vertices, F)
+    assert ratio[f] < 0.25 and f not in solver._near
+    assert not solver._covers_compression(squashed)
+
+
+def test_frame_start_returns_its_energy(bar):
+    """FrameSolver.start(return_energy=True) gives the chosen start's energy (solve_frame starts from it)."""
+    X0, F, model, binding = bar
+    P = [bar_pose(X0, 0.6 * v, 0.3 * v) for v in (0.2, 0.3, 0.4)]
+    solver = FrameSolver(model, binding, FitOptions(), temporal=10.0)
+    y = surface_points(P[2], F, binding)
+    a = np.zeros(solver.J)
+    solver.X_hat = 2 * P[1] - P[0]
+    Xs, as_, E = solver.start(P[1], a, P[0], a, y, return_energy=True)
+    assert E == pytest.approx(solver.energy(Xs, as_, y, np.arange(binding.n_markers))[0], rel=1e-12)
+    assert np.array_equal(Xs, solver.start(P[1], a, P[0], a, y)[0])

@@ -38,7 +38,16 @@ Solver
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
     cached on the topology) and the ``J x J`` Schur complement gives ``dalpha``; with CHOLMOD
     the Schur complement ``B^T A^-1 B = W^T D^-1 W``, ``W = L^-1 P B``, takes ``J`` forward
-    substitutions only.  Armijo backtracking.  The compression
+    substitutions only.  Armijo backtracking.  With the temporal term on, a full step taken with a
+    new factorization that moved no marker by more than :data:`REUSE_MOVE` times the stopping
+    tolerance is followed by one step with the same factorization and Schur complement at the
+    new point (the gradient exact; :attr:`FitOptions.reuse_factor`), unless the compression
+    safeguard (below) penalizes a face outside the faces that matrix covers: a frame's second step
+    usually only confirms convergence (on Walk1 its markers move by 0.01 mean edge lengths
+    against 0.1-0.2 in the first), and a step that fails or is cut refactorizes.  Without these
+    conditions the old matrix's step stops short of the minimum (a cold start's long steps: 4
+    times the vertex error on the bar) or lets faces fold (more self-intersecting frames on
+    Walk1); without the temporal term the first frames of a static take then jitter.  The compression
     safeguard's Gauss-Newton term also covers faces within :data:`COMPRESSION_MARGIN` of
     the ratio, so a step does not crush a face the penalty does not see yet (full steps are
     then accepted where the line search would cut them to 1/8 or 1/16).
@@ -109,7 +118,7 @@ from .prolongation import as_fit_prolongation
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
            "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
-           "START_MIN_ITERATIONS"]
+           "START_MIN_ITERATIONS", "REUSE_MOVE"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -137,6 +146,9 @@ START_EXTRAPOLATIONS = (1.0, 0.5, 0.0)
 #: ... when a frame may take at least this many steps (:attr:`FitOptions.max_iterations`); a fit capped
 #: at fewer stops where its start leads it, and keeps the full extrapolation, the nearest to the markers.
 START_MIN_ITERATIONS = 10
+#: A full step on a new factorization moving no marker by more than this many times the stopping tolerance
+#: (:attr:`FitOptions.marker_tolerance`) is followed by a step on the same factorization (``reuse_factor``).
+REUSE_MOVE = 10.0
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
@@ -179,6 +191,11 @@ class FitOptions:
     reuse_schur : bool
         Reuse the Schur complement's ``J`` solves of an earlier step of the frame (the gradient
         stays exact); a failed or cut step, and every third step, makes them afresh.
+    reuse_factor : bool
+        With the temporal term on, after a full step taken with a new factorization and moving
+        no marker by more than :data:`REUSE_MOVE` times ``marker_tolerance``, take the next step
+        with the same factorization (the gradient stays exact; module docstring, Solver); a step
+        that fails or is cut refactorizes.
     """
 
     prior_weight: object = 1.0
@@ -194,6 +211,7 @@ class FitOptions:
     n_modes: int = None
     solver: str = None
     reuse_schur: bool = True
+    reuse_factor: bool = True
 
     def check(self, allow_auto=False):
         """Raise InputError naming the first bad setting; returns self."""
@@ -460,6 +478,7 @@ class FrameSolver:
         self.set_binding(binding)
         self.X_hat = None
         self._factor_key = None
+        self._near = np.zeros(0, np.int64)          # faces the compression term of the last matrix covers
 
     def set_binding(self, binding):
         self.binding = binding
@@ -482,7 +501,8 @@ class FrameSolver:
     def _residual_z(self, z, a):
         r = z - self.zbar - a @ self.U
         ang = r[self.E:]
-        r[self.E:] = np.where(np.abs(ang) < np.pi, ang, np.mod(ang + np.pi, 2 * np.pi) - np.pi)
+        wrap = np.flatnonzero(np.abs(ang) >= np.pi)               # few: only those are wrapped
+        ang[wrap] = np.mod(ang[wrap] + np.pi, 2 * np.pi) - np.pi
         return r
 
     def _area_ratio(self, X):
@@ -617,6 +637,7 @@ class FrameSolver:
             r_all = self.rho - ratio
             if matrix:
                 near = np.flatnonzero(self.rho + COMPRESSION_MARGIN - ratio > 0)
+                self._near = near                                  # the faces this matrix covers
                 gn = self._compression_jacobian(X, near)
                 inner = r_all[near] > 0
                 act, gc = near[inner], gn[inner]
@@ -655,6 +676,13 @@ class FrameSolver:
         vals = vals.copy()
         vals[self.diag] += extra
         return gX, ga, vals, Jz
+
+    def _covers_compression(self, X):
+        """Whether the last Gauss-Newton matrix covers every face the compression safeguard penalizes at ``X``."""
+        if not self.w_c:
+            return True
+        act = np.flatnonzero(self.rho - self._area_ratio(X) > 0)
+        return bool(np.all(np.isin(act, self._near)))
 
     def border(self, Jz):
         """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
@@ -718,13 +746,14 @@ class FrameSolver:
                     return Xt, at, Et, t
         return None
 
-    def start(self, X, a, X_prev, a_prev, y, X_full=None, a_full=None):
+    def start(self, X, a, X_prev, a_prev, y, X_full=None, a_full=None, return_energy=False):
         """The start of a frame: the previous pose extrapolated by each of :data:`START_EXTRAPOLATIONS`, least energy.
 
         Candidate ``beta`` is ``(X + beta (X - X_prev), a + beta (a - a_prev))`` with ``X`` moved
         rigidly (Kabsch) onto the visible markers ``y (M, 3)``; the one of least :meth:`energy`
         (with the frame's temporal target :attr:`X_hat` and weight already set) is returned as
         ``(X_start, a_start)``.  ``X_full, a_full``: the ``beta = 1`` candidate when already at hand.
+        With ``return_energy``: ``(X_start, a_start, energy)``.
 
         Notes
         -----
@@ -747,29 +776,31 @@ class FrameSolver:
             e = self.energy(Xb, ab, y, vis)[0]
             if best is None or e < best[0]:
                 best = (e, Xb, ab)
-        return best[1], best[2]
+        return (best[1], best[2], best[0]) if return_energy else (best[1], best[2])
 
-    def solve_frame(self, X, a, y, max_iterations=None):
+    def solve_frame(self, X, a, y, max_iterations=None, energy=None):
         """Fit one frame from ``(X, a)``; returns ``(X, a, status, iterations, energy)``.
 
-        ``max_iterations`` overrides the options' bound (a cold start needs more steps).
+        ``max_iterations`` overrides the options' bound (a cold start needs more steps);
+        ``energy``: :meth:`energy` at ``(X, a)`` when already known (:meth:`start`).
         """
         o = self.options
         limit = o.max_iterations if max_iterations is None else int(max_iterations)
         vis = np.flatnonzero(np.isfinite(y[:, 0]))
         sub = self._sub(vis)
-        E0 = self.energy(X, a, y, vis)[0]
+        E0 = self.energy(X, a, y, vis)[0] if energy is None else float(energy)
         tol = o.marker_tolerance * self.length
-        need, fresh, schur = True, False, True
+        need, fresh, schur, reused = True, False, True, False
         P0 = surface_points(X, self.faces, sub)
         it, status = 0, 1
         while it < limit:
             try:
                 if need:
                     gX, ga = self.factorize(X, a, y, vis, schur=schur or not o.reuse_schur)
-                    need, fresh, schur = False, schur or not o.reuse_schur, False
+                    need, fresh, schur, reused = False, schur or not o.reuse_schur, False, False
                 else:
                     gX, ga = self.gradient(X, a, y, vis)
+                    reused = True
             except (NotPositiveDefiniteError, np.linalg.LinAlgError):
                 return X, a, -2, it, E0
             dX, da = self.step(gX, ga)
@@ -783,17 +814,20 @@ class FrameSolver:
                 continue
             X, a, Et, t = found
             dec, E0, fresh = E0 - Et, Et, False
-            need = True                        # full Gauss-Newton: a stale factor only adds failed steps
             schur = t < 1.0 or it % 3 == 0     # a cut step or every third: the Schur solves afresh too
             P1 = surface_points(X, self.faces, sub)
             move, P0 = _largest_move(P1, P0), P1
+            # a short full step on a new factor, with the temporal term: the next step reuses the factor (once;
+            # it mostly confirms convergence) unless the compression safeguard penalizes faces it does not cover
+            need = (t < 1.0 or reused or not o.reuse_factor or move > REUSE_MOVE * tol
+                    or not (self.kappa and self.X_hat is not None) or not self._covers_compression(X))
             if move <= tol and (it >= 2 or dec <= o.ftol * E0):
                 status = 0
                 break
         return X, a, status, it, E0
 
 
-    def solve_frame_apart(self, X, a, y, max_iterations=None):
+    def solve_frame_apart(self, X, a, y, max_iterations=None, energy=None):
         """:meth:`solve_frame`, then the non-penetration rounds (module docstring).
 
         Returns ``(X, a, status, iterations, energy, pairs)``: the fit with the fewest face pairs
@@ -802,7 +836,7 @@ class FrameSolver:
         frame only.
         """
         self.clear_penetration()
-        X, a, st, it, E = self.solve_frame(X, a, y, max_iterations)
+        X, a, st, it, E = self.solve_frame(X, a, y, max_iterations, energy)
         if not self.w_p or st < 0:
             return X, a, st, it, E, -1
         pairs, added = self.add_penetrations(X, y)
@@ -981,11 +1015,12 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
         solver.kappa = kappa_t if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
+        Es = None
         if X_prev is not None and usable and options.max_iterations >= START_MIN_ITERATIONS:
-            Xs, as_ = solver.start(X, a, X_prev, a_prev, y, Xs, as_)
+            Xs, as_, Es = solver.start(X, a, X_prev, a_prev, y, Xs, as_, return_energy=True)
         cold = t == 0 and initial_vertices is None        # from the rest pose: a longer way to go
         Xn, an, st, it, E, pen[t] = solver.solve_frame_apart(
-            Xs, as_, y, options.max_iterations * (COLD_START_FACTOR if cold else 1))
+            Xs, as_, y, options.max_iterations * (COLD_START_FACTOR if cold else 1), energy=Es)
         if st >= 0 and not usable:
             st = 2
         X_prev, a_prev = (X, a) if t > 0 else (None, None)
