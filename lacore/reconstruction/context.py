@@ -49,7 +49,8 @@ The symbolic Cholesky factorization of the Gauss-Newton pattern
 once per context.  Its fill-reducing ordering is the better (fewer nonzeros) of
 CHOLMOD's AMD and :func:`lacore.linalg.sparse_cholesky.vertex_ordering` (METIS nested
 dissection when pymetis is importable, else a geometric nested dissection of
-the reference mesh).
+the reference mesh); from :data:`~lacore.linalg.sparse_cholesky.GIVEN_ONLY_SIZE`
+unknowns up METIS' ordering is taken without analysing AMD.
 """
 
 from collections import OrderedDict
@@ -58,7 +59,7 @@ import numpy as np
 
 from ..errors import InputError, MeshError, format_indices
 from ..geometry.lengths_angles import SAFE_EXPONENT, lengths_and_angles, safe_scale_exponent
-from ..linalg.sparse_cholesky import SparseCholesky, default_backend
+from ..linalg.sparse_cholesky import GIVEN_ONLY_SIZE, SparseCholesky, default_backend
 from ..geometry.topology import check_vertices
 from .assembly import dof_ordering, gauss_newton_pattern
 from .objectives import QuadraticObjective, ShellsObjective, reference_weights
@@ -299,7 +300,9 @@ class ReconstructionContext:
             if self.backend == "cholmod":
                 ordering, self.ordering = dof_ordering(self.topology, pat, self.internal_reference,
                                                        self.settings.ordering)
-            s = SparseCholesky(pat["matrix"], backend=self.backend, ordering=ordering)
+            # a large system ordered by METIS: no AMD analysis besides (METIS fills less there, GIVEN_ONLY_SIZE)
+            big = ordering is not None and self.ordering == "metis" and len(ordering) >= GIVEN_ONLY_SIZE
+            s = SparseCholesky(pat["matrix"], backend=self.backend, ordering=ordering, try_amd=not big)
             if not (np.array_equal(s.indptr, pat["indptr"]) and np.array_equal(s.indices, pat["indices"])):
                 raise RuntimeError("sparse Cholesky pattern mismatch")  # pragma: no cover
             self._solver = s
