@@ -113,3 +113,24 @@ def test_ordering_setting_changes_round_off_only(bar):
     assert get_context(topo, B).solver is not None and get_context(topo, B).ordering == "metis"  # the default
     with pytest.raises(InputError, match="unknown ordering 'amd'"):
         get_context(topo, B, ordering="amd")
+
+
+def test_a_given_ordering_alone_without_amd(bar):
+    """``try_amd=False`` analyses the given ordering alone: an identity ordering keeps its (large) fill where CHOLMOD
+    would pick AMD, the solve is the same, and CHOLMOD's options are as before the analysis."""
+    import cvxopt.cholmod
+
+    _, _, pat, _, values = bar
+    n = pat["n"]
+    before = dict(cvxopt.cholmod.options)
+    fills = {}
+    x = {}
+    b = np.random.default_rng(0).standard_normal(n)
+    for try_amd in (True, False):
+        chol = SparseCholesky(pat["matrix"], backend="cholmod", ordering=np.arange(n), try_amd=try_amd)
+        chol.factorize(values)
+        x[try_amd] = chol.solve(b)
+        fills[try_amd] = chol.factor_column_counts().sum()
+    assert dict(cvxopt.cholmod.options) == before
+    assert fills[False] > 1.1 * fills[True], fills         # identity vs AMD on the bar: 1.23 times (measured)
+    np.testing.assert_allclose(x[False], x[True], rtol=1e-8, atol=1e-10 * np.abs(x[True]).max())
