@@ -283,17 +283,19 @@ def test_pins_naming_unknown_markers_are_an_error(creature):
 def test_tracking_takes_fewer_steps_between_calibration_frames(model):
     """3 steps on the tracked frames between calibration frames (the default) against 6 on every tracked frame.
 
-    Measured on Walk1's first 60 frames (60 tracked, 8 calibration frames): 180 tracking steps instead of 252,
-    calibration frames' marker RMS 5.21 mm instead of 5.16, the bound points on the rest mesh 0.28 mm apart (median;
-    3 of 25 markers on another face, one 19 mm away), the calibration frames' poses 7.8 mm apart (RMS).
+    Measured on the whole of Walk1 (151 frames, 8 calibration frames): 189 tracking steps instead of 317 (14-17 s
+    of CPU time instead of 21), calibration frames' marker RMS 5.31 mm instead of 5.48, the bound points on the rest
+    mesh 0.00065 of the body's scale apart (median), the calibration frames' poses 0.0078 of it apart (RMS).  On a
+    short excerpt the saving is smaller (60 frames: 196 steps instead of 205), as most tracked frames are near a
+    calibration frame there.
     """
     from lacore.markers.binding import surface_points
     from lacore.markers.calibration import CALIBRATION_DEFAULTS
     assert CALIBRATION_DEFAULTS.track_iterations_between < CALIBRATION_DEFAULTS.track_iterations
-    take = excerpt(read("Walk1.c3d"), 60)
+    take = read("Walk1.c3d")
     every = calibrate(model, take, dataclasses.replace(CALIBRATION_DEFAULTS, track_iterations_between=6))
     fast = calibrate(model, take)
-    assert fast.timings["tracked_frames"] == every.timings["tracked_frames"] == 60
+    assert fast.timings["tracked_frames"] == every.timings["tracked_frames"] > 40
     assert fast.timings["tracking_iterations"] < 0.8 * every.timings["tracking_iterations"]
     assert fast.performer_ratio == every.performer_ratio and np.array_equal(fast.frames, every.frames)
     assert np.mean(fast.frame_rms) < 1.1 * np.mean(every.frame_rms)
