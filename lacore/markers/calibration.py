@@ -47,10 +47,9 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from ..geometry.lengths_angles import face_normals
-from ..geometry.rigid import apply_rigid, rigid_fit
 from ..progress import report
 from .binding import MarkerBinding, closest_surface_points, surface_points
-from .fitting import (ANCHOR_WEIGHT, FIT_DEFAULTS, FrameSolver, _usable, fit_options, mean_edge_length)
+from .fitting import (ANCHOR_WEIGHT, FIT_DEFAULTS, FrameSolver, fit_options, mean_edge_length)
 from .io import MarkerTake
 from .takes import drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
@@ -473,11 +472,7 @@ def _track(model, markers, binding, X0, at_frames, o, progress):
         report(progress, t, T, f"frame {t + 1}/{T}")
         y = markers[t]
         vis = np.flatnonzero(np.isfinite(y[:, 0]))
-        Xp, ap = (X, a) if X_prev is None else (2.0 * X - X_prev, 2.0 * a - a_prev)
-        usable = _usable(y[vis])
-        if usable:
-            R, tr = rigid_fit(surface_points(Xp, solver.faces, solver._sub(vis)), y[vis])
-            Xp = apply_rigid(Xp, R, tr)
+        Xp, ap, usable = solver.predict(X, a, X_prev, a_prev, y, vis)
         solver.X_hat = Xp if (X_prev is not None or not usable) else None
         solver.kappa = TRACK_TEMPORAL_WEIGHT if usable else max(TRACK_TEMPORAL_WEIGHT, ANCHOR_WEIGHT)
         cap = o.track_iterations if at_frames[t] else o.track_iterations_between

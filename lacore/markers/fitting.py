@@ -746,6 +746,18 @@ class FrameSolver:
                     return Xt, at, Et, t
         return None
 
+    def predict(self, X, a, X_prev, a_prev, y, vis):
+        """A frame's prediction: the previous pose ``(X, a)`` extrapolated at constant velocity from
+        ``(X_prev, a_prev)`` (None: no extrapolation), moved rigidly onto the visible markers ``y[vis]`` when
+        they fix a rigid motion.  Returns ``(X, a, usable)``; ``usable`` says whether they did.
+        """
+        Xp, ap = (X, a) if X_prev is None else (2.0 * X - X_prev, 2.0 * a - a_prev)
+        usable = _usable(y[vis])
+        if usable:
+            R, tr = rigid_fit(surface_points(Xp, self.faces, self._sub(vis)), y[vis])
+            Xp = apply_rigid(Xp, R, tr)
+        return Xp, ap, usable
+
     def start(self, X, a, X_prev, a_prev, y, X_full=None, a_full=None, return_energy=False):
         """The start of a frame: the previous pose extrapolated by each of :data:`START_EXTRAPOLATIONS`, least energy.
 
@@ -1005,12 +1017,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         t0 = time.perf_counter()
         y = x_all[t]
         vis = np.flatnonzero(np.isfinite(y[:, 0]))
-        Xs, as_ = (X, a) if X_prev is None else (2.0 * X - X_prev, 2.0 * a - a_prev)
-        usable = _usable(y[vis])
-        if usable:
-            R, tr = rigid_fit(surface_points(Xs, solver.faces, solver._sub(vis)), y[vis])
-            Xs = apply_rigid(Xs, R, tr)
-        elif t == 0 and len(vis) and initial_vertices is None:
+        Xs, as_, usable = solver.predict(X, a, X_prev, a_prev, y, vis)
+        if not usable and t == 0 and len(vis) and initial_vertices is None:
             Xs = Xs + (y[vis].mean(0) - surface_points(Xs, solver.faces, solver._sub(vis)).mean(0))
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
