@@ -6,6 +6,7 @@ Every benchmark prints one JSON object whose ``"machine"`` entry comes from
 
 import os
 import platform
+import time
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -29,8 +30,43 @@ def cpu_model():
     return platform.processor() or "unknown"
 
 
+def reference_workload_seconds(repeats=3):
+    """CPU seconds of a fixed workload (the best of ``repeats``): the machine's speed, comparable between runs.
+
+    A sparse LU factorization and solve of the 5-point Laplacian on a 200 x 200 grid (SciPy's SuperLU) and
+    thirty 256 x 256 matrix products (one BLAS thread with ``OPENBLAS_NUM_THREADS=1``): the kinds of work
+    the benchmarks time.  Two machines of the same CPU name can differ several times in speed (clock, host
+    load, virtualization); a run's figures scale with this number.  About 0.1 s on a 2-core AMD EPYC.
+
+    Examples
+    --------
+    >>> reference_workload_seconds(repeats=1) > 0
+    True
+    """
+    import numpy as np
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    n = 200
+    d = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
+    lap = (sp.kron(d, sp.identity(n)) + sp.kron(sp.identity(n), d)).tocsc()
+    rhs = np.ones(n * n)
+    a = np.random.default_rng(0).standard_normal((256, 256))
+    best = np.inf
+    for _ in range(repeats):
+        t = time.process_time()
+        splu(lap).solve(rhs)
+        b = a
+        for _ in range(30):
+            b = a @ b
+            b /= np.abs(b).max()
+        best = min(best, time.process_time() - t)
+    return round(best, 4)
+
+
 def machine_info(**extra):
-    """Platform, CPU, core count, load and library versions (plus ``extra`` entries)."""
+    """Platform, CPU, core count, load, library versions and :func:`reference_workload_seconds`
+    (plus ``extra`` entries)."""
     import numpy
     import scipy
 
@@ -46,6 +82,7 @@ def machine_info(**extra):
         info["load_average"] = [round(x, 2) for x in os.getloadavg()]
     except OSError:  # pragma: no cover - not available on Windows
         pass
+    info["reference_workload_seconds"] = reference_workload_seconds()
     info.update(extra)
     return info
 

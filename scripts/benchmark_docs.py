@@ -49,6 +49,9 @@ def machine_line(record):
     load = m.get("load_average") or m.get("loadavg_start")
     if load:
         parts.append(f"load average {load[0]:.1f} at the start")
+    if m.get("reference_workload_seconds"):
+        parts.append(f"reference workload {m['reference_workload_seconds']:.2f} s "
+                     "(`bench_common.reference_workload_seconds`: figures scale with it)")
     return (f"Machine: {', '.join(parts)}; run {record['date']} by `{record['command']}` "
             f"(`scripts/run_benchmarks.py`).")
 
