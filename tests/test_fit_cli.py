@@ -9,6 +9,7 @@ import pytest
 from conftest import REPO
 
 from lacore.cli import main
+from lacore.markers import FIT_DEFAULTS
 from lacore.markers.binding import MarkerBinding, surface_points
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
@@ -43,7 +44,8 @@ def test_fit_writes_poses_and_json(files, capsys):
                               "--json", "--temporal-weight", "0.1"], capsys)
     assert code == 0, err
     summary = json.loads(stdout)
-    assert summary["penetration_weight"] == 0.0 and summary["temporal_weight"] == 0.1   # the defaults and the flag
+    assert summary["penetration_weight"] == FIT_DEFAULTS.penetration_weight == 10.0   # the default
+    assert summary["temporal_weight"] == 0.1   # the flag
     assert summary["frames"] == 4 and summary["seconds"] > 0 and summary["seconds_per_frame"] > 0
     assert summary["marker_rms"] < 0.01  # bar length 6; measured 0.0017
     with np.load(out) as r:
@@ -130,7 +132,7 @@ def test_take_options_reach_the_fit(files, capsys, monkeypatch):
     monkeypatch.setattr(cli_fit, "read_take", lambda path, units=None: path)
     monkeypatch.setattr(cli_fit, "fit_take", fake_fit_take)
     code, _, err = _run(["fit", str(d / "model.npz"), "--markers", str(d / "take.c3d"), "-o", str(d / "t.npz"),
-                         "--prior-weight", "0.5", "--temporal-weight", "3", "--penetration-weight", "10"], capsys)
+                         "--prior-weight", "0.5", "--temporal-weight", "3", "--penetration-weight", "2"], capsys)
     assert code == 2 and "stop here" in err
     o = seen["options"]
-    assert (o.prior_weight, o.temporal_weight, o.penetration_weight) == (0.5, 3.0, 10.0)
+    assert (o.prior_weight, o.temporal_weight, o.penetration_weight) == (0.5, 3.0, 2.0)

@@ -293,8 +293,8 @@ def test_penetration_term_derivatives_match_finite_differences(bar):
 
 def test_penetration_term_pushes_crossing_corners_out():
     model, X, F, binding, y, mean_z = _crossing_bars()
-    off = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0), mean_z=mean_z)
-    assert off.solve_frame_apart(X, np.zeros(0), y)[5] == -1                          # off by default
+    off = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0, penetration_weight=0.0), mean_z=mean_z)
+    assert off.solve_frame_apart(X, np.zeros(0), y)[5] == -1                          # 0: off
     solver = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0, penetration_weight=10.0),
                          mean_z=mean_z)
     Xf, a, st, it, E = solver.solve_frame(X, np.zeros(0), y)
@@ -310,8 +310,9 @@ def test_penetration_term_pushes_crossing_corners_out():
 def test_fit_reports_self_intersections_only_with_the_term(bar):
     X0, F, model, binding = bar
     x = surface_points(np.array([bar_pose(X0, 0.3 * k, 0.0) for k in range(3)]), F, binding)
-    assert fit_markers(model, x, binding, prior_weight=1.0).frame_self_intersections is None     # default: off
-    res = fit_markers(model, x, binding, prior_weight=1.0, penetration_weight=10.0)
+    assert fit_markers(model, x, binding, prior_weight=1.0,
+                       penetration_weight=0.0).frame_self_intersections is None                  # 0: off
+    res = fit_markers(model, x, binding, prior_weight=1.0)                                       # default: on
     assert res.frame_self_intersections.tolist() == [0, 0, 0]          # a bent bar does not pass through itself
     assert res.summary()["frame_self_intersections"] == [0, 0, 0]
 

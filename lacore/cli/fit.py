@@ -96,8 +96,7 @@ def configure(parser):
     parser.add_argument("--penetration-weight", type=float, default=FIT_DEFAULTS.penetration_weight, metavar="MU",
                         help="weight of the non-penetration term: frames whose surface passes through itself where "
                              "the markers do not are fitted again holding the crossing faces apart (default "
-                             f"{FIT_DEFAULTS.penetration_weight:g}: off; 10 removes most elbow and knee creases, "
-                             "at 2-8 times the time per frame)")
+                             f"{FIT_DEFAULTS.penetration_weight:g}; 0: off, faster on takes with many such frames)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="frames per second of MARKERS.npz positions that form a recording: enables the temporal "
                              "term (a take's own rate is used; without one, frames are fitted independently)")

