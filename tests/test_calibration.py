@@ -321,3 +321,39 @@ def test_modes_act_where_the_markers_are(model):
     assert len(off.self_intersection_frames) >= 8 and off.self_intersections.max() >= 5, off.self_intersections
     assert len(on.self_intersection_frames) <= 2, on.self_intersections
     assert on.marker_rms_mm < 1.5 * off.marker_rms_mm + 0.5, (on.marker_rms_mm, off.marker_rms_mm)
+
+
+def _edge_ratios(model, res):
+    """Smallest fitted edge over its shortest training length, largest over its longest (performer's size)."""
+    from lacore.geometry.lengths_angles import lengths_and_angles
+    E = model.topology.n_edges
+    lengths = np.stack([lengths_and_angles(X, model.topology, check=False)[:E] for X in res.vertices])
+    lengths = lengths / res.calibration.performer_ratio
+    train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
+    return float((lengths / train.min(0)).min()), float((lengths / train.max(0)).max())
+
+
+def test_bounded_coefficients_and_wider_offsets_keep_walk1_edges_near_the_training_range(model):
+    """The defaults (training ellipsoid, offsets up to 80 mm) against unbounded coefficients and offsets up to 40 mm.
+
+    Measured on Walk1's first 40 frames (calibrated on them): defaults marker RMS 2.10 mm, edges 0.43-1.29 of the
+    training range, the coefficients' Mahalanobis radius at most 6.3 (training poses: 5.4); the old settings
+    2.61 mm, edges 0.40-1.64, radius 8.5-11.  The whole take (bench_fit_takes.py): edges 0.40-1.21 instead of
+    0.31-1.72, marker RMS 3.3 mm instead of 4.9.
+    """
+    from lacore.markers import FitOptions
+    from lacore.markers.calibration import CALIBRATION_DEFAULTS
+    take = excerpt(read("Walk1.c3d"), 40)
+    new = fit_take(model, take)
+    old = fit_take(model, take, options=FitOptions(coefficient_weight=0.0),
+                   calibration_options=dataclasses.replace(CALIBRATION_DEFAULTS, offset_limits=(-0.003, 0.040)))
+    var = model.training_coefficients.var(0)
+    r0 = np.sqrt((model.training_coefficients ** 2 / var).sum(1)).max()
+    radius = {k: np.sqrt((r.coefficients[:, :len(var)] ** 2 / var).sum(1)) for k, r in (("new", new), ("old", old))}
+    lo_new, hi_new = _edge_ratios(model, new)
+    lo_old, hi_old = _edge_ratios(model, old)
+    assert radius["new"].max() < 1.3 * r0 and radius["old"].min() > 1.3 * r0, radius
+    assert hi_new < 1.4 and hi_old > 1.5, (hi_new, hi_old)
+    assert lo_new > 0.35, lo_new
+    assert new.marker_rms_mm < 4.0 and new.marker_p95_mm < 7.0, (new.marker_rms_mm, new.marker_p95_mm)
+    assert new.marker_rms_mm < old.marker_rms_mm, (new.marker_rms_mm, old.marker_rms_mm)

