@@ -178,7 +178,15 @@ def real_takes(store=STORE):
                   f"({b['frames']} frames, {b['vertices']:,} vertices): {_g(b['end_to_end_seconds'])} s from import "
                   f"to keyed result (goal 30 s): calibration {_g(b['calibration_seconds'])} s, fit "
                   f"{_g(b['fit_seconds_per_frame'])} s per frame; again with the stored calibration "
-                  f"{_g(b['refit_seconds'])} s.")
+                  f"{_g(b['refit_seconds'])} s" + _blender_quality(b) + ".")
+
+
+def _blender_quality(b):
+    """Marker RMS / p95 and the frames through themselves of the Blender run (records that state them)."""
+    if "self_intersection_frames" not in b:
+        return ""
+    return (f"; marker RMS {_g(b['marker_rms_mm'])} mm, p95 {_g(b['marker_p95_mm'])} mm, "
+            f"{b['self_intersection_frames']} frames passing through themselves")
 
 
 def live_mixing(store=STORE):
