@@ -323,22 +323,27 @@ def test_modes_act_where_the_markers_are(model):
     assert on.marker_rms_mm < 1.5 * off.marker_rms_mm + 0.5, (on.marker_rms_mm, off.marker_rms_mm)
 
 
-def _edge_ratios(model, res):
-    """Smallest fitted edge over its shortest training length, largest over its longest (performer's size)."""
+def _edge_ratios(model, res, q=90):
+    """Per frame, the smallest fitted edge over its shortest training length and the largest over its longest
+    (performer's size); returned: the ``100 - q`` percentile of the first and the ``q`` percentile of the second
+    over the frames (one frame's extreme edge depends on the rounding: under two BLAS threads one of Walk1's
+    first 40 frames reached 1.67 with the defaults, 1.17 under one)."""
     from lacore.geometry.lengths_angles import lengths_and_angles
     E = model.topology.n_edges
     lengths = np.stack([lengths_and_angles(X, model.topology, check=False)[:E] for X in res.vertices])
     lengths = lengths / res.calibration.performer_ratio
     train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
-    return float((lengths / train.min(0)).min()), float((lengths / train.max(0)).max())
+    lo, hi = (lengths / train.min(0)).min(1), (lengths / train.max(0)).max(1)
+    return float(np.percentile(lo, 100 - q)), float(np.percentile(hi, q))
 
 
 def test_bounded_coefficients_and_wider_offsets_keep_walk1_edges_near_the_training_range(model):
     """The defaults (training ellipsoid, offsets up to 80 mm) against unbounded coefficients and offsets up to 40 mm.
 
-    Measured on Walk1's first 40 frames (calibrated on them): defaults marker RMS 2.10 mm, edges 0.43-1.29 of the
-    training range, the coefficients' Mahalanobis radius at most 6.3 (training poses: 5.4); the old settings
-    2.61 mm, edges 0.40-1.64, radius 8.5-11.  The whole take (bench_fit_takes.py): edges 0.40-1.21 instead of
+    Measured on Walk1's first 40 frames (calibrated on them), under one BLAS thread and two: defaults marker RMS
+    2.13-2.16 mm, the frames' largest edge over its longest training length 1.21-1.24 (90th percentile over the
+    frames) and their smallest over its shortest 0.46-0.52 (10th percentile), the coefficients' Mahalanobis radius
+    at most 6.3 (training poses: 5.4); the old settings 2.69-2.77 mm, 1.61-1.63 and 0.41-0.49, radius 8.5-11.  The whole take (bench_fit_takes.py): edges 0.40-1.21 instead of
     0.31-1.72, marker RMS 3.3 mm instead of 4.9.
     """
     from lacore.markers import FitOptions
@@ -353,7 +358,7 @@ def test_bounded_coefficients_and_wider_offsets_keep_walk1_edges_near_the_traini
     lo_new, hi_new = _edge_ratios(model, new)
     lo_old, hi_old = _edge_ratios(model, old)
     assert radius["new"].max() < 1.3 * r0 and radius["old"].min() > 1.3 * r0, radius
-    assert hi_new < 1.4 and hi_old > 1.5, (hi_new, hi_old)
+    assert hi_new < 1.35 and hi_old > 1.45, (hi_new, hi_old)
     assert lo_new > 0.35, lo_new
     assert new.marker_rms_mm < 4.0 and new.marker_p95_mm < 7.0, (new.marker_rms_mm, new.marker_p95_mm)
     assert new.marker_rms_mm < old.marker_rms_mm, (new.marker_rms_mm, old.marker_rms_mm)

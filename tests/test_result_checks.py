@@ -16,7 +16,7 @@ from lacore.geometry.lengths_angles import (DEGENERACY_RTOL, check_nondegenerate
 from lacore.reconstruction import (ANGLE_ATOL, LENGTH_RTOL, check_reconstruction, get_context, reconstruct,
                                    reconstruction_errors)
 from lacore.reconstruction.checks import CONVERGED_STATUSES, apply_checks
-from lacore.reconstruction.gauss_newton import gauss_newton_reconstruction
+from lacore.reconstruction.gauss_newton import _STALL_WINDOW, gauss_newton_reconstruction
 from lacore.reconstruction.settings import ReconstructionSettings
 from lacore.geometry.topology import MeshTopology
 
@@ -96,7 +96,10 @@ def test_gauss_newton_from_the_flat_strip_stalls_and_says_so(rolled_strip):
     assert not apply_checks(raw, z, topo, minimizer=True).success
     res = reconstruct(z, topo, flat, method="gn")
     assert res.success and any("continued from the least-squares relaxation" in n for n in res.notes), res.notes
-    assert res.iterations <= 3  # measured 2 (one step from the flat strip, one from the relaxation)
+    # measured 2 (one step from the flat strip, one from the relaxation); on some CPUs the relaxation's energy
+    # (3e-16) is only decreased by diagonally shifted steps, which end in a stall window (measured 12: status -3,
+    # the checks pass)
+    assert res.iterations <= 3 or (res.iterations <= 3 + _STALL_WINDOW and res.status == -3), res
     res = reconstruct(z, topo, flat, method="gn", start_check=False)  # the restart after the stall
     assert res.success and any("restarted from the least-squares relaxation" in n for n in res.notes)
     assert res.iterations < 40  # measured 23 (10 stalled + 1 after the restart ... + the stall window)

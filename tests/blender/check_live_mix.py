@@ -434,8 +434,10 @@ def modal_run_and_cancel():
     op, run = fake_operator(), ext("live_mix").enable_run(obj)
     op._begin_modal(bpy.context, run)
     op.modal(bpy.context, timer(op))  # the build starts in a worker process (from the worker thread)
-    time.sleep(1.0)
     parallel = importlib.import_module(f"{MODULE}.lacore.parallel")
+    deadline = time.perf_counter() + 10.0
+    while not parallel._RUNNING and time.perf_counter() < deadline:   # Esc while the worker runs, however fast
+        time.sleep(0.005)
     started = len(parallel._RUNNING)
     t = time.perf_counter()
     cancelled = op.modal(bpy.context, esc())
