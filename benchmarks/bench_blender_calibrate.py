@@ -5,7 +5,8 @@
 The CC0 human (full body, ``lacore.samples.human``) stands as a Blender user has it (Z up, metres: the body's
 Y-up decimetre mesh rotated by 90 degrees about X and scaled by 0.1) with ``--train`` skinned poses as shape
 keys (the clean poses of ``bench_fit_takes.py``'s model, :func:`lacore.samples.human.training_angles`: a model
-trained on poses whose skin passes through itself learns the folds) and no model yet.  Timed, as a user runs them (background mode: synchronous):
+trained on poses whose skin passes through itself learns the folds) and no model yet.  Timed, as a user runs
+them (background mode: synchronous):
 
 * ``import_seconds``: ``bpy.ops.lengths_angles.import_markers`` of the take (defaults: metres, Z up);
 * ``calibrate_fit_seconds``: ``bpy.ops.lengths_angles.calibrate_fit()`` over the whole take: Build Model
@@ -20,7 +21,8 @@ trained on poses whose skin passes through itself learns the folds) and no model
 * ``playback_seconds_per_frame``: ``scene.frame_set`` + the evaluated mesh (the Mesh Cache modifier).
 
 Quality as the operator reports it (lacore's figures): marker RMS and p95 in mm, the prior weight used, flagged
-frames and markers, the number of frames where the surface passes through itself where the markers do not.  Prints one JSON object.
+frames and markers, the number of frames where the surface passes through itself where the markers do not.
+Prints one JSON object.
 
 usage: PYTHONPATH=<site-packages with scipy> python benchmarks/bench_blender_calibrate.py [--take Walk1.c3d]
        [--train 30] [--frames 0 (all)] [--no-refit]

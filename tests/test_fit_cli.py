@@ -46,6 +46,7 @@ def test_fit_writes_poses_and_json(files, capsys):
     summary = json.loads(stdout)
     assert summary["penetration_weight"] == FIT_DEFAULTS.penetration_weight == 10.0   # the default
     assert summary["temporal_weight"] == 0.1   # the flag
+    assert summary["observed_radius"] == [0.1, 0.2]
     assert summary["frames"] == 4 and summary["seconds"] > 0 and summary["seconds_per_frame"] > 0
     assert summary["marker_rms"] < 0.01  # bar length 6; measured 0.0017
     with np.load(out) as r:
@@ -73,6 +74,7 @@ def test_fit_writes_poses_and_json(files, capsys):
     ("shape", "positions must have shape (T, M, 3)"),
     ("weight", "--prior-weight"),
     ("penetration", "--penetration-weight"),
+    ("radius", "--observed-radius"),
     ("model", "not a readable"),
 ])
 def test_bad_input_exits_2_without_output(files, capsys, case, message):
@@ -96,6 +98,9 @@ def test_bad_input_exits_2_without_output(files, capsys, case, message):
     elif case == "penetration":
         np.savez(markers, positions=x, vertices=verts)
         extra = ["--penetration-weight", "nan"]
+    elif case == "radius":
+        np.savez(markers, positions=x, vertices=verts)
+        extra = ["--observed-radius", "0.3", "0.1"]
     elif case == "model":
         np.savez(markers, positions=x, vertices=verts)
         model_file = d / "not_a_model.npz"
@@ -136,3 +141,8 @@ def test_take_options_reach_the_fit(files, capsys, monkeypatch):
     assert code == 2 and "stop here" in err
     o = seen["options"]
     assert (o.prior_weight, o.temporal_weight, o.penetration_weight) == (0.5, 3.0, 2.0)
+    assert o.observed_radius == FIT_DEFAULTS.observed_radius == (0.1, 0.2)            # the default
+    for flag, radius in ((["0"], None), (["0.2", "0.4"], (0.2, 0.4))):
+        code, _, err = _run(["fit", str(d / "model.npz"), "--markers", str(d / "take.c3d"), "-o", str(d / "t.npz"),
+                             "--observed-radius", *flag], capsys)
+        assert code == 2 and "stop here" in err and seen["options"].observed_radius == radius, err

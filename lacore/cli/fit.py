@@ -3,8 +3,8 @@
 Usage::
 
     lacore fit MODEL.npz --markers TAKE.c3d|TAKE.trc|MARKERS.npz -o OUT.npz [--json] [--static STATIC.c3d]
-               [--prior-weight G|auto] [--temporal-weight W] [--penetration-weight MU] [--frames A:B]
-               [--units mm|cm|m]
+               [--prior-weight G|auto] [--temporal-weight W] [--penetration-weight MU]
+               [--observed-radius R1 R2|0] [--frames A:B] [--units mm|cm|m]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
 (:meth:`lacore.models.shape_model.ShapeModel.save`).
@@ -97,6 +97,11 @@ def configure(parser):
                         help="weight of the non-penetration term: frames whose surface passes through itself where "
                              "the markers do not are fitted again holding the crossing faces apart (default "
                              f"{FIT_DEFAULTS.penetration_weight:g}; 0: off, faster on takes with many such frames)")
+    r1, r2 = FIT_DEFAULTS.observed_radius
+    parser.add_argument("--observed-radius", nargs="+", type=float, default=None, metavar="R",
+                        help="the model's modes act within R1 and not beyond R2 (fractions of the body's diagonal, "
+                             f"along the surface) of two markers (default {r1:g} {r2:g}); 0: everywhere (a mesh "
+                             "with few markers spread over a bend of the whole mesh)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="frames per second of MARKERS.npz positions that form a recording: enables the temporal "
                              "term (a take's own rate is used; without one, frames are fitted independently)")
@@ -109,6 +114,18 @@ def configure(parser):
 def load_marker_file(path, model):
     """Positions ``(T, M, 3)`` and the binding of a markers file (:func:`lacore.markers.io.read_marker_arrays`)."""
     return read_marker_arrays(path, model.faces, model.topology.n_vertices)
+
+
+def _observed_radius(values):
+    """``--observed-radius``: None (the default), ``(R1, R2)``, or None for ``0`` (the modes everywhere)."""
+    if values is None:
+        return FIT_DEFAULTS.observed_radius
+    if len(values) == 1 and values[0] == 0:
+        return None
+    if len(values) != 2 or not all(np.isfinite(values)) or not 0 <= values[0] < values[1]:
+        raise InputError(f"--observed-radius must be two numbers 0 <= R1 < R2, or 0 (the modes everywhere), "
+                         f"got {' '.join(f'{v:g}' for v in values)}")
+    return (float(values[0]), float(values[1]))
 
 
 def _frames(text):
@@ -134,6 +151,7 @@ def run(args):
     mu = args.penetration_weight
     if not np.isfinite(mu) or mu < 0:
         raise InputError(f"--penetration-weight must be a finite number >= 0, got {mu}")
+    args.observed_radius = _observed_radius(args.observed_radius)
     model = ShapeModel.load(args.model)
     if str(args.markers).lower().endswith(".npz"):
         if gamma == "auto":
@@ -146,7 +164,8 @@ def run(args):
     take = read_take(args.markers, units=args.units)
     static = read_take(args.static, units=args.units) if args.static else None
     res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v,
-                                                            penetration_weight=mu),
+                                                            penetration_weight=mu,
+                                                            observed_radius=args.observed_radius),
                    frames=_frames(args.frames), static=static)
     cal = res.calibration
     fine = res.fine_vertices is not None
@@ -169,6 +188,7 @@ def run(args):
         "seconds": seconds, "calibration_seconds": res.calibration_seconds,
         "seconds_per_frame": res.seconds_per_frame, "prior_weight": res.prior_weight,
         "temporal_weight": res.temporal_weight, "penetration_weight": mu,
+        "observed_radius": None if args.observed_radius is None else list(args.observed_radius),
         "marker_rms": s["marker_rms_mm"], "marker_p95": s["marker_p95_mm"],
         "units": "mm", "flagged_frames": s["flagged_frames"], "flagged_markers": s["flagged_markers"],
         "self_intersection_frames": s["self_intersection_frames"],
@@ -195,7 +215,7 @@ def _run_binding(args, model, gamma, start):
     x, binding = load_marker_file(args.markers, model)
     t_load = time.perf_counter() - start
     res = fit_markers(model, x, binding, prior_weight=gamma, temporal_weight=args.temporal_weight, rate=args.rate,
-                      penetration_weight=args.penetration_weight)
+                      penetration_weight=args.penetration_weight, observed_radius=args.observed_radius)
     t = time.perf_counter()
     save_npz_atomic(args.output, vertices=res.vertices, faces=model.faces, coefficients=res.coefficients,
                     marker_residuals=res.marker_residuals, frame_status=res.frame_status, frame_rms=res.frame_rms)
@@ -212,6 +232,7 @@ def _run_binding(args, model, gamma, start):
         "frame_status_counts": s["frame_status_counts"], "iterations": s["iterations"],
         "stages": {"load": t_load, **{k: v for k, v in s["timings"].items() if k != "total"}, "save": t_save},
         "prior_weight": gamma, "temporal_weight": args.temporal_weight, "penetration_weight": args.penetration_weight,
+        "observed_radius": None if args.observed_radius is None else list(args.observed_radius),
     }
     if args.json:
         print_json(summary)
