@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 from lacore.geometry.lengths_angles import face_areas
 from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
                                     surface_points)
+from lacore.errors import InputError
 from lacore.markers.fitting import FitOptions, FrameSolver, MarkerDataError, fit_markers
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
@@ -83,6 +84,50 @@ def test_gradient_and_bordered_step_match_fd_and_dense_solve(bar):
     ref = np.linalg.solve(full, -np.concatenate([gX, ga]))
     assert relative_error(np.concatenate([step_X, step_a]), ref) < 1e-8
     assert gX @ step_X + ga @ step_a < 0
+
+
+def test_training_ellipsoid_derivatives_match_finite_differences(bar):
+    """Coefficients outside the training poses' ellipsoid (FitOptions.coefficient_weight, the modes masked by the
+    default observed_radius): the term's energy is positive, the coefficient gradient matches finite differences,
+    and the Schur step with the term's matrix equals the dense solve of the full system."""
+    X0, F, model, _ = bar
+    binding = _surface_binding(F, 15)
+    X = bar_pose(X0, 0.5, -0.3)
+    x = surface_points(bar_pose(X0, 0.7, -0.2), F, binding)
+    vis = np.arange(len(x))
+    solver = FrameSolver(model, binding, FitOptions(prior_weight=0.7, coefficient_weight=0.5))
+    assert solver.observed is not None and np.isfinite(solver.a_radius)
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal(model.n_modes)
+    a *= 2.0 * solver.a_radius / np.sqrt(a @ (solver.a_scale * a))          # twice the largest training radius
+    E_ell, g_ell, H_ell = solver._ellipsoid(a)
+    assert E_ell > 0 and np.all(np.linalg.eigvalsh(H_ell) > 0)
+    gX, ga, vals, Jz = solver.gradient(X, a, x, vis, matrix=True)
+    da = rng.standard_normal(model.n_modes)
+    fd_a = directional_fd(lambda b: solver.energy(X, b, x, vis)[0], a, da, 1e-5)
+    assert abs(ga @ da - fd_a) < 1e-6 * abs(fd_a), (ga @ da, fd_a)            # measured 1e-9
+    fd_e = directional_fd(lambda b: solver._ellipsoid(b)[0], a, da, 1e-5)
+    assert abs(g_ell @ da - fd_e) < 1e-6 * abs(fd_e), (g_ell @ da, fd_e)
+    B = solver.border(Jz)
+    solver.factorize(X, a, x, vis)
+    step_X, step_a = solver.step(gX, ga)
+    pat = solver.pattern
+    import scipy.sparse as sp
+    L = sp.csc_matrix((vals, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"])).toarray()
+    A = L + L.T - np.diag(np.diag(L))
+    full = np.block([[A, B], [B.T, solver.C + H_ell]])
+    ref = np.linalg.solve(full, -np.concatenate([gX, ga]))
+    assert relative_error(np.concatenate([step_X, step_a]), ref) < 1e-8
+
+
+def test_fit_options_reject_bad_mask_and_ellipsoid_settings(bar):
+    X0, F, model, binding = bar
+    x = surface_points(bar_pose(X0, 0.3, 0.0), F, binding)
+    with pytest.raises(InputError, match="observed_radius must be None or two numbers 0 <= r1 < r2"):
+        fit_markers(model, x, binding, observed_radius=(0.3, 0.1))
+    with pytest.raises(InputError, match="coefficient_weight must be a finite number >= 0"):
+        fit_markers(model, x, binding, coefficient_weight=-1.0)
+    assert FitOptions(observed_radius=0).check() and FitOptions(observed_radius=None).check()
 
 
 def test_triangular_solves_and_stale_schur_step(bar):

@@ -117,7 +117,8 @@ def load_marker_file(path, model):
 
 
 def _observed_radius(values):
-    """``--observed-radius``: None (the default), ``(R1, R2)``, or None for ``0`` (the modes everywhere)."""
+    """``--observed-radius`` as :attr:`FitOptions.observed_radius`: the default when not given, ``(R1, R2)``, or None
+    for ``0`` (the modes everywhere)."""
     if values is None:
         return FIT_DEFAULTS.observed_radius
     if len(values) == 1 and values[0] == 0:

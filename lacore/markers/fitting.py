@@ -528,7 +528,16 @@ class FrameSolver:
         self.extra_penalty = np.broadcast_to(np.asarray(extra_penalty, float), (len(self.extra_modes),)).copy()
         self.J = len(self.modes) + len(self.extra_modes)
         self.observed = None
-        self.training_coefficients = getattr(model, "training_coefficients", None)
+        # the model's coefficients outside the training poses' ellipsoid (Mahalanobis radius)
+        self.a_scale, self.a_radius, self.a_weight = np.zeros(self.J), np.inf, 0.0
+        tc = getattr(model, "training_coefficients", None)
+        n = min(len(self.modes), 0 if tc is None else tc.shape[1])
+        if options.coefficient_weight and tc is not None and len(tc) > 1 and n:
+            tc = np.asarray(tc, float)[:, :n]
+            var = tc.var(0)
+            self.a_scale[:n] = 1.0 / np.maximum(var, COEFFICIENT_VARIANCE_FLOOR * var.sum())
+            self.a_radius = float(np.sqrt(np.einsum("kj,j,kj->k", tc, self.a_scale[:n], tc)).max())
+            self.a_weight = float(options.coefficient_weight)
         self.pattern = pat = gauss_newton_pattern(topo)
         cache = topo.cache.get((__name__, "cholesky"), dict)
         key = options.solver or "default"
@@ -581,16 +590,6 @@ class FrameSolver:
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
             full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
             penalty = self.gamma * OBSERVED_RIDGE * full
-        # the model's coefficients outside the training poses' ellipsoid (Mahalanobis radius)
-        self.a_scale, self.a_radius, self.a_weight = np.zeros(self.J), np.inf, 0.0
-        tc = self.training_coefficients
-        n = min(len(self.modes), 0 if tc is None else tc.shape[1])
-        if self.options.coefficient_weight and tc is not None and len(tc) > 1 and n:
-            tc = np.asarray(tc, float)[:, :n]
-            var = tc.var(0)
-            self.a_scale[:n] = 1.0 / np.maximum(var, COEFFICIENT_VARIANCE_FLOOR * var.sum())
-            self.a_radius = float(np.sqrt(np.einsum("kj,j,kj->k", tc, self.a_scale[:n], tc)).max())
-            self.a_weight = float(self.options.coefficient_weight)
         U = np.vstack([U, self.extra_modes])
         self.U, self.penalty = U, np.concatenate([penalty, self.extra_penalty])
         self.WU = (self.w * U).T.copy()
