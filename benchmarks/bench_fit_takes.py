@@ -4,7 +4,10 @@ Prints ONE JSON object: per take, the marker RMS and p95 (millimetres; per-frame
 values averaged over the fitted frames), the jitter ratio (99th percentile of the
 coarse vertices' second differences between frames over the markers' own), the
 smallest edge length over the smallest of the training poses (a collapsed limb
-shows as a small ratio), flagged frames and markers, the frames where the surface
+shows as a small ratio) and the largest over the largest, the 1st percentile of the
+first ratio and the 99th of the second over all edges and frames (``edge_ratio_p01``,
+``edge_ratio_p99``: a limb's worth of edges, not one crease edge), the number of edges
+ever outside :data:`EDGE_LIMITS` of their range (``edges_beyond``, of ``edges``), flagged frames and markers, the frames where the surface
 passes through itself and the markers do not (``self_intersection_frames``: their
 count; the take frames in ``self_intersection_frame_list``), where on the body these
 happen (``regions``: per body region of :data:`lacore.samples.human.LIMBS`, the frames
@@ -44,6 +47,11 @@ from lacore.geometry.lengths_angles import lengths_and_angles
 from lacore.markers import FIT_DEFAULTS, fit_take, read_take
 from lacore.result import json_value
 from lacore.samples.human import LIMBS, human_data_dir, human_model, load_human
+
+
+#: An edge counts as beyond its training range below ``EDGE_LIMITS[0]`` times its shortest training length or
+#: above ``EDGE_LIMITS[1]`` times its longest.
+EDGE_LIMITS = (0.8, 1.25)
 
 
 def second_differences(x):
@@ -132,6 +140,11 @@ def main():
             "jitter_ratio": jitter_ratio(res.vertices * u, res.markers * u),
             "min_edge_over_training_min": float((lengths / train.min(0)).min()),
             "max_edge_over_training_max": float((lengths / train.max(0)).max()),
+            "edge_ratio_p01": float(np.percentile(lengths / train.min(0), 1)),
+            "edge_ratio_p99": float(np.percentile(lengths / train.max(0), 99)),
+            "edges_beyond": int(((lengths / train.min(0)).min(0) < EDGE_LIMITS[0]).sum()
+                                + ((lengths / train.max(0)).max(0) > EDGE_LIMITS[1]).sum()),
+            "edges": int(E),
             "regions": region_report(res.self_intersection_pairs, lengths / train.max(0), lengths / train.min(0),
                                      model.faces, model.edges, regions),
             "flagged_frames": res.flagged_frames, "flagged_markers": res.flagged_markers,

@@ -150,6 +150,15 @@ def _regions(take):
     return f"{take['self_intersection_frames']}" + (f": {', '.join(parts)}" if parts else "")
 
 
+def _edge_ratios(t):
+    """Edge lengths over their training range: percentiles, extremes and the edges beyond (records that have them)."""
+    extremes = f"{_g(t['min_edge_over_training_min'])} - {_g(t['max_edge_over_training_max'])}"
+    if "edge_ratio_p01" not in t:
+        return extremes
+    return (f"{_g(t['edge_ratio_p01'])} - {_g(t['edge_ratio_p99'])} ({extremes}; "
+            f"{t['edges_beyond']} of {t['edges']:,})")
+
+
 def real_takes(store=STORE):
     """Calibrate and fit of the shared real takes with the defaults, and Walk1 end to end in Blender."""
     record = load("bench_fit_takes", store)
@@ -158,9 +167,10 @@ def real_takes(store=STORE):
     for name, t in r["takes"].items():
         rows.append([name.removesuffix(".c3d"), str(t["markers"]), str(t["frames"]), _g(t["marker_rms_mm"]),
                      _g(t["marker_p95_mm"]), _g(t["jitter_ratio"]),
-                     f"{_g(t['min_edge_over_training_min'])} - {_g(t['max_edge_over_training_max'])}",
+                     _edge_ratios(t),
                      _regions(t), _g(t["calibration_seconds_cpu"]), _g(t["fit_seconds_per_frame_cpu"])])
-    head = ["take", "markers", "frames", "marker RMS mm", "p95 mm", "jitter ratio", "edges / training range",
+    head = ["take", "markers", "frames", "marker RMS mm", "p95 mm", "jitter ratio",
+            "edges / training range: 1st - 99th percentile (extremes; edges beyond 0.8 - 1.25)",
             "frames passing through itself (by region)", "calibration s", "fit s per frame"]
     out = (table(head, rows) + "\n\n"
            + f"The CC0 body at {r['model']['coarse_vertices']:,} vertices, shape model of 30 of its own poses "

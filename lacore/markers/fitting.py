@@ -100,9 +100,9 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 10 by default)
     :data:`PENETRATION_MARGIN` edge lengths.  The frame is fitted again, at most
     :data:`PENETRATION_ROUNDS` times while each round reduces them, and the fit with the fewest
     such pairs is kept (the first when no round reduces them); the constraints hold for that
-    frame only.  On the add-on's coarsening of the CC0 body (Blender's Walk1 benchmark) a
-    round usually added crossings (14 pairs, then 43, then 71): stopping at the first round
-    that does not reduce them saves that frame's last solve.  The
+    frame only.  Where the nearest face is the wrong one (a fold of several layers) a round
+    adds crossings instead: stopping at the first round that does not reduce them saves that
+    frame's last solve.  The
     Gauss-Newton matrix takes the vertex's and the face's blocks (their coupling is outside
     the sparsity pattern).  Only frames with such pairs pay for it.  With the modes masked to
     the markers' region (the default ``observed_radius``, below), ``mu = 10`` against 0 on the
