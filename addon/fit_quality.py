@@ -9,7 +9,7 @@ import numpy as np
 from .compat import ensure_animation_channels, id_fcurves
 from .operators_markers import _write_curve as write_curve
 
-__all__ = ["FIT_PROP", "RMS_PROP", "write_quality", "remove_quality"]
+__all__ = ["FIT_PROP", "RMS_PROP", "write_quality", "settings_text", "remove_quality"]
 
 #: The last fit's quality on the object (take, frames, marker RMS / p95 in mm, prior weight, flagged frames/markers).
 FIT_PROP = "lengths_angles_fit"
@@ -26,7 +26,7 @@ def _distances(result):
     return np.asarray(d, float)
 
 
-def write_quality(obj, frames, result, labels, unit, take_name):
+def write_quality(obj, frames, result, labels, unit, take_name, settings=None):
     """Store a fit's quality on ``obj`` and describe it.
 
     * the per-frame curve: the float property :data:`RMS_PROP` (millimetres) keyed at every fitted frame
@@ -34,7 +34,8 @@ def write_quality(obj, frames, result, labels, unit, take_name):
       where the fit is poor (an existing curve of that property is replaced);
     * ``obj[FIT_PROP]``: take, frame range, marker RMS and p95 (mm: per-frame values averaged over the take),
       prior weight, flagged frames and markers, frames where the surface passes through itself and the markers
-      do not (:func:`lacore.markers.interpenetration.new_self_intersections`).
+      do not (:func:`lacore.markers.interpenetration.new_self_intersections`), and ``settings`` (a dict: the fit's
+      other settings, :func:`.operators_fit.recorded_settings`) as ``obj[FIT_PROP]["settings"]``.
 
     Returns ``{"text": report text, "notes": [warning texts]}``.
     """
@@ -62,6 +63,8 @@ def write_quality(obj, frames, result, labels, unit, take_name):
                      "flagged_frames": flagged_frames, "flagged_markers": flagged_markers,
                      "self_intersection_frames": crossing,
                      "success": bool(getattr(result, "success", True))}
+    if settings is not None:
+        obj[FIT_PROP]["settings"] = dict(settings)
     for name in ("calibration_seconds", "seconds_per_frame"):  # lacore's timings, where it states them
         value = getattr(result, name, None)
         if value is not None and np.isfinite(value):
@@ -89,6 +92,28 @@ def write_quality(obj, frames, result, labels, unit, take_name):
     if not getattr(result, "success", True):
         notes.append(f"the fit did not succeed: {getattr(result, 'message', '')}")
     return {"text": text, "notes": notes, "rms": rms, "marker_rms_mm": overall, "marker_p95_mm": p95}
+
+
+def settings_text(settings):
+    """The fit's settings stored by :func:`write_quality` in words (the panel's line).
+
+    >>> settings_text({"temporal_weight": 10.0, "penetration_weight": 0.0, "coefficient_weight": 0.1,
+    ...                "modes_near_markers": False})
+    'Temporal 10, non-penetration off, training range 0.1; modes everywhere'
+    >>> settings_text({"temporal_weight": 10.0, "penetration_weight": 10.0, "coefficient_weight": 0.0,
+    ...                "modes_near_markers": True, "observed_radius": [0.1, 0.2]})
+    'Temporal 10, non-penetration 10, training range off; modes near markers (0.1-0.2 of the size)'
+    """
+    def weight(name):
+        v = float(settings.get(name, 0.0))
+        return f"{v:g}" if v > 0 else "off"
+    if settings.get("modes_near_markers"):
+        r1, r2 = settings.get("observed_radius", (0.0, 0.0))
+        modes = f"modes near markers ({float(r1):g}-{float(r2):g} of the size)"
+    else:
+        modes = "modes everywhere"
+    return (f"Temporal {weight('temporal_weight')}, non-penetration {weight('penetration_weight')}, "
+            f"training range {weight('coefficient_weight')}; {modes}")
 
 
 def remove_quality(obj):

@@ -48,9 +48,10 @@ from .compat import BLEND_RELATIVE_PATH
 from .fit_quality import FIT_PROP, write_quality
 from .jobs import CallJob
 from .mesh_access import require_mesh_object, triangulate
-from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSetupError, _build_model, _model_inputs, _pc2_path,
-                            _prop_state, _store_built_model, _take_of, _take_state, _write_fit, metres_per_unit,
-                            read_model)
+from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
+                            _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
+                            draw_fit_settings, fit_settings, metres_per_unit, read_model, recorded_settings,
+                            typed)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
@@ -214,17 +215,26 @@ def _check_placed(X, faces, markers, unit, take_name, frame_of):
 
 
 def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=None, auto_prior=None,
-                      temporal_weight=None, filepath="", placement=None):
+                      temporal_weight=None, filepath="", placement=None, observed_radius=None,
+                      penetration_weight=None, coefficient_weight=None):
     """A :class:`.runs.Run` building the model if needed, calibrating and fitting the frame range of ``take`` to
     the character ``obj`` and writing the result (validated; raises InputError subclasses).
 
-    ``prior_weight``, ``auto_prior`` (the weight chosen per take by lacore) and ``temporal_weight`` default to
-    lacore's :data:`FIT_DEFAULTS`; ``placement`` (``'AUTO'`` or ``'PLACED'``) to the object's Placement option.
+    ``prior_weight``, ``auto_prior`` (the weight chosen per take by lacore), ``temporal_weight``,
+    ``observed_radius`` (``(r1, r2)``, or 0 for the modes everywhere: :func:`.operators_fit.fit_settings`),
+    ``penetration_weight`` and ``coefficient_weight`` default to lacore's :data:`FIT_DEFAULTS` (None); the settings
+    used are stored with the fit's quality.  ``placement`` (``'AUTO'`` or ``'PLACED'``) defaults to the object's
+    Placement option.
     """
     try:
         defaults, drop_non_markers, (calibrate, fit_take) = _fitting_api()
     except ImportError as exc:
         raise FitSetupError(f"this build of Lengths & Angles has no marker calibration ({exc})") from exc
+    options = fit_settings(defaults, allow_auto=True, prior_weight="auto" if auto_prior else prior_weight,
+                           temporal_weight=temporal_weight, observed_radius=observed_radius,
+                           penetration_weight=penetration_weight, coefficient_weight=coefficient_weight)
+    if auto_prior is False and prior_weight is None and options.prior_weight == "auto":
+        raise FitSetupError("give a prior weight (or use the automatic one)")
     mesh = require_mesh_object(obj)
     built = None
     if MODEL_PROP in mesh:
@@ -270,12 +280,6 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     # humanoid placed by marker names, else the nearest axes (the user placed or pinned the character)
     up, forward = object_axes(obj) if kind == 'HINTS' else _nearest_axes(obj)
     markers = dataclasses.replace(markers, up_axis=None if up is None else ("" if up.startswith("-") else "+") + up)
-    options = dataclasses.replace(
-        defaults, **{k: v for k, v in (("prior_weight", "auto" if auto_prior else prior_weight),
-                                       ("temporal_weight", temporal_weight)) if v is not None})
-    if auto_prior is False and prior_weight is None and options.prior_weight == "auto":
-        raise FitSetupError("give a prior weight (or use the automatic one)")
-    options.check(allow_auto=True)
     pin_vertices = {lb: int(v) for lb, (v, _) in pinned.items()}
 
     def key_of(token):
@@ -334,7 +338,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": [lb for lb in labels if lb not in bound],
             "performer_ratio": float(cal.performer_ratio),
         }
-        quality = write_quality(obj, frames, res, bound, unit, take_name)
+        quality = write_quality(obj, frames, res, bound, unit, take_name, recorded_settings(options))
         obj[FIT_PROP]["calibration_reused"] = reused is not None
         dropped = list(getattr(markers, "dropped", ()))
         if dropped:
@@ -420,7 +424,7 @@ _DEFAULT_AUTO = _DEFAULTS is not None and _DEFAULTS.prior_weight == "auto"
 _DEFAULT_TEMPORAL = 10.0 if _DEFAULTS is None else float(_DEFAULTS.temporal_weight)
 
 
-class LENGTHS_ANGLES_OT_calibrate_fit(RunOperator, bpy.types.Operator):
+class LENGTHS_ANGLES_OT_calibrate_fit(FitSettings, RunOperator, bpy.types.Operator):
     """Fit the active character to the selected marker take: build its shape model if needed, calibrate (units,
     placement, performer size, marker binding) and fit every frame, played back by a Mesh Cache modifier
     (Esc cancels)"""
@@ -449,6 +453,22 @@ class LENGTHS_ANGLES_OT_calibrate_fit(RunOperator, bpy.types.Operator):
                              description="Point cache to write ('//' is the folder of the .blend); empty: "
                                          "//<object>_<take>.pc2 next to the .blend")
 
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "use_scene_range")
+        col = layout.column(align=True)
+        col.active = not self.use_scene_range
+        col.prop(self, "frame_start")
+        col.prop(self, "frame_end")
+        layout.prop(self, "auto_prior")
+        row = layout.row()
+        row.active = not self.auto_prior
+        row.prop(self, "prior_weight")
+        layout.prop(self, "temporal_weight")
+        draw_fit_settings(layout, self)
+        layout.prop(self, "filepath")
+
     def invoke(self, context, event):
         self.interactive = True
         return self.execute(context)
@@ -459,8 +479,9 @@ class LENGTHS_ANGLES_OT_calibrate_fit(RunOperator, bpy.types.Operator):
             start, end = ((scene.frame_start, scene.frame_end) if self.use_scene_range
                           else (self.frame_start, self.frame_end))
             return calibrate_fit_run(context, character(context), find_take(context), start, end,
-                                     prior_weight=self.prior_weight, auto_prior=self.auto_prior,
-                                     temporal_weight=self.temporal_weight, filepath=self.filepath)
+                                     prior_weight=typed(self.prior_weight), auto_prior=self.auto_prior,
+                                     temporal_weight=typed(self.temporal_weight), filepath=self.filepath,
+                                     **self.fit_settings())
         return self.start_run(context, make)
 
 

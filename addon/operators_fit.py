@@ -60,7 +60,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from ..lacore.errors import InputError
 from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
-from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers
+from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers, fit_options
 from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
 from ..lacore.multiresolution import coarsen
@@ -74,8 +74,9 @@ from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
 __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run",
-           "bind_run", "fit_run", "fit_inputs", "store_model", "read_model", "migrate_models", "read_binding",
-           "remove_model", "classes"]
+           "bind_run", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
+           "draw_fit_settings", "typed", "SETTING_LABELS", "store_model", "read_model", "migrate_models",
+           "read_binding", "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
 #: First line of the text datablock holding a shape model (followed by its token).
@@ -88,10 +89,62 @@ COARSE_MODEL_VERTICES = 2500
 #: The Fit operators' prior weight default: lacore's (a number; "auto" is Calibrate & Fit's option).
 _DEFAULT_PRIOR = 1.0 if isinstance(FIT_DEFAULTS.prior_weight, str) else float(FIT_DEFAULTS.prior_weight)
 MAX_SHAPE_KEY_FRAMES = 100
+#: Modes Near Markers Only and its two radii: lacore's default (on unless lacore's default is the modes everywhere).
+_DEFAULT_NEAR_MARKERS = FIT_DEFAULTS.observed_radius is not None and np.ndim(FIT_DEFAULTS.observed_radius) == 1
+_DEFAULT_RADII = tuple(map(float, FIT_DEFAULTS.observed_radius)) if _DEFAULT_NEAR_MARKERS else (0.0, 0.0)
+#: The fit's settings as the operators name them (an error about a setting names it so).
+SETTING_LABELS = {"prior_weight": "Prior Weight", "temporal_weight": "Temporal Weight",
+                  "observed_radius": "Modes Near Markers Only", "penetration_weight": "Non-Penetration Weight",
+                  "coefficient_weight": "Training Range Weight"}
 
 
 class FitSetupError(InputError):
     """Input of the Blender fitting operators that cannot be used (no model, no binding, ...)."""
+
+
+def fit_settings(options=None, allow_auto=False, **settings):
+    """lacore's :class:`~lacore.markers.fitting.FitOptions`: ``options`` (default lacore's ``FIT_DEFAULTS``) with
+    the ``settings`` that are not None replaced, checked.
+
+    ``observed_radius`` is ``(r1, r2)`` (Modes Near Markers Only, fractions of the mesh's bounding-box diagonal) or
+    ``0`` / False for the modes everywhere (lacore's None), as ``lacore fit --observed-radius R1 R2 | 0``.  A bad
+    value raises :class:`FitSetupError`: the setting as the operators name it (:data:`SETTING_LABELS`) and lacore's
+    message, one line.
+
+    >>> fit_settings(observed_radius=0, penetration_weight=0.0).observed_radius is None
+    True
+    >>> try:
+    ...     fit_settings(observed_radius=(0.3, 0.1))
+    ... except FitSetupError as exc:
+    ...     print(exc)
+    Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got (0.3, 0.1)
+    """
+    given = {k: v for k, v in settings.items() if v is not None}
+    r = given.get("observed_radius")
+    if r is not None:
+        if np.ndim(r) == 0 and not r:
+            given["observed_radius"] = None  # the modes everywhere
+        elif np.ndim(r) == 1:
+            given["observed_radius"] = tuple(float(v) for v in r)
+    try:
+        return fit_options(options, allow_auto=allow_auto, **given)
+    except InputError as exc:
+        text = str(exc)
+        label = next((label for name, label in SETTING_LABELS.items() if text.startswith(name)), None)
+        raise FitSetupError(f"{label}: {text}" if label else text) from None
+
+
+def recorded_settings(options):
+    """What a fit run used, as stored with its quality (:func:`.fit_quality.write_quality`; ID properties: no
+    None): the temporal, non-penetration and training-range weights, whether the modes act near the markers only
+    and then their two radii."""
+    r = options.observed_radius
+    near = r is not None and np.ndim(r) == 1
+    out = {"temporal_weight": float(options.temporal_weight), "penetration_weight": float(options.penetration_weight),
+           "coefficient_weight": float(options.coefficient_weight), "modes_near_markers": bool(near)}
+    if near:
+        out["observed_radius"] = [float(v) for v in r]
+    return out
 
 
 def _digest(text):
@@ -531,19 +584,26 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
             "frames": frames, "filepath": filepath, "path": path, "labels": labels}
 
 
-def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=None, temporal_weight=None, filepath=""):
+def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=None, temporal_weight=None, filepath="",
+            observed_radius=None, penetration_weight=None, coefficient_weight=None):
     """A :class:`.runs.Run` fitting the shape model to the bound markers over the frame range and writing the
-    PC2 + Mesh Cache modifier or the shape keys (validated; raises InputError subclasses)."""
+    PC2 + Mesh Cache modifier or the shape keys (validated; raises InputError subclasses).
+
+    The fit's settings default to lacore's (None); ``observed_radius`` ``(r1, r2)`` or 0 for the modes everywhere
+    (:func:`fit_settings`).  The settings used are stored with the fit's quality.
+    """
+    options = fit_settings(prior_weight=prior_weight, temporal_weight=temporal_weight,
+                           observed_radius=observed_radius, penetration_weight=penetration_weight,
+                           coefficient_weight=coefficient_weight)
     inputs = fit_inputs(context, obj, frame_start, frame_end, output, filepath)
     model, markers, binding, frames = inputs["model"], inputs["markers"], inputs["binding"], inputs["frames"]
-    settings = {k: v for k, v in (("prior_weight", prior_weight), ("temporal_weight", temporal_weight))
-                if v is not None}
     render = context.scene.render
     rate = render.fps / render.fps_base  # one sample per scene frame (scales the temporal weight)
     fine = getattr(model, "fine_level", None)
-    job = CallJob(lambda progress: fit_markers(model, markers, binding, rate=rate, prolongation=fine,
-                                               progress=progress, **settings), "marker fit", total=len(frames))
+    job = CallJob(lambda progress: fit_markers(model, markers, binding, options, rate=rate, prolongation=fine,
+                                               progress=progress), "marker fit", total=len(frames))
     job.inputs = inputs
+    job.options = options
 
     unit = metres_per_unit(obj, inputs["take"], context.scene)
     labels = inputs["labels"]
@@ -551,7 +611,7 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
     def write(obj, job):
         X = job.result.vertices if fine is None else job.result.fine_vertices
         text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
-        quality = write_quality(obj, frames, job.result, labels, unit, take_name)
+        quality = write_quality(obj, frames, job.result, labels, unit, take_name, recorded_settings(options))
         job.notes.extend(quality["notes"])
         return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
@@ -592,6 +652,61 @@ def _write_fit(obj, X, frames, output, filepath, path):
 
 
 # ---------------------------------------------------------------------------------------------- operators
+class FitSettings:
+    """The fit's settings Fit to Markers and Calibrate & Fit share beyond the prior and temporal weights (operator
+    properties; defaults: lacore's ``FIT_DEFAULTS``); :meth:`fit_settings` hands them to the run functions."""
+
+    use_observed_radius: BoolProperty(
+        name="Modes Near Markers Only", default=_DEFAULT_NEAR_MARKERS,
+        description="The shape model reshapes the mesh only near the markers; regions far from every marker keep "
+                    "the model's average shape instead of a guess. Turn off for a creature or prop whose few "
+                    "markers are spread over a bend of the whole mesh")
+    observed_radius: FloatVectorProperty(
+        name="Near Markers", size=2, default=_DEFAULT_RADII, min=0.0, soft_max=1.0, precision=3, step=1,
+        description="How near the markers the model acts: fully within the first distance, not at all beyond the "
+                    "second, measured along the surface as fractions of the mesh's size (its bounding-box "
+                    "diagonal)")
+    penetration_weight: FloatProperty(
+        name="Non-Penetration Weight", default=float(FIT_DEFAULTS.penetration_weight), min=0.0, soft_max=100.0,
+        description="Keeps the surface from passing through itself where the markers do not (an arm into the "
+                    "torso): frames that do are fitted again holding the faces apart; 0: off (faster on takes with "
+                    "many such frames)")
+    coefficient_weight: FloatProperty(
+        name="Training Range Weight", default=float(FIT_DEFAULTS.coefficient_weight), min=0.0, soft_max=10.0,
+        description="Keeps poses within the range of the training shape keys: poses the model would push beyond "
+                    "its most extreme training poses are pulled back; 0: no limit")
+
+    def fit_settings(self):
+        """The settings as keyword arguments of :func:`fit_run` / :func:`.operators_calibrate.calibrate_fit_run`
+        (as typed: :func:`typed`)."""
+        return {"observed_radius": tuple(map(typed, self.observed_radius)) if self.use_observed_radius else 0,
+                "penetration_weight": typed(self.penetration_weight),
+                "coefficient_weight": typed(self.coefficient_weight)}
+
+
+def typed(value):
+    """A float property's value as typed: Blender keeps single precision, so 0.1 is read back as 0.10000000149...;
+    this is the shortest decimal that single precision reads as the same value (lacore's defaults exactly, and
+    messages and records without the noise).
+
+    >>> typed(np.float32(0.1)), typed(10.0)
+    (0.1, 10.0)
+    """
+    return float(str(np.float32(value)))
+
+
+def draw_fit_settings(layout, props):
+    """Draw the :class:`FitSettings` of the operator properties ``props`` (the radii greyed out when the modes act
+    everywhere)."""
+    layout.prop(props, "penetration_weight")
+    layout.prop(props, "coefficient_weight")
+    layout.prop(props, "use_observed_radius")
+    col = layout.column(align=True)
+    col.active = bool(props.use_observed_radius)
+    col.prop(props, "observed_radius", index=0, text="Fully Within")
+    col.prop(props, "observed_radius", index=1, text="Not Beyond")
+
+
 class _Interactive:
     """From the UI (a button): modal with progress and Esc; ``execute`` alone (scripts) runs at once."""
 
@@ -671,7 +786,7 @@ class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operat
         return self.start_run(context, make)
 
 
-class LENGTHS_ANGLES_OT_fit_markers(_Interactive, RunOperator, bpy.types.Operator):
+class LENGTHS_ANGLES_OT_fit_markers(_Interactive, FitSettings, RunOperator, bpy.types.Operator):
     """Fit the shape model to the bound markers over the frame range (Esc cancels)"""
     bl_idname = "lengths_angles.fit_markers"
     bl_label = "Fit to Markers"
@@ -695,14 +810,30 @@ class LENGTHS_ANGLES_OT_fit_markers(_Interactive, RunOperator, bpy.types.Operato
                              description="Point cache to write ('//' is the folder of the .blend); empty: "
                                          "//<object>_<take>.pc2 next to the .blend")
 
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "output")
+        layout.prop(self, "use_scene_range")
+        col = layout.column(align=True)
+        col.active = not self.use_scene_range
+        col.prop(self, "frame_start")
+        col.prop(self, "frame_end")
+        layout.prop(self, "prior_weight")
+        layout.prop(self, "temporal_weight")
+        draw_fit_settings(layout, self)
+        row = layout.row()
+        row.active = self.output == 'PC2'
+        row.prop(self, "filepath")
+
     def execute(self, context):
         def make(context):
             scene = context.scene
             start, end = ((scene.frame_start, scene.frame_end) if self.use_scene_range
                           else (self.frame_start, self.frame_end))
             return fit_run(context, context.active_object, start, end, output=self.output,
-                           prior_weight=self.prior_weight, temporal_weight=self.temporal_weight,
-                           filepath=self.filepath)
+                           prior_weight=typed(self.prior_weight), temporal_weight=typed(self.temporal_weight),
+                           filepath=self.filepath, **self.fit_settings())
         return self.start_run(context, make)
 
 

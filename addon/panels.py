@@ -154,7 +154,8 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
 
 def draw_fit_quality(layout, obj):
     """The last fit's quality (stored by :func:`.fit_quality.write_quality`): marker RMS / p95 in mm, the
-    prior weight, flagged frames and markers; the per-frame curve is the keyed property ``RMS_PROP``."""
+    prior weight and the other settings used, flagged frames and markers; the per-frame curve is the keyed property
+    ``RMS_PROP``."""
     q = obj.get(fit_quality.FIT_PROP)
     if q is None:
         return
@@ -163,6 +164,8 @@ def draw_fit_quality(layout, obj):
                    f"p95 {q['marker_p95_mm']:.1f} mm", icon='CHECKMARK' if q.get("success", True) else 'ERROR')
     box.label(text=f"Prior weight {q['prior_weight']:g}; per-frame RMS: property '{fit_quality.RMS_PROP}' "
                    "(Graph Editor)")
+    if "settings" in q:
+        box.label(text=fit_quality.settings_text(q["settings"]))
     if "calibration_reused" in q:
         box.label(text="Calibration reused (take, model and placement unchanged)" if q["calibration_reused"] else
                   "Calibration stored: Calibrate & Fit again reuses it while take, model and placement are unchanged")

@@ -16,7 +16,7 @@ from conftest import REPO, run_blender_check
 
 from lacore.markers.binding import MarkerBinding, surface_points
 from lacore.markers.baselines import VertexPCA, fit_markers_vertex_pca
-from lacore.markers.fitting import fit_markers
+from lacore.markers.fitting import FIT_DEFAULTS, fit_markers
 from lacore.markers.io import MarkerTake, read_markers, write_c3d
 from lacore.models.shape_model import ShapeModel
 
@@ -56,6 +56,8 @@ def run(extension_zip, inputs, tmp_path_factory):
     data["faces"] = inputs["faces"]
     with np.load(work / "files" / "blender_fit.npz") as f:
         data["arrays"] = dict(f)
+    with np.load(work / "files" / "fit_settings.npz") as f:
+        data["settings_arrays"] = dict(f)
     return data
 
 
@@ -239,3 +241,86 @@ def test_cache_file_paths_and_remove_data(run):
     after = res["after_remove_data"]  # "Remove everything": the model, its preview key and sliders, the binding
     assert after["mesh_props"] == [] and after["object_props"] == [] and not after["preview_key"]
     assert after["sliders"] == 0.0
+
+
+SETTING_NAMES = ["Modes Near Markers Only", "Non-Penetration Weight", "Training Range Weight"]
+
+
+@pytest.mark.parametrize("operator", ["fit_markers", "calibrate_fit"])
+def test_fit_settings_defaults_are_lacores(run, operator):
+    """Both operators' Modes Near Markers Only, radii, Non-Penetration and Training Range weights default to
+    lacore's FitOptions (the installed extension's and this checkout's)."""
+    res = run["cases"]["fit_settings"]
+    d, lib = res["operator_defaults"][operator], res["lacore_defaults"]
+    assert lib == {"observed_radius": list(FIT_DEFAULTS.observed_radius),
+                   "penetration_weight": FIT_DEFAULTS.penetration_weight,
+                   "coefficient_weight": FIT_DEFAULTS.coefficient_weight}
+    assert d["use_observed_radius"] is (FIT_DEFAULTS.observed_radius is not None)
+    # Blender's float properties are single precision
+    assert np.allclose(d["observed_radius"], FIT_DEFAULTS.observed_radius, rtol=1e-6, atol=0), d
+    assert d["penetration_weight"] == pytest.approx(FIT_DEFAULTS.penetration_weight, rel=1e-6)
+    assert d["coefficient_weight"] == pytest.approx(FIT_DEFAULTS.coefficient_weight, rel=1e-6)
+    assert d["names"] == SETTING_NAMES
+    assert res["doctests"][0] == 0 and res["doctests"][1] >= 5, res["doctests"]
+
+
+@pytest.mark.parametrize("operator", ["fit_markers", "calibrate_fit"])
+def test_fit_settings_drawn_with_the_weights(run, operator):
+    """The redo panel shows the settings after the prior and temporal weights; the radii are greyed out when the
+    modes act everywhere."""
+    drawn = run["cases"]["fit_settings"]["drawn"]
+    for on in (True, False):
+        props = [[name, index] for name, index, _active in drawn[f"{operator}_{on}"]]
+        i = props.index(["temporal_weight", -1])
+        assert props[i + 1:i + 6] == [["penetration_weight", -1], ["coefficient_weight", -1],
+                                      ["use_observed_radius", -1], ["observed_radius", 0], ["observed_radius", 1]]
+        assert ["prior_weight", -1] in props[:i]
+        active = {(name, index): a for name, index, a in drawn[f"{operator}_{on}"]}
+        assert active[("observed_radius", 0)] is on and active[("observed_radius", 1)] is on
+        assert active[("use_observed_radius", -1)] and active[("penetration_weight", -1)]
+
+
+def test_fit_settings_reach_lacore_and_are_recorded(run):
+    """Modes everywhere and no non-penetration term, from the operator and from fit_run: the fit is lacore's own
+    fit with those settings (the markers as the add-on read them), not the default one, and the settings are stored
+    with the fit's quality and shown in the panel."""
+    res = run["cases"]["fit_settings"]
+    op = res["operator"]
+    assert op["result"] == ["FINISHED"] and op["changed"]
+    assert op["settings"] == {"temporal_weight": FIT_DEFAULTS.temporal_weight, "penetration_weight": 0.0,
+                              "coefficient_weight": 0.5, "modes_near_markers": False}
+    assert op["panel"] == ["Temporal 10, non-penetration off, training range 0.5; modes everywhere"]
+    s, d = res["settings"], res["defaults"]
+    assert s["result"] == d["result"] == ["FINISHED"]
+    assert s["settings"] == {**op["settings"], "coefficient_weight": FIT_DEFAULTS.coefficient_weight}
+    assert d["settings"] == {"temporal_weight": FIT_DEFAULTS.temporal_weight,
+                             "penetration_weight": FIT_DEFAULTS.penetration_weight,
+                             "coefficient_weight": FIT_DEFAULTS.coefficient_weight, "modes_near_markers": True,
+                             "observed_radius": list(FIT_DEFAULTS.observed_radius)}
+    assert s["penetration_off"] and not d["penetration_off"]  # lacore checks crossings only with the term on
+    a, arrays = run["settings_arrays"], run["arrays"]
+    model = ShapeModel.load(io.BytesIO(arrays["model_npz"].tobytes()))
+    binding = MarkerBinding.from_surface(arrays["bind_faces"], arrays["bind_barycentric"], arrays["bind_offsets"])
+    rate = float(a["rate"])
+    ours = fit_markers(model, a["markers"], binding, rate=rate, observed_radius=None, penetration_weight=0.0)
+    default = fit_markers(model, a["markers"], binding, rate=rate)
+    same = np.linalg.norm(a["settings_vertices"] - ours.vertices, axis=2).max()
+    same_default = np.linalg.norm(a["defaults_vertices"] - default.vertices, axis=2).max()
+    apart = np.linalg.norm(ours.vertices - default.vertices, axis=2).mean()
+    assert same < 1e-6 and same_default < 1e-6, (same, same_default)  # decimetres: measured 5e-12 (bpy 4.2 and 5.2)
+    assert apart > 5e-3, apart  # decimetres: measured 1.3e-2 (1.3 mm mean over frames 1-3)
+
+
+@pytest.mark.parametrize("case, words", [
+    ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
+                       "(0.3, 0.1)"),
+    ("radii_equal", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
+                    "(0.2, 0.2)"),
+    ("radius_negative", "Modes Near Markers Only: observed_radius must be"),
+    ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),
+    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a finite number >= 0, got -0.5")])
+def test_bad_fit_settings_one_line_and_unchanged(run, case, words):
+    res = run["cases"]["fit_settings"]["bad"][case]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
+    assert words in res["message"] and "Traceback" not in res["message"], res
+    assert res.get("kind", "ERROR") == "ERROR", res

@@ -219,6 +219,19 @@ def bad_input():
 
     obj, take = open_scene()
     attempt("outside_take", obj, use_scene_range=False, frame_start=1000, frame_end=1010)
+    attempt("radii_reversed", obj, observed_radius=(0.3, 0.1))
+    # negative weights from a script (the operator's properties stop at 0): the run function refuses them
+    cal = ext("addon.operators_calibrate")
+    for name, kw in (("penetration_negative", {"penetration_weight": -1.0}),
+                     ("coefficient_negative", {"coefficient_weight": -0.5})):
+        before = state(obj)
+        op = fake_operator()
+        op.interactive = False
+        res = op.start_run(bpy.context, lambda context, kw=kw: cal.calibrate_fit_run(context, obj, take, 1, N_FRAMES,
+                                                                                      **kw))
+        msg = op.reports[-1][1] if op.reports else ""
+        out[name] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                     "unchanged": state(obj) == before}
     bare = make_character("Bare", keys=False)
     select_only(bare, take)
     attempt("no_model_no_keys", bare)
@@ -323,6 +336,33 @@ def creature_as_placed():
             "performer_ratio": binding["performer_ratio"], "bound": len(binding["labels"])}
 
 
+def creature_settings():
+    """The tentacle as placed (creature_as_placed's scene) again with Modes Near Markers Only off and Non-Penetration
+    Weight 0 (the settings for a mesh whose few markers are spread over a bend of the whole mesh): another fit
+    than the defaults' (the settings reach lacore; the calibration is made afresh, its key holds them), stored with
+    the fit's quality, and as close to the true poses."""
+    obj = bpy.data.objects["Tentacle"]
+    take = next(o for o in bpy.data.objects if "lengths_angles_take" in o)
+    c = dict(np.load(os.path.join(WORK, "creature.npz")))
+    n = len(c["world"])
+    default = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    quality = ext("addon.fit_quality")
+    default_settings = obj[quality.FIT_PROP]["settings"].to_dict()
+    select_only(obj, take)
+    t = time.perf_counter()
+    result = bpy.ops.lengths_angles.calibrate_fit(use_observed_radius=False, penetration_weight=0.0)
+    seconds = time.perf_counter() - t
+    ev = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    err, rest, frames = world_error(obj, c)
+    q = obj[quality.FIT_PROP].to_dict()
+    scale = float(np.linalg.norm(np.array(obj.matrix_world)[:3, 0]))
+    return {"result": sorted(result), "seconds": round(seconds, 2), "frames": frames, "settings": q["settings"],
+            "default_settings": default_settings, "calibration_reused": q["calibration_reused"],
+            "mean_error_m": err, "rest_error_m": rest, "marker_rms_mm": q["marker_rms_mm"],
+            "success": q.get("success", True),
+            "mean_difference_m": float(np.linalg.norm(ev - default, axis=2).mean()) * scale}
+
+
 def creature_pins():
     """The character far from its markers (1 m away): Automatic without pins refuses (one line, nothing
     changed); Pin Marker in Edit Mode (the selected marker empty to the selected vertex) and by label, listed
@@ -389,4 +429,4 @@ def creature_pins():
 
 if __name__ == "__main__":
     run_cases([install_and_enable, scene_setup, whole_path, refit_reuses_calibration, modal_cancel, bad_input,
-               coarse_model, creature_as_placed, creature_pins])
+               coarse_model, creature_as_placed, creature_settings, creature_pins])

@@ -542,6 +542,114 @@ def script_defaults_and_paths():
     return out
 
 
+def operator_defaults(idname):
+    """The fit settings' defaults of the registered operator ``idname`` (its RNA)."""
+    props = getattr(bpy.ops.lengths_angles, idname).get_rna_type().properties
+    return {"use_observed_radius": props["use_observed_radius"].default,
+            "observed_radius": list(props["observed_radius"].default_array),
+            "penetration_weight": props["penetration_weight"].default,
+            "coefficient_weight": props["coefficient_weight"].default,
+            "names": [props[k].name for k in ("use_observed_radius", "penetration_weight", "coefficient_weight")]}
+
+
+def draw_operator(cls, **props):
+    """``cls.draw`` into a layout recording ``(property, index, active)`` of every ``prop`` call (no GUI here)."""
+    from types import SimpleNamespace
+    drawn = []
+
+    class Layout:
+        def __init__(self, active=True):
+            self.active = active
+
+        def __getattr__(self, name):
+            def record(*args, **kwargs):
+                if name == "prop":
+                    drawn.append((args[1], kwargs.get("index", -1), bool(self.active)))
+                return Layout(self.active)
+            return record
+
+    cls.draw(SimpleNamespace(layout=Layout(), **props), bpy.context)
+    return drawn
+
+
+def fit_settings():
+    """Modes Near Markers Only, Non-Penetration Weight and Training Range Weight of Fit to Markers: defaults from
+    lacore's FitOptions, drawn with the prior and temporal weights, handed to lacore by the operator and by
+    fit_run (the fit of frames 1-3 with the modes everywhere and no non-penetration term: its vertices and the
+    markers as read are written for pytest to fit again with lacore), stored with the fit's quality and shown in
+    the panel; bad values: one line, CANCELLED, nothing changed."""
+    import doctest
+    from types import SimpleNamespace
+
+    fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
+    lacore_defaults = importlib.import_module(f"{MODULE}.lacore.markers.fitting").FIT_DEFAULTS
+    out = {"operator_defaults": {name: operator_defaults(name) for name in ("fit_markers", "calibrate_fit")},
+           "lacore_defaults": {"observed_radius": list(lacore_defaults.observed_radius),
+                               "penetration_weight": lacore_defaults.penetration_weight,
+                               "coefficient_weight": lacore_defaults.coefficient_weight}}
+    runner = doctest.DocTestRunner()
+    for f in (fit.fit_settings, fit.typed, quality.settings_text):
+        for test in doctest.DocTestFinder().find(f):
+            runner.run(test)
+    out["doctests"] = [runner.failures, runner.tries]
+    ops = {"fit_markers": fit.LENGTHS_ANGLES_OT_fit_markers,
+           "calibrate_fit": ext("addon.operators_calibrate").LENGTHS_ANGLES_OT_calibrate_fit}
+    out["drawn"] = {f"{name}_{on}": draw_operator(cls, use_scene_range=True, output='PC2', auto_prior=False,
+                                                   use_observed_radius=on)
+                    for name, cls in ops.items() for on in (True, False)}
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    select_only(obj)
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    # the operator: its properties reach the run and the record
+    before = state(obj)
+    result = bpy.ops.lengths_angles.fit_markers(use_scene_range=False, frame_start=1, frame_end=3,
+                                                use_observed_radius=False, penetration_weight=0.0,
+                                                coefficient_weight=0.5, filepath="//settings.pc2")
+    q = obj[quality.FIT_PROP].to_dict()
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    out["operator"] = {"result": sorted(result), "changed": state(obj) != before, "settings": q["settings"],
+                       "panel": [kw["text"] for name, _a, kw in calls
+                                 if name == "label" and kw.get("text", "").startswith("Temporal")]}
+    # fit_run: lacore's result with these settings and with the defaults, on the markers as the add-on read them
+    arrays = {}
+    for label, settings in (("settings", {"observed_radius": 0, "penetration_weight": 0.0}), ("defaults", {})):
+        run = fit.fit_run(bpy.context, obj, 1, 3, filepath="//settings.pc2", **settings)
+        run.run()
+        op = fake_operator()
+        finished = op._finish_run(run)
+        res = run.job.result
+        arrays[f"{label}_vertices"] = res.vertices
+        arrays["markers"] = run.job.inputs["markers"]
+        out[label] = {"result": sorted(finished), "settings": obj[quality.FIT_PROP]["settings"].to_dict(),
+                      "penetration_off": res.frame_self_intersections is None}
+    arrays["rate"] = np.array(bpy.context.scene.render.fps / bpy.context.scene.render.fps_base)
+    np.savez(os.path.join(ARGS.workdir, "fit_settings.npz"), **arrays)
+    # bad values: one line, CANCELLED, nothing changed (negative weights from scripts: the properties stop at 0)
+    bad = {}
+    for label, kw in (("radii_reversed", {"observed_radius": (0.3, 0.1)}),
+                      ("radii_equal", {"observed_radius": (0.2, 0.2)})):
+        before = state(obj)
+        try:
+            res, msg = bpy.ops.lengths_angles.fit_markers(use_scene_range=False, frame_start=1, frame_end=3, **kw), ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = {"CANCELLED"}, str(exc).strip()
+        bad[label] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                      "unchanged": state(obj) == before}
+    for label, kw in (("penetration_negative", {"penetration_weight": -1.0}),
+                      ("coefficient_negative", {"coefficient_weight": -0.5}),
+                      ("radius_negative", {"observed_radius": (-0.1, 0.2)})):
+        before = state(obj)
+        op = fake_operator()
+        op.interactive = False
+        res = op.start_run(bpy.context, lambda context, kw=kw: fit.fit_run(context, obj, 1, 3, **kw))
+        msg = op.reports[-1][1] if op.reports else ""
+        bad[label] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                      "kind": op.reports[-1][0] if op.reports else "", "unchanged": state(obj) == before}
+    out["bad"] = bad
+    return out
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
-               runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion])
+               runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings])
