@@ -138,7 +138,8 @@ class IntersectionCheck:
         F = mesh.faces if isinstance(mesh, MeshTopology) else mesh
         self.faces, self.binding, self._mesh = F, binding, mesh
         edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-        gap = REST_CONTACT_GAP * float(np.linalg.norm(R[edges[:, 0]] - R[edges[:, 1]], axis=1).mean()) if len(F) else 0.0
+        mean_edge = float(np.linalg.norm(R[edges[:, 0]] - R[edges[:, 1]], axis=1).mean()) if len(F) else 0.0
+        gap = REST_CONTACT_GAP * mean_edge
         rest = np.concatenate([self_intersections(R, mesh), touching_faces(R, F, gap)])
         self.rest_pairs = np.unique(rest, axis=0) if len(rest) else np.zeros((0, 2), np.int64)
         self._rest_keys = self.rest_pairs[:, 0] * len(F) + self.rest_pairs[:, 1]
