@@ -6,7 +6,9 @@ the subspace the exact sums over all edges are matched by a non-negative combina
 edges' pieces (non-negative least squares, greedy selection): the cubature of the reduced energy
 (An, Kim and James 2008; von Tycowicz et al. 2015).  Matching every piece separately makes the
 cubature valid for all ``w`` at once.  The match can be measured in the energy norm (``metric`` of
-:func:`fit_cubature`): what a gradient error costs in energy at a minimizer.
+:func:`fit_cubature`): what a gradient error costs in energy at a minimizer; and the whole gradient at
+each training point's own weights can be matched besides, relative to the energy there (``weights``,
+``energies``): near a minimizer the pieces nearly cancel.
 """
 
 import numpy as np
@@ -156,7 +158,16 @@ def greedy_nnls(A, b, max_points, batch=16, passes=3):
     return sel, c, float(np.linalg.norm(b - AS[:, :len(sel)] @ c)) / bn
 
 
-def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metric=None):
+#: Weight of the rows of :func:`fit_cubature` that match the whole gradient at a sample's own weights, relative to the
+#: rows of its pieces (see there).
+GRADIENT_ROWS_WEIGHT = 300.0
+
+#: Floor of the sample energies that scale those rows, as a fraction of their median.
+GRADIENT_ROWS_FLOOR = 1e-3
+
+
+def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3000, seed=0, metric=None,
+                 weights=None, energies=None):
     """Edges and weights of a cubature of the reduced energy, trained at the subspace points ``samples``.
 
     Parameters
@@ -187,6 +198,15 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         minimizer moves by ``H^{-1} e``): the fit weighs the soft directions of the space, where a small
         gradient error moves the minimizer far, above the stiff ones, whose pieces are the largest.  The
         pieces ``M P`` are those of the basis ``U M^T`` at ``M^{-T} q`` (the same points): no product per sample.
+    weights : (S, m) array_like, optional
+        The weights ``w`` of the samples.  With ``energies``, every sample also has rows matching its whole
+        gradient ``piece_0 - sum_k w_k piece_k`` at its own weights, divided by the square root of its energy
+        (floored at :data:`GRADIENT_ROWS_FLOOR` times their median) and weighted by :data:`GRADIENT_ROWS_WEIGHT`:
+        near a minimizer the pieces nearly cancel in the gradient, so that a small relative error of every piece is
+        a large one of the gradient, and in the energy norm ``|M e|^2 / E`` is twice the relative energy a gradient
+        error ``e`` costs there.
+    energies : (S,) array_like, optional
+        The full energies ``W_q`` at the samples.
 
     Returns
     -------
@@ -206,6 +226,10 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
     model = make_energy(cand, None) if metric is None else make_energy(cand, None, metric)
     A = b = None
+    rows, rhs = [], []
+    if weights is not None and energies is not None:
+        energies = np.asarray(energies, float)
+        floor = GRADIENT_ROWS_FLOOR * float(np.median(energies))
     for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
         tot = np.asarray(tot)
         if metric is not None:
@@ -221,7 +245,13 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
             b = np.empty((len(samples), P.shape[0], P.shape[1]))
         np.divide(P, s[:, None, None], out=A[i], casting="same_kind")
         b[i] = tot / s[:, None]
+        if weights is not None and energies is not None and energies[i] + floor > 0:
+            coef = np.r_[1.0, -np.asarray(weights[i], float)] * (GRADIENT_ROWS_WEIGHT / np.sqrt(energies[i] + floor))
+            rows.append(np.einsum("k,krn->rn", coef, P).astype(np.float32))
+            rhs.append(coef @ tot)
     A, b = A.reshape(-1, A.shape[-1]), b.ravel()
+    if rows:
+        A, b = np.concatenate([A, *rows]), np.concatenate([b, *rhs])
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
     order = np.argsort(cand[sel])
     return cand[sel][order], c[order], rel

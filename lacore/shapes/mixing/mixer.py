@@ -17,22 +17,24 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
 
 * offline (:meth:`ShapeMixer.build`): a subspace of vertex positions spanned by the keys, the first
   derivatives of the projection at the keys and Newton vectors (a full Gauss-Newton step from the
-  reduced minimizer at the centre, all ones, pairs of keys and the corners of the accurate box, taken
-  in turn, with the projection's first derivatives there from the same factorization;
-  :mod:`.subspace`), and a cubature of the reduced energy, a weighted subset of edges
-  (:mod:`.cubature`);
+  reduced minimizer at the centre, all ones, pairs of keys, the corners of the accurate box and a few
+  more weights in ``[0, 1]^(K-1)`` (:func:`.subspace.candidate_weights`), taken in turn, with the
+  projection's first derivatives there from the same factorization, then a second time where the
+  first step gained more than :data:`REFINE_GAIN`; :mod:`.subspace`), and a cubature of the reduced
+  energy, a weighted subset of edges (:mod:`.cubature`);
 * online (:meth:`ShapeMixer.mix`): Gauss-Newton in the subspace on the cubature edges
   (:mod:`.reduced`), started from the previous mix or the Taylor prediction of the nearest key; an
   error indicator (:meth:`ShapeMixer.indicator`); ``polish=True`` finishes with the full
   Gauss-Newton projection.
 
-The build costs ``K + C`` sparse factorizations (``C`` candidate weights: 6 for ``K = 3``, 13 for
-``K = 4``; ``ceil(C / 2)`` more per further round of :attr:`MixerOptions.newton_rounds`), numeric
-ones of the reconstruction context's solver (one symbolic analysis for all): they are most of the
-build at 50k vertices (about 2 s CPU each on the 50k bar, whose factor has 47 million nonzeros, with
-an assembly and a solve of 0.2-0.3 s each, of about 30 s in all on the 2-core AMD EPYC we benchmark
-on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the cubature fit (:mod:`.cubature`,
-0.9-1.5 s there, 2.3 s on the 50k bar) comes next.  At 13k vertices the first factorization's pattern, ordering and
+The build costs ``K + C`` sparse factorizations and up to ``min(C_in, 16 - C)`` more in the second round
+(``C`` candidate weights: 8 for ``K = 3``, 16 for ``K = 4``; ``C_in`` of them in ``[0, 1]^(K-1)``:
+4 for ``K = 3``; :data:`NEWTON_POINTS`), numeric ones of the reconstruction context's solver (one
+symbolic analysis for all): they are most of the build at 50k vertices (about 1 s CPU each on the 50k
+bar, whose factor has 47 million nonzeros, with an assembly and a solve of 0.1-0.2 s each: 15 of them
+and 28 s in all on the 2-core AMD EPYC we benchmark on; ``benchmarks/bench_mixer.py``), and at 13k
+vertices too, where the cubature fit (:mod:`.cubature`, 0.7-1.5 s there, 4.6 s on the 50k bar) comes
+next.  At 13k vertices the first factorization's pattern, ordering and
 symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its own AMD ordering, whose factor
 has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
 minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
@@ -81,15 +83,31 @@ from .cubature import fit_cubature
 from .files import FORMAT, FORMAT_VERSION, load_mixer, save_mixer
 from .reduced import ReducedEnergy, edge_stencils
 from .subspace import (Expansion, FullProblem, build_space, candidate_weights, newton_vectors,
-                       orthonormal_basis)
+                       orthonormal_basis, reduced_solve)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
            "FORMAT", "FORMAT_VERSION"]
 
 #: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
-#: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``12 r`` to ``20 r`` cubature edges); 35 columns take 3-4 ms
-#: CPU per mix at 13k vertices on the 2-core AMD EPYC we benchmark on (``benchmarks/bench_mixer.py``), the 4 ms goal.
-AUTO_SIZE = 40
+#: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``12 r`` to ``20 r`` cubature edges); the bars' 44 columns
+#: (K = 3) take 1.3 ms CPU per mix at 5k vertices and 3.8 ms at 50k (writing the vertices included) on the 2-core AMD
+#: EPYC we benchmark on (``benchmarks/bench_mixer.py``); K = 4 would take 79.
+AUTO_SIZE = 48
+
+#: A Newton vector whose step would lower the energy at its candidate weight by at most this fraction of the energy
+#: there (a tenth of the 2 % the benchmark asks of a mix) joins the space with none of its vectors
+#: (:func:`.subspace.newton_vectors`, ``min_gain``): on the MakeHuman body (13k, K = 3), where the keys' space
+#: already holds the projection, the space has 23 columns instead of 35 and the cubature takes 0.7 s instead of 1.3 s,
+#: for the same energies (median ``energy_goal`` of ``benchmarks/bench_mixer.py`` in ``[0, 1]^2`` 0.10 and 0.11);
+#: on the bars every Newton point gains more.
+MIN_GAIN = 0.002
+
+#: Rounds after the first revisit the candidates in ``[0, 1]^(K-1)`` whose step in the round before gained more than
+#: this fraction of the energy there (the space was far from the projection there).
+REFINE_GAIN = 0.01
+
+#: Most Newton points of a build (all rounds): rounds after the first stop there.
+NEWTON_POINTS = 16
 
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
@@ -121,18 +139,24 @@ class MixerOptions:
     newton_rounds : int
         Rounds of Newton vectors (:func:`.subspace.newton_vectors`: a full Gauss-Newton step from the
         reduced minimizer at every candidate weight in turn, each in the space the steps before it
-        enlarged; rounds after the first at the half of the candidates with the largest steps in the
-        round before); 0 for none.  One by default: taken in turn, one round costs three quarters of
-        the factorizations of two and meets the accuracy goals wherever two did.  On the 50k bar (K = 3) the build took
-        29.7 s CPU instead of 39.5 s (two rounds at candidates sharing one space), with the largest RMS
-        error in ``[0, 1]^2`` 0.21 % instead of 0.14 %, in ``[-0.5, 1.5]^2`` 0.90 % instead of 0.84 % and
-        the median energy ratio to Gauss-Newton 1.56 instead of 2.07; the MakeHuman body (13k, K = 3)
-        4.3 s instead of 5.2 s (0.008 % / 0.011 %, was 0.005 % / 0.014 %), the CC0 body (13k, K = 4)
-        7.2 s instead of 10.0 s (0.024 % / 1.89 %, was 0.029 % / 1.88 %; median energy ratio 1.27,
-        was 1.17).  The CC0 body's 1.89 % is the distance to a worse local minimum of the benchmark's
-        continuation at ``w = (1.5, 1.5, 1.5)`` (``W_q`` 4.48; full Gauss-Newton from the mix ends at
-        0.15): against the lower minimizer at every weight its largest error in ``[-0.5, 1.5]^3`` is
-        0.53 %, at ``w = (-0.5, -0.5, -0.5)`` (mix energy 2.1, Gauss-Newton 0.74).
+        enlarged; rounds after the first at the candidates in ``[0, 1]^(K-1)`` whose step in the round
+        before lowered the energy there by more than :data:`REFINE_GAIN`, up to :data:`NEWTON_POINTS`
+        Newton points in all); 0 for none.  Two by default: a Gauss-Newton step from a point of a poor
+        space is far from the projection (on the 5k bar at ``w = (1/2, 1/2)``, from 1.6 times the energy
+        of converged Gauss-Newton to 1.19; from the final space's minimizer, 1.035, one step reaches
+        1.0002), so the second round's steps, from the grown space, are the ones that close the space's
+        energy gap.  On the 5k bar (K = 3) the benchmark's mixes in ``[0, 1]^2`` within 2 % of the energy
+        of converged Gauss-Newton (its ``energy_goal``) went from 3 to 10 of 10 (median goal margin 2.9 to
+        0.20; with the candidates ``(1, 1/2)``, ``(1/2, 1)`` and the cubature's changes of this version:
+        :func:`.subspace.candidate_weights`, :func:`.cubature.fit_cubature`), the 50k bar from 2 to 4
+        (21.9 to 2.5; build 13.7 s to 27.9 s, reduced size 26 to 44), the MakeHuman body (13k) from 5 to
+        10 and at 50k from 4 to 10, the CC0 body (13k, K = 4, no second round within 16 points) from 0 to
+        2 (11.3 to 2.0, the halves ``e_a / 2`` its only new candidates); the largest RMS errors stay
+        within the goals (in ``[0, 1]^(K-1)`` at most 0.12 %, in ``[-0.5, 1.5]^(K-1)`` 0.85 %).  What keeps
+        the 50k bar and the CC0 body from the goal is the space (the exact minimizer in it has 1.11 and
+        1.04 times the energy of Gauss-Newton, median): on the 50k bar Gauss-Newton needs 3-4 steps from
+        the space's minimizer, and preconditioned conjugate gradients or chord steps with a neighbouring
+        weight's factorization recover little of a fresh step.
     newton_pcg_iterations : int
         0: every Newton vector with a fresh factorization; else that many conjugate-gradient
         iterations preconditioned by the nearest key's factorization (fewer factorizations, no
@@ -149,13 +173,23 @@ class MixerOptions:
         of the mix's full energy to that of converged Gauss-Newton in ``[0, 1]^2`` fell from 1.65 to
         1.04 (with the ``20 r`` cubature below), on the 50k bar from 6.0 to 2.1.  None (the default):
         on when the space stays within :data:`AUTO_SIZE` vectors (K <= 3); beyond that the cost of a
-        mix (``O(r^3)`` per iteration with the cubature) outweighs them.
+        mix (``O(r^3)`` per iteration with the cubature) outweighs them (the CC0 body, K = 4, with
+        them and the candidates without the halves ``e_a / 2``: 67 columns, median energy ratio to
+        Gauss-Newton 1.055 instead of 1.24, but 5.3 ms per mix and a build of 10.7 s).
     cubature_points : int or None
         Largest number of edges of the cubature; None: ``max(300, 12 r)``, ``20 r`` with the Newton
         vectors' derivatives in the space (stiffer directions: on the MakeHuman body, 13k, K = 3,
         r = 35, the median energy ratio to Gauss-Newton in ``[0, 1]^2`` is 1.135 with ``12 r`` and
         1.039 with ``20 r``).  Meshes with fewer than
-        twice as many edges use all (the exact reduced energy).
+        twice as many edges use all (the exact reduced energy).  The fit is trained at the points the
+        build solved and at Taylor predictions for random weights moved one reduced Gauss-Newton step
+        (full Jacobian) toward the space's minimizers, and matches the whole gradient at every training
+        point's own weights besides its pieces (:func:`.cubature.fit_cubature`).  The cubature's share of
+        a mix's energy excess (the energy of its minimizer over that of the exact one in the space, median
+        in ``[0, 1]^(K-1)``) fell from 1.2 % to 0.2 % on the MakeHuman body (13k, K = 3) and from 0.27 %
+        to 0.07 % on the 5k bar; without the step toward the minimizers it is 0.4 % and 0.11 %, and 3.0 %
+        instead of 0.7 % on the MakeHuman body at 50k, 1.1 % instead of 0.24 % on the CC0 body (13k, K =
+        4), for 0.2-0.4 s more build at 13k vertices and 1.5-1.9 s at 50k.
     cubature_correction : bool
         Correct the cubature's gradient by the exact one at its minimizers of the training weights,
         interpolated in weight space (:meth:`ShapeMixer._shift`).  Off by default: on the MakeHuman
@@ -191,7 +225,7 @@ class MixerOptions:
     --------
     >>> options = MixerOptions(low=-1.0, high=2.0)        # build for sliders in [-1, 2]
     >>> options.newton_rounds, options.max_indicator
-    (1, 0.01)
+    (2, 0.01)
     >>> MixerOptions.from_array(options.to_array()) == options   # as stored in mixer files
     True
     """
@@ -201,7 +235,7 @@ class MixerOptions:
     high: float = 1.5
     second_order: bool = False
     chord_steps: int = 0
-    newton_rounds: int = 1
+    newton_rounds: int = 2
     newton_pcg_iterations: int = 0
     newton_derivatives: bool | None = None
     cubature_points: int | None = None
@@ -483,42 +517,53 @@ class ShapeMixer:
             mixer._set_basis(U, exps)
         x0 = mixer._key_x[0]
         all_cands = candidate_weights(mixer.n_keys - 1, o.low, o.high)
+        inside = [c for c in all_cands if c.min() >= 0.0 and c.max() <= 1.0]
         derivatives = o.newton_derivatives
         if derivatives is None:
             m = mixer.n_keys - 1
-            starts = sum(len(all_cands) if rnd == 0 else max(1, (len(all_cands) + 1) // 2)
-                         for rnd in range(o.newton_rounds))
+            starts = len(all_cands)
+            for _ in range(1, o.newton_rounds):
+                starts += min(len(inside), max(0, NEWTON_POINTS - starts))
             derivatives = m * (1 + mixer.n_keys) + starts * (1 + m) <= AUTO_SIZE
         mixer._derivatives = bool(derivatives and o.newton_rounds and not o.newton_pcg_iterations)
-        latest = {}  # the last error estimate at every candidate
+        latest, gains = {}, {}  # the last error estimate and relative model decrease at every candidate
+        n_points, space = 0, None
         for rnd in range(o.newton_rounds):
-            report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
-            with watch("newton_vectors"):
-                if rnd == 0:  # the farthest from the centre of [0, 1]^m first: the inner ones see their steps
-                    cands = sorted(all_cands, key=lambda w: -float(np.abs(w - 0.5).max()))
-                else:  # later rounds: the half of the candidates where the space is worst
-                    order = np.argsort([-latest[tuple(c)] for c in all_cands])
-                    cands = [all_cands[i] for i in order[:max(1, (len(all_cands) + 1) // 2)]]
-                keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
-                new, points, errors = newton_vectors(P, x0, mixer.basis,
-                                                     [(wc, mixer._start(wc)) for wc in cands], size,
-                                                     keys=list(zip(keys_w, mixer._key_x, strict=True)),
-                                                     pcg_iterations=o.newton_pcg_iterations,
-                                                     derivatives=derivatives,
-                                                     progress=None if progress is None else (
-                                                         lambda d, t, msg, rnd=rnd: progress(
-                                                             2, 4, f"round {rnd + 1}: {msg}")))
-                latest.update({tuple(c): e for c, e in zip(cands, errors, strict=True)})
-                mixer._error_w = np.array([np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1)) + all_cands)
-                mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
-                vectors += new
-                done = {tuple(wc) for wc, _ in points}
-                exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [Expansion(wc, x)
-                                                                                        for wc, x in points]
-            with watch("basis"):
-                U, _ = orthonormal_basis(vectors, o.reduced_size if rnd == o.newton_rounds - 1 else None,
-                                         keep=mixer.n_keys - 1)
-                mixer._set_basis(U, exps)
+            last = rnd == o.newton_rounds - 1
+            if rnd == 0:
+                cands = list(all_cands)
+            else:  # later rounds: the candidates in [0, 1]^m whose last step gained, the largest gains first
+                cands = [c for c in inside if not gains[tuple(c)] <= REFINE_GAIN]
+                cands = sorted(cands, key=lambda c: -gains[tuple(c)])[:max(0, NEWTON_POINTS - n_points)]
+            # the farthest from the centre of [0, 1]^m first: the inner ones see their steps
+            cands = sorted(cands, key=lambda w: -float(np.abs(w - 0.5).max()))
+            if cands:
+                report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
+                with watch("newton_vectors"):
+                    keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
+                    new, points, errors, gain, space = newton_vectors(
+                        P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in cands], size,
+                        keys=list(zip(keys_w, mixer._key_x, strict=True)), pcg_iterations=o.newton_pcg_iterations,
+                        derivatives=derivatives, min_gain=0.0 if o.newton_pcg_iterations else MIN_GAIN,
+                        progress=None if progress is None else (
+                            lambda d, t, msg, rnd=rnd: progress(2, 4, f"round {rnd + 1}: {msg}")))
+                    n_points += len(cands)
+                    latest.update({tuple(c): e for c, e in zip(cands, errors, strict=True)})
+                    gains.update({tuple(c): g for c, g in zip(cands, gain, strict=True)})
+                    mixer._error_w = np.array([np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
+                                              + all_cands)
+                    mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
+                    vectors += new
+                    done = {tuple(wc) for wc, _ in points}
+                    exps = [e for e in exps if e.D1 is not None or tuple(e.w) not in done] + [
+                        Expansion(wc, x) for wc, x in points]
+            if cands or last:
+                with watch("basis"):
+                    if space is not None and (o.reduced_size is None or not last):
+                        U = space    # the space the Newton vectors were taken in, grown by them: no new SVD
+                    else:
+                        U, _ = orthonormal_basis(vectors, o.reduced_size if last else None, keep=mixer.n_keys - 1)
+                    mixer._set_basis(U, exps)
         with watch("basis"):
             mixer._output_basis()                            # of the final basis only
         report(progress, 3, 4, "cubature")
@@ -572,14 +617,19 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False):
+    def _training(self, samples, metrics=False, refine=None, energies=None, energy_weights=None):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
         Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
         :func:`.cubature.fit_cubature`; the matrix of each sample instead costs a product ``J U`` per sample, 0.6 s
         more at 13k vertices, for the same energies on the 13k bodies).  The build's own Jacobians at the keys and
         the Newton points are not kept for it: holding their terms through the Newton stage cost more there (page
-        faults) than the 16 Jacobians saved here (docs/shape-space.md)."""
+        faults) than the 16 Jacobians saved here (docs/shape-space.md).
+
+        ``refine``: per sample None or the weights ``w``: the sample (in ``samples``, replaced in place) is first
+        moved by one reduced Gauss-Newton step for ``w`` with the full Jacobian (:func:`.subspace.reduced_solve`),
+        whose last Jacobian serves the training.  ``energies``: a list that receives the full energy at every sample
+        for the weights ``energy_weights[i]``."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
@@ -590,7 +640,12 @@ class ShapeMixer:
         totals, score = [], np.zeros(2 * E)
         inverse_factor = None
         for i, q in enumerate(samples):
-            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            if refine is not None and refine[i] is not None:
+                samples[i], _, _, (J, z) = reduced_solve(P, x0, U, q, refine[i], iterations=1, linearized=True)
+            else:
+                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            if energies is not None:
+                energies.append(P.energy_z(z, energy_weights[i]))
             JtC, rown, c0 = P.training_terms(J, z)
             totals.append((U.T @ JtC).T)
             if metrics and i == 0:
@@ -621,11 +676,21 @@ class ShapeMixer:
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
+        # the Taylor predictions at the added weights, one reduced Gauss-Newton step (full Jacobian) closer to the
+        # space's minimizers, where the mixes' minimizers lie
+        n_built = len(self._exp_w)
+        refine = [None] * n_built + list(W[n_built:])
+        Q = list(Q)
+        energies = []
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(list(Q), metrics=True)
+            totals, score, metrics = self._training(Q, metrics=True, refine=refine, energies=energies,
+                                                    energy_weights=W)
         else:
-            (totals, score), metrics = self._training(list(Q)), None
-        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics)
+            (totals, score), metrics = self._training(Q, refine=refine, energies=energies, energy_weights=W), None
+        Q = np.array(Q)
+        # with the energy norm, also the whole gradient at every sample's own weights (relative to its energy)
+        edges, c, rel = fit_cubature(self._make_energy, list(Q), totals, score, n, metric=metrics,
+                                     weights=None if metrics is None else W, energies=np.array(energies))
         self._cubature = self._make_energy(edges, c)
         self.cubature_residual = rel
         if not self.options.cubature_correction:

@@ -298,7 +298,7 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
         with watch("reduced"):
             q, _, _ = solve(U, float(T[i]), o.iterations)
         with watch("newton_vectors"):
-            new, _, sizes = newton_vectors(P, x0, U, [(np.array([T[i]]), q)], size, derivatives=True,
+            new, _, sizes, _, _ = newton_vectors(P, x0, U, [(np.array([T[i]]), q)], size, derivatives=True,
                                            reduced_iterations=0)
         estimates.append((float(T[i]), float(sizes[0])))
         solved[float(T[i])] = q

@@ -16,11 +16,12 @@ blind, are not in the problem, and every vector below vanishes on the fixed coor
   derivative of the gradient along the path ``(X + t X', w + t v)`` (a central difference of
   analytic gradients).  Keys with first and second derivatives give Taylor predictions of the mix.
 * **Newton vectors** (:func:`newton_vectors`): at candidate weights away from the keys
-  (:func:`candidate_weights`: all ones, the centre, pairs of keys, the corners of the accurate box)
-  the minimizer in the current space is found (Gauss-Newton with the full Jacobian), and one
-  full Gauss-Newton step from it (a fresh factorization) joins the space: the part of the projection
-  the space misses, to first order.  The candidates are taken in turn, the farthest from the centre
-  of ``[0, 1]^(K-1)`` first, each in the space the ones before it enlarged.  On the box bar (4.6k
+  (:func:`candidate_weights`: all ones, the centre, pairs of keys, the corners of the accurate box,
+  a few more in ``[0, 1]^m``) the minimizer in the current space is found (Gauss-Newton with the full
+  Jacobian), and one full Gauss-Newton step from it (a fresh factorization) joins the space: the part
+  of the projection the space misses, to first order; not where the step would gain next to nothing.
+  The candidates are taken in turn, the farthest from the centre of ``[0, 1]^(K-1)`` first, each in the
+  space the ones before it enlarged.  On the box bar (4.6k
   vertices, K = 3) this brings the largest RMS error in ``[-0.5, 1.5]^2`` from 1.9 % to 0.44 % of the
   diagonal with one factorization per candidate (all candidates in one space: 0.98 %; two such
   rounds, the second at half of the candidates: 0.37 %, with half as many factorizations more).
@@ -35,8 +36,10 @@ blind, are not in the problem, and every vector below vanishes on the fixed coor
   bar (the keys' Hessians precondition the soft bending modes far from the keys badly) and are off by
   default.
 
-The vectors, each scaled to unit length, are orthonormalized by an SVD, which drops the
-numerically dependent ones.
+The keys' vectors, each scaled to unit length, are orthonormalized by an SVD, which drops the
+numerically dependent ones; the Newton vectors extend those columns one start at a time
+(:func:`newton_vectors` returns the grown basis), and only a ``reduced_size`` below their number
+takes an SVD of all vectors again (:func:`orthonormal_basis`).
 """
 
 import contextlib
@@ -179,10 +182,30 @@ def _no_stage(name):
 
 
 def candidate_weights(m, low, high):
-    """Weights where chord vectors are computed: all ones, all halves, pairs ``e_a + e_b``, the box corners."""
+    """Weights of the Newton (and chord) vectors: all ones, all halves, pairs ``e_a + e_b`` (``m > 2``), the box
+    corners, and inside ``[0, 1]^m`` for ``m = 2`` the midpoints ``(1, 1/2)``, ``(1/2, 1)`` of the unit square's
+    far edges, for ``m > 2`` the halves ``e_a / 2`` of the keys' own paths (keys and duplicates left out).
+
+    The ones inside ``[0, 1]^m`` were chosen by the energy of the exact minimizer in the final space over that
+    of converged Gauss-Newton (median at ``benchmarks/bench_mixer.py``'s weights in ``[0, 1]^m``).  On the CC0
+    body (13k, K = 4) the halves took it from 1.21 to 1.04 (3 factorizations, 3 columns more); the six facet
+    centres of ``[0, 1]^3`` instead, 1.05; the halves and the six ``e_a + e_b / 2`` together, 1.035 for a
+    build of 5 s.  On the 5k bar (K = 3, with a second round of Newton vectors) the halves
+    ``(1/2, 0)``, ``(0, 1/2)`` as well brought the median ``energy_goal`` from 0.45 to 0.21 (before the
+    cubature's gradient rows), for two factorizations more than the 50k bar's 30 s allow.
+
+    Examples
+    --------
+    >>> [w.tolist() for w in candidate_weights(2, -0.5, 1.5)]
+    [[1.0, 1.0], [0.5, 0.5], [-0.5, -0.5], [-0.5, 1.5], [1.5, -0.5], [1.5, 1.5], [1.0, 0.5], [0.5, 1.0]]
+    """
     out = [np.ones(m), np.full(m, 0.5)]
     out += [np.eye(m)[a] + np.eye(m)[b] for a in range(m) for b in range(a + 1, m) if m > 2]
     out += [np.array(c, float) for c in itertools.product([low, high], repeat=m)]
+    if m == 2:
+        out += [np.array([1.0, 0.5]), np.array([0.5, 1.0])]
+    elif m > 2:
+        out += [0.5 * np.eye(m)[a] for a in range(m)]
     keys = [np.zeros(m)] + list(np.eye(m))
     uniq = []
     for w in out:
@@ -385,7 +408,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2):
+                   reduced_iterations=2, min_gain=0.0):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -413,22 +436,39 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
 
     ``progress(done, total, message)`` is reported before every start (:func:`lacore.progress.report`).
 
+    With ``min_gain > 0`` (and a factorization per start) a start whose step would lower the energy
+    there by at most ``min_gain`` times that energy (the Gauss-Newton model's decrease
+    ``g^T H^{-1} g / 2``), or whose step is shorter than ``1e-9 size`` (RMS over the vertices; the
+    space holds the projection there to rounding), adds no vector: the space is already as good as the
+    projection there, and a vector it does not need costs the cubature and every mix.
+
     Returns the vectors (the steps, then the derivatives when asked), the reduced minimizers
-    ``[(w, x)]`` and the RMS lengths of the steps relative to ``size`` (the error of the space there
-    before the step joined it, to first order).
+    ``[(w, x)]``, the RMS lengths of the steps relative to ``size`` (the error of the space there
+    before the step joined it, to first order), the steps' model decreases relative to the energy
+    there (NaN with ``pcg_iterations``) and orthonormal columns spanning ``U`` and the vectors (``U``
+    followed by the new directions; with ``pcg_iterations`` None).
     """
     w = problem.w
     solved, steps, extra = [], [None] * len(starts), []
+    gains = np.full(len(starts), np.nan)
     if not pcg_iterations:
         space = U
+        kept = []
         for i, (wk, q0) in enumerate(starts):
             report(progress, i, len(starts), f"Newton vector {i + 1} of {len(starts)}")
             q0 = np.concatenate([q0, np.zeros(space.shape[1] - U.shape[1])])   # the new columns come last
-            _, x, _, (J, z) = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations,
+            _, x, e, (J, z) = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations,
                                             linearized=True)
             solved.append((np.asarray(wk, float), x))
+            g = 2.0 * (J.T @ (w * problem._residual(z, wk)))                  # the step solves H s = -g
             J = problem.factorize(x, wk, linearized=(J, z))
             steps[i], *more = problem.newton_step(J, x, wk, derivatives, z=z)
+            gain = -0.5 * float(g @ steps[i])
+            gains[i] = gain / e if e > 0 else 0.0
+            if min_gain > 0 and (gain <= min_gain * e or
+                                 np.linalg.norm(steps[i]) <= 1e-9 * size * np.sqrt(len(x) / 3)):
+                continue
+            kept.append(steps[i])
             extra += more
             space = _extend(space, [steps[i]] + more)
     else:
@@ -454,4 +494,6 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
                 d, _, _ = preconditioned_cg(matvec, -g, problem.solve, problem.fixed, 1e-6, pcg_iterations)
                 steps[i] = d
     sizes = np.array([float(np.linalg.norm(d)) / np.sqrt(len(d) / 3) / size for d in steps])
-    return steps + extra, solved, sizes
+    if pcg_iterations:
+        return steps + extra, solved, sizes, gains, None
+    return kept + extra, solved, sizes, gains, space
