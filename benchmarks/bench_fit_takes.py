@@ -11,8 +11,8 @@ ever outside :data:`EDGE_LIMITS` of their range (``edges_beyond``, of ``edges``)
 frames and markers, the frames where the surface passes through itself and the markers
 do not (``self_intersection_frames``: their count; the take frames in
 ``self_intersection_frame_list``), where on the body these happen (``regions``: per body
-region of :data:`lacore.samples.human.LIMBS`, the frames with a crossing face pair there and the extreme edge ratios to the training range;
-a face's region is the one of its corners' dominant bones), the calibration's seconds,
+region of :data:`lacore.samples.human.LIMBS`, the frames with a crossing face pair there
+and the extreme edge ratios to the training range; a face's region is the one of its corners' dominant bones), the calibration's seconds,
 and the fitting seconds per frame (CPU: ``time.process_time``; wall:
 ``time.perf_counter``, which a shared machine's load inflates), plus the machine.
 
