@@ -1,20 +1,19 @@
 """Calibration and fit of the real takes of shared/data/mocap with the defaults (issue 19): quality and speed.
 
-Prints ONE JSON object: per take, the marker RMS and p95 (millimetres; per-frame
-values averaged over the fitted frames), the jitter ratio (99th percentile of the
-coarse vertices' second differences between frames over the markers' own), the
-smallest edge length over the smallest of the training poses (a collapsed limb
-shows as a small ratio) and the largest over the largest, the 1st percentile of the
-first ratio and the 99th of the second over all edges and frames (``edge_ratio_p01``,
-``edge_ratio_p99``: a limb's worth of edges, not one crease edge), the number of edges
-ever outside :data:`EDGE_LIMITS` of their range (``edges_beyond``, of ``edges``), flagged
-frames and markers, the frames where the surface passes through itself and the markers
-do not (``self_intersection_frames``: their count; the take frames in
-``self_intersection_frame_list``), where on the body these happen (``regions``: per body
-region of :data:`lacore.samples.human.LIMBS`, the frames with a crossing face pair there
-and the extreme edge ratios to the training range; a face's region is the one of its corners' dominant bones), the calibration's seconds,
-and the fitting seconds per frame (CPU: ``time.process_time``; wall:
-``time.perf_counter``, which a shared machine's load inflates), plus the machine.
+Prints ONE JSON object: per take, the marker RMS and p95 (millimetres; per-frame values averaged
+over the fitted frames), the jitter ratio (99th percentile of the coarse vertices' second
+differences between frames over the markers' own), the smallest edge length over the smallest of the
+training poses (a collapsed limb shows as a small ratio) and the largest over the largest, the 1st
+percentile of the first ratio and the 99th of the second over all edges and frames
+(``edge_ratio_p01``, ``edge_ratio_p99``: a limb's worth of edges, not one crease edge), the number
+of edges ever outside :data:`EDGE_LIMITS` of their range (``edges_beyond``, of ``edges``), flagged
+frames and markers, the frames where the surface passes through itself and the markers do not
+(``self_intersection_frames``: their count; the take frames in ``self_intersection_frame_list``),
+where on the body these happen (``regions``: per body region of :data:`lacore.samples.human.LIMBS`,
+the frames with a crossing face pair there and the extreme edge ratios to the training range; a
+face's region is the one of its corners' dominant bones), the calibration's seconds, and the fitting
+seconds per frame (CPU: ``time.process_time``; wall: ``time.perf_counter``, which a shared machine's
+load inflates), plus the machine.
 
 Model: the CC0 body at its coarse level with a shape model of 30 of its own random
 poses that do not pass through themselves and its fine level (:func:`lacore.samples.human.human_model`); every take is
