@@ -9,7 +9,8 @@ from lacore.geometry.lengths_angles import face_areas
 from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
                                     surface_points)
 from lacore.errors import InputError
-from lacore.markers.fitting import FitOptions, FrameSolver, MarkerDataError, fit_markers
+from lacore.markers.fitting import (FIT_DEFAULTS, FitOptions, FrameSolver, MarkerDataError, extrapolation_skill,
+                                    fit_markers, observed_mask)
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
 from lacore.progress import Cancelled
@@ -88,15 +89,18 @@ def test_gradient_and_bordered_step_match_fd_and_dense_solve(bar):
 
 def test_training_ellipsoid_derivatives_match_finite_differences(bar):
     """Coefficients outside the training poses' ellipsoid (FitOptions.coefficient_weight, the modes masked by the
-    default observed_radius): the term's energy is positive, the coefficient gradient matches finite differences,
-    and the Schur step with the term's matrix equals the dense solve of the full system."""
+    default observed_radius, at full strength: 4 modes of the 11 the training poses span): the term's energy is
+    positive, the coefficient gradient matches finite differences, and the Schur step with the term's matrix equals
+    the dense solve of the full system."""
     X0, F, model, _ = bar
     binding = _surface_binding(F, 15)
     X = bar_pose(X0, 0.5, -0.3)
     x = surface_points(bar_pose(X0, 0.7, -0.2), F, binding)
     vis = np.arange(len(x))
     solver = FrameSolver(model, binding, FitOptions(prior_weight=0.7, coefficient_weight=0.5))
-    assert solver.observed is not None and np.isfinite(solver.a_radius)
+    assert np.isfinite(solver.a_radius) and solver.extrapolation == 0.0
+    D = observed_mask(model.topology, model.reference_vertices, binding.faces, *FIT_DEFAULTS.observed_radius)
+    assert np.array_equal(solver.observed, D) and D.min() < 0.5
     rng = np.random.default_rng(4)
     a = rng.standard_normal(model.n_modes)
     a *= 2.0 * solver.a_radius / np.sqrt(a @ (solver.a_scale * a))          # twice the largest training radius
@@ -191,10 +195,50 @@ def test_mean_only_prior_is_worse_than_the_model(bar):
     e_mean = np.linalg.norm(res0.vertices[0] - true, axis=1).mean()
     assert res0.coefficients.shape == (1, 0)
     assert e_model < 0.1 * e_mean, (e_model, e_mean)  # measured 0.0015 vs 0.045 (modes everywhere)
-    # the default: the modes act within 0.1-0.2 of the bar's size of two markers; 20 random markers leave parts
-    # of the bar to the mean's straight shape
+    # the default mask with this 4-mode model (fewer modes than the 12 training poses span): at full strength, 20
+    # random markers leave parts of the bar to the mean's straight shape
     e_masked = np.linalg.norm(fit_markers(model, x, binding).vertices[0] - true, axis=1).mean()
-    assert e_masked < 0.5 * e_mean, (e_masked, e_mean)  # measured 0.011
+    assert e_masked < 0.5 * e_mean, (e_masked, e_mean)  # measured 0.014
+    # with every mode the training poses (bending the bar as a whole) show that the markers' region predicts the
+    # rest (extrapolation_skill 1): the modes act everywhere, as without the mask (0.0060 and 0.0059)
+    train = np.array([bar_pose(X0, b, tw) for b in np.linspace(-1, 1, 4) for tw in np.linspace(-1, 1, 3)])
+    full = ShapeModel.fit(train, F)                     # the fixture's poses, all 11 modes
+    assert FrameSolver(full, binding).extrapolation == pytest.approx(1.0, abs=1e-4)
+    assert FrameSolver(model, binding).extrapolation == 0.0
+    e_full = np.linalg.norm(fit_markers(full, x, binding).vertices[0] - true, axis=1).mean()
+    e_none = np.linalg.norm(fit_markers(full, x, binding, observed_radius=None).vertices[0] - true, axis=1).mean()
+    assert e_full < 0.6 * e_masked and e_full < 1.1 * e_none, (e_full, e_none, e_masked)
+
+
+def _pca(z):
+    """Modes ``(N - 1, d)`` spanning the centred samples ``z (N, d)`` and the samples' coefficients."""
+    zc = z - z.mean(0)
+    U = np.linalg.svd(zc, full_matrices=False)[2][:len(z) - 1]
+    return U, zc @ U.T
+
+
+def test_extrapolation_skill_of_parts_moving_together_and_apart():
+    """Q^2 of predicting the unmarked half of 60 entries from the marked half over 12 training samples of 2 latent
+    variables: near 1 where the halves move together, noise lowering it; at most about 0 where they move apart;
+    scale-free."""
+    rng = np.random.default_rng(0)
+    D, w = np.repeat([1.0, 0.0], 30), np.ones(60)
+    A = rng.normal(size=(2, 30))
+    lat, other, noise = rng.normal(size=(12, 2)), rng.normal(size=(12, 2)), rng.normal(size=(12, 60))
+    together = lat @ np.hstack([A, 2.0 * A])
+    apart = np.hstack([lat @ A, other @ A])
+    assert extrapolation_skill(*_pca(together)[:1], w, _pca(together)[1], D) == pytest.approx(1.0, abs=1e-4)
+    q = [extrapolation_skill(*_pca(together + s * noise)[:1], w, _pca(together + s * noise)[1], D)
+         for s in (0.1, 1.0)]
+    assert 0.98 < q[0] < 1.0 and 0.3 < q[1] < 0.9, q           # measured 0.997, 0.67
+    U, T = _pca(apart + 0.1 * noise)
+    q_apart = extrapolation_skill(U, w, T, D)
+    assert q_apart < 0.05, q_apart                               # measured -0.23: the fit predicts the noise
+    # the metric's and the coefficients' units do not matter; leave-one-out is folds >= N
+    assert extrapolation_skill(U, 1e3 * w, 7.0 * T, D) == pytest.approx(q_apart, rel=1e-6)
+    assert extrapolation_skill(U, w, T, D, folds=12) == pytest.approx(extrapolation_skill(U, w, T, D, folds=99))
+    # nothing unmarked: 1; fewer than 2 training poses: 0
+    assert extrapolation_skill(U, w, T, np.ones(60)) == 1.0 and extrapolation_skill(U, w, T[:1], D) == 0.0
 
 
 def test_frames_with_fewer_than_three_markers_and_temporal_term(bar):

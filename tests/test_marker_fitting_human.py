@@ -80,6 +80,30 @@ def test_the_temporal_term_gives_way_to_motion_too_fast_for_the_rate(body):
     assert fast.summary()["temporal_lowered_frames"] >= 10
 
 
+def test_mask_strength_follows_the_training_poses(body):
+    """With 30 random poses of independent joints the leg markers' region does not predict the rest of the body
+    (extrapolation_skill below 0: the mask at full strength, the head at the mean); the 41-marker full-body set
+    leaves little unmarked and predicts most of it."""
+    from lacore.markers.binding import MarkerBinding
+    from lacore.markers.fitting import FIT_DEFAULTS, FrameSolver, extrapolation_skill, observed_mask
+    from lacore.samples.human import human_model
+    model = human_model(path=shared_data_dir())
+    names, binding = place_markers(body)
+    legs = [i for i, n in enumerate(names) if n[1:] in ("KNE", "ANK", "HEE", "TOE", "THI", "SHN")]
+    sub = MarkerBinding(binding.faces[legs], binding.barycentric[legs], binding.offsets[legs])
+    X, r = model.reference_vertices, FIT_DEFAULTS.observed_radius
+    D = observed_mask(model.topology, X, sub.faces, *r)
+    q = extrapolation_skill(model.modes, model.metric_weights, model.training_coefficients, D)
+    assert q < -0.1, q                                                # measured -0.47
+    solver = FrameSolver(model, sub)
+    assert solver.extrapolation == pytest.approx(q) and np.array_equal(solver.observed, D)
+    solver.set_binding(binding)                                       # all 41 markers
+    assert 0.5 < solver.extrapolation < 0.95, solver.extrapolation    # measured 0.82
+    D41 = observed_mask(model.topology, X, binding.faces, *r)
+    q41 = solver.extrapolation
+    assert np.allclose(solver.observed, D41 + q41 * (1.0 - D41), rtol=0, atol=1e-15)
+
+
 def test_observed_mask_is_one_near_the_markers_and_zero_far_in_any_unit(body):
     from lacore.markers.fitting import FIT_DEFAULTS, observed_mask
     names, binding = place_markers(body)

