@@ -50,8 +50,8 @@ from .jobs import CallJob
 from .mesh_access import require_mesh_object, triangulate
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
-                            draw_fit_settings, fit_settings, metres_per_unit, read_model, recorded_settings,
-                            typed)
+                            draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit, read_model,
+                            recorded_settings, typed)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
@@ -456,11 +456,7 @@ class LENGTHS_ANGLES_OT_calibrate_fit(FitSettings, RunOperator, bpy.types.Operat
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
-        layout.prop(self, "use_scene_range")
-        col = layout.column(align=True)
-        col.active = not self.use_scene_range
-        col.prop(self, "frame_start")
-        col.prop(self, "frame_end")
+        draw_frame_range(layout, self)
         layout.prop(self, "auto_prior")
         row = layout.row()
         row.active = not self.auto_prior

@@ -75,8 +75,8 @@ from .runs import ObjectWatch, Run, RunOperator, object_state
 
 __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run",
            "bind_run", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
-           "draw_fit_settings", "typed", "SETTING_LABELS", "store_model", "read_model", "migrate_models",
-           "read_binding", "remove_model", "classes"]
+           "draw_fit_settings", "draw_frame_range", "typed", "SETTING_LABELS", "store_model", "read_model",
+           "migrate_models", "read_binding", "remove_model", "classes"]
 
 MODEL_PROP = "lengths_angles_model"
 #: First line of the text datablock holding a shape model (followed by its token).
@@ -695,6 +695,16 @@ def typed(value):
     return float(str(np.float32(value)))
 
 
+def draw_frame_range(layout, props):
+    """Draw Use Scene Range and the frame range of the operator properties ``props`` (greyed out when the scene's
+    range is used)."""
+    layout.prop(props, "use_scene_range")
+    col = layout.column(align=True)
+    col.active = not props.use_scene_range
+    col.prop(props, "frame_start")
+    col.prop(props, "frame_end")
+
+
 def draw_fit_settings(layout, props):
     """Draw the :class:`FitSettings` of the operator properties ``props`` (the radii greyed out when the modes act
     everywhere)."""
@@ -814,11 +824,7 @@ class LENGTHS_ANGLES_OT_fit_markers(_Interactive, FitSettings, RunOperator, bpy.
         layout = self.layout
         layout.use_property_split = True
         layout.prop(self, "output")
-        layout.prop(self, "use_scene_range")
-        col = layout.column(align=True)
-        col.active = not self.use_scene_range
-        col.prop(self, "frame_start")
-        col.prop(self, "frame_end")
+        draw_frame_range(layout, self)
         layout.prop(self, "prior_weight")
         layout.prop(self, "temporal_weight")
         draw_fit_settings(layout, self)

@@ -131,20 +131,20 @@ def main():
         fit_wall = res.seconds_per_frame * n
         lengths = np.stack([lengths_and_angles(X, model.topology, check=False)[:E] for X in res.vertices])
         lengths = lengths / cal.performer_ratio
+        over_min, over_max = lengths / train.min(0), lengths / train.max(0)   # (T, E) ratios to the range
         out["takes"][name] = {
             "frames": n, "rate": take.rate, "markers": take.n_markers, "dropped": len(take.dropped),
             "success": res.success, "message": res.message,
             "marker_rms_mm": res.marker_rms_mm, "marker_p95_mm": res.marker_p95_mm,
             "max_frame_rms_mm": float(np.nanmax(res.frame_rms)) * u * 1000,
             "jitter_ratio": jitter_ratio(res.vertices * u, res.markers * u),
-            "min_edge_over_training_min": float((lengths / train.min(0)).min()),
-            "max_edge_over_training_max": float((lengths / train.max(0)).max()),
-            "edge_ratio_p01": float(np.percentile(lengths / train.min(0), 1)),
-            "edge_ratio_p99": float(np.percentile(lengths / train.max(0), 99)),
-            "edges_beyond": int(((lengths / train.min(0)).min(0) < EDGE_LIMITS[0]).sum()
-                                + ((lengths / train.max(0)).max(0) > EDGE_LIMITS[1]).sum()),
+            "min_edge_over_training_min": float(over_min.min()),
+            "max_edge_over_training_max": float(over_max.max()),
+            "edge_ratio_p01": float(np.percentile(over_min, 1)),
+            "edge_ratio_p99": float(np.percentile(over_max, 99)),
+            "edges_beyond": int((over_min.min(0) < EDGE_LIMITS[0]).sum() + (over_max.max(0) > EDGE_LIMITS[1]).sum()),
             "edges": int(E),
-            "regions": region_report(res.self_intersection_pairs, lengths / train.max(0), lengths / train.min(0),
+            "regions": region_report(res.self_intersection_pairs, over_max, over_min,
                                      model.faces, model.edges, regions),
             "flagged_frames": res.flagged_frames, "flagged_markers": res.flagged_markers,
             "self_intersection_frames": len(res.self_intersection_frames),

@@ -19,28 +19,31 @@ import numpy as np
 from .self_intersection import _candidate_pairs
 from .topology import MeshTopology, check_faces, check_vertices
 
-__all__ = ["touching_faces", "triangle_distances", "point_triangle_distances", "segment_distances"]
+__all__ = ["touching_faces", "triangle_distances", "point_triangle_distances", "segment_distances",
+           "closest_point_barycentrics"]
 
 
-def point_triangle_distances(P, A, B, C):
-    """Distance of each point ``P[i]`` to the triangle ``(A[i], B[i], C[i])``, all ``(N, 3)``; returns ``(N,)``.
+def closest_point_barycentrics(P, A, B, C):
+    """Barycentric coordinates ``(..., 3)`` of the point of triangle ``(A, B, C)`` nearest to ``P``.
 
-    Ericson's Voronoi-region test (5.1.5); a degenerate triangle gives the distance to
-    its nearest corner or edge.
+    Ericson's Voronoi-region test (*Real-Time Collision Detection* 5.1.5), vectorized over
+    broadcasting ``(..., 3)`` arrays (e.g. points ``(p, 1, 3)`` against faces ``(F, 3)``).
+    Regions are tested in Ericson's order of precedence: interior, edges ``AB``, ``AC``,
+    ``BC``, then corners.  NaN where a triangle is degenerate and no edge or corner region
+    applies.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from lacore.geometry.proximity import point_triangle_distances
-    >>> A, B, C = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])
-    >>> point_triangle_distances(np.array([[0.2, 0.2, 0.5]]), A, B, C)
-    array([0.5])
+    >>> from lacore.geometry.proximity import closest_point_barycentrics
+    >>> closest_point_barycentrics(np.array([2.0, 2, 1]), np.zeros(3), np.array([1.0, 0, 0]), np.array([0.0, 1, 0]))
+    array([0. , 0.5, 0.5])
     """
-    AB, AC, AP = B - A, C - A, P - A
-    BP, CP = P - B, P - C
-    d1, d2 = np.einsum("ic,ic->i", AB, AP), np.einsum("ic,ic->i", AC, AP)
-    d3, d4 = np.einsum("ic,ic->i", AB, BP), np.einsum("ic,ic->i", AC, BP)
-    d5, d6 = np.einsum("ic,ic->i", AB, CP), np.einsum("ic,ic->i", AC, CP)
+    AB, AC = B - A, C - A
+    AP, BP, CP = P - A, P - B, P - C
+    d1, d2 = np.einsum("...c,...c->...", AB, AP), np.einsum("...c,...c->...", AC, AP)
+    d3, d4 = np.einsum("...c,...c->...", AB, BP), np.einsum("...c,...c->...", AC, BP)
+    d5, d6 = np.einsum("...c,...c->...", AB, CP), np.einsum("...c,...c->...", AC, CP)
     va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
     with np.errstate(divide="ignore", invalid="ignore"):
         den = va + vb + vc
@@ -57,12 +60,29 @@ def point_triangle_distances(P, A, B, C):
     for vv, ww, m in ((0.0, 0.0, (d1 <= 0) & (d2 <= 0)), (1.0, 0.0, (d3 >= 0) & (d4 <= d3)),
                       (0.0, 1.0, (d6 >= 0) & (d5 <= d6))):          # corners
         v, w = np.where(m, vv, v), np.where(m, ww, w)
-    bad = ~(np.isfinite(v) & np.isfinite(w))
-    Q = A + v[:, None] * AB + w[:, None] * AC
-    d = np.linalg.norm(P - Q, axis=1)
-    if bad.any():                                                  # degenerate: corners and edges
-        i = np.flatnonzero(bad)
-        d[i] = np.min([segment_distances(P[i], P[i], S0[i], S1[i]) for S0, S1 in ((A, B), (B, C), (C, A))], axis=0)
+    return np.stack([1.0 - v - w, v, w], axis=-1)
+
+
+def point_triangle_distances(P, A, B, C):
+    """Distance of each point ``P[i]`` to the triangle ``(A[i], B[i], C[i])``, all ``(N, 3)``; returns ``(N,)``.
+
+    :func:`closest_point_barycentrics`; a degenerate triangle gives the distance to its
+    nearest corner or edge.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.geometry.proximity import point_triangle_distances
+    >>> A, B, C = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])
+    >>> point_triangle_distances(np.array([[0.2, 0.2, 0.5]]), A, B, C)
+    array([0.5])
+    """
+    b = closest_point_barycentrics(P, A, B, C)
+    d = np.linalg.norm(P - (b[:, :1] * A + b[:, 1:2] * B + b[:, 2:] * C), axis=1)
+    bad = np.flatnonzero(~np.isfinite(b).all(axis=1))
+    if bad.size:                                                   # degenerate: corners and edges
+        d[bad] = np.min([segment_distances(P[bad], P[bad], S0[bad], S1[bad]) for S0, S1 in ((A, B), (B, C), (C, A))],
+                        axis=0)
     return d
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InputError, format_indices
 from ..geometry.lengths_angles import face_normals
+from ..geometry.proximity import closest_point_barycentrics
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..progress import report
 
@@ -232,7 +233,7 @@ def closest_surface_points(vertices, mesh_faces, points, chunk=2_000_000):
     """Nearest point of a triangle mesh to every query point (exhaustive, vectorized over faces).
 
     Per triangle the closest point is found by the Voronoi-region test of
-    Ericson, *Real-Time Collision Detection* 5.1.5, for all (point, face) pairs
+    Ericson (:func:`lacore.geometry.proximity.closest_point_barycentrics`) for all (point, face) pairs
     in chunks of about ``chunk`` pairs; ``O(P F)`` work, fine for the few
     dozen markers of a motion-capture set.
 
@@ -247,38 +248,13 @@ def closest_surface_points(vertices, mesh_faces, points, chunk=2_000_000):
     F = np.asarray(mesh_faces, np.int64)
     Q = np.atleast_2d(np.asarray(points, float))
     A, B, C = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
-    AB, AC = B - A, C - A
     best_d = np.full(len(Q), np.inf)
     best_f = np.zeros(len(Q), np.int64)
     best_b = np.zeros((len(Q), 3))
     step = max(1, int(chunk) // max(1, len(F)))
     for s in range(0, len(Q), step):
         P = Q[s:s + step, None, :]                                  # (p, 1, 3)
-        AP, BP, CP = P - A, P - B, P - C                            # (p, F, 3)
-        d1, d2 = np.einsum("pfc,fc->pf", AP, AB), np.einsum("pfc,fc->pf", AP, AC)
-        d3, d4 = np.einsum("pfc,fc->pf", BP, AB), np.einsum("pfc,fc->pf", BP, AC)
-        d5, d6 = np.einsum("pfc,fc->pf", CP, AB), np.einsum("pfc,fc->pf", CP, AC)
-        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # interior (default), then edges and vertices overwrite in Ericson's order of precedence
-            den = va + vb + vc
-            v, w = vb / den, vc / den
-            u = 1.0 - v - w
-            bc = np.stack([u, v, w], -1)
-            t = d1 / (d1 - d3)                                      # edge AB
-            m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-            bc[m] = np.stack([1 - t, t, 0 * t], -1)[m]
-            t = d2 / (d2 - d6)                                      # edge AC
-            m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-            bc[m] = np.stack([1 - t, 0 * t, t], -1)[m]
-            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))                 # edge BC
-            m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-            bc[m] = np.stack([0 * t, 1 - t, t], -1)[m]
-        for k, m in enumerate(((d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (d6 >= 0) & (d5 <= d6))):
-            e = np.zeros(3)
-            e[k] = 1.0
-            bc[m] = e
-        bc = np.nan_to_num(bc, nan=1.0 / 3.0)
+        bc = np.nan_to_num(closest_point_barycentrics(P, A, B, C), nan=1.0 / 3.0)   # (p, F, 3)
         closest = bc[..., :1] * A + bc[..., 1:2] * B + bc[..., 2:] * C
         dist = np.einsum("pfc,pfc->pf", closest - P, closest - P)
         f = np.argmin(dist, axis=1)
