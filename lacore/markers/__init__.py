@@ -3,7 +3,8 @@
 * :mod:`.io` -- :class:`MarkerTake` from C3D and TRC files (units, labels, occlusions),
   writing.
 * :mod:`.takes` -- the points of a take that are markers (:func:`read_take`,
-  :func:`drop_non_markers`), resampling.
+  :func:`drop_non_markers`), the samples their neighbours contradict
+  (:func:`drop_inconsistent_samples`), resampling.
 * :mod:`.binding` -- :class:`MarkerBinding`: each marker as a surface point (triangle,
   barycentric coordinates) plus a normal offset; :func:`bind_markers`.
 * :mod:`.fitting` -- :func:`fit_markers`: per-frame fits of a shape model to the markers
@@ -23,10 +24,11 @@ from .calibration import (AxisMismatchError, Calibration, CalibrationError, Cali
 from .fitting import FIT_DEFAULTS, FitOptions, MarkerDataError, MarkerFitResult, check_markers, fit_markers
 from .io import MarkerError, MarkerFileError, MarkerTake, read_markers, write_c3d, write_trc
 from .take_fit import TakeFitResult, fit_take
-from .takes import drop_non_markers, read_take, resample
+from .takes import drop_inconsistent_samples, drop_non_markers, inconsistent_samples, read_take, resample
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "resample", "write_c3d", "write_trc",
            "MarkerBinding", "MarkerBindingError", "bind_markers", "closest_surface_points", "surface_points",
            "MarkerDataError", "MarkerFitResult", "check_markers", "fit_markers", "FitOptions", "FIT_DEFAULTS",
            "read_take", "drop_non_markers", "calibrate", "fit_take", "Calibration", "CalibrationOptions",
-           "TakeFitResult", "CalibrationError", "UnitMismatchError", "AxisMismatchError"]
+           "TakeFitResult", "CalibrationError", "UnitMismatchError", "AxisMismatchError", "inconsistent_samples",
+           "drop_inconsistent_samples"]

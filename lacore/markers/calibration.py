@@ -39,6 +39,7 @@ mesh's similarity into the take at its first frame) or ``pins`` (marker label ->
 
 import dataclasses
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,11 +48,12 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from ..geometry.lengths_angles import face_normals
+from ..geometry.rigid import apply_rigid, rigid_fit
 from ..progress import report
 from .binding import MarkerBinding, closest_surface_points, surface_points
 from .fitting import (ANCHOR_WEIGHT, FIT_DEFAULTS, FrameSolver, fit_options, mean_edge_length)
 from .io import MarkerTake
-from .takes import drop_non_markers
+from .takes import drop_inconsistent_samples, drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
 
 __all__ = ["calibrate", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "CalibrationError",
@@ -261,6 +263,35 @@ def _similarity(P, Q):
     R = Vt.T @ D @ U.T
     s = float(np.trace(np.diag(S) @ D) / np.sum(Pc ** 2))
     return s, R, cq - s * cp @ R.T
+
+
+#: A marker occluded in the placement frame is carried there rigidly with this many of its nearest markers.
+CARRY_MARKERS = 4
+
+
+def _position_at(x, vis, m, f0, frames):
+    """Marker ``m``'s position at frame ``f0``: its own, else carried from the first frame it is seen in.
+
+    The first of ``frames`` (then of the take) where it is visible; the rigid motion of its
+    :data:`CARRY_MARKERS` nearest markers (median distance over the take) visible in both
+    frames carries it to ``f0`` (a performer walking away from the placement frame moves it
+    by metres).  Without three such markers, the position in that frame.
+    """
+    if vis[f0, m]:
+        return x[f0, m]
+    fm = next((f for f in frames if vis[f, m]), None)
+    if fm is None:
+        fm = int(np.flatnonzero(vis[:, m])[0])
+    both = np.flatnonzero(vis[fm] & vis[f0])
+    both = both[both != m]
+    if len(both) < 3:
+        return x[fm, m]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # pairs never seen together
+        d = np.nanmedian(np.linalg.norm(x[:, both] - x[:, m:m + 1], axis=-1), axis=0)
+    near = both[np.argsort(np.where(np.isfinite(d), d, np.inf), kind="stable")[:CARRY_MARKERS]]
+    Rm, tm = rigid_fit(x[fm, near], x[f0, near])
+    return apply_rigid(x[fm, m], Rm, tm)
 
 
 def _choose_frames(visible, k):
@@ -539,6 +570,8 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     n_before = take.n_markers
     take = drop_non_markers(take)
     notes += [f"dropped {lab}: {why}" for lab, why in take.dropped]
+    take, ignored = drop_inconsistent_samples(take)
+    notes += ignored
     x = take.positions
     vis = take.visible
     M = take.n_markers
@@ -628,10 +661,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
             continue
         allowed[m] = faces_of[m] if kinds[m] == "region" else None
         cand = allowed[m] if allowed[m] is not None else np.arange(len(F))
-        fm = next((f for f in frames if vis[f, m]), None)
-        if fm is None:
-            fm = int(np.flatnonzero(vis[:, m])[0])
-        q_rest = ((x[fm, m] - t) @ R) / s
+        q_rest = ((_position_at(x, vis, m, f0, frames) - t) @ R) / s
         _, ff, bb = closest_surface_points(Xr, F[cand], q_rest[None])
         fa[m], ba[m] = cand[ff[0]], bb[0]
     binding = MarkerBinding.from_surface(fa, ba, oa)

@@ -22,7 +22,7 @@ from .calibration import CALIBRATION_DEFAULTS, PRIOR_WEIGHT_CHOICES, Calibration
 from .fitting import FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics
 from .interpenetration import new_self_intersections
 from .io import MarkerTake
-from .takes import drop_non_markers
+from .takes import drop_inconsistent_samples, drop_non_markers
 
 __all__ = ["fit_take", "TakeFitResult"]
 
@@ -187,7 +187,7 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     fo = fit_options(options, allow_auto=True)
     if not isinstance(take, MarkerTake):
         raise InputError(f"take must be a MarkerTake (lacore.markers.read_take), got {type(take).__name__}")
-    take = drop_non_markers(take)
+    take, ignored = drop_inconsistent_samples(drop_non_markers(take))
     T_all = take.n_frames
     idx = np.arange(T_all)[frames] if frames is not None else np.arange(T_all)
     idx = np.atleast_1d(np.asarray(idx, np.int64))
@@ -205,7 +205,7 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
         calibration = calibrate(model, static if static is not None else take, calibration_options, fit=fo,
                                 progress=shifted(0))
     cal = calibration
-    notes = list(cal.notes)
+    notes = list(cal.notes) + [n for n in ignored if n not in cal.notes]
     missing = [lab for lab in cal.labels if lab not in take.labels]
     if missing:
         raise InputError(f"the calibration's markers {', '.join(missing)} are not in the take")
@@ -231,7 +231,7 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     frame_p95_mm = stats["frame_p95"] * 1000
     with np.errstate(invalid="ignore"):
         by_marker = np.sqrt(np.nanmean(dist_m ** 2, axis=0)) * 1000
-    flagged_frames, flagged_markers, warns = [], [], []
+    flagged_frames, flagged_markers, warns = [], [], list(ignored)
     if np.isfinite(frame_rms_mm).any():
         med = float(np.nanmedian(frame_rms_mm))
         bad = np.flatnonzero(frame_rms_mm > max(3 * med, 10.0))

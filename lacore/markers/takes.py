@@ -2,14 +2,20 @@
 
 * :func:`drop_non_markers`, :func:`select_markers`, :func:`read_take`: the points that are not markers
   (model outputs, virtual and computed points, never-visible repeats) dropped with a note each;
+* :func:`inconsistent_samples`, :func:`drop_inconsistent_samples`: stretches of a marker's trajectory that
+  its rigid neighbours contradict (a mislabelled or swapped trajectory), made occluded with a note;
 * :func:`resample`, :func:`sample_frames`, :func:`visibility_keys`: a take on another frame rate or timeline.
 """
+
+import dataclasses
+import warnings
 
 import numpy as np
 
 from .io import MarkerError, MarkerTake, read_markers
 
-__all__ = ["drop_non_markers", "select_markers", "read_take", "resample", "sample_frames", "visibility_keys"]
+__all__ = ["drop_non_markers", "select_markers", "read_take", "resample", "sample_frames", "visibility_keys",
+           "inconsistent_samples", "drop_inconsistent_samples", "NEIGHBOURS", "RIGID_SPREAD", "DEVIATION", "JUMP"]
 
 
 # ----------------------------------------------------------------------------- points that are not markers
@@ -105,6 +111,120 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
 def read_take(path, units=None):
     """:func:`read_markers` followed by :func:`drop_non_markers`: the skin markers of a file, drops noted."""
     return drop_non_markers(read_markers(path, units=units))
+
+
+# ----------------------------------------------------------------------------- samples that contradict their neighbours
+#: A marker is checked against this many of its nearest markers (median distance over the take).
+NEIGHBOURS = 3
+#: ... those whose distance to it is rigid: median absolute deviation at most this fraction of the median.
+RIGID_SPREAD = 0.05
+#: A stretch contradicts a neighbour when its median distance to it is this fraction off the take's median.
+DEVIATION = 0.2
+#: A stretch ends where the marker moves against at least half of its visible neighbours by this fraction of
+#: their distance in one frame (a label jumping to another point).
+JUMP = 0.25
+
+
+def inconsistent_samples(take):
+    """Stretches of marker trajectories that their rigid neighbours contradict.
+
+    A marker's neighbours are the :data:`NEIGHBOURS` markers nearest to it (median
+    distance over the take) whose distance to it is rigid over the take (median absolute
+    deviation at most :data:`RIGID_SPREAD` of the median): the markers of one cluster or
+    one bone.  Its trajectory is cut into stretches at occlusions and at jumps (a frame in
+    which it moves against at least half of its visible neighbours by more than :data:`JUMP`
+    times their distance).  A stretch is inconsistent when its median distance to a neighbour
+    is more than :data:`DEVIATION` off the take's median for most of the neighbours seen with
+    it: the label was on another point then (a mislabelled, swapped or gap-filled
+    trajectory).  All thresholds are ratios: the test is free of units and scale.  A marker
+    right most of the take is kept where it is right: the take's medians come from it.
+
+    Parameters
+    ----------
+    take : MarkerTake
+
+    Returns
+    -------
+    list of (str, (K,) int ndarray, list of str)
+        Per inconsistent stretch: the marker's label, its frames (0-based) and the
+        neighbours it contradicts.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.markers import MarkerTake
+    >>> rng = np.random.default_rng(0)
+    >>> T = 60
+    >>> body = np.array([[0, 0, 0], [.1, 0, 0], [0, .1, 0], [.1, .1, 0], [1, 0, 0], [1, .1, 0], [1.1, 0, 0]])
+    >>> x = body + np.linspace(0, 1, T)[:, None, None] * [1, 0, 0] + 1e-4 * rng.standard_normal((T, 7, 3))
+    >>> x[20:30, 1] += [0, 0, 0.08]                         # marker 'b' on another point for 10 frames
+    >>> take = MarkerTake(labels=list("abcdefg"), positions=x, rate=60.0)
+    >>> [(lab, int(f[0]), int(f[-1])) for lab, f, _ in inconsistent_samples(take)]
+    [('b', 20, 29)]
+    """
+    x = np.asarray(take.positions, float)
+    T, M, _ = x.shape
+    vis = np.isfinite(x[..., 0])
+    out = []
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                 # pairs never seen together
+        for m in range(M):
+            d = np.linalg.norm(x - x[:, m:m + 1], axis=2)              # (T, M), NaN where either is occluded
+            med = np.nanmedian(d, axis=0)
+            mad = np.nanmedian(np.abs(d - med), axis=0)
+            seen = np.isfinite(d).sum(0)
+            order = np.argsort(np.where(np.isfinite(med) & (med > 0), med, np.inf), kind="stable")
+            near = [j for j in order[:NEIGHBOURS] if j != m and seen[j] >= 10 and mad[j] <= RIGID_SPREAD * med[j]]
+            if not near:
+                continue
+            near = np.asarray(near)
+            rel = x[:, m:m + 1] - x[:, near]
+            step = np.linalg.norm(np.diff(rel, axis=0), axis=2) / med[near]   # (T-1, n)
+            both = np.isfinite(step)
+            jumped = both.any(1) & (2 * (both & (step > JUMP)).sum(1) >= both.sum(1))
+            start = vis[:, m] & np.r_[True, ~vis[:-1, m] | jumped]
+            stretch = np.where(vis[:, m], np.cumsum(start), 0)
+            for s in range(1, int(stretch.max()) + 1):
+                f = np.flatnonzero(stretch == s)
+                off = np.nanmedian(np.abs(d[f][:, near] - med[near]), axis=0) / med[near]
+                known = np.isfinite(off)
+                bad = known & (off > DEVIATION)
+                if 2 * bad.sum() > known.sum():
+                    out.append((take.labels[m], f, [take.labels[j] for j in near[bad]]))
+    return out
+
+
+def drop_inconsistent_samples(take):
+    """The take with the stretches of :func:`inconsistent_samples` occluded (NaN), and a note for each.
+
+    Returns
+    -------
+    take : MarkerTake
+        The same take when nothing is inconsistent.
+    notes : list of str
+        ``"LFT3 frames 0-42 (43) ignored: ..."`` per stretch (0-based frames).
+
+    Examples
+    --------
+    >>> from lacore.markers import read_take, drop_inconsistent_samples
+    >>> take, notes = drop_inconsistent_samples(read_take("Eb015pr.c3d"))     # doctest: +SKIP
+    >>> notes                                                                 # doctest: +SKIP
+    ['LFT3 frames 0-42 (43) ignored: its distances to LFT1, LFT2 differ from the rest of the take (mislabelled?)']
+    """
+    found = inconsistent_samples(take)
+    if not found:
+        return take, []
+    pos = take.positions.copy()
+    res = None if take.residuals is None else take.residuals.copy()
+    index = {lab: i for i, lab in enumerate(take.labels)}
+    notes = []
+    for lab, f, against in found:
+        pos[f, index[lab]] = np.nan
+        if res is not None:
+            res[f, index[lab]] = np.nan
+        notes.append(f"{lab} frames {f[0]}-{f[-1]} ({len(f)}) ignored: its distances to {', '.join(against)} "
+                     "differ from the rest of the take (mislabelled?)")
+    return dataclasses.replace(take, positions=pos, residuals=res), notes
 
 
 # ----------------------------------------------------------------------------- resampling
