@@ -1,7 +1,9 @@
 """Automatic calibration of a marker take to a shape model, and the fit of the whole take.
 
 :func:`calibrate` finds, from the take alone (positions in metres, as
-:func:`lacore.markers.takes.read_take` gives them):
+:func:`lacore.markers.takes.read_take` gives them; points that are not markers dropped and
+stretches of trajectories their rigid neighbours contradict ignored, with notes,
+:func:`lacore.markers.takes.drop_inconsistent_samples`):
 
 1. **the model's axes** (declared in the model file, else the longest axis of the
    reference mesh is up and the forward direction is the one whose hints fit best);
@@ -20,7 +22,9 @@
 4. **the starting pose**: the pinned (landmark) markers are tracked through the take at a
    stride with a stiff prior (a rough but safe pose for every calibration frame; fewer
    Gauss-Newton steps on the tracked frames between calibration frames);
-5. **binding and proportions**, in rounds over ``n_frames`` frames spread over the take:
+5. **binding and proportions**, in rounds over ``n_frames`` frames spread over the take
+   (a marker not seen in the placement frame starts from the first calibration frame that
+   sees it, carried rigidly with its :data:`CARRY_MARKERS` nearest markers):
    every marker is rebound (per candidate face: least squares in barycentric coordinates
    and normal offset over the frames where it is visible, the offset pulled to
    :attr:`CalibrationOptions.offset` by a Huber prior and clamped to

@@ -1,7 +1,10 @@
 """The fit of a whole take with its calibration: :func:`fit_take` and its result, :class:`TakeFitResult`.
 
-:func:`fit_take` calibrates (:func:`lacore.markers.calibration.calibrate`, on a static
-trial if given) unless a calibration is passed, fits every frame with the calibrated
+:func:`fit_take` ignores the stretches of trajectories that their markers' rigid neighbours
+contradict (:func:`lacore.markers.takes.drop_inconsistent_samples`: a warning each; their
+residuals are NaN like an occluded marker's), calibrates
+(:func:`lacore.markers.calibration.calibrate`, on a static trial if given) unless a
+calibration is passed, fits every frame with the calibrated
 binding and mean (:func:`lacore.markers.fitting.fit_markers`, the take's own frame rate
 for the temporal term), prolongs to the model's fine level if it has one, and reports
 residuals in millimetres, flagged frames and markers, frames where the surface passes
