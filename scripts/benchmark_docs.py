@@ -195,8 +195,11 @@ def _blender_quality(b):
     """Marker RMS / p95 and the frames through themselves of the Blender run (records that state them)."""
     if "self_intersection_frames" not in b:
         return ""
+    n = b["self_intersection_frames"]
+    where = (f" (frame {', '.join(str(f) for f in b['self_intersection_frame_list'])})"
+             if n and "self_intersection_frame_list" in b else "")
     return (f"; marker RMS {_g(b['marker_rms_mm'])} mm, p95 {_g(b['marker_p95_mm'])} mm, "
-            f"{b['self_intersection_frames']} frames passing through themselves")
+            f"{n} {'frame' if n == 1 else 'frames'} passing through {'itself' if n == 1 else 'themselves'}{where}")
 
 
 def live_mixing(store=STORE):

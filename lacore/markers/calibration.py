@@ -425,19 +425,55 @@ def _rebind(Xs, ys, faces, binding, cands, o0, lam_o, hint_pts, lam_h, X_rest, l
     return MarkerBinding.from_surface(fa, ba, oa)
 
 
-def _pair_scale(x, landmark_markers, P_rest, normals, o0, min_dist=0.1, max_cv=0.02):
-    """Median ratio (metres per model unit) of take-rigid landmark marker pairs, and the pair count."""
-    ratios = []
-    for i, a in enumerate(landmark_markers):
-        for b in landmark_markers[i + 1:]:
+def _rigid_pair_ratios(x, markers, points, min_dist=0.1, max_cv=0.02):
+    """``{(a, b): ratio}``: mean take distance over the points' distance, for the marker pairs whose distance stays
+    constant over the take (coefficient of variation below ``max_cv``, longer than ``min_dist`` metres)."""
+    ratios = {}
+    for i, a in enumerate(markers):
+        for b in markers[i + 1:]:
             d = np.linalg.norm(x[:, a] - x[:, b], axis=1)
             d = d[np.isfinite(d)]
             if len(d) < 10 or d.mean() < min_dist or d.std() > max_cv * d.mean():
                 continue
-            dr = np.linalg.norm((P_rest[a] + o0 * normals[a]) - (P_rest[b] + o0 * normals[b]))
+            dr = np.linalg.norm(points[a] - points[b])
             if dr > 0:
-                ratios.append(d.mean() / dr)
+                ratios[a, b] = d.mean() / dr
+    return ratios
+
+
+def _pair_scale(x, landmark_markers, P_rest, normals, o0):
+    """Median ratio (metres per model unit) of take-rigid landmark marker pairs, and the pair count."""
+    ratios = list(_rigid_pair_ratios(x, landmark_markers, P_rest + o0 * normals).values())
     return (float(np.median(ratios)), len(ratios)) if ratios else (None, 0)
+
+
+#: A landmark hint is dropped when the median of its take-rigid pairs' length ratios (take over atlas) is off the
+#: median of all pairs by more than this factor, over at least :data:`HINT_MIN_PAIRS` pairs.
+HINT_RATIO_LIMIT = 1.5
+HINT_MIN_PAIRS = 3
+
+
+def _misplaced_hints(x, landmark_markers, P_rest):
+    """Landmark markers whose name puts them where the take does not: ``[(m, ratio)]``.
+
+    A landmark's distances to the other landmarks that stay constant over the take are
+    compared with the atlas's: their ratios' median over the median of every pair's ratio
+    (the performer's size) is about 1 for a marker where its name puts it (0.88-1.25 on the
+    shared takes) and far from it for one elsewhere (Walk1's ROFF, named like the scapula's
+    offset marker and 12 cm from the sacrum: 1.69).
+    """
+    ratios = _rigid_pair_ratios(x, landmark_markers, P_rest)
+    if not ratios:
+        return []
+    g = float(np.median(list(ratios.values())))
+    out = []
+    for m in landmark_markers:
+        r = [v / g for pair, v in ratios.items() if m in pair]
+        if len(r) >= HINT_MIN_PAIRS:
+            q = float(np.median(r))
+            if not 1.0 / HINT_RATIO_LIMIT <= q <= HINT_RATIO_LIMIT:
+                out.append((m, q))
+    return out
 
 
 def _unit_name(u):
@@ -606,6 +642,11 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         P_rest[m], faces_of[m], kinds[m] = q[0], (int(ff[0]), bb[0]), "landmark"
     frames = _choose_frames(vis, o.n_frames)
     f0 = frames[0]
+    landmarks = [m for m in range(M) if kinds[m] == "landmark" and take.labels[m] not in pins]
+    for m, q in _misplaced_hints(x, landmarks, P_rest):
+        notes.append(f"{take.labels[m]}: not where its name puts it ({hints[m].name}; its distances to the other "
+                     f"named markers are {q:.2f} times the atlas's): bound by the data alone")
+        kinds[m] = None
     landmarks = [m for m in range(M) if kinds[m] == "landmark"]
     P_pairs = [P_rest[m] for m in landmarks if vis[f0, m]]
     Q_pairs = [x[f0, m] for m in landmarks if vis[f0, m]]
