@@ -12,7 +12,8 @@ stretches of trajectories their rigid neighbours contradict ignored, with notes,
    landmarks places the rest mesh over the first calibration frame; the performer's size
    is the median length ratio of hinted marker pairs whose distance stays constant over
    the take (coefficient of variation < 2 %, longer than 10 cm) -- a pose-free measure
-   (a similarity fit is biased by the pose);
+   (a similarity fit is biased by the pose); a named marker whose such distances disagree
+   with the atlas's loses its hint (:data:`HINT_RATIO_LIMIT`, noted);
 3. **units**: ``performer_ratio = size / model.length_unit`` must lie in
    :attr:`CalibrationOptions.ratio_limits` (:class:`UnitMismatchError` otherwise); a model
    without a declared unit gets the power of ten nearest to the measured scale (noted);
