@@ -20,39 +20,38 @@ vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebra
   reduced minimizer at the centre, all ones, pairs of keys, the corners of the accurate box and a few
   more weights in ``[0, 1]^(K-1)`` (:func:`.subspace.candidate_weights`), taken in turn, with the
   projection's first derivatives there from the same factorization, then a second time where the
-  first step gained more than :data:`REFINE_GAIN`; :mod:`.subspace`), and a cubature of the reduced
-  energy, a weighted subset of edges (:mod:`.cubature`);
+  first step gained more than :data:`REFINE_GAIN`, or, where the Newton vectors go without derivatives
+  (``K >= 4``), at a few new weights where an indicator finds the space worst (:data:`EXPLORE_POINTS`);
+  :mod:`.subspace`), and a cubature of the reduced energy, a weighted subset of edges (:mod:`.cubature`);
 * online (:meth:`ShapeMixer.mix`): Gauss-Newton in the subspace on the cubature edges
   (:mod:`.reduced`), started from the previous mix or the Taylor prediction of the nearest key; an
   error indicator (:meth:`ShapeMixer.indicator`); ``polish=True`` finishes with the full
   Gauss-Newton projection.
 
-The build costs ``K + C`` sparse factorizations and up to ``min(C_in, 16 - C)`` more in the second round
-(``C`` candidate weights: 8 for ``K = 3``, 16 for ``K = 4``; ``C_in`` of them in ``[0, 1]^(K-1)``:
-4 for ``K = 3``; :data:`NEWTON_POINTS`), numeric ones of the reconstruction context's solver (one
-symbolic analysis for all): they are most of the build at 50k vertices (about 1 s CPU each on the 50k
-bar, whose factor has 47 million nonzeros, with an assembly and a solve of 0.1-0.2 s each: 15 of them
-and 28 s in all on the 2-core AMD EPYC we benchmark on; ``benchmarks/bench_mixer.py``), and at 13k
-vertices too, where the cubature fit (:mod:`.cubature`, 0.7-1.5 s there, 4.6 s on the 50k bar) comes
-next.  At 13k vertices the first factorization's pattern, ordering and
-symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its own AMD ordering, whose factor
-has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton vector's reduced
-minimizer (two Gauss-Newton steps in the space with the full Jacobian, :func:`.subspace.reduced_solve`) about
-0.1 s: every point it tries is evaluated with its Jacobian, so its last evaluation also serves the
-factorization and the Newton step there, and ``W^(1/2)`` scales ``J U`` in place (the Newton stage of the CC0
-body from 4.2 s to 3.3 s CPU, of the MakeHuman body from 2.0 s to 1.7 s, the same vectors to the last bit).
-Scaling the rows of ``J`` before the product instead saved no more (3.9 s to 3.2 s) and changes the vectors in
-the last bits, and through the greedy cubature the 50k body's cubature (276 edges instead of 290; largest error
-in ``[-0.5, 1.5]^2`` 0.022 % instead of 0.015 %).  Fewer
-training points of the cubature (``2 (K-1)`` random weights in each box instead of ``3 (K-1)``) saved 0.3 s
-there but lost accuracy on the MakeHuman body (largest error in ``[-0.5, 1.5]^2`` 0.011 % to 0.023 %, largest
-energy ratio in ``[0, 1]^2`` 1.08 to 1.16).  Cheaper variants all lost accuracy on the bar and the
-CC0 body: Newton vectors by preconditioned conjugate gradients (:attr:`MixerOptions.newton_pcg_iterations`),
-derivatives at the basis key only (the CC0 body's median energy ratio to Gauss-Newton in ``[0, 1]^3``
-from 1.27 to 2.86 for 0.3 s), no Newton vector at the centre of ``[0, 1]^(K-1)`` (1.27 to 1.64), one
-reduced step instead of two (the 5k bar's largest error in ``[-0.5, 1.5]^2`` from 0.44 % to 0.56 %).  A mix
-costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent
-of the mesh size) plus ``O(V r)`` to write the vertices.
+The build costs ``K + C`` sparse factorizations and up to ``min(C_in, 16 - C)`` more in the second round (``C``
+candidate weights: 8 for ``K = 3``, 16 for ``K = 4``; ``C_in`` of them in ``[0, 1]^(K-1)``: 4 for ``K = 3``;
+:data:`NEWTON_POINTS`), or :data:`EXPLORE_POINTS` more without derivatives, numeric ones of the reconstruction
+context's solver (one symbolic analysis for all): they are most of the build at 50k vertices (about 1 s CPU each on
+the 50k bar, whose factor has 47 million nonzeros, with an assembly and a solve of 0.1-0.2 s each: 15 of them and 28
+s in all on the 2-core AMD EPYC we benchmark on; ``benchmarks/bench_mixer.py``), and at 13k vertices too, where the
+cubature fit (:mod:`.cubature`, 0.7-1.5 s there, 4.6 s on the 50k bar) comes next. At 13k vertices the first
+factorization's pattern, ordering and symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its
+own AMD ordering, whose factor has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton
+vector's reduced minimizer (two Gauss-Newton steps in the space with the full Jacobian,
+:func:`.subspace.reduced_solve`) about 0.1 s: every point it tries is evaluated with its Jacobian, so its last
+evaluation also serves the factorization and the Newton step there, and ``W^(1/2)`` scales ``J U`` in place (the
+Newton stage of the CC0 body from 4.2 s to 3.3 s CPU, of the MakeHuman body from 2.0 s to 1.7 s, the same vectors to
+the last bit). Scaling the rows of ``J`` before the product instead saved no more (3.9 s to 3.2 s) and changes the
+vectors in the last bits, and through the greedy cubature the 50k body's cubature (276 edges instead of 290; largest
+error in ``[-0.5, 1.5]^2`` 0.022 % instead of 0.015 %). Fewer training points of the cubature (``2 (K-1)`` random
+weights in each box instead of ``3 (K-1)``) saved 0.3 s there but lost accuracy on the MakeHuman body (largest error
+in ``[-0.5, 1.5]^2`` 0.011 % to 0.023 %, largest energy ratio in ``[0, 1]^2`` 1.08 to 1.16). Cheaper variants all
+lost accuracy on the bar and the CC0 body: Newton vectors by preconditioned conjugate gradients
+(:attr:`MixerOptions.newton_pcg_iterations`), derivatives at the basis key only (the CC0 body's median energy ratio
+to Gauss-Newton in ``[0, 1]^3`` from 1.27 to 2.86 for 0.3 s), no Newton vector at the centre of ``[0, 1]^(K-1)``
+(1.27 to 1.64), one reduced step instead of two (the 5k bar's largest error in ``[-0.5, 1.5]^2`` from 0.44 % to 0.56
+%). A mix costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent of
+the mesh size) plus ``O(V r)`` to write the vertices.
 
 Examples: ``benchmarks/bench_mixer.py`` measures build, time per mix and the distance to converged
 full Gauss-Newton on a bar and two bodies.
@@ -82,8 +81,8 @@ from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSetting
 from .cubature import fit_cubature
 from .files import FORMAT, FORMAT_VERSION, load_mixer, save_mixer
 from .reduced import ReducedEnergy, edge_stencils
-from .subspace import (Expansion, FullProblem, build_space, candidate_weights, newton_vectors,
-                       orthonormal_basis, reduced_solve)
+from .subspace import (Expansion, FullProblem, build_space, candidate_weights, exploration_weights, newton_vectors,
+                       orthonormal_basis, reduced_solve, space_indicator)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
            "FORMAT", "FORMAT_VERSION"]
@@ -108,6 +107,35 @@ REFINE_GAIN = 0.01
 
 #: Most Newton points of a build (all rounds): rounds after the first stop there.
 NEWTON_POINTS = 16
+
+#: Newton points of the second round of a build whose Newton vectors go without derivatives (``K >= 4``, see
+#: :attr:`MixerOptions.newton_derivatives`), instead of revisiting candidates: the weights of the half grid
+#: ``{0, 1/2, 1}^(K-1)`` not yet visited (:func:`.subspace.exploration_weights`, 15 for K = 4) where
+#: :func:`.subspace.space_indicator` finds the space worst, each from the indicator's reduced minimizer with one
+#: reduced step (full Jacobian).  On the CC0 body (13k vertices, K = 4) four revisits instead gained little: the
+#: first round's steps had closed the gap at the candidates (the second steps' model decrease 3.4 % and 0.35 % of
+#: the energy at ``(1, 1, 1)`` and ``(1, 0, 1)``, nothing at ``(1, 1, 0)`` and ``(0, 1, 1)``, where the energy is
+#: next to 0), and the median ``energy_goal`` of ``benchmarks/bench_mixer.py`` in ``[0, 1]^3`` went from 1.98 to
+#: 1.85 only; the three facet centres ``(0, 1/2, 1/2)``... to 1.78: the space is worst between the candidates.
+#: The indicator chose ``(1/2, 0, 1)``, ``(1/2, 1/2, 1)``, ``(1/2, 1, 1)`` (the three whose Newton steps gain
+#: most, of the 15), all with the torso's twist: without derivatives (:data:`EXPLORE_DERIVATIVES` 0) median
+#: ``energy_goal`` 1.98 to 1.6-1.8, 2 to 3 weights of 10 within 2 % (at 24 more random weights with converged
+#: Gauss-Newton references 1 to 7 of 24, median 3.5 to 1.3), build +0.6-0.8 s; 4 or 5 points did no better, 2
+#: worse.
+EXPLORE_POINTS = 3
+
+#: The first this many exploration points (the largest indicator) also take the projection's derivatives by the
+#: weights there into the space (:func:`.subspace.newton_vectors`; ``K - 1`` columns each, no more
+#: factorizations).  Their components outside the space are at most 0.2 % of their length, stiff directions of
+#: ``W_q`` the steps miss: on the CC0 body the ``energy_goal`` weights within 2 % went from 3 (none) to 4, 5 and 6
+#: of 10 with 1, 2 and 3 (median 1.76, 1.29, 0.92, 0.78; at the 24 more weights 7, 13, 14, 17 of 24), the build
+#: (3.7-4.2 s without the second round, paired) took 4.4-4.5, 4.7-5.1, 4.9-5.0 and 5.3 s with 0 to 3 (the
+#: cubature's cost grows with the reduced size, 34, 37, 40, 43; was 31), a mix 1.3 ms with 2 (1.0).
+EXPLORE_DERIVATIVES = 2
+
+#: Edges of the sampled reduced energy whose minimizers :func:`.subspace.space_indicator` ranks the exploration
+#: weights by (:meth:`ShapeMixer._screening_energy`).
+SCREENING_EDGES = 2000
 
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
@@ -151,7 +179,8 @@ class MixerOptions:
         :func:`.subspace.candidate_weights`, :func:`.cubature.fit_cubature`), the 50k bar from 2 to 4
         (21.9 to 2.5; build 13.7 s to 27.9 s, reduced size 26 to 44), the MakeHuman body (13k) from 5 to
         10 and at 50k from 4 to 10, the CC0 body (13k, K = 4, no second round within 16 points) from 0 to
-        2 (11.3 to 2.0, the halves ``e_a / 2`` its only new candidates); the largest RMS errors stay
+        2 (11.3 to 2.0, the halves ``e_a / 2`` its only new candidates; its second round now explores,
+        :data:`EXPLORE_POINTS`: 5 of 10, median 0.92); the largest RMS errors stay
         within the goals (in ``[0, 1]^(K-1)`` at most 0.12 %, in ``[-0.5, 1.5]^(K-1)`` 0.85 %).  What keeps
         the 50k bar and the CC0 body from the goal is the space (the exact minimizer in it has 1.11 and
         1.04 times the energy of Gauss-Newton, median): on the 50k bar Gauss-Newton needs 3-4 steps from
@@ -528,23 +557,40 @@ class ShapeMixer:
         mixer._derivatives = bool(derivatives and o.newton_rounds and not o.newton_pcg_iterations)
         latest, gains = {}, {}  # the last error estimate and relative model decrease at every candidate
         n_points, space = 0, None
+        keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
         for rnd in range(o.newton_rounds):
             last = rnd == o.newton_rounds - 1
+            exploring = rnd == 1 and not derivatives
             if rnd == 0:
                 cands = list(all_cands)
-            else:  # later rounds: the candidates in [0, 1]^m whose last step gained, the largest gains first
+            elif not exploring:  # the candidates in [0, 1]^m whose last step gained, the largest gains first
                 cands = [c for c in inside if not gains[tuple(c)] <= REFINE_GAIN]
                 cands = sorted(cands, key=lambda c: -gains[tuple(c)])[:max(0, NEWTON_POINTS - n_points)]
+            else:  # no derivatives at every point: new weights of the half grid where the space is worst
+                pool = exploration_weights(mixer.n_keys - 1, keys_w + all_cands)
+                with watch("newton_vectors"):
+                    sampled = mixer._screening_energy()
+                    score, screened = space_indicator(P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in pool],
+                                                      lambda wk, q0, e=sampled: e.solve(wk, q0, 10)[0])
+                order = np.argsort(-score, kind="stable")[:EXPLORE_POINTS]
+                cands = [pool[i] for i in order]
+                starts = {tuple(pool[i]): screened[i] for i in order}
+                with_derivatives = {tuple(pool[i]) for i in order[:EXPLORE_DERIVATIVES]}
+                all_cands = all_cands + cands
             # the farthest from the centre of [0, 1]^m first: the inner ones see their steps
             cands = sorted(cands, key=lambda w: -float(np.abs(w - 0.5).max()))
             if cands:
                 report(progress, 2, 4, f"Newton vectors, round {rnd + 1}")
                 with watch("newton_vectors"):
-                    keys_w = [np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
+                    if exploring:  # from the screening's minimizers, one reduced step (full Jacobian)
+                        begin, steps = [(wc, starts[tuple(wc)]) for wc in cands], 1
+                        deriv = [tuple(wc) in with_derivatives for wc in cands]
+                    else:
+                        begin, steps, deriv = [(wc, mixer._start(wc)) for wc in cands], 2, derivatives
                     new, points, errors, gain, space = newton_vectors(
-                        P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in cands], size,
+                        P, x0, mixer.basis, begin, size, reduced_iterations=steps,
                         keys=list(zip(keys_w, mixer._key_x, strict=True)), pcg_iterations=o.newton_pcg_iterations,
-                        derivatives=derivatives, min_gain=0.0 if o.newton_pcg_iterations else MIN_GAIN,
+                        derivatives=deriv, min_gain=0.0 if o.newton_pcg_iterations else MIN_GAIN,
                         progress=None if progress is None else (
                             lambda d, t, msg, rnd=rnd: progress(2, 4, f"round {rnd + 1}: {msg}")))
                     n_points += len(cands)
@@ -604,6 +650,16 @@ class ShapeMixer:
         P = self._problem
         U = self.basis if metric is None else self.basis @ metric.T
         return ReducedEnergy(self._stencils, self._key_x[0], U, P.w, P.z0, P.dz, P.floor, edges, c)
+
+    def _screening_energy(self):
+        """The reduced energy on a seeded random sample of :data:`SCREENING_EDGES` edges, each weighted by the number
+        of edges over the sample's size (all edges, weight 1, on smaller meshes): its minimizers stand in for the
+        exact ones in the space where :func:`.subspace.space_indicator` ranks the exploration weights."""
+        E = self.n_edges
+        if E <= SCREENING_EDGES:
+            return self._make_energy(None, None)
+        edges = np.sort(np.random.default_rng(0).choice(E, SCREENING_EDGES, replace=False))
+        return self._make_energy(edges, np.full(SCREENING_EDGES, E / SCREENING_EDGES))
 
     def _cubature_samples(self):
         """Training points ``(weights (S, m), q (S, r))``: the points the build solved and Taylor predictions at
