@@ -130,7 +130,6 @@ def main(argv=None):
               "flagged_frames": list(quality["flagged_frames"]), "flagged_markers": list(quality["flagged_markers"]),
               "self_intersection_frames": len(quality.get("self_intersection_frames", [])),
               "self_intersection_frame_list": list(quality.get("self_intersection_frames", [])),
-              "notes": [str(n) for n in quality.get("notes", [])],
               "machine": machine_info(blender=bpy.app.version_string)}
     print(json.dumps(result, indent=1))
 

@@ -596,8 +596,7 @@ class ShapeMixer:
                     n_points += len(cands)
                     latest.update({tuple(c): e for c, e in zip(cands, errors, strict=True)})
                     gains.update({tuple(c): g for c, g in zip(cands, gain, strict=True)})
-                    mixer._error_w = np.array([np.zeros(mixer.n_keys - 1)] + list(np.eye(mixer.n_keys - 1))
-                                              + all_cands)
+                    mixer._error_w = np.array(keys_w + all_cands)
                     mixer._error_v = np.concatenate([np.zeros(mixer.n_keys), [latest[tuple(c)] for c in all_cands]])
                     vectors += new
                     done = {tuple(wc) for wc, _ in points}
