@@ -153,6 +153,7 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     out["build_wall_seconds"] = round(time.perf_counter() - t0, 3)
     out["reduced_size"] = mixer.reduced_size
     out["cubature_edges"] = mixer.cubature_size
+    out["local_vertices"] = len(mixer.local_vertices)
     out["edges"] = int(mixer.n_edges)
     out["cubature_fit_residual"] = round(float(getattr(mixer, "cubature_residual", 0.0)), 5)
     out["mixer_megabytes"] = round(mixer.nbytes / 2 ** 20, 1)

@@ -195,6 +195,7 @@ def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
     assert code == 0, err
     info = json.loads(out)
     assert info["vertices"] == bar[0].shape[1] and info["keys"] == 3 and info["reduced_size"] >= 3
+    assert info["local_vertices"] == len(ShapeMixer.load(tmp_path / "m.npz").local_vertices)
     assert {"setup", "derivatives", "basis", "cubature", "load", "save"} <= set(info["build_seconds"])
     code, out, err = _run(capsys, "mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "--weights", 1, 0,
                           "-o", tmp_path / "out.ply", "--json")
@@ -615,9 +616,10 @@ def test_cubature_gradient_rows(monkeypatch, long_bar):
         exact = m._make_energy(None, None)
         out = []
         for w in W:
-            r = m.mix(w, warm_start=False)
+            m.mix(w, warm_start=False)                 # the cubature's minimizer (before the local correction)
             qs = exact.solve(w, m._last_q, max_iterations=100, step_tol=0.0, ftol=1e-14)[0]
-            out.append(m.full_energy(w, r.vertices) / m.full_energy(w, (m._y0.ravel() + m._B @ qs).reshape(-1, 3)))
+            out.append(m.full_energy(w, (m._y0.ravel() + m._B @ m._last_q).reshape(-1, 3))
+                       / m.full_energy(w, (m._y0.ravel() + m._B @ qs).reshape(-1, 3)))
         return np.median(out) - 1.0
 
     with_rows = excess(mixer)
@@ -649,7 +651,41 @@ def test_cubature_energy_norm(long_bar, tmp_path):
     # files written before the option existed (one number fewer) load with the Euclidean fit they were made with
     path = mixer.save(tmp_path / "m.npz")
     data = dict(np.load(path))
-    data["options"] = data["options"][:-1]
+    data["options"] = data["options"][:-2]
+    del data["local_vertices"]
     np.savez(tmp_path / "old.npz", **data)
     old = ShapeMixer.load(tmp_path / "old.npz")
     assert not old.options.cubature_energy_norm and old.cubature_size == mixer.cubature_size
+    assert old.options.local_vertices == 0 and not len(old.local_vertices)
+
+
+def test_local_correction(long_bar, tmp_path):
+    """The local correction moves only its vertices, lowers the full energy by exactly the change it reports (only
+    the rows around its vertices change), brings the mix closer to converged Gauss-Newton, and is saved with the
+    mixer; a file without it mixes without it."""
+    keys, F, mixer = long_bar
+    hot = mixer.local_vertices
+    assert 0 < len(hot) <= mixer.options.local_vertices
+    out = np.setdiff1d(np.arange(mixer.n_vertices), hot)
+    for w in ([0.5, 0.5], [0.8, 0.3], [1.5, -0.5]):
+        r = mixer.mix(w, warm_start=False)
+        base = (mixer._y0.ravel() + mixer._B @ mixer._last_q).reshape(-1, 3)     # the reduced minimizer
+        assert np.array_equal(r.vertices[out], base[out])
+        e_base, e_mix = mixer.full_energy(w, base), mixer.full_energy(w, r.vertices)
+        change = mixer._local.step(mixer._last_q, np.array(w, float))[1]
+        assert change < 0 and abs(change - (e_mix - e_base)) < 1e-9 * e_base
+        e_ref = mixer.full_energy(w, _reference(keys, F, w).vertices)
+        assert e_mix - e_ref < 0.75 * (e_base - e_ref)                  # measured: 0.48-0.59
+    path = mixer.save(tmp_path / "m.npz")
+    back = ShapeMixer.load(path)
+    assert np.array_equal(back.local_vertices, hot)
+    assert np.abs(back.mix(w, warm_start=False).vertices - r.vertices).max() < 1e-12 * _diag(keys[0])
+    data = dict(np.load(path))
+    data["options"] = data["options"][:-1]                                 # written before the local correction
+    del data["local_vertices"]
+    np.savez(tmp_path / "old.npz", **data)
+    old = ShapeMixer.load(tmp_path / "old.npz")
+    assert old.options.local_vertices == 0 and not len(old.local_vertices)
+    assert np.abs(old.mix(w, warm_start=False).vertices - base).max() < 1e-12 * _diag(keys[0])
+    off = ShapeMixer.build(keys, F, MixerOptions(local_vertices=0))
+    assert not len(off.local_vertices)

@@ -8,7 +8,8 @@ Usage::
 ``lacore mixer`` builds a :class:`lacore.shapes.mixing.ShapeMixer` from two or more meshes in dense
 correspondence (the first is the basis, like Blender's relative shape keys) and saves it to one
 ``.npz``.  ``--json`` prints one object with ``vertices``, ``keys``, ``reduced_size``,
-``cubature_edges``, ``megabytes`` (the mixer in memory), ``seconds`` and the wall seconds of each
+``cubature_edges``, ``local_vertices`` (how many vertices the local correction moves; 0: none),
+``megabytes`` (the mixer in memory), ``seconds`` and the wall seconds of each
 build stage (``build_seconds``: ``setup``, ``derivatives``, ``basis``, ``newton_vectors``,
 ``cubature``, plus ``load`` and ``save``) and their CPU seconds (``build_cpu_seconds``).
 
@@ -96,8 +97,8 @@ def run_mixer(args):
     stages = {"load": t_load, **{k: v for k, v in mixer.build_seconds.items() if k != "total"}, "save": t_save}
     summary = {"command": "mixer", "output": args.output, "vertices": int(mixer.n_vertices),
                "keys": int(mixer.n_keys), "reduced_size": mixer.reduced_size,
-               "cubature_edges": mixer.cubature_size, "megabytes": mixer.nbytes / 2 ** 20,
-               "seconds": seconds, "build_seconds": stages,
+               "cubature_edges": mixer.cubature_size, "local_vertices": len(mixer.local_vertices),
+               "megabytes": mixer.nbytes / 2 ** 20, "seconds": seconds, "build_seconds": stages,
                "build_cpu_seconds": {k: v for k, v in mixer.build_cpu_seconds.items() if k != "total"}}
     if args.json:
         print_json(summary)

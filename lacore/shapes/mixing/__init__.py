@@ -5,6 +5,7 @@
 * :mod:`.subspace` -- the reduced space (keys, derivatives of the projection, chord vectors);
 * :mod:`.reduced` -- the reduced energy on a weighted subset of edges and its solver;
 * :mod:`.cubature` -- the choice of that subset (greedy non-negative least squares);
+* :mod:`.local` -- the local correction: one full Gauss-Newton step on the few vertices the space misses;
 * :mod:`.files` -- saving and loading mixers;
 * :mod:`.path` -- in-betweens of two keys by a reduced model of their path (:func:`path_inbetweens`).
 """

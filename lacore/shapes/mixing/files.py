@@ -1,6 +1,7 @@
 """Shape-mixer files: one ``.npz`` with ``format`` (:data:`FORMAT`), ``format_version`` (:data:`FORMAT_VERSION`), the
 keys, the faces, the options (:meth:`MixerOptions.to_array`) and the reduced model (basis, cubature edges and
-weights, expansions, indicator and correction data, build seconds).  Loading validates every entry's shape and
+weights, expansions, indicator and correction data, the local correction's vertices, build seconds); a file
+without ``local_vertices`` mixes without the local correction.  Loading validates every entry's shape and
 finiteness and raises :class:`MixerError` naming the file and what to do.
 """
 
@@ -34,6 +35,7 @@ def save_mixer(mixer, path):
             "indicator_values": np.zeros(0) if mixer._error_v is None else mixer._error_v,
             "correction_weights": np.zeros((0, mixer.n_keys - 1)) if mixer._corr_w is None else mixer._corr_w,
             "correction": (np.zeros((0, mixer.n_keys, mixer.reduced_size)) if mixer._corr is None else mixer._corr),
+            "local_vertices": mixer.local_vertices,
             "build_stages": np.array(list(mixer.build_seconds), dtype=str),
             "build_seconds": np.array(list(mixer.build_seconds.values()), float)}
     return save_npz_atomic(path, **data)
@@ -73,9 +75,13 @@ def load_mixer(cls, path):
         iv = read("indicator_values", "f", 1)
         cw = read("correction_weights", "f", 2)
         cc = read("correction", "f", 3)
+        hot = read("local_vertices", "i", 1) if "local_vertices" in keys else np.zeros(0, np.int64)
         stages = read("build_stages", "U", 1)
         secs = read("build_seconds", "f", 1)
-    if opt.shape == (len(_OPTION_FIELDS) - 1,):          # written before cubature_energy_norm: fitted without it
+    n_opt = len(_OPTION_FIELDS)
+    if opt.shape == (n_opt - 2,):            # written before cubature_energy_norm and local_vertices: without them
+        opt = np.append(opt, [0.0, 0.0])
+    elif opt.shape == (n_opt - 1,):          # written before local_vertices: built without a local correction
         opt = np.append(opt, 0.0)
     if opt.shape != (len(_OPTION_FIELDS),):
         raise MixerError(f"{name}: 'options' must hold {len(_OPTION_FIELDS)} numbers, got {opt.size}")
@@ -98,6 +104,8 @@ def load_mixer(cls, path):
                              "the mixer")
     bad = [k for k, a in (("basis", U), ("cubature_weights", c), ("expansion_q", eq), ("expansion_first", eA),
                           ("expansion_second", eT), ("correction", cc)) if not np.all(np.isfinite(a))]
+    if len(hot) and (hot.min() < 0 or hot.max() >= V or np.any(np.diff(hot) <= 0)):
+        bad.append("local_vertices")
     if bad or r < 1 or edges.size == 0 or edges.min() < 0 or edges.max() >= mixer.n_edges or np.any(c < 0):
         raise MixerError(f"{name}: the reduced model is damaged ({', '.join(bad) or 'cubature'}); rebuild the "
                          "mixer")
@@ -109,6 +117,7 @@ def load_mixer(cls, path):
     if len(cw):
         mixer._corr_w, mixer._corr = cw, cc
     mixer._cubature = mixer._make_energy(edges, c)
+    mixer._set_local(hot)
     mixer.build_seconds = dict(zip(stages.tolist(), secs.tolist(), strict=True))
     return mixer
 

@@ -1,0 +1,264 @@
+"""The local correction of a mix: one Gauss-Newton step of ``W_q`` on the few vertices the reduced space misses.
+
+A reduced space spanned by keys, derivatives and Newton vectors holds a mix's shape to a few thousandths of a
+percent of the mesh size, but where one key stretches a small region far (the armpit of a raised arm) the
+minimizer of ``W_q`` bends that region in detail no global vector carries, and the reduced mix's energy can exceed
+the projection's by several percent while its vertices are all but exact.  The build finds those vertices: at its
+training points (:meth:`ShapeMixer._training`) the gradient of the full energy outside the space,
+``g_perp = (I - U U^T) g``, says per vertex how much a step of that vertex alone would lower the energy,
+``|g_perp,v|^2 / h_v`` (``h_v`` a third of the trace of the vertex's 3x3 block of the Gauss-Newton matrix);
+:func:`hot_vertices` keeps the fewest vertices holding :data:`HOT_SHARE` of it, when they are few
+(:attr:`MixerOptions.local_vertices`).  A mix then takes one Gauss-Newton step of the full energy on those
+vertices with every other vertex held (:class:`LocalCorrection`): the lengths and angles of a patch around them,
+a sparse factorization of the size of the patch (symbolic analysis once), and the step where it lowers the
+energy (the energy change is exact: only the rows the step moves change).
+
+On the CC0 body (13k vertices, keys raising an arm, bending a knee and twisting the torso), where the reduced
+mixes' excess energy over converged Gauss-Newton sits in a few dozen edges of the left armpit, 150 such vertices
+(a patch of about 470) took the benchmark's weights in ``[0, 1]^3`` within 2 % of that energy from 5 to 9 of 10
+(``benchmarks/bench_mixer.py``; 14 to 22 of 24 more random weights) for 1.3 ms more per mix.  On the bars and the
+MakeHuman body the excess is spread over the mesh (the 150 vertices of the largest density hold 11-48 % of it; a
+trial with 1,000 and 3,000 vertices on the 50k bar recovered 1-10 % of its excess) and the build keeps none.
+"""
+
+import numpy as np
+import scipy.sparse as sp
+
+from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.topology import MeshTopology
+from ...linalg.sparse_cholesky import SparseCholesky
+from ...reconstruction.assembly import gauss_newton_pattern
+from ...reconstruction.objectives import QuadraticGNMatrix, QuadraticObjective
+
+__all__ = ["LocalCorrection", "hot_vertices", "space_error_density", "HOT_SHARE"]
+
+#: Least share of the space's error density (:func:`space_error_density`, the mean over the build's training points
+#: of each one's share per vertex) that the local correction's vertices must hold for the build to keep it
+#: (:func:`hot_vertices`): with less, the error is not local and the step would cost a mix time for little.
+HOT_SHARE = 0.5
+
+
+def space_error_density(gradients, basis, vertex_scale):
+    """Per vertex, the energy a Gauss-Newton step of that vertex alone, outside the space, would gain.
+
+    Parameters
+    ----------
+    gradients : (3V,) or (3V, S) ndarray
+        Gradients ``g`` of the full energy at points of the space (one per column).
+    basis : (3V, r) ndarray
+        Orthonormal basis ``U`` of the space.
+    vertex_scale : (V,) ndarray
+        Per vertex, a third of the trace of its 3x3 block of the Gauss-Newton matrix ``H``.
+
+    Returns
+    -------
+    (V,) or (S, V) ndarray
+        ``|g_perp,v|^2 / (2 vertex_scale_v)`` with ``g_perp = (I - U U^T) g``: the decrease ``g^T H^-1 g / 2``
+        of one vertex's step with its block taken as ``vertex_scale_v I``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> U = np.eye(6)[:, :3]                      # the space moves the first vertex only
+    >>> space_error_density(np.arange(6.0), U, np.ones(2)).tolist()
+    [0.0, 25.0]
+    """
+    g = np.asarray(gradients, float)
+    G = g.reshape(len(g), -1)
+    Gp = G - basis @ (basis.T @ G)
+    d = (Gp.reshape(-1, 3, G.shape[1]) ** 2).sum(axis=1).T / (2.0 * np.maximum(vertex_scale, np.finfo(float).tiny))
+    return d[0] if g.ndim == 1 else d
+
+
+def hot_vertices(densities, max_vertices, share=HOT_SHARE):
+    """The ``max_vertices`` vertices of the largest error density, if they hold at least ``share`` of it.
+
+    Parameters
+    ----------
+    densities : (S, V) array_like
+        :func:`space_error_density` at ``S`` points; each is normalized to sum 1 (points where the space is exact
+        are left out) and the mean taken.
+    max_vertices : int
+        How many vertices the correction moves (0: none).
+    share : float
+
+    Returns
+    -------
+    (n,) int64 ndarray
+        Sorted vertex indices; empty when the error is not local (the vertices hold less than ``share``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> hot_vertices([[0.05, 0.7, 0.05, 0.2]], 2).tolist()
+    [1, 3]
+    >>> hot_vertices(np.full((1, 100), 0.01), 10).tolist()      # spread out: no correction
+    []
+    """
+    D = np.atleast_2d(np.asarray(densities, float))
+    totals = D.sum(axis=1)
+    ok = totals > 0
+    if not max_vertices or not ok.any():
+        return np.zeros(0, np.int64)
+    mean = (D[ok] / totals[ok, None]).mean(axis=0)
+    order = np.argsort(-mean, kind="stable")[:int(max_vertices)]
+    if mean[order].sum() < share:
+        return np.zeros(0, np.int64)
+    return np.sort(order).astype(np.int64)
+
+
+def _patch_faces(faces, inside, n_vertices):
+    """Faces with a corner in ``inside`` (V,) bool, grown by the whole fan of every vertex where the patch would not
+    be a manifold (more than two boundary edges)."""
+    sel = inside[faces].any(axis=1)
+    while True:
+        pf = faces[sel]
+        e = np.sort(np.concatenate([pf[:, [0, 1]], pf[:, [1, 2]], pf[:, [2, 0]]]), axis=1)
+        keys, counts = np.unique(e[:, 0] * n_vertices + e[:, 1], return_counts=True)
+        b = keys[counts == 1]
+        bad = np.bincount(np.concatenate([b // n_vertices, b % n_vertices]), minlength=n_vertices) > 2
+        if not bad.any():
+            return pf
+        sel |= bad[faces].any(axis=1)
+
+
+class LocalCorrection:
+    """One Gauss-Newton step of ``W_q[z(w), Z(X)]`` on the vertices ``hot``, every other vertex held.
+
+    Parameters
+    ----------
+    topology : MeshTopology
+        The mixer's mesh.
+    hot : (n,) int array_like
+        The vertices that move.
+    key_x : (3V,) ndarray
+        The basis key in the mixer's canonical coordinates.
+    basis : (3V, r) ndarray
+        The reduced basis ``U`` (a mix is ``key_x + U q``).
+    problem : :class:`.subspace.FullProblem`
+        The full energy (targets, weights, floors).
+    fixed_dofs : (k,) int array_like
+        Canonical coordinates that never move (the context's gauge).
+    output_map : (V, 3, 3) ndarray
+        Per vertex, the linear map from canonical displacements to the caller's frame and units.
+
+    Notes
+    -----
+    The step's system is ``2 J_h^T W J_h`` over the free coordinates of ``hot`` (``J_h`` the rows of the lengths
+    and angles of the edges whose stencil touches them), assembled in the order of
+    :func:`lacore.reconstruction.assembly.gauss_newton_pattern` on a patch: the faces with a corner in ``hot`` or
+    next to it, so every such row has both its faces.  ``O(n)`` per step, independent of the mesh.
+    """
+
+    def __init__(self, topology, hot, key_x, basis, problem, fixed_dofs, output_map):
+        V = topology.n_vertices
+        hot = np.asarray(hot, np.int64)
+        self.hot = hot
+        inside = np.zeros(V, bool)
+        inside[hot] = True
+        faces = topology.faces
+        near = inside.copy()
+        near[faces[inside[faces].any(axis=1)].ravel()] = True
+        pf = _patch_faces(faces, near, V)
+        pv = np.unique(pf)
+        local = np.full(V, -1, np.int64)
+        local[pv] = np.arange(len(pv))
+        self.vertices = pv
+        self.topology = tp = MeshTopology.from_faces(local[pf], n_vertices=len(pv))
+        Ep = tp.n_edges
+        # the patch's edges among the mesh's
+        ge = pv[tp.edges]
+        gkey = np.minimum(ge[:, 0], ge[:, 1]) * V + np.maximum(ge[:, 0], ge[:, 1])
+        mkey = np.minimum(topology.edges[:, 0], topology.edges[:, 1]) * V + np.maximum(topology.edges[:, 0],
+                                                                                       topology.edges[:, 1])
+        sorter = np.argsort(mkey)
+        gedge = sorter[np.searchsorted(mkey, gkey, sorter=sorter)]
+        # free coordinates: those of the hot vertices, less the gauge
+        fixed = np.zeros(3 * V, bool)
+        fixed[np.asarray(fixed_dofs, np.int64)] = True
+        dofs = (3 * hot[:, None] + np.arange(3)).ravel()
+        keep = ~fixed[dofs]
+        self._free_global = dofs[keep]
+        free = (3 * local[hot][:, None] + np.arange(3)).ravel()[keep]
+        self._free = free
+        self._x0 = np.asarray(key_x, float).reshape(V, 3)[pv].ravel()
+        self._U = np.ascontiguousarray(np.asarray(basis, float).reshape(V, 3, -1)[pv].reshape(3 * len(pv), -1))
+        # the rows whose stencil touches a free coordinate (both faces of such an edge lie in the patch)
+        J = lengths_and_angles_jacobian(self._x0.reshape(-1, 3), tp)
+        mark = np.zeros(3 * len(pv), bool)
+        mark[free] = True
+        counts = np.diff(J.indptr)
+        hit = np.zeros(2 * Ep, bool)
+        nz = counts > 0
+        hit[nz] = np.add.reduceat(mark[J.indices].astype(np.int64), J.indptr[:-1][nz]) > 0
+        rows = np.flatnonzero(hit)
+        self._rows = rows
+        self._angle = rows >= Ep
+        grow = np.where(self._angle, topology.n_edges + gedge[rows % Ep], gedge[rows % Ep])
+        E = problem.E
+        self._z0 = problem.z0[grow]
+        self._dz = np.ascontiguousarray(problem.dz[:, grow])
+        self._floor = np.where(self._angle, -np.inf, problem.floor[np.minimum(grow, E - 1)])
+        self._w = problem.w[grow]
+        wp = np.zeros(2 * Ep)
+        wp[rows] = self._w
+        self._wp = wp
+        pattern = gauss_newton_pattern(tp)
+        self._objective = QuadraticObjective(None, wp, tp, pattern)
+        # the free coordinates' block of the pattern (lower CSC), in the pattern's order
+        n = 3 * len(pv)
+        where = np.full(n, -1, np.int64)
+        where[free] = np.arange(len(free))
+        r_new, c_new = where[pattern["indices"]], where[pattern["cols"]]
+        self._block = np.flatnonzero((r_new >= 0) & (c_new >= 0))
+        m = len(free)
+        block = sp.csc_matrix((np.ones(len(self._block)), (r_new[self._block], c_new[self._block])), shape=(m, m))
+        self._solver = SparseCholesky(block)
+        if not np.array_equal(self._solver.indices, r_new[self._block]):
+            # the solver's lower CSC order is the pattern's (column-major, sorted rows): kept by construction
+            raise RuntimeError("local correction: pattern order mismatch")  # pragma: no cover
+        self._map = np.asarray(output_map, float)[hot].reshape(-1, 3, 3)
+        self._keep = keep.reshape(-1, 3)
+
+    @property
+    def n_vertices(self):
+        """Number of vertices that move."""
+        return len(self.hot)
+
+    @property
+    def nbytes(self):
+        return int(self._U.nbytes + self._dz.nbytes + self._x0.nbytes)
+
+    def _energy(self, z, target):
+        r = z[self._rows] - target
+        a = self._angle
+        r[a] = np.pi - np.mod(np.pi - r[a], 2.0 * np.pi)
+        return float(np.dot(self._w * r, r)), r
+
+    def step(self, q, weights):
+        """The correction of the mix ``key_x + U q`` for ``weights``.
+
+        Returns ``(dX (n, 3), change)``: the displacement of every vertex of :attr:`hot` in the caller's frame
+        and units (zeros when no step lowers the energy) and the change of the full energy (``<= 0``).
+        """
+        target = self._z0 + np.asarray(weights, float) @ self._dz
+        np.maximum(target, self._floor, out=target)
+        x = self._x0 + self._U @ q
+        X = x.reshape(-1, 3)
+        J, z = lengths_and_angles_jacobian(X, self.topology, return_z=True)
+        e0, r = self._energy(z, target)
+        wr = np.zeros(len(z))
+        wr[self._rows] = self._w * r
+        g = 2.0 * (J.T @ wr)[self._free]
+        values = QuadraticGNMatrix(self._objective, J, z)()[self._block]
+        self._solver.factorize(values)
+        d = -self._solver.solve(g)
+        out = np.zeros(3 * len(self.hot))
+        for t in (1.0, 0.5):
+            x1 = x.copy()
+            x1[self._free] += t * d
+            e1, _ = self._energy(lengths_and_angles(x1.reshape(-1, 3), self.topology, check=False), target)
+            if e1 < e0:
+                out[self._keep.ravel()] = t * d
+                return np.einsum("vij,vj->vi", self._map, out.reshape(-1, 3)), e1 - e0
+        return np.zeros((len(self.hot), 3)), 0.0
