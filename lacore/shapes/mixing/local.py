@@ -16,7 +16,7 @@ energy (the energy change is exact: only the rows the step moves change).
 On the CC0 body (13k vertices, keys raising an arm, bending a knee and twisting the torso), where the reduced
 mixes' excess energy over converged Gauss-Newton sits in a few dozen edges of the left armpit, 150 such vertices
 (a patch of about 470) took the benchmark's weights in ``[0, 1]^3`` within 2 % of that energy from 5 to 9 of 10
-(``benchmarks/bench_mixer.py``; 14 to 22 of 24 more random weights) for 1.3 ms more per mix.  On the bars and the
+(``benchmarks/bench_mixer.py``; 14 to 22 of 24 more random weights) for about 1.1 ms more per mix.  On the bars and the
 MakeHuman body the excess is spread over the mesh (the 150 vertices of the largest density hold 11-48 % of it; a
 trial with 1,000 and 3,000 vertices on the 50k bar recovered 1-10 % of its excess) and the build keeps none.
 """
@@ -28,7 +28,6 @@ from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_ja
 from ...geometry.topology import MeshTopology
 from ...linalg.sparse_cholesky import SparseCholesky
 from ...reconstruction.assembly import gauss_newton_pattern
-from ...reconstruction.objectives import QuadraticGNMatrix, QuadraticObjective
 
 __all__ = ["LocalCorrection", "hot_vertices", "space_error_density", "HOT_SHARE"]
 
@@ -202,9 +201,7 @@ class LocalCorrection:
         self._w = problem.w[grow]
         wp = np.zeros(2 * Ep)
         wp[rows] = self._w
-        self._wp = wp
         pattern = gauss_newton_pattern(tp)
-        self._objective = QuadraticObjective(None, wp, tp, pattern)
         # the free coordinates' block of the pattern (lower CSC), in the pattern's order
         n = 3 * len(pv)
         where = np.full(n, -1, np.int64)
@@ -217,6 +214,25 @@ class LocalCorrection:
         if not np.array_equal(self._solver.indices, r_new[self._block]):
             # the solver's lower CSC order is the pattern's (column-major, sorted rows): kept by construction
             raise RuntimeError("local correction: pattern order mismatch")  # pragma: no cover
+        # the block of 2 J^T W J from the rows that touch it: every pair (i <= j) of local coordinates of such a row,
+        # both free, as two positions in the Jacobian's CSR values, its weight and its slot in the block's values
+        key = c_new[self._block] * m + r_new[self._block]          # increasing: column-major, sorted rows
+        first, second, weight, slots = [], [], [], []
+        offset = 0
+        kinds = ((6, pattern["len_cols"], np.arange(Ep)), (12, pattern["ang_cols"], Ep + tp.interior_edges))
+        for k, cols, zrow in kinds:
+            count = len(zrow)
+            ii, jj = np.triu_indices(k)
+            fa, fb = where[cols[ii]], where[cols[jj]]
+            p, e = np.nonzero((fa >= 0) & (fb >= 0) & (wp[zrow] > 0)[None, :])
+            a, b = fa[p, e], fb[p, e]
+            slots.append(np.searchsorted(key, np.minimum(a, b) * m + np.maximum(a, b)))
+            first.append(pattern["local_order"][offset + ii[p] * count + e])
+            second.append(pattern["local_order"][offset + jj[p] * count + e])
+            weight.append(2.0 * wp[zrow][e])
+            offset += k * count
+        self._first, self._second = np.concatenate(first), np.concatenate(second)
+        self._pair_weight, self._slots = np.concatenate(weight), np.concatenate(slots)
         self._map = np.asarray(output_map, float)[hot].reshape(-1, 3, 3)
         self._keep = keep.reshape(-1, 3)
 
@@ -250,7 +266,9 @@ class LocalCorrection:
         wr = np.zeros(len(z))
         wr[self._rows] = self._w * r
         g = 2.0 * (J.T @ wr)[self._free]
-        values = QuadraticGNMatrix(self._objective, J, z)()[self._block]
+        d = J.data
+        values = np.bincount(self._slots, weights=self._pair_weight * d[self._first] * d[self._second],
+                             minlength=len(self._block))
         self._solver.factorize(values)
         d = -self._solver.solve(g)
         out = np.zeros(3 * len(self.hot))
