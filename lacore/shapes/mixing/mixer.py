@@ -262,8 +262,8 @@ class MixerOptions:
         of the density, most of it in the left armpit) the benchmark's weights in ``[0, 1]^3`` within 2 % of
         converged Gauss-Newton's energy went from 5 to 9 of 10 (median ``energy_goal`` 0.92 to 0.42; at 24 more
         random weights 14 to 22), for about 1.1 ms more per mix (1.2-1.3 to 2.2-2.5 ms) and 0.05 s more build
-        (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes the 150 hold 11-48 % and the
-        build keeps none.
+        (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes the 150 hold
+        11-48 % and the build keeps none.
     Examples
     --------
     >>> options = MixerOptions(low=-1.0, high=2.0)        # build for sliders in [-1, 2]
