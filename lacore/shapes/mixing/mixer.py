@@ -264,6 +264,7 @@ class MixerOptions:
         random weights 14 to 22), for about 1.1 ms more per mix (1.2-1.3 to 2.2-2.5 ms) and 0.05 s more build
         (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes the 150 hold
         11-48 % and the build keeps none.
+
     Examples
     --------
     >>> options = MixerOptions(low=-1.0, high=2.0)        # build for sliders in [-1, 2]
