@@ -132,8 +132,11 @@ EXPLORE_POINTS = 3
 #: ``W_q`` the steps miss: on the CC0 body the ``energy_goal`` weights within 2 % went from 3 (none) to 4, 5 and 6
 #: of 10 with 1, 2 and 3 (median 1.76, 1.29, 0.92, 0.78; at the 24 more weights 7, 13, 14, 17 of 24), the build
 #: (3.7-4.2 s without the second round, paired) took 4.4-4.5, 4.7-5.1, 4.9-5.0 and 5.3 s with 0 to 3 (the
-#: cubature's cost grows with the reduced size, 34, 37, 40, 43; was 31), a mix 1.3 ms with 2 (1.0).
-EXPLORE_DERIVATIVES = 2
+#: cubature's cost grows with the reduced size, 34, 37, 40, 43; was 31), a mix 1.3 ms with 2 (1.0).  With the local
+#: correction (:attr:`MixerOptions.local_vertices`) one point does as well as two: 9 of 10 and 22 of 24 within 2 %
+#: either way (median ``energy_goal`` 0.55 and 0.47 with one, 0.42 and 0.42 with two), for a build 0.15-0.9 s
+#: shorter (4.41-4.63 s against 4.76-5.33 s, paired), which the 5 s budget at 13k vertices needs.
+EXPLORE_DERIVATIVES = 1
 
 #: Edges of the sampled reduced energy whose minimizers :func:`.subspace.space_indicator` ranks the exploration
 #: weights by (:meth:`ShapeMixer._screening_energy`).
