@@ -186,7 +186,7 @@ class MixerOptions:
         10 and at 50k from 4 to 10, the CC0 body (13k, K = 4, no second round within 16 points) from 0 to
         2 (11.3 to 2.0, the halves ``e_a / 2`` its only new candidates; its second round now explores,
         :data:`EXPLORE_POINTS`: 5 of 10, median 0.92; with the local correction, ``local_vertices``, 9 of 10,
-        0.42); the largest RMS errors stay
+        0.55); the largest RMS errors stay
         within the goals (in ``[0, 1]^(K-1)`` at most 0.12 %, in ``[-0.5, 1.5]^(K-1)`` 0.85 %).  What keeps
         the 50k bar and the CC0 body from the goal is the space (the exact minimizer in it has 1.11 and
         1.04 times the energy of Gauss-Newton, median; the CC0 body's excess is mostly local, which the local
@@ -264,9 +264,10 @@ class MixerOptions:
         for little); 0 turns it off.  150 by default: on the CC0 body (13k vertices, K = 4; the 150 hold 62 %
         of the density, most of it in the left armpit) the benchmark's weights in ``[0, 1]^3`` within 2 % of
         converged Gauss-Newton's energy went from 5 to 9 of 10 (median ``energy_goal`` 0.92 to 0.42; at 24 more
-        random weights 14 to 22), for about 1.1 ms more per mix (1.2-1.3 to 2.2-2.5 ms) and 0.05 s more build
-        (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes the 150 hold
-        11-48 % and the build keeps none.
+        random weights 14 to 22; the same with the exploration's derivatives at one point since,
+        :data:`EXPLORE_DERIVATIVES`, median 0.55), for about 1.1 ms more per mix (1.2-1.3 to 2.2-2.5 ms) and
+        0.05 s more build (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes
+        the 150 hold 11-48 % and the build keeps none.
 
     Examples
     --------
