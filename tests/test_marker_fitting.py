@@ -401,6 +401,30 @@ def test_penetration_term_pushes_crossing_corners_out():
     assert solver.add_penetrations(X2, y)[1] >= 0
 
 
+@pytest.mark.parametrize("script, weights, kept", [
+    ([(3, 2), (3, 1), (0, 0)], [1, 1, 10], 0),            # a round that did not reduce them: once more, stronger
+    ([(3, 2), (3, 1), (4, 0)], [1, 1, 10], 3),            # the stronger round did not either: the first fit stays
+    ([(5, 2), (3, 1), (2, 1)], [1, 1, 1], 2),             # every round reduces them: PENETRATION_ROUNDS rounds
+    ([(3, 2), (2, 0), (0, 0)], [1, 1, 10], 0),            # constraints everywhere but crossings left: stronger
+])
+def test_penetration_rounds_escalate_once(monkeypatch, script, weights, kept):
+    """solve_frame_apart: rounds while they reduce the crossings; the first that does not (or crossings left with
+    every constraint in place) is followed by one round with the weight PENETRATION_ESCALATION times higher, for
+    that frame only; the fit with the fewest crossings is kept."""
+    from lacore.markers.fitting import PENETRATION_ESCALATION, PENETRATION_ROUNDS
+
+    model, X, F, binding, y, mean_z = _crossing_bars()
+    solver = FrameSolver(model, binding, FitOptions(prior_weight=1.0, n_modes=0, penetration_weight=10.0),
+                         mean_z=mean_z)
+    used, outcomes = [], iter(script)
+    monkeypatch.setattr(solver, "solve_frame", lambda X, a, y, *args: used.append(solver.w_p) or (X, a, 0, 1, 1.0))
+    monkeypatch.setattr(solver, "add_penetrations", lambda X, y: (lambda n, k: (np.zeros((n, 2), int), k))(
+        *next(outcomes)))
+    assert PENETRATION_ROUNDS == 2 and PENETRATION_ESCALATION == 10.0
+    n = solver.solve_frame_apart(X, np.zeros(0), y)[5]
+    assert [w / 10.0 for w in used] == weights and n == kept and solver.w_p == 10.0
+
+
 def test_fit_reports_self_intersections_only_with_the_term(bar):
     X0, F, model, binding = bar
     x = surface_points(np.array([bar_pose(X0, 0.3 * k, 0.0) for k in range(3)]), F, binding)

