@@ -196,6 +196,9 @@ def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
     info = json.loads(out)
     assert info["vertices"] == bar[0].shape[1] and info["keys"] == 3 and info["reduced_size"] >= 3
     assert info["local_vertices"] == len(ShapeMixer.load(tmp_path / "m.npz").local_vertices)
+    assert _run(capsys, "mixer", *paths, "-o", tmp_path / "off.npz", "--local-vertices", 0)[0] == 0
+    off = ShapeMixer.load(tmp_path / "off.npz")
+    assert off.options.local_vertices == 0 and not len(off.local_vertices)
     assert {"setup", "derivatives", "basis", "cubature", "load", "save"} <= set(info["build_seconds"])
     code, out, err = _run(capsys, "mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "--weights", 1, 0,
                           "-o", tmp_path / "out.ply", "--json")
@@ -224,7 +227,7 @@ def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
 
 
 @pytest.mark.parametrize("case", ["one_key", "not_npz", "bad_weights_count", "foreign_file", "missing", "bad_ext",
-                                  "nan_weight", "not_in_correspondence", "bad_range"])
+                                  "nan_weight", "not_in_correspondence", "bad_range", "bad_local"])
 def test_cli_bad_input(capsys, tmp_path, key_files, case):
     d, paths = key_files
     if case in ("bad_weights_count", "bad_ext", "nan_weight"):
@@ -245,6 +248,7 @@ def test_cli_bad_input(capsys, tmp_path, key_files, case):
         "nan_weight": ("mix", tmp_path / "m.npz", "--weights", "nan", 0.5, "-o", tmp_path / "o.ply"),
         "not_in_correspondence": ("mixer", paths[0], tmp_path / "small.ply", "-o", tmp_path / "x.npz"),
         "bad_range": ("mixer", *paths, "-o", tmp_path / "x.npz", "--range", 0.2, 1.5),
+        "bad_local": ("mixer", *paths, "-o", tmp_path / "x.npz", "--local-vertices", -3),
     }[case]
     before = _listing(tmp_path)
     code, out, err = _run(capsys, *argv)

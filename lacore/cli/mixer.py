@@ -2,7 +2,8 @@
 
 Usage::
 
-    lacore mixer KEY0.ply KEY1.ply ... -o MIXER.npz [--reduced-size R] [--range LOW HIGH] [--json]
+    lacore mixer KEY0.ply KEY1.ply ... -o MIXER.npz [--reduced-size R] [--range LOW HIGH] [--local-vertices N]
+                 [--json]
     lacore mix MIXER.npz --weights W1 W2 ... [--weights ...] -o OUT.ply [--polish] [--json]
 
 ``lacore mixer`` builds a :class:`lacore.shapes.mixing.ShapeMixer` from two or more meshes in dense
@@ -62,6 +63,9 @@ def configure_mixer(parser):
                         metavar=("LOW", "HIGH"),
                         help="weights the mixer is built accurate for, per key (default %(default)s); outside, a "
                              "mix is flagged")
+    parser.add_argument("--local-vertices", type=int, default=MixerOptions.local_vertices, metavar="N",
+                        help="vertices of the local correction, where the reduced space misses most (default "
+                             "%(default)s; 0: none)")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the mixer's summary")
 
 
@@ -86,7 +90,8 @@ def run_mixer(args):
     check_outputs([args.output])
     if len(args.keys) < 2:
         raise MixerError(f"a mixer needs at least 2 keys (the basis and one more), got {len(args.keys)}")
-    options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1])  # checks --range
+    options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
+                           local_vertices=args.local_vertices)                 # checks --range, --local-vertices
     shapes, topology = load_meshes_in_correspondence(args.keys)
     t_load = time.perf_counter() - start
     mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options)
