@@ -7,11 +7,11 @@ the projection's by several percent while its vertices are all but exact.  The b
 training points (:meth:`ShapeMixer._training`) the gradient of the full energy outside the space,
 ``g_perp = (I - U U^T) g``, says per vertex how much a step of that vertex alone would lower the energy,
 ``|g_perp,v|^2 / h_v`` (``h_v`` a third of the trace of the vertex's 3x3 block of the Gauss-Newton matrix);
-:func:`hot_vertices` keeps the fewest vertices holding :data:`HOT_SHARE` of it, when they are few
-(:attr:`MixerOptions.local_vertices`).  A mix then takes one Gauss-Newton step of the full energy on those
-vertices with every other vertex held (:class:`LocalCorrection`): the lengths and angles of a patch around them,
-a sparse factorization of the size of the patch (symbolic analysis once), and the step where it lowers the
-energy (the energy change is exact: only the rows the step moves change).
+:func:`hot_vertices` keeps the :attr:`MixerOptions.local_vertices` vertices of the largest mean density when they
+hold at least :data:`HOT_SHARE` of it (the error is local), else none.  A mix then takes one Gauss-Newton step
+of the full energy on those vertices with every other vertex held (:class:`LocalCorrection`): the lengths and
+angles of a patch around them, a sparse factorization of the size of the patch (symbolic analysis once), and the
+step where it lowers the energy (the energy change is exact: only the rows the step moves change).
 
 On the CC0 body (13k vertices, keys raising an arm, bending a knee and twisting the torso), where the reduced
 mixes' excess energy over converged Gauss-Newton sits in a few dozen edges of the left armpit, 150 such vertices
