@@ -406,6 +406,7 @@ def test_penetration_term_pushes_crossing_corners_out():
     ([(3, 2), (3, 1), (4, 0)], [1, 1, 10], 3),            # the stronger round did not either: the first fit stays
     ([(5, 2), (3, 1), (2, 1)], [1, 1, 1], 2),             # every round reduces them: PENETRATION_ROUNDS rounds
     ([(3, 2), (2, 0), (0, 0)], [1, 1, 10], 0),            # constraints everywhere but crossings left: stronger
+    ([(3, 0)], [1], 3),                                   # crossings but no constraint to make stronger: no round
 ])
 def test_penetration_rounds_escalate_once(monkeypatch, script, weights, kept):
     """solve_frame_apart: rounds while they reduce the crossings; the first that does not (or crossings left with
@@ -418,8 +419,13 @@ def test_penetration_rounds_escalate_once(monkeypatch, script, weights, kept):
                          mean_z=mean_z)
     used, outcomes = [], iter(script)
     monkeypatch.setattr(solver, "solve_frame", lambda X, a, y, *args: used.append(solver.w_p) or (X, a, 0, 1, 1.0))
-    monkeypatch.setattr(solver, "add_penetrations", lambda X, y: (lambda n, k: (np.zeros((n, 2), int), k))(
-        *next(outcomes)))
+
+    def add(X, y):                                        # k new constraints on n crossing pairs
+        n, k = next(outcomes)
+        solver.pen_v = np.arange(len(solver.pen_v) + k)
+        return np.zeros((n, 2), int), k
+
+    monkeypatch.setattr(solver, "add_penetrations", add)
     assert PENETRATION_ROUNDS == 2 and PENETRATION_ESCALATION == 10.0
     n = solver.solve_frame_apart(X, np.zeros(0), y)[5]
     assert [w / 10.0 for w in used] == weights and n == kept and solver.w_p == 10.0

@@ -691,5 +691,10 @@ def test_local_correction(long_bar, tmp_path):
     old = ShapeMixer.load(tmp_path / "old.npz")
     assert old.options.local_vertices == 0 and not len(old.local_vertices)
     assert np.abs(old.mix(w, warm_start=False).vertices - base).max() < 1e-12 * _diag(keys[0])
+    data = dict(np.load(path))
+    data["local_vertices"] = np.array([-1, 5])                              # damaged: outside the mesh
+    np.savez(tmp_path / "damaged.npz", **data)
+    with pytest.raises(MixerError, match="local_vertices.*rebuild"):
+        ShapeMixer.load(tmp_path / "damaged.npz")
     off = ShapeMixer.build(keys, F, MixerOptions(local_vertices=0))
     assert not len(off.local_vertices)

@@ -1036,10 +1036,10 @@ class FrameSolver:
         w0, rounds, limit = self.w_p, 0, PENETRATION_ROUNDS
         try:
             while len(pairs) and rounds < limit:
-                if not added and self.w_p == w0:      # every crossing has its constraints: they are too weak
-                    self.w_p, limit = w0 * PENETRATION_ESCALATION, limit + 1
-                elif not added:
-                    break
+                if not added:
+                    if self.w_p != w0 or not len(self.pen_v):
+                        break                         # stronger already, or nothing to make stronger
+                    self.w_p, limit = w0 * PENETRATION_ESCALATION, limit + 1   # constraints in place, too weak
                 X, a, st, k, E = self.solve_frame(X, a, y, max_iterations)
                 it += k
                 rounds += 1

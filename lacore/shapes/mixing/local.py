@@ -177,7 +177,6 @@ class LocalCorrection:
         fixed[np.asarray(fixed_dofs, np.int64)] = True
         dofs = (3 * hot[:, None] + np.arange(3)).ravel()
         keep = ~fixed[dofs]
-        self._free_global = dofs[keep]
         free = (3 * local[hot][:, None] + np.arange(3)).ravel()[keep]
         self._free = free
         self._x0 = np.asarray(key_x, float).reshape(V, 3)[pv].ravel()
@@ -193,11 +192,11 @@ class LocalCorrection:
         rows = np.flatnonzero(hit)
         self._rows = rows
         self._angle = rows >= Ep
-        grow = np.where(self._angle, topology.n_edges + gedge[rows % Ep], gedge[rows % Ep])
-        E = problem.E
+        edge = gedge[rows % Ep]
+        grow = np.where(self._angle, topology.n_edges + edge, edge)
         self._z0 = problem.z0[grow]
         self._dz = np.ascontiguousarray(problem.dz[:, grow])
-        self._floor = np.where(self._angle, -np.inf, problem.floor[np.minimum(grow, E - 1)])
+        self._floor = np.where(self._angle, -np.inf, problem.floor[edge])
         self._w = problem.w[grow]
         wp = np.zeros(2 * Ep)
         wp[rows] = self._w
@@ -237,11 +236,6 @@ class LocalCorrection:
         self._keep = keep.reshape(-1, 3)
 
     @property
-    def n_vertices(self):
-        """Number of vertices that move."""
-        return len(self.hot)
-
-    @property
     def nbytes(self):
         return int(self._U.nbytes + self._dz.nbytes + self._x0.nbytes)
 
@@ -266,8 +260,8 @@ class LocalCorrection:
         wr = np.zeros(len(z))
         wr[self._rows] = self._w * r
         g = 2.0 * (J.T @ wr)[self._free]
-        d = J.data
-        values = np.bincount(self._slots, weights=self._pair_weight * d[self._first] * d[self._second],
+        jv = J.data
+        values = np.bincount(self._slots, weights=self._pair_weight * jv[self._first] * jv[self._second],
                              minlength=len(self._block))
         self._solver.factorize(values)
         d = -self._solver.solve(g)

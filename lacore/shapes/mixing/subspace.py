@@ -110,10 +110,15 @@ class FullProblem:
         return J.T @ C, rown, C[:, 0].copy()
 
     def gradient(self, x, wk):
+        return self.energy_and_gradient(x, wk)[1]
+
+    def energy_and_gradient(self, x, wk):
+        """``(W_q, g)`` at ``x`` from one linearization; ``g = 2 J^T W r`` with the fixed coordinates 0."""
         J, z = self.linearize(x)
-        g = 2.0 * (J.T @ (self.w * self._residual(z, wk)))
+        r = self._residual(z, wk)
+        g = 2.0 * (J.T @ (self.w * r))
         g[self.fixed] = 0.0
-        return g
+        return float(np.dot(self.w * r, r)), g
 
     def factorize(self, x, wk, linearized=None):
         """Factorize the Gauss-Newton matrix at ``x`` in the context's solver; returns the Jacobian.
@@ -266,10 +271,7 @@ def space_indicator(problem, x0, U, starts, minimize):
     out, qs = np.zeros(len(starts)), []
     for i, (wk, q0) in enumerate(starts):
         q = minimize(wk, q0)
-        J, z = problem.linearize(x0 + U @ q)
-        e = problem.energy_z(z, wk)
-        g = 2.0 * (J.T @ (problem.w * problem._residual(z, wk)))
-        g[problem.fixed] = 0.0
+        e, g = problem.energy_and_gradient(x0 + U @ q, wk)
         out[i] = float(g @ g) / e if e > 0 else 0.0
         qs.append(q)
     return out, qs
