@@ -289,7 +289,9 @@ def test_tracking_takes_fewer_steps_between_calibration_frames(model):
 
     Measured on the whole of Walk1 (151 frames, 8 calibration frames): 189 tracking steps instead of 317 (14-17 s
     of CPU time instead of 21), calibration frames' marker RMS 5.31 mm instead of 5.48, the bound points on the rest
-    mesh 0.00065 of the body's scale apart (median), the calibration frames' poses 0.0078 of it apart (RMS).  On a
+    mesh 0.00065 of the body's scale apart (median; since the temporal target moves the unmarked region rigidly
+    0.00095 under NumPy 1.26 and 0.0018 under NumPy 2.5, 0.0005 and 0.0013 before: rounding moves it by that much),
+    the calibration frames' poses 0.0078 of it apart (RMS).  On a
     short excerpt the saving is smaller (60 frames: 196 steps instead of 205), as most tracked frames are near a
     calibration frame there.
     """
@@ -307,7 +309,7 @@ def test_tracking_takes_fewer_steps_between_calibration_frames(model):
     assert np.mean(fast.frame_rms) < 1.3 * np.mean(every.frame_rms)
     X, F = model.reference_vertices, model.faces
     d = np.linalg.norm(surface_points(X, F, fast.binding) - surface_points(X, F, every.binding), axis=1) / fast.scale
-    assert np.median(d) < 0.0015, d
+    assert np.median(d) < 0.004, d
     pose = np.sqrt(np.mean(np.sum((fast.poses - every.poses) ** 2, -1))) / fast.scale
     assert pose < 0.025, pose
     with pytest.raises(InputError, match="track_iterations_between"):
