@@ -557,9 +557,7 @@ def _track(model, markers, binding, X0, at_frames, o, progress):
         y = markers[t]
         vis = np.flatnonzero(np.isfinite(y[:, 0]))
         Xp, ap, usable = solver.predict(X, a, X_prev, a_prev, y, vis)
-        solver.X_hat = Xp if (X_prev is not None or not usable) else None
-        if X_prev is not None and solver.vertex_observed is not None:
-            solver.X_hat = solver.predict(X, a, X_prev, a_prev, y, vis, masked=True)[0]
+        solver.set_temporal_target(Xp, usable, X, a, X_prev, a_prev, y, vis)
         solver.kappa = TRACK_TEMPORAL_WEIGHT if usable else max(TRACK_TEMPORAL_WEIGHT, ANCHOR_WEIGHT)
         cap = o.track_iterations if at_frames[t] else o.track_iterations_between
         Xn, an, st, it, _ = solver.solve_frame(Xp, ap, y, cap)

