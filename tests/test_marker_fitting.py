@@ -81,7 +81,7 @@ def test_gradient_and_bordered_step_match_fd_and_dense_solve(bar):
     import scipy.sparse as sp
     L = sp.csc_matrix((vals, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"])).toarray()
     A = L + L.T - np.diag(np.diag(L))
-    full = np.block([[A, B], [B.T, solver.C]])
+    full = np.block([[A, B], [B.T, solver.coefficient_block(a)]])
     ref = np.linalg.solve(full, -np.concatenate([gX, ga]))
     assert relative_error(np.concatenate([step_X, step_a]), ref) < 1e-8
     assert gX @ step_X + ga @ step_a < 0
@@ -119,7 +119,7 @@ def test_training_ellipsoid_derivatives_match_finite_differences(bar):
     import scipy.sparse as sp
     L = sp.csc_matrix((vals, pat["indices"], pat["indptr"]), shape=(pat["n"], pat["n"])).toarray()
     A = L + L.T - np.diag(np.diag(L))
-    full = np.block([[A, B], [B.T, solver.C + H_ell]])
+    full = np.block([[A, B], [B.T, solver.coefficient_block(a) + H_ell]])
     ref = np.linalg.solve(full, -np.concatenate([gX, ga]))
     assert relative_error(np.concatenate([step_X, step_a]), ref) < 1e-8
 

@@ -243,6 +243,8 @@ PENETRATION_ESCALATION = 10.0
 #: kept when :func:`extrapolation_skill` weakens the mask: scaled by ``1 - q`` it cost 4 % of the held-out synthetic
 #: takes' vertex error and 14 % of their time per frame).
 OBSERVED_RIDGE = 1e-3
+#: Bound on the log-length target's exponent (:meth:`FrameSolver.target`).
+LOG_LENGTH_LIMIT = 20.0
 #: A vertex's distance to the markers (:func:`observed_mask`) is the one to its this-many-th nearest marker.
 OBSERVED_MARKERS = 2
 #: Folds of the cross-validation over the training poses in :func:`extrapolation_skill` (leave-one-out with fewer
@@ -324,6 +326,7 @@ class FitOptions:
     solver: str = None
     reuse_schur: bool = True
     reuse_factor: bool = True
+    log_lengths: bool = True
 
     def check(self, allow_auto=False):
         """Raise InputError naming the first bad setting; returns self."""
@@ -601,6 +604,9 @@ class FrameSolver:
             self.a_scale[:n] = 1.0 / np.maximum(var, COEFFICIENT_VARIANCE_FLOOR * var.sum())
             self.a_radius = float(np.sqrt(np.einsum("kj,j,kj->k", tc, self.a_scale[:n], tc)).max())
             self.a_weight = float(options.coefficient_weight)
+        self.log_modes = (model.log_length_modes(len(self.modes)) if options.log_lengths and len(self.modes)
+                          else None)
+        self._Jt = None
         self.pattern = pat = gauss_newton_pattern(topo)
         cache = topo.cache.get((__name__, "cholesky"), dict)
         key = options.solver or "default"
@@ -667,11 +673,64 @@ class FrameSolver:
             # a mode the mask leaves (nearly) without effect is held at 0 instead of being free
             full = np.einsum("je,e,je->j", self.modes, self.w, self.modes)
             penalty = self.gamma * OBSERVED_RIDGE * full
+        self.n_model = len(U)
+        self.Ulog = None
+        if self.log_modes is not None:
+            self.Ulog = self.log_modes if self.observed is None else self.log_modes * self.observed[:self.E]
         U = np.vstack([U, self.extra_modes])
         self.U, self.penalty = U, np.concatenate([penalty, self.extra_penalty])
         self.WU = (self.w * U).T.copy()
         self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(self.penalty))
+        if self.Ulog is not None:
+            Ua = U[:, self.E:]
+            self.C_angles = 2.0 * (self.gamma * (Ua * self.w[self.E:]) @ Ua.T + np.diag(self.penalty))
         self.S = None
+
+    def target(self, a, jacobian=False):
+        """The prior's target ``z (2E,)`` at coefficients ``a (J,)``; with ``jacobian`` also ``d z / d a (2E, J)``.
+
+        Linear lengths (:attr:`FitOptions.log_lengths` off): ``zbar + a U``, Jacobian ``U^T``.
+        Log lengths: the lengths ``(zbar_l + a_x U_x,l) exp(a_m Ulog)``, with the model's
+        coefficients ``a_m`` on its log-length modes (:meth:`lacore.models.ShapeModel.log_length_modes`,
+        masked like ``U``) and the extra modes' coefficients ``a_x`` on their length entries; the
+        angles ``zbar_a + a U_a`` (module docstring, *Log lengths*).
+        """
+        t = self.zbar + a @ self.U
+        if self.Ulog is None:
+            return (t, self.U.T) if jacobian else t
+        E, n = self.E, self.n_model
+        f = np.exp(np.clip(a[:n] @ self.Ulog, -LOG_LENGTH_LIMIT, LOG_LENGTH_LIMIT))
+        base = self.zbar[:E] + a[n:] @ self.U[n:, :E]
+        t[:E] = base * f
+        if not jacobian:
+            return t
+        Jt = np.empty((2 * E, self.J))
+        Jt[:E, :n] = t[:E, None] * self.Ulog.T
+        Jt[:E, n:] = f[:, None] * self.U[n:, :E].T
+        Jt[E:] = self.U[:, E:].T
+        return t, Jt
+
+    def _target_gradient(self, a, wr):
+        """``(d z / d a)^T wr (J,)`` for a weighted residual ``wr (2E,)`` without forming the Jacobian."""
+        if self.Ulog is None:
+            return self.U @ wr
+        E, n = self.E, self.n_model
+        f = np.exp(np.clip(a[:n] @ self.Ulog, -LOG_LENGTH_LIMIT, LOG_LENGTH_LIMIT))
+        base = self.zbar[:E] + a[n:] @ self.U[n:, :E]
+        g = self.U[:, E:] @ wr[E:]
+        g[:n] += self.Ulog @ (base * f * wr[:E])
+        g[n:] += self.U[n:, :E] @ (f * wr[:E])
+        return g
+
+    def coefficient_block(self, a):
+        """The prior's and the coefficient penalties' Gauss-Newton block ``(J, J)`` at ``a`` (not the ellipsoid's)."""
+        return self._prior_matrix(self.target(a, jacobian=True)[1])
+
+    def _prior_matrix(self, Jt):
+        if self.Ulog is None:
+            return self.C
+        Jl = Jt[:self.E] * np.sqrt(self.w[:self.E])[:, None]
+        return self.C_angles + 2.0 * self.gamma * (Jl.T @ Jl)
 
     def _slots(self, dofs, I=_I9, J=_J9):
         pat = self.pattern
@@ -685,7 +744,7 @@ class FrameSolver:
         return MarkerBinding(b.faces[vis], b.barycentric[vis], b.offsets[vis])
 
     def _residual_z(self, z, a):
-        r = z - self.zbar - a @ self.U
+        r = z - self.target(a)
         ang = r[self.E:]
         wrap = np.flatnonzero(np.abs(ang) >= np.pi)               # few: only those are wrapped
         ang[wrap] = np.mod(ang[wrap] + np.pi, 2 * np.pi) - np.pi
@@ -821,7 +880,9 @@ class FrameSolver:
         rz = self._residual_z(z, a)
         wr = self.w * rz
         gX = 2.0 * self.gamma * (Jz.T @ wr)
-        ga = -2.0 * self.gamma * (self.U @ wr) + 2.0 * self.penalty * a + self._ellipsoid(a)[1]
+        ga = -2.0 * self.gamma * self._target_gradient(a, wr) + 2.0 * self.penalty * a + self._ellipsoid(a)[1]
+        if matrix:
+            self._Jt = None if self.Ulog is None else self.target(a, jacobian=True)[1]
         sub = self._sub(vis)
         r = surface_points(X, self.faces, sub) - y[vis]
         G, _ = surface_point_jacobians(X, self.faces, sub)
@@ -884,8 +945,10 @@ class FrameSolver:
         return bool(np.all(np.isin(act, self._near)))
 
     def border(self, Jz):
-        """The border ``B = -2 gamma Jz^T W U^T`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``)."""
-        return -2.0 * self.gamma * np.asarray(Jz.T @ self.WU)
+        """The border ``B = -2 gamma Jz^T W dz/da`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``;
+        the target's Jacobian ``dz/da`` of the last :meth:`gradient` with ``matrix``, ``U^T`` with linear lengths)."""
+        WU = self.WU if self._Jt is None else self.w[:, None] * self._Jt
+        return -2.0 * self.gamma * np.asarray(Jz.T @ WU)
 
     def factorize(self, X, a, y, vis, schur=True):
         """Gauss-Newton matrix at ``(X, a)``: sparse factor and Schur complement; returns the gradients.
@@ -909,11 +972,11 @@ class FrameSolver:
                 # B^T A^-1 B = W^T D^-1 W with W = L^-1 P B: J forward substitutions, no backward ones
                 self.W = chol.forward(B)
                 self.Wd = chol.diagonal_solve(self.W)
-                S = self.C - self.W.T @ self.Wd
+                S = self._prior_matrix(self._Jt) - self.W.T @ self.Wd
                 self.Y = None
             else:
                 self.Y = chol.solve(B)
-                S = self.C - B.T @ self.Y
+                S = self._prior_matrix(self._Jt) - B.T @ self.Y
             S += self._ellipsoid(a)[2]
             self.B, self.S = B, np.linalg.cholesky(0.5 * (S + S.T))
         self._factor_key = vis.tobytes()

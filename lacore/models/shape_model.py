@@ -179,6 +179,41 @@ class ShapeModel:
         self.up_axis = up_axis
         self.forward_axis = forward_axis
 
+    def log_length_modes(self, n_modes=None):
+        """The first ``n_modes`` modes for the logarithms of the edge lengths relative to the mean ``(J, E)``.
+
+        ``log(l / lbar) ~ alpha @ Ulog`` with ``lbar`` the mean's lengths: the least-squares fit,
+        over the training poses, of the logarithms of their lengths within the modes (``lbar +
+        alpha_i U_l``, floored at :data:`MIN_LENGTH_RATIO` of ``lbar``) from their coefficients
+        ``alpha_i``.  The fitting's prior uses them (:attr:`lacore.markers.FitOptions.log_lengths`):
+        a sum of modes that each shorten an edge multiplies the length by their factors instead of
+        subtracting their shortenings, and never reaches 0.  Without training coefficients (fewer
+        than 2) the modes at first order, ``U_l / lbar``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore import ShapeModel
+        >>> from lacore.samples.bar import bar_family
+        >>> poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+        >>> model = ShapeModel.fit(poses, faces, n_modes=2)
+        >>> lbar = model.mean_z[:model.topology.n_edges]
+        >>> L = lbar * np.exp(model.training_coefficients @ model.log_length_modes())   # training poses' lengths
+        >>> from lacore.geometry.lengths_angles import lengths_and_angles
+        >>> true = lengths_and_angles(poses[4], model.topology)[:len(lbar)]
+        >>> bool(np.abs(L[4] / true - 1).max() < 0.01)
+        True
+        """
+        E = self.topology.n_edges
+        U = np.asarray(self.modes, float)[:n_modes, :E]
+        lbar = np.asarray(self.mean_z, float)[:E]
+        T = self.training_coefficients
+        if T is None or len(T) < 2:
+            return U / lbar
+        T = np.asarray(T, float)[:, :len(U)]
+        L = np.maximum(lbar + T @ U, MIN_LENGTH_RATIO * lbar)
+        return np.linalg.lstsq(T, np.log(L / lbar), rcond=None)[0]
+
     # ------------------------------------------------------------------ properties
     @property
     def faces(self):
