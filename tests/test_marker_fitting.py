@@ -9,8 +9,8 @@ from lacore.geometry.lengths_angles import face_areas
 from lacore.markers.binding import (MarkerBinding, MarkerBindingError, bind_markers, surface_point_jacobians,
                                     surface_points)
 from lacore.errors import InputError
-from lacore.markers.fitting import (FIT_DEFAULTS, FitOptions, FrameSolver, MarkerDataError, extrapolation_skill,
-                                    fit_markers, observed_mask)
+from lacore.markers.fitting import (FIT_DEFAULTS, LENGTH_RANGE_MARGIN, FitOptions, FrameSolver, MarkerDataError,
+                                    extrapolation_skill, fit_markers, observed_mask)
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.models.shape_model import ShapeModel
 from lacore.progress import Cancelled
@@ -588,8 +588,9 @@ def test_frame_start_returns_its_energy(bar):
 
 def test_log_length_target_reproduces_training_lengths_and_stays_positive(bar):
     """The prior's target lengths (FrameSolver.target): with log lengths (the default) the mean's times the exponential
-    of the log-length modes' combination, reproducing the training poses' lengths from their coefficients and positive
-    however far the coefficients go; linear lengths cross 0 there.  The target's Jacobian matches finite differences."""
+    of the log-length modes' combination saturated near each edge's training range, reproducing the training poses'
+    lengths from their coefficients and within the margin of that range however far the coefficients go; linear
+    lengths cross 0 there.  The target's Jacobian matches finite differences."""
     from lacore.geometry.lengths_angles import lengths_and_angles
     X0, F, model, binding = bar
     E = model.topology.n_edges
@@ -603,6 +604,12 @@ def test_log_length_target_reproduces_training_lengths_and_stays_positive(bar):
     assert err_log < 0.03 and err_lin < 0.03, (err_log, err_lin)     # measured 0.0090 and 0.0056 (4 modes)
     far = 30.0 * T[np.argmax(np.abs(T[:, 0])), :] / np.abs(T[:, 0]).max()
     assert lin.target(far)[:E].min() < 0 < log.target(far)[:E].min()
+    # each edge's log-length target saturates within LENGTH_RANGE_MARGIN of its range over the training poses
+    s = np.log(log.target(far)[:E] / model.mean_z[:E])
+    lo, hi = log.log_range
+    m = LENGTH_RANGE_MARGIN
+    assert np.all(s <= hi + m + 1e-12) and np.all(s >= lo - m - 1e-12)
+    assert np.sum(s > hi + 0.9 * m) + np.sum(s < lo - 0.9 * m) > E // 4    # measured 240 of 600 edges
     assert np.allclose(log.target(far)[E:], lin.target(far)[E:])     # angles: linear either way
     t, Jt = log.target(0.3 * far, jacobian=True)
     d = np.random.default_rng(5).standard_normal(len(far))
