@@ -120,7 +120,7 @@ def test_takes_calibrate_and_fit_with_the_defaults(model, name):
     lengths = lengths / cal.performer_ratio
     train = model.training_coefficients @ model.modes[:, :E] + model.mean_z[:E]
     ratio_min, ratio_max = (lengths / train.min(0)).min(), (lengths / train.max(0)).max()
-    assert ratio_min > 0.3 and ratio_max < 1.6, (ratio_min, ratio_max)   # measured >= 0.36, <= 1.40
+    assert ratio_min > 0.6 and ratio_max < 1.6, (ratio_min, ratio_max)   # measured >= 0.75, <= 1.38 (NumPy 1.26, 2.5)
     # the summary is what the CLI prints
     s = res.summary()
     assert s["frames"] == n and s["flagged_frames"] == [] and s["marker_rms_mm"] == pytest.approx(res.marker_rms_mm)
