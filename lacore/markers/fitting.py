@@ -755,8 +755,7 @@ class FrameSolver:
         if self.Ulog is None:
             return (t, self.U.T) if jacobian else t
         E, n = self.E, self.n_model
-        f, df = self._factor(a[:n] @ self.Ulog)
-        base = self.zbar[:E] + a[n:] @ self.U[n:, :E]
+        f, df, base = self._length_parts(a)
         t[:E] = base * f
         if not jacobian:
             return t
@@ -771,12 +770,18 @@ class FrameSolver:
         if self.Ulog is None:
             return self.U @ wr
         E, n = self.E, self.n_model
-        f, df = self._factor(a[:n] @ self.Ulog)
-        base = self.zbar[:E] + a[n:] @ self.U[n:, :E]
+        f, df, base = self._length_parts(a)
         g = self.U[:, E:] @ wr[E:]
         g[:n] += self.Ulog @ (base * df * wr[:E])
         g[n:] += self.U[n:, :E] @ (f * wr[:E])
         return g
+
+    def _length_parts(self, a):
+        """``(f, df, base)`` of the log-length target ``base * f`` at ``a``: the factor of the model's
+        coefficients, its derivative in their combination, the mean with the extra modes' lengths."""
+        n = self.n_model
+        f, df = self._factor(a[:n] @ self.Ulog)
+        return f, df, self.zbar[:self.E] + a[n:] @ self.U[n:, :self.E]
 
     def _factor(self, s):
         """The length factor ``exp(sat(s))`` of the log-length combination ``s (E,)`` and its derivative in ``s``.
