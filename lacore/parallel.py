@@ -175,8 +175,10 @@ class WorkerProcess:
                   "module": __name__}
         try:
             job = pickle.dumps((function, args), protocol=pickle.HIGHEST_PROTOCOL)
+            # a session of its own: a terminal's Ctrl-C reaches the caller only (a worker interrupted while its
+            # interpreter starts, before the bootstrap ignores Ctrl-C, would print a fatal error)
             self._process = subprocess.Popen([sys.executable, "-c", _BOOTSTRAP], stdin=subprocess.PIPE,
-                                             stdout=subprocess.PIPE)
+                                             stdout=subprocess.PIPE, start_new_session=True)
             pickle.dump(header, self._process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
             self._process.stdin.flush()
         except (OSError, pickle.PicklingError) as exc:
