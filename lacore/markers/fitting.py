@@ -735,11 +735,15 @@ class FrameSolver:
                 self.log_range = (np.full(self.E, -np.inf), np.full(self.E, np.inf))
         U = np.vstack([U, self.extra_modes])
         self.U, self.penalty = U, np.concatenate([penalty, self.extra_penalty])
-        self.WU = (self.w * U).T.copy()
-        self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(self.penalty))
-        if self.Ulog is not None:
+        # the coefficients' Gauss-Newton block: constant with linear lengths; with log lengths only its angles' part
+        # is (the lengths' part depends on the coefficients: _prior_matrix)
+        if self.Ulog is None:
+            self.WU = (self.w * U).T.copy()
+            self.C = 2.0 * (self.gamma * (U @ self.WU) + np.diag(self.penalty))
+        else:
             Ua = U[:, self.E:]
-            self.C_angles = 2.0 * (self.gamma * (Ua * self.w[self.E:]) @ Ua.T + np.diag(self.penalty))
+            self.WU = None
+            self.C = 2.0 * (self.gamma * (Ua * self.w[self.E:]) @ Ua.T + np.diag(self.penalty))
         self.S = None
 
     def target(self, a, jacobian=False):
@@ -813,7 +817,7 @@ class FrameSolver:
         if self.Ulog is None:
             return self.C
         Jl = Jt[:self.E] * np.sqrt(self.w[:self.E])[:, None]
-        return self.C_angles + 2.0 * self.gamma * (Jl.T @ Jl)
+        return self.C + 2.0 * self.gamma * (Jl.T @ Jl)
 
     def _slots(self, dofs, I=_I9, J=_J9):
         pat = self.pattern
@@ -1030,7 +1034,7 @@ class FrameSolver:
     def border(self, Jz):
         """The border ``B = -2 gamma Jz^T W dz/da`` ``(3V, J)`` of the Gauss-Newton matrix (Jacobian ``Jz`` of ``z``;
         the target's Jacobian ``dz/da`` of the last :meth:`gradient` with ``matrix``, ``U^T`` with linear lengths)."""
-        WU = self.WU if self._Jt is None else self.w[:, None] * self._Jt
+        WU = self.WU if self.Ulog is None else self.w[:, None] * self._Jt
         return -2.0 * self.gamma * np.asarray(Jz.T @ WU)
 
     def factorize(self, X, a, y, vis, schur=True):
