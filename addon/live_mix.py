@@ -57,6 +57,7 @@ from bpy.app.handlers import persistent
 from ..lacore.errors import InputError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.shapes import MixerOptions, ShapeMixer
+from ..lacore.shapes.mixing import check_keys
 from ..lacore.shapes.mixing.files import build_mixer_bytes, mixer_bytes
 from . import storage
 from .jobs import CallJob
@@ -462,7 +463,8 @@ def _inputs(obj):
                            "key relative to the basis")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
-    return basis, nonlinear, linear, coords[[names.index(n) for n in (basis, *nonlinear)]], faces
+    keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces, names=(basis, *nonlinear))
+    return basis, nonlinear, linear, keys, faces
 
 
 def enable_run(obj, reduced_size=0):

@@ -8,7 +8,8 @@ import pytest
 from lacore import MeshTopology, lengths_and_angles, reconstruct
 from lacore.geometry.rigid import rigid_rms
 from lacore.samples.bar import bar_mesh, bar_pose
-from lacore.shapes.mixing import MixerError, MixerOptions, MixResult, ShapeMixer, blend_targets
+from lacore.errors import MeshError
+from lacore.shapes.mixing import MixerError, MixerOptions, MixResult, ShapeMixer, blend_targets, check_keys
 
 
 @pytest.fixture(scope="module")
@@ -100,6 +101,11 @@ def test_bad_weights(mixer):
     for bad in ([0.5], [0.5, np.nan], "ab", [[0.1, 0.2]]):
         with pytest.raises(MixerError):
             mixer.mix(bad)
+    with pytest.raises(MixerError, match="overflows float64"):
+        mixer.mix([1e300, 0.0])
+    r = mixer.mix([1e6, 0.0])                 # absurd but representable: mixed, finite, flagged
+    assert not r.in_range and np.all(np.isfinite(r.vertices)) and np.isfinite(r.energy)
+    assert mixer.mix([0.5, 0.5]).in_range
 
 
 def test_bad_keys():
@@ -114,6 +120,22 @@ def test_bad_keys():
         ShapeMixer.build([X, X[:-1]], F)
     with pytest.raises(ValueError):
         MixerOptions(low=0.5)
+    Y = bar_pose(X, 0.4, 0.0)
+    Y[F[0, 0]] = Y[F[0, 1]]                          # an edge collapsed in a key: its triangles are degenerate
+    with pytest.raises(MeshError, match="key 1: degenerate triangles"):
+        ShapeMixer.build([X, Y], F)
+    # keys equal to the basis up to a rigid motion (a key added but not shaped): nothing to mix, said before building
+    c, s = np.cos(0.7), np.sin(0.7)
+    moved = X @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) + 3.0
+    for same in ([X, X.copy()], [X, moved, X.copy()]):
+        with pytest.raises(MixerError, match="is the basis up to a rigid motion|are the basis up to a rigid motion"):
+            ShapeMixer.build(same, F)
+    with pytest.raises(MixerError, match="'Basis' in an edge length.*'Key 1' is the basis"):
+        check_keys([X, X.copy()], F, names=["Basis", "Key 1"])
+    # one unshaped key among shaped ones mixes: its weight changes nothing
+    m = ShapeMixer.build([X, bar_pose(X, 0.4, 0.0), X.copy()], F)
+    a, b = m.mix([0.5, 0.0], warm_start=False), m.mix([0.5, 0.9], warm_start=False)
+    assert rigid_rms(a.vertices, b.vertices) < 1e-6 * _diag(X)
 
 
 def test_save_load_round_trip(tmp_path, bar, mixer):
@@ -227,10 +249,11 @@ def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
 
 
 @pytest.mark.parametrize("case", ["one_key", "not_npz", "bad_weights_count", "foreign_file", "missing", "bad_ext",
-                                  "nan_weight", "not_in_correspondence", "bad_range", "bad_local"])
+                                  "nan_weight", "not_in_correspondence", "bad_range", "bad_local", "unshaped_key",
+                                  "overflow_weight"])
 def test_cli_bad_input(capsys, tmp_path, key_files, case):
     d, paths = key_files
-    if case in ("bad_weights_count", "bad_ext", "nan_weight"):
+    if case in ("bad_weights_count", "bad_ext", "nan_weight", "overflow_weight"):
         assert _run(capsys, "mixer", *paths, "-o", tmp_path / "m.npz")[0] == 0
     np.savez(tmp_path / "foreign.npz", a=np.zeros(2))
     if case == "not_in_correspondence":
@@ -249,6 +272,9 @@ def test_cli_bad_input(capsys, tmp_path, key_files, case):
         "not_in_correspondence": ("mixer", paths[0], tmp_path / "small.ply", "-o", tmp_path / "x.npz"),
         "bad_range": ("mixer", *paths, "-o", tmp_path / "x.npz", "--range", 0.2, 1.5),
         "bad_local": ("mixer", *paths, "-o", tmp_path / "x.npz", "--local-vertices", -3),
+        "unshaped_key": ("mixer", paths[0], paths[0], "-o", tmp_path / "x.npz"),
+        "overflow_weight": ("mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "--weights", 1e300, 0, "-o",
+                            tmp_path / "o.ply"),
     }[case]
     before = _listing(tmp_path)
     code, out, err = _run(capsys, *argv)

@@ -33,7 +33,7 @@ import time
 import numpy as np
 
 from ..io.meshes import save_mesh
-from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer
+from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_keys
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, json_float, load_meshes_in_correspondence,
                      positive_int, print_json)
 from .interpolate import output_paths
@@ -93,6 +93,7 @@ def run_mixer(args):
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
                            local_vertices=args.local_vertices)                 # checks --range, --local-vertices
     shapes, topology = load_meshes_in_correspondence(args.keys)
+    check_keys(shapes, topology.faces, names=args.keys)                   # names the files, before the build
     t_load = time.perf_counter() - start
     mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options)
     t = time.perf_counter()

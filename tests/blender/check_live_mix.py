@@ -378,7 +378,8 @@ def several_objects_and_undo():
 
 
 def bad_input():
-    """No shape keys, one key, Edit Mode, absolute keys, disable without a mixer: one line, nothing changed."""
+    """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
+    mixer: one line, nothing changed."""
     reset()
     out = {}
 
@@ -401,6 +402,11 @@ def bad_input():
     plain.shape_key_add(name="Basis", from_mix=False)
     attempt("one_key", plain, bpy.ops.lengths_angles.live_mix_enable)
     attempt("disable_not_live", plain, bpy.ops.lengths_angles.live_mix_disable)
+    key = plain.shape_key_add(name="Key 1", from_mix=False)        # added, not yet shaped
+    attempt("unchanged_key", plain, bpy.ops.lengths_angles.live_mix_enable)
+    a, b = (int(i) for i in INPUTS["faces"][0][:2])
+    key.data[a].co = key.data[b].co                                 # an edge collapsed: degenerate triangles
+    attempt("degenerate_key", plain, bpy.ops.lengths_angles.live_mix_enable)
     obj = make_bar()
     obj.data.shape_keys.use_relative = False
     attempt("absolute_keys", obj, bpy.ops.lengths_angles.live_mix_enable)

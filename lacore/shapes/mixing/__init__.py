@@ -1,7 +1,7 @@
 """The shape mixer: nonlinear blends of shape keys in lengths and angles, in real time.
 
 * :mod:`.mixer` -- :class:`ShapeMixer` (build, mix, save, load), :class:`MixerOptions`,
-  :class:`MixResult`, the blend of targets :func:`blend_targets`;
+  :class:`MixResult`, the blend of targets :func:`blend_targets`, the keys' validation :func:`check_keys`;
 * :mod:`.subspace` -- the reduced space (keys, derivatives of the projection, chord vectors);
 * :mod:`.reduced` -- the reduced energy on a weighted subset of edges and its solver;
 * :mod:`.cubature` -- the choice of that subset (greedy non-negative least squares);
@@ -11,8 +11,8 @@
 """
 
 from .mixer import (FORMAT, FORMAT_VERSION, MIN_LENGTH_RATIO, MixerError, MixerOptions, MixResult, ShapeMixer,
-                    blend_targets)
+                    blend_targets, check_keys)
 from .path import PathOptions, PathResult, path_inbetweens
 
-__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO", "FORMAT",
-           "FORMAT_VERSION", "PathOptions", "PathResult", "path_inbetweens"]
+__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "check_keys", "MIN_LENGTH_RATIO",
+           "FORMAT", "FORMAT_VERSION", "PathOptions", "PathResult", "path_inbetweens"]

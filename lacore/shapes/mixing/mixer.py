@@ -74,8 +74,8 @@ import numpy as np
 import scipy.linalg as sl
 
 from ...errors import InputError, MeshError
-from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
-from ...geometry.topology import MeshTopology, check_vertices
+from ...geometry.lengths_angles import check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.topology import MeshTopology
 from ...progress import report
 from ...reconstruction import get_context, reconstruct
 from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
@@ -440,7 +440,46 @@ def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
     return z
 
 
-def _check_keys(keys, faces):
+#: A key whose edge lengths (relative to the basis') and dihedral angles (radians) all differ from the basis' by
+#: at most this equals the basis up to a rigid motion and rounding: it has nothing to mix.
+SAME_SHAPE_TOL = 1e-9
+
+
+def check_keys(keys, faces, names=None):
+    """Validated keys of a mixer and their topology; raises naming the key and what to do.
+
+    Parameters
+    ----------
+    keys : (K, V, 3) array_like
+        ``keys[0]`` the basis.
+    faces : (F, 3) array_like of int
+    names : sequence of str, optional
+        The keys' names for the messages (default: ``"key k"``).
+
+    Returns
+    -------
+    keys : (K, V, 3) float64 ndarray
+    topology : MeshTopology
+
+    Raises
+    ------
+    MeshError
+        Bad faces, fewer than two keys, another vertex count, NaN or infinite coordinates, degenerate triangles
+        in a key (:func:`lacore.geometry.lengths_angles.check_nondegenerate`).
+    MixerError
+        No key differs from the basis in an edge length or a dihedral angle by more than
+        :data:`SAME_SHAPE_TOL` (every key is the basis up to a rigid motion: nothing to mix).
+
+    Examples
+    --------
+    >>> from lacore.samples.bar import bar_mesh
+    >>> X, faces = bar_mesh(n_along=4, n_side=1)
+    >>> try:
+    ...     check_keys([X, X + 1.0], faces, names=["Basis", "Key 1"])
+    ... except MixerError as e:
+    ...     print(str(e).split(";")[1].split(":")[0])
+     'Key 1' is the basis up to a rigid motion)
+    """
     F = np.asarray(faces)
     if F.ndim != 2 or F.shape[1] != 3 or F.size == 0 or F.dtype.kind not in "iu":
         raise MeshError(f"faces must be a non-empty (F, 3) integer array, got shape {F.shape}")
@@ -452,9 +491,21 @@ def _check_keys(keys, faces):
         raise MeshError(f"keys must be a (K, V, 3) array (K >= 2 keys of one mesh), got shape {K.shape}")
     if K.shape[0] < 2:
         raise MeshError(f"a mixer needs at least 2 keys (the basis and one more), got {K.shape[0]}")
+    names = [f"key {k}" for k in range(len(K))] if names is None else [repr(str(n)) for n in names]
     topo = MeshTopology.from_faces(F.astype(np.int64), n_vertices=K.shape[1])
     for k in range(K.shape[0]):
-        check_vertices(K[k], K.shape[1], name=f"key {k}")
+        try:
+            check_nondegenerate(K[k], topo)
+        except MeshError as exc:
+            raise MeshError(f"{names[k]}{' (the basis)' if k == 0 else ''}: {exc}") from None
+    E = topo.n_edges
+    z = np.stack([lengths_and_angles(k, topo, check=False) for k in K])
+    change = np.maximum(np.abs(z[1:, :E] - z[0, :E]) / z[0, :E], np.abs(_wrap(z[1:, E:] - z[0, E:]))).max(axis=1)
+    if not np.any(change > SAME_SHAPE_TOL):
+        same = ", ".join(names[1:4]) + (" ..." if len(K) > 4 else "")
+        raise MixerError(f"no key differs from the basis {names[0]} in an edge length or a dihedral angle (by more "
+                         f"than {SAME_SHAPE_TOL:g}; {same} {'is' if len(K) == 2 else 'are'} the basis up to a rigid "
+                         "motion): there is nothing to mix; shape a key first")
     return K, topo
 
 
@@ -501,7 +552,7 @@ class ShapeMixer:
     def __init__(self, keys, faces, options=None, *, _topology=None):
         self.options = MixerOptions() if options is None else options
         if _topology is None:
-            keys, _topology = _check_keys(keys, faces)
+            keys, _topology = check_keys(keys, faces)
         self.keys = np.asarray(keys, float)
         self.topology = _topology
         self.faces = self.topology.faces
@@ -544,7 +595,10 @@ class ShapeMixer:
         Raises
         ------
         MeshError
-            Keys of different vertex counts, fewer than two keys, bad faces, NaN coordinates.
+            Keys of different vertex counts, fewer than two keys, bad faces, NaN coordinates, degenerate
+            triangles in a key.
+        MixerError
+            No key differs from the basis in lengths or angles (nothing to mix).
         """
         if options is not None and not isinstance(options, MixerOptions):
             raise InputError(f"options must be MixerOptions, got {type(options).__name__}")
@@ -948,19 +1002,23 @@ class ShapeMixer:
         t0 = time.perf_counter()
         w = self.check_weights(weights)
         cub = self._cubature
-        shift = self._shift(w)
-        q0 = self.predict(w)
-        if (warm_start and self._last_q is not None
-                and cub.energy(self._last_q, w, shift) < cub.energy(q0, w, shift)):
-            q0 = self._last_q
         step_tol = self.options.step_tolerance * self._context.size * np.sqrt(self.n_vertices)
-        q, energy, its = cub.solve(w, q0, self.options.max_iterations, step_tol, shift=shift)
+        with np.errstate(over="ignore", invalid="ignore"):     # weights too large for float64: refused below
+            shift = self._shift(w)
+            q0 = self.predict(w)
+            if (warm_start and self._last_q is not None
+                    and cub.energy(self._last_q, w, shift) < cub.energy(q0, w, shift)):
+                q0 = self._last_q
+            q, energy, its = cub.solve(w, q0, self.options.max_iterations, step_tol, shift=shift)
+            X = (self._y0.ravel() + self._B @ q).reshape(-1, 3)
+            if self._local is not None:
+                dX, change = self._local.step(q, w)
+                X[self._local.hot] += dX
+                energy += change
+        if not (np.isfinite(energy) and np.all(np.isfinite(X))):
+            raise MixerError(f"the mix of weights {w.tolist()} overflows float64: weights this far outside "
+                             f"[{self.options.low:g}, {self.options.high:g}] cannot be blended; use smaller ones")
         self._last_q = q
-        X = (self._y0.ravel() + self._B @ q).reshape(-1, 3)
-        if self._local is not None:
-            dX, change = self._local.step(q, w)
-            X[self._local.hot] += dX
-            energy += change
         indicator = self.indicator(w)
         msg = self.range_message(w)
         if not msg and indicator > self.options.max_indicator:
