@@ -152,6 +152,9 @@ def check_bake(obj, names, keys, frames):
     """
     inbetween = bake_frames(keys, frames)
     mesh = obj.data
+    if mesh.shape_keys is not None and not mesh.shape_keys.use_relative:
+        raise OperatorInputError(f"Mesh '{mesh.name}': Bake needs Relative shape keys (absolute keys ignore the "
+                                 "values a bake keyframes): check Relative in the Shape Keys panel")
     missing = [k for k in keys if k not in names]
     if missing:
         shown = ", ".join(f"'{m}'" for m in missing)
@@ -168,6 +171,12 @@ def check_bake(obj, names, keys, frames):
     if foreign:
         raise OperatorInputError(f"Shape key '{foreign[0]}' exists but was not made by a bake: rename it "
                                  "(a bake names its keys 'LA bake <frame>')")
+    ad = mesh.shape_keys.animation_data if mesh.shape_keys is not None else None
+    if ad is not None:
+        driven = [k for k in dict.fromkeys(keys) if ad.drivers.find(value_path(k)) is not None]
+        if driven:
+            raise OperatorInputError(f"Shape key '{driven[0]}' has a driver on its value, which would override the "
+                                     "bake's keyframes: remove the driver first (or duplicate the key)")
     cb = compat.animation_channels(mesh.shape_keys)
     if cb is not None:
         own_paths = {fc.data_path for role in ("baked", "keyed") for fc, _ in ident[role] if fc is not None}

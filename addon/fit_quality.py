@@ -82,16 +82,25 @@ def write_quality(obj, frames, result, labels, unit, take_name, settings=None):
     text = (f"marker RMS {overall:.1f} mm, p95 {p95:.1f} mm, prior weight {prior:g}; per-frame RMS in "
             f"the property '{RMS_PROP}' of '{obj.name}' (Graph Editor)")
     notes = []
+    where = [f"at {_count(flagged_frames, 'frame')} ({_listing(flagged_frames)})" if flagged_frames else "",
+             f"for {_count(flagged_markers, 'marker')} ({_listing(flagged_markers)})" if flagged_markers else ""]
     if flagged_frames or flagged_markers:
-        notes.append(f"residuals far above marker noise at {len(flagged_frames)} frames "
-                     f"({_listing(flagged_frames)}) and for {len(flagged_markers)} markers "
-                     f"({_listing(flagged_markers)}): inspect them")
+        notes.append(f"residuals far above marker noise {' and '.join(w for w in where if w)}: inspect them")
     if crossing:
-        notes.append(f"the surface passes through itself where the markers do not at {len(crossing)} frames "
+        notes.append(f"the surface passes through itself where the markers do not at {_count(crossing, 'frame')} "
                      f"({_listing(crossing)}): inspect them")
     if not getattr(result, "success", True):
         notes.append(f"the fit did not succeed: {getattr(result, 'message', '')}")
     return {"text": text, "notes": notes, "rms": rms, "marker_rms_mm": overall, "marker_p95_mm": p95}
+
+
+def _count(items, noun):
+    """``"1 frame"``, ``"3 frames"``.
+
+    >>> _count([4], "frame"), _count([4, 5], "marker")
+    ('1 frame', '2 markers')
+    """
+    return f"{len(items)} {noun}{'' if len(items) == 1 else 's'}"
 
 
 def settings_text(settings):

@@ -174,6 +174,8 @@ class _Live:
             return f"the key '{LIVE_MIX_KEY}' was deleted"
         if mix.relative_key != ref or mix.vertex_group:
             return f"the key '{LIVE_MIX_KEY}' was changed (relative key or vertex group)"
+        if mix.mute or mix.value != 1.0:
+            return f"the key '{LIVE_MIX_KEY}' was muted or its value changed: unmute it and set its value to 1"
         if self.reference is None:
             return "the mesh or its keys differ from the ones the mixer was built from"
         coords = _key_coords(key, [self.basis, *self.names], self.n_vertices)
@@ -463,7 +465,8 @@ def _inputs(obj):
                            "key relative to the basis")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
-    keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces, names=(basis, *nonlinear))
+    keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
+                         names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
     return basis, nonlinear, linear, keys, faces
 
 

@@ -20,9 +20,9 @@ import numpy as np
 
 from ..lacore.errors import InputError
 
-__all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "write_shape_key",
-           "set_shape_key", "key_names", "require_mesh_object", "object_mode", "mesh_counts",
-           "connectivity_digest"]
+__all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "require_whole_keys",
+           "write_shape_key", "set_shape_key", "key_names", "require_mesh_object", "world_to_object", "object_mode",
+           "mesh_counts", "connectivity_digest"]
 
 
 class MeshAccessError(InputError):
@@ -62,6 +62,18 @@ def require_mesh_object(obj):
     if obj.type != 'MESH':
         raise MeshAccessError(f"Object '{obj.name}' is not a mesh (its type is {obj.type})")
     return obj.data
+
+
+def world_to_object(obj):
+    """The inverse of ``obj.matrix_world`` as a ``(4, 4)`` float64 array (world -> the object's space), or
+    :class:`MeshAccessError` naming a zero scale (the object's own or a parent's)."""
+    M = np.array(obj.matrix_world, np.float64)
+    s = np.linalg.svd(M[:3, :3], compute_uv=False)
+    if not s[-1] > 1e-9 * s[0]:
+        scale = ", ".join(f"{v:g}" for v in obj.scale)
+        raise MeshAccessError(f"Object '{obj.name}' is flattened by a zero scale (its scale ({scale}) or a "
+                              "parent's): nothing can be placed in its space; give it a non-zero scale on every axis")
+    return np.linalg.inv(M)
 
 
 def _get(collection, attr, dtype, count, width=1):
@@ -194,6 +206,26 @@ def read_shape_keys(mesh):
         kb.points.foreach_get("co", buf)
         coords[k] = buf.reshape(V, 3)
     return names, coords
+
+
+def require_whole_keys(mesh, names, what):
+    """:class:`MeshAccessError` when a shape key of ``names`` shows other than its stored shape at value 1: limited
+    to a vertex group, or relative to another key than the reference key.  ``what`` starts the message."""
+    key = mesh.shape_keys
+    if key is None:
+        return
+    ref = key.reference_key
+    for name in names:
+        kb = key.key_blocks.get(name)
+        if kb is None or kb == ref:
+            continue
+        why = (f"is limited to the vertex group '{kb.vertex_group}'" if kb.vertex_group else
+               f"is relative to '{kb.relative_key.name}', not to the basis '{ref.name}'"
+               if kb.relative_key != ref else "")
+        if why:
+            raise MeshAccessError(f"{what}: shape key '{name}' {why}, so it shows other than its stored shape; "
+                                  "make a key of what it shows (set its value to 1, the others to 0, then Shape "
+                                  "Keys > New Shape from Mix) and use that")
 
 
 def write_shape_key(mesh, name, coords):

@@ -24,8 +24,8 @@ import re
 from ..lacore.errors import InputError
 
 __all__ = ["OperatorInputError", "OWN_PREFIX", "INBETWEEN_PREFIX", "BAKE_PREFIX", "FIT_PREFIX", "PREVIEW_KEY",
-           "FIT_MODIFIER", "LIVE_MIX_KEY", "is_own_key", "inbetween_key_name", "bake_key_name", "fit_key_name",
-           "parse_factors", "parse_key_list", "parse_frames"]
+           "FIT_MODIFIER", "LIVE_MIX_KEY", "is_own_key", "is_fit_key", "inbetween_key_name", "bake_key_name",
+           "fit_key_name", "parse_factors", "parse_key_list", "parse_frames"]
 
 OWN_PREFIX = "LA "
 INBETWEEN_PREFIX = OWN_PREFIX
@@ -82,6 +82,15 @@ def fit_key_name(frame):
     'LA fit 7'
     """
     return f"{FIT_PREFIX}{int(frame)}"
+
+
+def is_fit_key(name):
+    """Whether ``name`` is a fitted frame's key (:func:`fit_key_name`).
+
+    >>> is_fit_key("LA fit 7"), is_fit_key("LA fit -3"), is_fit_key("LA fit quality"), is_fit_key("Bend")
+    (True, True, False, False)
+    """
+    return re.fullmatch(re.escape(FIT_PREFIX) + r"-?\d+", name) is not None
 
 
 def _items(text):

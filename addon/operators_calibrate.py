@@ -47,7 +47,7 @@ from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
 from .fit_quality import FIT_PROP, write_quality
 from .jobs import CallJob
-from .mesh_access import require_mesh_object, triangulate
+from .mesh_access import require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit, read_model,
@@ -114,7 +114,7 @@ def _axis_name(v):
 def _nearest_axes(obj):
     """``(up, forward)`` like :func:`object_axes`, rounded to the object-space axes nearest to the world's."""
     R = np.array(obj.matrix_world, np.float64)[:3, :3]
-    inv = np.linalg.inv(R / np.cbrt(abs(np.linalg.det(R)) or 1.0))
+    inv = world_to_object(obj)[:3, :3] * np.cbrt(abs(np.linalg.det(R)))
     up, fwd = inv @ [0.0, 0.0, 1.0], inv @ [0.0, -1.0, 0.0]
     i = int(np.argmax(np.abs(up)))
     fwd[i] = 0.0
@@ -126,8 +126,7 @@ def object_axes(obj):
     """``(up, forward)`` of the world (+Z up, -Y forward: Blender's front view) in ``obj``'s space, as lacore's
     axis names (``"z"``, ``"-y"`` ...), None where the object is rotated off the axes."""
     R = np.array(obj.matrix_world, np.float64)[:3, :3]
-    R = R / np.cbrt(abs(np.linalg.det(R)) or 1.0)
-    inv = np.linalg.inv(R)
+    inv = world_to_object(obj)[:3, :3] * np.cbrt(abs(np.linalg.det(R)))
     return _axis_name(inv @ [0.0, 0.0, 1.0]), _axis_name(inv @ [0.0, -1.0, 0.0])
 
 
@@ -258,7 +257,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     filepath, path = _pc2_path(filepath, obj, take)
     labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions
-    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    inv = world_to_object(obj)
     unit = metres_per_unit(obj, take, context.scene)
     local = world @ inv[:3, :3].T + inv[:3, 3]
     render = context.scene.render

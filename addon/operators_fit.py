@@ -58,6 +58,8 @@ from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from ..lacore.errors import InputError
+from ..lacore.geometry.topology import check_vertices
+from ..lacore.io.atomic import check_writable
 from ..lacore.io.point_cache import write_pc2
 from ..lacore.markers.binding import MarkerBinding, bind_markers
 from ..lacore.markers.fitting import FIT_DEFAULTS, fit_markers, fit_options
@@ -65,10 +67,10 @@ from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
 from ..lacore.multiresolution import coarsen
 from . import storage
-from .compat import BLEND_RELATIVE_PATH, ensure_animation_channels
+from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import read_shape_keys, require_mesh_object, triangulate
-from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_own_key, parse_key_list
+from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
+from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
 from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
@@ -188,6 +190,9 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
         raise FitSetupError(f"mesh '{mesh.name}' has no shape key(s) {', '.join(map(repr, missing))}")
     if len(keys) < 2:
         raise FitSetupError(f"mesh '{mesh.name}': a model needs at least 2 training shape keys, got {len(keys)}")
+    require_whole_keys(mesh, keys, "Build Model")
+    for k in keys:
+        check_vertices(coords[names.index(k)], len(mesh.vertices), name=f"Shape key '{k}'")
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
@@ -205,7 +210,10 @@ def _build_model(inputs, progress):
         return ShapeModel.fit(poses, faces, reference_vertices=reference, n_modes=inputs["n_modes"],
                               progress=progress)
     half = staged_progress(progress, 2)
-    c = coarsen(np.concatenate([reference[None], poses]), faces, inputs["coarse"], progress=half(0))
+    try:
+        c = coarsen(np.concatenate([reference[None], poses]), faces, inputs["coarse"], progress=half(0))
+    except InputError as exc:
+        raise FitSetupError(f"Coarse Vertices {inputs['coarse']}: {exc} (0: the full mesh, -1: Auto)") from None
     model = ShapeModel.fit(poses[:, c.vertex_indices], c.faces, reference_vertices=reference[c.vertex_indices],
                            n_modes=inputs["n_modes"], progress=half(1))
     model.fine_level = FineLevel.build(c, reference, poses, model.training_coefficients)
@@ -482,7 +490,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
                             f"bind at a frame where at least {MIN_BOUND_MARKERS} are visible, or use Calibrate & Fit")
     labels = [lb for lb, s in zip(labels, seen, strict=True) if s]
     world = world[seen]
-    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    inv = world_to_object(obj)
     local = world @ inv[:3, :3].T + inv[:3, 3]
     X = model_mesh_vertices(model, _mesh_vertices(obj, context.evaluated_depsgraph_get()))
     faces = model.faces
@@ -554,6 +562,10 @@ def _pc2_path(filepath, obj, take):
     folder = os.path.dirname(path)
     if not os.path.isdir(folder):
         raise FitSetupError(f"Cache File '{filepath}': the folder {folder} does not exist")
+    try:
+        check_writable(path)                          # before the fit, not after it
+    except OSError as exc:
+        raise FitSetupError(f"Cache File: {exc}") from None
     return filepath, path
 
 
@@ -579,7 +591,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
     all_labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
-    inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
+    inv = world_to_object(obj)
     return {"model": model, "binding": binding, "take": take, "markers": world @ inv[:3, :3].T + inv[:3, 3],
             "frames": frames, "filepath": filepath, "path": path, "labels": labels}
 
@@ -621,8 +633,27 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
     return Run(job, ObjectWatch(obj, extras=extras), write, what="fitted frame")
 
 
+def remove_fit_keys(obj):
+    """Remove the fitted frames' keys (:func:`.naming.is_fit_key`) of ``obj`` with their F-curves; returns how
+    many."""
+    key = obj.data.shape_keys
+    if key is None:
+        return 0
+    names = [kb.name for kb in key.key_blocks if is_fit_key(kb.name)]
+    owner = animation_channels(key)
+    if owner is not None:
+        paths = {f'key_blocks["{n}"].value' for n in names}
+        for fc in [fc for fc in owner.fcurves if fc.data_path in paths]:
+            owner.fcurves.remove(fc)
+    for name in names:
+        obj.shape_key_remove(key.key_blocks[name])
+    return len(names)
+
+
 def _write_fit(obj, X, frames, output, filepath, path):
-    """Write the fitted frames: PC2 + Mesh Cache modifier, or one keyed shape key per frame."""
+    """Write the fitted frames: PC2 + Mesh Cache modifier, or one keyed shape key per frame.  Either replaces a
+    previous fit's output in both forms (its keys and keyframes, its modifier), so fitting again never adds up."""
+    remove_fit_keys(obj)
     if output == 'PC2':
         write_pc2(path, X, start=float(frames[0]), sampling=1.0)
         mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
@@ -635,6 +666,9 @@ def _write_fit(obj, X, frames, output, filepath, path):
         mod.deform_mode = 'OVERWRITE'
         mod.interpolation = 'NONE'
         return f"fitted {len(frames)} frames to {filepath}"
+    mod = obj.modifiers.get(FIT_MODIFIER)
+    if mod is not None:       # a previous fit's point cache would overwrite the keys
+        obj.modifiers.remove(mod)
     mesh = obj.data
     if mesh.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)

@@ -137,6 +137,7 @@ def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
     if key_from == key_to:
         raise OperatorInputError(f"From and To are the same shape key '{key_from}': choose two different keys")
     _require_keys(data.names, [key_from, key_to], f"Mesh '{data.mesh.name}'")
+    mesh_access.require_whole_keys(data.mesh, [key_from, key_to], "In-betweens")
     out_names = [inbetween_key_name(key_from, key_to, t) for t in factors]
     seen = {}
     for t, n in zip(factors, out_names, strict=True):
@@ -156,9 +157,11 @@ def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
 
 def _bake_plan(obj, keys, frames, smooth, method, workers=1):
     """Validate a bake and set it up: ``(data, plan without shapes, job or None)``; nothing written."""
+    mesh_access.require_mesh_object(obj)
     inbetween = bake.bake_frames(keys, frames)
     data = session.read_mesh(obj, "interpolated")
     plan = bake.check_bake(obj, data.names, keys, frames)
+    mesh_access.require_whole_keys(data.mesh, keys, "Bake")
     job = _job(data, keys, frames, inbetween, smooth, method, workers, obj) if inbetween else None
     return data, plan, job
 
@@ -359,7 +362,7 @@ class LENGTHS_ANGLES_OT_interpolate(RunOperator, bpy.types.Operator):
         description="Factors of the new keys, separated by spaces or commas (0 = From, 1 = To; values below 0 or "
                     "above 1 extrapolate); empty: Count evenly spaced in-betweens")
     count: IntProperty(name="Count", description="Number of evenly spaced in-betweens when Factors is empty",
-                       default=3, min=1, soft_max=50, max=MAX_NEW_KEYS)
+                       default=3, min=1, soft_max=50, max=min(MAX_NEW_KEYS, 999))   # names keep 3 decimals
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default='FAST',
                          description="How the interpolated lengths and angles are turned into a shape")
     processes: IntProperty(name="Processes", default=0, min=0, max=8, description=PROCESSES_DESCRIPTION)

@@ -233,7 +233,7 @@ class Run:
     def warning(self):
         """The WARNING text of the report (failed checks, notes), or None for an INFO report."""
         texts = [failure_warning(self.failures, self.what), *self.notes]
-        return " ".join(t for t in texts if t) or None
+        return "; ".join(t.rstrip(" .;") for t in texts if t) or None
 
     def finish(self):
         """Check the watch and write the results; returns the report text."""

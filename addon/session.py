@@ -135,8 +135,8 @@ def key_z(data, name):
         STATS["z_stored"] += 1
     else:
         STATS["z_miss"] += 1
+        X = check_vertices(data.coords[k], data.topology.n_vertices, name=f"Shape key '{name}'")
         try:
-            X = check_vertices(data.coords[k], data.topology.n_vertices, name=f"shape key '{name}'")
             check_nondegenerate(X, data.topology)
         except MeshError as exc:
             raise MeshError(f"Shape key '{name}': {exc}") from exc

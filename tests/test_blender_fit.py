@@ -180,15 +180,25 @@ def test_shape_key_output(run):
     assert res["names"] == ["LA fit 2", "LA fit 3", "LA fit 4"]
     assert res["values_at_3"] == {"LA fit 2": 0.0, "LA fit 3": 1.0, "LA fit 4": 0.0}
     assert res["too_long"] == ["CANCELLED"] and res["too_long_unchanged"]
+    again = res["again"]
+    # the PC2 fit before it had its Mesh Cache modifier, which would hide the keys: removed
+    assert again["had_modifier"] and not again["modifier"]
+    # fitting again replaces the keys: the same names, and frame 3 shows one fitted frame, not two added up
+    assert again["names"] == res["names"], again
+    assert again["shows_key"] < 1e-5 * again["size"], again
+    assert again["evaluated_change"] < 1e-3 * again["size"], again
 
 
 @pytest.mark.parametrize("case, words", [
     ("take_too_short", "covers frames"), ("no_model", "no shape model"), ("bind_without_model", "no shape model"),
     ("bind_occluded", "only 0 of the 3 markers are visible at frame 3"),
-    ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after")])
+    ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after"),
+    ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files")])
 def test_bad_input_changes_nothing(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and words in res["message"] and res["unchanged"], res
+    if case == "unwritable_cache":      # refused before fitting (a fit of the take: seconds); measured 0.01 s
+        assert res["seconds"] < 1.0, res
 
 
 @pytest.mark.parametrize("name", ["build_model", "bind_markers", "fit_markers"])

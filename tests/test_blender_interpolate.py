@@ -95,7 +95,8 @@ def test_errors_leave_object_unchanged(run):
     assert set(messages) == {"no_active_object", "missing_key", "same_key", "unparsable_factors", "infinite_factor",
                              "bake_count_mismatch", "bake_not_increasing", "bake_unknown_key", "bake_bad_frame",
                              "bake_one_key", "bake_foreign_animation", "no_shape_keys", "not_a_mesh",
-                             "non_manifold", "bake_non_manifold"}
+                             "non_manifold", "bake_non_manifold", "bake_no_active_object", "bake_driven_key",
+                             "vertex_group_key", "bake_vertex_group_key", "relative_key", "bake_absolute_keys"}
     assert 'enum "Nope" not found' in messages["missing_key"]  # the key picker offers only the mesh's keys
 
 

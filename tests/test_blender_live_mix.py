@@ -143,6 +143,11 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert res["linear_bit_for_bit"] and res["differs_from_live"] > 0.05
     assert res["restored_vs_live"] < TOL and res["status_restored"]["stale"] == ""  # the edit undone: live again
     assert res["stale_in_edit_mode"] == ""  # nothing is decided while editing
+    changed = res["mix_key_changed"]
+    assert changed["status"] == ("the key 'LA live mix' was muted or its value changed: unmute it and set its value "
+                                 "to 1"), changed
+    assert changed["linear_bit_for_bit"] and changed["linear_differs_from_live"] > 0.05, changed
+    assert changed["restored_vs_live"] < TOL, changed
     assert res["status_topology"]["stale"].startswith("the mesh has 105 vertices now, 106")
     assert any(t and t.startswith("Stale: the mesh has 105 vertices") for t in res["panel_topology"])
 

@@ -284,6 +284,15 @@ def test_pins_naming_unknown_markers_are_an_error(creature):
         calibrate(model, c["take"], pins={"nope": 0, "m01": 1, "m02": 2})
 
 
+def test_pins_on_one_point_or_line_are_an_error(creature):
+    """Three pins on one vertex (or on one line) cannot turn the model: said, not a NaN size."""
+    c, model = creature
+    labels = c["pin_labels"].tolist()
+    with pytest.raises(CalibrationError, match="lie on one line or point on the model: give pins .* at 3 or more "
+                                               "distinct vertices not on one line"):
+        calibrate(model, c["take"], pins={lab: int(c["pin_vertices"][0]) for lab in labels})
+
+
 def test_tracking_takes_fewer_steps_between_calibration_frames(model):
     """3 steps on the tracked frames between calibration frames (the default) against 6 on every tracked frame.
 

@@ -131,7 +131,7 @@ def test_bad_keys():
         with pytest.raises(MixerError, match="is the basis up to a rigid motion|are the basis up to a rigid motion"):
             ShapeMixer.build(same, F)
     with pytest.raises(MixerError, match="'Basis' in an edge length.*'Key 1' is the basis"):
-        check_keys([X, X.copy()], F, names=["Basis", "Key 1"])
+        check_keys([X, X.copy()], F, names=["'Basis'", "'Key 1'"])
     # one unshaped key among shaped ones mixes: its weight changes nothing
     m = ShapeMixer.build([X, bar_pose(X, 0.4, 0.0), X.copy()], F)
     a, b = m.mix([0.5, 0.0], warm_start=False), m.mix([0.5, 0.9], warm_start=False)

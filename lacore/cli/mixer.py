@@ -93,7 +93,7 @@ def run_mixer(args):
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
                            local_vertices=args.local_vertices)                 # checks --range, --local-vertices
     shapes, topology = load_meshes_in_correspondence(args.keys)
-    check_keys(shapes, topology.faces, names=args.keys)                   # names the files, before the build
+    check_keys(shapes, topology.faces, names=[repr(k) for k in args.keys])   # names the files, before the build
     t_load = time.perf_counter() - start
     mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options)
     t = time.perf_counter()

@@ -52,6 +52,8 @@ def write_error(exc, path):
     do where it can); ``errno`` is kept.
     """
     reason = _WRITE_REASONS.get(exc.errno) or exc.strerror or str(exc)
+    if exc.errno == errno.ENOENT and os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(path)))):
+        reason = "its folder takes no new files (a special file system?): choose another folder"
     out = type(exc)(f"cannot write {os.fspath(path)}: {reason}")
     out.errno = exc.errno
     return out

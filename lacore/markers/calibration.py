@@ -279,6 +279,11 @@ def _similarity(P, Q):
     return s, R, cq - s * cp @ R.T
 
 
+#: Markers placing the model must spread across a plane: their second principal extent above this fraction of
+#: the model's (or their own) size, else the rotation of the placement is undetermined.
+SPREAD_RTOL = 1e-6
+
+
 #: A marker occluded in the placement frame is carried there rigidly with this many of its nearest markers.
 CARRY_MARKERS = 4
 
@@ -668,7 +673,15 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
     if placement is not None:
         s, R, t = float(placement[0]), np.asarray(placement[1], float), np.asarray(placement[2], float)
     elif len(P_pairs) >= 3:
-        s, R, t = _similarity(np.array(P_pairs), np.array(Q_pairs))
+        P_pairs, Q_pairs = np.array(P_pairs), np.array(Q_pairs)
+        for pts, where, size in ((P_pairs, "on the model", np.ptp(Xr, axis=0)),
+                                 (Q_pairs, f"in the take at frame {f0}", np.ptp(Q_pairs, axis=0))):
+            spread = np.linalg.svd(pts - pts.mean(0), compute_uv=False)[1] / np.sqrt(len(pts))
+            if not spread > SPREAD_RTOL * float(np.linalg.norm(size)):
+                raise CalibrationError(f"the {len(pts)} markers with a known place on the model (pins or standard "
+                                       f"marker-set labels) lie on one line or point {where}: give pins (label "
+                                       "-> vertex) at 3 or more distinct vertices not on one line")
+        s, R, t = _similarity(P_pairs, Q_pairs)
     else:
         raise CalibrationError(f"{take.source or 'the take'}: {len(P_pairs)} markers with a known place on the "
                                "model (standard marker-set labels or pins): give pins (label -> vertex, >= 3) or "

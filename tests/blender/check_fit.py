@@ -204,18 +204,40 @@ def bind_units_and_occlusion():
     return out
 
 
+def _evaluated(obj):
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    c = np.empty(3 * len(me.vertices), np.float32)
+    me.vertices.foreach_get("co", c)
+    ev.to_mesh_clear()
+    return c.reshape(-1, 3).astype(np.float64)
+
+
 def shape_key_output():
-    """Short clip as shape keys: one key per frame, showing exactly at its frame."""
+    """Short clip as shape keys: one key per frame, showing exactly at its frame; the PC2 fit's modifier goes, and
+    fitting again replaces the keys instead of adding to them."""
     obj = bpy.data.objects["Body"]
     scene = bpy.context.scene
     select_only(obj)
-    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    had_modifier = "LA Fit" in obj.modifiers
     n_before = len(obj.data.shape_keys.key_blocks)
     assert bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=2,
                                               frame_end=4) == {"FINISHED"}
     names = [k.name for k in obj.data.shape_keys.key_blocks][n_before:]
     scene.frame_set(3)
     values = {k.name: k.value for k in obj.data.shape_keys.key_blocks[n_before:]}
+    first = _evaluated(obj)
+    key3 = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks["LA fit 3"].data.foreach_get("co", key3)
+    assert bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=2,
+                                              frame_end=4) == {"FINISHED"}
+    scene.frame_set(2)
+    scene.frame_set(3)
+    again = {"names": [k.name for k in obj.data.shape_keys.key_blocks][n_before:], "evaluated_change":
+             float(np.abs(_evaluated(obj) - first).max()),
+             "shows_key": float(np.abs(first - key3.reshape(-1, 3)).max()),
+             "size": float(np.ptp(first, axis=0).max()), "modifier": "LA Fit" in obj.modifiers,
+             "had_modifier": had_modifier}
     # a clip too long for shape keys
     scene.frame_start, scene.frame_end = 1, 200
     before = state(obj)
@@ -223,7 +245,8 @@ def shape_key_output():
         res = bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS')
     except RuntimeError:  # bpy.ops raise on ERROR reports
         res = {"CANCELLED"}
-    return {"names": names, "values_at_3": values, "too_long": sorted(res), "too_long_unchanged": state(obj) == before}
+    return {"names": names, "values_at_3": values, "too_long": sorted(res), "too_long_unchanged": state(obj) == before,
+            "again": again}
 
 
 def bad_input():
@@ -248,6 +271,9 @@ def bad_input():
     scene.frame_start, scene.frame_end = 1, T + 5
     attempt("take_too_short", bpy.ops.lengths_angles.fit_markers)
     scene.frame_end = T
+    t0 = time.perf_counter()
+    attempt("unwritable_cache", bpy.ops.lengths_angles.fit_markers, filepath="/proc/fit.pc2")
+    out["unwritable_cache"]["seconds"] = time.perf_counter() - t0
     meta = obj.data["lengths_angles_model"].to_dict()
     del obj.data["lengths_angles_model"]
     attempt("no_model", bpy.ops.lengths_angles.fit_markers)

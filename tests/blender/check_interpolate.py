@@ -302,6 +302,32 @@ def errors_change_nothing():
     obj.data.shape_keys.keyframe_insert(value_path("Bend180"), frame=3)
     messages["bake_foreign_animation"] = expect_error(lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), obj,
                                                       "already has animation")
+    messages["bake_no_active_object"] = expect_error(lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), None,
+                                                     "no active object")
+    # keys that show other than their stored shape, a driven key, absolute keys
+    reset()
+    obj = bar_with_keys()
+    key = obj.data.shape_keys
+    key.driver_add(value_path("SimpleDeform90")).driver.expression = "0.25"
+    bpy.context.view_layer.update()                             # the driver has set the value before the attempt
+    messages["bake_driven_key"] = expect_error(lambda o: bake(o, keys="Basis, SimpleDeform90", frames="1 9"), obj,
+                                               "'SimpleDeform90' has a driver")
+    obj.vertex_groups.new(name="Half")
+    key.key_blocks["Bend180"].vertex_group = "Half"
+    messages["vertex_group_key"] = expect_error(
+        lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="0.5"), obj,
+        "shape key 'Bend180' is limited to the vertex group 'Half'", "New Shape from Mix")
+    messages["bake_vertex_group_key"] = expect_error(lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), obj,
+                                                     "Bake: shape key 'Bend180' is limited to the vertex group")
+    key.key_blocks["Bend180"].vertex_group = ""
+    key.key_blocks["Bend180"].relative_key = key.key_blocks["SimpleDeform90"]
+    messages["relative_key"] = expect_error(
+        lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="0.5"), obj,
+        "'Bend180' is relative to 'SimpleDeform90', not to the basis 'Basis'")
+    key.key_blocks["Bend180"].relative_key = key.reference_key
+    key.use_relative = False
+    messages["bake_absolute_keys"] = expect_error(lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), obj,
+                                                  "Bake needs Relative shape keys")
 
     reset()
     plain = samples.make_object("Plain", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)])

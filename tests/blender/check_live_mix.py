@@ -286,6 +286,18 @@ def stale_when_edited():
     obj.data.update()
     back = evaluated(obj)
     st_back = status(obj)
+    # the add-on's key given another value: stale, the linear mix; its value back to 1: live again
+    mix_kb.mute = True
+    linear_now = evaluated(obj)         # without the add-on's key: Blender's linear mix of the keys as they are
+    mix_kb.mute = False
+    mix_kb.value = 0.3
+    obj.data.update()
+    mix_changed = {"status": status(obj)["stale"],
+                   "linear_bit_for_bit": bool(np.array_equal(evaluated(obj), linear_now)),
+                   "linear_differs_from_live": float(np.abs(linear_now - live_shape).max())}
+    mix_kb.value = 1.0
+    obj.data.update()
+    mix_changed["restored_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
     # a topology edit (a vertex deleted in Edit Mode)
     select_only(obj)
     with ops_context(obj):
@@ -306,7 +318,8 @@ def stale_when_edited():
     return {"status": st, "panel": labels, "linear_bit_for_bit": bool(np.array_equal(stale_shape, linear)),
             "differs_from_live": float(np.abs(stale_shape - live_shape).max()),
             "restored_vs_live": float(np.abs(back - live_shape).max()), "status_restored": st_back,
-            "stale_in_edit_mode": in_edit, "status_topology": st_topology, "panel_topology": topology_labels}
+            "stale_in_edit_mode": in_edit, "status_topology": st_topology, "panel_topology": topology_labels,
+            "mix_key_changed": mix_changed}
 
 
 def out_of_range_and_vertex_groups():

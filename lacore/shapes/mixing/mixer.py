@@ -75,7 +75,7 @@ import scipy.linalg as sl
 
 from ...errors import InputError, MeshError
 from ...geometry.lengths_angles import check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian
-from ...geometry.topology import MeshTopology
+from ...geometry.topology import MeshTopology, check_vertices
 from ...progress import report
 from ...reconstruction import get_context, reconstruct
 from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
@@ -454,7 +454,7 @@ def check_keys(keys, faces, names=None):
         ``keys[0]`` the basis.
     faces : (F, 3) array_like of int
     names : sequence of str, optional
-        The keys' names for the messages (default: ``"key k"``).
+        How the messages name the keys (default: ``"key k"``).
 
     Returns
     -------
@@ -475,10 +475,10 @@ def check_keys(keys, faces, names=None):
     >>> from lacore.samples.bar import bar_mesh
     >>> X, faces = bar_mesh(n_along=4, n_side=1)
     >>> try:
-    ...     check_keys([X, X + 1.0], faces, names=["Basis", "Key 1"])
+    ...     check_keys([X, X + 1.0], faces, names=["shape key 'Basis'", "shape key 'Key 1'"])
     ... except MixerError as e:
     ...     print(str(e).split(";")[1].split(":")[0])
-     'Key 1' is the basis up to a rigid motion)
+     shape key 'Key 1' is the basis up to a rigid motion)
     """
     F = np.asarray(faces)
     if F.ndim != 2 or F.shape[1] != 3 or F.size == 0 or F.dtype.kind not in "iu":
@@ -491,9 +491,10 @@ def check_keys(keys, faces, names=None):
         raise MeshError(f"keys must be a (K, V, 3) array (K >= 2 keys of one mesh), got shape {K.shape}")
     if K.shape[0] < 2:
         raise MeshError(f"a mixer needs at least 2 keys (the basis and one more), got {K.shape[0]}")
-    names = [f"key {k}" for k in range(len(K))] if names is None else [repr(str(n)) for n in names]
+    names = [f"key {k}" for k in range(len(K))] if names is None else [str(n) for n in names]
     topo = MeshTopology.from_faces(F.astype(np.int64), n_vertices=K.shape[1])
     for k in range(K.shape[0]):
+        check_vertices(K[k], K.shape[1], name=names[k])
         try:
             check_nondegenerate(K[k], topo)
         except MeshError as exc:
