@@ -228,3 +228,38 @@ def test_encode_rejects_the_needle_and_handles_huge_coordinates(tmp_path, capsys
         assert code == 0 and s["max_abs_angle"] == pytest.approx(1.0675, abs=1e-4)
         assert s["max_length"] == pytest.approx(0.204828 * scale, rel=1e-5)
         assert s["max_integrability_violation"] is not None
+
+
+def test_an_output_never_replaces_an_input(tmp_path, capsys):
+    """Exit 2 before computing when an output file is one of the inputs (also through another name); the input is
+    left as it was."""
+    X0, F = load_mesh(shared_mesh(FINGER0))
+    X1, _ = load_mesh(shared_mesh(FINGER1))
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    save_mesh(a, X0, F)
+    save_mesh(b, X1, F)
+    os.symlink(a, tmp_path / "alias.ply")
+    before = a.read_bytes()
+    for argv in (["reconstruct", "--ref", a, "--target", b, "-o", a],
+                 ["reconstruct", "--ref", a, "--target", b, "-o", tmp_path / "alias.ply"],
+                 ["interpolate", a, b, "--t", 0.5, "-o", tmp_path / "a"]):          # writes a_000.ply: allowed
+        code, out, err = run_main(capsys, *argv)
+        if argv[0] == "interpolate":
+            assert code == 0, err
+            continue
+        assert code == 2 and "is the input" in err and err.count("\n") == 1, err
+    assert a.read_bytes() == before
+
+
+def test_usage_errors_are_one_line_and_exponents_are_numbers(tmp_path, capsys):
+    """argparse's errors in one line (exit 2) naming where the usage is; ``-1e6`` is a value, not an option."""
+    for argv, words in ((["interpolate", "a.ply", "b.ply", "--frames", "0", "-o", "x"], "--frames"),
+                        (["reconstruct", "--nope"], "the following arguments are required"),
+                        (["frobnicate"], "invalid choice")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and err.count("\n") == 1 and "--help)" in err, err
+    a = shared_mesh(FINGER0)
+    code, out, err = run_main(capsys, "interpolate", a, shared_mesh(FINGER1), "--t", "-1e6", "-o", tmp_path / "x")
+    assert code == 2 and "t = -1e+06" in err, err         # parsed as a factor: too far to extrapolate

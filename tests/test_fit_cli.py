@@ -76,6 +76,8 @@ def test_fit_writes_poses_and_json(files, capsys):
     ("penetration", "--penetration-weight"),
     ("radius", "--observed-radius"),
     ("model", "not a readable"),
+    ("take_options", "--frames, --units are for a take (.c3d or .trc): a markers .npz is fitted whole"),
+    ("output_is_input", "is the input"),
 ])
 def test_bad_input_exits_2_without_output(files, capsys, case, message):
     d, model, true, verts, x = files
@@ -105,11 +107,17 @@ def test_bad_input_exits_2_without_output(files, capsys, case, message):
         np.savez(markers, positions=x, vertices=verts)
         model_file = d / "not_a_model.npz"
         model_file.write_bytes(b"garbage")
+    elif case == "take_options":
+        np.savez(markers, positions=x, vertices=verts)
+        extra = ["--frames", "0:2", "--units", "mm"]
     out = d / f"out_{case}.npz"
+    if case == "output_is_input":
+        np.savez(markers, positions=x, vertices=verts)
+        out = markers
     code, stdout, err = _run(["fit", str(model_file), "--markers", str(markers), "-o", str(out)] + extra, capsys)
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1, err
-    assert not out.exists()
+    assert not out.exists() or case == "output_is_input"
     assert not [p for p in d.iterdir() if p.name.startswith(".tmp-fit-")]
 
 

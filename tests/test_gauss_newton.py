@@ -535,6 +535,8 @@ def test_hybrid_from_the_least_squares_start():
     res = reconstruct(za, topo, X0, method="hybrid", hybrid_start="lsq", smoothing_iterations=0)
     assert np.allclose(res.vertices, lsq.vertices, rtol=0, atol=1e-12 * size(X0))
     assert res.energy == pytest.approx(lsq.energy, rel=1e-12) and "least_squares" in res.timings
+    # no smoothing step: no approximation of the minimum, so a non-admissible target fails like lsq's
+    assert not res.success and res.failure == "not_converged" and not lsq.success
     smooth = reconstruct(za, topo, X0, method="hybrid", hybrid_start="lsq", smoothing_iterations=2,
                          reuse_factorization=True)
     assert smooth.energy < lsq.energy and np.all(np.isfinite(smooth.vertices))

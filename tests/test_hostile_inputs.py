@@ -446,3 +446,16 @@ def test_a_worker_whose_caller_died_ends_quietly(tmp_path):
     # before its 400 messages (40 s) were sent
     assert proc.stderr == "" and proc.stdout.split()[0].isdigit(), proc.stderr
     assert time.monotonic() - start < 30
+
+
+def test_obj_whitespace_and_comments(tmp_path):
+    """OBJ records separated by tabs, indented, or with trailing comments are read like plain ones."""
+    plain = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    for name, text in (("tabs.obj", b"v\t0\t0\t0\nv\t1\t0\t0\nv\t0\t1\t0\nf\t1\t2\t3\n"),
+                       ("indented.obj", b"  v 0 0 0\n  v 1 0 0\n\tv 0 1 0\n  f 1 2 3\n"),
+                       ("comments.obj", b"# a triangle\nv 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3 # the face\n")):
+        (tmp_path / name).write_bytes(text)
+        (tmp_path / "plain.obj").write_bytes(plain)
+        X, F = load_mesh(tmp_path / name)
+        Xp, Fp = load_mesh(tmp_path / "plain.obj")
+        assert np.array_equal(X, Xp) and np.array_equal(F, Fp), name

@@ -114,6 +114,8 @@ def test_text_output(tmp_path, capsys):
     (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--t", "0.5", "--reference", "5"], "--reference"),
     (["plate/plate121.ply", "MISSING", "--t", "0.5"], "missing.ply"),
     (["plate/plate121.ply", "simple/square4.ply", "--t", "0.5"], "dense correspondence"),
+    # found mid-run, after two frames were written: they are removed
+    (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--t", "0", "0.5", "1e160"], "at t = 1e+160"),
 ])
 def test_bad_input_exit_code_2(argv, fragment, tmp_path, capsys):
     def arg(a):
@@ -198,3 +200,16 @@ def test_method_path(tmp_path, capsys):
     code, out, err = run_main(capsys, "interpolate", PLATES[1], PLATES[2], "--t", 0.5, "-o", tmp_path / "bad",
                               "--method", "path", "--max-iterations", 5)
     assert code == 2 and "--method path" in err
+
+
+def test_bad_input_found_mid_run_removes_the_frames_written(tmp_path, capsys):
+    """t = 1e160 between a sphere and the same sphere 1000 times larger: the frames at 0 and 0.5 are written, then
+    the third target's energy overflows (exit 2): no frame is left behind."""
+    from lacore.io.meshes import load_mesh, save_mesh
+
+    X, F = load_mesh(shared_mesh("sphere/defSphere0.ply"))
+    save_mesh(tmp_path / "big.ply", 1000.0 * X, F)
+    code, out, err = run_main(capsys, "interpolate", shared_mesh("sphere/defSphere0.ply"), tmp_path / "big.ply",
+                              "--t", 0, 0.5, 1e160, "-o", tmp_path / "o")
+    assert code == 2 and "at t = 1e+160" in err and "overflows" in err and err.count("\n") == 1, err
+    assert not list(tmp_path.glob("o_*"))

@@ -346,6 +346,9 @@ def test_bad_input_errors(bar):
         fit_markers(model, bad, binding)
     with pytest.raises(ValueError, match="prior_weight"):
         fit_markers(model, x, binding, prior_weight=0.0)
+    for rate, words in ((0.0, "positive number"), (np.nan, "positive number"), (1e300, "overflows")):
+        with pytest.raises(InputError, match=words):
+            fit_markers(model, x[None], binding, rate=rate)
 
 
 def test_safeguard_keeps_triangles_from_collapsing(bar):

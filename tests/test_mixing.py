@@ -132,6 +132,7 @@ def test_bad_keys():
             ShapeMixer.build(same, F)
     with pytest.raises(MixerError, match="'Basis' in an edge length.*'Key 1' is the basis"):
         check_keys([X, X.copy()], F, names=["'Basis'", "'Key 1'"])
+    assert check_keys([X, bar_pose(X, 0.4, 0.0)], MeshTopology.from_faces(F))[1].n_faces == len(F)  # a topology
     # one unshaped key among shaped ones mixes: its weight changes nothing
     m = ShapeMixer.build([X, bar_pose(X, 0.4, 0.0), X.copy()], F)
     a, b = m.mix([0.5, 0.0], warm_start=False), m.mix([0.5, 0.9], warm_start=False)

@@ -162,7 +162,10 @@ def test_check_reconstruction_rules(rolled_strip):
         ok.max_relative_length_error < LENGTH_RTOL
     flat_check = check_reconstruction(flat, z, topo)
     assert not flat_check.passed and flat_check.failure == "not_reproduced"
-    assert check_reconstruction(flat, z, topo, minimizer=True, converged=True).passed
+    # a converged minimizer that does not reproduce an integrable target: a local minimum, a failure
+    lm = check_reconstruction(flat, z, topo, minimizer=True, converged=True)
+    assert not lm.passed and lm.failure == "local_minimum" and lm.outcome == "minimum" and lm.target_integrable
+    assert "local minimum" in lm.message and "which is integrable" in lm.message
     assert check_reconstruction(flat, z, topo, minimizer=True).failure == "not_converged"
     turned = X.copy()
     turned[topo.faces[5, 0]] += [0, 0, 5.0]  # pull one vertex through: folds
@@ -238,3 +241,36 @@ def test_target_with_non_finite_lengths_is_rejected():
     z[3] = np.inf
     with pytest.raises(LengthsAnglesError, match="NaN or infinite"):
         reconstruct(z, topo, X0)
+
+
+@pytest.mark.parametrize("method", ["bfs", "lsq", "hybrid", "gn"])
+def test_meshes_without_interior_edges(method):
+    """One triangle, and two separate ones: every face is the root of its component, so the frames' linear system
+    of ``lsq`` and ``hybrid`` has no unknowns; every method reproduces the target (rigidly: the lengths alone)."""
+    from lacore.geometry.rigid import rigid_rms
+    X = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    Y = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.5, 1.5, 0.3]])
+    for faces in ([[0, 1, 2]], [[0, 1, 2], [3, 4, 5]]):
+        k = len(faces)
+        topo = MeshTopology.from_faces(np.array(faces), n_vertices=3 * k)
+        ref, target = np.vstack([X + 3.0 * i for i in range(k)]), np.vstack([Y + 3.0 * i for i in range(k)])
+        res = reconstruct(lengths_and_angles(target, topo), topo, ref, method=method)
+        assert res.success, res.message
+        for i in range(k):   # each component up to its own rigid motion: measured 1e-16
+            assert rigid_rms(res.vertices[3 * i:3 * i + 3], Y) < 1e-12
+
+
+def test_a_wrong_local_minimum_of_an_integrable_target_fails():
+    """The deformed sphere 10 times larger as the target, the unit sphere as the start: Gauss-Newton converges to a
+    crumpled minimum (measured: max angle error 0.6 rad) of a target that a mesh has: a failure, not a success; the
+    same target's tree walk reproduces it."""
+    from conftest import shared_mesh
+    from lacore.io.meshes import load_mesh
+    X0, F = load_mesh(shared_mesh("sphere/defSphere0.ply"))
+    X1, _ = load_mesh(shared_mesh("sphere/defSphere1.ply"))
+    topo = MeshTopology.from_faces(F, n_vertices=len(X0))
+    z = lengths_and_angles(10.0 * X1, topo)
+    res = reconstruct(z, topo, X0, method="gn")
+    assert not res.success and res.failure == "local_minimum" and res.checks["outcome"] == "minimum", res.message
+    assert res.checks["max_angle_error"] > 0.1 and "which is integrable" in res.message
+    assert reconstruct(z, topo, X0, method="bfs").success

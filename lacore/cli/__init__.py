@@ -9,6 +9,8 @@ write such a module and register it here.
 Conventions shared by all subcommands:
 
 * ``--json`` prints exactly ONE JSON object on stdout (nothing else on stdout);
+* a usage error (an unknown option, a missing or unreadable argument) prints ONE line
+  ``lacore <cmd>: error: ... (usage: lacore <cmd> --help)`` and exits with code 2;
 * bad input -- a :class:`lacore.errors.InputError` (invalid mesh, target,
   option; :class:`CliError` is one), an ``OSError`` (missing, unreadable or
   unwritable file) or a ``MemoryError`` -- prints ONE line
@@ -31,6 +33,7 @@ Conventions shared by all subcommands:
 
 import argparse
 import os
+import re
 import signal
 import sys
 import warnings
@@ -71,10 +74,22 @@ mixer.register(register_subcommand)  # mixer, mix
 
 
 # --------------------------------------------------------------------------- main
+class _Parser(argparse.ArgumentParser):
+    """argparse with the conventions above: a usage error is ONE line (with where to read the usage), and numbers
+    written with an exponent (``-1e6``) are values, not options."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+    def error(self, message):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (usage: {self.prog} --help)\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="lacore", description="Lengths & Angles: shape processing in lengths and dihedral angles.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
     for cmd in SUBCOMMANDS.values():
         p = sub.add_parser(cmd.name, help=cmd.help, description=cmd.help)
         cmd.configure(p)

@@ -107,12 +107,19 @@ def json_float(x):
     return x if np.isfinite(x) else None
 
 
-def check_outputs(paths):
+def check_outputs(paths, inputs=()):
     """Fail before computing unless every output file can be written: its folder exists and takes a new file,
-    and no folder stands at its path (:func:`lacore.io.atomic.check_writable`; the OSError names the file)."""
+    and no folder stands at its path (:func:`lacore.io.atomic.check_writable`; the OSError names the file), and
+    none of them is one of the ``inputs`` (:class:`CliError`: an output would replace its own input)."""
     for i, path in enumerate(paths):
         if i == 0 or os.path.isdir(path):
             check_writable(path)
+    existing = [p for p in inputs if p and os.path.isfile(p)]
+    for path in paths:
+        if os.path.isfile(path):
+            same = next((p for p in existing if os.path.samefile(p, path)), None)
+            if same is not None:
+                raise CliError(f"the output {path} is the input {same}: write the result to another file")
 
 
 def load_meshes_in_correspondence(paths):

@@ -49,14 +49,14 @@ import time
 import numpy as np
 
 from ..errors import InputError
-from ..io.atomic import check_writable, save_npz_atomic
+from ..io.atomic import save_npz_atomic
 from ..markers.take_fit import fit_take
 from ..markers.fitting import FIT_DEFAULTS, fit_markers
 from ..markers.io import read_marker_arrays
 from ..markers.takes import read_take
 from ..models.shape_model import ShapeModel
 from ..result import json_value
-from .common import add_allow_failure, finish, print_json
+from .common import add_allow_failure, check_outputs, finish, print_json
 
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
 
@@ -144,7 +144,7 @@ def run(args):
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise InputError(f"the output file must end in .npz, got {args.output}")
-    check_writable(args.output)
+    check_outputs([args.output], inputs=[args.model, args.markers, args.static])
     gamma = _prior_weight(args.prior_weight)
     v = args.temporal_weight
     if not np.isfinite(v) or v < 0:
@@ -159,6 +159,11 @@ def run(args):
             raise InputError("--prior-weight auto needs a take (.c3d or .trc): a markers .npz has no calibration")
         if args.rate is not None and not (np.isfinite(args.rate) and args.rate > 0):
             raise InputError(f"--rate must be a positive number of frames per second, got {args.rate}")
+        given = [o for o, v in (("--frames", args.frames), ("--static", args.static), ("--units", args.units))
+                 if v is not None]
+        if given:
+            raise InputError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for a take (.c3d or .trc): a "
+                             "markers .npz is fitted whole, in the model's unit")
         return _run_binding(args, model, gamma, start)
     if args.rate is not None:
         raise InputError("--rate is for a markers .npz: a take (.c3d or .trc) has its own frame rate")

@@ -37,18 +37,20 @@ in the frame of the reference shape (``--reference``, default the first).
 count different from the mesh count, keyframes not strictly increasing,
 negative counts) exits with code 2 and a message.  Every frame is written
 (atomically) as soon as it is projected, so a run that is stopped keeps the
-frames done.  Frames that fail their checks (:mod:`lacore.reconstruction.checks`)
-are written too, and the exit code is 3 unless ``--allow-failure`` is given.
+frames done; bad input found mid-run (exit 2) removes the frames it wrote.  Frames that fail their checks
+(:mod:`lacore.reconstruction.checks`) are written too, and the exit code is 3 unless ``--allow-failure`` is given.
 
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
+import os
 import time
 
 import numpy as np
 
 from dataclasses import replace
 
+from ..errors import InputError
 from ..io.meshes import save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import DEFAULT_PROJECTION, PROJECTION_PRESETS, SOLVERS, WEIGHTS, projection_preset
@@ -148,7 +150,7 @@ def run(args):
     if not np.all(np.isfinite(times)):
         raise CliError("--t takes finite numbers (keyframe times), got " + " ".join(f"{t:g}" for t in times))
     paths = output_paths(args.output, len(times), args.format)
-    check_outputs(paths)
+    check_outputs(paths, inputs=args.meshes)
     t_load = time.perf_counter() - start
     if args.method == PATH:
         if args.energy_weights != ReconstructionSettings().weights or args.solver or args.max_iterations is not None:
@@ -161,23 +163,31 @@ def run(args):
         options = replace(options or GaussNewtonOptions(), max_iterations=args.max_iterations)
 
     t_save = 0.0
+    written = []
 
     def write_frame(i, res):  # stream: every frame is on disk as soon as it is projected
         nonlocal t_save
         t = time.perf_counter()
         save_mesh(paths[i], res.vertices, topology.faces)
+        written.append(paths[i])
         t_save += time.perf_counter() - t
 
     settings = ReconstructionSettings(bending_weight=args.bending_weight, weights=args.energy_weights,
                                       solver=args.solver)
-    if method == PATH:
-        result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
-                                     method=PATH, reference=args.reference, settings=settings, on_frame=write_frame)
-    else:
-        result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
-                                     method=method, reference=args.reference, warm_start=not args.no_warm_start,
-                                     settings=settings, options=options, hybrid=hybrid, on_frame=write_frame,
-                                     workers=args.workers)
+    try:
+        if method == PATH:
+            result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
+                                         method=PATH, reference=args.reference, settings=settings,
+                                         on_frame=write_frame)
+        else:
+            result = keyframe_inbetweens(shapes, topology, keyframes, frames=times, smooth=args.smooth_spline,
+                                         method=method, reference=args.reference, warm_start=not args.no_warm_start,
+                                         settings=settings, options=options, hybrid=hybrid, on_frame=write_frame,
+                                         workers=args.workers)
+    except InputError:          # bad input found mid-run (exit 2): no partial output
+        for path in written:
+            os.remove(path)
+        raise
     seconds = time.perf_counter() - start
 
     outputs = []

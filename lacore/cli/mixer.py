@@ -87,7 +87,7 @@ def run_mixer(args):
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise MixerError(f"the mixer file must end in .npz, got {args.output}")
-    check_outputs([args.output])
+    check_outputs([args.output], inputs=args.keys)
     if len(args.keys) < 2:
         raise MixerError(f"a mixer needs at least 2 keys (the basis and one more), got {len(args.keys)}")
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
@@ -133,7 +133,7 @@ def run_mix(args):
         if not np.all(np.isfinite(g)):
             raise MixerError(f"--weights must be finite numbers, got {' '.join(f'{v:g}' for v in g)}")
     paths = mix_output_paths(args.output, len(groups))
-    check_outputs(paths)
+    check_outputs(paths, inputs=[args.mixer])
     mixer = ShapeMixer.load(args.mixer)
     m = mixer.n_keys - 1
     for g in groups:

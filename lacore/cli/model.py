@@ -105,7 +105,7 @@ def run_model(args):
     start = time.perf_counter()
     if not args.output.endswith(".npz"):
         raise ShapeModelError(f"the model file must end in .npz, got {args.output}")
-    check_outputs([args.output])
+    check_outputs([args.output], inputs=args.meshes)
     X, topology = _load_training(args.meshes)
     N = len(X)
     if args.modes is not None and args.modes > N - 1:
@@ -166,7 +166,7 @@ def run_sweep(args):
         raise ShapeModelError(f"--range must be two finite numbers (standard deviations), got "
                               f"{args.range[0]:g} {args.range[1]:g}")
     paths = output_paths(args.output, args.frames, args.format)
-    check_outputs(paths)
+    check_outputs(paths, inputs=[args.model])
     model = ShapeModel.load(args.model)
     if not 0 <= args.mode < model.n_modes:
         raise ShapeModelError(f"--mode {args.mode} is not a mode of the model (0 to {model.n_modes - 1})")

@@ -174,7 +174,8 @@ def run(args):
     if out_ext not in SUPPORTED_EXTENSIONS + (".npz",):
         raise _error(f"{args.output}: unsupported output format {out_ext or '(none)'!r}; use one of "
                      f"{', '.join(SUPPORTED_EXTENSIONS + ('.npz',))}")
-    check_outputs([npz_path(args.output) if out_ext == ".npz" else args.output])
+    check_outputs([npz_path(args.output) if out_ext == ".npz" else args.output],
+                  inputs=[args.ref, *args.target])
     ref_vertices, ref_faces = load_mesh(args.ref)
     topology = mesh_topology(args.ref, ref_faces, len(ref_vertices))
     ref_vertices = checked_vertices(args.ref, ref_vertices, topology)

@@ -135,10 +135,13 @@ def _load_obj(path):
     vertices, faces = [], []
     with open(path, encoding="utf-8", errors="replace") as fh:
         for line in fh:
-            if line.startswith("v "):
-                vertices.append(line.split()[1:4])
-            elif line.startswith("f "):
-                items = line.split()[1:]
+            tokens = line.split("#", 1)[0].split()          # any whitespace, leading blanks, trailing comments
+            if not tokens:
+                continue
+            if tokens[0] == "v":
+                vertices.append(tokens[1:4])
+            elif tokens[0] == "f":
+                items = tokens[1:]
                 if len(items) != 3:
                     raise _non_triangle_error(path, len(faces), len(items))
                 idx = [int(item.split("/")[0]) for item in items]

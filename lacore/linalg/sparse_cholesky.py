@@ -368,6 +368,8 @@ class SparseCholesky:
         b = np.asarray(b, dtype=np.float64)
         if b.shape[0] != self.n:
             raise ValueError(f"right-hand side has {b.shape[0]} rows, the matrix {self.n}")
+        if self.n == 0:                               # no unknowns (e.g. every face a root of its component)
+            return b.copy()
         if self.backend == "cholmod":
             cvxopt = self._cvxopt
             B = cvxopt.matrix(b.reshape(self.n, -1))

@@ -279,6 +279,11 @@ def _similarity(P, Q):
     return s, R, cq - s * cp @ R.T
 
 
+#: Height range (metres) of a performer wearing a standard marker set, for a model of undeclared unit: outside
+#: it the take's unit is wrong.
+PERFORMER_HEIGHT_RANGE = (0.5, 3.0)
+
+
 #: Markers placing the model must spread across a plane: their second principal extent above this fraction of
 #: the model's (or their own) size, else the rotation of the placement is undetermined.
 SPREAD_RTOL = 1e-6
@@ -325,7 +330,8 @@ def _take_up(take):
     if take.up_axis:
         return _axis(take.up_axis), f"take up axis {take.up_axis} (from the file)"
     x = take.positions
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # frames with every marker occluded
         ext = np.nanmedian(np.nanmax(x, 1) - np.nanmin(x, 1), axis=0)
     a = int(np.nanargmax(ext))
     up = np.eye(3)[a]
@@ -705,6 +711,13 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
                 f"({_unit_name(u)}); the take fits a model in {_unit_name(guess)}: check the model's length unit "
                 "or the take's POINT:UNITS (read_take(..., units=...))")
     else:
+        height = s_used * float(np.ptp(Xr @ _axis(up)))
+        lo, hi = PERFORMER_HEIGHT_RANGE
+        if any(h is not None for h in hints) and placement is None and not lo <= height <= hi:
+            raise UnitMismatchError(
+                f"unit mismatch: the performer measures {height:.3g} m tall in the take's unit (a person: "
+                f"{lo:g}-{hi:g} m), so the take's unit is wrong: check its POINT:UNITS (read_take(..., units=...), "
+                "lacore fit --units)")
         u = float(10.0 ** np.round(np.log10(s_used)))
         notes.append(f"model unit not declared: {_unit_name(u)} inferred (set model.length_unit)")
     # ---- axes

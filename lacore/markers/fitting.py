@@ -1512,7 +1512,11 @@ def fit_markers(model, markers, binding, options=None, *, rate=None, initial_ver
         if not (np.isfinite(rate) and rate > 0):
             raise InputError(f"rate must be a positive number of frames per second, got {rate!r}")
     prolong = None if prolongation is None else as_fit_prolongation(prolongation)
-    kappa = 0.0 if rate is None else options.temporal_weight * (rate / options.reference_rate) ** 2
+    with np.errstate(over="ignore"):
+        kappa = 0.0 if rate is None else float(options.temporal_weight * np.float64(rate / options.reference_rate) ** 2)
+    if not np.isfinite(kappa):
+        raise InputError(f"rate {rate:g} frames per second overflows the temporal weight (it grows with the rate "
+                         "squared): give the take's real frame rate")
     if mean_z is not None and np.shape(mean_z) != np.shape(model.mean_z):
         raise InputError(f"mean_z must have shape {np.shape(model.mean_z)}, got {np.shape(mean_z)}")
     solver = FrameSolver(model, binding, options, temporal=kappa, mean_z=mean_z)

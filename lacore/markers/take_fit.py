@@ -17,6 +17,8 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 
+import warnings
+
 import numpy as np
 
 from ..errors import InputError
@@ -232,7 +234,8 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     stats = marker_statistics(dist_m)
     frame_rms_mm = stats["frame_rms"] * 1000
     frame_p95_mm = stats["frame_p95"] * 1000
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # markers occluded in every frame
         by_marker = np.sqrt(np.nanmean(dist_m ** 2, axis=0)) * 1000
     flagged_frames, flagged_markers, warns = [], [], list(ignored)
     if np.isfinite(frame_rms_mm).any():

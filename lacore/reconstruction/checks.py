@@ -17,7 +17,8 @@ smoothing, and every frame of an interpolation) ends in :func:`apply_checks`, so
        max_e |theta_e - theta*_e| <= ANGLE_ATOL         (1e-5 rad, interior edges)
 
    -- or the method is an energy minimizer (``"gn"``, ``"hybrid"``) that
-   **converged**: Gauss-Newton stopped by one of its scale-free stationarity
+   **converged** (on an integrable target not to a wrong local minimum, below):
+   Gauss-Newton stopped by one of its scale-free stationarity
    rules (status 1-4 of
    :data:`~lacore.reconstruction.result.STATUS_MESSAGES`: energy at the
    noise floor, predicted Gauss-Newton decrease or decrease of a full step
@@ -44,7 +45,11 @@ target is (:func:`lacore.integrability.check_integrability`, all of Theorem 3.2:
 every vertex, hole and handle): for a target that is not integrable it is
 **the closest mesh** (``checks["outcome"] == "closest"``, and the message says
 why the target is no mesh's lengths and angles), for an integrable one a
-**minimum** of the energy that does not reproduce it (``"minimum"``).  A direct
+**minimum** of the energy that does not reproduce it (``"minimum"``).  A minimum that misses an
+integrable target by more than :data:`LOCAL_MINIMUM_RTOL` (1 %) in a length or :data:`LOCAL_MINIMUM_ANGLE`
+(0.1 rad) in an angle is a wrong local minimum and fails (``failure="local_minimum"``): a mesh with those
+lengths and angles exists (e.g. the reference scaled by 10, which a start at the reference's size crumples
+towards).  A direct
 method that fails on a non-integrable target says where the target does not
 close (a frame-based walk leaves a seam there).  The target is checked only
 when it is not reproduced (a reproduced target is integrable within the
@@ -63,7 +68,8 @@ from ..errors import format_indices
 from ..geometry.lengths_angles import lengths_and_angles
 from ..integrability.checks import check_integrability
 
-__all__ = ["LENGTH_RTOL", "ANGLE_ATOL", "FOLD_ANGLE", "CONVERGED_STATUSES", "ReconstructionCheck",
+__all__ = ["LENGTH_RTOL", "ANGLE_ATOL", "FOLD_ANGLE", "CONVERGED_STATUSES", "LOCAL_MINIMUM_RTOL",
+           "LOCAL_MINIMUM_ANGLE", "ReconstructionCheck",
            "check_reconstruction", "apply_checks"]
 
 #: Max relative length error per edge, ``|l - l*| / l*``, of a reproduced target.
@@ -75,6 +81,12 @@ FOLD_ANGLE = 0.5 * np.pi
 #: Gauss-Newton statuses that mean a converged minimizer (scale-free stopping rules), and 6: the hybrid
 #: method spent the smoothing budget it was asked for.
 CONVERGED_STATUSES = (1, 2, 3, 4, 6)
+
+#: A converged minimizer that misses an integrable target by more than this relative length or this angle
+#: (radians) on some edge is in a wrong local minimum (a failure); closer misses are minima of targets integrable
+#: only within :func:`lacore.integrability.check_integrability`'s tolerance (a sweep along a shape model's mode).
+LOCAL_MINIMUM_RTOL = 1e-2
+LOCAL_MINIMUM_ANGLE = 0.1
 
 
 @dataclass(frozen=True)
@@ -107,7 +119,9 @@ class ReconstructionCheck:
         :meth:`~lacore.integrability.checks.IntegrabilityCheck.describe` of the target (when checked).
     outcome : str
         ``"reproduced"``, ``"closest"`` (passed without reproducing a target that is not integrable: the
-        closest mesh), ``"minimum"`` (passed without reproducing an integrable target) or ``"failed"``.
+        closest mesh), ``"minimum"`` (a converged minimizer that does not reproduce an integrable target: passed
+        when it misses by at most :data:`LOCAL_MINIMUM_RTOL` / :data:`LOCAL_MINIMUM_ANGLE`, else failed as a wrong
+        local minimum) or ``"failed"``.
     """
 
     passed: bool
@@ -191,6 +205,13 @@ def check_reconstruction(vertices, z_target, topology, *, minimizer=False, conve
             outcome="failed", **target)
     if reproduced:
         return ReconstructionCheck(True, "", "", True, max_rel, max_ang, empty, empty, outcome="reproduced")
+    if (minimizer and converged and target["target_integrable"]
+            and (max_rel > LOCAL_MINIMUM_RTOL or max_ang > LOCAL_MINIMUM_ANGLE)):
+        return ReconstructionCheck(
+            False, "local_minimum", f"a local minimum of the energy that does not reproduce the target, which is "
+            f"integrable (a mesh has these lengths and angles: {errors}); start from a shape closer to the target "
+            "(initial vertices) or reconstruct it with a tree walk (method 'bfs')", False, max_rel, max_ang, empty,
+            empty, outcome="minimum", **target)
     if minimizer and converged:
         outcome = "minimum" if target["target_integrable"] else "closest"
         return ReconstructionCheck(True, "", "", False, max_rel, max_ang, empty, empty, outcome=outcome, **target)

@@ -430,7 +430,8 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         if not state.history:
             if not np.isfinite(energy):
                 raise LengthsAnglesError("the energy is not finite at the starting point: the start or the target "
-                                         "has triangles violating the triangle inequality")
+                                         "has triangles violating the triangle inequality, or target lengths so far "
+                                         "from the start's that the energy overflows (an extrapolation too far?)")
             state.history.append(energy)
         if energy <= atol:
             status = 1
@@ -439,8 +440,8 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
             status = 3
             break
         done = state.iterations - state.budget_from
-        if budget is not None and done >= budget and (not extend_budget or state.agreed):
-            status = 6
+        if budget is not None and done >= budget and done > 0 and (not extend_budget or state.agreed):
+            status = 6                                  # (no smoothing step at all is no approximation of a minimum)
             break
         if done >= options.max_iterations:
             status = 0

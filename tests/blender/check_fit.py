@@ -13,7 +13,8 @@ import importlib
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases, select_only
+from harness import (ARGS, MODULE, bpy, draw_panel, drive, esc, evaluated, fake_operator, reset, run_cases,
+                     select_only)
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -126,16 +127,11 @@ def whole_path():
     obj.data.vertices.foreach_get("co", after)
     # evaluated mesh per frame (the Mesh Cache modifier playing the PC2)
     frames = np.arange(1, T + 1)
-    evaluated = []
+    poses = []
     for f in frames:
         scene.frame_set(int(f))
-        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        me = ev.to_mesh()
-        c = np.empty(3 * len(me.vertices), np.float32)
-        me.vertices.foreach_get("co", c)
-        ev.to_mesh_clear()
-        evaluated.append(c.reshape(-1, 3))
-    OUT["evaluated"] = np.array(evaluated)
+        poses.append(evaluated(obj))
+    OUT["evaluated"] = np.array(poses)
     modifier = {"type": mod.type, "cache_format": mod.cache_format, "filepath": mod.filepath,
                 "frame_start": mod.frame_start, "frame_scale": mod.frame_scale, "time_mode": mod.time_mode}
     n_vertices = len(obj.data.vertices)
@@ -204,15 +200,6 @@ def bind_units_and_occlusion():
     return out
 
 
-def _evaluated(obj):
-    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    c = np.empty(3 * len(me.vertices), np.float32)
-    me.vertices.foreach_get("co", c)
-    ev.to_mesh_clear()
-    return c.reshape(-1, 3).astype(np.float64)
-
-
 def shape_key_output():
     """Short clip as shape keys: one key per frame, showing exactly at its frame; the PC2 fit's modifier goes, and
     fitting again replaces the keys instead of adding to them."""
@@ -226,7 +213,7 @@ def shape_key_output():
     names = [k.name for k in obj.data.shape_keys.key_blocks][n_before:]
     scene.frame_set(3)
     values = {k.name: k.value for k in obj.data.shape_keys.key_blocks[n_before:]}
-    first = _evaluated(obj)
+    first = evaluated(obj).astype(np.float64)
     key3 = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["LA fit 3"].data.foreach_get("co", key3)
     assert bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=2,
@@ -234,7 +221,7 @@ def shape_key_output():
     scene.frame_set(2)
     scene.frame_set(3)
     again = {"names": [k.name for k in obj.data.shape_keys.key_blocks][n_before:], "evaluated_change":
-             float(np.abs(_evaluated(obj) - first).max()),
+             float(np.abs(evaluated(obj).astype(np.float64) - first).max()),
              "shows_key": float(np.abs(first - key3.reshape(-1, 3)).max()),
              "size": float(np.ptp(first, axis=0).max()), "modifier": "LA Fit" in obj.modifiers,
              "had_modifier": had_modifier}

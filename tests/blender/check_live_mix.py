@@ -13,7 +13,7 @@ import os
 import time
 from types import SimpleNamespace
 
-from harness import ARGS, MODULE, bpy, draw_panel, esc, fake_operator, reset, run_cases, timer
+from harness import ARGS, MODULE, bpy, draw_panel, esc, evaluated, fake_operator, reset, run_cases, timer
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -63,16 +63,6 @@ def make_bar(name="Bar", grouped=False):
         kb.value = 0.0
     select_only(obj)
     return obj
-
-
-def evaluated(obj):
-    """(V', 3) float32 positions of the evaluated object (shape keys, then modifiers)."""
-    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    co = np.empty(3 * len(me.vertices), np.float32)
-    me.vertices.foreach_get("co", co)
-    ev.to_mesh_clear()
-    return co.reshape(-1, 3)
 
 
 def set_values(obj, values, names=NAMES):

@@ -100,6 +100,17 @@ def run_cases(cases):
                    "blender": bpy.app.version_string}, fh, indent=1)
 
 
+def evaluated(obj):
+    """(V', 3) float32 positions of the evaluated object (shape keys, then modifiers)."""
+    import numpy as np
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    co = np.empty(3 * len(me.vertices), np.float32)
+    me.vertices.foreach_get("co", co)
+    ev.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
 def select_only(*objs):
     """Select exactly ``objs`` and make the first the active object."""
     for o in bpy.context.view_layer.objects:

@@ -452,7 +452,7 @@ def check_keys(keys, faces, names=None):
     ----------
     keys : (K, V, 3) array_like
         ``keys[0]`` the basis.
-    faces : (F, 3) array_like of int
+    faces : (F, 3) array_like of int, or MeshTopology
     names : sequence of str, optional
         How the messages name the keys (default: ``"key k"``).
 
@@ -480,7 +480,7 @@ def check_keys(keys, faces, names=None):
     ...     print(str(e).split(";")[1].split(":")[0])
      shape key 'Key 1' is the basis up to a rigid motion)
     """
-    F = np.asarray(faces)
+    F = np.asarray(faces.faces if isinstance(faces, MeshTopology) else faces)
     if F.ndim != 2 or F.shape[1] != 3 or F.size == 0 or F.dtype.kind not in "iu":
         raise MeshError(f"faces must be a non-empty (F, 3) integer array, got shape {F.shape}")
     try:
