@@ -187,6 +187,8 @@ def test_usage_errors_exit_code_2(capsys):
         main(["encode"])
     assert exc.value.code == 2
     capsys.readouterr()
+    code, _, err = run_main(capsys, "encode", shared_mesh("finger/finger0.ply"), "-o", "")
+    assert code == 2 and "-o/--output is empty" in err, err
 
 
 def test_subcommand_registry():

@@ -38,6 +38,8 @@ def test_registered():
 def test_helpers():
     assert output_paths("out/a", 3) == ["out/a_000.ply", "out/a_001.ply", "out/a_002.ply"]
     assert output_paths("a", 1001, "obj")[-1] == "a_1000.obj"
+    assert output_paths("walk.ply", 1) == ["walk_000.ply"] and output_paths("w.OBJ", 1, "obj") == ["w_000.obj"]
+    assert output_paths(".ply", 1) == [".ply_000.ply"] and output_paths("a.obj", 1) == ["a.obj_000.ply"]
     np.testing.assert_allclose(frame_times([0.0, 3.0, 10.0], 5), [0.0, 2.5, 5.0, 7.5, 10.0])
     with pytest.raises(ValueError, match="at least 1"):
         frame_times([0.0, 1.0], 0)

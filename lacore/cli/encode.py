@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from ..io.atomic import check_writable, npz_path, save_npz_atomic
-from ..errors import MeshError, format_indices
+from ..errors import InputError, MeshError, format_indices
 from ..integrability import check_integrability, homology_basis
 from ..geometry.lengths_angles import check_nondegenerate, lengths_and_angles
 from ..io.meshes import load_mesh
@@ -76,6 +76,8 @@ def encode_mesh(vertices, faces):
 def run(args):
     """Run ``lacore encode``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
+    if args.output is not None and not args.output.strip():
+        raise InputError("-o/--output is empty: give a file name (or leave -o out to write nothing)")
     if args.output:
         check_writable(npz_path(args.output))
     vertices, faces = load_mesh(args.mesh)

@@ -113,7 +113,15 @@ def configure(parser):
 
 
 def output_paths(prefix, n, extension="ply"):
-    """``prefix_000.ext ... prefix_{n-1}.ext`` (at least three digits, more if ``n > 1000``)."""
+    """``prefix_000.ext ... prefix_{n-1}.ext`` (at least three digits, more if ``n > 1000``); a prefix ending in
+    ``.ext`` loses it (``-o walk.ply`` writes ``walk_000.ply``, not ``walk.ply_000.ply``).
+
+    >>> output_paths("walk.ply", 2), output_paths("out/f", 1, "obj")
+    (['walk_000.ply', 'walk_001.ply'], ['out/f_000.obj'])
+    """
+    prefix = str(prefix)
+    if prefix.lower().endswith("." + extension.lower()) and len(prefix) > len(extension) + 1:
+        prefix = prefix[:-len(extension) - 1]
     width = max(3, len(str(max(n - 1, 0))))
     return [f"{prefix}_{i:0{width}d}.{extension}" for i in range(n)]
 
