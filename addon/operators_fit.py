@@ -193,6 +193,11 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
     require_whole_keys(mesh, keys, "Build Model")
     for k in keys:
         check_vertices(coords[names.index(k)], len(mesh.vertices), name=f"Shape key '{k}'")
+    for i, a in enumerate(keys):
+        same = next((b for b in keys[:i] if np.array_equal(coords[names.index(a)], coords[names.index(b)])), None)
+        if same is not None:
+            raise FitSetupError(f"shape keys '{same}' and '{a}' are identical: a model learns from the keys' "
+                                "differences, so leave one out (Shape Keys)")
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")

@@ -193,7 +193,8 @@ def test_shape_key_output(run):
     ("take_too_short", "covers frames"), ("no_model", "no shape model"), ("bind_without_model", "no shape model"),
     ("bind_occluded", "only 0 of the 3 markers are visible at frame 3"),
     ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after"),
-    ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files")])
+    ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files"),
+    ("build_identical_keys", "shape keys 'train01' and 'dup' are identical")])
 def test_bad_input_changes_nothing(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and words in res["message"] and res["unchanged"], res

@@ -261,6 +261,12 @@ def bad_input():
     t0 = time.perf_counter()
     attempt("unwritable_cache", bpy.ops.lengths_angles.fit_markers, filepath="/proc/fit.pc2")
     out["unwritable_cache"]["seconds"] = time.perf_counter() - t0
+    dup = obj.shape_key_add(name="dup", from_mix=False)                 # a copy of train01
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks["train01"].data.foreach_get("co", co)
+    dup.data.foreach_set("co", co)
+    attempt("build_identical_keys", bpy.ops.lengths_angles.build_model, keys="train00, train01, dup")
+    obj.shape_key_remove(dup)
     meta = obj.data["lengths_angles_model"].to_dict()
     del obj.data["lengths_angles_model"]
     attempt("no_model", bpy.ops.lengths_angles.fit_markers)
