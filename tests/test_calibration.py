@@ -466,3 +466,16 @@ def test_a_marker_named_like_a_landmark_elsewhere_loses_its_hint(model):
     m = res.labels.index("ROFF")
     assert res.marker_rms_by_marker_mm[m] < 3.0, res.marker_rms_by_marker_mm[m]           # measured 0.61
     assert res.marker_rms_mm < 4.0 and res.marker_p95_mm < 8.0, (res.marker_rms_mm, res.marker_p95_mm)  # 2.0 / 4.0
+
+
+def test_frame_selection_is_checked():
+    """fit_take's ``frames``: slices, indices and masks select; out-of-range, negative or fractional indices and a
+    mask of another length are one-line errors, not IndexError or a silent wrap."""
+    from lacore.markers.take_fit import frame_indices
+    assert frame_indices(None, 4).tolist() == [0, 1, 2, 3] and frame_indices(slice(1, None, 2), 4).tolist() == [1, 3]
+    assert frame_indices([3, 0], 4).tolist() == [3, 0]
+    assert frame_indices(np.array([True, False, True, False]), 4).tolist() == [0, 2]
+    for bad, words in (([0, 500], "got 500"), ([0, -1], "got -1"), ([0.5], "float64 values"),
+                       (np.ones(3, bool), "a mask of shape"), ("all", "<U3 values")):
+        with pytest.raises(InputError, match=words):
+            frame_indices(bad, 120)

@@ -459,3 +459,23 @@ def test_obj_whitespace_and_comments(tmp_path):
         X, F = load_mesh(tmp_path / name)
         Xp, Fp = load_mesh(tmp_path / "plain.obj")
         assert np.array_equal(X, Xp) and np.array_equal(F, Fp), name
+
+
+def test_nan_input_of_the_jacobian_and_the_integrability_maps_is_refused():
+    """NaN in, one-line error out (as ``lengths_and_angles`` and ``check_integrability`` do), not NaN out."""
+    from lacore import (MeshTopology, euler_integrability_map, integrability_violation, lengths_and_angles,
+                        lengths_and_angles_jacobian)
+    from lacore.errors import LengthsAnglesError, MeshError
+    X, F = bar_mesh(n_along=4, n_side=1)
+    topo = MeshTopology.from_faces(F)
+    z = lengths_and_angles(X, topo)
+    z[5] = np.nan
+    for f in (integrability_violation, euler_integrability_map):
+        with pytest.raises(LengthsAnglesError, match=r"NaN or infinite entries \(1\)"):
+            f(z, topo)
+    Y = X.copy()
+    Y[3] = np.nan
+    with pytest.raises(MeshError, match="NaN or infinite coordinates at vertices 3"):
+        lengths_and_angles_jacobian(Y, topo)
+    with pytest.raises(MeshError):
+        lengths_and_angles_jacobian(X[None], topo)

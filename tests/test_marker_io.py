@@ -5,6 +5,7 @@ headers and parameters read independently here with the ``c3d`` package (its per
 The real files are test-only (no licence): they are read in place, never copied into the repository.
 """
 
+import dataclasses
 import warnings
 
 import c3d  # a declared dependency: a missing one must fail, not skip
@@ -225,6 +226,21 @@ def test_write_c3d_integer_round_trip(tmp_path):
     assert np.array_equal(back.visible, v)
     quantum = scale * 1e-3
     assert np.abs(back.positions[v] - take.positions[v]).max() <= 0.5 * quantum * 1.01
+
+
+def test_takes_the_formats_cannot_hold_are_refused_before_writing(tmp_path):
+    """Labels C3D or TRC cannot store (not ASCII, a tab), no frames, positions beyond float32: one-line errors and
+    no file, instead of a file that reads back wrong."""
+    take = synthetic_take(T=4, M=3)
+    cases = [("c3d", dataclasses.replace(take, labels=["\u00e9", "M1", "M2"]), "not ASCII|printable ASCII"),
+             ("trc", dataclasses.replace(take, labels=["M\t0", "M1", "M2"]), "printable ASCII"),
+             ("c3d", dataclasses.replace(take, positions=take.positions[:0]), "0 frames"),
+             ("c3d", dataclasses.replace(take, positions=take.positions * 1e36), "beyond float32")]
+    for ext, bad, words in cases:
+        path = tmp_path / f"bad.{ext}"
+        with pytest.raises(MarkerError, match=words):
+            (write_c3d if ext == "c3d" else write_trc)(path, bad)
+        assert not path.exists()
 
 
 def test_trc_round_trip_and_fixture(tmp_path):

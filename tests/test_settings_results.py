@@ -143,7 +143,7 @@ def test_hybrid_result_is_complete_and_consistent(plates):
     assert isinstance(res, ReconstructionResult) and isinstance(res, SolverResult)
     assert res.iterations == 2 and res.status == 6 and res.success
     # an average of two shapes is no mesh's lengths and angles: the result approximates the closest mesh
-    assert res.message.startswith("2 smoothing iterations done; an approximation of the closest mesh (2 smoothing "
+    assert res.message.startswith("2 smoothing iterations done; an approximation of the closest mesh (2 budgeted "
                                   "iterations): the target is not integrable at a vertex")
     assert res.checks["outcome"] == "closest" and res.checks["target_integrable"] is False
     assert res.method == "hybrid-lsq" and {"least_squares", "total", "initialization"} <= set(res.timings)

@@ -621,7 +621,7 @@ def lengths_and_angles_jacobian(vertices, topology, return_z=False):
     >>> bool(np.abs(J @ dX.ravel() - dz).max() < 1e-12)
     True
     """
-    X = np.asarray(vertices, float)
+    X = _as_vertices(vertices, topology.n_vertices)   # shape, NaN/inf: one-line MeshError
     k = safe_scale_exponent(X)
     if k:  # exact power-of-two scaling into the safe range: length rows invariant, angle rows scale by 2^-k
         out = lengths_and_angles_jacobian(np.ldexp(X, -k), topology, return_z)

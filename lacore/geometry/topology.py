@@ -49,8 +49,8 @@ def check_faces(faces, n_vertices=None):
     faces = faces.astype(np.int64)
     bad = np.flatnonzero((faces < 0).any(1) | ((faces >= n_vertices).any(1) if n_vertices is not None else False))
     if bad.size:
-        raise MeshError(f"faces with out-of-range vertex indices (mesh has {n_vertices} vertices): "
-                        f"faces {format_indices(bad)}")
+        has = f" (mesh has {n_vertices} vertices)" if n_vertices is not None else ""
+        raise MeshError(f"faces with out-of-range vertex indices{has}: faces {format_indices(bad)}")
     degenerate = np.flatnonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2])
                                 | (faces[:, 2] == faces[:, 0]))
     if degenerate.size:

@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..cache import carve, scratch
+from ..errors import LengthsAnglesError
 from ..geometry.lengths_angles import safe_scaled, split_z
 
 from .ring_products import (EULER_KEYS, block_ring_products, block_sizes, corner_half_angles, euler_from_entries,
@@ -75,6 +76,18 @@ def integrability_map(z, topology, gamma=None):
     return out
 
 
+def _finite_z(z, topology):
+    """``z`` as float64 ``(2E,)``, or :class:`~lacore.errors.LengthsAnglesError` for another shape or NaN/inf
+    entries (non-positive lengths are allowed: their vertices count as invalid)."""
+    z = np.asarray(z, float)
+    if z.shape != (2 * topology.n_edges,):
+        raise LengthsAnglesError(f"z must have shape ({2 * topology.n_edges},) = 2 x {topology.n_edges} edges, got "
+                                 f"{z.shape}")
+    if not np.isfinite(np.add.reduce(z)) and not np.all(np.isfinite(z)):
+        raise LengthsAnglesError(f"z has NaN or infinite entries ({int(np.sum(~np.isfinite(z)))})")
+    return z
+
+
 def euler_integrability_map(z, topology):
     """Modified integrability map (3.13), ``(3 V_int,)``; zero for admissible ``z``.
 
@@ -94,7 +107,7 @@ def euler_integrability_map(z, topology):
     >>> round(float(np.abs(euler_integrability_map(z, topo)).max()), 3)
     0.1
     """
-    q, _ = holonomies(z, topology)
+    q, _ = holonomies(_finite_z(z, topology), topology)
     return euler_from_entries(rotation_entries(q, EULER_KEYS), np.empty((3, q.shape[1]))).T.ravel()
 
 
@@ -122,7 +135,7 @@ def integrability_violation(z, topology, invalid=np.inf):
     >>> topo.edges[3].tolist()
     [0, 5]
     """
-    q, invalid_rows = holonomies(z, topology)
+    q, invalid_rows = holonomies(_finite_z(z, topology), topology)
     w, x, y, zz = q
     v = x * x
     v += y * y

@@ -154,8 +154,9 @@ def _as_index_array(a, what):
 def _check_range(idx, n, what):
     bad = np.flatnonzero(idx >= n)
     if bad.size:
-        raise MarkerBindingError(f"markers {format_indices(bad)} are bound to {what}s {format_indices(idx[bad])} "
-                                 f"out of range (the mesh has {n} {what}s)")
+        plural = {"vertex": "vertices"}.get(what, what + "s")
+        raise MarkerBindingError(f"markers {format_indices(bad)} are bound to {plural} {format_indices(idx[bad])} "
+                                 f"out of range (the mesh has {n} {plural})")
 
 
 def _as_offsets(offsets, m):

@@ -422,7 +422,10 @@ def write_c3d(path, take, units="mm", integer=False):
     c3d = _import_c3d()
     path = str(path)
     factor = 1.0 / unit_scale(units, path)
+    _check_writable_take(take, path, "C3D")
     pos = take.positions * factor
+    if not np.all(np.abs(pos[take.visible]) < np.finfo(np.float32).max):
+        raise MarkerError(f"{path}: positions beyond float32's range in {units}: write them in a larger unit")
     valid = take.visible
     if integer:
         peak = float(np.nanmax(np.abs(pos))) if valid.any() else 1.0
@@ -524,9 +527,22 @@ def _read_trc_text(data, path, units):
                       units=units if units is not None else file_units, source=path)
 
 
+def _check_writable_take(take, path, kind):
+    """:class:`MarkerError` before writing a take the format cannot hold: no frames or markers, labels that
+    are empty, not ASCII (C3D's fixed-width byte fields), or hold tabs or line breaks (TRC's separators)."""
+    if take.n_frames == 0 or take.n_markers == 0:
+        raise MarkerError(f"{path}: the take has {take.n_frames} frames and {take.n_markers} markers: nothing to "
+                          "write")
+    for label in take.labels:
+        if not label.strip() or not label.isascii() or not label.isprintable():
+            raise MarkerError(f"{path}: marker label {label!r} cannot be written to {kind} (labels are non-empty "
+                              "printable ASCII without tabs or line breaks): rename the marker")
+
+
 def write_trc(path, take, units="mm"):
     """Write ``take`` as a TRC file (occluded samples as empty fields), atomically."""
     factor = 1.0 / unit_scale(units, str(path))
+    _check_writable_take(take, str(path), "TRC")
     T, M = take.n_frames, take.n_markers
     lines = ["PathFileType\t4\t(X/Y/Z)\t" + os.path.basename(str(path)),
              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",

@@ -149,6 +149,34 @@ def _auto_prior_weight(model, cal, y_frames, fo, notes):
     return best
 
 
+def frame_indices(frames, n_frames):
+    """The frames of a take of ``n_frames`` that ``frames`` selects, as ``(k,)`` int64 indices.
+
+    ``frames``: None (all), a slice, indices in ``0..n_frames-1`` or a boolean mask of ``n_frames``; anything
+    else (negative or too large indices, fractions, a mask of another length) is an :class:`InputError`.
+
+    >>> frame_indices(slice(2, 5), 10), frame_indices([0, 9], 10)
+    (array([2, 3, 4]), array([0, 9]))
+    """
+    if frames is None:
+        return np.arange(n_frames)
+    if isinstance(frames, slice):
+        return np.arange(n_frames)[frames]
+    f = np.atleast_1d(np.asarray(frames))
+    what = (f"frames must be a slice, frame indices in 0..{n_frames - 1} or a boolean mask of {n_frames} frames, "
+            "got ")
+    if f.dtype == bool:
+        if f.shape != (n_frames,):
+            raise InputError(what + f"a mask of shape {f.shape}")
+        return np.flatnonzero(f)
+    if f.ndim != 1 or f.dtype.kind not in "iu":
+        raise InputError(what + (f"{f.dtype} values" if f.ndim == 1 else f"shape {f.shape}"))
+    bad = f[(f < 0) | (f >= n_frames)]
+    if bad.size:
+        raise InputError(what + f"{bad[0]}")
+    return f.astype(np.int64)
+
+
 def fit_take(model, take, calibration=None, options=None, *, frames=None, static=None, calibration_options=None,
              progress=None):
     """Calibrate (unless given) and fit every frame of a take; full resolution if the model has a fine level.
@@ -163,8 +191,8 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     options : FitOptions, optional
         Default :data:`lacore.markers.fitting.FIT_DEFAULTS`; ``prior_weight="auto"``
         picks from :data:`PRIOR_WEIGHT_CHOICES` by held-out markers.
-    frames : slice or array_like of int, optional
-        Take frames to fit (default all).
+    frames : slice or array_like of int or bool, optional
+        Take frames to fit (default all; :func:`frame_indices`).
     static : MarkerTake, optional
         A static trial to calibrate on.
     calibration_options : CalibrationOptions, optional
@@ -194,8 +222,7 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
         raise InputError(f"take must be a MarkerTake (lacore.markers.read_take), got {type(take).__name__}")
     take, ignored = drop_inconsistent_samples(drop_non_markers(take))
     T_all = take.n_frames
-    idx = np.arange(T_all)[frames] if frames is not None else np.arange(T_all)
-    idx = np.atleast_1d(np.asarray(idx, np.int64))
+    idx = frame_indices(frames, T_all)
     if not len(idx):
         raise InputError("frames selects no frame of the take")
     n_cal = 2 + (calibration_options or CALIBRATION_DEFAULTS).rounds if calibration is None else 0

@@ -66,6 +66,7 @@ import scipy.sparse as sp
 from ..errors import InputError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..progress import report
+from ..reconstruction.checks import apply_checks
 from ..reconstruction import (STATUS_MESSAGES, GaussNewtonOptions, ReconstructionContext, ReconstructionResult,
                               ReconstructionSettings, reconstruct)
 from ..reconstruction.assembly import dof_ordering
@@ -306,7 +307,6 @@ class MultiresolutionReconstruction:
             res = reconstruct(z, self.topology, None, method="gn", context=ctx, initial_vertices=X,
                               options=GaussNewtonOptions(max_iterations=int(fine_iterations), ftol=ftol))
             res.method = "multires"
-            res.success = res.status >= 0
             hist, factorizations, pcg_its, status = res.energy_history, res.factorizations, res.pcg_iterations, \
                 res.status
             X, energy, iterations = res.vertices, res.energy, res.iterations
@@ -320,12 +320,16 @@ class MultiresolutionReconstruction:
             iterations, factorizations = len(hist) - 1, 0
         timings["fine"] = time.perf_counter() - t0 - timings["reference_factorization"]
         timings["total"] = time.perf_counter() - t_start
-        result = ReconstructionResult(vertices=X, success=status >= 0, status=status,
-                                      message=STATUS_MESSAGES[status], method="multires", iterations=iterations,
+        message = STATUS_MESSAGES[status]
+        if status == 0 and fine_iterations:         # the fine budget spent: an approximation, as the hybrid method's
+            status, message = 6, f"the {int(fine_iterations)} fine iterations are done"
+        result = ReconstructionResult(vertices=X, success=False, status=status,
+                                      message=message, method="multires", iterations=iterations,
                                       energy=float(energy), energy_name="quadratic", initial_energy=hist[0],
                                       energy_history=list(hist), factorizations=factorizations,
                                       pcg_iterations=list(pcg_its), timings=timings, fixed_face=ctx.fixed_face,
                                       backend=ctx.backend)
+        result = apply_checks(result, z, self.topology, minimizer=True)   # success as for every reconstruction
         result.coarse_vertices = coarse.vertices
         result.coarse_iterations = coarse.iterations
         result.prolonged_energy = hist[0]

@@ -239,7 +239,7 @@ def apply_checks(result, z_target, topology, minimizer):
     if not check.passed:
         message = f"{result.message}; check failed: {check.message}"
     elif check.outcome == "closest" and result.status == 6:
-        message = (f"{result.message}; an approximation of the closest mesh ({result.iterations} smoothing "
+        message = (f"{result.message}; an approximation of the closest mesh ({result.iterations} budgeted "
                    f"iterations): the target is {check.target}")
     elif check.outcome == "closest":
         message = f"{result.message}; the closest mesh: the target is {check.target}"
