@@ -479,3 +479,29 @@ def test_nan_input_of_the_jacobian_and_the_integrability_maps_is_refused():
         lengths_and_angles_jacobian(Y, topo)
     with pytest.raises(MeshError):
         lengths_and_angles_jacobian(X[None], topo)
+
+
+def test_option_values_and_types_are_checked():
+    """Bad option values and types: one-line InputErrors naming the option, not a silent 'not integrable', a
+    coarsening with NaN weights or an AttributeError deep inside."""
+    from lacore import MeshTopology, check_integrability, lengths_and_angles
+    from lacore.multiresolution import coarsen, vertex_rotations
+    from lacore.shapes.geodesics import discrete_geodesic
+    X, F = bar_mesh(n_along=4, n_side=1)
+    topo = MeshTopology.from_faces(F)
+    z = lengths_and_angles(X, topo)
+    for tol in (-1.0, np.nan, "a"):
+        with pytest.raises(InputError, match="local_tolerance must be a finite number >= 0"):
+            check_integrability(z, topo, local_tolerance=tol)
+    for kw, words in (({"boundary_weight": np.nan}, "boundary_weight must be a number >= 0"),
+                      ({"min_quality": 2.0}, r"min_quality must be a number in \[0, 1\]"),
+                      ({"max_normal_angle": 0.0}, r"max_normal_angle must be a number in \(0, 180\]")):
+        with pytest.raises(InputError, match=words):
+            coarsen(X, F, 10, **kw)
+    Y = bar_pose(X, 0.3, 0.1)
+    for kw, words in (({"options": {"tol": 1e-3}}, "options must be a GeodesicOptions, got dict"),
+                      ({"settings": "x"}, "settings must be a ReconstructionSettings, got str")):
+        with pytest.raises(InputError, match=words):
+            discrete_geodesic(X, Y, topo, 3, **kw)
+    with pytest.raises(InputError, match="NaN or infinite"):
+        vertex_rotations(X, np.full_like(X, np.nan), topo.edges)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from .global_conditions import _tables, _z
 from .homology import HomologyBasis
 from .local import integrability_violation
@@ -208,6 +209,10 @@ def check_integrability(z, topology, *, local_tolerance=LOCAL_TOLERANCE, holonom
     >>> check.integrable, check.where()
     (False, 'around a hole')
     """
+    for name, tol in (("local_tolerance", local_tolerance), ("holonomy_tolerance", holonomy_tolerance),
+                      ("translation_tolerance", translation_tolerance)):
+        if not isinstance(tol, (int, float, np.floating, np.integer)) or not (np.isfinite(tol) and tol >= 0):
+            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
     z = _z(z, topology)
     local = integrability_violation(z, topology)
     tables = _tables(topology)

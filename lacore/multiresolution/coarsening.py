@@ -583,6 +583,17 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     target = int(n_vertices)
     if target != n_vertices or not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
+    for name, value, lo_, hi_ in (("boundary_weight", boundary_weight, 0.0, np.inf),
+                                  ("max_normal_angle", max_normal_angle, 0.0, 180.0),
+                                  ("min_quality", min_quality, 0.0, 1.0)):
+        try:
+            ok = lo_ <= float(value) <= hi_ and (hi_ < np.inf or np.isfinite(float(value)))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok or (name == "max_normal_angle" and float(value) == 0.0):
+            bounds = f">= {lo_:g}" if hi_ == np.inf else f"in ({lo_:g}, {hi_:g}]" if name == "max_normal_angle" \
+                else f"in [{lo_:g}, {hi_:g}]"
+            raise InputError(f"{name} must be a number {bounds}, got {value!r}")
     topo = MeshTopology.from_faces(faces, n_vertices=V)
     # each shape centred on its bounding box, all in units of the largest box diagonal: costs are sums of terms
     # of the size of the shape (not of its distance from the origin), and their rounding (_rounding_shift)

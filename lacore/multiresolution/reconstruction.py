@@ -72,7 +72,7 @@ from ..reconstruction import (STATUS_MESSAGES, GaussNewtonOptions, Reconstructio
 from ..reconstruction.assembly import dof_ordering
 from ..reconstruction.pcg import preconditioned_cg
 from ..linalg.sparse_cholesky import SparseCholesky
-from ..geometry.topology import MeshTopology
+from ..geometry.topology import MeshTopology, check_vertices
 from .coarsening import Coarsening, coarsen
 from .prolongation import Prolongation
 from .two_level import TwoLevelPreconditioner, interpolation_matrix
@@ -99,8 +99,8 @@ def vertex_rotations(reference_vertices, vertices, edges):
     -------
     (V, 3, 3) ndarray
     """
-    Xr = np.asarray(reference_vertices, float)
-    X = np.asarray(vertices, float)
+    Xr = check_vertices(reference_vertices, name="reference_vertices")
+    X = check_vertices(vertices, len(Xr))
     a, b = np.asarray(edges).T
     V = len(X)
     outer = ((Xr[b] - Xr[a])[:, :, None] * (X[b] - X[a])[:, None, :]).reshape(-1, 9)

@@ -340,6 +340,9 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
         reference_vertices = X0
     settings = settings if settings is not None else ReconstructionSettings()
     options = options if options is not None else GeodesicOptions()
+    for name, value, kind in (("settings", settings, ReconstructionSettings), ("options", options, GeodesicOptions)):
+        if not isinstance(value, kind):
+            raise InputError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
     if settings.energy != "quadratic":
         raise InputError(f"the geodesic solvers need the quadratic energy W_q, got settings.energy="
                          f"{settings.energy!r}")
