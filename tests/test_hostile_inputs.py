@@ -505,3 +505,25 @@ def test_option_values_and_types_are_checked():
             discrete_geodesic(X, Y, topo, 3, **kw)
     with pytest.raises(InputError, match="NaN or infinite"):
         vertex_rotations(X, np.full_like(X, np.nan), topo.edges)
+
+
+def test_more_option_values_are_checked():
+    """pcg settings of the multiresolution reconstruction, the synthesis' length floor, a bending weight that is no
+    number: one-line errors naming them."""
+    from lacore import MeshTopology, ShapeModel
+    from lacore.energies.quadratic import QuadraticEnergy
+    from lacore.multiresolution import MultiresolutionReconstruction
+    from lacore.samples.bar import bar_family
+    X, F = bar_mesh(n_along=12, n_side=2)
+    topo = MeshTopology.from_faces(F)
+    with pytest.raises(InputError, match="bending_weight must be finite and >= 0, got 'x'"):
+        QuadraticEnergy(topo, reference_vertices=X, bending_weight="x")
+    mr = MultiresolutionReconstruction(np.stack([X, bar_pose(X, 0.5, 0.0)]), topo, 20)
+    for kw, words in (({"pcg_rtol": -1.0}, r"pcg_rtol must be a number in \(0, 1\)"),
+                      ({"pcg_maxiter": 0}, "pcg_maxiter must be a positive integer")):
+        with pytest.raises(InputError, match=words):
+            mr.reconstruct([0.5, 0.5], fine_solver="reference", **kw)
+    poses, faces, _ = bar_family([0.0, 0.2, 0.4], [0.0, 0.1, 0.2], n_along=4, n_side=1)
+    model = ShapeModel.fit(poses, faces, n_modes=2)
+    with pytest.raises(InputError, match=r"min_length_ratio must be a number in \[0, 1\)"):
+        model.synthesize([0.0, 0.0], min_length_ratio=2.0)

@@ -106,7 +106,11 @@ class QuadraticEnergy(DeformationEnergy):
         super().__init__(topology)
         if weights not in WEIGHT_SCHEMES:
             raise InputError(f"unknown weight scheme {weights!r}; use one of {WEIGHT_SCHEMES}")
-        if not (np.isfinite(bending_weight) and bending_weight >= 0):
+        try:
+            valid = np.isfinite(float(bending_weight)) and float(bending_weight) >= 0
+        except (TypeError, ValueError):
+            valid = False
+        if not valid:
             raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         if reference_vertices is not None and reference_z is not None:
             raise InputError("give reference_vertices or reference_z, not both")

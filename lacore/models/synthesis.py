@@ -62,6 +62,8 @@ def synthesis_targets(model, coefficients, min_length_ratio=MIN_LENGTH_RATIO):
     """
     z = model.z_of(coefficients)
     E = model.topology.n_edges
+    if not 0.0 <= float(min_length_ratio) < 1.0:
+        raise ShapeModelError(f"min_length_ratio must be a number in [0, 1), got {min_length_ratio!r}")
     floor = float(min_length_ratio) * model.mean_z[:E]
     clamped = z[..., :E] < floor
     z[..., :E] = np.maximum(z[..., :E], floor)

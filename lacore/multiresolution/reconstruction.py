@@ -288,6 +288,10 @@ class MultiresolutionReconstruction:
             raise ValueError(f"unknown fine_solver {fine_solver!r}; use one of {', '.join(FINE_SOLVERS)}")
         if int(fine_iterations) != fine_iterations or fine_iterations < 0:
             raise ValueError(f"fine_iterations must be a non-negative integer, got {fine_iterations!r}")
+        if not 0.0 < float(pcg_rtol) < 1.0:
+            raise InputError(f"pcg_rtol must be a number in (0, 1), got {pcg_rtol!r}")
+        if int(pcg_maxiter) != pcg_maxiter or pcg_maxiter < 1:
+            raise InputError(f"pcg_maxiter must be a positive integer, got {pcg_maxiter!r}")
         w = self._check_weights(key_weights)
         z = self.fine_target(w) if z_target is None else check_z(z_target, self.topology, name="target z")
         timings = {}
