@@ -61,7 +61,7 @@ from ..lacore.shapes.mixing import check_keys
 from ..lacore.shapes.mixing.files import build_mixer_bytes, mixer_bytes
 from . import storage
 from .jobs import CallJob
-from .mesh_access import read_shape_keys, require_mesh_object, triangulate
+from .mesh_access import read_shape_keys, require_mesh_object, shows_stored_shape, triangulate
 from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
@@ -88,7 +88,7 @@ def split_keys(mesh):
     for kb in key.key_blocks:
         if kb == ref or is_own_key(kb.name):
             continue
-        (nonlinear if kb.relative_key == ref and not kb.vertex_group else linear).append(kb.name)
+        (nonlinear if shows_stored_shape(kb, ref) else linear).append(kb.name)
     return ref.name, nonlinear, linear
 
 

@@ -20,9 +20,9 @@ import numpy as np
 
 from ..lacore.errors import InputError
 
-__all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "require_whole_keys",
-           "write_shape_key", "set_shape_key", "key_names", "require_mesh_object", "world_to_object", "object_mode",
-           "mesh_counts", "connectivity_digest"]
+__all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
+           "require_whole_keys", "write_shape_key", "set_shape_key", "key_names", "require_mesh_object",
+           "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
 
 
 class MeshAccessError(InputError):
@@ -208,6 +208,12 @@ def read_shape_keys(mesh):
     return names, coords
 
 
+def shows_stored_shape(kb, reference):
+    """Whether the shape key ``kb`` alone at value 1 shows its stored shape: relative to the ``reference`` key and
+    limited to no vertex group."""
+    return kb.relative_key == reference and not kb.vertex_group
+
+
 def require_whole_keys(mesh, names, what):
     """:class:`MeshAccessError` when a shape key of ``names`` shows other than its stored shape at value 1: limited
     to a vertex group, or relative to another key than the reference key.  ``what`` starts the message."""
@@ -217,15 +223,13 @@ def require_whole_keys(mesh, names, what):
     ref = key.reference_key
     for name in names:
         kb = key.key_blocks.get(name)
-        if kb is None or kb == ref:
+        if kb is None or kb == ref or shows_stored_shape(kb, ref):
             continue
         why = (f"is limited to the vertex group '{kb.vertex_group}'" if kb.vertex_group else
-               f"is relative to '{kb.relative_key.name}', not to the basis '{ref.name}'"
-               if kb.relative_key != ref else "")
-        if why:
-            raise MeshAccessError(f"{what}: shape key '{name}' {why}, so it shows other than its stored shape; "
-                                  "make a key of what it shows (set its value to 1, the others to 0, then Shape "
-                                  "Keys > New Shape from Mix) and use that")
+               f"is relative to '{kb.relative_key.name}', not to the basis '{ref.name}'")
+        raise MeshAccessError(f"{what}: shape key '{name}' {why}, so it shows other than its stored shape; make a "
+                              "key of what it shows (set its value to 1, the others to 0, then Shape Keys > New Shape "
+                              "from Mix) and use that")
 
 
 def write_shape_key(mesh, name, coords):
