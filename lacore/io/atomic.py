@@ -23,6 +23,7 @@ file that was asked for (never the temporary file) and what to do, e.g.
 import contextlib
 import errno
 import os
+import secrets
 import tempfile
 import zipfile
 
@@ -120,11 +121,11 @@ def atomic_write(path, mode="wb", encoding=None):
     if not os.path.basename(path) or os.path.isdir(path):
         raise write_error(IsADirectoryError(errno.EISDIR, "Is a directory"), path)
     directory = os.path.dirname(os.path.abspath(path))
+    # the temporary file's name is known before it exists, so the cleanup below removes it even when an interrupt
+    # (Ctrl-C) lands between its creation and the first statement that would have learnt its name
+    tmp = os.path.join(directory, f".{os.path.basename(path)[:64]}.{secrets.token_hex(8)}.tmp")
     try:
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path)[:64] + ".", suffix=".tmp", dir=directory)
-    except OSError as exc:
-        raise write_error(exc, path) from None
-    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         kw = {} if mode == "wb" else {"encoding": encoding or "utf-8", "newline": ""}
         with os.fdopen(fd, mode, **kw) as fh:
             yield fh
