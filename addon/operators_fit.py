@@ -239,10 +239,20 @@ def staged_progress(progress, stages, scale=1000):
 
 def model_vertices(model, coefficients):
     """Vertices of the model's pose with ``coefficients`` on the mesh it was built from (prolonged from the
-    coarse level when there is one)."""
-    X = model.synthesize(coefficients)
+    coarse level when there is one) and the pose's ReconstructionResult (``success`` False: the pose failed its
+    checks, ``message`` says how)."""
+    X, result = model.synthesize(coefficients, return_results=True)
     fine = getattr(model, "fine_level", None)
-    return X if fine is None else fine(X, coefficients)
+    return (X if fine is None else fine(X, coefficients)), result
+
+
+def pose_problem(result):
+    """The one-line message of a model pose that failed its checks (:func:`model_vertices`), else None."""
+    if result.success:
+        return None
+    detail = result.message.split("check failed: ", 1)[-1].split(" (")[0]
+    return (f"the model's pose at these sliders failed its checks ({detail}); sliders closer to 0 stay nearer "
+            "the training poses")
 
 
 def model_mesh_vertices(model, X):
@@ -271,6 +281,7 @@ def _store_built_model(obj, model, keys):
     _PENDING_PREVIEWS.add(obj.name)  # the sliders' reset previews nothing
     obj.lengths_angles_mode_weights = [0.0] * MAX_MODES
     _PENDING_PREVIEWS.discard(obj.name)
+    PREVIEW_PROBLEMS.pop(obj.name, None)
 
 
 def store_model(mesh, model, keys):
@@ -317,6 +328,7 @@ def remove_model(obj):
     if kb is not None:
         obj.shape_key_remove(kb)
     obj.property_unset("lengths_angles_mode_weights")  # back to the defaults, nothing stored (no preview either)
+    PREVIEW_PROBLEMS.pop(obj.name, None)
     return had
 
 
@@ -376,13 +388,20 @@ def _mesh_vertices(obj, depsgraph):
 # -------------------------------------------------------------------------------------------- preview
 PREVIEW_INTERVAL = 0.2  # seconds: the slider preview is recomputed at most this often
 _PENDING_PREVIEWS = set()
+#: ``{object name: message}`` of previews showing a pose that failed its checks (the panel shows the message).
+PREVIEW_PROBLEMS = {}
 
 
 def preview_pose(obj):
     """Write the mode sliders' pose (``ShapeModel.synthesize``) into the shape key :data:`PREVIEW_KEY` (at 1)."""
     model = read_model(obj)
     w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-    X = model_vertices(model, w * model.standard_deviations)
+    X, result = model_vertices(model, w * model.standard_deviations)
+    problem = pose_problem(result)
+    if problem is None:
+        PREVIEW_PROBLEMS.pop(obj.name, None)
+    else:
+        PREVIEW_PROBLEMS[obj.name] = problem
     if obj.data.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
     kb = obj.data.shape_keys.key_blocks.get(PREVIEW_KEY) or obj.shape_key_add(name=PREVIEW_KEY, from_mix=False)
@@ -800,10 +819,13 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         try:
             model = read_model(obj)
             w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
-            X = model_vertices(model, w * model.standard_deviations)
+            X, result = model_vertices(model, w * model.standard_deviations)
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
+        problem = pose_problem(result)
+        if problem is not None:  # written all the same: it is the pose the preview shows
+            self.report({'WARNING'}, problem[0].upper() + problem[1:])
         if obj.data.shape_keys is None:
             obj.shape_key_add(name="Basis", from_mix=False)
         kb = obj.shape_key_add(name=self.name, from_mix=False)

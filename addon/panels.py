@@ -133,6 +133,9 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
         col.label(text=f"Model: {len(meta['keys'])} keys, {meta['n_modes']} modes (sliders in std. dev.)")
         for j in range(min(int(meta["n_modes"]), fit.MAX_MODES)):
             col.prop(obj, "lengths_angles_mode_weights", index=j, text=f"Mode {j + 1}", slider=True)
+        problem = fit.PREVIEW_PROBLEMS.get(obj.name)
+        if problem is not None:
+            col.label(text=problem[0].upper() + problem[1:], icon='ERROR')
         col.operator(fit.LENGTHS_ANGLES_OT_model_pose_to_shape_key.bl_idname, icon='SHAPEKEY_DATA')
         layout.operator(fit.LENGTHS_ANGLES_OT_bind_markers.bl_idname, icon='EMPTY_DATA')
         binding = obj.get(fit.BINDING_PROP)

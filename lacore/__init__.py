@@ -41,7 +41,7 @@ Encode a mesh, change its lengths and angles, and reconstruct vertex positions:
 import importlib
 
 from .energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
-from .errors import InputError, LengthsAnglesError, MeshError
+from .errors import InputError, LengthsAnglesError, MeshError, ReconstructionWarning
 from .integrability.local import (euler_integrability_jacobian, euler_integrability_map, integrability_map,
                                   integrability_violation)
 from .integrability.transitions import transition_rotations, triangle_inequality_map
@@ -72,7 +72,7 @@ def __getattr__(name):
 __version__ = "0.1.0"
 
 __all__ = [
-    "InputError", "MeshError", "LengthsAnglesError", "Cancelled", "rigid_fit", "rigid_align",
+    "InputError", "MeshError", "LengthsAnglesError", "ReconstructionWarning", "Cancelled", "rigid_fit", "rigid_align",
     "MeshTopology", "check_vertices",
     "edge_lengths", "dihedral_angles", "lengths_and_angles", "lengths_and_angles_jacobian", "split_z",
     "integrability_map", "euler_integrability_map", "euler_integrability_jacobian", "integrability_violation",

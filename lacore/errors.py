@@ -5,7 +5,7 @@ Every error caused by bad input derives from :class:`InputError` (itself a
 show its message; any other exception is a bug and shows as one (traceback).
 """
 
-__all__ = ["InputError", "MeshError", "LengthsAnglesError", "format_indices"]
+__all__ = ["InputError", "MeshError", "LengthsAnglesError", "ReconstructionWarning", "format_indices"]
 
 
 class InputError(ValueError):
@@ -58,6 +58,25 @@ class LengthsAnglesError(InputError):
     ... except LengthsAnglesError as exc:
     ...     print(exc)
     target z must have shape (6,) = 2 x 3 edges, got (2,)
+    """
+
+
+class ReconstructionWarning(UserWarning):
+    """A function that returns vertices alone returned some that failed their reconstruction's checks.
+
+    Functions that can also return their :class:`~lacore.reconstruction.ReconstructionResult` objects
+    (``return_results=True``) warn only when they are not asked for them: the caller who has the results
+    decides.  Turn the warning into an error with ``warnings.simplefilter("error", ReconstructionWarning)``.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from lacore import ReconstructionWarning
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     warnings.warn("pose 1 of 1 failed its checks", ReconstructionWarning)
+    >>> caught[0].category.__name__, issubclass(ReconstructionWarning, UserWarning)
+    ('ReconstructionWarning', True)
     """
 
 

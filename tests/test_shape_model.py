@@ -1,13 +1,14 @@
 """Shape models in lengths and angles (thesis 4.3, (4.14)-(4.19)): lacore.models.shape_model.ShapeModel."""
 
 from dataclasses import replace
+import warnings
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from lacore import MeshTopology, lengths_and_angles
-from lacore.errors import InputError, MeshError
+from lacore.errors import InputError, MeshError, ReconstructionWarning
 from lacore.integrability.local import euler_integrability_jacobian
 from lacore.io.meshes import load_mesh
 from lacore.progress import Cancelled
@@ -365,3 +366,22 @@ def test_fit_progress_and_selectable_synthesis_method(bar):
     d = _diag(gn)
     assert rigid_rms(hybrid, gn) < 1e-11 * d  # measured 4e-13: least-squares start + GN smoothing converges
     assert rigid_rms(lsq, gn) < 1e-5 * d  # measured 1.7e-6: the linear relaxation alone
+
+
+def test_synthesis_warns_about_failed_poses_unless_their_results_are_returned(bar_models):
+    model = bar_models["ambient"]
+    E = model.topology.n_edges
+    u, lbar = model.modes[0, :E], model.mean_z[:E]
+    a = np.zeros((2, model.n_modes))
+    a[1, 0] = 1.2 * np.min(lbar[u < 0] / -u[u < 0])  # folds: pose 2 fails its checks, pose 1 (the mean) passes
+    options = replace(MODEL_OPTIONS, max_iterations=5)
+    X, results = model.synthesize(a, options=options, return_results=True)
+    assert [r.success for r in results] == [True, False]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the caller holds the results: no warning
+        model.synthesize(a, options=options, return_results=True)
+        model.synthesize(a[0], options=options)  # every pose passed
+    with pytest.warns(ReconstructionWarning, match=r"^1 of 2 poses failed their checks \(pose 2\): ") as caught:
+        X2 = model.synthesize(a, options=options)
+    assert results[1].message in str(caught[0].message) and caught[0].filename == __file__
+    np.testing.assert_array_equal(X2, X)  # returned all the same

@@ -5,10 +5,12 @@ methods of the same names of :class:`~lacore.models.shape_model.ShapeModel`.
 Synthesis reads the model and changes nothing in it.
 """
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
 
+from ..errors import ReconstructionWarning
 from ..progress import report
 from ..reconstruction import reconstruct
 from .settings import MIN_LENGTH_RATIO, MODEL_OPTIONS, ShapeModelError
@@ -95,7 +97,9 @@ def synthesize(model, coefficients, *, method=None, options=None, hybrid=None, i
     progress : callable, optional
         ``progress(done, total, message)`` per pose.
     return_results : bool
-        Also return the :class:`~lacore.reconstruction.ReconstructionResult` of every pose.
+        Also return the :class:`~lacore.reconstruction.ReconstructionResult` of every pose.  Without them,
+        poses that fail their checks (coefficients far beyond the training range fold the mesh) are returned
+        with a :class:`~lacore.errors.ReconstructionWarning` naming them and the first failure.
 
     Returns
     -------
@@ -138,6 +142,12 @@ def synthesize(model, coefficients, *, method=None, options=None, hybrid=None, i
         out[k] = res.vertices
         results.append(res)
     report(progress, len(A), len(A), "done")
+    failed = [k for k, res in enumerate(results) if not res.success]
+    if failed and not return_results:
+        shown = ", ".join(str(k + 1) for k in failed[:8]) + (" ..." if len(failed) > 8 else "")
+        warnings.warn(f"{len(failed)} of {len(A)} poses failed their checks (pose {shown}): "
+                      f"{results[failed[0]].message}; use coefficients of a few standard deviations, or "
+                      "return_results=True to inspect them", ReconstructionWarning, stacklevel=2)
     if single:
         out, results = out[0], results[0]
     return (out, results) if return_results else out

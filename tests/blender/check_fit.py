@@ -92,6 +92,25 @@ def whole_path():
     obj.data.shape_keys.key_blocks["mode1"].data.foreach_get("co", co)
     OUT["mode1"] = co.reshape(-1, 3)
     obj.shape_key_remove(obj.data.shape_keys.key_blocks["mode1"])
+    # a slider far out: the preview shows a pose that fails its checks, and the panel says so until it is moved back
+    problems = []
+    for value in (3.0, 1.0):
+        obj.lengths_angles_mode_weights[0] = value
+        fit.update_previews()
+        problems.append(fit.PREVIEW_PROBLEMS.get(obj.name))
+    obj.lengths_angles_mode_weights[0] = 3.0
+    fit.update_previews()
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
+    OUT["far_preview"] = co.reshape(-1, 3)
+    assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="far") == {"FINISHED"}  # written, with a warning
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks["far"].data.foreach_get("co", co)
+    OUT["far"] = co.reshape(-1, 3)
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks["far"])
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
+    obj.lengths_angles_mode_weights[0] = 1.0
+    fit._PENDING_PREVIEWS.clear()
     # markers
     assert bpy.ops.lengths_angles.import_markers(filepath=C3D, scale=10.0) == {"FINISHED"}
     take = bpy.data.objects["take"]
@@ -143,7 +162,8 @@ def whole_path():
     obj = bpy.data.objects["Body"]
     model = ext("addon.operators_fit").read_model(obj)
     np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
-    return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3)},
+    return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3),
+                        "problems": problems},
             "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
             "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
             "fit_seconds_per_frame": t_fit / T,
