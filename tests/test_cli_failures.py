@@ -125,6 +125,14 @@ def test_atomic_write_helpers(tmp_path):
         assert data["x"].tolist() == [0, 1, 2] and data["y"].shape == (2, 2)
     with pytest.raises(FileNotFoundError):
         save_npz_atomic(tmp_path / "missing_dir" / "x.npz", x=np.zeros(1))
+    assert save_npz_atomic(tmp_path / "UPPER.NPZ", x=np.zeros(1)) == str(tmp_path / "UPPER.NPZ")  # any case
+
+
+def test_an_upper_case_npz_output_is_written_as_named(tmp_path, capsys):
+    code, out, err = run_main(capsys, "encode", shared_mesh(FINGER0), "-o", tmp_path / "z.NPZ")
+    assert code == 0 and sorted(p.name for p in tmp_path.iterdir()) == ["z.NPZ"]
+    code, out, err = run_main(capsys, "model", shared_mesh(FINGER0), shared_mesh(FINGER1), "-o", tmp_path / "m.NPZ")
+    assert code == 0 and (tmp_path / "m.NPZ").is_file() and not (tmp_path / "m.NPZ.npz").exists()
 
 
 def test_encode_reports_the_file_it_wrote(tmp_path, capsys):

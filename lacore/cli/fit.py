@@ -142,7 +142,7 @@ def _frames(text):
 def run(args):
     """Run ``lacore fit``; returns the exit code (bad input raises for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
-    if not args.output.endswith(".npz"):
+    if not args.output.lower().endswith(".npz"):
         raise InputError(f"the output file must end in .npz, got {args.output}")
     check_outputs([args.output], inputs=[args.model, args.markers, args.static])
     gamma = _prior_weight(args.prior_weight)

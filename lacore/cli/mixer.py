@@ -85,7 +85,7 @@ def configure_mix(parser):
 def run_mixer(args):
     """Run ``lacore mixer``; returns the exit code (bad input raises for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
-    if not args.output.endswith(".npz"):
+    if not args.output.lower().endswith(".npz"):
         raise MixerError(f"the mixer file must end in .npz, got {args.output}")
     check_outputs([args.output], inputs=args.keys)
     if len(args.keys) < 2:

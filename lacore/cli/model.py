@@ -103,7 +103,7 @@ def _load_training(paths):
 def run_model(args):
     """Run ``lacore model``; returns the exit code (bad input raises for :func:`lacore.cli.main`)."""
     start = time.perf_counter()
-    if not args.output.endswith(".npz"):
+    if not args.output.lower().endswith(".npz"):
         raise ShapeModelError(f"the model file must end in .npz, got {args.output}")
     check_outputs([args.output], inputs=args.meshes)
     X, topology = _load_training(args.meshes)

@@ -147,7 +147,7 @@ def atomic_write(path, mode="wb", encoding=None):
 
 
 def npz_path(path):
-    """The path :func:`numpy.savez` writes for ``path``: ``.npz`` appended unless it ends so.
+    """The path :func:`numpy.savez` writes for ``path``: ``.npz`` appended unless it ends so (in any case).
 
     A path that names a folder (an existing one, or ending in a separator)
     raises the OSError of :func:`write_error` instead of becoming ``folder/.npz``.
@@ -155,7 +155,7 @@ def npz_path(path):
     path = os.fspath(path)
     if not os.path.basename(path) or os.path.isdir(path):
         raise write_error(IsADirectoryError(errno.EISDIR, "Is a directory"), path)
-    return path if path.endswith(".npz") else path + ".npz"
+    return path if path.lower().endswith(".npz") else path + ".npz"
 
 
 def save_npz_atomic(path, compressed=False, **arrays):
