@@ -96,6 +96,7 @@ def test_takes_calibrate_and_fit_with_the_defaults(model, name):
     assert cal.length_unit == 0.1 and cal.binding.n_markers == kept
     assert res.marker_rms_mm < rms and res.marker_p95_mm < p95, (res.marker_rms_mm, res.marker_p95_mm)
     assert res.flagged_frames == [], res.warnings
+    assert not [w for w in res.warnings if w.startswith("only ")]  # enough markers for the model
     # real motion is smooth at the take's rate: the temporal term keeps its full weight in every frame
     # (the markers' own prediction misses them by at most 0.11 mean edge lengths, windowed median; tolerance 0.25)
     assert res.frame_temporal_scale.shape == (n,) and np.all(res.frame_temporal_scale == 1.0)
@@ -479,3 +480,12 @@ def test_frame_selection_is_checked():
                        (np.ones(3, bool), "a mask of shape"), ("all", "<U3 values")):
         with pytest.raises(InputError, match=words):
             frame_indices(bad, 120)
+
+
+def test_too_few_markers_for_the_model_are_a_warning(model):
+    take = read("Static_Pose.c3d")
+    three = dataclasses.replace(take, positions=take.positions[:, :3], labels=take.labels[:3], residuals=None,
+                                descriptions=None, point_groups=None)
+    res = fit_take(model, three, frames=[0])
+    assert (f"only 3 markers: 9 coordinates for {model.n_modes} modes and the rigid placement "
+            f"({model.n_modes + 6} unknowns)") in res.warnings[0]

@@ -265,6 +265,11 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
         warnings.simplefilter("ignore", RuntimeWarning)          # markers occluded in every frame
         by_marker = np.sqrt(np.nanmean(dist_m ** 2, axis=0)) * 1000
     flagged_frames, flagged_markers, warns = [], [], list(ignored)
+    n_markers, n_unknowns = len(cal.labels), model.n_modes + 6
+    if 3 * n_markers < n_unknowns:
+        warns.append(f"only {n_markers} markers: {3 * n_markers} coordinates for {model.n_modes} modes and the "
+                     f"rigid placement ({n_unknowns} unknowns); the poses follow the model's prior more than the "
+                     "markers (full-body marker sets have 35-60)")
     if np.isfinite(frame_rms_mm).any():
         med = float(np.nanmedian(frame_rms_mm))
         bad = np.flatnonzero(frame_rms_mm > max(3 * med, 10.0))
