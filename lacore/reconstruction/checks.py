@@ -48,8 +48,8 @@ why the target is no mesh's lengths and angles), for an integrable one a
 **minimum** of the energy that does not reproduce it (``"minimum"``).  A minimum that misses an
 integrable target by more than :data:`LOCAL_MINIMUM_RTOL` (1 %) in a length or :data:`LOCAL_MINIMUM_ANGLE`
 (0.1 rad) in an angle is a wrong local minimum and fails (``failure="local_minimum"``): a mesh with those
-lengths and angles exists (e.g. the reference scaled by 10, which a start at the reference's size crumples
-towards).  A direct
+lengths and angles exists (e.g. a sphere's mirror image, which Gauss-Newton from the sphere cannot turn inside
+out).  A direct
 method that fails on a non-integrable target says where the target does not
 close (a frame-based walk leaves a seam there).  The target is checked only
 when it is not reproduced (a reproduced target is integrable within the

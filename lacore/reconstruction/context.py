@@ -42,6 +42,22 @@ weights (3.20) and ``W_q`` with them are scale-free; for the weights (3.21) and
 length squared, the context multiplies that term by ``4^k`` so that the energy
 (and its minimizer) is the one in the caller's units.
 
+Target scale
+------------
+The weights (3.20) measure a length's residual relative to the reference's
+length, and its bending terms are dimensionless: ``W_q`` weighs stretching
+against bending as designed for targets of the reference's size.  A target
+``rho`` times larger (median of its lengths over the reference's) weighs
+stretching ``rho^2`` times more: from ``rho = 3`` on, Gauss-Newton on
+integrable targets of the deformed spheres ended in crumpled local minima.
+So for weights (3.20) and a target outside ``1 / TARGET_SCALE_BAND ..
+TARGET_SCALE_BAND`` times the reference's size, the objective divides the
+length weights by ``s^2``, ``s = rho / TARGET_SCALE_BAND`` (or ``rho
+TARGET_SCALE_BAND`` below the band), and the stopping rules use ``s`` times
+the reference's size (:meth:`ReconstructionContext.target_scale`); Gauss-Newton's
+default start, the reference, is scaled by ``s`` about its centroid.  Energies
+are then those weights' ``W_q``; targets within the band are unaffected.
+
 Factorization
 -------------
 The symbolic Cholesky factorization of the Gauss-Newton pattern
@@ -202,6 +218,11 @@ class ReconstructionContext:
         #: bounding-box diagonal of the reference, in the context's units
         self.size = float(np.linalg.norm(Xi.max(0) - Xi.min(0))) or 1.0
         self._residual_weights = None
+        self._reference_lengths = None
+        #: Whether objectives follow a target's size beyond :data:`TARGET_SCALE_BAND` (module docstring, "Target
+        #: scale").  A shape mixer turns it off in its own context: its reduced energy, Newton points and polish
+        #: share the basis' weights at every mix.
+        self.follows_target_scale = True
         self._solver = None
         self._buffer = None
         self._fixed_entries = None
@@ -366,26 +387,75 @@ class ReconstructionContext:
                 raise
             return np.asarray(vertices, float)
 
+    def target_scale(self, z_target):
+        """``s``: how much larger than the reference a target is, beyond the band of sizes the weights are for.
+
+        ``rho`` is the median ratio of the target's lengths to the reference's; ``s = 1`` for ``rho`` within
+        ``1 / TARGET_SCALE_BAND .. TARGET_SCALE_BAND``, else ``rho`` over the band's nearer end (continuous).
+        Always 1 unless the energy is ``W_q`` with the scale-free weights (3.20) (module docstring,
+        "Target scale"); also when :attr:`follows_target_scale` is off, and for targets beyond
+        ``2^+-SAFE_EXPONENT`` (about 1e+-30) times that size, whose scaled weights float64 cannot hold.
+
+        Examples
+        --------
+        >>> from lacore import MeshTopology, lengths_and_angles
+        >>> from lacore.reconstruction import get_context
+        >>> from lacore.samples.bar import bar_mesh
+        >>> X, faces = bar_mesh(n_along=4, n_side=1)
+        >>> topo = MeshTopology.from_faces(faces)
+        >>> context = get_context(topo, X)
+        >>> [round(context.target_scale(lengths_and_angles(k * X, topo)), 6) for k in (1.4, 3.0, 0.1)]
+        [1.0, 2.0, 0.15]
+        """
+        if not self.follows_target_scale or self.energy_name != "quadratic" or self.weights_kind != "frohlich_botsch":
+            return 1.0
+        if self._reference_lengths is None:
+            self._reference_lengths = lengths_and_angles(self.reference_vertices, self.topology)[:self.topology.n_edges]
+        E = self.topology.n_edges
+        rho = float(np.median(np.asarray(z_target, float)[:E] / self._reference_lengths))
+        scale = max(rho / TARGET_SCALE_BAND, 1.0) * min(rho * TARGET_SCALE_BAND, 1.0)
+        if not 2.0 ** -SAFE_EXPONENT <= scale <= 2.0 ** SAFE_EXPONENT:  # NaN, or weights scaled out of float64
+            return 1.0
+        return scale
+
     def objective(self, z_target):
         """The energy ``X -> W[z*, Z(X)]`` of canonical coordinates for a target (``z*`` already validated).
 
         ``z_target`` is in the caller's units; the objective's ``z_target`` and
-        coordinates are in the context's, its values in the caller's.
+        coordinates are in the context's, its values in the caller's.  Its
+        ``size`` is the length the stopping rules compare steps with: the
+        reference's bounding-box diagonal times its ``target_scale``
+        (:meth:`target_scale`), which also scales the length weights and the
+        default start (module docstring, "Target scale").
         """
         z = self.internal_z(z_target)
         if self.energy_name == "quadratic":
             if self._buffer is None:  # outer-product values, reused by all targets of this context
                 self._buffer = np.empty(len(self.pattern["slots"]))
-            return QuadraticObjective(z, self.residual_weights, self.topology, self.pattern, self._buffer)
+            scale = self.target_scale(z_target)
+            weights = self.residual_weights
+            if scale != 1.0:
+                weights = weights.copy()
+                weights[:self.topology.n_edges] /= scale ** 2
+            objective = QuadraticObjective(z, weights, self.topology, self.pattern, self._buffer)
+            objective.size, objective.target_scale = self.size * scale, scale
+            return objective
         k = self.scale_exponent  # W_TS = 4^k (membrane + eta 4^-k bending) in the context's units
-        return ShellsObjective(z, self.topology, np.ldexp(self.bending_weight, -2 * k), self.solver, self.pattern,
-                               value_exponent=2 * k)
+        objective = ShellsObjective(z, self.topology, np.ldexp(self.bending_weight, -2 * k), self.solver,
+                                    self.pattern, value_exponent=2 * k)
+        objective.size, objective.target_scale = self.size, 1.0
+        return objective
 
     def energy(self, z_target, vertices):
         """``W[z*, Z(vertices)]`` under this context's energy (both in the caller's units)."""
         z = lengths_and_angles(self.internal_vertices(vertices), self.topology)
         return self.objective(np.asarray(z_target, float)).value_z(z)
 
+
+#: Targets whose lengths are within ``1 / TARGET_SCALE_BAND .. TARGET_SCALE_BAND`` times the reference's (median
+#: ratio) use the reference's weights (3.20) as they are; beyond, the length weights follow the target's size
+#: (module docstring, "Target scale").
+TARGET_SCALE_BAND = 1.5
 
 #: How many contexts :func:`get_context` keeps per topology (least recently used first out).
 CONTEXTS_PER_TOPOLOGY = 4

@@ -86,7 +86,8 @@ Iteration
   ``10 dW_k r / (1 - r) <= ftol W_{k+1}`` (2), which saves the final
   factorization that would only confirm convergence; scale-free gradient
   ``|g|_inf * size <= gtol * W`` (3); step ``|t d|_inf <= xtol * size`` (4);
-  ``size`` = bounding-box diagonal of the reference mesh.  The iteration cap
+  ``size`` = bounding-box diagonal of the reference mesh (times the target's scale beyond the band of sizes
+  the weights are for: :mod:`.context`, "Target scale").  The iteration cap
   gives status 0, a line search without decrease status -1, ten iterations
   with damped steps (partial, ``t < 1``, or solved with a diagonal shift) that
   together decreased the energy by less than 1 % status -3 (a stall: on
@@ -415,7 +416,7 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
     if kwargs:
         options = replace(options, **kwargs)
     fixed = context.fixed_dofs
-    size = context.size
+    size = getattr(objective, "size", context.size)
     atol = objective.noise_floor() if options.atol is None else float(options.atol)
     state = _State(np.array(Xc, dtype=float))
     edge = float(np.mean(objective.z_target[: objective.topology.n_edges]))
@@ -603,6 +604,10 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
     X0 = context.reference_vertices if initial_vertices is None else check_vertices(
         initial_vertices, topology.n_vertices, name="initial vertices")
     objective = context.objective(z_target)
+    scale = getattr(objective, "target_scale", 1.0)
+    if initial_vertices is None and scale != 1.0:  # start at the target's size (context, "Target scale")
+        centroid = X0.mean(axis=0)
+        X0 = centroid + scale * (X0 - centroid)
     Xc = context.to_canonical(X0)
     t_init = time.perf_counter() - t_start
 

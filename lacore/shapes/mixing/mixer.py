@@ -10,7 +10,10 @@ values) the target is the blend in lengths and angles (the thesis' linear interp
 angles on the circle (every difference ``theta_k - theta_0`` wrapped to ``(-pi, pi]``), lengths
 floored at :data:`MIN_LENGTH_RATIO` of the basis' (as the shape model's synthesis does).  The mix
 is its energy-based projection (Definition 4.3): the minimizer of ``W_q[z(w), Z(X)]`` (3.19), the
-energy and weights of :func:`lacore.reconstruction.reconstruct`, in the frame of the basis key.
+energy and weights of :func:`lacore.reconstruction.reconstruct`, in the frame of the basis key.  The
+weights are the basis' at every mix, also where the blend's size leaves the band in which
+:func:`~lacore.reconstruction.reconstruct` keeps them (keys more than 1.5 times apart in size:
+:mod:`lacore.reconstruction.context`, "Target scale"); the build's Newton points and ``polish`` use them too.
 
 A reduced-order model makes a mix cost independent of the vertex count except for writing the
 vertices (the thesis' outlook, chapter 5; von Tycowicz, Schulz, Seidel, Hildebrandt 2015):
@@ -77,7 +80,7 @@ from ...errors import InputError, MeshError
 from ...geometry.lengths_angles import check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian
 from ...geometry.topology import MeshTopology, check_vertices
 from ...progress import report
-from ...reconstruction import get_context, reconstruct
+from ...reconstruction import ReconstructionContext, reconstruct
 from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
 from .cubature import fit_cubature
 from .files import FORMAT, FORMAT_VERSION, load_mixer, save_mixer
@@ -558,7 +561,9 @@ class ShapeMixer:
         self.topology = _topology
         self.faces = self.topology.faces
         E = self.n_edges = self.topology.n_edges
-        ctx = self._context = get_context(self.topology, self.keys[0], self.options.settings)
+        # its own context, with the basis' weights for every target (reconstruction.context, "Target scale")
+        ctx = self._context = ReconstructionContext(self.topology, self.keys[0], self.options.settings)
+        ctx.follows_target_scale = False
         self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
         zi = np.stack([ctx.internal_z(z) for z in self.z_keys])
         dz = zi[1:] - zi[0]
