@@ -164,6 +164,15 @@ def test_unit_and_axis_mismatches_are_errors(model):
                                descriptions=None, point_groups=None)
     with pytest.raises(CalibrationError, match="give pins"):
         calibrate(model, anon)
+    # a model that is no humanoid (a sphere's) and the take's standard labels: no axes fit the atlas
+    from conftest import shared_mesh
+    from lacore.models import ShapeModel
+    from lacore.io.meshes import load_mesh
+    spheres = [load_mesh(shared_mesh(f"sphere/defSphere{k}.ply")) for k in range(3)]
+    sphere = ShapeModel.fit(np.stack([X for X, _ in spheres]), spheres[0][1])
+    with pytest.raises(CalibrationError, match=r"the model does not fit a humanoid's landmarks with any axes \(best: "
+                                               r"up \S+, forward \S+, 1\d\.\d % of its height off the surface"):
+        calibrate(sphere, take)   # measured 10.4 %
 
 
 def _copy(model, **changes):

@@ -517,7 +517,7 @@ def atlas_distance(vertices, faces, up, forward):
     return float(np.mean(np.linalg.norm(q - targets, axis=1)) / height)
 
 
-#: Largest :func:`atlas_distance` accepted for the declared axes of a model calibrated with hints.
+#: Largest :func:`atlas_distance` accepted for the axes (declared or inferred) of a model calibrated with hints.
 MAX_ATLAS_DISTANCE = 0.03
 
 
@@ -543,6 +543,12 @@ def _model_axes(model, notes):
                 f"{best[1]} fit with {100 * scores[best]:.2f} %): check the model's up_axis / forward_axis")
         return declared
     scores, best = all_scores()
+    if scores[best] > MAX_ATLAS_DISTANCE:
+        raise CalibrationError(
+            f"the model does not fit a humanoid's landmarks with any axes (best: up {best[0]}, forward {best[1]}, "
+            f"{100 * scores[best]:.1f} % of its height off the surface; a humanoid in a rest pose fits within "
+            f"{100 * MAX_ATLAS_DISTANCE:g} %), so the take's standard marker-set labels cannot place it: use a model "
+            "of a humanoid in its rest pose, or give pins (label -> vertex) or a placement")
     notes.append(f"model axes inferred: up {best[0]}, forward {best[1]} (declare model.up_axis/forward_axis)")
     return best
 
