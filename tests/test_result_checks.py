@@ -115,12 +115,11 @@ def test_warm_started_gauss_newton_does_not_claim_a_stall_as_success(holed_sheet
     mst = reconstruct(z3, topo, A, method="mst")
     assert not mst.success and mst.failure in ("folded", "not_reproduced")
     # warm-started from the MST result, Gauss-Newton used to stop after 9 iterations at energy 747 with
-    # status 2, success=True; now the stall is detected (with Newton steps after the first cut step it ends
-    # folded at 1.30, 2.6x the cold start's minimum) and the restart reaches the cold start's minimum
+    # status 2, success=True; now the stall is detected (it ends at 0.82, 1.6x the cold start's minimum) and the
+    # restart reaches the cold start's minimum
     ctx = get_context(topo, A, ReconstructionSettings())
     raw = gauss_newton_reconstruction(z3, topo, initial_vertices=mst.vertices, context=ctx)
-    assert not raw.success and raw.energy > 2 * cold.energy, (raw.message, raw.energy)
-    assert raw.checks["folded_faces"] > 0  # measured 34
+    assert not raw.success and raw.status == -3 and raw.energy > 1.2 * cold.energy, (raw.message, raw.energy)
     warm = reconstruct(z3, topo, A, method="gn", initial_vertices=mst.vertices)
     assert warm.success and warm.energy == pytest.approx(cold.energy, rel=1e-3), warm.message
     assert any("restarted" in n for n in warm.notes)

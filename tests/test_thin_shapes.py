@@ -150,7 +150,10 @@ def test_monkey_saddle_target_is_reproduced_not_a_local_minimum():
     assert res.success and res.checks["reproduced"] and res.energy < 1e-20, (res.energy, res.message)
     assert res.iterations <= 4  # measured 2
     raw = gauss_newton_reconstruction(z1, topo, X0)  # neither the start check nor the restart
-    assert raw.energy > 0.1 and raw.status not in CONVERGED_STATUSES and not raw.success  # measured 0.633, -3
+    # measured 0.633: a stall (-3), or with the angle residuals on the circle, steps below xtol (4) at a wrong
+    # local minimum; either way not a success
+    assert raw.energy > 0.1 and not raw.success and (raw.status not in CONVERGED_STATUSES
+                                                     or raw.failure == "local_minimum"), (raw.status, raw.failure)
 
 
 def test_non_admissible_targets_keep_the_given_start():

@@ -4,7 +4,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..geometry.lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles, wrap_angle
 from ._common import (DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks,
                       _interior_quads, _parse_argument, edge_areas)
 
@@ -55,6 +55,9 @@ class QuadraticEnergy(DeformationEnergy):
     """Quadratic deformation energy on lengths and angles, Definition 3.11.
 
     ``W_q[z_a, z_b] = sum_e w_s,e (l_a - l_b)_e^2 + eta sum_e w_b,e (theta_a - theta_b)_e^2``  (3.19)
+
+    with ``theta_a - theta_b`` on the circle (wrapped to ``(-pi, pi]``: two edges folded to ``+-3.1``
+    differ by 0.08), which is the thesis' difference wherever it is below ``pi``.
 
     Parameters
     ----------
@@ -146,24 +149,29 @@ class QuadraticEnergy(DeformationEnergy):
             raise LengthsAnglesError(f"{name} must be finite and >= 0; bad at edges {format_indices(bad)}")
         return w.copy()
 
-    def value(self, z_a, z_b):
-        """``W_q[z_a, z_b]`` (3.19), a float."""
+    def difference(self, z_a, z_b):
+        """``z_a - z_b``, ``(2E,)``, the angle differences on the circle
+        (:func:`~lacore.geometry.lengths_angles.wrap_angle`)."""
         z_a, z_b = self._pair(z_a, z_b)
         d = z_a - z_b
+        d[self.n_edges:] = wrap_angle(d[self.n_edges:])
+        return d
+
+    def value(self, z_a, z_b):
+        """``W_q[z_a, z_b]`` (3.19), a float (angle differences on the circle)."""
+        d = self.difference(z_a, z_b)
         return float(np.dot(self.residual_weights, d * d))
 
     def residual(self, z_a, z_b):
         """``r = sqrt(w) (z_b - z_a)``, ``(2E,)``, with ``W_q = r . r``."""
-        z_a, z_b = self._pair(z_a, z_b)
-        return np.sqrt(self.residual_weights) * (z_b - z_a)
+        return -np.sqrt(self.residual_weights) * self.difference(z_a, z_b)
 
     def gradient(self, z_a, z_b, argument=1):
         """``dW_q/dz_b = -2 w (z_a - z_b)`` (``argument=1``) or ``dW_q/dz_a = 2 w (z_a - z_b)``, ``(2E,)``."""
-        z_a, z_b = self._pair(z_a, z_b)
         arg = _parse_argument(argument)
         if isinstance(arg, tuple):
             raise InputError("the gradient takes argument 0 or 1")
-        g = 2.0 * self.residual_weights * (z_a - z_b)
+        g = 2.0 * self.residual_weights * self.difference(z_a, z_b)
         return g if arg == 0 else -g
 
     def hessian(self, z_a, z_b, argument=1, project=False):

@@ -50,6 +50,7 @@ __all__ = [
     "dot_rows",
     "edge_lengths",
     "dihedral_angles",
+    "wrap_angle",
     "lengths_and_angles",
     "lengths_and_angles_jacobian",
     "split_z",
@@ -349,6 +350,29 @@ def dihedral_angles(vertices, topology):
     """
     X = np.asarray(vertices, float)
     return _z_of_vertices(X, topology)[topology.n_edges:]
+
+
+def wrap_angle(a):
+    """Angles (any shape) to ``(-pi, pi]``: differences of dihedral angles on the circle.
+
+    Signed dihedral angles live on the circle: an edge folded to ``3.1`` and one folded to
+    ``-3.1`` differ by ``0.08``, not ``6.2``.  Every difference of angles in lacore -- the
+    residuals of ``W_q``, blends and interpolations of keys, the checks -- is taken through
+    this function.  Angles in ``[-pi, pi]`` are returned as they are, bit for bit (the same array
+    when all are).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.geometry.lengths_angles import wrap_angle
+    >>> print(np.round(wrap_angle(np.array([3.1 - (-3.1), -4.0, 0.5, 2 * np.pi])), 6))
+    [-0.083185  2.283185  0.5       0.      ]
+    """
+    a = np.asarray(a, float)
+    inside = np.abs(a) <= np.pi
+    if inside.all():
+        return a
+    return np.where(inside, a, np.pi - np.mod(np.pi - a, 2.0 * np.pi))
 
 
 #: Coordinates with ``max |x|`` outside ``[2^-SAFE_EXPONENT, 2^SAFE_EXPONENT]`` (about 1e-30 .. 1e30) are scaled by a

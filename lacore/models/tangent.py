@@ -13,6 +13,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ..geometry.lengths_angles import wrap_angle
 from ..integrability.global_conditions import admissibility_jacobian
 from ..linalg.sparse_cholesky import SparseCholesky
 from .settings import PROJECTION_METRICS
@@ -21,7 +22,8 @@ __all__ = ["TangentProjector", "wrap_angles"]
 
 
 def wrap_angles(z, topology):
-    """``z (..., 2E)`` with its angle half wrapped to ``[-pi, pi)``; lengths unchanged.
+    """``z (..., 2E)`` with its angle half wrapped to ``(-pi, pi]``
+    (:func:`~lacore.geometry.lengths_angles.wrap_angle`); lengths unchanged.
 
     Dihedral angles live on the circle: differences of angles and sums like
     ``zbar + sum alpha_j u_j`` are taken modulo ``2 pi``.  This changes nothing
@@ -29,9 +31,7 @@ def wrap_angles(z, topology):
     """
     z = np.array(z, float)
     E = topology.n_edges
-    a = z[..., E:]
-    out = np.where(np.abs(a) < np.pi, a, np.mod(a + np.pi, 2 * np.pi) - np.pi)
-    z[..., E:] = out
+    z[..., E:] = wrap_angle(z[..., E:])
     return z
 
 

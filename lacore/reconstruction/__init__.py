@@ -64,7 +64,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
-from ..geometry.lengths_angles import DEGENERACY_RTOL, check_z, lengths_and_angles
+from ..geometry.lengths_angles import DEGENERACY_RTOL, check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
 from ..geometry.trigonometry import triangle_inequality_margin
 from .checks import ANGLE_ATOL, LENGTH_RTOL, apply_checks, check_reconstruction
@@ -408,7 +408,7 @@ def reconstruction_errors(vertices, z_target, topology):
     E = topology.n_edges
     dl = np.abs(z[:E] - z_target[:E])
     ie = topology.interior_edges
-    da = np.abs(z[E:][ie] - z_target[E:][ie])
+    da = np.abs(wrap_angle(z[E:][ie] - z_target[E:][ie]))
     extent = X.max(0) - X.min(0)
     m = float(np.max(np.abs(extent)))
     size = m * float(np.linalg.norm(extent / m)) if m > 0 else 1.0  # no overflow of the squares at any scale

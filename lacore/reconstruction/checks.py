@@ -8,13 +8,13 @@ smoothing, and every frame of an interpolation) ends in :func:`apply_checks`, so
 
 1. every output coordinate is finite, and
 2. no edge is *folded*: its dihedral angle lies more than :data:`FOLD_ANGLE`
-   (``pi / 2``) from the target's (the surface is turned over there, or the
-   angle crossed the branch cut at ``+-pi``), and
+   (``pi / 2``) from the target's on the circle (the surface is turned over
+   there), and
 3. either the target is **reproduced** -- per edge, lengths relative to the
    target length and angles in radians::
 
        max_e |l_e - l*_e| / l*_e <= LENGTH_RTOL         (1e-5)
-       max_e |theta_e - theta*_e| <= ANGLE_ATOL         (1e-5 rad, interior edges)
+       max_e |theta_e - theta*_e| <= ANGLE_ATOL         (1e-5 rad, interior edges, on the circle)
 
    -- or the method is an energy minimizer (``"gn"``, ``"hybrid"``) that
    **converged** (on an integrable target not to a wrong local minimum, below):
@@ -65,7 +65,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import format_indices
-from ..geometry.lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles, wrap_angle
 from ..integrability.checks import check_integrability
 
 __all__ = ["LENGTH_RTOL", "ANGLE_ATOL", "FOLD_ANGLE", "CONVERGED_STATUSES", "LOCAL_MINIMUM_RTOL",
@@ -181,7 +181,7 @@ def check_reconstruction(vertices, z_target, topology, *, minimizer=False, conve
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = np.abs(z[:E] - z_target[:E]) / z_target[:E]
     ie = topology.interior_edges
-    dang = np.abs(z[E:][ie] - z_target[E:][ie])
+    dang = np.abs(wrap_angle(z[E:][ie] - z_target[E:][ie]))
     max_rel = float(np.max(rel)) if rel.size else 0.0
     max_ang = float(np.max(dang)) if dang.size else 0.0
     if not (np.isfinite(max_rel) and np.isfinite(max_ang)):

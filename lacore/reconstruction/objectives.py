@@ -7,7 +7,7 @@ in the order of :func:`~lacore.reconstruction.assembly.gauss_newton_pattern`,
 
 :class:`QuadraticObjective`
     ``W_q`` (3.19): the nonlinear least-squares problem
-    ``sum_j w_j (Z_j(X) - z*_j)^2`` with the residual weights of
+    ``sum_j w_j (Z_j(X) - z*_j)^2`` (angle differences on the circle) with the residual weights of
     :class:`lacore.energies.QuadraticEnergy`; Gauss-Newton matrix
     ``2 J^T W J`` (``J = dZ/dX``), the full Hessian
     ``2 J^T W J + 2 sum_j w_j r_j d2 Z_j`` (``second_order=True``, per-edge
@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from ..energies import EnergyInVertices, QuadraticEnergy, ThinShellsEnergy
 from ..geometry.hessians import ANGLE_PAIRS, LENGTH_PAIRS, residual_curvature_values
-from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ..geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian, wrap_angle
 from ..geometry.trigonometry import triangle_areas
 from .assembly import upper_outer
 from .pcg import dot
@@ -60,8 +60,15 @@ class QuadraticObjective:
         self._n_len = 6 * E
         self._vals = np.empty(len(pattern["slots"])) if buffer is None else buffer
 
-    def value_z(self, z):
+    def residual(self, z):
+        """``z - z*`` with the angle differences on the circle (:func:`~lacore.geometry.lengths_angles.wrap_angle`)."""
         r = z - self.z_target
+        E = self.topology.n_edges
+        r[E:] = wrap_angle(r[E:])
+        return r
+
+    def value_z(self, z):
+        r = self.residual(z)
         return dot(self.w * r, r)
 
     def energy(self, X):
@@ -70,7 +77,7 @@ class QuadraticObjective:
     def linearize(self, X):
         """Energy, gradient ``(3V,)`` and a function returning the Gauss-Newton matrix values at ``X``."""
         J, z = lengths_and_angles_jacobian(X, self.topology, return_z=True)
-        r = z - self.z_target
+        r = self.residual(z)
         wr = self.w * r
         energy = dot(wr, r)
         grad = 2.0 * (J.T @ wr)
@@ -84,7 +91,10 @@ class QuadraticObjective:
         ``(2 / h) ((Z(X + h d) - Z(X)) / h - J d)`` (one evaluation of ``Z``).
         """
         zh = lengths_and_angles(X + h * d.reshape(-1, 3), self.topology, check=False)
-        rvv = (2.0 / h) * ((zh - matrix.z) / h - matrix.J @ d)
+        dz = zh - matrix.z
+        E = self.topology.n_edges
+        dz[E:] = wrap_angle(dz[E:])                        # an angle that crossed the branch cut at +-pi
+        rvv = (2.0 / h) * (dz / h - matrix.J @ d)
         return 2.0 * (matrix.J.T @ (self.w * rvv))
 
     def noise_floor(self):
@@ -117,7 +127,7 @@ class QuadraticGNMatrix:
             obj = self.objective
             topo = obj.topology
             E = topo.n_edges
-            r = self.z - obj.z_target
+            r = obj.residual(self.z)
             self._second = residual_curvature_values(self.X, topo, obj._w2_len * r[:E],
                                                      obj._w2_ang * r[E + topo.interior_edges])
         return self._second

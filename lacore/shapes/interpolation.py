@@ -49,7 +49,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..errors import InputError, LengthsAnglesError, MeshError
-from ..geometry.lengths_angles import check_z, lengths_and_angles
+from ..geometry.lengths_angles import check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
 from ..reconstruction import reconstruction_errors
 from ..reconstruction.settings import projection_preset, split_options
@@ -70,6 +70,7 @@ __all__ = [
     "keyframe_targets",
     "piecewise_linear_z",
     "spline_z",
+    "lift_angles",
 ]
 
 
@@ -239,6 +240,30 @@ def check_keyframes(keyframes, n_shapes):
 
 
 # --------------------------------------------------------------------------- targets
+def lift_angles(z_keys):
+    """Keys ``(K, 2E)`` whose angles differ from the previous key's by at most ``pi``: each moved by a multiple of
+    ``2 pi`` (lengths unchanged), so that a blend of keys turns every edge the short way round the circle.
+
+    An edge folded to ``3.1`` in one key and ``-3.1`` in the next stays folded between them (``pi``), instead of
+    opening through 0.  The keys are returned as they are when no angle needs moving.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.shapes.interpolation import lift_angles
+    >>> print(lift_angles(np.array([[1.0, 3.1], [1.0, -3.1]]))[:, 1].round(6))
+    [3.1      3.183185]
+    """
+    Z = np.asarray(z_keys, float)
+    E = Z.shape[1] // 2
+    step = wrap_angle(Z[1:, E:] - Z[:-1, E:]) - (Z[1:, E:] - Z[:-1, E:])
+    if not step.any():
+        return Z
+    out = Z.copy()
+    out[1:, E:] += np.cumsum(step, axis=0)
+    return out
+
+
 def piecewise_linear_z(z_keys, keyframes, times):
     """Piecewise linear interpolation in ``z`` with linear extension of the end segments.
 
@@ -255,9 +280,11 @@ def piecewise_linear_z(z_keys, keyframes, times):
     (N, 2E) ndarray
         ``(1 - u) z_s + u z_{s+1}`` with ``u = (t - k_s) / (k_{s+1} - k_s)`` on the
         segment ``s`` of ``t`` (``s = 0`` before the first and ``s = K-2`` after the
-        last keyframe, where ``u < 0`` resp. ``u > 1`` extrapolates).
+        last keyframe, where ``u < 0`` resp. ``u > 1`` extrapolates); angles on the
+        circle (:func:`lift_angles`, then wrapped to ``(-pi, pi]``).
     """
-    Z = np.asarray(z_keys, float)
+    Z0 = np.asarray(z_keys, float)
+    Z = lift_angles(Z0)
     k = np.asarray(keyframes, float)
     t = np.atleast_1d(np.asarray(times, float))
     s = np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2)
@@ -269,10 +296,13 @@ def piecewise_linear_z(z_keys, keyframes, times):
         np.multiply(Z[si], 1.0 - ui, out=out[i])
         np.multiply(Z[si + 1], ui, out=row)
         out[i] += row
+    if Z is not Z0:
+        E = Z.shape[1] // 2
+        out[:, E:] = wrap_angle(out[:, E:])
     # exact keyframe values (no round-off from 1 - u)
     hit = np.searchsorted(k, t)
     exact = (hit < len(k)) & (k[np.minimum(hit, len(k) - 1)] == t)
-    out[exact] = Z[hit[exact]]
+    out[exact] = Z0[hit[exact]]
     return out
 
 
@@ -295,20 +325,25 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
         ``S(t)`` inside ``[k_0, k_{K-1}]``; outside, ``S(k_end) + S'(k_end) (t - k_end)``
         (C1, and C2 for natural boundary conditions).  Passes exactly through
         ``z_keys`` at the keyframes; with ``K = 2`` it is the linear interpolation.
+        Angles on the circle (:func:`lift_angles`, then wrapped to ``(-pi, pi]``).
     """
-    Z = np.asarray(z_keys, float)
+    Z0 = np.asarray(z_keys, float)
     k = np.asarray(keyframes, float)
     t = np.atleast_1d(np.asarray(times, float))
     if len(k) == 2:
-        return piecewise_linear_z(Z, k, t)
+        return piecewise_linear_z(Z0, k, t)
+    Z = lift_angles(Z0)
     S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
     out = S(np.clip(t, k[0], k[-1]))
     for end, mask in ((k[0], t < k[0]), (k[-1], t > k[-1])):
         if np.any(mask):
             out[mask] = S(end)[None] + (t[mask] - end)[:, None] * S(end, 1)[None]
+    if Z is not Z0:
+        E = Z.shape[1] // 2
+        out[:, E:] = wrap_angle(out[:, E:])
     hit = np.searchsorted(k, t)
     exact = (hit < len(k)) & (k[np.minimum(hit, len(k) - 1)] == t)
-    out[exact] = Z[hit[exact]]
+    out[exact] = Z0[hit[exact]]
     return out
 
 

@@ -77,7 +77,8 @@ import numpy as np
 import scipy.linalg as sl
 
 from ...errors import InputError, MeshError
-from ...geometry.lengths_angles import check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.lengths_angles import (check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian,
+                                       wrap_angle)
 from ...geometry.topology import MeshTopology, check_vertices
 from ...progress import report
 from ...reconstruction import ReconstructionContext, reconstruct
@@ -406,11 +407,6 @@ class MixResult:
     polished: bool
 
 
-def _wrap(a):
-    """Angles to ``(-pi, pi]``."""
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-
-
 def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
     """``z(w) = z_0 + sum_k w_k (z_k - z_0)``, angle differences on the circle, lengths floored.
 
@@ -436,9 +432,9 @@ def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
     """
     Z = np.asarray(z_keys, float)
     D = Z[1:] - Z[0]
-    D[:, n_edges:] = _wrap(D[:, n_edges:])
+    D[:, n_edges:] = wrap_angle(D[:, n_edges:])
     z = Z[0] + np.asarray(weights, float) @ D
-    z[..., n_edges:] = _wrap(z[..., n_edges:])
+    z[..., n_edges:] = wrap_angle(z[..., n_edges:])
     z[..., :n_edges] = np.maximum(z[..., :n_edges], min_length_ratio * Z[0, :n_edges])
     return z
 
@@ -504,7 +500,7 @@ def check_keys(keys, faces, names=None):
             raise MeshError(f"{names[k]}{' (the basis)' if k == 0 else ''}: {exc}") from None
     E = topo.n_edges
     z = np.stack([lengths_and_angles(k, topo, check=False) for k in K])
-    change = np.maximum(np.abs(z[1:, :E] - z[0, :E]) / z[0, :E], np.abs(_wrap(z[1:, E:] - z[0, E:]))).max(axis=1)
+    change = np.maximum(np.abs(z[1:, :E] - z[0, :E]) / z[0, :E], np.abs(wrap_angle(z[1:, E:] - z[0, E:]))).max(axis=1)
     if not np.any(change > SAME_SHAPE_TOL):
         same = ", ".join(names[1:4]) + (" ..." if len(K) > 4 else "")
         raise MixerError(f"no key differs from the basis {names[0]} in an edge length or a dihedral angle (by more "
@@ -567,7 +563,7 @@ class ShapeMixer:
         self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
         zi = np.stack([ctx.internal_z(z) for z in self.z_keys])
         dz = zi[1:] - zi[0]
-        dz[:, E:] = _wrap(dz[:, E:])
+        dz[:, E:] = wrap_angle(dz[:, E:])
         w = np.array(ctx.residual_weights, float)
         w[E:][self.topology.is_boundary_edge] = 0.0
         self._problem = FullProblem(ctx, zi, dz, MIN_LENGTH_RATIO * zi[0, :E], w)

@@ -18,6 +18,7 @@ analytic (the element gradients of :func:`element_eval`).
 import numpy as np
 
 from ...geometry.lengths_angles import cross_rows as _cross
+from ...geometry.lengths_angles import wrap_angle
 
 __all__ = ["edge_stencils", "element_eval", "ReducedEnergy"]
 
@@ -70,14 +71,6 @@ def element_eval(P, gradients=True):
     g1 = -t2 * g2 - t3 * g3
     g0 = (t2 - 1.0) * g2 + (t3 - 1.0) * g3
     return l, theta, gl, np.concatenate([g0, g1, g2, g3])
-
-
-def _wrap(a):
-    """Angles to ``(-pi, pi]`` (most are there already)."""
-    out = np.asarray(a)
-    if np.abs(out).max(initial=0.0) <= np.pi:
-        return out
-    return np.pi - np.mod(np.pi - out, 2.0 * np.pi)
 
 
 class ReducedEnergy:
@@ -151,7 +144,7 @@ class ReducedEnergy:
     def _residuals(self, q, w, gradients):
         l, th, gl, gt = element_eval(self.stencil(q), gradients)
         lt, tt = self.targets(w)
-        return l - lt, _wrap(th - tt), gl, gt
+        return l - lt, wrap_angle(th - tt), gl, gt
 
     def energy(self, q, w, shift=None):
         """``E(q; w)``, plus ``2 shift . q`` when a gradient correction ``shift`` ``(r,)`` is given."""
@@ -234,7 +227,7 @@ class ReducedEnergy:
         l, th, gl, gt = element_eval(self.stencil(q))
         Gl = np.einsum("in,inr->rn", gl, self.US[:6])
         Gt = np.einsum("in,inr->rn", gt, self.US)
-        out = [self.wl * (l - self.l0) * Gl + self.wt * _wrap(th - self.t0) * Gt]
+        out = [self.wl * (l - self.l0) * Gl + self.wt * wrap_angle(th - self.t0) * Gt]
         for k in range(self.dl.shape[0]):
             out.append(self.wl * self.dl[k] * Gl + self.wt * self.dt[k] * Gt)
         return np.array(out)
