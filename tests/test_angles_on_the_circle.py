@@ -106,3 +106,20 @@ def test_in_betweens_of_skinned_poses_keep_their_folds():
         assert np.all(np.abs(mid[:, E + cross]) > np.pi / 2)
         assert np.all(np.abs(mid[:, E:]) <= np.pi)
     assert crossings >= 10  # measured 25 over the 5 pairs
+
+
+@pytest.mark.parametrize("method", ["sqp", "vertices"])
+def test_a_discrete_geodesic_across_the_cut_turns_the_short_way(method):
+    """The hinge from 3.0 to -3.0 rad in 4 steps: the fold turns through pi (steps of 0.071 rad), with the path
+    energy of those steps; a mesh without interior vertices has no integrability constraint (no error)."""
+    from lacore.shapes.geodesics import discrete_geodesic
+    X0, topo = hinge(3.0)
+    X1, _ = hinge(-3.0)
+    E, e = topo.n_edges, middle(topo)
+    res = discrete_geodesic(X0, X1, topo, 4, method=method)
+    assert res.success, res.message
+    theta = wrap_angle(res.z[:, E + e])
+    np.testing.assert_allclose(np.abs(theta), [3.0, 3.0 + 0.0708, np.pi, 3.0 + 0.0708, 3.0], atol=1e-3)
+    step = 2 * np.pi - 6.0
+    w = QuadraticEnergy(topo, reference_vertices=X0).residual_weights[E + e]
+    assert res.path_energy == pytest.approx(4 * 4 * w * (step / 4) ** 2, rel=1e-3)

@@ -185,7 +185,7 @@ def solve_sqp(zs, topology, model, options, progress=None):
         blocks = [J[:, free].tocsr() for J, _ in lin]
         f = model.value(zs)
         g = model.gradient(zs)[:, free]
-        cmax = float(np.abs(c).max())
+        cmax = float(np.abs(c).max(initial=0.0))
         history["path_energy"].append(f)
         history["constraint_violation"].append(cmax)
         kkt.factorize(blocks, mu)

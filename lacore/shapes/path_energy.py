@@ -21,6 +21,7 @@ import scipy.sparse as sp
 
 from ..energies import QuadraticEnergy
 from ..errors import InputError, LengthsAnglesError
+from ..geometry.lengths_angles import wrap_angle
 from ..reconstruction import ReconstructionSettings
 
 __all__ = ["default_energy", "path_energy", "path_energy_profile", "linear_path", "QuadraticPathModel",
@@ -135,10 +136,14 @@ def _check_path(zs):
 def linear_path(z_start, z_end, n_steps):
     """Equidistant linear path ``z_i = (1 - i/K) z_0 + (i/K) z_K``, shape ``(K+1, 2E)``.
 
-    For ``W_q`` this is the unconstrained discrete geodesic (4.9).
+    For ``W_q`` this is the unconstrained discrete geodesic (4.9).  Angles turn the short way round the
+    circle (the end's angles moved by multiples of ``2 pi`` to within ``pi`` of the start's).
     """
+    z0, z1 = np.asarray(z_start, float), np.array(z_end, float)
+    E = z0.shape[-1] // 2
+    z1[E:] = z0[E:] + wrap_angle(z1[E:] - z0[E:])
     t = np.linspace(0.0, 1.0, int(n_steps) + 1)[:, None]
-    return (1.0 - t) * np.asarray(z_start, float)[None] + t * np.asarray(z_end, float)[None]
+    return (1.0 - t) * z0[None] + t * z1[None]
 
 
 def _time_laplacian_inverse(m):
@@ -162,13 +167,21 @@ class QuadraticPathModel:
         self.T = sp.diags([-np.ones(m - 1), 2.0 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1], format="csr")
         self.T_inv = _time_laplacian_inverse(m)
 
-    def value(self, zs):
+    def steps(self, zs):
+        """``z_{i+1} - z_i``, ``(K, 2E)``, the angle differences on the circle."""
         d = np.diff(zs, axis=0)
+        E = d.shape[1] // 2
+        d[:, E:] = wrap_angle(d[:, E:])
+        return d
+
+    def value(self, zs):
+        d = self.steps(zs)
         return self.K * float(np.sum(self.w * d * d))
 
     def gradient(self, zs):
-        """``(K-1, 2E)``: ``2 K w (2 z_i - z_{i-1} - z_{i+1})``."""
-        return 2.0 * self.K * self.w * (2.0 * zs[1:-1] - zs[:-2] - zs[2:])
+        """``(K-1, 2E)``: ``2 K w (2 z_i - z_{i-1} - z_{i+1})`` (differences on the circle)."""
+        d = self.steps(zs)
+        return 2.0 * self.K * self.w * (d[:-1] - d[1:])
 
     def hessian_diagonal(self, columns=None):
         """``2 K w`` restricted to ``columns``: the diagonal factor ``D`` of ``H = kron(T, D)``."""
