@@ -498,3 +498,24 @@ def test_too_few_markers_for_the_model_are_a_warning(model):
     res = fit_take(model, three, frames=[0])
     assert (f"only 3 markers: 9 coordinates for {model.n_modes} modes and the rigid placement "
             f"({model.n_modes + 6} unknowns)") in res.warnings[0]
+
+
+def test_the_atlas_tells_a_posed_humanoid_from_a_sphere():
+    """Best-axes atlas distances (in heights) against the limit for models without declared axes: the coarse body
+    with every joint turned by up to 0.2 rad fits (measured 3.5 %, the rest pose 0.03 %); a sphere does not (10 %)."""
+    from conftest import shared_mesh
+    from lacore.io.meshes import load_mesh
+    from lacore.markers.calibration import MAX_ATLAS_DISTANCE, MAX_INFERRED_ATLAS_DISTANCE, atlas_distance
+    from lacore.samples.human import load_human
+    pairs = [(u, f) for u in ("y", "-y", "z", "-z", "x", "-x") for f in ("y", "-y", "z", "-z", "x", "-x")
+             if u.strip("-") != f.strip("-")]
+
+    def best(X, F):
+        return min((atlas_distance(X, F, u, f), u, f) for u, f in pairs)
+    body = load_human(shared_data_dir(), coarse=True)
+    posed = body.pose(np.random.default_rng(0).uniform(-0.2, 0.2, (1, body.n_dofs)))[0]
+    d, up, forward = best(posed, body.faces)
+    assert (up, forward) == ("y", "z") and 0.5 * MAX_ATLAS_DISTANCE < d < 0.6 * MAX_INFERRED_ATLAS_DISTANCE
+    assert best(body.vertices, body.faces)[0] < 0.1 * MAX_ATLAS_DISTANCE
+    X, F = load_mesh(shared_mesh("sphere/defSphere0.ply"))
+    assert best(X, F)[0] > 1.1 * MAX_INFERRED_ATLAS_DISTANCE

@@ -725,3 +725,21 @@ def test_local_correction(long_bar, tmp_path):
         ShapeMixer.load(tmp_path / "damaged.npz")
     off = ShapeMixer.build(keys, F, MixerOptions(local_vertices=0))
     assert not len(off.local_vertices)
+
+
+def test_a_polish_no_mesh_comes_near_returns_the_flagged_reduced_mix():
+    """Keys of different sizes (a sphere, another three times larger, a third): at w = (-0.3, 0.2), inside the
+    accurate range, the blend's lengths break the triangle inequality at most faces, so no full projection exists:
+    polish returns the reduced mix, flagged, and says why (it raised LengthsAnglesError)."""
+    from conftest import shared_mesh
+    from lacore.io.meshes import load_mesh
+    X0, F = load_mesh(shared_mesh("sphere/defSphere0.ply"))
+    X1, _ = load_mesh(shared_mesh("sphere/defSphere3.ply"))
+    X2, _ = load_mesh(shared_mesh("sphere/defSphere6.ply"))
+    mixer = ShapeMixer.build([X0, 3.0 * X1, X2], F)
+    reduced = mixer.mix([-0.3, 0.2], warm_start=False)
+    polished = mixer.mix([-0.3, 0.2], warm_start=False, polish=True)
+    assert not polished.polished and not polished.in_range
+    assert "no full projection: the target lengths violate the triangle inequality" in polished.message
+    assert "polish it" not in polished.message
+    np.testing.assert_array_equal(polished.vertices, reduced.vertices)

@@ -197,16 +197,18 @@ class EnergyInVertices:
         return self.energy
 
     def residual(self, X):
-        """``r = sqrt(w) (Z[X] - z_fixed)``, ``(2E,)``, with ``W_q = r . r`` (QuadraticEnergy only)."""
+        """``r = sqrt(w) (Z[X] - z_fixed)``, ``(2E,)`` (angle differences on the circle), with ``W_q = r . r``
+        (QuadraticEnergy only)."""
         q = self._quadratic()
-        return np.sqrt(q.residual_weights) * (self.z(X) - self.z_fixed)
+        return np.sqrt(q.residual_weights) * q.difference(self.z(X), self.z_fixed)
 
     def residual_and_jacobian(self, X):
         """Residual ``r (2E,)`` and its Jacobian ``sqrt(w) J`` (``(2E, 3V)`` CSR, pattern of ``J``).
 
         The Gauss-Newton Hessian of ``W_q`` is ``2 (sqrt(w) J)^T (sqrt(w) J)``.
         """
-        sw = np.sqrt(self._quadratic().residual_weights)
+        q = self._quadratic()
+        sw = np.sqrt(q.residual_weights)
         J, z = lengths_and_angles_jacobian(self._X(X), self.topology, return_z=True)
         J.data *= np.repeat(sw, np.diff(J.indptr))
-        return sw * (z - self.z_fixed), J
+        return sw * q.difference(z, self.z_fixed), J

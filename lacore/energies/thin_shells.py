@@ -3,6 +3,7 @@
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, format_indices
+from ..geometry.lengths_angles import wrap_angle
 from ..geometry.trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
 from ._common import (DEFAULT_BENDING_WEIGHT, DeformationEnergy, _Blocks, _interior_quads, _parse_argument,
                       _project_psd, _scatter, edge_areas)
@@ -225,7 +226,7 @@ class ThinShellsEnergy(DeformationEnergy):
         d = edge_areas(z_a[:E], self.topology)[ie]
         if np.any(~(d > 0)):
             return np.inf
-        delta = z_a[E + ie] - z_b[E + ie]
+        delta = wrap_angle(z_a[E + ie] - z_b[E + ie])  # on the circle
         return float(np.sum(delta**2 * z_a[ie] ** 2 / d))
 
     def value(self, z_a, z_b):
@@ -252,7 +253,7 @@ class ThinShellsEnergy(DeformationEnergy):
         fe = topo.face_edges
         slots = np.column_stack([E + ie, ie, fe[f], fe[g]])
         eta = self.bending_weight
-        delta = z_a[E + ie] - z_b[E + ie]
+        delta = wrap_angle(z_a[E + ie] - z_b[E + ie])  # on the circle
         lv = z_a[ie]
         d = (faces.Aa[f] + faces.Aa[g]) / 3.0
         gA = triangle_area_gradient(faces.La, faces.Aa)
@@ -293,7 +294,7 @@ class ThinShellsEnergy(DeformationEnergy):
         g = _scatter(topo.face_edges, faces.grad(arg), 2 * E)
         if arg == 1:
             d = (faces.Aa[topo.edge_faces[ie, 0]] + faces.Aa[topo.edge_faces[ie, 1]]) / 3.0
-            g[E + ie] += -2.0 * self.bending_weight * (z_a[E + ie] - z_b[E + ie]) * z_a[ie] ** 2 / d
+            g[E + ie] += -2.0 * self.bending_weight * wrap_angle(z_a[E + ie] - z_b[E + ie]) * z_a[ie] ** 2 / d
         else:
             slots, gb, _ = self._bending_local(z_a, z_b, faces)
             g += _scatter(slots, gb, 2 * E)

@@ -214,7 +214,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from ..errors import InputError, format_indices
-from ..geometry.lengths_angles import face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian
+from ..geometry.lengths_angles import (face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian,
+                                      wrap_angle)
 from ..geometry.rigid import apply_rigid, rigid_fit
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError, SparseCholesky
 from ..multiresolution.prolongation import POSE_BATCH
@@ -832,9 +833,7 @@ class FrameSolver:
 
     def _residual_z(self, z, a):
         r = z - self.target(a)
-        ang = r[self.E:]
-        wrap = np.flatnonzero(np.abs(ang) >= np.pi)               # few: only those are wrapped
-        ang[wrap] = np.mod(ang[wrap] + np.pi, 2 * np.pi) - np.pi
+        r[self.E:] = wrap_angle(r[self.E:])
         return r
 
     def _area_ratio(self, X):

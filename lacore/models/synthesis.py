@@ -72,6 +72,16 @@ def synthesis_targets(model, coefficients, min_length_ratio=MIN_LENGTH_RATIO):
     return z, clamped
 
 
+def _warn_failed(results, stacklevel):
+    """A :class:`~lacore.errors.ReconstructionWarning` naming the poses (1-based) that failed their checks."""
+    failed = [k for k, res in enumerate(results) if not res.success]
+    if failed:
+        shown = ", ".join(str(k + 1) for k in failed[:8]) + (" ..." if len(failed) > 8 else "")
+        warnings.warn(f"{len(failed)} of {len(results)} poses failed their checks (pose {shown}): "
+                      f"{results[failed[0]].message}; use coefficients of a few standard deviations, or "
+                      "return_results=True to inspect them", ReconstructionWarning, stacklevel=stacklevel)
+
+
 def synthesize(model, coefficients, *, method=None, options=None, hybrid=None, initial_vertices=None,
                min_length_ratio=MIN_LENGTH_RATIO, progress=None, return_results=False):
     """Poses of the model, ``P_Z[zbar + sum_j alpha_j u_j]`` (4.19), as vertices.
@@ -142,12 +152,8 @@ def synthesize(model, coefficients, *, method=None, options=None, hybrid=None, i
         out[k] = res.vertices
         results.append(res)
     report(progress, len(A), len(A), "done")
-    failed = [k for k, res in enumerate(results) if not res.success]
-    if failed and not return_results:
-        shown = ", ".join(str(k + 1) for k in failed[:8]) + (" ..." if len(failed) > 8 else "")
-        warnings.warn(f"{len(failed)} of {len(A)} poses failed their checks (pose {shown}): "
-                      f"{results[failed[0]].message}; use coefficients of a few standard deviations, or "
-                      "return_results=True to inspect them", ReconstructionWarning, stacklevel=2)
+    if not return_results:
+        _warn_failed(results, stacklevel=3)
     if single:
         out, results = out[0], results[0]
     return (out, results) if return_results else out
@@ -185,4 +191,8 @@ def mode_sweep(model, mode, t_range=(-2.0, 2.0), n_frames=5, in_std=True, progre
     t = np.linspace(float(t_range[0]), float(t_range[1]), int(n_frames))
     A = np.zeros((len(t), model.n_modes))
     A[:, int(mode)] = t * (model.standard_deviations[int(mode)] if in_std else 1.0)
-    return model.synthesize(A, progress=progress, **synthesize_options), t
+    return_results = synthesize_options.pop("return_results", False)
+    X, results = model.synthesize(A, progress=progress, return_results=True, **synthesize_options)
+    if not return_results:
+        _warn_failed(results, stacklevel=3)
+    return ((X, results) if return_results else X), t

@@ -47,7 +47,7 @@ Target scale
 The weights (3.20) measure a length's residual relative to the reference's
 length, and its bending terms are dimensionless: ``W_q`` weighs stretching
 against bending as designed for targets of the reference's size.  A target
-``rho`` times larger (median of its lengths over the reference's) weighs
+``rho`` times larger (geometric mean of its lengths over the reference's) weighs
 stretching ``rho^2`` times more: from ``rho = 3`` on, Gauss-Newton on
 integrable targets of the deformed spheres ended in crumpled local minima.
 So for weights (3.20) and a target outside ``1 / TARGET_SCALE_BAND ..
@@ -390,7 +390,8 @@ class ReconstructionContext:
     def target_scale(self, z_target):
         """``s``: how much larger than the reference a target is, beyond the band of sizes the weights are for.
 
-        ``rho`` is the median ratio of the target's lengths to the reference's; ``s = 1`` for ``rho`` within
+        ``rho`` is the geometric mean of the ratios of the target's lengths to the reference's (continuous in the
+        target, exact for a scaled copy); ``s = 1`` for ``rho`` within
         ``1 / TARGET_SCALE_BAND .. TARGET_SCALE_BAND``, else ``rho`` over the band's nearer end (continuous).
         Always 1 unless the energy is ``W_q`` with the scale-free weights (3.20) (module docstring,
         "Target scale"); also when :attr:`follows_target_scale` is off, and for targets beyond
@@ -412,7 +413,8 @@ class ReconstructionContext:
         if self._reference_lengths is None:
             self._reference_lengths = lengths_and_angles(self.reference_vertices, self.topology)[:self.topology.n_edges]
         E = self.topology.n_edges
-        rho = float(np.median(np.asarray(z_target, float)[:E] / self._reference_lengths))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = float(np.exp(np.mean(np.log(np.asarray(z_target, float)[:E] / self._reference_lengths))))
         scale = max(rho / TARGET_SCALE_BAND, 1.0) * min(rho * TARGET_SCALE_BAND, 1.0)
         if not 2.0 ** -SAFE_EXPONENT <= scale <= 2.0 ** SAFE_EXPONENT:  # NaN, or weights scaled out of float64
             return 1.0
@@ -452,7 +454,7 @@ class ReconstructionContext:
         return self.objective(np.asarray(z_target, float)).value_z(z)
 
 
-#: Targets whose lengths are within ``1 / TARGET_SCALE_BAND .. TARGET_SCALE_BAND`` times the reference's (median
+#: Targets whose lengths are within ``1 / TARGET_SCALE_BAND .. TARGET_SCALE_BAND`` times the reference's (geometric mean
 #: ratio) use the reference's weights (3.20) as they are; beyond, the length weights follow the target's size
 #: (module docstring, "Target scale").
 TARGET_SCALE_BAND = 1.5

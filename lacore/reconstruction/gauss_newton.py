@@ -139,7 +139,7 @@ from dataclasses import fields, replace
 import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, MeshError
-from ..geometry.lengths_angles import check_z
+from ..geometry.lengths_angles import check_z, wrap_angle
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError
 from ..geometry.topology import check_vertices
 from .assembly import gauss_newton_pattern
@@ -200,6 +200,9 @@ SWITCH_NOTE = "continued from the least-squares relaxation"
 #: ``newton="auto"``: Newton steps after a cut step or after two full steps in a row whose energy decreases have
 #: a ratio (later / earlier) of at least this (linear convergence of Gauss-Newton at large residuals).
 _NEWTON_RATE = 0.1
+#: A decrease ratio below this is no linear rate: the previous step came from a start far off the target (a given
+#: start 1e7 times the target's size fell by 1e16 in one step and the rule stopped 5 % short of the lengths).
+_MIN_RATE = 1e-8
 
 #: Geodesic acceleration (``geodesic_acceleration``): finite-difference step (fraction of the step ``d``), ...
 _ACCEL_FD_STEP = 0.1
@@ -334,7 +337,7 @@ def _search(state, objective, d, accel, energy, slope, matrix, options, fold_gua
     if fold_guard:  # no step may fold an edge (angle more than pi/2 off target) that is not folded yet
         E = objective.topology.n_edges
         target = objective.z_target[E:]
-        theta = (target, np.abs(matrix.z[E:] - target) <= 0.5 * np.pi)
+        theta = (target, np.abs(wrap_angle(matrix.z[E:] - target)) <= 0.5 * np.pi)
     d = d.reshape(-1, 3)
     attempts = ([(accel, theta)] if accel is not None else []) + [(None, theta)]
     if theta is not None:
@@ -417,6 +420,15 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         options = replace(options, **kwargs)
     fixed = context.fixed_dofs
     size = getattr(objective, "size", context.size)
+    # a target of another size than the reference (context, "Target scale"): the stopping rules measure steps and
+    # gradients against the larger of the target's size and the iterate's (a given start can be far larger)
+    follows_scale = getattr(objective, "target_scale", 1.0) != 1.0
+
+    def current_size():
+        if not follows_scale:
+            return size
+        X = state.X.reshape(-1, 3)
+        return max(size, float(np.linalg.norm(X.max(axis=0) - X.min(axis=0))))
     atol = objective.noise_floor() if options.atol is None else float(options.atol)
     state = _State(np.array(Xc, dtype=float))
     edge = float(np.mean(objective.z_target[: objective.topology.n_edges]))
@@ -437,7 +449,7 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         if energy <= atol:
             status = 1
             break
-        if gnorm * size <= options.gtol * energy:
+        if gnorm * current_size() <= options.gtol * energy:
             status = 3
             break
         done = state.iterations - state.budget_from
@@ -517,9 +529,9 @@ def run_gauss_newton(objective, Xc, context, options=None, alternative_start=Non
         # full, unshifted steps may stop by the decrease or the step size; a stall is detected by the next
         # iteration's predicted decrease (scale-free stationarity) or by _STALL_WINDOW iterations without progress
         if full and (decrease <= options.ftol * energy or (
-                rate < 0.5 and 10.0 * decrease * rate / (1.0 - rate) <= options.ftol * E_new)):
+                _MIN_RATE <= rate < 0.5 and 10.0 * decrease * rate / (1.0 - rate) <= options.ftol * E_new)):
             status = 2
-        elif full and step_norm <= options.xtol * size:
+        elif full and step_norm <= options.xtol * current_size():
             status = 4
         elif (len(damped) >= _STALL_WINDOW and all(damped[-_STALL_WINDOW:])
               and state.history[-1 - _STALL_WINDOW] - E_new < _STALL_DECREASE * E_new):

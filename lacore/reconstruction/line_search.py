@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..geometry.lengths_angles import lengths_and_angles
+from ..geometry.lengths_angles import lengths_and_angles, wrap_angle
 
 __all__ = ["armijo_line_search"]
 
@@ -21,10 +21,9 @@ def armijo_line_search(objective, X, d, energy, slope, c1, max_backtracks, refin
 
     With ``theta = (target, unfolded)`` (the target dihedral angles and a mask
     of the edges whose angle at ``X`` is within ``pi / 2`` of it), trials
-    folding one of these edges -- its angle more than ``pi / 2`` off the target --
-    are rejected (the step is halved): such a step turns the surface over or
-    crosses the branch cut at ``+-pi``, into another, usually worse, local
-    minimum.
+    folding one of these edges -- its angle more than ``pi / 2`` off the target on
+    the circle -- are rejected (the step is halved): such a step turns the surface
+    over, into another, usually worse, local minimum.
     """
     E = objective.topology.n_edges
 
@@ -33,7 +32,7 @@ def armijo_line_search(objective, X, d, energy, slope, c1, max_backtracks, refin
         if theta is None:
             return Xt, objective.energy(Xt), False
         z = lengths_and_angles(Xt, objective.topology, check=False)
-        if np.any(np.abs(z[E:][theta[1]] - theta[0][theta[1]]) > 0.5 * np.pi):
+        if np.any(np.abs(wrap_angle(z[E:][theta[1]] - theta[0][theta[1]])) > 0.5 * np.pi):
             return Xt, np.nan, True
         return Xt, objective.value_z(z), False
 

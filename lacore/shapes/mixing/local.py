@@ -24,7 +24,7 @@ trial with 1,000 and 3,000 vertices on the 50k bar recovered 1-10 % of its exces
 import numpy as np
 import scipy.sparse as sp
 
-from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian, wrap_angle
 from ...geometry.topology import MeshTopology
 from ...linalg.sparse_cholesky import SparseCholesky
 from ...reconstruction.assembly import gauss_newton_pattern
@@ -242,7 +242,7 @@ class LocalCorrection:
     def _energy(self, z, target):
         r = z[self._rows] - target
         a = self._angle
-        r[a] = np.pi - np.mod(np.pi - r[a], 2.0 * np.pi)
+        r[a] = wrap_angle(r[a])
         return float(np.dot(self._w * r, r)), r
 
     def step(self, q, weights):

@@ -76,7 +76,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.linalg as sl
 
-from ...errors import InputError, MeshError
+from ...errors import InputError, LengthsAnglesError, MeshError
 from ...geometry.lengths_angles import (check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian,
                                        wrap_angle)
 from ...geometry.topology import MeshTopology, check_vertices
@@ -1024,17 +1024,22 @@ class ShapeMixer:
         indicator = self.indicator(w)
         msg = self.range_message(w)
         if not msg and indicator > self.options.max_indicator:
+            advice = "" if polish else "; polish it for the exact projection (polish=True, lacore mix --polish)"
             msg = (f"error indicator {indicator:.3g} above {self.options.max_indicator:g}: the reduced mix may be "
-                   "off; polish it for the exact projection (polish=True, lacore mix --polish)")
+                   f"off{advice}")
         polished = False
         if polish:
-            res = reconstruct(self.target(w), self.topology, self.keys[0], context=self._context, options=self._gn,
-                              initial_vertices=X)
-            X, energy, its, polished = res.vertices, float(res.energy), its + int(res.iterations), True
-            if res.success:
-                msg = ""
+            try:
+                res = reconstruct(self.target(w), self.topology, self.keys[0], context=self._context,
+                                  options=self._gn, initial_vertices=X)
+            except LengthsAnglesError as exc:  # a blend no mesh comes near (most faces break the triangle inequality)
+                msg = (msg + "; " if msg else "") + f"no full projection: {exc}; the reduced mix is returned"
             else:
-                msg = (msg + "; " if msg else "") + f"the full projection did not converge ({res.message})"
+                X, energy, its, polished = res.vertices, float(res.energy), its + int(res.iterations), True
+                if res.success:
+                    msg = ""
+                else:
+                    msg = (msg + "; " if msg else "") + f"the full projection did not converge ({res.message})"
         return MixResult(vertices=X, weights=w, energy=float(energy), indicator=indicator, in_range=not msg,
                          message=msg, seconds=time.perf_counter() - t0, iterations=int(its), polished=polished)
 

@@ -50,7 +50,7 @@ import itertools
 
 import numpy as np
 
-from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian
+from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian, wrap_angle
 from ...linalg.sparse_cholesky import NotPositiveDefiniteError
 from ...progress import report
 from ...reconstruction.objectives import QuadraticGNMatrix
@@ -80,7 +80,7 @@ class FullProblem:
 
     def _residual(self, z, wk):
         r = z - self.target(wk)
-        r[self.E:] = np.pi - np.mod(np.pi - r[self.E:], 2.0 * np.pi)
+        r[self.E:] = wrap_angle(r[self.E:])
         return r
 
     def energy(self, x, wk):
@@ -101,7 +101,7 @@ class FullProblem:
         angles wrapped: the gradient pieces of every edge, summed), the row norms of ``J`` ``(2E,)`` and the first
         column ``W r_0`` of ``C`` (the others, :attr:`weighted_dz`, are the same at every point)."""
         r0 = z - self.z0
-        r0[self.E:] = np.pi - np.mod(np.pi - r0[self.E:], 2.0 * np.pi)
+        r0[self.E:] = wrap_angle(r0[self.E:])
         C = np.empty((len(r0), 1 + len(self.dz)))
         np.multiply(self.w, r0, out=C[:, 0])
         C[:, 1:] = self.weighted_dz
