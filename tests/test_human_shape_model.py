@@ -77,7 +77,7 @@ def test_model_of_the_coarse_body(model, coarse):
     # synthesis at the coefficients of 5 training poses: the g-distance (squared) to each pose, relative to the
     # mean's, is about what the linear subspace leaves (measured 0.56 after P_Z vs 0.44 in the subspace)
     poses, _ = coarse.random_poses(5, seed=1)  # the first 5 training poses
-    X = model.synthesize(model.training_coefficients[:5])
+    X, _ = model.synthesize(model.training_coefficients[:5], return_results=True)  # most fail their checks (folds)
     Z = np.stack([lengths_and_angles(x, model.topology) for x in poses])
     Zs = np.stack([lengths_and_angles(x, model.topology) for x in X])
     d_synth, d_mean = wrap_angles(Zs - Z, model.topology), wrap_angles(model.mean_z - Z, model.topology)
