@@ -250,7 +250,8 @@ def pose_problem(result):
     """The one-line message of a model pose that failed its checks (:func:`model_vertices`), else None."""
     if result.success:
         return None
-    detail = result.message.split("check failed: ", 1)[-1].split(" (")[0]
+    folded = result.checks.get("folded_faces", 0) if result.failure == "folded" else 0
+    detail = f"{folded} folded faces" if folded else result.failure.replace("_", " ")
     return (f"the model's pose at these sliders failed its checks ({detail}); sliders closer to 0 stay nearer "
             "the training poses")
 

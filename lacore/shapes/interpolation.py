@@ -256,7 +256,8 @@ def lift_angles(z_keys):
     """
     Z = np.asarray(z_keys, float)
     E = Z.shape[1] // 2
-    step = wrap_angle(Z[1:, E:] - Z[:-1, E:]) - (Z[1:, E:] - Z[:-1, E:])
+    turn = np.diff(Z[:, E:], axis=0)
+    step = wrap_angle(turn) - turn
     if not step.any():
         return Z
     out = Z.copy()

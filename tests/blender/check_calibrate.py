@@ -13,7 +13,8 @@ import math
 import os
 import time
 
-from harness import ARGS, MODULE, bpy, draw_panel, drive, esc, fake_operator, reset, run_cases, select_only
+from harness import (ARGS, MODULE, bpy, draw_panel, drive, esc, evaluated, fake_operator, reset, run_cases,
+                     select_only)
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -84,16 +85,12 @@ def open_scene():
     return obj, take
 
 
-def evaluated(obj, frames):
+def evaluated_frames(obj, frames):
+    """(T, V', 3) float32 evaluated positions of ``obj`` at ``frames``."""
     out = []
     for f in frames:
         bpy.context.scene.frame_set(int(f))
-        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        me = ev.to_mesh()
-        c = np.empty(3 * len(me.vertices), np.float32)
-        me.vertices.foreach_get("co", c)
-        ev.to_mesh_clear()
-        out.append(c.reshape(-1, 3))
+        out.append(evaluated(obj))
     return np.array(out)
 
 
@@ -106,7 +103,7 @@ def whole_path():
     seconds = time.perf_counter() - t
     fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
     frames = np.arange(1, N_FRAMES + 1)
-    ev = evaluated(obj, frames)
+    ev = evaluated_frames(obj, frames)
     # marker positions in the object's space, as the operator read them (NaN where occluded)
     markers = ext("addon.operators_markers").read_take(take, frames=frames)
     inv = np.linalg.inv(np.array(obj.matrix_world, np.float64))
@@ -151,7 +148,7 @@ def refit_reuses_calibration():
     out["seconds"] = round(time.perf_counter() - t, 2)
     q = obj[quality.FIT_PROP].to_dict()
     out["reused"], out["calibration_seconds"] = q.get("calibration_reused"), q.get("calibration_seconds")
-    ev = evaluated(obj, np.arange(1, N_FRAMES + 1))
+    ev = evaluated_frames(obj, np.arange(1, N_FRAMES + 1))
     out["max_difference"] = float(np.abs(ev - OUT["evaluated"]).max())
     from types import SimpleNamespace
     calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
@@ -272,7 +269,7 @@ def coarse_model():
     t = time.perf_counter()
     result = bpy.ops.lengths_angles.calibrate_fit()
     seconds = time.perf_counter() - t
-    ev = evaluated(obj, [1, N_FRAMES])
+    ev = evaluated_frames(obj, [1, N_FRAMES])
     q = obj[ext("addon.fit_quality").FIT_PROP].to_dict()
     basis = INPUTS["basis"]
     return {"coarse_vertices": int(model.reference_vertices.shape[0]),
@@ -309,7 +306,7 @@ def world_error(obj, c):
     """Mean distance of the played-back mesh from the true poses in metres (world), that of the rest mesh as
     placed by hand (3 degrees and 1 cm off), and the frames."""
     n = len(c["world"])
-    ev = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    ev = evaluated_frames(obj, np.arange(1, n + 1)).astype(np.float64)
     M = np.array(obj.matrix_world, np.float64)
     world = ev @ M[:3, :3].T + M[:3, 3]
     turn = math.atan2(c["rotation"][1, 0], c["rotation"][0, 0]) + math.radians(3.0)
@@ -345,14 +342,14 @@ def creature_settings():
     take = next(o for o in bpy.data.objects if "lengths_angles_take" in o)
     c = dict(np.load(os.path.join(WORK, "creature.npz")))
     n = len(c["world"])
-    default = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    default = evaluated_frames(obj, np.arange(1, n + 1)).astype(np.float64)
     quality = ext("addon.fit_quality")
     default_settings = obj[quality.FIT_PROP]["settings"].to_dict()
     select_only(obj, take)
     t = time.perf_counter()
     result = bpy.ops.lengths_angles.calibrate_fit(use_observed_radius=False, penetration_weight=0.0)
     seconds = time.perf_counter() - t
-    ev = evaluated(obj, np.arange(1, n + 1)).astype(np.float64)
+    ev = evaluated_frames(obj, np.arange(1, n + 1)).astype(np.float64)
     err, rest, frames = world_error(obj, c)
     q = obj[quality.FIT_PROP].to_dict()
     scale = float(np.linalg.norm(np.array(obj.matrix_world)[:3, 0]))
