@@ -58,7 +58,7 @@ from ..lacore.errors import InputError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.shapes import MixerOptions, ShapeMixer
 from ..lacore.shapes.mixing import check_keys
-from ..lacore.shapes.mixing.files import build_mixer_bytes, mixer_bytes
+from ..lacore.shapes.mixing.mixer import build_mixer_bytes, mixer_bytes
 from . import storage
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, shows_stored_shape, triangulate

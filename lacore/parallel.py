@@ -271,7 +271,7 @@ def call_in_process(function, args=(), kwargs=None, progress=None, poll=0.1):
     --------
     >>> import numpy as np
     >>> from lacore.parallel import call_in_process
-    >>> from lacore.shapes.mixing.files import build_mixer_bytes
+    >>> from lacore.shapes.mixing.mixer import build_mixer_bytes
     >>> from lacore.samples.bar import bar_mesh, bar_pose
     >>> X, F = bar_mesh(n_along=6, n_side=2)
     >>> data = call_in_process(build_mixer_bytes, (np.stack([X, bar_pose(X, 1.0, 0.0)]), F))  # doctest: +SKIP

@@ -91,6 +91,26 @@ def test_old_format_version(tmp_path, mixer):
         ShapeMixer.load(tmp_path / "old.npz")
 
 
+def test_file_without_local_correction_fields(tmp_path, mixer):
+    """A file written before the last two options and ``local_vertices`` loads with them off; options of another
+    count are a damaged file, named."""
+    from lacore.shapes.mixing.files import ENTRIES
+    from lacore.shapes.mixing.mixer import _OPTION_FIELDS
+
+    saved = dict(np.load(mixer.save(tmp_path / "new.npz")))
+    assert set(saved) == set(ENTRIES) | {"format", "format_version"}
+    old = dict(saved, options=saved["options"][:len(_OPTION_FIELDS) - 2])
+    del old["local_vertices"]
+    np.savez(tmp_path / "old.npz", **old)
+    loaded = ShapeMixer.load(tmp_path / "old.npz")
+    assert loaded.options.local_vertices == 0 and loaded.options.cubature_energy_norm is False
+    assert len(loaded.local_vertices) == 0 and loaded.reduced_size == mixer.reduced_size
+    assert np.isfinite(loaded.mix([0.5, 0.5]).energy)
+    np.savez(tmp_path / "short.npz", **dict(saved, options=saved["options"][:5]))
+    with pytest.raises(MixerError, match=r"short\.npz is not a valid shape mixer: mixer options must be"):
+        ShapeMixer.load(tmp_path / "short.npz")
+
+
 def test_out_of_range_weights_are_flagged(mixer):
     r = mixer.mix([2.5, 0.0])
     assert not r.in_range and "outside" in r.message and "key 1 = 2.5" in r.message

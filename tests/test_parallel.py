@@ -193,7 +193,7 @@ def test_call_in_process_builds_a_mixer_relays_progress_and_cancels_at_once():
 
     from lacore.samples.bar import bar_mesh, bar_pose
     from lacore.shapes.mixing import ShapeMixer
-    from lacore.shapes.mixing.files import build_mixer_bytes
+    from lacore.shapes.mixing.mixer import build_mixer_bytes
     X, F = bar_mesh(n_along=12, n_side=2)
     keys = np.stack([X, bar_pose(X, 1.2, 0.0), bar_pose(X, 0.0, 1.0)])
     seen = []

@@ -52,9 +52,8 @@ from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
 from ..reconstruction import reconstruction_errors
-from ..reconstruction.settings import projection_preset, split_options
 from ..result import SolverResult
-from .projection import ProjectionOptions, SequenceProjection, check_times
+from .projection import SequenceProjection, check_times, projection_options
 
 __all__ = [
     "PATH",
@@ -63,7 +62,6 @@ __all__ = [
     "interpolate",
     "keyframe_inbetweens",
     "project_targets",
-    "projection_options",
     "sequence_result",
     "shapes_to_z",
     "check_keyframes",
@@ -431,23 +429,6 @@ def project_targets(z_targets, topology, reference_vertices, times=None, anchors
     run = SequenceProjection(z_targets, topology, reference_vertices, times, anchors, opts, samples=z_keys,
                              workers=workers)
     return sequence_result(run.run(progress, on_frame), t_start)
-
-
-def projection_options(method=None, warm_start=True, tree=None, settings=None, options=None, hybrid=None,
-                       keywords=None, caller="project_targets"):
-    """The :class:`~lacore.shapes.projection.ProjectionOptions` of the entry points' arguments: ``keywords`` are
-    the flattened fields of ``settings``, ``options`` and ``hybrid``
-    (:func:`lacore.reconstruction.settings.split_options`; ``caller`` is named for unknown ones).
-
-    Examples
-    --------
-    >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
-    2
-    """
-    method, options, hybrid = projection_preset(method, options, hybrid)
-    settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
-    return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
-                             hybrid=hybrid)
 
 
 def sequence_result(run, t_start, keyframes=None, smooth=False):

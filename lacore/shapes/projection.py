@@ -53,11 +53,13 @@ from ..geometry.topology import check_vertices
 from ..parallel import WorkerError, WorkerProcess, check_workers, frame_chains, raise_worker_error
 from ..progress import Cancelled, report
 from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, projection_preset
+from ..reconstruction.settings import (GaussNewtonOptions, HybridOptions, ReconstructionSettings, projection_preset,
+                                       split_options)
 from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
 
 __all__ = ["project", "ProjectionOptions", "ProjectionTargets", "ProjectedFrame", "SequenceProjection",
-           "ChainWorkers", "project_chain", "predicted_start", "check_times", "WARM_STARTS", "MAX_EXTRAPOLATION"]
+           "ChainWorkers", "project_chain", "predicted_start", "check_times", "projection_options", "WARM_STARTS",
+           "MAX_EXTRAPOLATION"]
 
 #: Values of ``warm_start`` (besides ``True`` = ``"secant"`` and ``False`` = cold starts from the reference).
 WARM_STARTS = ("secant", "nearest")
@@ -180,6 +182,23 @@ class ProjectionOptions:
     def takes_start(self):
         """Whether the method starts from given vertices (so warm starts apply)."""
         return self.method == "gn" or (self.method == "hybrid" and self.hybrid.start == "given")
+
+
+def projection_options(method=None, warm_start=True, tree=None, settings=None, options=None, hybrid=None,
+                       keywords=None, caller="project_targets"):
+    """The :class:`ProjectionOptions` of the entry points' arguments: ``keywords`` are
+    the flattened fields of ``settings``, ``options`` and ``hybrid``
+    (:func:`lacore.reconstruction.settings.split_options`; ``caller`` is named for unknown ones).
+
+    Examples
+    --------
+    >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
+    2
+    """
+    method, options, hybrid = projection_preset(method, options, hybrid)
+    settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
+    return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
+                             hybrid=hybrid)
 
 
 def check_times(times, name="times"):

@@ -1,12 +1,12 @@
 """The shape mixer: nonlinear blends of shape keys in lengths and angles, in real time.
 
-* :mod:`.mixer` -- :class:`ShapeMixer` (build, mix, save, load), :class:`MixerOptions`,
+* :mod:`.mixer` -- :class:`ShapeMixer` (build, mix, save, load; :func:`~.mixer.mixer_bytes`), :class:`MixerOptions`,
   :class:`MixResult`, the blend of targets :func:`blend_targets`, the keys' validation :func:`check_keys`;
 * :mod:`.subspace` -- the reduced space (keys, derivatives of the projection, chord vectors);
 * :mod:`.reduced` -- the reduced energy on a weighted subset of edges and its solver;
 * :mod:`.cubature` -- the choice of that subset (greedy non-negative least squares);
 * :mod:`.local` -- the local correction: one full Gauss-Newton step on the few vertices the space misses;
-* :mod:`.files` -- saving and loading mixers;
+* :mod:`.files` -- the layout of mixer files;
 * :mod:`.path` -- in-betweens of two keys by a reduced model of their path (:func:`path_inbetweens`).
 """
 

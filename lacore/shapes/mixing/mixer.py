@@ -70,6 +70,8 @@ the reduced model.
 """
 
 import contextlib
+import os
+import tempfile
 import time
 from dataclasses import dataclass, fields
 
@@ -84,14 +86,14 @@ from ...progress import report
 from ...reconstruction import ReconstructionContext, reconstruct
 from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
 from .cubature import fit_cubature
-from .files import FORMAT, FORMAT_VERSION, load_mixer, save_mixer
+from .files import FORMAT, FORMAT_VERSION, read_mixer_file, write_mixer_file
 from .local import LocalCorrection, hot_vertices, space_error_density
 from .reduced import ReducedEnergy, edge_stencils
 from .subspace import (Expansion, FullProblem, build_space, candidate_weights, exploration_weights, newton_vectors,
                        orthonormal_basis, reduced_solve, space_indicator)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
-           "FORMAT", "FORMAT_VERSION"]
+           "FORMAT", "FORMAT_VERSION", "mixer_bytes", "build_mixer_bytes"]
 
 #: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
 #: a mix costs ``O(r^3)`` per iteration (``r`` columns on ``12 r`` to ``20 r`` cubature edges); the bars' 44 columns
@@ -335,6 +337,14 @@ class MixerOptions:
 
     @classmethod
     def from_array(cls, a):
+        """The options of :meth:`to_array`'s numbers.  Files written before the last two fields
+        (``cubature_energy_norm``, ``local_vertices``) hold fewer numbers: those fields are off."""
+        a = np.asarray(a, float).ravel()
+        n = len(_OPTION_FIELDS)
+        if n - 2 <= len(a) < n:
+            a = np.append(a, np.zeros(n - len(a)))
+        if len(a) != n:
+            raise MixerError(f"mixer options must be {n} numbers, got {len(a)}")
         kinds = {f.name: f.type for f in fields(cls)}
         kw = {}
         for name, v in zip(_OPTION_FIELDS, a, strict=True):
@@ -1045,10 +1055,75 @@ class ShapeMixer:
 
     # ------------------------------------------------------------------ files
     def save(self, path):
-        """Write the mixer to ``path`` (``.npz`` appended unless it ends so), atomically; returns the path."""
-        return save_mixer(self, path)
+        """Write the mixer to ``path`` (``.npz`` appended unless it ends so), atomically; returns the path
+        (the layout: :mod:`.files`)."""
+        m, r = self.n_keys - 1, self.reduced_size
+        return write_mixer_file(path, {
+            "keys": self.keys, "faces": self.faces, "options": self.options.to_array(), "basis": self.basis,
+            "cubature_edges": self._cubature.edges, "cubature_weights": self._cubature.c,
+            "expansion_weights": self._exp_w, "expansion_q": self._exp_q, "expansion_order": self._exp_order,
+            "expansion_first": self._exp_A, "expansion_second": self._exp_T,
+            "indicator_weights": np.zeros((0, m)) if self._error_w is None else self._error_w,
+            "indicator_values": np.zeros(0) if self._error_v is None else self._error_v,
+            "correction_weights": np.zeros((0, m)) if self._corr_w is None else self._corr_w,
+            "correction": np.zeros((0, m + 1, r)) if self._corr is None else self._corr,
+            "local_vertices": self.local_vertices,
+            "build_stages": np.array(list(self.build_seconds), dtype=str),
+            "build_seconds": np.array(list(self.build_seconds.values()), float)})
 
     @classmethod
     def load(cls, path):
-        """Read a mixer written by :meth:`save`; :class:`MixerError` naming the file for anything else."""
-        return load_mixer(cls, path)
+        """Read a mixer written by :meth:`save`; :class:`MixerError` naming the file for anything else (not a
+        mixer, another format version, arrays that do not fit together or are not finite)."""
+        name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else str(path)
+        a = read_mixer_file(path, MixerError)
+        try:
+            mixer = cls(a["keys"], a["faces"], MixerOptions.from_array(a["options"]))
+        except InputError as exc:
+            raise MixerError(f"{name} is not a valid shape mixer: {exc}") from None
+        U, edges, c, hot = a["basis"], a["cubature_edges"], a["cubature_weights"], a["local_vertices"]
+        V, m = mixer.n_vertices, mixer.n_keys - 1
+        r, P = U.shape[1], len(a["expansion_weights"])
+        n_ind, n_corr = len(a["indicator_values"]), len(a["correction"])
+        expect = {"basis": (3 * V, r), "cubature_weights": edges.shape, "expansion_weights": (P, m),
+                  "expansion_q": (P, r), "expansion_order": (P,), "expansion_first": (P, r, m),
+                  "expansion_second": (P, m, m, r), "build_seconds": a["build_stages"].shape,
+                  "indicator_weights": (n_ind, m), "correction_weights": (n_corr, m), "correction": (n_corr, m + 1, r)}
+        for key, want in expect.items():
+            if a[key].shape != want:
+                raise MixerError(f"{name}: '{key}' has shape {a[key].shape}, expected {want}: the file is damaged; "
+                                 "rebuild the mixer")
+        bad = [k for k in ("basis", "cubature_weights", "expansion_q", "expansion_first", "expansion_second",
+                           "correction") if not np.all(np.isfinite(a[k]))]
+        if len(hot) and (hot.min() < 0 or hot.max() >= V or np.any(np.diff(hot) <= 0)):
+            bad.append("local_vertices")
+        if bad or r < 1 or edges.size == 0 or edges.min() < 0 or edges.max() >= mixer.n_edges or np.any(c < 0):
+            raise MixerError(f"{name}: the reduced model is damaged ({', '.join(bad) or 'cubature'}); rebuild the "
+                             "mixer")
+        mixer.basis = np.ascontiguousarray(U)
+        mixer._exp_w, mixer._exp_q, mixer._exp_order = a["expansion_weights"], a["expansion_q"], a["expansion_order"]
+        mixer._exp_A, mixer._exp_T = a["expansion_first"], a["expansion_second"]
+        mixer._output_basis()
+        if n_ind:
+            mixer._error_w, mixer._error_v = a["indicator_weights"], a["indicator_values"]
+        if n_corr:
+            mixer._corr_w, mixer._corr = a["correction_weights"], a["correction"]
+        mixer._cubature = mixer._make_energy(edges, c)
+        mixer._set_local(hot)
+        mixer.build_seconds = dict(zip(a["build_stages"].tolist(), a["build_seconds"].tolist(), strict=True))
+        return mixer
+
+
+def mixer_bytes(mixer):
+    """The file :meth:`ShapeMixer.save` writes for ``mixer``, as bytes (``ShapeMixer.load(io.BytesIO(data))`` reads
+    it)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = mixer.save(os.path.join(tmp, "mixer.npz"))
+        with open(path, "rb") as fh:
+            return fh.read()
+
+
+def build_mixer_bytes(keys, faces, options=None, *, progress=None):
+    """:meth:`ShapeMixer.build` returning :func:`mixer_bytes`: what crosses a process boundary
+    (:func:`lacore.parallel.call_in_process`; a built mixer holds sparse factorizations, which do not pickle)."""
+    return mixer_bytes(ShapeMixer.build(keys, faces, options, progress=progress))

@@ -191,8 +191,7 @@ def _polish_fast(mixer, topology, T, X, over):
     """The in-betweens ``over`` by lacore's default projection (Fast: continuation along ``t``, one Gauss-Newton step
     per in-between, more where a step disagrees with its quadratic model), started from the keys and the
     in-betweens within the tolerance: ``(vertices, energy, failures)``."""
-    from ..interpolation import projection_options
-    from ..projection import SequenceProjection
+    from ..projection import SequenceProjection, projection_options
 
     keep = np.setdiff1d(np.arange(len(T)), over)
     anchors = [(0.0, mixer.keys[0]), (1.0, mixer.keys[1])]
