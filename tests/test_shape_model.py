@@ -385,3 +385,11 @@ def test_synthesis_warns_about_failed_poses_unless_their_results_are_returned(ba
         X2 = model.synthesize(a, options=options)
     assert results[1].message in str(caught[0].message) and caught[0].filename == __file__
     np.testing.assert_array_equal(X2, X)  # returned all the same
+
+
+def test_fit_names_a_misspelt_option(bar):
+    """``ShapeModel.fit`` declares the options of ``fit_z``: a misspelt one is named against ``fit`` itself."""
+    poses, faces = bar[0], bar[1]
+    with pytest.raises(TypeError, match=r"fit\(\) got an unexpected keyword argument 'n_mode'"):
+        ShapeModel.fit(poses, faces, n_mode=2)
+    assert ShapeModel.fit(poses, faces, n_modes=1, tangent="ambient").n_modes == 1

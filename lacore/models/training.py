@@ -26,7 +26,8 @@ __all__ = ["fit", "fit_z"]
 _RANK_TOL = 1e-12
 
 
-def fit(cls, vertices, topology, *, reference_vertices=None, **options):
+def fit(cls, vertices, topology, *, reference_vertices=None, n_modes=None, tangent=DEFAULT_TANGENT,
+        projection_metric=PROJECTION_METRICS[0], method="gn", settings=None, options=None, progress=None):
     """Fit a model to ``N`` meshes in dense correspondence.
 
     Parameters
@@ -37,8 +38,8 @@ def fit(cls, vertices, topology, *, reference_vertices=None, **options):
     topology : MeshTopology or (F, 3) array_like of faces
     reference_vertices : (V, 3) array_like, optional
         Reference mesh (weights of ``W_q``, output frame); default the first pose.
-    **options
-        See :meth:`fit_z`.
+    n_modes, tangent, projection_metric, method, settings, options, progress
+        As for :meth:`fit_z`.
 
     Returns
     -------
@@ -62,7 +63,8 @@ def fit(cls, vertices, topology, *, reference_vertices=None, **options):
     Z = np.stack([lengths_and_angles(x, topology, check=False) for x in X])
     t_encode = time.perf_counter() - t0
     reference = X[0] if reference_vertices is None else reference_vertices
-    model = cls.fit_z(Z, topology, reference, **options)
+    model = cls.fit_z(Z, topology, reference, n_modes=n_modes, tangent=tangent, projection_metric=projection_metric,
+                      method=method, settings=settings, options=options, progress=progress)
     model.timings["encode"] = t_encode
     model.timings["total"] += t_encode
     return model
