@@ -67,8 +67,8 @@ CALIBRATION_HEADER = "Lengths & Angles calibration (do not edit)"
 
 def _fitting_api():
     """lacore's calibration and fitting (imported on use)."""
-    from ..lacore.markers import FIT_DEFAULTS, calibrate, drop_non_markers, fit_take
-    return FIT_DEFAULTS, drop_non_markers, (calibrate, fit_take)
+    from ..lacore.markers import FIT_DEFAULTS, calibrate, drop_non_markers, fit_take, model_pins
+    return FIT_DEFAULTS, drop_non_markers, (calibrate, fit_take, model_pins)
 
 
 def fit_defaults():
@@ -173,7 +173,7 @@ MAX_PLACED_DISTANCE = 0.2
 def _placement(obj, markers, labels, pins, mode, rest, frame_of):
     """How to place the character: ``(kind, pins)`` with kind ``'HINTS'`` (lacore, by marker names),
     ``'PINS'`` or ``'PLACED'`` (:data:`.operators_pins.PLACEMENT_ITEMS`), and the pins as
-    ``{label: (vertex, rest position)}`` (validated: one-line FitSetupError naming what to do)."""
+    ``{label: vertex}`` (validated: one-line FitSetupError naming what to do)."""
     pinned = {}
     for label, v in pins.items():
         if label not in markers.labels:
@@ -182,7 +182,7 @@ def _placement(obj, markers, labels, pins, mode, rest, frame_of):
                                 "Model and Markers panel) or pin a marker of the take")
         if not 0 <= v < len(rest):
             raise FitSetupError(f"pin '{label}': '{obj.name}' has no vertex {v} (it has {len(rest)}): pin it again")
-        pinned[label] = (v, rest[v])
+        pinned[label] = int(v)
     if mode == 'PLACED':
         return 'PLACED', pinned
     if has_hints(markers.labels):
@@ -226,7 +226,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     Placement option.
     """
     try:
-        defaults, drop_non_markers, (calibrate, fit_take) = _fitting_api()
+        defaults, drop_non_markers, (calibrate, fit_take, model_pins) = _fitting_api()
     except ImportError as exc:
         raise FitSetupError(f"this build of Lengths & Angles has no marker calibration ({exc})") from exc
     options = fit_settings(defaults, allow_auto=True, prior_weight="auto" if auto_prior else prior_weight,
@@ -279,7 +279,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     # humanoid placed by marker names, else the nearest axes (the user placed or pinned the character)
     up, forward = object_axes(obj) if kind == 'HINTS' else _nearest_axes(obj)
     markers = dataclasses.replace(markers, up_axis=None if up is None else ("" if up.startswith("-") else "+") + up)
-    pin_vertices = {lb: int(v) for lb, (v, _) in pinned.items()}
+    pin_vertices = dict(pinned)
 
     def key_of(token):
         return calibration_key(str(token), markers, unit, up, forward, kind, pin_vertices, options)
@@ -300,16 +300,14 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             m = _build_model(built, staged(0))
         fitted = copy.copy(m)  # the unit and axes of this scene, not stored with the model
         fitted.length_unit, fitted.up_axis, fitted.forward_axis = unit, up, forward
-        X = np.asarray(m.reference_vertices, float)
-        # pins on the model's vertices: the same on the mesh, the nearest rest vertex on a coarse level
-        model_pins = {lb: (int(np.argmin(np.sum((X - p) ** 2, 1))) if getattr(m, "fine_level", None) is not None else v)
-                      for lb, (v, p) in pinned.items()}
+        # pins on the model's vertices: the same on the mesh, the coarse vertex that absorbed it on a coarse level
+        on_model = model_pins(m, pin_vertices)
         # As Placed: the rest mesh in the character's space, in metres
         where = (unit, np.eye(3), np.zeros(3)) if kind == 'PLACED' else None
         try:
             cal = reused
             if cal is None:
-                cal = calibrate(fitted, markers, fit=options, placement=where, pins=model_pins or None,
+                cal = calibrate(fitted, markers, fit=options, placement=where, pins=on_model or None,
                                 progress=staged(stages - 2))
             result = fit_take(fitted, markers, cal, options=options, progress=staged(stages - 1))
         except InputError as exc:

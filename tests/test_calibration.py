@@ -292,6 +292,54 @@ def test_a_creature_calibrates_by_placement_or_pins(creature, how):
     assert err < 0.7 * rest                     # closer to the take's poses than the rest shape (measured 0.49-0.50)
 
 
+def test_fit_command_pins_a_creature(creature, tmp_path, capsys):
+    """``lacore fit --pin`` places a character without standard marker names as ``calibrate(pins=)`` does (the
+    creature's fit measured 6.4 mm from the true poses); without pins it is a one-line error, nothing written."""
+    import json
+
+    from lacore.cli import main
+    c, model = creature
+    model.save(tmp_path / "creature.npz")
+    write_trc(tmp_path / "take.trc", c["take"], units="mm")
+    pins = [f"{lab}={v}" for lab, v in zip(c["pin_labels"].tolist(), c["pin_vertices"].tolist(), strict=True)]
+    out = tmp_path / "fit.npz"
+    argv = ["fit", str(tmp_path / "creature.npz"), "--markers", str(tmp_path / "take.trc"), "-o", str(out)]
+    code = main([*argv, "--pin", *pins, "--json"])
+    stdout, err = capsys.readouterr()
+    assert code == 0, err
+    s = json.loads(stdout)
+    assert s["frames"] == c["take"].n_frames and s["marker_rms"] < 0.5          # mm
+    with np.load(out) as r:
+        err_m = float(np.linalg.norm(r["vertices"] * float(r["length_unit"]) - c["world"], axis=2).mean())
+    assert err_m < 0.016, err_m
+    for extra, message in ((["--pin", *pins[:2], "m02=x"], "--pin takes LABEL=VERTEX"),
+                           (["--pin", *pins[:2], "m02=999999"], "not a vertex of the model's mesh"),
+                           ([], "give pins")):
+        bad = tmp_path / "bad.npz"
+        code = main([*argv[:-1], str(bad), *extra])
+        _, err = capsys.readouterr()
+        assert code == 2 and err.count("\n") == 1 and message in err, err
+        assert not bad.exists()
+
+
+def test_model_pins_map_full_resolution_vertices_to_the_coarse_level(model):
+    """Pins on the full-resolution body go to the coarse vertex that absorbed them (kept vertices to themselves)."""
+    from lacore.markers import model_pins
+    level = model.fine_level
+    kept = level.coarsening.vertex_indices
+    removed = np.setdiff1d(np.arange(level.n_fine_vertices), kept)[:2]
+    pins = model_pins(model, {"a": int(kept[7]), "b": int(removed[0]), "c": int(removed[1])})
+    assert pins["a"] == 7
+    for lab, v in (("b", removed[0]), ("c", removed[1])):
+        X = model.reference_vertices
+        assert 0 <= pins[lab] < len(X) and pins[lab] == level.coarsening.parent[v]
+    with pytest.raises(CalibrationError, match=r"pin d: vertex 13380 is not a vertex of the model's mesh \(0 to "
+                                               r"13379\)"):
+        model_pins(model, {"d": level.n_fine_vertices})
+    with pytest.raises(CalibrationError, match="pin e: vertex 2.5"):
+        model_pins(model, {"e": 2.5})
+
+
 def test_pins_naming_unknown_markers_are_an_error(creature):
     c, model = creature
     with pytest.raises(CalibrationError, match="pins name markers not in the take: nope"):

@@ -4,7 +4,7 @@ Usage::
 
     lacore fit MODEL.npz --markers TAKE.c3d|TAKE.trc|MARKERS.npz -o OUT.npz [--json] [--static STATIC.c3d]
                [--prior-weight G|auto] [--temporal-weight W] [--penetration-weight MU]
-               [--observed-radius R1 R2|0] [--frames A:B] [--units mm|cm|m]
+               [--observed-radius R1 R2|0] [--frames A:B] [--units mm|cm|m] [--pin LABEL=VERTEX ...]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
 (:meth:`lacore.models.shape_model.ShapeModel.save`).
@@ -14,7 +14,9 @@ A take (``.c3d``, ``.trc``) is calibrated and fitted with no hand work
 units are read from the file (``--units`` overrides) and checked against the
 model's size, the model is placed, sized and bound to the markers on a few frames
 (or on ``--static``), then every frame is fitted and, if the model carries a fine
-level, prolonged to full resolution.  ``OUT.npz`` gets ``vertices`` ``(T, V, 3)``
+level, prolonged to full resolution.  Standard marker names (Plug-in Gait, CGM, ...)
+place a humanoid; ``--pin LABEL=VERTEX`` (3 or more, vertices of the model's
+full-resolution mesh) places any other character.  ``OUT.npz`` gets ``vertices`` ``(T, V, 3)``
 (full resolution if the model has a fine level; the take's axes, the model's unit,
 the performer's size), ``faces``, ``coarse_vertices``, ``coarse_faces``,
 ``marker_residuals`` ``(T, M, 3)`` (NaN where occluded), ``markers`` ``(T, M, 3)``,
@@ -107,6 +109,9 @@ def configure(parser):
                              "term (a take's own rate is used; without one, frames are fitted independently)")
     parser.add_argument("--frames", metavar="A:B", help="fit only the take's frames A to B-1 (takes only)")
     parser.add_argument("--units", metavar="UNIT", help="the take's length unit if its file lacks or misstates it")
+    parser.add_argument("--pin", nargs="+", action="extend", metavar="LABEL=VERTEX",
+                        help="markers pinned to vertices of the model's mesh (full resolution), 3 or more: what "
+                             "places a character whose markers have no standard names (takes only)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -127,6 +132,25 @@ def _observed_radius(values):
         raise InputError(f"--observed-radius must be two numbers 0 <= R1 < R2, or 0 (the modes everywhere), "
                          f"got {' '.join(f'{v:g}' for v in values)}")
     return (float(values[0]), float(values[1]))
+
+
+def _pins(items):
+    """``--pin LABEL=VERTEX ...`` as ``{label: vertex}`` (None when not given)."""
+    if not items:
+        return None
+    pins = {}
+    for item in items:
+        label, sep, vertex = str(item).rpartition("=")
+        try:
+            v = int(vertex)
+        except ValueError:
+            v = None
+        if not sep or not label or v is None:
+            raise InputError(f"--pin takes LABEL=VERTEX (a marker label and a vertex number), got {item!r}")
+        if label in pins:
+            raise InputError(f"--pin names marker {label} twice")
+        pins[label] = v
+    return pins
 
 
 def _frames(text):
@@ -159,20 +183,21 @@ def run(args):
             raise InputError("--prior-weight auto needs a take (.c3d or .trc): a markers .npz has no calibration")
         if args.rate is not None and not (np.isfinite(args.rate) and args.rate > 0):
             raise InputError(f"--rate must be a positive number of frames per second, got {args.rate}")
-        given = [o for o, v in (("--frames", args.frames), ("--static", args.static), ("--units", args.units))
-                 if v is not None]
+        given = [o for o, v in (("--frames", args.frames), ("--static", args.static), ("--units", args.units),
+                                ("--pin", args.pin)) if v is not None]
         if given:
             raise InputError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for a take (.c3d or .trc): a "
                              "markers .npz is fitted whole, in the model's unit")
         return _run_binding(args, model, gamma, start)
     if args.rate is not None:
         raise InputError("--rate is for a markers .npz: a take (.c3d or .trc) has its own frame rate")
+    pins = _pins(args.pin)
     take = read_take(args.markers, units=args.units)
     static = read_take(args.static, units=args.units) if args.static else None
     res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v,
                                                             penetration_weight=mu,
                                                             observed_radius=args.observed_radius),
-                   frames=_frames(args.frames), static=static)
+                   frames=_frames(args.frames), static=static, pins=pins)
     cal = res.calibration
     fine = res.fine_vertices is not None
     b = res.binding

@@ -72,7 +72,7 @@ from .marker_sets import AXES, match_label, place_hints
 
 __all__ = ["calibrate", "Calibration", "CalibrationOptions", "CALIBRATION_DEFAULTS", "CalibrationError",
            "UnitMismatchError", "AxisMismatchError", "proportion_modes", "PRIOR_WEIGHT_CHOICES", "atlas_distance",
-           "MAX_ATLAS_DISTANCE"]
+           "MAX_ATLAS_DISTANCE", "model_pins"]
 
 
 class CalibrationError(InputError):
@@ -590,6 +590,49 @@ def _track(model, markers, binding, X0, at_frames, o, progress):
 
 
 # ----------------------------------------------------------------------------- calibration
+def model_pins(model, pins):
+    """Pins on the mesh a fit shows, as pins on the model's own vertices (what :func:`calibrate` takes).
+
+    Parameters
+    ----------
+    model : lacore.models.ShapeModel
+    pins : dict of str -> int
+        Marker label -> vertex of the mesh the fit returns: the model's full-resolution mesh when it carries a
+        fine level (:attr:`~lacore.models.ShapeModel.fine_level`), else its own mesh.
+
+    Returns
+    -------
+    dict of str -> int
+        Marker label -> model vertex: a full-resolution vertex maps to the coarse vertex that absorbed it
+        (:meth:`lacore.models.fine_level.FineLevel.coarse_vertices`).
+
+    Raises
+    ------
+    CalibrationError
+        A vertex that is not an integer of the mesh's range, naming the pin.
+
+    Examples
+    --------
+    >>> from lacore import ShapeModel
+    >>> from lacore.samples.bar import bar_family
+    >>> poses, faces, _ = bar_family([0.0, 0.2], [0.0, 0.1], n_along=4, n_side=1)
+    >>> model_pins(ShapeModel.fit(poses, faces, n_modes=1), {"LASI": 3})
+    {'LASI': 3}
+    """
+    fine = getattr(model, "fine_level", None)
+    n = fine.n_fine_vertices if fine is not None else model.topology.n_vertices
+    out = {}
+    for label, v in dict(pins or {}).items():
+        try:
+            ok = int(v) == v and 0 <= int(v) < n
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise CalibrationError(f"pin {label}: vertex {v!r} is not a vertex of the model's mesh (0 to {n - 1})")
+        out[str(label)] = int(fine.coarse_vertices(int(v))) if fine is not None else int(v)
+    return out
+
+
 def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None, progress=None):
     """Calibrate a take to a shape model: axes, units, size, starting pose, binding, proportions.
 
@@ -607,7 +650,8 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         The rest mesh's similarity into the take at the first calibration frame (``x = s R X + t``,
         ``x`` in metres): for characters without hint labels.
     pins : dict of str -> int, optional
-        Marker label -> model vertex: correspondences for characters without hint labels.
+        Marker label -> model vertex: correspondences for characters without hint labels (vertices of the
+        full-resolution mesh: :func:`model_pins`).
     progress : callable, optional
         ``progress(done, total, message)`` (:mod:`lacore.progress`).
 
@@ -731,10 +775,14 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         u = float(10.0 ** np.round(np.log10(s_used)))
         notes.append(f"model unit not declared: {_unit_name(u)} inferred (set model.length_unit)")
     # ---- axes
+    # a take's up inferred from its extent (no POINT:Y_SCREEN, e.g. TRC) is a standing performer's: it checks a
+    # placement by marker names, not one by pins or given (a creature lies as it lies)
+    by_names = any(h is not None for h in hints) and placement is None
     take_up, up_note = _take_up(take)
-    notes.append(up_note)
+    notes.append(up_note if take.up_axis or by_names else f"{up_note}: not checked (pins or a placement orient "
+                                                          "the model)")
     cos = float(take_up @ (R @ _axis(up)))
-    if cos < np.cos(np.radians(45.0)):
+    if (take.up_axis or by_names) and cos < np.cos(np.radians(45.0)):
         raise AxisMismatchError(
             f"axis mismatch: the model's up axis {up} is placed {np.degrees(np.arccos(np.clip(cos, -1, 1))):.0f} "
             "degrees from the take's up: check the model's up_axis / forward_axis")

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 from .binding import MarkerBinding, surface_points
-from .calibration import CALIBRATION_DEFAULTS, PRIOR_WEIGHT_CHOICES, Calibration, calibrate
+from .calibration import CALIBRATION_DEFAULTS, PRIOR_WEIGHT_CHOICES, Calibration, calibrate, model_pins
 from .fitting import FrameSolver, MarkerFitResult, fit_markers, fit_options, marker_statistics
 from .interpenetration import new_self_intersections
 from .io import MarkerTake
@@ -178,7 +178,7 @@ def frame_indices(frames, n_frames):
 
 
 def fit_take(model, take, calibration=None, options=None, *, frames=None, static=None, calibration_options=None,
-             progress=None):
+             pins=None, progress=None):
     """Calibrate (unless given) and fit every frame of a take; full resolution if the model has a fine level.
 
     Parameters
@@ -196,6 +196,10 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     static : MarkerTake, optional
         A static trial to calibrate on.
     calibration_options : CalibrationOptions, optional
+    pins : dict of str -> int, optional
+        Marker label -> vertex of the mesh the fit returns (full resolution with a fine level): what places a
+        character whose markers have no standard names (:func:`~lacore.markers.calibration.model_pins`); 3 or more
+        seen at the first calibration frame.  Only when the take is calibrated here.
     progress : callable, optional
         ``progress(done, total, message)`` over calibration and frames (:mod:`lacore.progress`).
 
@@ -235,7 +239,10 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
 
     if calibration is None:
         calibration = calibrate(model, static if static is not None else take, calibration_options, fit=fo,
-                                progress=shifted(0))
+                                pins=model_pins(model, pins) if pins else None, progress=shifted(0))
+    elif pins:
+        raise InputError("pins place the model when the take is calibrated: give them to calibrate(), or no "
+                         "calibration")
     cal = calibration
     notes = list(cal.notes) + [n for n in ignored if n not in cal.notes]
     missing = [lab for lab in cal.labels if lab not in take.labels]

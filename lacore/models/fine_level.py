@@ -103,6 +103,20 @@ class FineLevel:
     def n_fine_vertices(self):
         return self.coarsening.n_fine_vertices
 
+    def coarse_vertices(self, vertices):
+        """The coarse vertex of each fine vertex ``(n,)`` int: itself where it was kept, else the one that absorbed
+        it (:attr:`lacore.multiresolution.Coarsening.parent`).
+
+        Examples
+        --------
+        >>> from lacore.samples.human import human_model
+        >>> level = human_model().fine_level                      # doctest: +SKIP
+        >>> level.coarse_vertices([0, 13379]).shape                # doctest: +SKIP
+        (2,)
+        """
+        v = np.asarray(vertices, np.int64)
+        return self.coarsening.parent[v]
+
     @classmethod
     def build(cls, coarsening, fine_reference, fine_keys, key_coefficients, n_nearest=3):
         """From the fine reference mesh ``(V, 3)`` and fine training poses ``(N, V, 3)`` with their coefficients."""
