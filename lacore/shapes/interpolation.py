@@ -48,11 +48,11 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ..errors import InputError, LengthsAnglesError, MeshError
+from ..errors import InputError, LengthsAnglesError, MeshError, as_float_array
 from ..geometry.lengths_angles import check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
-from ..reconstruction import reconstruction_errors
-from ..reconstruction.settings import projection_preset, split_options
+from ..reconstruction import METHODS, reconstruction_errors
+from ..reconstruction.settings import PROJECTION_PRESETS, projection_preset, split_options
 from ..result import SolverResult
 from .projection import ProjectionOptions, SequenceProjection, check_times
 
@@ -219,12 +219,13 @@ def check_keyframes(keyframes, n_shapes):
 
     Raises
     ------
-    ValueError
-        A count different from the number of shapes, NaN/inf, or times that are not strictly increasing.
+    InputError
+        Entries that are no numbers, a count different from the number of shapes, NaN/inf, or times that are
+        not strictly increasing.
     """
     if keyframes is None:
         return np.arange(n_shapes, dtype=float)
-    k = np.asarray(keyframes, dtype=float)
+    k = as_float_array(keyframes, "keyframes")
     if k.ndim != 1:
         raise InputError(f"keyframes must be a 1-d sequence of times, got shape {k.shape}")
     if len(k) != n_shapes:
@@ -327,14 +328,25 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
         (C1, and C2 for natural boundary conditions).  Passes exactly through
         ``z_keys`` at the keyframes; with ``K = 2`` it is the linear interpolation.
         Angles on the circle (:func:`lift_angles`, then wrapped to ``(-pi, pi]``).
+
+    Raises
+    ------
+    InputError
+        A ``bc_type`` that :class:`~scipy.interpolate.CubicSpline` does not take, or ``"periodic"`` with a last
+        key that is not the first (also with ``K = 2``, where the spline is not built).
     """
     Z0 = np.asarray(z_keys, float)
     k = np.asarray(keyframes, float)
     t = np.atleast_1d(np.asarray(times, float))
+    Z = lift_angles(Z0)
+    try:  # built with two keys too, where only its check of bc_type is used
+        S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"bc_type={bc_type!r} does not fit the cubic spline: {str(exc).rstrip('.')}; use "
+                         "'natural' (the default), 'not-a-knot', 'clamped', or 'periodic' when the last key "
+                         "repeats the first") from None
     if len(k) == 2:
         return piecewise_linear_z(Z0, k, t)
-    Z = lift_angles(Z0)
-    S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
     out = S(np.clip(t, k[0], k[-1]))
     for end, mask in ((k[0], t < k[0]), (k[-1], t > k[-1])):
         if np.any(mask):
@@ -443,7 +455,18 @@ def projection_options(method=None, warm_start=True, tree=None, settings=None, o
     --------
     >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
     2
+
+    An unknown method is named with the ones this caller takes:
+
+    >>> try:
+    ...     projection_options("fsat", caller="interpolate")
+    ... except InputError as exc:
+    ...     print(exc)
+    unknown projection method 'fsat'; use one of fast, gn, bfs, mst, spt, lsq, hybrid, path
     """
+    known = (*PROJECTION_PRESETS, *METHODS) + ((PATH,) if caller in ("interpolate", "keyframe_inbetweens") else ())
+    if method is not None and (not isinstance(method, str) or method not in known):
+        raise InputError(f"unknown projection method {method!r}; use one of {', '.join(known)}")
     method, options, hybrid = projection_preset(method, options, hybrid)
     settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
     return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
@@ -856,7 +879,7 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     """
     if keyframes is None:
         raise InputError("keyframe_inbetweens needs the keyframe numbers of the shapes")
-    k = np.asarray(keyframes, dtype=float)
+    k = as_float_array(keyframes, "keyframes")
     if frames is None:
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)

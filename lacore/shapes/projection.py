@@ -47,13 +47,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError, as_float_array
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import check_vertices
 from ..parallel import WorkerError, WorkerProcess, check_workers, frame_chains, raise_worker_error
 from ..progress import Cancelled, report
 from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import GaussNewtonOptions, HybridOptions, ReconstructionSettings, projection_preset
+from ..reconstruction.settings import (PROJECTION_PRESETS, GaussNewtonOptions, HybridOptions, ReconstructionSettings,
+                                       projection_preset)
 from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
 
 __all__ = ["project", "ProjectionOptions", "ProjectionTargets", "ProjectedFrame", "SequenceProjection",
@@ -173,7 +174,8 @@ class ProjectionOptions:
         object.__setattr__(self, "options", GaussNewtonOptions() if options is None else options)
         object.__setattr__(self, "hybrid", HybridOptions() if hybrid is None else hybrid)
         if self.method not in METHODS:
-            raise InputError(f"unknown projection method {self.method!r}; use one of {', '.join(METHODS)}")
+            raise InputError(f"unknown projection method {self.method!r}; use one of "
+                             f"{', '.join((*PROJECTION_PRESETS, *METHODS))}")
         object.__setattr__(self, "warm_start", _warm_start_kind(self.warm_start))
 
     @property
@@ -184,7 +186,7 @@ class ProjectionOptions:
 
 def check_times(times, name="times"):
     """``times`` as a non-empty finite 1-d float array (InputError naming ``name`` otherwise)."""
-    t = np.atleast_1d(np.asarray(times, dtype=float))
+    t = np.atleast_1d(as_float_array(times, name))
     if t.ndim != 1 or t.size == 0:
         raise InputError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
