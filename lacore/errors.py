@@ -5,7 +5,12 @@ Every error caused by bad input derives from :class:`InputError` (itself a
 show its message; any other exception is a bug and shows as one (traceback).
 """
 
-__all__ = ["InputError", "MeshError", "LengthsAnglesError", "ReconstructionWarning", "format_indices"]
+import numbers
+
+import numpy as np
+
+__all__ = ["InputError", "MeshError", "LengthsAnglesError", "ReconstructionWarning", "format_indices",
+           "check_integer", "as_float_array"]
 
 
 class InputError(ValueError):
@@ -86,3 +91,59 @@ def format_indices(indices, limit=8):
     shown = ", ".join(str(i) for i in items[:limit])
     more = len(items) - limit
     return shown + (f" (and {more} more)" if more > 0 else "")
+
+
+def check_integer(value, name, minimum=0):
+    """``value`` as an ``int >= minimum``, or an :class:`InputError` naming ``name``.
+
+    Integers of any type are taken, floats only when integral (``4.0``); booleans, fractions, strings and None
+    are rejected with a message, never with Python's own ``TypeError`` or ``ValueError``.
+
+    Examples
+    --------
+    >>> from lacore.errors import InputError, check_integer
+    >>> check_integer(4.0, "n_steps", 1)
+    4
+    >>> try:
+    ...     check_integer(None, "n_steps", 1)
+    ... except InputError as exc:
+    ...     print(exc)
+    n_steps must be a positive integer, got None
+    """
+    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    if ok:
+        ok = bool(np.isfinite(value)) and int(value) == value and int(value) >= minimum
+    if not ok:
+        kind = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
+        raise InputError(f"{name} must be {kind}, got {value!r}")
+    return int(value)
+
+
+def as_float_array(value, name, error=InputError):
+    """``np.asarray(value, dtype=float)``, or an ``error`` (an :class:`InputError` class) naming ``name``.
+
+    Ragged nested sequences (e.g. meshes of different vertex counts in one list) and entries that are no numbers
+    raise ``error`` with a message that says so, instead of NumPy's conversion error.
+
+    Examples
+    --------
+    >>> from lacore.errors import InputError, as_float_array
+    >>> as_float_array([0, 1], "factors").dtype
+    dtype('float64')
+    >>> try:
+    ...     as_float_array([[0.0, 1.0], [2.0]], "shapes")
+    ... except InputError as exc:
+    ...     print(exc)
+    shapes must be an array of numbers (items of equal shape), got a ragged sequence (inhomogeneous shape)
+    """
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        what = ("a ragged sequence (inhomogeneous shape)" if "inhomogeneous" in str(exc)
+                else f"{type(value).__name__} {_short_repr(value)}")
+        raise error(f"{name} must be an array of numbers (items of equal shape), got {what}") from None
+
+
+def _short_repr(value, limit=40):
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."

@@ -38,7 +38,7 @@ import traceback
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, check_integer
 
 __all__ = ["frame_chains", "WorkerProcess", "WorkerError", "call_in_process", "check_workers", "close_workers",
            "default_workers"]
@@ -78,9 +78,7 @@ class WorkerError(RuntimeError):
 
 def check_workers(workers):
     """``workers`` as an int >= 1 (``InputError`` otherwise)."""
-    if isinstance(workers, bool) or int(workers) != workers or workers < 1:
-        raise InputError(f"workers must be a positive integer, got {workers!r}")
-    return int(workers)
+    return check_integer(workers, "workers", 1)
 
 
 def default_workers():

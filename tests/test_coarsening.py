@@ -133,6 +133,11 @@ def test_bad_input():
         coarsen(bad, F, 100)
     with pytest.raises(MeshError):
         coarsen(S[:, :-1], F, 100)
+    with pytest.raises(InputError, match=r"n_vertices must be an integer in \[4, 2046\], got None"):
+        coarsen(S, F, None)
+    # keys of different vertex counts in one list: a MeshError that says so, not NumPy's conversion error
+    with pytest.raises(MeshError, match="ragged sequence"):
+        coarsen([S[0], S[0][:-1]], F, 100)
 
 
 def test_progress_and_cancel():

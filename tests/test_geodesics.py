@@ -283,6 +283,22 @@ def test_sqp_from_the_unprojected_linear_path(plates):
     assert a.constraint_violation < 1e-8
 
 
+def test_sqp_stops_at_round_off_from_the_linear_path():
+    """From the linear path in z the SQP of a bent-to-twisted bar reaches the geodesic, then accepts steps of
+    2^-31 that change nothing: it stops there as converged, not after 200 such steps at the iteration limit."""
+    from lacore.samples.bar import bar_mesh, bar_pose
+
+    X, F = bar_mesh(n_along=6, n_side=1)
+    topo = MeshTopology.from_faces(F)
+    A, B = bar_pose(X, 0.5, 0.0), bar_pose(X, 0.0, 0.5)
+    ref = discrete_geodesic(A, B, topo, 3)
+    res = discrete_geodesic(A, B, topo, 3, initial="linear")
+    assert ref.success and res.success, res.message
+    assert res.status == 0 and res.iterations <= 20 and "round-off" in res.message
+    assert np.abs(res.z - ref.z).max() < 1e-7
+    assert res.path_energy == pytest.approx(ref.path_energy, rel=1e-9)
+
+
 def test_sqp_reconstructs_vertices(plates):
     topo, XA, XB = plates
     res = discrete_geodesic(XA, XB, topo, 3, options=GeodesicOptions(reconstruct_vertices=True))
@@ -365,6 +381,15 @@ def test_geodesic_errors(plates):
         discrete_geodesic(XA, XB, topo, 0)
     with pytest.raises(ValueError, match="n_steps"):
         discrete_geodesic(XA, XB, topo, 2.5)
+    with pytest.raises(ValueError, match="n_steps must be a positive integer, got None"):
+        discrete_geodesic(XA, XB, topo, None)
+    with pytest.raises(ValueError, match="n_steps must be a positive integer, got None"):
+        projected_linear_path(XA, XB, topo, None)
+    # an end point that is no mesh (the average of two): the geodesic of (4.6) joins two meshes
+    z_mid = 0.5 * (zA + lengths_and_angles(XB, topo))
+    for method in ("sqp", "vertices"):
+        with pytest.raises(LengthsAnglesError, match="end is no mesh's lengths and angles .*not integrable"):
+            discrete_geodesic(XA, z_mid, topo, 3, method=method)
     bad = XB.copy()
     bad[4, 1] = np.nan
     with pytest.raises(MeshError, match="NaN"):
@@ -379,6 +404,8 @@ def test_geodesic_errors(plates):
         discrete_geodesic(XA, XB, topo, 3, settings=ReconstructionSettings(energy="shells"))
     with pytest.raises(ValueError, match="max_iterations must be a non-negative integer"):
         GeodesicOptions(max_iterations=2.5)
+    with pytest.raises(ValueError, match="max_iterations must be a non-negative integer, got None"):
+        GeodesicOptions(max_iterations=None)
     with pytest.raises(TypeError, match="residual_weights"):
         discrete_geodesic(XA, XB, topo, 3, energy=ThinShellsEnergy(topo))
     with pytest.raises(ValueError, match="vertex positions"):

@@ -8,7 +8,7 @@ from scipy.interpolate import CubicSpline
 import lacore.shapes.interpolation
 import lacore.shapes.projection
 import lacore.reconstruction.context as reconstruction_context
-from lacore.errors import LengthsAnglesError, MeshError
+from lacore.errors import InputError, LengthsAnglesError, MeshError
 from lacore.shapes.interpolation import (check_keyframes, interpolate, keyframe_inbetweens, piecewise_linear_z,
                                          shapes_to_z, spline_z)
 from lacore.progress import Cancelled
@@ -108,6 +108,26 @@ def test_input_validation(plates):
         interpolate([Xf, XA], topo, [0.5, np.nan])
     with pytest.raises(ValueError, match="unknown projection method"):
         interpolate([Xf, XA], topo, [0.5], method="magic")
+    # a misspelt method is answered with every method these functions take, the preset and path included
+    for call in (lambda: interpolate([Xf, XA], topo, [0.5], method="Fast"),
+                 lambda: keyframe_inbetweens([Xf, XA], topo, [0, 2], [1], method="pth")):
+        with pytest.raises(InputError, match="use one of fast, gn, bfs, mst, spt, lsq, hybrid, path$"):
+            call()
+    # entries that are no numbers, and workers=None: InputErrors naming the argument
+    with pytest.raises(InputError, match="factors must be an array of numbers"):
+        interpolate([Xf, XA], topo, ["half"])
+    with pytest.raises(InputError, match="keyframes must be an array of numbers"):
+        interpolate([Xf, XA], topo, [0.5], keyframes="ab")
+    with pytest.raises(InputError, match="keyframes must be an array of numbers"):
+        keyframe_inbetweens([Xf, XA], topo, ["a", "b"])
+    with pytest.raises(InputError, match="workers must be a positive integer, got None"):
+        interpolate([Xf, XA], topo, [0.5], workers=None)
+    # a boundary condition the cubic spline does not take, with two keys (linear, no spline) as with three
+    for keys, frames in (([Xf, XA], [0, 2]), ([Xf, XA, Xf], [0, 2, 4])):
+        with pytest.raises(InputError, match="bc_type='bogus' does not fit the cubic spline"):
+            keyframe_inbetweens(keys, topo, frames, [1], smooth=True, bc_type="bogus")
+    with pytest.raises(InputError, match="bc_type='periodic' does not fit .*last key repeats the first"):
+        keyframe_inbetweens([Xf, XA, Xf * 1.01], topo, [0, 2, 4], [1], smooth=True, bc_type="periodic")
     bad = XA.copy()
     bad[7, 2] = np.nan
     with pytest.raises(MeshError, match="shape 1 has NaN"):

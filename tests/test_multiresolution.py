@@ -140,14 +140,55 @@ def test_interpolate_sequence(finger):
     assert rigid_rms(out[2].vertices, S[1]) < 1e-9 * size
 
 
+def test_prolongation_bad_input(finger):
+    """Wrong weights, non-finite coordinates and a wrong coarsening: lacore errors, never NaN vertices."""
+    S, topo, mr = finger
+    P = mr.prolongation
+    coarse = mr.coarse_shapes[0]
+    with pytest.raises(InputError, match=r"weights must have shape \(2,\), got \(1,\)"):
+        P(coarse, [1.0])
+    with pytest.raises(InputError, match="weights must be finite"):
+        P(coarse, [np.nan, 1.0])
+    with pytest.raises(InputError, match="weights must be an array of numbers"):
+        P(coarse, "ab")
+    bad = coarse.copy()
+    bad[3, 0] = np.inf
+    with pytest.raises(MeshError, match="coarse vertices have NaN or infinite coordinates at vertices 3"):
+        P(bad)
+    with pytest.raises(InputError, match="coarsening must be a Coarsening"):
+        Prolongation(None, S)
+    bad = S.copy()
+    bad[1, 7, 2] = np.nan
+    with pytest.raises(MeshError, match="non-finite coordinates at vertices 7"):
+        Prolongation(mr.coarsening, bad)
+    assert np.isfinite(P(coarse, [0.5, 0.5])).all() and P(coarse).shape == (topo.n_vertices, 3)
+
+
 def test_bad_input(finger):
     S, topo, mr = finger
     with pytest.raises(InputError, match="key_weights"):
         mr.reconstruct([1.0])
-    with pytest.raises(ValueError, match="fine_solver"):
+    with pytest.raises(InputError, match="unknown fine_solver 'magic'; use one of reference, exact, two_level"):
         mr.reconstruct([1.0, 0.0], fine_solver="magic")
-    with pytest.raises(ValueError, match="fine_iterations"):
-        mr.reconstruct([1.0, 0.0], fine_iterations=-1)
+    for kw, message in (({"fine_iterations": -1}, "fine_iterations must be a non-negative integer"),
+                        ({"fine_iterations": None}, "fine_iterations must be a non-negative integer"),
+                        ({"pcg_rtol": None}, r"pcg_rtol must be a number in \(0, 1\)"),
+                        ({"smoothing_steps": 0}, "smoothing_steps must be a positive integer"),
+                        ({"ftol": -1.0}, "ftol must be a finite number >= 0")):
+        with pytest.raises(InputError, match=message):
+            mr.reconstruct([1.0, 0.0], **kw)
+    with pytest.raises(InputError, match="key_weights must be an array of numbers"):
+        mr.reconstruct("ab")
+    for keys in ((0,), "ab", (0, 1.5)):
+        with pytest.raises(InputError, match="keys must be two indices of the 2 shapes"):
+            mr.interpolate([0.5], keys=keys)
+    with pytest.raises(InputError, match="factors must be an array of numbers"):
+        mr.interpolate(["half"])
+    with pytest.raises(InputError, match="factors must be finite"):
+        mr.interpolate([np.nan])
+    for reference in (1.5, "a"):
+        with pytest.raises(InputError, match="reference must index one of the 2 shapes"):
+            MultiresolutionReconstruction(S, topo, reference=reference, coarsening=mr.coarsening)
     with pytest.raises(MeshError):
         MultiresolutionReconstruction(S[:, :-1], topo)
     with pytest.raises(InputError, match="reference"):

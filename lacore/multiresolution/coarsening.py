@@ -90,7 +90,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError, MeshError
+from ..errors import InputError, MeshError, as_float_array, check_integer
 from ..geometry.topology import MeshTopology, check_faces
 from ..io.atomic import save_npz_atomic
 from ..io.npz import open_npz
@@ -514,7 +514,7 @@ def _cross_and_l2(Pv, tri):
 
 
 def _check_shapes(shapes, faces):
-    P = np.asarray(shapes, dtype=float)
+    P = as_float_array(shapes, "shapes", MeshError)
     if P.ndim == 2:
         P = P[None]
     if P.ndim != 3 or P.shape[-1] != 3 or P.shape[0] < 1:
@@ -580,8 +580,11 @@ def coarsen(shapes, faces, n_vertices, *, boundary_weight=10.0, max_normal_angle
     t0 = time.perf_counter()
     P, faces = _check_shapes(shapes, faces)
     N, V = P.shape[:2]
-    target = int(n_vertices)
-    if target != n_vertices or not 4 <= target <= V:
+    try:
+        target = check_integer(n_vertices, "n_vertices", 4)
+    except InputError:
+        target = -1
+    if not 4 <= target <= V:
         raise InputError(f"n_vertices must be an integer in [4, {V}], got {n_vertices!r}")
     for name, value, lo_, hi_ in (("boundary_weight", boundary_weight, 0.0, np.inf),
                                   ("max_normal_angle", max_normal_angle, 0.0, 180.0),

@@ -34,7 +34,7 @@ import os
 
 import numpy as np
 
-from ..errors import InputError, MeshError
+from ..errors import InputError, MeshError, as_float_array, format_indices
 from ..geometry.lengths_angles import cross_rows as _cross
 from ..geometry.lengths_angles import dot_rows as _dot
 from ..io.atomic import save_npz_atomic
@@ -68,11 +68,17 @@ class Prolongation:
 
     def __init__(self, coarsening, shapes):
         c = coarsening
-        P = np.asarray(shapes, dtype=float)
+        if not isinstance(c, Coarsening):
+            raise InputError(f"coarsening must be a Coarsening (lacore.multiresolution.coarsen), got "
+                             f"{type(c).__name__}")
+        P = as_float_array(shapes, "shapes", MeshError)
         if P.ndim == 2:
             P = P[None]
         if P.ndim != 3 or P.shape[1:] != (c.n_fine_vertices, 3):
-            raise MeshError(f"shapes must be (N, {c.n_fine_vertices}, 3), got {np.shape(shapes)}")
+            raise MeshError(f"shapes must be (N, {c.n_fine_vertices}, 3), got {P.shape}")
+        if not np.all(np.isfinite(P)):
+            bad = np.flatnonzero(~np.isfinite(P).all(axis=(0, 2)))
+            raise MeshError(f"shapes have non-finite coordinates at vertices {format_indices(bad)}")
         self._set_levels(c)
         K = len(c.collapse_sources)
         self.alpha = np.zeros((len(P), K, 3))
@@ -171,6 +177,8 @@ class Prolongation:
         K = len(c.collapse_sources)
         if alpha.ndim != 3 or alpha.shape[1:] != (K, 3):
             raise MeshError(f"local coordinates must be (N, {K}, 3) for {K} collapses, got {alpha.shape}")
+        if not np.all(np.isfinite(alpha)):
+            raise MeshError("local coordinates must be finite")
         obj = cls.__new__(cls)
         obj._set_levels(c)
         obj.alpha = alpha
@@ -231,23 +239,28 @@ class Prolongation:
         True
         """
         c = self.coarsening
-        Xc = np.asarray(coarse_vertices, dtype=float)
+        Xc = as_float_array(coarse_vertices, "coarse vertices", MeshError)
         single = Xc.ndim == 2
         Xb = Xc[None] if single else Xc
         if Xb.ndim != 3 or Xb.shape[1:] != (c.n_vertices, 3):
             raise MeshError(f"coarse vertices must be ({c.n_vertices}, 3) or (T, {c.n_vertices}, 3), got {Xc.shape}")
+        if not np.all(np.isfinite(Xb)):
+            bad = np.flatnonzero(~np.isfinite(Xb).all(axis=(0, 2)))
+            raise MeshError(f"coarse vertices have NaN or infinite coordinates at vertices {format_indices(bad)}")
         N, K = self.alpha.shape[:2]
         T = len(Xb)
         if weights is None:
             w = np.zeros((1, N))
             w[0, 0] = 1.0
         else:
-            w = np.asarray(weights, dtype=float)
+            w = as_float_array(weights, "weights")
             if w.ndim == 1 and w.shape == (N,):
                 w = w[None]
             elif not (w.ndim == 2 and w.shape[1] == N and len(w) in (1, T)) or (single and w.shape[0] != 1):
-                raise ValueError(f"weights must have shape ({N},)" + ("" if single else f" or ({T}, {N})")
+                raise InputError(f"weights must have shape ({N},)" + ("" if single else f" or ({T}, {N})")
                                  + f", got {w.shape}")
+            if not np.all(np.isfinite(w)):
+                raise InputError(f"weights must be finite, got {w.tolist() if w.size <= 8 else 'NaN or inf entries'}")
         w = np.broadcast_to(w, (T, N))
         out = np.empty((T, c.n_fine_vertices, 3))
         for s in range(0, T, POSE_BATCH):

@@ -57,15 +57,17 @@ The default is therefore the thesis' choice, the same ``eta`` on both levels
 (``coarse_bending_weight`` sets another).
 """
 
+import numbers
 import time
 from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError, MeshError
+from ..errors import InputError, MeshError, as_float_array, check_integer
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..progress import report
+from ..shapes.projection import check_times
 from ..reconstruction.checks import apply_checks
 from ..reconstruction import (STATUS_MESSAGES, GaussNewtonOptions, ReconstructionContext, ReconstructionResult,
                               ReconstructionSettings, reconstruct)
@@ -165,16 +167,20 @@ class MultiresolutionReconstruction:
         t0 = time.perf_counter()
         if not isinstance(topology, MeshTopology):
             raise TypeError(f"topology must be a MeshTopology, got {type(topology).__name__}")
-        S = np.asarray(shapes, dtype=float)
+        S = as_float_array(shapes, "shapes", MeshError)
         if S.ndim == 2:
             S = S[None]
         if S.ndim != 3 or S.shape[1:] != (topology.n_vertices, 3):
-            raise MeshError(f"shapes must be (N, {topology.n_vertices}, 3), got {np.shape(shapes)}")
+            raise MeshError(f"shapes must be (N, {topology.n_vertices}, 3), got {S.shape}")
         settings = settings if settings is not None else ReconstructionSettings()
         if settings.energy != "quadratic" or settings.weights not in ("frohlich_botsch", "heeren"):
             raise InputError(f"multiresolution supports the quadratic energy with weights 'frohlich_botsch' or "
                              f"'heeren', got energy={settings.energy!r}, weights={settings.weights!r}")
-        if not 0 <= int(reference) < len(S):
+        try:
+            ok = check_integer(reference, "reference") < len(S)
+        except InputError:
+            ok = False
+        if not ok:
             raise InputError(f"reference must index one of the {len(S)} shapes, got {reference!r}")
         self.shapes = S
         self.topology = topology
@@ -237,7 +243,7 @@ class MultiresolutionReconstruction:
         return np.asarray(key_weights, float) @ self.z_keys
 
     def _check_weights(self, key_weights):
-        w = np.asarray(key_weights, dtype=float).reshape(-1)
+        w = as_float_array(key_weights, "key_weights").reshape(-1)
         if w.shape != (len(self.shapes),) or not np.all(np.isfinite(w)):
             raise InputError(f"key_weights must be {len(self.shapes)} finite numbers, got {key_weights!r}")
         return w
@@ -284,14 +290,15 @@ class MultiresolutionReconstruction:
             ``coarse_vertices`` (Vc, 3) and ``prolonged_energy`` are set.
         """
         t_start = time.perf_counter()
-        if fine_solver not in FINE_SOLVERS:
-            raise ValueError(f"unknown fine_solver {fine_solver!r}; use one of {', '.join(FINE_SOLVERS)}")
-        if int(fine_iterations) != fine_iterations or fine_iterations < 0:
-            raise ValueError(f"fine_iterations must be a non-negative integer, got {fine_iterations!r}")
-        if not 0.0 < float(pcg_rtol) < 1.0:
+        if not isinstance(fine_solver, str) or fine_solver not in FINE_SOLVERS:
+            raise InputError(f"unknown fine_solver {fine_solver!r}; use one of {', '.join(FINE_SOLVERS)}")
+        fine_iterations = check_integer(fine_iterations, "fine_iterations", 0)
+        pcg_maxiter = check_integer(pcg_maxiter, "pcg_maxiter", 1)
+        smoothing_steps = check_integer(smoothing_steps, "smoothing_steps", 1)
+        if not (isinstance(pcg_rtol, numbers.Real) and not isinstance(pcg_rtol, bool) and 0.0 < pcg_rtol < 1.0):
             raise InputError(f"pcg_rtol must be a number in (0, 1), got {pcg_rtol!r}")
-        if int(pcg_maxiter) != pcg_maxiter or pcg_maxiter < 1:
-            raise InputError(f"pcg_maxiter must be a positive integer, got {pcg_maxiter!r}")
+        if not (isinstance(ftol, numbers.Real) and not isinstance(ftol, bool) and 0.0 <= ftol < np.inf):
+            raise InputError(f"ftol must be a finite number >= 0, got {ftol!r}")
         w = self._check_weights(key_weights)
         z = self.fine_target(w) if z_target is None else check_z(z_target, self.topology, name="target z")
         timings = {}
@@ -437,13 +444,17 @@ class MultiresolutionReconstruction:
         -------
         list of ReconstructionResult
         """
-        a, b = (int(k) for k in keys)
         N = len(self.shapes)
-        if not (0 <= a < N and 0 <= b < N):
-            raise InputError(f"keys must index the {N} shapes, got {keys!r}")
+        try:
+            a, b = (check_integer(k, "keys") for k in keys)
+            ok = a < N and b < N
+        except (InputError, TypeError, ValueError):  # not a pair of indices
+            ok = False
+        if not ok:
+            raise InputError(f"keys must be two indices of the {N} shapes, got {keys!r}")
         out = []
         previous = None
-        ts = [float(t) for t in np.atleast_1d(factors)]
+        ts = check_times(factors, "factors").tolist()
         for i, t in enumerate(ts):
             w = np.zeros(N)
             w[a] += 1.0 - t

@@ -227,7 +227,14 @@ def solve_sqp(zs, topology, model, options, progress=None):
                     accepted = True
                     break
             alpha *= 0.5
-        if not accepted:
+        # a cut step (alpha < 1) that changes the merit by a few ulps only and does not halve the constraint
+        # violation, where the constraints hold and the KKT residual is near its tolerance, is round-off: stop as
+        # when no step is accepted (the damping would otherwise grow and the same tiny steps repeat to the
+        # iteration limit); full steps still reduce the KKT residual below what the merit resolves
+        stalled = (accepted and alpha < 1.0 and cmax <= constraint_tol and stationarity <= 1e3 * stat_tol
+                   and phi0 - phi <= 64 * np.finfo(float).eps * max(abs(phi0), f_noise)
+                   and float(np.abs(ct).max(initial=0.0)) > 0.5 * cmax)
+        if not accepted or stalled:
             if cmax <= constraint_tol and stationarity <= 1e3 * stat_tol:
                 status, message = 0, "converged to round-off: constraints satisfied, no further merit decrease"
             else:

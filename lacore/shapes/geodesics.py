@@ -50,9 +50,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError, check_integer
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import check_vertices
+from ..integrability.checks import check_integrability
 from ..reconstruction import GaussNewtonOptions, ReconstructionSettings, get_context
 from ..result import SolverResult
 from .geodesic_solvers import max_constraint_violation, min_triangle_margin, solve_sqp, solve_vertices
@@ -100,9 +101,7 @@ class GeodesicOptions:
     projection: GaussNewtonOptions = GaussNewtonOptions()
 
     def __post_init__(self):
-        n = self.max_iterations
-        if isinstance(n, bool) or int(n) != n or n < 0:
-            raise InputError(f"max_iterations must be a non-negative integer, got {n!r}")
+        object.__setattr__(self, "max_iterations", check_integer(self.max_iterations, "max_iterations", 0))
         for name in ("tol", "constraint_tol"):
             if not float(getattr(self, name)) > 0:
                 raise InputError(f"{name} must be positive, got {getattr(self, name)!r}")
@@ -110,7 +109,6 @@ class GeodesicOptions:
             raise InputError(f"regularization must be >= 0, got {self.regularization!r}")
         if not isinstance(self.projection, GaussNewtonOptions):
             raise InputError(f"projection must be a GaussNewtonOptions, got {type(self.projection).__name__}")
-        object.__setattr__(self, "max_iterations", int(n))
         object.__setattr__(self, "reconstruct_vertices", bool(self.reconstruct_vertices))
 
 
@@ -214,9 +212,7 @@ def projected_linear_path(start, end, topology, n_steps, reference_vertices=None
     >>> z.shape, vertices.shape
     ((5, 120), (5, 22, 3))
     """
-    if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
-    K = int(n_steps)
+    K = check_integer(n_steps, "n_steps", 1)
     # the projection P_Z itself: Gauss-Newton run to convergence (not the in-betweens' default preset)
     res = interpolate([start, end], topology, np.arange(K + 1) / K, method="gn",
                       reference_vertices=reference_vertices, settings=settings, options=options)
@@ -264,7 +260,8 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
     Parameters
     ----------
     start, end : (V, 3) vertices or (2E,) lengths and angles
-        End points ``z_0`` and ``z_K`` (admissible).
+        End points ``z_0`` and ``z_K``; lengths and angles must be admissible
+        (:func:`lacore.check_integrability`).
     topology : MeshTopology
     n_steps : int
         ``K >= 1``; the path has ``K + 1`` points (``K = 1`` has no unknowns).
@@ -306,8 +303,9 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
     Raises
     ------
     LengthsAnglesError, MeshError
-        Inputs of the wrong size or with NaN entries; a starting path violating
-        the triangle inequality.
+        Inputs of the wrong size or with NaN entries; an end point given as
+        lengths and angles that are no mesh's; a starting path violating the
+        triangle inequality.
     InputError
         ``n_steps < 1``, an unknown method, zero weights, the thin shells energy in ``settings``.
 
@@ -329,11 +327,16 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
     t0 = time.perf_counter()
     if method not in ("sqp", "vertices"):
         raise InputError(f"unknown geodesic method {method!r}; use 'sqp' or 'vertices'")
-    if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-        raise InputError(f"n_steps must be an integer >= 1, got {n_steps!r}")
-    K = int(n_steps)
+    K = check_integer(n_steps, "n_steps", 1)
     z0, X0 = _as_z(start, topology, "start")
     zK, XK = _as_z(end, topology, "end")
+    for name, z, X in (("start", z0, X0), ("end", zK, XK)):
+        if X is None:  # given as lengths and angles: they must be a mesh's (vertices are one by construction)
+            check = check_integrability(z, topology)
+            if not check.integrable:
+                raise LengthsAnglesError(f"{name} is no mesh's lengths and angles ({check.describe()}): a geodesic "
+                                         f"joins two meshes; give {name} as vertices or project it first "
+                                         "(lacore.project)")
     if reference_vertices is not None:
         reference_vertices = check_vertices(reference_vertices, topology.n_vertices, name="reference_vertices")
     elif X0 is not None:

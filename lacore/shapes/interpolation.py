@@ -48,7 +48,7 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ..errors import InputError, LengthsAnglesError, MeshError
+from ..errors import InputError, LengthsAnglesError, MeshError, as_float_array
 from ..geometry.lengths_angles import check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
 from ..reconstruction import reconstruction_errors
@@ -217,12 +217,13 @@ def check_keyframes(keyframes, n_shapes):
 
     Raises
     ------
-    ValueError
-        A count different from the number of shapes, NaN/inf, or times that are not strictly increasing.
+    InputError
+        Entries that are no numbers, a count different from the number of shapes, NaN/inf, or times that are
+        not strictly increasing.
     """
     if keyframes is None:
         return np.arange(n_shapes, dtype=float)
-    k = np.asarray(keyframes, dtype=float)
+    k = as_float_array(keyframes, "keyframes")
     if k.ndim != 1:
         raise InputError(f"keyframes must be a 1-d sequence of times, got shape {k.shape}")
     if len(k) != n_shapes:
@@ -325,14 +326,25 @@ def spline_z(z_keys, keyframes, times, bc_type="natural"):
         (C1, and C2 for natural boundary conditions).  Passes exactly through
         ``z_keys`` at the keyframes; with ``K = 2`` it is the linear interpolation.
         Angles on the circle (:func:`lift_angles`, then wrapped to ``(-pi, pi]``).
+
+    Raises
+    ------
+    InputError
+        A ``bc_type`` that :class:`~scipy.interpolate.CubicSpline` does not take, or ``"periodic"`` with a last
+        key that is not the first (also with ``K = 2``, where the spline is not built).
     """
     Z0 = np.asarray(z_keys, float)
     k = np.asarray(keyframes, float)
     t = np.atleast_1d(np.asarray(times, float))
+    Z = lift_angles(Z0)
+    try:  # built with two keys too, where only its check of bc_type is used
+        S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"bc_type={bc_type!r} does not fit the cubic spline: {str(exc).rstrip('.')}; use "
+                         "'natural' (the default), 'not-a-knot', 'clamped', or 'periodic' when the last key "
+                         "repeats the first") from None
     if len(k) == 2:
         return piecewise_linear_z(Z0, k, t)
-    Z = lift_angles(Z0)
-    S = CubicSpline(k, Z, axis=0, bc_type=bc_type)
     out = S(np.clip(t, k[0], k[-1]))
     for end, mask in ((k[0], t < k[0]), (k[-1], t > k[-1])):
         if np.any(mask):
@@ -739,7 +751,8 @@ def interpolate(shapes, topology, factors, keyframes=None, method=None, referenc
     if method == PATH:
         return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, PATH, progress,
                     on_frame, workers, mixer, _path_options(options, settings, reconstruct_kw))
-    opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate")
+    opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw, "interpolate",
+                              also=(PATH,))
     return _run(shapes, topology, times, keyframes, False, None, reference, reference_vertices, opts, progress,
                 on_frame, workers, mixer)
 
@@ -837,7 +850,7 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
     """
     if keyframes is None:
         raise InputError("keyframe_inbetweens needs the keyframe numbers of the shapes")
-    k = np.asarray(keyframes, dtype=float)
+    k = as_float_array(keyframes, "keyframes")
     if frames is None:
         kk = check_keyframes(k, len(k))
         frames = np.arange(np.ceil(kk[0]), np.floor(kk[-1]) + 1.0)
@@ -846,6 +859,6 @@ def keyframe_inbetweens(shapes, topology, keyframes, frames=None, smooth=False, 
         return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, PATH,
                     progress, on_frame, workers, mixer, _path_options(options, settings, reconstruct_kw))
     opts = projection_options(method, warm_start, tree, settings, options, hybrid, reconstruct_kw,
-                              "keyframe_inbetweens")
+                              "keyframe_inbetweens", also=(PATH,))
     return _run(shapes, topology, times, keyframes, bool(smooth), bc_type, reference, reference_vertices, opts,
                 progress, on_frame, workers, mixer)

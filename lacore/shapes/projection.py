@@ -47,14 +47,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError
+from ..errors import InputError, LengthsAnglesError, as_float_array
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import check_vertices
 from ..parallel import WorkerError, WorkerProcess, check_workers, frame_chains, raise_worker_error
 from ..progress import Cancelled, report
 from ..reconstruction import METHODS, get_context, reconstruct, reconstruction_errors, tree_kind
-from ..reconstruction.settings import (GaussNewtonOptions, HybridOptions, ReconstructionSettings, projection_preset,
-                                       split_options)
+from ..reconstruction.settings import (PROJECTION_PRESETS, GaussNewtonOptions, HybridOptions, ReconstructionSettings,
+                                       projection_preset, split_options)
 from ..reconstruction.spanning_trees import bfs_tree, preassembled_tree
 
 __all__ = ["project", "ProjectionOptions", "ProjectionTargets", "ProjectedFrame", "SequenceProjection",
@@ -175,7 +175,8 @@ class ProjectionOptions:
         object.__setattr__(self, "options", GaussNewtonOptions() if options is None else options)
         object.__setattr__(self, "hybrid", HybridOptions() if hybrid is None else hybrid)
         if self.method not in METHODS:
-            raise InputError(f"unknown projection method {self.method!r}; use one of {', '.join(METHODS)}")
+            raise InputError(f"unknown projection method {self.method!r}; use one of "
+                             f"{', '.join((*PROJECTION_PRESETS, *METHODS))}")
         object.__setattr__(self, "warm_start", _warm_start_kind(self.warm_start))
 
     @property
@@ -185,16 +186,28 @@ class ProjectionOptions:
 
 
 def projection_options(method=None, warm_start=True, tree=None, settings=None, options=None, hybrid=None,
-                       keywords=None, caller="project_targets"):
+                       keywords=None, caller="project_targets", also=()):
     """The :class:`ProjectionOptions` of the entry points' arguments: ``keywords`` are
     the flattened fields of ``settings``, ``options`` and ``hybrid``
-    (:func:`lacore.reconstruction.settings.split_options`; ``caller`` is named for unknown ones).
+    (:func:`lacore.reconstruction.settings.split_options`; ``caller`` is named for unknown ones); ``also``: the
+    caller's methods besides the projections (named when ``method`` is none of them).
 
     Examples
     --------
     >>> projection_options("hybrid", keywords={"smoothing_iterations": 2}).hybrid.smoothing_iterations
     2
+
+    An unknown method is named with the ones this caller takes:
+
+    >>> try:
+    ...     projection_options("fsat", caller="interpolate", also=("path",))
+    ... except InputError as exc:
+    ...     print(exc)
+    unknown projection method 'fsat'; use one of fast, gn, bfs, mst, spt, lsq, hybrid, path
     """
+    known = (*PROJECTION_PRESETS, *METHODS, *also)
+    if method is not None and (not isinstance(method, str) or method not in known):
+        raise InputError(f"unknown projection method {method!r}; use one of {', '.join(known)}")
     method, options, hybrid = projection_preset(method, options, hybrid)
     settings, options, hybrid = split_options(keywords or {}, settings, options, hybrid, caller=caller)
     return ProjectionOptions(method=method, warm_start=warm_start, tree=tree, settings=settings, options=options,
@@ -203,7 +216,7 @@ def projection_options(method=None, warm_start=True, tree=None, settings=None, o
 
 def check_times(times, name="times"):
     """``times`` as a non-empty finite 1-d float array (InputError naming ``name`` otherwise)."""
-    t = np.atleast_1d(np.asarray(times, dtype=float))
+    t = np.atleast_1d(as_float_array(times, name))
     if t.ndim != 1 or t.size == 0:
         raise InputError(f"{name} must be a non-empty 1-d sequence of numbers, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
