@@ -204,7 +204,7 @@ _LOCK = threading.Lock()  # one update at a time (a render thread and the main t
 
 
 #: First line of the text datablock holding a mixer (followed by the token): :func:`.storage.store_payload`.
-TEXT_HEADER = "Lengths & Angles live mixer (do not edit)"
+TEXT_HEADER = storage.payload_header("Lengths & Angles live mixer (do not edit)")
 
 
 def stored_npz(meta):
@@ -409,6 +409,7 @@ def _on_load(*_args):
     _LIVE.clear()
     _BROKEN.clear()
     _MIXERS.clear()
+    storage.release_orphans()  # payload texts of meshes deleted before the file was saved
     live_meshes()
     update_all(None)
 

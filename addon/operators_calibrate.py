@@ -55,14 +55,14 @@ from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
-from .storage import PayloadError, load_payload, release_payload, saved_bytes, store_payload
+from .storage import PayloadError, load_payload, payload_header, release_payload, saved_bytes, store_payload
 
 __all__ = ["calibrate_fit_run", "find_take", "character", "object_axes", "fit_defaults", "classes",
            "CALIBRATION_PROP", "calibration_key", "stored_calibration", "remove_calibration"]
 
 #: The mesh's record of the last Calibrate & Fit's calibration (a payload: :func:`.storage.store_payload`).
 CALIBRATION_PROP = "lengths_angles_calibration"
-CALIBRATION_HEADER = "Lengths & Angles calibration (do not edit)"
+CALIBRATION_HEADER = payload_header("Lengths & Angles calibration (do not edit)")
 
 
 def _fitting_api():

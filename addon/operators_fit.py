@@ -82,7 +82,7 @@ __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SH
 
 MODEL_PROP = "lengths_angles_model"
 #: First line of the text datablock holding a shape model (followed by its token).
-MODEL_HEADER = "Lengths & Angles shape model (do not edit)"
+MODEL_HEADER = storage.payload_header("Lengths & Angles shape model (do not edit)")
 BINDING_PROP = "lengths_angles_binding"
 MAX_MODES = 32
 #: Auto coarse level of Build Model: meshes of more than twice as many vertices get a model on a coarse mesh of

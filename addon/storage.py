@@ -28,9 +28,13 @@ ID properties cannot be attached to shape-key blocks, hence the Mesh.
 Payloads (the live mixer's and the shape model's ``.npz``, megabytes) are NOT ID properties of the mesh:
 Blender copies a mesh's custom properties into every evaluated copy and every undo step.  A payload is
 stored base64-encoded in a text datablock (fake user: kept without users; first line
-``"<header> <token>"``), and the mesh holds a small record ``{"text": name, "token": token, ...}``
-(:func:`store_payload`, :func:`load_payload`, :func:`release_payload`).  A duplicated mesh shares its
-original's text until one of them is rebuilt or removed; a text is removed with its last record.
+``"<header> <token>"``), and the mesh holds a small record ``{"text": name, "text_id": the text, "token":
+token, ...}`` (:func:`store_payload`, :func:`load_payload`, :func:`release_payload`).  ``text_id`` points at
+the text, so appending or linking the mesh from another .blend brings the text along (renamed if the name is
+taken); records without it (earlier versions) name the text.  A duplicated mesh shares its original's text
+until one of them is rebuilt or removed; a text is removed with its last record, and a payload text no mesh
+refers to any more (its mesh deleted, or joined into another) is removed when the file is loaded again
+(:func:`release_orphans`).
 """
 
 import base64
@@ -45,7 +49,7 @@ import numpy as np
 from ..lacore.errors import InputError
 from ..lacore.integrability.checks import LOCAL_TOLERANCE
 
-__all__ = ["store_payload", "load_payload", "release_payload", "PayloadError",
+__all__ = ["store_payload", "load_payload", "release_payload", "release_orphans", "payload_header", "PayloadError",
            "PROP", "FORMAT_VERSION", "INTEGRABLE_TOLERANCE", "is_integrable", "write_encoding", "read_encoding",
            "key_status", "clear_encoding", "encoding_mismatch"]
 
@@ -61,15 +65,32 @@ class PayloadError(InputError):
 
 
 _LINE = 65536  # base64 characters per line of a payload's text
+_HEADERS = set()  # the headers of the add-on's kinds of payload texts (:func:`payload_header`)
 
 
-def _references(name):
-    """Meshes with a payload record (a top-level ID property group) naming the text ``name``."""
+def payload_header(header):
+    """Declare ``header`` as the first words of a kind of payload text (the live mixer's, the shape model's ...),
+    for :func:`release_orphans`; returns it."""
+    _HEADERS.add(header)
+    return header
+
+
+def _record_text(record):
+    """The text datablock a payload record (ID property group or dict) refers to, or None: its ``text_id``
+    pointer, else (records of earlier versions) the local text named ``text``."""
+    text = record.get("text_id")
+    if isinstance(text, bpy.types.Text):
+        return text
+    return bpy.data.texts.get(str(record.get("text", "")))
+
+
+def _references(text):
+    """Meshes with a payload record (a top-level ID property group) referring to the text datablock ``text``."""
     out = []
     for mesh in bpy.data.meshes:
         for prop in mesh.keys():
             value = mesh[prop]
-            if hasattr(value, "to_dict") and str(value.get("text", "")) == name:
+            if hasattr(value, "to_dict") and ("text_id" in value or "text" in value) and _record_text(value) == text:
                 out.append(mesh)
                 break
     return out
@@ -91,8 +112,8 @@ def store_payload(mesh, prop, data, *, header, name, record=None):
     old = mesh.get(prop)
     old = None if old is None else old.to_dict()
     text, token = _new_text(data, header, name)
-    mesh[prop] = {**(record or {}), "text": text.name, "token": token}
-    if old is not None and "text" in old:
+    mesh[prop] = {**(record or {}), "text": text.name, "text_id": text, "token": token}
+    if old is not None and ("text" in old or "text_id" in old):
         release_payload(old)
         text.name = name
         mesh[prop]["text"] = text.name
@@ -112,8 +133,8 @@ def saved_bytes(save, filename):
 def load_payload(record, header):
     """The bytes stored for ``record`` (a mesh's payload record); :class:`PayloadError` if its text is missing,
     is another payload's or was edited."""
-    name = str(record.get("text", ""))
-    text = bpy.data.texts.get(name)
+    text = _record_text(record)
+    name = str(record.get("text", "")) if text is None else text.name
     head, _, body = ("" if text is None else text.as_string()).partition("\n")
     if head != f"{header} {record.get('token', '')}":
         raise PayloadError(f"the text '{name}' holding it is missing or was edited")
@@ -126,10 +147,44 @@ def load_payload(record, header):
 def release_payload(record):
     """Remove the text of ``record`` (a payload record already deleted from its mesh, as a dict) unless another
     mesh (a duplicate) still refers to it."""
-    name = str(record.get("text", ""))
-    text = bpy.data.texts.get(name)
-    if text is not None and not _references(name):
+    text = _record_text(record)
+    if text is not None and text.library is None and not _references(text):
         bpy.data.texts.remove(text)
+
+
+def release_orphans(headers=None):
+    """Remove the local payload texts that no mesh refers to (first line ``"<header> <token>"``, ``header`` one
+    of ``headers``, default the ones declared by :func:`payload_header`), point the records of earlier
+    versions (a text name only) at their text and give the records the names of their texts (an appended
+    text is renamed if its name is taken); returns the names of the texts removed.
+
+    Run when a file is loaded: a deleted mesh is not saved, its payload text is (Blender keeps texts).
+    """
+    for mesh in bpy.data.meshes:
+        if mesh.library is not None:
+            continue
+        for prop in mesh.keys():
+            value = mesh[prop]
+            if not (hasattr(value, "to_dict") and "text" in value and "token" in value):
+                continue
+            text = value.get("text_id")
+            if isinstance(text, bpy.types.Text):
+                if text.name != value["text"]:  # renamed when appended next to a text of its name
+                    value["text"] = text.name
+                continue
+            text = bpy.data.texts.get(str(value["text"]))
+            if text is not None and len(text.lines) and text.lines[0].body.endswith(f" {value['token']}"):
+                value["text_id"] = text
+    headers = tuple(_HEADERS if headers is None else headers)
+    removed = []
+    for text in list(bpy.data.texts):
+        if text.library is not None or not len(text.lines):
+            continue
+        head = text.lines[0].body
+        if any(head.startswith(f"{h} ") for h in headers) and not _references(text):
+            removed.append(text.name)
+            bpy.data.texts.remove(text)
+    return removed
 
 
 def is_integrable(violation, integrable=None):

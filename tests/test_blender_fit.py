@@ -102,7 +102,7 @@ def test_model_payload_text_undo_duplicate_and_old_records(run):
     res = run["cases"]["model_storage"]
     n = res["n_modes"]
     # the mesh holds a small record; the .npz is in a text datablock kept by a fake user
-    assert res["record"] == ["keys", "n_modes", "n_vertices", "text", "token"]
+    assert res["record"] == ["keys", "n_modes", "n_vertices", "text", "text_id", "token"]
     assert res["text"] == "LA shape model Body" and res["fake_user"]
     assert res["record_chars"] < 1000 < res["text_chars"]
     # removing the model removes its text; undo brings both back

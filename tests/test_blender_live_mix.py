@@ -3,11 +3,11 @@
 A box bar with keys Bend, Twist and Both: ``live_mix_enable`` stores a mixer with the mesh, and from then on
 the evaluated mesh is lacore's mix of the keys' values (placed like the in-betweens: the rigid motion onto
 Blender's linear blend) -- for values set by hand, keyframed values through ``frame_set``, a driven value,
-after saving and reopening the .blend, for two objects at once and a duplicate, with a key limited to a
-vertex group mixed linearly on top, in Cycles animation and still renders; a modifier after the keys
-applies to the mix.  ``live_mix_disable`` and undo give back
-Blender's linear mix bit for bit; an edited key or mesh makes the mixer stale (the linear mix, a panel
-warning); bad input is refused in one line and changes nothing.
+after saving and reopening the .blend, for two objects at once, a duplicate and an object appended from another
+.blend, with a key limited to a vertex group mixed linearly on top, in Cycles animation and still renders; a
+modifier after the keys applies to the mix.  ``live_mix_disable`` and undo give back Blender's linear mix bit for
+bit; an edited key or mesh makes the mixer stale (the linear mix, a panel warning); bad input is refused in one
+line and changes nothing; a deleted object's mixer is gone once the saved file is opened again.
 """
 
 import io
@@ -182,6 +182,20 @@ def test_several_objects_and_undo(run, inputs):
     assert np.abs(a["copy_mixed"] - want).max() < TOL
     assert res["undo_linear_bit_for_bit"] and not res["undone_live"], res
     assert res["redo_live"] and res["redo_vs_live"] < TOL and res["live_differs"] > 0.1, res
+
+
+def test_appended_object_mixes_and_deleted_mixer_is_released(run):
+    res = run["cases"]["appended_and_deleted"]
+    # appended next to a live "Bar": renamed, its own mixer text renamed with it, live
+    assert res["names"] == ["Bar.001", "Bar.001"], res
+    assert res["texts"] == ["LA live mixer Bar", "LA live mixer Bar.001"], res
+    assert res["status"]["stale"] == "" and res["status"]["keys"] == ["Bend", "Twist", "Both"], res
+    # the same keys and weights as the other live bar: the same mix (measured 0), not the linear one (0.15)
+    assert res["vs_other"] < TOL and res["vs_linear"] > 0.05, res
+    # the deleted object's mixer text is gone once the file is reopened; the other one stays live
+    assert res["texts_reopened"] == ["LA live mixer Bar.001"] and res["status_reopened"]["stale"] == "", res
+    assert res["record_text_reopened"] == "LA live mixer Bar.001", res
+    assert res["legacy_pointed"] and res["status_legacy"]["stale"] == "", res
 
 
 @pytest.mark.parametrize("case, words", [

@@ -380,6 +380,53 @@ def several_objects_and_undo():
             "live_differs": float(np.abs(live_shape - linear).max())}
 
 
+def appended_and_deleted():
+    """A live object appended from another .blend into a file with a live object of the same name brings its
+    mixer along (the text renamed) and mixes; a deleted live object's mixer is gone once the saved file is opened
+    again; a record of earlier versions (the text named only) is pointed at its text on loading."""
+    reset()
+    src = os.path.join(ARGS.workdir, "append_source.blend")
+    obj = make_bar()
+    assert enable(obj) == ["FINISHED"]
+    bpy.ops.wm.save_as_mainfile(filepath=src)
+    reset()
+    here = make_bar()
+    assert enable(here) == ["FINISHED"]
+    with bpy.data.libraries.load(src) as (_source, target):
+        target.objects = ["Bar"]
+    appended = target.objects[0]
+    bpy.context.scene.collection.objects.link(appended)
+    w = (0.5, 0.3, 0.0)
+    set_values(appended, w)
+    set_values(here, w)
+    shown, other = evaluated(appended), evaluated(here)
+    out = {"names": [appended.name, appended.data.name], "status": status(appended),
+           "texts": sorted(t.name for t in bpy.data.texts), "vs_other": float(np.abs(shown - other).max())}
+    appended.data.shape_keys.key_blocks["LA live mix"].mute = True
+    out["vs_linear"] = float(np.abs(shown - evaluated(appended)).max())
+    appended.data.shape_keys.key_blocks["LA live mix"].mute = False
+    # the first object deleted (its mesh left without users is not saved, its mixer's text was)
+    bpy.data.objects.remove(here)
+    path = os.path.join(ARGS.workdir, "deleted.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    out["texts_reopened"] = sorted(t.name for t in bpy.data.texts)
+    obj = bpy.data.objects["Bar.001"]
+    out["status_reopened"] = status(obj)
+    # an earlier version's record (no pointer to its text, which had a fake user; an appended text has none)
+    record = obj.data[ext("live_mix").MIXER_PROP]
+    out["record_text_reopened"] = record["text"]  # the appended text's name
+    record["text_id"].use_fake_user = True
+    del record["text_id"]
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Bar.001"]
+    record = obj.data[ext("live_mix").MIXER_PROP]
+    out["legacy_pointed"] = record["text_id"] == bpy.data.texts[record["text"]]
+    out["status_legacy"] = status(obj)
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer: one line, nothing changed."""
@@ -604,5 +651,6 @@ def finish():
 
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
-           mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo, bad_input,
+           mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
+           appended_and_deleted, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
