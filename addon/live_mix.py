@@ -28,6 +28,9 @@ bit.  Why a correction key rather than muting the user's keys: nothing of the us
 remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
 mixer shows the exact linear mix by zeroing one key.
 
+The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update;
+muted, or keyed or driven to another value, the mixer is stale (below).
+
 Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.
 Keys with a vertex group, or relative to another key than the basis, are not mixed nonlinearly (the
 mixer takes one weight per whole key): Blender mixes them linearly on top of the nonlinear mix, as it
@@ -60,6 +63,7 @@ from ..lacore.shapes import MixerOptions, ShapeMixer
 from ..lacore.shapes.mixing import check_keys
 from ..lacore.shapes.mixing.mixer import build_mixer_bytes, mixer_bytes
 from . import storage
+from .compat import animation_channels
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, shows_stored_shape, triangulate
 from .naming import LIVE_MIX_KEY, is_own_key
@@ -174,8 +178,10 @@ class _Live:
             return f"the key '{LIVE_MIX_KEY}' was deleted"
         if mix.relative_key != ref or mix.vertex_group:
             return f"the key '{LIVE_MIX_KEY}' was changed (relative key or vertex group)"
-        if mix.mute or mix.value != 1.0:
-            return f"the key '{LIVE_MIX_KEY}' was muted or its value changed: unmute it and set its value to 1"
+        if mix.mute:
+            return f"the key '{LIVE_MIX_KEY}' was muted: unmute it"
+        if mix.value != 1.0:
+            return f"the value of the key '{LIVE_MIX_KEY}' is keyed or driven: remove that, its value is 1"
         if self.reference is None:
             return "the mesh or its keys differ from the ones the mixer was built from"
         coords = _key_coords(key, [self.basis, *self.names], self.n_vertices)
@@ -306,11 +312,35 @@ def _zero_mix_key(mesh):
     return _write(kb, basis)
 
 
+def _animated(key, kb):
+    """Whether the value of the key block ``kb`` of ``key`` is keyed or driven."""
+    ad = key.animation_data
+    if ad is None:
+        return False
+    path = f'key_blocks["{kb.name}"].value'
+    channels = animation_channels(key)
+    return (any(fc.data_path == path for fc in ad.drivers)
+            or (channels is not None and any(fc.data_path == path for fc in channels.fcurves)))
+
+
+def _restore_mix_value(mesh):
+    """Set the mix key's value back to 1 where an edit of all keys' values changed it (Clear Shape Key
+    Weights, a script) and it is neither keyed nor driven; True if set."""
+    key = mesh.shape_keys
+    kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
+    if kb is None or kb.value == 1.0 or _animated(key, kb):
+        return False
+    kb.value = 1.0
+    return True
+
+
 def _update_mesh(mesh, depsgraph, force=False):
     """Bring the mix key of ``mesh`` up to date with the key values evaluated in ``depsgraph``; True if written."""
     live = _live(mesh)
     if live is None or mesh.is_editmode:
         return False
+    if depsgraph is None or depsgraph.mode != 'RENDER':
+        _restore_mix_value(mesh)
     live.stale = live.check(mesh)
     key = mesh.shape_keys
     mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)

@@ -144,10 +144,16 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert res["restored_vs_live"] < TOL and res["status_restored"]["stale"] == ""  # the edit undone: live again
     assert res["stale_in_edit_mode"] == ""  # nothing is decided while editing
     changed = res["mix_key_changed"]
-    assert changed["status"] == ("the key 'LA live mix' was muted or its value changed: unmute it and set its value "
-                                 "to 1"), changed
-    assert changed["linear_bit_for_bit"] and changed["linear_differs_from_live"] > 0.05, changed
-    assert changed["restored_vs_live"] < TOL, changed
+    assert changed["status"] == "the key 'LA live mix' was muted: unmute it", changed
+    assert changed["linear_differs_from_live"] > 0.05 and changed["restored_vs_live"] < TOL, changed
+    # its value set by hand or cleared with every key's (Clear Shape Key Weights) goes back to 1: still live
+    assert changed["value_set_back"] == 1.0 and changed["value_status"] == "" and changed["value_vs_live"] < TOL
+    assert changed["clear_weights"] == ["FINISHED"] and changed["cleared_value"] == 1.0, changed
+    assert changed["cleared_status"] == "", changed
+    # driven to another value: stale, said; the driver removed: live again
+    assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
+                                        "value is 1"), changed
+    assert changed["undriven_status"] == "" and changed["undriven_vs_live"] < TOL, changed
     assert res["status_topology"]["stale"].startswith("the mesh has 105 vertices now, 106")
     assert any(t and t.startswith("Stale: the mesh has 105 vertices") for t in res["panel_topology"])
 

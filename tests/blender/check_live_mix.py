@@ -276,18 +276,38 @@ def stale_when_edited():
     obj.data.update()
     back = evaluated(obj)
     st_back = status(obj)
-    # the add-on's key given another value: stale, the linear mix; its value back to 1: live again
+    # the add-on's key muted: stale, the linear mix; unmuted: live again.  Its value changed (a script, Clear
+    # Shape Key Weights) is set back to 1; keyed or driven to another value: stale
     mix_kb.mute = True
-    linear_now = evaluated(obj)         # without the add-on's key: Blender's linear mix of the keys as they are
-    mix_kb.mute = False
-    mix_kb.value = 0.3
     obj.data.update()
+    linear_now = evaluated(obj)         # without the add-on's key: Blender's linear mix of the keys as they are
     mix_changed = {"status": status(obj)["stale"],
-                   "linear_bit_for_bit": bool(np.array_equal(evaluated(obj), linear_now)),
                    "linear_differs_from_live": float(np.abs(linear_now - live_shape).max())}
-    mix_kb.value = 1.0
+    mix_kb.mute = False
     obj.data.update()
     mix_changed["restored_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_kb.value = 0.3
+    obj.data.update()
+    mix_changed["value_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_changed["value_set_back"] = mix_kb.value
+    mix_changed["value_status"] = status(obj)["stale"]
+    with ops_context(obj):
+        mix_changed["clear_weights"] = sorted(bpy.ops.object.shape_key_clear())
+    evaluated(obj)
+    mix_changed["cleared_value"] = mix_kb.value
+    mix_changed["cleared_status"] = status(obj)["stale"]
+    key = obj.data.shape_keys
+    fc = key.driver_add('key_blocks["LA live mix"].value')
+    fc.driver.type = 'SCRIPTED'
+    fc.driver.expression = "0.3"
+    obj.data.update()
+    evaluated(obj)
+    mix_changed["driven_status"] = status(obj)["stale"]
+    key.driver_remove('key_blocks["LA live mix"].value')
+    obj.data.update()
+    scene.frame_set(7)                  # the keys' own animation back
+    mix_changed["undriven_status"] = status(obj)["stale"]
+    mix_changed["undriven_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
     # a topology edit (a vertex deleted in Edit Mode)
     select_only(obj)
     with ops_context(obj):
