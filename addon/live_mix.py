@@ -209,6 +209,9 @@ _GUARD = [False]  # a handler writing: the updates it causes are not handled aga
 _LOCK = threading.Lock()  # one update at a time (a render thread and the main thread)
 
 
+#: What the panel says to do about slider values outside the mixer's accurate range.
+RANGE_ADVICE = "keep the sliders within that range, or use In-betweens with Gauss-Newton for such shapes"
+
 #: First line of the text datablock holding a mixer (followed by the token): :func:`.storage.store_payload`.
 TEXT_HEADER = storage.payload_header("Lengths & Angles live mixer (do not edit)")
 
@@ -275,9 +278,11 @@ def status(mesh):
     key = mesh.shape_keys
     linear = [] if key is None else [kb.name for kb in key.key_blocks[1:]
                                      if kb.name not in live.names and not is_own_key(kb.name)]
+    message = "" if res is None else (live.mixer.range_message(res.weights, names=live.names, advice=RANGE_ADVICE)
+                                      or res.message)
     return {"keys": live.names, "linear": linear, "build_seconds": live.build_seconds,
             "reduced_size": live.reduced_size, "stale": live.stale or live.error,
-            "in_range": True if res is None else bool(res.in_range), "message": "" if res is None else res.message,
+            "in_range": True if res is None else bool(res.in_range), "message": message,
             "mix_seconds": live.mix_seconds}
 
 

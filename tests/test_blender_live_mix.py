@@ -167,7 +167,7 @@ def test_out_of_range_and_vertex_group_keys(run, inputs):
     want = want + w[3] * f32(inputs["group_weights"])[:, None] * (f32(inputs["grouped"]) - f32(inputs["basis"]))
     assert np.abs(a["grouped_mixed"] - want).max() < TOL
     far = res["far"]
-    assert not far["in_range"] and "2.5" in far["message"], far
+    assert not far["in_range"] and "(Bend = 2.5)" in far["message"] and "keep the sliders" in far["message"], far
     assert far["message"] in res["panel"]
     assert res["clamped"] == 3.0  # slider_max
     assert res["linear_after_adding"] == ["Grouped", "Later"]

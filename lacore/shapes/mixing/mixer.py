@@ -940,17 +940,35 @@ class ShapeMixer:
         """The blended lengths and angles ``z(w)`` ``(2E,)``."""
         return blend_targets(self.z_keys, self.check_weights(weights), self.n_edges)
 
-    def range_message(self, weights):
-        """``""`` when ``weights`` lie in the accurate range, else one line saying which do not."""
+    def range_message(self, weights, names=None, advice=None):
+        """``""`` when ``weights`` lie in the accurate range, else one line saying which do not.
+
+        ``names``: the non-basis keys' names for the message (default ``key 1``, ``key 2`` ...); ``advice``:
+        what to do, ending the line (default: polish or rebuild with a wider range, in lacore's and the CLI's
+        terms).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore.samples.bar import bar_mesh, bar_pose
+        >>> X, faces = bar_mesh(n_along=4, n_side=1)
+        >>> mixer = ShapeMixer.build([X, bar_pose(X, 0.6, 0.0), bar_pose(X, 0.0, 0.6)], faces)
+        >>> message = mixer.range_message([2.0, 0.5], names=["Bend", "Twist"], advice="keep the sliders in range")
+        >>> message.split(":")[0], message.endswith("; keep the sliders in range")
+        ('weights outside [-0.5, 1.5] (Bend = 2)', True)
+        """
         w = np.asarray(weights, float)
         lo, hi = self.options.low, self.options.high
         out = np.flatnonzero((w < lo) | (w > hi))
         if not out.size:
             return ""
-        which = ", ".join(f"key {i + 1} = {w[i]:g}" for i in out[:4])
+        label = [f"key {i + 1}" for i in range(len(w))] if names is None else [str(n) for n in names]
+        which = ", ".join(f"{label[i]} = {w[i]:g}" for i in out[:4])
+        if advice is None:
+            advice = ("polish it for the exact projection (polish=True, lacore mix --polish) or rebuild the mixer "
+                      "with a wider range (MixerOptions low/high, lacore mixer --range)")
         return (f"weights outside [{lo:g}, {hi:g}] ({which}): the mix extrapolates beyond the range the mixer "
-                "was built for; polish it for the exact projection (polish=True, lacore mix --polish) or rebuild "
-                "the mixer with a wider range (MixerOptions low/high, lacore mixer --range)")
+                f"was built for; {advice}")
 
     def full_energy(self, weights, vertices):
         """``W_q[z(w), Z(vertices)]`` on the whole mesh (the energy the full projection minimizes)."""
