@@ -9,6 +9,7 @@ from lacore.io.meshes import load_mesh
 from lacore.multiresolution import coarsen
 from lacore.multiresolution.coarsening import vertex_quadrics
 from lacore.geometry.topology import MeshTopology
+from lacore.samples.bar import bar_mesh
 from lacore.samples.simple_deform import box_bar, simple_deform_bend
 
 #: Greedy collapse orders: run again on other kernels (scripts/other_kernels.py).
@@ -295,3 +296,13 @@ def test_coarsening_that_cannot_reach_its_target_says_so(batched):
     with pytest.raises(InputError, match=r"^coarsening stopped at 7 vertices \(target 6\): no further collapse keeps "
                                          r"the mesh manifold and unflipped in every shape$"):
         coarsen(X[None], F, 6, batched=batched)
+
+
+def test_degenerate_shapes_are_named():
+    """A shape with zero-area triangles (here flattened onto a line) is refused, naming the shape and faces."""
+    X, F = bar_mesh(n_along=4, n_side=1)
+    flat = X.copy()
+    flat[:, 1:] = 0.0
+    with pytest.raises(MeshError, match=r"^shape 1 has degenerate triangles .*: faces 0, 1, 2"):
+        coarsen(np.stack([X, flat]), F, 10)
+    assert coarsen(np.stack([X, X]), F, 10).n_vertices == 10

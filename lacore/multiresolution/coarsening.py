@@ -90,8 +90,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError, MeshError, as_float_array, check_integer
+from ..errors import InputError, MeshError, as_float_array, check_integer, format_indices
 from ..geometry.topology import MeshTopology, check_faces
+from ..geometry.lengths_angles import degenerate_faces
 from ..io.atomic import save_npz_atomic
 from ..io.npz import open_npz
 from ..progress import report
@@ -523,6 +524,14 @@ def _check_shapes(shapes, faces):
         bad = np.flatnonzero(~np.isfinite(P).all(axis=(0, 2)))
         raise MeshError(f"shapes have non-finite coordinates at vertices {bad[:8].tolist()}")
     faces = check_faces(faces, P.shape[1])
+    topology = MeshTopology.from_faces(faces, n_vertices=P.shape[1])
+    for k, X in enumerate(P):
+        bad = degenerate_faces(X, topology)
+        if bad.size:
+            which = f"shape {k}" if len(P) > 1 else "the shape"
+            raise MeshError(f"{which} has degenerate triangles (zero area, or edge lengths violating the triangle "
+                            f"inequality after rounding): faces {format_indices(bad)}; coarsen shapes whose "
+                            "triangles all have an area")
     return P, faces
 
 
