@@ -307,6 +307,20 @@ def test_sqp_reconstructs_vertices(plates):
         assert np.abs(lengths_and_angles(X, topo) - z).max() < 1e-7
 
 
+def test_vertex_path_has_its_ends_also_from_lengths_and_angles(plates):
+    """``method="vertices"`` returns every point's vertices: an end given as (admissible) lengths and angles is
+    reconstructed, and K = 1 has its two ends."""
+    topo, XA, XB = plates
+    zB = lengths_and_angles(XB, topo)
+    res = discrete_geodesic(XA, zB, topo, 2, method="vertices")
+    assert res.vertices.shape == (3, topo.n_vertices, 3)
+    for X, z in zip(res.vertices, res.z, strict=True):
+        assert np.abs(lengths_and_angles(X, topo) - z).max() < 1e-6
+    one = discrete_geodesic(XA, XB, topo, 1, method="vertices")
+    assert one.success and one.vertices.shape == (2, topo.n_vertices, 3)
+    assert np.abs(one.vertices[0] - XA).max() < 1e-12
+
+
 def test_closed_mesh_with_rank_deficient_constraints():
     """Closed surface: the Euler Jacobian has rank 3V - 6 (Conjecture 1); the regularized KKT system copes."""
     X0, F = load_mesh("sphere/defSphere0.ply")

@@ -54,7 +54,7 @@ from ..errors import InputError, LengthsAnglesError, check_integer
 from ..geometry.lengths_angles import check_z, lengths_and_angles
 from ..geometry.topology import check_vertices
 from ..integrability.checks import check_integrability
-from ..reconstruction import GaussNewtonOptions, ReconstructionSettings, get_context
+from ..reconstruction import GaussNewtonOptions, ReconstructionSettings, get_context, reconstruct
 from ..result import SolverResult
 from .geodesic_solvers import max_constraint_violation, min_triangle_margin, solve_sqp, solve_vertices
 from .interpolation import interpolate
@@ -408,10 +408,16 @@ def discrete_geodesic(start, end, topology, n_steps, *, method="sqp", energy=Non
         Xs = np.array([context.from_canonical(x) for x in Xc])
 
     vertices = None
-    if method == "vertices" and K >= 2:
-        ends = [context.align(X) if X is not None else None for X in (X0, XK)]
-        if ends[0] is not None and ends[1] is not None:
-            vertices = np.concatenate([ends[0][None], Xs, ends[1][None]])
+    if method == "vertices" and reference_vertices is not None:   # (K = 1 from lengths and angles alone: none)
+        context = context or get_context(topology, reference_vertices, settings)
+        ends = []
+        for X, z in ((X0, z0), (XK, zK)):
+            if X is None:  # an end given as (admissible) lengths and angles: its mesh
+                X = reconstruct(z, topology, reference_vertices, method="gn", context=context,
+                                options=options.projection).vertices
+            ends.append(context.align(X))
+        inner = Xs if K >= 2 else np.empty((0, topology.n_vertices, 3))
+        vertices = np.concatenate([ends[0][None], inner, ends[1][None]])
     elif method == "sqp" and options.reconstruct_vertices:
         need_reference("reconstruct_vertices")
         proj = interpolate(zs, topology, np.arange(K + 1, dtype=float), method="gn",  # P_Z itself: converged GN
