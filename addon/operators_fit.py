@@ -36,7 +36,8 @@ Mode sliders
       next to the .blend, which must be saved; ``//`` paths are relative to the .blend)
       played by a Mesh Cache modifier :data:`.naming.FIT_MODIFIER` with ``frame_start`` =
       the first fitted frame and ``frame_scale`` 1, so scene frame ``f`` shows fitted frame
-      ``f`` (the modifier is added last in the stack);
+      ``f`` (a new modifier goes after the deformers at the top of the stack and before the first other
+      modifier: :func:`_new_fit_modifier`);
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
       shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
 
@@ -488,6 +489,18 @@ def metres_per_unit(obj, take=None, scene=None):
     return world * (factor(obj) or 1.0)
 
 
+def nonuniform_scale_note(obj):
+    """The warning for markers fitted to ``obj`` when its world matrix scales non-uniformly (its own scale or a
+    parent's), else None: markers are bound and fitted in the mesh's own coordinates, so the scale stretches them
+    there, and distances in millimetres are measured with the mean factor (:func:`metres_per_unit`)."""
+    s = np.linalg.svd(np.array(obj.matrix_world, np.float64)[:3, :3], compute_uv=False)
+    if not s[0] - s[-1] > 1e-4 * s[0]:
+        return None
+    return (f"'{obj.name}' is scaled non-uniformly (factors {', '.join(f'{v:.3g}' for v in s)}: its scale or a "
+            "parent's): the markers are fitted in the mesh's own coordinates, stretched by it, and the distances in "
+            "mm are approximate; apply the scale (Ctrl+A) for an exact fit")
+
+
 #: Markers needed to bind (and to place a pose by them).
 MIN_BOUND_MARKERS = 3
 
@@ -526,6 +539,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     take_name = take.name
     unit = metres_per_unit(obj, take, context.scene)
     warn_distance = float(warn_distance)
+    note = nonuniform_scale_note(obj)
 
     def write(obj, job):
         binding, _info = job.result
@@ -535,6 +549,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
         }
+        if note is not None:
+            job.notes.append(note)
         if hidden:
             job.notes.append(f"{len(hidden)} markers occluded at frame {frame} were not bound: "
                              + ", ".join(hidden[:8]) + (" ..." if len(hidden) > 8 else ""))
@@ -644,11 +660,13 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
 
     unit = metres_per_unit(obj, inputs["take"], context.scene)
     labels = inputs["labels"]
+    note = nonuniform_scale_note(obj)
 
     def write(obj, job):
         X = job.result.vertices if fine is None else job.result.fine_vertices
         text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
         quality = write_quality(obj, frames, job.result, labels, unit, take_name, recorded_settings(options))
+        job.notes.extend([note] if note is not None else [])
         job.notes.extend(quality["notes"])
         return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
@@ -675,13 +693,30 @@ def remove_fit_keys(obj):
     return len(names)
 
 
+#: Modifier types that only move the vertices they are given (the fit's Mesh Cache modifier replaces their motion).
+DEFORM_MODIFIERS = frozenset({'ARMATURE', 'CAST', 'CORRECTIVE_SMOOTH', 'CURVE', 'DISPLACE', 'HOOK', 'LAPLACIANDEFORM',
+                              'LAPLACIANSMOOTH', 'LATTICE', 'MESH_CACHE', 'MESH_DEFORM', 'SHRINKWRAP', 'SIMPLE_DEFORM',
+                              'SMOOTH', 'SURFACE_DEFORM', 'WARP', 'WAVE'})
+
+
+def _new_fit_modifier(obj):
+    """The fit's Mesh Cache modifier, new: after the deformers at the top of ``obj``'s stack (it replaces their
+    motion) and before the first other modifier (Subdivision Surface, Mirror, physics ...: they apply to the fit;
+    placed after one that changes the vertex count, the cache would not play)."""
+    index = next((i for i, m in enumerate(obj.modifiers) if m.type not in DEFORM_MODIFIERS), len(obj.modifiers))
+    mod = obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+    if index < len(obj.modifiers) - 1:
+        obj.modifiers.move(len(obj.modifiers) - 1, index)
+    return mod
+
+
 def _write_fit(obj, X, frames, output, filepath, path):
     """Write the fitted frames: PC2 + Mesh Cache modifier, or one keyed shape key per frame.  Either replaces a
     previous fit's output in both forms (its keys and keyframes, its modifier), so fitting again never adds up."""
     remove_fit_keys(obj)
     if output == 'PC2':
         write_pc2(path, X, start=float(frames[0]), sampling=1.0)
-        mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+        mod = obj.modifiers.get(FIT_MODIFIER) or _new_fit_modifier(obj)
         mod.cache_format = 'PC2'
         mod.filepath = filepath
         mod.time_mode = 'FRAME'
