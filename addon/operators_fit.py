@@ -573,14 +573,15 @@ def read_binding(obj):
         raise FitSetupError(f"object '{obj.name}' has no marker binding: run Bind Markers first")
     take = bpy.data.objects.get(meta["take"])
     if take is None or TAKE_PROP not in take:
-        raise FitSetupError(f"object '{obj.name}': the bound take '{meta['take']}' is gone: bind again")
+        raise FitSetupError(f"object '{obj.name}': the bound take '{meta['take']}' is gone (deleted or renamed): "
+                            f"name the take empty '{meta['take']}' again or bind again")
+    # the markers by their labels (what the fit reads): renaming an empty changes nothing
     present = {c[MARKER_PROP] for c in take.children if MARKER_PROP in c}
     labels = list(meta["labels"])
-    missing = [lb for lb, name in zip(labels, meta["empties"], strict=True)
-               if lb not in present or name not in bpy.data.objects]
+    missing = [lb for lb in labels if lb not in present]
     if missing:
         raise FitSetupError(f"object '{obj.name}': the empties of bound markers {', '.join(map(repr, missing[:5]))} "
-                            "were deleted: bind again")
+                            "were deleted or unparented: bind again")
     binding = MarkerBinding.from_surface(np.asarray(meta["faces"], np.int64),
                                          np.asarray(meta["barycentric"], np.float64).reshape(-1, 3),
                                          np.asarray(meta["offsets"], np.float64))
