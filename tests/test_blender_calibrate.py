@@ -115,6 +115,13 @@ def test_character_setups(run):
     kind, text = res["stretched_reports"][-1]
     assert kind == "WARNING" and "'Body' is scaled non-uniformly (factors 0.12, 0.1, 0.1" in text, res
     assert "apply the scale (Ctrl+A)" in text
+    # the report says what was done first (a real take always has notes: non-markers dropped ...), then the notes
+    assert text.startswith("calibrated (performer ") and "marker RMS" in text and " mm, p95 " in text, text
+    assert text.index("marker RMS") < text.index("scaled non-uniformly") and "points are not markers" in text, text
+    assert res["again_result"] == ["FINISHED"], res
+    kind, text = res["again_reports"][-1]
+    assert kind == "WARNING" and text.startswith("reused the stored calibration (take, model and placement "
+                                                 "unchanged) (performer "), text
     lying = res["lying"]
     assert lying["result"] == ["CANCELLED"] and lying["unchanged"] and lying["lines"] == 1, lying
     assert ("declared up axis z does not fit a humanoid's landmarks with any forward axis" in lying["message"]

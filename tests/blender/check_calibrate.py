@@ -239,6 +239,11 @@ def character_setups():
     out["stretched_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
         context, obj, take, 1, 3)))
     out["stretched_reports"] = op.reports
+    op = fake_operator()                 # again, unchanged: the report says the calibration was reused
+    op.interactive = False
+    out["again_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
+        context, obj, take, 1, 3)))
+    out["again_reports"] = op.reports
     obj.scale = (0.1, 0.1, 0.1)
     obj.rotation_euler.x = 0.0           # the body's Y up along the scene's Y: lying on the floor
     bpy.context.view_layer.update()
