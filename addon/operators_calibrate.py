@@ -52,7 +52,7 @@ from .mesh_access import require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
-                            nonuniform_scale_note, read_model, recorded_settings, typed)
+                            nonuniform_scale_note, read_model, recorded_settings, require_still, typed)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
@@ -278,6 +278,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, outside the range "
                             f"{int(frame_start)}..{int(frame_end)}: set the frame range inside the take")
     frames = np.arange(start, end + 1)
+    require_still(take, obj)
     take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
     labels = [lb for lb, _ in marker_objects(take)]

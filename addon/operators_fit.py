@@ -589,6 +589,38 @@ def read_binding(obj):
 
 
 # ------------------------------------------------------------------------------------------------ fit
+_TRANSFORM_PATHS = frozenset({"location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",
+                              "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale"})
+
+
+def moving_transform(ob):
+    """The first of ``ob`` and its parents whose keyed transform changes over time (an F-curve of location,
+    rotation or scale with keys of different values, or with modifiers), else None."""
+    while ob is not None:
+        fcurves = animation_channels(ob)
+        for fc in (fcurves.fcurves if fcurves is not None else ()):
+            if fc.data_path not in _TRANSFORM_PATHS or fc.mute:
+                continue
+            co = np.empty(2 * len(fc.keyframe_points), np.float32)
+            fc.keyframe_points.foreach_get("co", co)
+            if len(fc.modifiers) or (co.size and np.ptp(co[1::2]) > 0):
+                return ob
+        ob = ob.parent
+    return None
+
+
+def require_still(take, obj):
+    """FitSetupError if the take empty or the character moves over time (itself or a parent): the markers are
+    mapped into the character's space with their transforms at the current frame."""
+    for what, ob in (("take empty", take), ("character", obj)):
+        moving = moving_transform(ob)
+        if moving is not None:
+            whose = "" if moving is ob else f" with its parent '{moving.name}'"
+            raise FitSetupError(f"the {what} '{ob.name}' moves{whose} (keyed location, rotation or scale): the fit "
+                                f"uses one placement of it, so clear the transform keys of '{moving.name}' (Object > "
+                                "Animation > Clear Keyframes) and place it once")
+
+
 def _pc2_path(filepath, obj, take):
     """``(path as given, absolute path)`` of the point cache; ``//`` is relative to the saved .blend."""
     if not filepath:
@@ -630,6 +662,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
         raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, fewer than the range "
                             f"{frame_start}..{frame_end}: set the frame range inside the take")
     frames = np.arange(frame_start, frame_end + 1)
+    require_still(take, obj)
     filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
     all_labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]

@@ -132,6 +132,8 @@ def test_character_setups(run):
     ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
     ("marker_deleted", "missing"), ("no_take", "no marker take"),
     ("unit_mismatch", "import the take again with Scale 1 instead of 1000"),
+    ("take_moving", "the take empty 'take' moves (keyed location, rotation or scale): the fit uses one placement "
+                    "of it, so clear the transform keys of 'take'"),
     ("placed_not_over", "Placement is As Placed and the character is not over the markers of 'take' at frame 1 "
                         "(median distance"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "

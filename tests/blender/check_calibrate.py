@@ -208,6 +208,7 @@ def character_setups():
     out = {}
     obj, take = open_scene()
     obj.rotation_euler.z = math.pi / 2
+    obj.keyframe_insert("rotation_euler", frame=1)           # a key that moves nothing: no objection
     obj.modifiers.remove(obj.modifiers[fit.FIT_MODIFIER])    # whole_path's (kept where it is by a new fit)
     arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
     bpy.context.scene.collection.objects.link(arm)
@@ -231,6 +232,7 @@ def character_setups():
                                                              axis=1)))
     for m in list(obj.modifiers):
         obj.modifiers.remove(m)
+    obj.keyframe_delete("rotation_euler", frame=1)
     obj.rotation_euler.z = 0.0
     obj.scale = (0.1, 0.1, 0.12)
     bpy.context.view_layer.update()
@@ -279,6 +281,12 @@ def bad_input():
     obj.lengths_angles_placement = 'PLACED'       # the character stands at the origin, the performer elsewhere
     attempt("placed_not_over", obj)
     obj.lengths_angles_placement = 'AUTO'
+    take.keyframe_insert("location", frame=1)     # the take empty keyed moving: refused (one placement is fitted)
+    take.location.x += 0.5
+    take.keyframe_insert("location", frame=N_FRAMES)
+    attempt("take_moving", obj)
+    take.animation_data_clear()
+    take.location.x -= 0.5
     # negative weights from a script (the operator's properties stop at 0): the run function refuses them
     cal = ext("addon.operators_calibrate")
     for name, kw in (("penetration_negative", {"penetration_weight": -1.0}),
