@@ -19,13 +19,14 @@ rest mesh in the character's space is the placement, ``x = metres_per_unit * X``
 
 Units and axes: the markers are handed to lacore in the character's object space, in metres
 (:func:`.operators_fit.metres_per_unit`: the take's import Scale, else the scene's Unit Scale), and the
-model declares that unit (``length_unit``) and the object-space directions of the world's up (+Z) and
-forward (-Y) axes, so a take imported at the wrong scale or with the wrong up axis is refused with
-lacore's one-line error instead of giving a crumpled fit.  The fitted poses come back in object space:
-they are written as a PC2 point cache played by the Mesh Cache modifier :data:`.naming.FIT_MODIFIER`
-(as Fit to Markers does), with the model (when built), the calibrated binding and the fit's quality
-(:func:`.fit_quality.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior weight,
-flagged frames and markers).  A failed or cancelled run writes nothing.
+model declares that unit (``length_unit``) and the object-space direction of the world's up (+Z) axis (a
+humanoid placed by marker names may face any way about it: lacore finds its forward; a character placed by
+pins or as placed also declares the world's forward, -Y), so a take imported at the wrong scale or with the
+wrong up axis is refused with lacore's one-line error instead of giving a crumpled fit.  The fitted poses come
+back in object space: they are written as a PC2 point cache played by the Mesh Cache modifier
+:data:`.naming.FIT_MODIFIER` (as Fit to Markers does), with the model (when built), the calibrated binding
+and the fit's quality (:func:`.fit_quality.write_quality`: per-frame marker RMS curve, RMS / p95 in mm, prior
+weight, flagged frames and markers).  A failed or cancelled run writes nothing.
 
 The calibration is stored with the result (a payload of the mesh, :data:`CALIBRATION_PROP`, keyed by
 :func:`calibration_key`: the take's markers as the run reads them in the character's space, the stored
@@ -50,8 +51,8 @@ from .jobs import CallJob
 from .mesh_access import require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
-                            draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit, read_model,
-                            recorded_settings, typed)
+                            draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
+                            nonuniform_scale_note, read_model, recorded_settings, require_still, typed)
 from .operators_markers import TAKE_PROP, marker_objects, read_take
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
@@ -135,19 +136,38 @@ _ADVICE = {
     "UnitMismatchError": "the markers and the character differ that much in size as they stand in the scene: import "
                          "the take again with a Scale that matches the character (Import Motion Capture Markers > "
                          "Scale) or scale the character",
-    "AxisMismatchError": "the character does not stand up along the scene's Z axis facing -Y (front view): rotate "
-                         "it upright, or import the take again with its Up axis (Import Motion Capture Markers > Up)",
+    "AxisMismatchError": "the character does not stand up along the scene's Z axis: rotate it upright, or import "
+                         "the take again with its Up axis (Import Motion Capture Markers > Up)",
     "CalibrationError": "pin 3 or more markers seen at the take's first frames to vertices (Edit Mode: Pin Marker), "
                         "or place the character over the markers at the take's first frame and set Placement to As "
                         "Placed",
 }
 
 
-def _in_blender_terms(exc):
-    """lacore's unit and axis mismatch errors with advice for Blender (one line); other errors as they are."""
+def import_scale_for(scale, ratio):
+    """The import Scale (a power of ten) that brings a performer measuring ``ratio`` times the character at the
+    take's import ``scale`` to about its size, or None if none differs from ``scale``.
+
+    >>> import_scale_for(1.0, 0.0095), import_scale_for(10.0, 9.53), import_scale_for(1.0, 1.7)
+    (100.0, 1.0, None)
+    """
+    if not (scale and ratio and scale > 0 and ratio > 0):
+        return None
+    suggested = float(10.0 ** np.round(np.log10(scale / ratio)))
+    return None if abs(np.log10(suggested / scale)) < 0.5 else suggested
+
+
+def _in_blender_terms(exc, import_scale=None):
+    """lacore's unit and axis mismatch errors with advice for Blender (one line); other errors as they are.
+    ``import_scale``: the take's import Scale (a unit mismatch names the Scale that fits)."""
     advice = _ADVICE.get(type(exc).__name__)
     if advice is None:
         return exc
+    suggested = import_scale_for(import_scale, getattr(exc, "ratio", None))
+    if suggested is not None:
+        advice = (f"the markers and the character differ that much in size as they stand in the scene: import the "
+                  f"take again with Scale {suggested:g} instead of {import_scale:g} (Import Motion Capture Markers > "
+                  "Scale) or scale the character")
     head = str(exc).split(": check")[0].split(": give pins")[0].split(";")[0]
     return FitSetupError(f"{head}: {advice}")
 
@@ -207,10 +227,14 @@ def _check_placed(X, faces, markers, unit, take_name, frame_of):
     d = float(np.median(np.linalg.norm(q - x, axis=1)))
     diag = float(np.linalg.norm(np.ptp(X, axis=0)))
     if d > MAX_PLACED_DISTANCE * diag:
+        named = has_hints(markers.labels)
+        why = "Placement is As Placed" if named else "the take has no standard marker names"
+        other = ("or set Placement to Automatic (the take's standard marker names place it)" if named
+                 else "or pin 3 or more markers to vertices (Edit Mode: Pin Marker)")
         raise FitSetupError(
-            f"the take '{take_name}' has no standard marker names and the character is not over its markers at "
-            f"frame {frame_of(f0)} (median distance {d * unit:.3g} m, {d / diag:.0%} of its size): move, rotate and "
-            "scale it over the markers there, or pin 3 or more markers to vertices (Edit Mode: Pin Marker)")
+            f"{why} and the character is not over the markers of '{take_name}' at frame {frame_of(f0)} (median "
+            f"distance {d * unit:.3g} m, {d / diag:.0%} of its size): move, rotate and scale it over the markers "
+            f"there, {other}")
 
 
 def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=None, auto_prior=None,
@@ -246,6 +270,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                                 "keys or run Build Model") from exc
         model = None
     meta = take[TAKE_PROP]
+    import_scale = float(meta.get("scale", 0.0))
     first = float(meta["frame_start"])
     last = first + (int(meta["keyed_samples"]) - 1) * float(meta["frame_step"])
     start, end = max(int(frame_start), int(np.ceil(first - 1e-6))), min(int(frame_end), int(np.floor(last + 1e-6)))
@@ -253,6 +278,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, outside the range "
                             f"{int(frame_start)}..{int(frame_end)}: set the frame range inside the take")
     frames = np.arange(start, end + 1)
+    require_still(take, obj)
     take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
     labels = [lb for lb, _ in marker_objects(take)]
@@ -275,9 +301,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]))
     if kind == 'PLACED':
         _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
-    # the axes of the world's up and forward in the character's space: exact (checked by lacore) for a
-    # humanoid placed by marker names, else the nearest axes (the user placed or pinned the character)
-    up, forward = object_axes(obj) if kind == 'HINTS' else _nearest_axes(obj)
+    # the world's up in the character's space: exact (checked by lacore) for a humanoid placed by marker names,
+    # whose forward lacore finds (the character may face any way about the up axis), else the nearest axes of
+    # the world's up and forward (the user placed or pinned the character)
+    up, forward = (object_axes(obj)[0], None) if kind == 'HINTS' else _nearest_axes(obj)
     markers = dataclasses.replace(markers, up_axis=None if up is None else ("" if up.startswith("-") else "+") + up)
     pin_vertices = dict(pinned)
 
@@ -311,11 +338,12 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                                 progress=staged(stages - 2))
             result = fit_take(fitted, markers, cal, options=options, progress=staged(stages - 1))
         except InputError as exc:
-            raise _in_blender_terms(exc) from exc
+            raise _in_blender_terms(exc, import_scale) from exc
         return m, result
 
     job = CallJob(compute, "calibrate & fit", total=1000 * stages)
     empties = {lb: o.name for lb, o in marker_objects(take)}
+    note = nonuniform_scale_note(obj)
 
     def write(obj, job):
         m, res = job.result
@@ -337,6 +365,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         }
         quality = write_quality(obj, frames, res, bound, unit, take_name, recorded_settings(options))
         obj[FIT_PROP]["calibration_reused"] = reused is not None
+        if note is not None:
+            job.notes.append(note)
         dropped = list(getattr(markers, "dropped", ()))
         if dropped:
             job.notes.append(f"{len(dropped)} points are not markers and were left out: "
@@ -344,7 +374,9 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                              + (" ..." if len(dropped) > 5 else ""))
         job.notes.extend(quality["notes"])
         # the calibration's own notes, but its drops once (summarized above)
-        job.notes.extend(str(n) for n in getattr(cal, "notes", []) if not str(n).startswith("dropped "))
+        # (the forward axis lacore infers for a humanoid is no news in Blender: it may face any way)
+        job.notes.extend(str(n) for n in getattr(cal, "notes", [])
+                         if not str(n).startswith(("dropped ", "model forward axis inferred")))
         placed = {'HINTS': "", 'PINS': f" by {len(pinned)} pins", 'PLACED': " as placed"}[kind]
         how = ("reused the stored calibration (take, model and placement unchanged)" if reused is not None
                else f"calibrated{placed}")

@@ -36,7 +36,8 @@ Mode sliders
       next to the .blend, which must be saved; ``//`` paths are relative to the .blend)
       played by a Mesh Cache modifier :data:`.naming.FIT_MODIFIER` with ``frame_start`` =
       the first fitted frame and ``frame_scale`` 1, so scene frame ``f`` shows fitted frame
-      ``f`` (the modifier is added last in the stack);
+      ``f`` (a new modifier goes after the deformers at the top of the stack and before the first other
+      modifier: :func:`_new_fit_modifier`);
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
       shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
 
@@ -488,6 +489,18 @@ def metres_per_unit(obj, take=None, scene=None):
     return world * (factor(obj) or 1.0)
 
 
+def nonuniform_scale_note(obj):
+    """The warning for markers fitted to ``obj`` when its world matrix scales non-uniformly (its own scale or a
+    parent's), else None: markers are bound and fitted in the mesh's own coordinates, so the scale stretches them
+    there, and distances in millimetres are measured with the mean factor (:func:`metres_per_unit`)."""
+    s = np.linalg.svd(np.array(obj.matrix_world, np.float64)[:3, :3], compute_uv=False)
+    if not s[0] - s[-1] > 1e-4 * s[0]:
+        return None
+    return (f"'{obj.name}' is scaled non-uniformly (factors {', '.join(f'{v:.3g}' for v in s)}: its scale or a "
+            "parent's): the markers are fitted in the mesh's own coordinates, stretched by it, and the distances in "
+            "mm are approximate; apply the scale (Ctrl+A) for an exact fit")
+
+
 #: Markers needed to bind (and to place a pose by them).
 MIN_BOUND_MARKERS = 3
 
@@ -526,6 +539,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     take_name = take.name
     unit = metres_per_unit(obj, take, context.scene)
     warn_distance = float(warn_distance)
+    note = nonuniform_scale_note(obj)
 
     def write(obj, job):
         binding, _info = job.result
@@ -535,6 +549,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
         }
+        if note is not None:
+            job.notes.append(note)
         if hidden:
             job.notes.append(f"{len(hidden)} markers occluded at frame {frame} were not bound: "
                              + ", ".join(hidden[:8]) + (" ..." if len(hidden) > 8 else ""))
@@ -557,14 +573,15 @@ def read_binding(obj):
         raise FitSetupError(f"object '{obj.name}' has no marker binding: run Bind Markers first")
     take = bpy.data.objects.get(meta["take"])
     if take is None or TAKE_PROP not in take:
-        raise FitSetupError(f"object '{obj.name}': the bound take '{meta['take']}' is gone: bind again")
+        raise FitSetupError(f"object '{obj.name}': the bound take '{meta['take']}' is gone (deleted or renamed): "
+                            f"name the take empty '{meta['take']}' again or bind again")
+    # the markers by their labels (what the fit reads): renaming an empty changes nothing
     present = {c[MARKER_PROP] for c in take.children if MARKER_PROP in c}
     labels = list(meta["labels"])
-    missing = [lb for lb, name in zip(labels, meta["empties"], strict=True)
-               if lb not in present or name not in bpy.data.objects]
+    missing = [lb for lb in labels if lb not in present]
     if missing:
         raise FitSetupError(f"object '{obj.name}': the empties of bound markers {', '.join(map(repr, missing[:5]))} "
-                            "were deleted: bind again")
+                            "were deleted or unparented: bind again")
     binding = MarkerBinding.from_surface(np.asarray(meta["faces"], np.int64),
                                          np.asarray(meta["barycentric"], np.float64).reshape(-1, 3),
                                          np.asarray(meta["offsets"], np.float64))
@@ -572,6 +589,38 @@ def read_binding(obj):
 
 
 # ------------------------------------------------------------------------------------------------ fit
+_TRANSFORM_PATHS = frozenset({"location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",
+                              "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale"})
+
+
+def moving_transform(ob):
+    """The first of ``ob`` and its parents whose keyed transform changes over time (an F-curve of location,
+    rotation or scale with keys of different values, or with modifiers), else None."""
+    while ob is not None:
+        fcurves = animation_channels(ob)
+        for fc in (fcurves.fcurves if fcurves is not None else ()):
+            if fc.data_path not in _TRANSFORM_PATHS or fc.mute:
+                continue
+            co = np.empty(2 * len(fc.keyframe_points), np.float32)
+            fc.keyframe_points.foreach_get("co", co)
+            if len(fc.modifiers) or (co.size and np.ptp(co[1::2]) > 0):
+                return ob
+        ob = ob.parent
+    return None
+
+
+def require_still(take, obj):
+    """FitSetupError if the take empty or the character moves over time (itself or a parent): the markers are
+    mapped into the character's space with their transforms at the current frame."""
+    for what, ob in (("take empty", take), ("character", obj)):
+        moving = moving_transform(ob)
+        if moving is not None:
+            whose = "" if moving is ob else f" with its parent '{moving.name}'"
+            raise FitSetupError(f"the {what} '{ob.name}' moves{whose} (keyed location, rotation or scale): the fit "
+                                f"uses one placement of it, so clear the transform keys of '{moving.name}' (Object > "
+                                "Animation > Clear Keyframes) and place it once")
+
+
 def _pc2_path(filepath, obj, take):
     """``(path as given, absolute path)`` of the point cache; ``//`` is relative to the saved .blend."""
     if not filepath:
@@ -613,6 +662,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
         raise FitSetupError(f"take '{take.name}' covers frames {first:g}..{last:g}, fewer than the range "
                             f"{frame_start}..{frame_end}: set the frame range inside the take")
     frames = np.arange(frame_start, frame_end + 1)
+    require_still(take, obj)
     filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
     all_labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
@@ -644,11 +694,13 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
 
     unit = metres_per_unit(obj, inputs["take"], context.scene)
     labels = inputs["labels"]
+    note = nonuniform_scale_note(obj)
 
     def write(obj, job):
         X = job.result.vertices if fine is None else job.result.fine_vertices
         text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
         quality = write_quality(obj, frames, job.result, labels, unit, take_name, recorded_settings(options))
+        job.notes.extend([note] if note is not None else [])
         job.notes.extend(quality["notes"])
         return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
@@ -675,13 +727,30 @@ def remove_fit_keys(obj):
     return len(names)
 
 
+#: Modifier types that only move the vertices they are given (the fit's Mesh Cache modifier replaces their motion).
+DEFORM_MODIFIERS = frozenset({'ARMATURE', 'CAST', 'CORRECTIVE_SMOOTH', 'CURVE', 'DISPLACE', 'HOOK', 'LAPLACIANDEFORM',
+                              'LAPLACIANSMOOTH', 'LATTICE', 'MESH_CACHE', 'MESH_DEFORM', 'SHRINKWRAP', 'SIMPLE_DEFORM',
+                              'SMOOTH', 'SURFACE_DEFORM', 'WARP', 'WAVE'})
+
+
+def _new_fit_modifier(obj):
+    """The fit's Mesh Cache modifier, new: after the deformers at the top of ``obj``'s stack (it replaces their
+    motion) and before the first other modifier (Subdivision Surface, Mirror, physics ...: they apply to the fit;
+    placed after one that changes the vertex count, the cache would not play)."""
+    index = next((i for i, m in enumerate(obj.modifiers) if m.type not in DEFORM_MODIFIERS), len(obj.modifiers))
+    mod = obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+    if index < len(obj.modifiers) - 1:
+        obj.modifiers.move(len(obj.modifiers) - 1, index)
+    return mod
+
+
 def _write_fit(obj, X, frames, output, filepath, path):
     """Write the fitted frames: PC2 + Mesh Cache modifier, or one keyed shape key per frame.  Either replaces a
     previous fit's output in both forms (its keys and keyframes, its modifier), so fitting again never adds up."""
     remove_fit_keys(obj)
     if output == 'PC2':
         write_pc2(path, X, start=float(frames[0]), sampling=1.0)
-        mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+        mod = obj.modifiers.get(FIT_MODIFIER) or _new_fit_modifier(obj)
         mod.cache_format = 'PC2'
         mod.filepath = filepath
         mod.time_mode = 'FRAME'

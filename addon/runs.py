@@ -231,7 +231,8 @@ class Run:
         self.job.cancel()
 
     def warning(self):
-        """The WARNING text of the report (failed checks, notes), or None for an INFO report."""
+        """What the report adds to the result's text as a WARNING (failed checks, notes), or None for an INFO
+        report."""
         texts = [failure_warning(self.failures, self.what), *self.notes]
         return "; ".join(t.rstrip(" .;") for t in texts if t) or None
 
@@ -309,7 +310,10 @@ class RunOperator:
             self.report({'ERROR'}, error_text(exc))
             return {'CANCELLED'}
         warning = run.warning()
-        self.report({'WARNING'} if warning else {'INFO'}, warning or message)
+        # what was done first, then what to look at (a real take's fit always has notes; its report still gives
+        # the marker RMS and whether the calibration was reused)
+        text = "; ".join(t.rstrip(" .;") for t in (message, warning) if t)
+        self.report({'WARNING'} if warning else {'INFO'}, text)
         return {'FINISHED'}
 
     def _begin_modal(self, context, run):

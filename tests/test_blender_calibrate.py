@@ -99,10 +99,43 @@ def test_modal_progress_and_cancel(run):
     assert total // 2 < done < total  # Esc halfway (the model stored by the first run: calibration and fit)
 
 
+def test_character_setups(run):
+    """A character turned to face +X is placed by the marker names like one facing -Y (measured: the markers' median
+    distance from the played-back surface 29 mm, as facing -Y; the markers sit 10-30 mm off the skin); with an
+    Armature and a Subdivision Surface modifier the fit's Mesh Cache modifier goes between them, so the subdivided
+    mesh plays the fit; a non-uniform scale is fitted with a warning; a character lying down is refused in one line
+    saying what to do, and nothing changes."""
+    res = run["cases"]["character_setups"]
+    fit_modifier = res["fit_modifier"]
+    assert res["turned_result"] == ["FINISHED"] and res["turned_rms_mm"] < 25.0, res
+    assert res["turned_marker_distance_m"] < 0.045, res
+    assert res["modifiers"] == ["Armature", fit_modifier, "Subdivision"], res
+    assert res["evaluated_vertices"] > 2 * len(run["faces"]) // 2 and res["plays"] > 0.1, res   # decimetres
+    assert res["stretched_result"] == ["FINISHED"], res
+    kind, text = res["stretched_reports"][-1]
+    assert kind == "WARNING" and "'Body' is scaled non-uniformly (factors 0.12, 0.1, 0.1" in text, res
+    assert "apply the scale (Ctrl+A)" in text
+    # the report says what was done first (a real take always has notes: non-markers dropped ...), then the notes
+    assert text.startswith("calibrated (performer ") and "marker RMS" in text and " mm, p95 " in text, text
+    assert text.index("marker RMS") < text.index("scaled non-uniformly") and "points are not markers" in text, text
+    assert res["again_result"] == ["FINISHED"], res
+    kind, text = res["again_reports"][-1]
+    assert kind == "WARNING" and text.startswith("reused the stored calibration (take, model and placement "
+                                                 "unchanged) (performer "), text
+    lying = res["lying"]
+    assert lying["result"] == ["CANCELLED"] and lying["unchanged"] and lying["lines"] == 1, lying
+    assert ("declared up axis z does not fit a humanoid's landmarks with any forward axis" in lying["message"]
+            and "rotate it upright" in lying["message"] and "Traceback" not in lying["message"]), lying
+
+
 @pytest.mark.parametrize("case, words", [
     ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
     ("marker_deleted", "missing"), ("no_take", "no marker take"),
-    ("unit_mismatch", "a Scale that matches the character"),
+    ("unit_mismatch", "import the take again with Scale 1 instead of 1000"),
+    ("take_moving", "the take empty 'take' moves (keyed location, rotation or scale): the fit uses one placement "
+                    "of it, so clear the transform keys of 'take'"),
+    ("placed_not_over", "Placement is As Placed and the character is not over the markers of 'take' at frame 1 "
+                        "(median distance"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
                        "(0.3, 0.1)"),
     ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),
@@ -143,7 +176,7 @@ def test_creature_pins(run):
     res = run["cases"]["creature_pins"]
     bad = res["not_placed"]
     assert bad["result"] == ["CANCELLED"] and bad["unchanged"] and bad["lines"] == 1, bad
-    assert "not over its markers" in bad["message"] and "Pin Marker" in bad["message"], bad
+    assert "not over the markers of" in bad["message"] and "Pin Marker" in bad["message"], bad
     assert res["edit_mode_pin"] == ["FINISHED"]
     assert "no take in the scene has a marker 'nope'" in res["unknown_label"]
     labels = [f"m{i + 1:02d}" for i in CREATURE_PINS]

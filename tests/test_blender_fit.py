@@ -207,10 +207,17 @@ def test_shape_key_output(run):
     assert again["evaluated_change"] < 1e-3 * again["size"], again
 
 
+def test_renamed_marker_empty_still_fits(run):
+    """A bound marker's empty renamed in the Outliner: the fit finds it by its label."""
+    assert run["cases"]["bad_input"]["empty_renamed"] == ["FINISHED"]
+
+
 @pytest.mark.parametrize("case, words", [
     ("take_too_short", "covers frames"), ("no_model", "no shape model"), ("bind_without_model", "no shape model"),
     ("bind_occluded", "only 0 of the 3 markers are visible at frame 3"),
-    ("not_bound", "no marker binding"), ("empty_deleted", "deleted"), ("mesh_edited", "edited after"),
+    ("not_bound", "no marker binding"), ("empty_deleted", "were deleted or unparented: bind again"),
+    ("take_renamed", "the bound take 'take' is gone (deleted or renamed): name the take empty 'take' again"),
+    ("mesh_edited", "edited after"),
     ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files"),
     ("build_identical_keys", "shape keys 'train01' and 'dup' are identical")])
 def test_bad_input_changes_nothing(run, case, words):

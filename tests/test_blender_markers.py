@@ -80,6 +80,8 @@ def test_options(run):
     assert res["resampled_frames"] == 61 and res_["frames"] == 61 and res_["fps_unchanged"]
     assert res_["location_keys"] == 3 * res["resampled_visible"] and res_["visible_mismatches"] == 0
     assert res_["max_abs_key_error"] < FLOAT32_METRES and res_["frame_range"] == [1, 61]
+    # the same points are no markers for Calibrate & Fit (24 of Walk1's 49: virtual points, never seen ...)
+    assert len(ret["not_markers"]) == 24 and res_["not_markers"] == ret["not_markers"], res_["not_markers"]
     # the same take as TRC
     trc = res["trc"]
     assert trc["labels_equal"] and trc["same_visibility"] and trc["max_abs_vs_c3d_take"] < 1e-12

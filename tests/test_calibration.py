@@ -175,6 +175,24 @@ def test_unit_and_axis_mismatches_are_errors(model):
         calibrate(sphere, take)   # measured 10.4 %
 
 
+def test_a_declared_up_axis_alone_leaves_the_facing_free(model):
+    """A model declaring its up axis only (a character that may face any way about it): the forward the atlas fits
+    best, checked as strictly as a declared pair; a declared up no forward fits is an axis mismatch naming the
+    axes that fit (the CC0 body is Y up, facing +Z: lying along Z measured 13.9 %, upside down 7.0 %)."""
+    from lacore.markers.calibration import MAX_ATLAS_DISTANCE, _model_axes
+    notes = []
+    assert _model_axes(_copy(model, up_axis="+y", forward_axis=None), notes) == ("y", "z")
+    assert notes == ["model forward axis inferred: z (declare model.forward_axis)"]
+    for up, low in (("z", 0.10), ("-y", 0.05)):
+        with pytest.raises(AxisMismatchError) as info:
+            _model_axes(_copy(model, up_axis=up, forward_axis=None), [])
+        msg = str(info.value)
+        assert msg.startswith(f"axis mismatch: the model's declared up axis {up} does not fit a humanoid's landmarks "
+                              "with any forward axis (") and "up y and forward z 0.0" in msg, msg
+        assert msg.endswith("): check the model's up_axis"), msg
+        assert float(msg.split("forward axis (")[1].split(" %")[0]) > max(low * 100, 100 * MAX_ATLAS_DISTANCE), msg
+
+
 def _copy(model, **changes):
     import copy
     m = copy.copy(model)

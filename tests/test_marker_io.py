@@ -351,6 +351,19 @@ def test_resample_linear_nan_aware():
         resample(take, -1)
 
 
+def test_resample_keeps_what_tells_markers_apart():
+    """Descriptions, point groups and the up axis survive resampling: the same points are no skin markers
+    (Walk1: 24 of 49, among them virtual points known by their descriptions only)."""
+    from lacore.markers.takes import drop_non_markers
+    walk = read_c3d(MOCAP / "Walk1.c3d")
+    r = resample(walk, 30.0)
+    assert r.descriptions == walk.descriptions and r.point_groups == walk.point_groups and r.up_axis == walk.up_axis
+    assert r.residuals is None and r.n_frames == 76
+    dropped = drop_non_markers(walk).dropped
+    assert len(dropped) == 24 and drop_non_markers(r).dropped == dropped
+    assert sum("virtual point" in why for _lb, why in dropped) > 0
+
+
 # ----------------------------------------------------------------------------- every processor format x storage
 @pytest.fixture(scope="module")
 def synthetic_formats(tmp_path_factory):

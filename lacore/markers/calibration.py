@@ -80,7 +80,14 @@ class CalibrationError(InputError):
 
 
 class UnitMismatchError(InputError):
-    """The performer measured in the model's declared unit is implausibly small or large."""
+    """The performer measured in the model's declared unit is implausibly small or large.
+
+    ``ratio``: the performer's size over the model's in its declared unit (None where the model declares none).
+    """
+
+    def __init__(self, message, ratio=None):
+        super().__init__(message)
+        self.ratio = ratio
 
 
 class AxisMismatchError(InputError):
@@ -526,26 +533,36 @@ MAX_INFERRED_ATLAS_DISTANCE = 0.09
 
 
 def _model_axes(model, notes):
-    """The model's (up, forward): declared (checked against the atlas), or the pair the atlas fits best."""
+    """The model's (up, forward): declared (checked against the atlas: AxisMismatchError), the forward the atlas
+    fits best with a declared up (checked alike), or the pair the atlas fits best."""
     X, F = np.asarray(model.reference_vertices, float), model.faces
+    up_declared = None if model.up_axis is None else str(model.up_axis).strip("+")
 
-    def all_scores():
+    def all_scores(up_axis=None):
         scores = {}
         for up in ("y", "z", "x", "-y", "-z", "-x"):
             for fwd in ("z", "-z", "y", "-y", "x", "-x"):
-                if up.strip("-") != fwd.strip("-") and (model.up_axis is None or up == str(model.up_axis).strip("+")):
+                if up.strip("-") != fwd.strip("-") and (up_axis is None or up == up_axis):
                     scores[(up, fwd)] = atlas_distance(X, F, up, fwd)
         return scores, min(scores, key=scores.get)
-    if model.up_axis is not None and model.forward_axis is not None:
-        declared = (str(model.up_axis).strip("+"), str(model.forward_axis).strip("+"))
-        d = atlas_distance(X, F, *declared)             # the other pairs only to name the best in an error
-        if d > MAX_ATLAS_DISTANCE:
+    if up_declared is not None:
+        if model.forward_axis is not None:
+            chosen = (up_declared, str(model.forward_axis).strip("+"))
+            d = atlas_distance(X, F, *chosen)
+            what = f"declared axes (up {chosen[0]}, forward {chosen[1]}) do not fit a humanoid's landmarks"
+        else:
+            scores, chosen = all_scores(up_declared)
+            d = scores[chosen]
+            what = f"declared up axis {up_declared} does not fit a humanoid's landmarks with any forward axis"
+        if d > MAX_ATLAS_DISTANCE:                      # the other pairs only to name the best in an error
             scores, best = all_scores()
             raise AxisMismatchError(
-                f"axis mismatch: the model's declared axes (up {declared[0]}, forward {declared[1]}) do not fit a "
-                f"humanoid's landmarks ({100 * d:.1f} % of its height off the surface; up {best[0]}, forward "
-                f"{best[1]} fit with {100 * scores[best]:.2f} %): check the model's up_axis / forward_axis")
-        return declared
+                f"axis mismatch: the model's {what} ({100 * d:.1f} % of its height off the "
+                f"surface, up {best[0]} and forward {best[1]} {100 * scores[best]:.2f} %): check the model's "
+                f"up_axis{'' if model.forward_axis is None else ' / forward_axis'}")
+        if model.forward_axis is None:
+            notes.append(f"model forward axis inferred: {chosen[1]} (declare model.forward_axis)")
+        return chosen
     scores, best = all_scores()
     if scores[best] > MAX_INFERRED_ATLAS_DISTANCE:
         raise CalibrationError(
@@ -763,7 +780,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
             raise UnitMismatchError(
                 f"unit mismatch: the performer measures {ratio:.3g} times the model in its declared unit "
                 f"({_unit_name(u)}); the take fits a model in {_unit_name(guess)}: check the model's length unit "
-                "or the take's POINT:UNITS (read_take(..., units=...))")
+                "or the take's POINT:UNITS (read_take(..., units=...))", ratio=float(ratio))
     else:
         height = s_used * float(np.ptp(Xr @ _axis(up)))
         lo, hi = PERFORMER_HEIGHT_RANGE

@@ -237,7 +237,8 @@ def resample(take, rate):
     original one (to 1e-9 of a sample) copies it; one strictly between two
     originals is their linear interpolation if BOTH are valid and NaN otherwise
     (an occluded sample is never filled in).  Residuals are not resampled
-    (``None``).
+    (``None``); what tells the points apart (descriptions, point groups, the up axis, the
+    dropped points' notes) is kept, so :func:`drop_non_markers` finds the same points.
 
     Parameters
     ----------
@@ -248,7 +249,8 @@ def resample(take, rate):
     Returns
     -------
     MarkerTake
-        Same labels, units, source and first frame; positions (T', M, 3).
+        Same labels, units, source, first frame, descriptions, point groups, up axis and notes;
+        positions (T', M, 3).
     """
     rate = float(rate)
     if not (np.isfinite(rate) and rate > 0):
@@ -266,8 +268,7 @@ def resample(take, rate):
     p0, p1 = take.positions[i0], take.positions[i1]
     blended = (1.0 - frac) * p0 + frac * p1  # NaN if either neighbour is NaN
     positions = np.where(exact[:, None, None], p0, blended)
-    return MarkerTake(labels=take.labels, positions=positions, rate=rate, first_frame=take.first_frame,
-                      units=take.units, source=take.source)
+    return dataclasses.replace(take, positions=positions, rate=rate, residuals=None)
 
 
 # ----------------------------------------------------------------------------- keys for animation systems

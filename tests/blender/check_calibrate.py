@@ -199,6 +199,67 @@ def modal_cancel():
     return out
 
 
+def character_setups():
+    """The character as artists set it up: turned to face +X (lacore finds a humanoid's forward), with an Armature
+    and a Subdivision Surface modifier (the fit's Mesh Cache modifier goes between them, so the subdivided mesh
+    plays the fit), non-uniformly scaled (a warning), lying down (refused: one line, nothing changed)."""
+    cal = ext("addon.operators_calibrate")
+    fit = ext("addon.operators_fit")
+    out = {}
+    obj, take = open_scene()
+    obj.rotation_euler.z = math.pi / 2
+    obj.keyframe_insert("rotation_euler", frame=1)           # a key that moves nothing: no objection
+    obj.modifiers.remove(obj.modifiers[fit.FIT_MODIFIER])    # whole_path's (kept where it is by a new fit)
+    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(arm)
+    obj.modifiers.new("Armature", 'ARMATURE').object = arm
+    obj.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    bpy.context.view_layer.update()
+    select_only(obj, take)
+    out["turned_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit(use_scene_range=False, frame_start=1,
+                                                                       frame_end=4))
+    out["turned_rms_mm"] = obj[ext("addon.fit_quality").FIT_PROP]["marker_rms_mm"]
+    out["modifiers"] = [m.name for m in obj.modifiers]
+    ev = evaluated_frames(obj, [1, 4])
+    out["evaluated_vertices"] = ev.shape[1]
+    out["plays"] = float(np.abs(ev[1] - ev[0]).max())       # object units (decimetres)
+    # the turned character played back over the markers: median distance of the markers from the surface (metres)
+    M = np.array(obj.matrix_world, np.float64)
+    world = ev[0].astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+    seen = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
+    seen = seen[np.isfinite(seen).all(1)]
+    out["turned_marker_distance_m"] = float(np.median(np.min(np.linalg.norm(seen[:, None] - world[None], axis=2),
+                                                             axis=1)))
+    for m in list(obj.modifiers):
+        obj.modifiers.remove(m)
+    obj.keyframe_delete("rotation_euler", frame=1)
+    obj.rotation_euler.z = 0.0
+    obj.scale = (0.1, 0.1, 0.12)
+    bpy.context.view_layer.update()
+    op = fake_operator()
+    op.interactive = False
+    out["stretched_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
+        context, obj, take, 1, 3)))
+    out["stretched_reports"] = op.reports
+    op = fake_operator()                 # again, unchanged: the report says the calibration was reused
+    op.interactive = False
+    out["again_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
+        context, obj, take, 1, 3)))
+    out["again_reports"] = op.reports
+    obj.scale = (0.1, 0.1, 0.1)
+    obj.rotation_euler.x = 0.0           # the body's Y up along the scene's Y: lying on the floor
+    bpy.context.view_layer.update()
+    before = state(obj)
+    try:
+        res, msg = bpy.ops.lengths_angles.calibrate_fit(use_scene_range=False, frame_start=1, frame_end=3), ""
+    except RuntimeError as exc:
+        res, msg = {"CANCELLED"}, str(exc).strip()
+    out["lying"] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                    "unchanged": state(obj) == before}
+    out["fit_modifier"] = fit.FIT_MODIFIER
+    return out
+
+
 def bad_input():
     """One-line ERROR, nothing changed: no take, no model and no keys, frame range outside the take, a take
     imported in millimetres (unit mismatch), an unsaved .blend."""
@@ -217,6 +278,15 @@ def bad_input():
     obj, take = open_scene()
     attempt("outside_take", obj, use_scene_range=False, frame_start=1000, frame_end=1010)
     attempt("radii_reversed", obj, observed_radius=(0.3, 0.1))
+    obj.lengths_angles_placement = 'PLACED'       # the character stands at the origin, the performer elsewhere
+    attempt("placed_not_over", obj)
+    obj.lengths_angles_placement = 'AUTO'
+    take.keyframe_insert("location", frame=1)     # the take empty keyed moving: refused (one placement is fitted)
+    take.location.x += 0.5
+    take.keyframe_insert("location", frame=N_FRAMES)
+    attempt("take_moving", obj)
+    take.animation_data_clear()
+    take.location.x -= 0.5
     # negative weights from a script (the operator's properties stop at 0): the run function refuses them
     cal = ext("addon.operators_calibrate")
     for name, kw in (("penetration_negative", {"penetration_weight": -1.0}),
@@ -425,5 +495,5 @@ def creature_pins():
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, scene_setup, whole_path, refit_reuses_calibration, modal_cancel, bad_input,
-               coarse_model, creature_as_placed, creature_settings, creature_pins])
+    run_cases([install_and_enable, scene_setup, whole_path, refit_reuses_calibration, modal_cancel, character_setups,
+               bad_input, coarse_model, creature_as_placed, creature_settings, creature_pins])

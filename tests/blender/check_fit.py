@@ -305,6 +305,12 @@ def bad_input():
     select_only(obj)
     attempt("not_bound", bpy.ops.lengths_angles.fit_markers)
     obj["lengths_angles_binding"] = binding
+    # a bound marker's empty renamed (the label stays): the fit runs; the take renamed: it is not found
+    next(c for c in take.children if c.get("lengths_angles_marker") == binding["labels"][5]).name = "renamed"
+    out["empty_renamed"] = sorted(bpy.ops.lengths_angles.fit_markers())
+    take.name = "take renamed"
+    attempt("take_renamed", bpy.ops.lengths_angles.fit_markers)
+    take.name = "take"
     victim = next(c for c in take.children if c.get("lengths_angles_marker") == binding["labels"][3])
     bpy.data.objects.remove(victim)
     attempt("empty_deleted", bpy.ops.lengths_angles.fit_markers)

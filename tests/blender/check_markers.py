@@ -170,6 +170,11 @@ def real_files():
     return {"files": out}
 
 
+def not_markers(name):
+    """``[[label, reason]]`` of the points the take empty ``name`` records as no skin markers."""
+    return [[str(v) for v in pair] for pair in bpy.data.objects[name]["lengths_angles_take"]["not_markers"]]
+
+
 def options():
     """Scale, axis conversion, start frame, mapping by time to the scene's rate."""
     read_markers = ext("lacore.markers.io").read_markers
@@ -188,12 +193,14 @@ def options():
     retimed.update(read_back(path, take))  # keys on fractional frames, read back at the same frames
     # the time of every key is the sample's time (frame 1 = time 0)
     retimed["fps_unchanged"] = scene_fps() == 24
+    retimed["not_markers"] = not_markers("Walk1")
     reset()
     bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
     assert import_markers(path, rate_mode='RESAMPLE') == {"FINISHED"}
     resampled_take = ext("lacore.markers.takes").resample(take, 24.0)
     resampled = check_take(path, resampled_take, file_take=take)
     resampled["fps_unchanged"] = scene_fps() == 24
+    resampled["not_markers"] = not_markers("Walk1")
     # TRC: the same take written as TRC (mm) imports to the same keys
     reset()
     trc = os.path.join(ARGS.workdir, "Walk1.trc")
