@@ -360,7 +360,8 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
     files: CollectionProperty(type=bpy.types.OperatorFileListElement, options={'HIDDEN', 'SKIP_SAVE'})
     directory: StringProperty(subtype='DIR_PATH', options={'HIDDEN', 'SKIP_SAVE'})
 
-    scale: FloatProperty(name="Scale", description="Multiply the positions (in metres) by this factor",
+    scale: FloatProperty(name="Scale", description="Multiply the positions (in metres) by this factor (default: "
+                         "metres in the scene's unit scale, 1 / Unit Scale)",
                          default=1.0, min=1e-6, max=1e6, soft_min=1e-3, soft_max=1e3)
     frame_start: IntProperty(name="Start Frame", description="Frame of the take's first sample", default=1)
     rate_mode: EnumProperty(
@@ -379,7 +380,15 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
     def invoke(self, context, event):
         # a file dropped on the viewport (LENGTHS_ANGLES_FH_markers) comes with its path: show the options;
         # otherwise the file browser
+        self.scale = self.metres_scale(context)
         return self.invoke_popup(context)
+
+    def metres_scale(self, context):
+        """``scale`` as set, else metres in the scene's units: ``1 / scale_length`` (a centimetre scene, Unit
+        Scale 0.01: 100)."""
+        if self.properties.is_property_set("scale"):
+            return self.scale
+        return 1.0 / (context.scene.unit_settings.scale_length or 1.0)
 
     def paths(self):
         """The selected files (several from the file browser or a drop), else ``filepath``."""
@@ -400,7 +409,7 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
                 raise InputError(f"The takes have different rates ({', '.join(f'{r:g}' for r in rates)} Hz) and the "
                                  "scene has one: import them one by one, or choose Map by Time or Resample")
             made = import_takes(context, takes, [os.path.splitext(os.path.basename(p))[0] or "Take" for p in paths],
-                                scale=self.scale, axis_forward=self.axis_forward, axis_up=self.axis_up,
+                                scale=self.metres_scale(context), axis_forward=self.axis_forward, axis_up=self.axis_up,
                                 frame_start=self.frame_start, rate_mode=self.rate_mode,
                                 set_frame_range=self.set_frame_range, marker_size=self.marker_size)
         except InputError as exc:

@@ -70,6 +70,9 @@ def test_options(run):
     # scale 2.5, file Y-up/-Z-forward, start frame 10: keys and world positions match the converted take
     assert conv["max_abs_key_error"] < 2.5 * FLOAT32_METRES and conv["max_abs_world_error"] < 2.5 * FLOAT32_METRES
     assert conv["frame_range"] == [10, 160] and conv["scene_fps"] == 60.0
+    # a centimetre scene: metres become 100 scene units by default
+    cm = res["centimetres"]
+    assert cm["max_abs_key_error"] < 100 * FLOAT32_METRES and cm["max_abs_world_error"] < 100 * FLOAT32_METRES
     # 60 Hz mapped by time onto a 24 fps scene: every sample kept (fractional frames), rate unchanged
     assert ret["fps_unchanged"] and ret["scene_fps"] == 24.0
     assert ret["location_keys"] == 3 * res["walk1_visible"] and ret["visible_mismatches"] == 0

@@ -186,6 +186,12 @@ def options():
     expected = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float) * 2.5
     assert import_markers(path, scale=2.5, axis_forward='-Z', axis_up='Y', frame_start=10) == {"FINISHED"}
     converted = check_take(path, take, frame_start=10, matrix=expected)
+    # a centimetre scene (Unit Scale 0.01): metres become 100 units unless a Scale is given
+    reset()
+    bpy.context.scene.unit_settings.scale_length = 0.01
+    assert import_markers(path, frame_start=10) == {"FINISHED"}
+    centimetres = check_take(path, take, frame_start=10, matrix=100.0 * np.eye(3))
+    bpy.context.scene.unit_settings.scale_length = 1.0
     reset()
     bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
     assert import_markers(path, rate_mode='RETIME', frame_start=1, set_frame_range=True) == {"FINISHED"}
@@ -211,7 +217,8 @@ def options():
     trc_res["labels_equal"] = trc_take.labels == take.labels
     trc_res["max_abs_vs_c3d_take"] = float(np.nanmax(np.abs(trc_take.positions - take.positions)))
     trc_res["same_visibility"] = bool(np.array_equal(trc_take.visible, take.visible))
-    return {"converted": converted, "retimed": retimed, "resampled": resampled, "trc": trc_res,
+    return {"converted": converted, "centimetres": centimetres, "retimed": retimed, "resampled": resampled,
+            "trc": trc_res,
             "walk1_visible": int(take.visible.sum()), "resampled_frames": resampled_take.n_frames,
             "resampled_visible": int(resampled_take.visible.sum())}
 
