@@ -281,8 +281,9 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     require_still(take, obj)
     take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
-    labels = [lb for lb, _ in marker_objects(take)]
-    world = read_take(take, frames=frames).positions
+    labels = [lb for lb, _ in marker_objects(take, missing_ok=True)]   # a marker empty deleted: left out
+    deleted = [str(lb) for lb in meta["labels"] if lb not in labels]
+    world = read_take(take, frames=frames, missing_ok=True).positions
     inv = world_to_object(obj)
     unit = metres_per_unit(obj, take, context.scene)
     local = world @ inv[:3, :3].T + inv[:3, 3]
@@ -342,7 +343,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         return m, result
 
     job = CallJob(compute, "calibrate & fit", total=1000 * stages)
-    empties = {lb: o.name for lb, o in marker_objects(take)}
+    empties = {lb: o.name for lb, o in marker_objects(take, missing_ok=True)}
     note = nonuniform_scale_note(obj)
 
     def write(obj, job):
@@ -367,6 +368,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         obj[FIT_PROP]["calibration_reused"] = reused is not None
         if note is not None:
             job.notes.append(note)
+        if deleted:
+            shown = ", ".join(deleted[:5]) + (" ..." if len(deleted) > 5 else "")
+            job.notes.append(f"the empty of marker {shown} was deleted: left out" if len(deleted) == 1 else
+                             f"the empties of {len(deleted)} markers were deleted, left out: {shown}")
         dropped = list(getattr(markers, "dropped", ()))
         if dropped:
             job.notes.append(f"{len(dropped)} points are not markers and were left out: "

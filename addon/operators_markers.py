@@ -205,10 +205,11 @@ def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z'
     return take_obj, markers
 
 
-def marker_objects(take_obj):
+def marker_objects(take_obj, missing_ok=False):
     """``[(label, marker empty)]`` of a take empty, in the order of its ``labels``.
 
-    Raises InputError if ``take_obj`` is not a take empty or a marker's empty is gone.
+    Raises InputError if ``take_obj`` is not a take empty or (unless ``missing_ok``: the markers whose empties
+    are there) a marker's empty is gone.
     """
     meta = take_obj.get(TAKE_PROP) if take_obj is not None else None
     if meta is None:
@@ -217,6 +218,8 @@ def marker_objects(take_obj):
     by_label = {c[MARKER_PROP]: c for c in take_obj.children if MARKER_PROP in c}
     labels = list(meta["labels"])
     missing = [lb for lb in labels if lb not in by_label]
+    if missing and missing_ok:
+        return [(lb, by_label[lb]) for lb in labels if lb in by_label]
     if missing:
         shown = ", ".join(repr(m) for m in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
         what = f"the empties of markers {shown} are" if len(missing) > 1 else f"the empty of marker {shown} is"
@@ -258,7 +261,7 @@ def _evaluate_step(fc, frames):
     return np.array([fc.evaluate(f) for f in frames], np.float64)
 
 
-def read_take(take_obj, frames=None, rate=None, space='WORLD'):
+def read_take(take_obj, frames=None, rate=None, space='WORLD', missing_ok=False):
     """The marker positions of an imported take, read from the empties' F-curves (no ``frame_set``).
 
     Parameters
@@ -272,6 +275,8 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD'):
     space : {'WORLD', 'LOCAL'}
         World positions (through the take empty's current ``matrix_world``) or the
         empties' own locations in the take empty's space.
+    missing_ok : bool
+        Read the markers whose empties are there (:func:`marker_objects`), leaving out deleted ones.
 
     Returns
     -------
@@ -280,7 +285,7 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD'):
         Plain LINEAR / CONSTANT curves (as imported) are read in bulk; edited curves
         (other interpolation, modifiers) are evaluated key by key, so edits count.
     """
-    markers = marker_objects(take_obj)
+    markers = marker_objects(take_obj, missing_ok)
     meta = take_obj[TAKE_PROP]
     if frames is None:
         frames = meta["frame_start"] + np.arange(int(meta["keyed_samples"])) * meta["frame_step"]

@@ -128,9 +128,16 @@ def test_character_setups(run):
             and "rotate it upright" in lying["message"] and "Traceback" not in lying["message"]), lying
 
 
+def test_a_deleted_marker_empty_is_left_out(run):
+    """An artist deleting a bad marker's empty: Calibrate & Fit fits the others and says which was left out."""
+    res = run["cases"]["bad_input"]["marker_deleted"]
+    assert res["result"] == ["FINISHED"], res
+    assert f"the empty of marker {res['label']} was deleted: left out" in res["message"], res
+
+
 @pytest.mark.parametrize("case, words", [
     ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
-    ("marker_deleted", "missing"), ("no_take", "no marker take"),
+    ("no_take", "no marker take"),
     ("unit_mismatch", "import the take again with Scale 1 instead of 1000"),
     ("take_moving", "the take empty 'take' moves (keyed location, rotation or scale): the fit uses one placement "
                     "of it, so clear the transform keys of 'take'"),

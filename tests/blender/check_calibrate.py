@@ -302,9 +302,14 @@ def bad_input():
     bare = make_character("Bare", keys=False)
     select_only(bare, take)
     attempt("no_model_no_keys", bare)
-    bpy.data.objects.remove(take.children[0])  # a marker empty deleted: the take is incomplete
+    deleted = take.children[0].get("lengths_angles_marker")
+    bpy.data.objects.remove(take.children[0])  # a marker empty deleted: that marker is left out, said
     select_only(obj, take)
-    attempt("marker_deleted", obj)
+    op = fake_operator()
+    op.interactive = False
+    res = op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(context, obj, take, 1, N_FRAMES))
+    out["marker_deleted"] = {"result": sorted(res), "message": op.reports[-1][1] if op.reports else "",
+                             "label": deleted}
     obj, take = open_scene()
     ext("addon.operators_markers").remove_take(take)
     bpy.context.view_layer.update()
