@@ -379,9 +379,10 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                              + (" ..." if len(dropped) > 5 else ""))
         job.notes.extend(quality["notes"])
         # the calibration's own notes, but its drops once (summarized above)
-        # (the forward axis lacore infers for a humanoid is no news in Blender: it may face any way)
+        # (the axes and unit lacore infers are no news in Blender, and its advice to declare them is lacore's)
         job.notes.extend(str(n) for n in getattr(cal, "notes", [])
-                         if not str(n).startswith(("dropped ", "model forward axis inferred")))
+                         if not str(n).startswith(("dropped ", "model forward axis inferred", "model axes inferred",
+                                                   "model unit not declared")))
         placed = {'HINTS': "", 'PINS': f" by {len(pinned)} pins", 'PLACED': " as placed"}[kind]
         how = ("reused the stored calibration (take, model and placement unchanged)" if reused is not None
                else f"calibrated{placed}")
