@@ -37,7 +37,7 @@ Mode sliders
       played by a Mesh Cache modifier :data:`.naming.FIT_MODIFIER` with ``frame_start`` =
       the first fitted frame and ``frame_scale`` 1, so scene frame ``f`` shows fitted frame
       ``f`` (a new modifier goes after the deformers at the top of the stack and before the first other
-      modifier: :func:`_new_fit_modifier`);
+      modifier: :func:`_fit_modifier`);
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
       shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
 
@@ -733,14 +733,16 @@ DEFORM_MODIFIERS = frozenset({'ARMATURE', 'CAST', 'CORRECTIVE_SMOOTH', 'CURVE', 
                               'SMOOTH', 'SURFACE_DEFORM', 'WARP', 'WAVE'})
 
 
-def _new_fit_modifier(obj):
-    """The fit's Mesh Cache modifier, new: after the deformers at the top of ``obj``'s stack (it replaces their
-    motion) and before the first other modifier (Subdivision Surface, Mirror, physics ...: they apply to the fit;
-    placed after one that changes the vertex count, the cache would not play)."""
-    index = next((i for i, m in enumerate(obj.modifiers) if m.type not in DEFORM_MODIFIERS), len(obj.modifiers))
-    mod = obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
-    if index < len(obj.modifiers) - 1:
-        obj.modifiers.move(len(obj.modifiers) - 1, index)
+def _fit_modifier(obj):
+    """The fit's Mesh Cache modifier (made if there is none) before the first modifier of ``obj``'s stack that is
+    no deformer (Subdivision Surface, Mirror, physics ...: they apply to the fit; placed after one that changes the
+    vertex count, the cache would not play): a new one after the deformers at the top (it replaces their motion),
+    one of an earlier fit moved up only when it stands after such a modifier."""
+    mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
+    here = list(obj.modifiers).index(mod)
+    first = next((i for i, m in enumerate(obj.modifiers) if m.type not in DEFORM_MODIFIERS and m != mod), here)
+    if first < here:
+        obj.modifiers.move(here, first)
     return mod
 
 
@@ -750,7 +752,7 @@ def _write_fit(obj, X, frames, output, filepath, path):
     remove_fit_keys(obj)
     if output == 'PC2':
         write_pc2(path, X, start=float(frames[0]), sampling=1.0)
-        mod = obj.modifiers.get(FIT_MODIFIER) or _new_fit_modifier(obj)
+        mod = _fit_modifier(obj)
         mod.cache_format = 'PC2'
         mod.filepath = filepath
         mod.time_mode = 'FRAME'

@@ -209,11 +209,12 @@ def character_setups():
     obj, take = open_scene()
     obj.rotation_euler.z = math.pi / 2
     obj.keyframe_insert("rotation_euler", frame=1)           # a key that moves nothing: no objection
-    obj.modifiers.remove(obj.modifiers[fit.FIT_MODIFIER])    # whole_path's (kept where it is by a new fit)
     arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
     bpy.context.scene.collection.objects.link(arm)
     obj.modifiers.new("Armature", 'ARMATURE').object = arm
     obj.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    # whole_path's fit modifier after the Subdivision (where earlier versions put it): the new fit moves it up
+    obj.modifiers.move(list(obj.modifiers).index(obj.modifiers[fit.FIT_MODIFIER]), len(obj.modifiers) - 1)
     bpy.context.view_layer.update()
     select_only(obj, take)
     out["turned_result"] = sorted(bpy.ops.lengths_angles.calibrate_fit(use_scene_range=False, frame_start=1,
