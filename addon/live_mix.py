@@ -63,6 +63,7 @@ from ..lacore.shapes import MixerOptions, ShapeMixer
 from ..lacore.shapes.mixing import check_keys
 from ..lacore.shapes.mixing.mixer import build_mixer_bytes, mixer_bytes
 from . import storage
+from .bake import value_path
 from .compat import animation_channels
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, shows_stored_shape, triangulate
@@ -322,10 +323,9 @@ def _animated(key, kb):
     ad = key.animation_data
     if ad is None:
         return False
-    path = f'key_blocks["{kb.name}"].value'
+    path = value_path(kb.name)
     channels = animation_channels(key)
-    return (any(fc.data_path == path for fc in ad.drivers)
-            or (channels is not None and any(fc.data_path == path for fc in channels.fcurves)))
+    return ad.drivers.find(path) is not None or (channels is not None and channels.fcurves.find(path) is not None)
 
 
 def _restore_mix_value(mesh):

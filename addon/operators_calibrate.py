@@ -131,11 +131,13 @@ def object_axes(obj):
     return _axis_name(inv @ [0.0, 0.0, 1.0]), _axis_name(inv @ [0.0, -1.0, 0.0])
 
 
+#: Advice for a unit mismatch, with the import Scale to use.
+_UNIT_ADVICE = ("the markers and the character differ that much in size as they stand in the scene: import the take "
+                "again with {scale} (Import Motion Capture Markers > Scale) or scale the character")
+
 #: What to do in Blender about lacore's unit and axis mismatches (their own advice is for scripts).
 _ADVICE = {
-    "UnitMismatchError": "the markers and the character differ that much in size as they stand in the scene: import "
-                         "the take again with a Scale that matches the character (Import Motion Capture Markers > "
-                         "Scale) or scale the character",
+    "UnitMismatchError": _UNIT_ADVICE.format(scale="a Scale that matches the character"),
     "AxisMismatchError": "the character does not stand up along the scene's Z axis: rotate it upright, or import "
                          "the take again with its Up axis (Import Motion Capture Markers > Up)",
     "CalibrationError": "pin 3 or more markers seen at the take's first frames to vertices (Edit Mode: Pin Marker), "
@@ -165,9 +167,7 @@ def _in_blender_terms(exc, import_scale=None):
         return exc
     suggested = import_scale_for(import_scale, getattr(exc, "ratio", None))
     if suggested is not None:
-        advice = (f"the markers and the character differ that much in size as they stand in the scene: import the "
-                  f"take again with Scale {suggested:g} instead of {import_scale:g} (Import Motion Capture Markers > "
-                  "Scale) or scale the character")
+        advice = _UNIT_ADVICE.format(scale=f"Scale {suggested:g} instead of {import_scale:g}")
     head = str(exc).split(": check")[0].split(": give pins")[0].split(";")[0]
     return FitSetupError(f"{head}: {advice}")
 
@@ -281,7 +281,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     require_still(take, obj)
     take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
-    labels = [lb for lb, _ in marker_objects(take, missing_ok=True)]   # a marker empty deleted: left out
+    empties = {lb: o.name for lb, o in marker_objects(take, missing_ok=True)}   # a marker empty deleted: left out
+    labels = list(empties)
     deleted = [str(lb) for lb in meta["labels"] if lb not in labels]
     world = read_take(take, frames=frames, missing_ok=True).positions
     inv = world_to_object(obj)
@@ -343,7 +344,6 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         return m, result
 
     job = CallJob(compute, "calibrate & fit", total=1000 * stages)
-    empties = {lb: o.name for lb, o in marker_objects(take, missing_ok=True)}
     note = nonuniform_scale_note(obj)
 
     def write(obj, job):
