@@ -97,6 +97,11 @@ def test_average_close_to_full_gauss_newton(finger, fine_solver, bound):
         # start (measured 389x the optimum) but the finger average bends far from the reference
         assert res.factorizations == 0 and 1 <= len(res.pcg_iterations) <= 3
         assert res.energy < 0.02 * res.prolonged_energy
+        # measured 2.1x the energy of full Gauss-Newton with the budget spent: not success, and the message says
+        # which solver converges
+        assert res.energy > 1.5 * full.energy
+        assert not res.success and res.status == 0 and res.failure == "not_converged"
+        assert "fine_solver='exact'" in res.message
 
 
 def test_deformed_spheres_reference_solver():

@@ -288,6 +288,10 @@ class MultiresolutionReconstruction:
             ``timings`` has ``coarse``, ``prolongation``, ``fine``,
             ``reference_factorization`` and ``total``; the extra attributes
             ``coarse_vertices`` (Vc, 3) and ``prolonged_energy`` are set.
+            ``success`` as for every reconstruction (:mod:`lacore.reconstruction.checks`): converged, or, with
+            ``fine_solver="exact"``, the fine iterations spent (status 6, a budgeted approximation as the hybrid
+            method's).  The conjugate-gradient solvers' spent budget is not success (status 0): their truncated
+            steps can stop at several times the minimum's energy.
         """
         t_start = time.perf_counter()
         if not isinstance(fine_solver, str) or fine_solver not in FINE_SOLVERS:
@@ -332,8 +336,13 @@ class MultiresolutionReconstruction:
         timings["fine"] = time.perf_counter() - t0 - timings["reference_factorization"]
         timings["total"] = time.perf_counter() - t_start
         message = STATUS_MESSAGES[status]
-        if status == 0 and fine_iterations:         # the fine budget spent: an approximation, as the hybrid method's
+        if status == 0 and fine_iterations and fine_solver == "exact":
+            # the fine budget spent: exact Gauss-Newton steps, an approximation as the hybrid method's
             status, message = 6, f"the {int(fine_iterations)} fine iterations are done"
+        elif status == 0 and fine_iterations:
+            # conjugate-gradient steps with a spent budget end anywhere from 1 to hundreds of times the minimum
+            message = (f"the {int(fine_iterations)} fine iterations of the {fine_solver!r} solver are done, not "
+                       "converged (its steps are approximate); use fine_solver='exact' for a converged result")
         result = ReconstructionResult(vertices=X, success=False, status=status,
                                       message=message, method="multires", iterations=iterations,
                                       energy=float(energy), energy_name="quadratic", initial_energy=hist[0],
