@@ -31,6 +31,12 @@ mixer shows the exact linear mix by zeroing one key.
 The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update;
 muted, or keyed or driven to another value, the mixer is stale (below).
 
+Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
+``'RENDER'`` mode) finishes the mix with the full Gauss-Newton projection (``ShapeMixer.mix(polish=True)``),
+so F12, animation and command-line renders show the exact lengths-and-angles blend while the viewport stays
+real-time.  A polish costs a full reconstruction per rendered frame (about a second at 13k vertices); where
+it does not converge the render keeps the reduced mix and the panel says so.
+
 Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.
 Keys with a vertex group, or relative to another key than the basis, are not mixed nonlinearly (the
 mixer takes one weight per whole key): Blender mixes them linearly on top of the nonlinear mix, as it
@@ -72,9 +78,11 @@ from .runs import ObjectWatch, Run
 
 __all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
            "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
-           "live_meshes", "mixer_for_keys"]
+           "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP"]
 
 MIXER_PROP = "lengths_angles_live_mix"
+#: Mesh property (bool): renders show the exact projection (the mix polished by full Gauss-Newton).
+EXACT_RENDERS_PROP = "lengths_angles_live_mix_exact_renders"
 FORMAT_VERSION = 1
 
 
@@ -268,23 +276,25 @@ def is_live(mesh):
 
 def status(mesh):
     """What the panel shows: ``dict(keys, linear, build_seconds, reduced_size, stale, in_range, message,
-    mix_seconds)`` or None when ``mesh`` has no mixer."""
+    mix_seconds, polished)`` (``polished``: the last mix is a render's exact one) or None when ``mesh`` has no
+    mixer."""
     if not is_live(mesh):
         return None
     live = _live(mesh)
     if live is None:
         return {"keys": [], "linear": [], "build_seconds": 0.0, "reduced_size": 0, "stale": "the stored mixer "
-                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0}
+                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0, "polished": False}
     res = live.result
     key = mesh.shape_keys
     linear = [] if key is None else [kb.name for kb in key.key_blocks[1:]
                                      if kb.name not in live.names and not is_own_key(kb.name)]
-    message = "" if res is None else (live.mixer.range_message(res.weights, names=live.names, advice=RANGE_ADVICE)
-                                      or res.message)
+    exact = res is not None and res.polished and res.in_range  # a converged polish: the exact projection
+    message = "" if res is None or exact else (live.mixer.range_message(res.weights, names=live.names,
+                                                                        advice=RANGE_ADVICE) or res.message)
     return {"keys": live.names, "linear": linear, "build_seconds": live.build_seconds,
             "reduced_size": live.reduced_size, "stale": live.stale or live.error,
             "in_range": True if res is None else bool(res.in_range), "message": message,
-            "mix_seconds": live.mix_seconds}
+            "mix_seconds": live.mix_seconds, "polished": bool(res is not None and res.polished)}
 
 
 # ------------------------------------------------------------------------------------------- updating
@@ -370,10 +380,12 @@ def _update_mesh(mesh, depsgraph, force=False):
         key.reference_key.points.foreach_get("co", basis)
         return write(basis)  # a zero offset: Blender's linear mix, exactly
     w = live.weights(key_eval)
-    if not force and live.last is not None and np.array_equal(w, live.last):
+    exact = depsgraph is not None and depsgraph.mode == 'RENDER' and bool(getattr(mesh, EXACT_RENDERS_PROP, False))
+    if (not force and live.last is not None and np.array_equal(w, live.last)
+            and (live.result.polished or not exact)):
         return False
     try:
-        res = live.mixer.mix(w)
+        res = live.mixer.mix(w, polish=exact)
     except Exception as exc:  # never a traceback from a handler: show the linear mix and say why
         live.error = f"the mix failed ({type(exc).__name__}: {exc}): showing the linear mix"
         live.last = None

@@ -195,6 +195,7 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         if state is not None:
             row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_disable.bl_idname, text="", icon='X')
         layout.prop(mesh, live_ops.REDUCED_SIZE_PROP, text="Quality (reduced size, 0 = auto)")
+        layout.prop(mesh, live_mix.EXACT_RENDERS_PROP)
         if state is None:
             layout.label(text="Blender mixes the keys linearly", icon='INFO')
             return
@@ -205,7 +206,8 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         else:
             col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['reduced_size'] or 'auto'}",
                       icon='CHECKMARK')
-        col.label(text=f"Built in {state['build_seconds']:.2f} s; last mix {1000 * state['mix_seconds']:.1f} ms")
+        exact = " (exact, a render's)" if state["polished"] else ""
+        col.label(text=f"Built in {state['build_seconds']:.2f} s; last mix {1000 * state['mix_seconds']:.1f} ms{exact}")
         if not state["in_range"]:
             col.label(text=state["message"] or "weights outside the mixer's accurate range", icon='ERROR')
         if state["linear"]:

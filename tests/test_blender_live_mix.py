@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from conftest import REPO, run_blender_check
 
-from lacore.geometry.rigid import rigid_align
+from lacore.geometry.rigid import rigid_align, rigid_rms
 from lacore.samples.bar import bar_mesh, bar_pose
 from lacore.shapes import ShapeMixer
 
@@ -234,6 +234,23 @@ def test_animation_and_still_renders_show_the_mix(run):
     assert max(res["live_vs_plain"]) < 0.05, res  # the same geometry: the same pixels
     assert min(res["live_vs_linear"]) > 0.5, res  # whole pixels covered by one and not the other
     assert res["still_vs_frame2"] < 0.05, res
+
+
+def test_exact_in_renders(run):
+    """With Exact in Renders on, a render finishes the mix with the full Gauss-Newton projection: the rendered
+    (and afterwards the viewport's) shape is lacore's polished mix, not the real-time one."""
+    res, a = run["cases"]["renders"], run["arrays"]
+    assert res["exact_state"] == {"polished": True, "in_range": True, "message": ""}, res
+    mixer = ShapeMixer.load(io.BytesIO(a["render_mixer_npz"].tobytes()))
+    w = a["render_weights"]
+    polished = mixer.mix(w, warm_start=False, polish=True)
+    assert polished.polished and polished.in_range, polished.message
+    size = float(np.linalg.norm(np.ptp(a["render_exact"], axis=0)))
+    to_exact = rigid_rms(a["render_exact"], polished.vertices) / size
+    reduced = rigid_rms(a["render_reduced"], polished.vertices) / size
+    print(f"exact render: {res['exact_seconds']} s; RMS to the polished mix {to_exact:.2e} (real-time mix "
+          f"{reduced:.2e}) of the diagonal")
+    assert to_exact < 2e-7 and reduced > 20 * to_exact, (to_exact, reduced)
 
 
 def _weights(key, n=3):
