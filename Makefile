@@ -37,7 +37,7 @@ help:
 	@echo "                and the numerically sensitive tests again on other SIMD/BLAS kernels (make test-kernels)"
 	@echo "make extension  download the bundled wheels (4 platforms) and build dist/lengths_angles-*.zip"
 	@echo "make extension-split  one smaller zip per platform (each with only its wheels)"
-	@echo "make samples    generate the sample .blend files into blend_samples/"
+	@echo "make samples    generate the sample .blend files into blend_samples/ (with bpy 4.2: they open in 4.2 to 5.2)"
 	@echo "make bench      run every benchmark, store its JSON in docs/benchmarks/, rewrite docs/benchmarks.md"
 	@echo "make bench-quick  the same with the quick variants"
 	@echo "make lint       ruff check"
@@ -114,9 +114,11 @@ extension: $(STAMP_BLENDER52)
 extension-split: $(STAMP_BLENDER52)
 	$(VENV_BLENDER52)/bin/python scripts/build_extension.py --output-dir dist --split-platforms
 
-samples: venv venv-np2 $(STAMP_BLENDER52)
-	PYTHONPATH=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
-	$(VENV_BLENDER52)/bin/python scripts/make_samples.py --output blend_samples
+# Saved by the oldest supported Blender (bpy 4.2, SciPy & co. from $(VENV), same Python 3.11): Blender 4.2 cannot
+# open a .blend saved by 5.x, and every newer Blender opens 4.2's.
+samples: venv $(STAMP_BLENDER42)
+	PYTHONPATH=$$($(PY) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
+	$(VENV_BLENDER42)/bin/python scripts/make_samples.py --output blend_samples
 
 # bench_blender_*.py need bpy AND SciPy in one Python: bpy 5.2's venv with $(VENV_NP2)'s packages on the path.
 # scripts/run_benchmarks.py stores each benchmark's JSON in docs/benchmarks/; scripts/benchmark_docs.py then

@@ -24,6 +24,7 @@ def load_addon(register=True):
         pkg = importlib.util.module_from_spec(spec)
         sys.modules[PACKAGE] = pkg
         spec.loader.exec_module(pkg)
+    importlib.import_module(PACKAGE + ".addon")  # the root imports it only in register(): pkg.addon without it
     if register:
         import bpy
 

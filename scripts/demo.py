@@ -52,9 +52,30 @@ def shared_meshes_dir():
     return path if os.path.basename(path) == "meshes" else os.path.join(path, "meshes")
 
 
+def missing_shared_data():
+    """The first file of the shared data the demo reads that is not there, or None."""
+    meshes = shared_meshes_dir()
+    for path in (os.path.join(meshes, "finger", "finger0.ply"),
+                 os.path.join(os.path.dirname(meshes), "human", "base.obj")):
+        if not os.path.isfile(path):
+            return path
+    return None
+
+
+def failed(cmd, returncode, stderr=None):
+    """Stop the demo with one line naming the command that failed (after its own stderr, if it was captured)."""
+    if stderr:
+        sys.stderr.write(stderr if stderr.endswith("\n") else stderr + "\n")
+    raise SystemExit(f"demo: {' '.join(os.path.basename(c) if i == 0 else c for i, c in enumerate(cmd))} "
+                     f"exited with code {returncode}")
+
+
 def run(cmd, **kwargs):
     print("+", " ".join(cmd), flush=True)
-    return subprocess.run(cmd, check=True, cwd=REPO, **kwargs)
+    proc = subprocess.run(cmd, cwd=REPO, **kwargs)
+    if proc.returncode != 0:
+        failed(cmd, proc.returncode, proc.stderr)
+    return proc
 
 
 # Blender's GPU set-up tries EGL configurations one after another on a machine without a display; the
@@ -70,7 +91,7 @@ def run_blender(cmd, env, stdout=None):
         if not _EGL_PROBE.match(line):
             sys.stderr.write(line)
     if proc.wait() != 0:
-        raise subprocess.CalledProcessError(proc.returncode, cmd)
+        failed(cmd, proc.returncode)
 
 
 def cli_encode(out_dir):
@@ -314,6 +335,8 @@ def blender_panel(out_dir):
 
 STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate,
          blender_mocap_fit, blender_panel]
+# the steps that read the shared data (the finger meshes, the CC0 human)
+NEEDS_SHARED_DATA = {cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_mocap_fit}
 
 
 def main(argv=None):
@@ -322,11 +345,15 @@ def main(argv=None):
     parser.add_argument("--only", action="append", help="run only these steps (by function name)")
     args = parser.parse_args(argv)
     out_dir = os.path.abspath(args.output)
+    steps = [step for step in STEPS if not args.only or step.__name__ in args.only]
+    missing = missing_shared_data() if any(step in NEEDS_SHARED_DATA for step in steps) else None
+    if missing:
+        print(f"demo: the shared data is not where the demo looks ({missing} is missing): put the shared data "
+              "folder beside the repository (../shared/data) or set LACORE_SHARED_DATA to it", file=sys.stderr)
+        return 2
     os.makedirs(out_dir, exist_ok=True)
     summary, lines = {}, ["# Lengths & Angles demo", ""]
-    for step in STEPS:
-        if args.only and step.__name__ not in args.only:
-            continue
+    for step in steps:
         t = time.perf_counter()
         info = step(out_dir)
         info["seconds"] = round(time.perf_counter() - t, 3)

@@ -29,3 +29,11 @@ def test_object_fcurves_created_and_evaluated(run):
 
 def test_shape_key_fcurves_survive_reload(run):
     assert run["cases"]["shape_key_fcurves_survive_reload"]["value_at_3"] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_sample_files_open(run):
+    """The sample .blend files open in every supported Blender (saved by the oldest, 4.2) and encode."""
+    opened = run["cases"]["sample_files_open"]["opened"]
+    assert set(opened) == {"bar_bend.blend", "bar_twist.blend", "finger.blend", "plate4SD_rolled.blend",
+                           "plate_rolled.blend", "shape_keys.blend"}
+    assert opened["shape_keys.blend"] == ["Bar", "Cube", "Grid"] and opened["finger.blend"] == ["Finger"]

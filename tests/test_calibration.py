@@ -264,7 +264,7 @@ def test_fit_command_on_a_take(model, tmp_path, capsys):
     code = main(["fit", str(tmp_path / "body.npz"), "--markers", str(tmp_path / "static.trc"), "-o", str(bad),
                  "--units", "cm"])
     _, err = capsys.readouterr()
-    assert code == 2 and err.count("\n") == 1 and "unit mismatch" in err, err
+    assert code == 2 and err.count("\n") == 1 and "unit mismatch" in err and "lacore fit --units" in err, err
     assert not bad.exists()
 
 

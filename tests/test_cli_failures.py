@@ -271,3 +271,11 @@ def test_usage_errors_are_one_line_and_exponents_are_numbers(tmp_path, capsys):
     a = shared_mesh(FINGER0)
     code, out, err = run_main(capsys, "interpolate", a, shared_mesh(FINGER1), "--t", "-1e6", "-o", tmp_path / "x")
     assert code == 2 and "t = -1e+06" in err, err         # parsed as a factor: too far to extrapolate
+
+
+def test_version(capsys):
+    """``lacore --version`` prints the package's version and exits 0 (a pipeline checks what it runs)."""
+    import lacore
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0 and capsys.readouterr().out == f"lacore {lacore.__version__}\n"

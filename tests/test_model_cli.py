@@ -80,6 +80,9 @@ def test_sweep_writes_plys(capsys, tmp_path, bar_files):
     c = model.coefficients(X, tangent="ambient")
     np.testing.assert_allclose(c[:, 1], np.array([-2, -1, 0, 1, 2]) * sd, atol=0.05 * sd)
     assert np.abs(c[:, 0]).max() < 0.05 * model.standard_deviations[0]
+    # -o with a mesh extension sets the format (not sweep.obj_000.ply)
+    code, _, err = run_main(capsys, "model-sweep", model_path, "--mode", 0, "--frames", 2, "-o", tmp_path / "s.obj")
+    assert code == 0 and (tmp_path / "s_000.obj").exists() and (tmp_path / "s_001.obj").exists(), err
 
 
 def test_bad_input_exit_2_without_output(capsys, tmp_path, bar_files):

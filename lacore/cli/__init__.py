@@ -40,6 +40,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from .. import __version__
 from ..errors import InputError
 from . import encode, fit, interpolate, mixer, model, reconstruct
 from .common import EXIT_FAILED_CHECKS, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, CliError, error_message
@@ -89,6 +90,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser():
     parser = _Parser(
         prog="lacore", description="Lengths & Angles: shape processing in lengths and dihedral angles.")
+    parser.add_argument("--version", action="version", version=f"lacore {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=_Parser)
     for cmd in SUBCOMMANDS.values():
         p = sub.add_parser(cmd.name, help=cmd.help, description=cmd.help)

@@ -4,7 +4,7 @@ Usage::
 
     lacore fit MODEL.npz --markers TAKE.c3d|TAKE.trc|MARKERS.npz -o OUT.npz [--json] [--static STATIC.c3d]
                [--prior-weight G|auto] [--temporal-weight W] [--penetration-weight MU]
-               [--observed-radius R1 R2|0] [--frames A:B] [--units mm|cm|m] [--pin LABEL=VERTEX ...]
+               [--observed-radius R1 R2|0] [--frames A:B] [--units mm|cm|dm|m|in|ft] [--pin LABEL=VERTEX ...]
 
 ``MODEL.npz`` is a shape model written by ``lacore model``
 (:meth:`lacore.models.shape_model.ShapeModel.save`).
@@ -52,9 +52,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.atomic import save_npz_atomic
-from ..markers.take_fit import fit_take
+from ..markers.take_fit import fit_take, frame_indices
 from ..markers.fitting import FIT_DEFAULTS, fit_markers
-from ..markers.io import read_marker_arrays
+from ..markers.io import UNIT_SCALES, read_marker_arrays
 from ..markers.takes import read_take
 from ..models.shape_model import ShapeModel
 from ..result import json_value
@@ -63,6 +63,8 @@ from .common import add_allow_failure, check_outputs, finish, print_json
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
 
 HELP = "fit a shape model to motion-capture markers (poses per frame, no skeleton)"
+#: The units ``--units`` names in its help (:data:`lacore.markers.io.UNIT_SCALES` also takes their spelled-out names).
+KNOWN_UNITS = "mm, cm, dm, m, in, ft"
 
 
 def register(register_subcommand):
@@ -108,7 +110,8 @@ def configure(parser):
                         help="frames per second of MARKERS.npz positions that form a recording: enables the temporal "
                              "term (a take's own rate is used; without one, frames are fitted independently)")
     parser.add_argument("--frames", metavar="A:B", help="fit only the take's frames A to B-1 (takes only)")
-    parser.add_argument("--units", metavar="UNIT", help="the take's length unit if its file lacks or misstates it")
+    parser.add_argument("--units", metavar="UNIT",
+                        help=f"the take's length unit ({KNOWN_UNITS}) if its file lacks or misstates it")
     parser.add_argument("--pin", nargs="+", action="extend", metavar="LABEL=VERTEX",
                         help="markers pinned to vertices of the model's mesh (full resolution), 3 or more: what "
                              "places a character whose markers have no standard names (takes only)")
@@ -191,13 +194,19 @@ def run(args):
         return _run_binding(args, model, gamma, start)
     if args.rate is not None:
         raise InputError("--rate is for a markers .npz: a take (.c3d or .trc) has its own frame rate")
+    if args.units is not None and str(args.units).strip().lower() not in UNIT_SCALES:
+        raise InputError(f"--units must be a length unit ({KNOWN_UNITS}), got {args.units!r}")
     pins = _pins(args.pin)
+    frames = _frames(args.frames)
     take = read_take(args.markers, units=args.units)
+    if frames is not None and not len(frame_indices(frames, take.n_frames)):
+        raise InputError(f"--frames {args.frames} selects no frame of {args.markers} (frames 0 to "
+                         f"{take.n_frames - 1})")
     static = read_take(args.static, units=args.units) if args.static else None
     res = fit_take(model, take, options=dataclasses.replace(FIT_DEFAULTS, prior_weight=gamma, temporal_weight=v,
                                                             penetration_weight=mu,
                                                             observed_radius=args.observed_radius),
-                   frames=_frames(args.frames), static=static, pins=pins)
+                   frames=frames, static=static, pins=pins)
     cal = res.calibration
     fine = res.fine_vertices is not None
     b = res.binding

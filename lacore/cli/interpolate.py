@@ -57,7 +57,7 @@ from ..reconstruction.settings import DEFAULT_PROJECTION, PROJECTION_PRESETS, SO
 from .common import (CliError, add_allow_failure, check_outputs, finish, frame_count, json_float,
                      load_meshes_in_correspondence, nonnegative_int, positive_int, print_json)
 
-__all__ = ["HELP", "configure", "run", "output_paths", "frame_times"]
+__all__ = ["HELP", "configure", "run", "output_format", "output_paths", "frame_times"]
 
 #: ``--method path`` (:data:`lacore.shapes.interpolation.PATH`; not imported from there: scipy.interpolate is slow to
 #: import)
@@ -107,9 +107,25 @@ def configure(parser):
                              "(default 1; pays for many frames of large meshes, up to the number of cores)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
                         help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
-    parser.add_argument("--format", choices=_FORMATS, default="ply", help="output mesh format (default ply)")
+    parser.add_argument("--format", choices=_FORMATS, default=None,
+                        help="output mesh format (default: the extension of -o if it is one of these, else ply)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
+
+
+def output_format(prefix, given=None, formats=_FORMATS):
+    """The mesh format of ``-o PREFIX``: ``--format`` when given, else the prefix's extension when it is one of
+    ``formats`` (``-o walk.obj`` writes OBJ files), else ply.
+
+    >>> output_format("walk.obj"), output_format("walk.obj", "ply"), output_format("out/f")
+    ('obj', 'ply', 'ply')
+    >>> output_format("a.stl", None, ("ply", "obj"))
+    'ply'
+    """
+    if given:
+        return given
+    extension = os.path.splitext(str(prefix))[1].lower().lstrip(".")
+    return extension if extension in formats else "ply"
 
 
 def output_paths(prefix, n, extension="ply"):
@@ -157,7 +173,7 @@ def run(args):
         raise CliError(f"--reference {args.reference} is not the index of one of the {len(shapes)} meshes")
     if not np.all(np.isfinite(times)):
         raise CliError("--t takes finite numbers (keyframe times), got " + " ".join(f"{t:g}" for t in times))
-    paths = output_paths(args.output, len(times), args.format)
+    paths = output_paths(args.output, len(times), output_format(args.output, args.format))
     check_outputs(paths, inputs=args.meshes)
     t_load = time.perf_counter() - start
     if args.method == PATH:

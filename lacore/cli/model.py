@@ -41,12 +41,14 @@ from ..models.settings import DEFAULT_TANGENT, MODEL_SETTINGS, PROJECTION_METRIC
 from ..models.shape_model import ShapeModel
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, frame_count, load_meshes_in_correspondence,
                      positive_int, print_json)
-from .interpolate import output_paths
+from .interpolate import output_format, output_paths
 
 __all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
 
 MODEL_HELP = "fit a statistical shape model (PCA / simplified PGA in lengths and angles) to meshes"
 SWEEP_HELP = "write meshes along one mode of a shape model"
+#: Mesh formats of ``model-sweep`` (``--format``, or the extension of ``-o``).
+SWEEP_FORMATS = ("ply", "obj", "off")
 
 
 def register(register_subcommand):
@@ -87,7 +89,8 @@ def configure_sweep(parser):
     parser.add_argument("--frames", type=frame_count, default=5, metavar="K", help="number of meshes (default 5)")
     parser.add_argument("-o", "--output", required=True, metavar="PREFIX",
                         help="writes PREFIX_000.ply, PREFIX_001.ply, ...")
-    parser.add_argument("--format", choices=("ply", "obj", "off"), default="ply", help="mesh format (default ply)")
+    parser.add_argument("--format", choices=SWEEP_FORMATS, default=None,
+                        help="mesh format (default: the extension of -o if it is one of these, else ply)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -165,7 +168,7 @@ def run_sweep(args):
     if not np.all(np.isfinite(args.range)):
         raise ShapeModelError(f"--range must be two finite numbers (standard deviations), got "
                               f"{args.range[0]:g} {args.range[1]:g}")
-    paths = output_paths(args.output, args.frames, args.format)
+    paths = output_paths(args.output, args.frames, output_format(args.output, args.format, SWEEP_FORMATS))
     check_outputs(paths, inputs=[args.model])
     model = ShapeModel.load(args.model)
     if not 0 <= args.mode < model.n_modes:

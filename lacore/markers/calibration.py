@@ -780,7 +780,7 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
             raise UnitMismatchError(
                 f"unit mismatch: the performer measures {ratio:.3g} times the model in its declared unit "
                 f"({_unit_name(u)}); the take fits a model in {_unit_name(guess)}: check the model's length unit "
-                "or the take's POINT:UNITS (read_take(..., units=...))", ratio=float(ratio))
+                "or the take's POINT:UNITS (read_take(..., units=...), lacore fit --units)", ratio=float(ratio))
     else:
         height = s_used * float(np.ptp(Xr @ _axis(up)))
         lo, hi = PERFORMER_HEIGHT_RANGE

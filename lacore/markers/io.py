@@ -417,7 +417,11 @@ def write_c3d(path, take, units="mm", integer=False):
         uses the int16 range) instead of 32-bit floats.
 
     Invalid samples (NaN) are written with residual -1; valid ones with the
-    take's residual (0, "modelled", when it has none).
+    take's residual (0, "modelled", when it has none).  The take's descriptions
+    (``POINT:DESCRIPTIONS``), point groups (``POINT:<group>``, ``POINT:TYPE_GROUPS``)
+    and up axis (``POINT:Y_SCREEN``) are written too, so that :func:`read_markers`
+    and :func:`lacore.markers.takes.drop_non_markers` tell the points apart as in
+    the file the take came from.
     """
     c3d = _import_c3d()
     path = str(path)
@@ -443,6 +447,7 @@ def write_c3d(path, take, units="mm", integer=False):
         frames[:, :, :3] = (k + 0.25 * np.sign(k)) * point_scale
     writer = c3d.Writer(point_rate=float(take.rate), analog_rate=0.0, point_scale=point_scale, point_units=units)
     writer.set_point_labels(list(take.labels))
+    _write_point_metadata(writer, take)
     empty_analog = np.zeros((0, 0), np.float32)
     writer.add_frames([(frames[t], empty_analog) for t in range(take.n_frames)])
     writer.set_start_frame(max(1, take.first_frame))
@@ -453,6 +458,30 @@ def write_c3d(path, take, units="mm", integer=False):
             writer.write(fh)
 
     _atomic_write(path, write)
+
+
+def _write_point_strings(writer, name, strings, description):
+    """The string parameter ``POINT:<name>`` (one fixed-width entry per string), as the c3d writer stores LABELS."""
+    size = max(1, max(len(x) for x in strings))
+    writer.point_group.add_str(name, description, "".join(x.ljust(size) for x in strings), size, len(strings))
+
+
+def _write_point_metadata(writer, take):
+    """POINT:DESCRIPTIONS, the point groups (with TYPE_GROUPS) and Y_SCREEN of ``take``, where it has them."""
+    if any(take.descriptions):
+        _write_point_strings(writer, "DESCRIPTIONS", list(take.descriptions), "Point descriptions.")
+    groups = {}
+    for label in take.labels:
+        group = take.point_groups.get(label)
+        if group is not None:
+            groups.setdefault(group, []).append(label.split("#")[0])
+    for group, labels in groups.items():
+        _write_point_strings(writer, group, list(dict.fromkeys(labels)), f"Points of the {group} group.")
+    if groups:
+        _write_point_strings(writer, "TYPE_GROUPS", list(groups), "Groups of points that are not markers.")
+    if take.up_axis:
+        up = take.up_axis.upper()
+        writer.set_screen_axis(X="+Y" if up[1] == "X" else "+X", Y=up)
 
 
 def _atomic_write(path, write):

@@ -228,7 +228,7 @@ def fit_take(model, take, calibration=None, options=None, *, frames=None, static
     T_all = take.n_frames
     idx = frame_indices(frames, T_all)
     if not len(idx):
-        raise InputError("frames selects no frame of the take")
+        raise InputError(f"frames={frames!r} selects no frame of the take (frames 0 to {T_all - 1})")
     n_cal = 2 + (calibration_options or CALIBRATION_DEFAULTS).rounds if calibration is None else 0
     total = n_cal + len(idx)
 

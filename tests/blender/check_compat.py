@@ -75,8 +75,26 @@ def shape_key_fcurves_survive_reload():
     return {"value_at_3": value}
 
 
+def sample_files_open():
+    """Every blend_samples/*.blend (the README's "open one of them") opens in this Blender, and its meshes with
+    shape keys encode."""
+    from harness import REPO
+    folder = os.path.join(REPO, "blend_samples")
+    opened = {}
+    for name in sorted(f for f in os.listdir(folder) if f.endswith(".blend")):
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, name))
+        meshes = [o for o in bpy.data.objects if o.type == "MESH" and o.data.shape_keys]
+        assert meshes, name
+        for obj in meshes:
+            bpy.context.view_layer.objects.active = obj
+            assert bpy.ops.lengths_angles.encode() == {"FINISHED"}, (name, obj.name)
+        opened[name] = [o.name for o in meshes]
+    reset()
+    return {"opened": opened}
+
+
 def main():
-    run_cases((install_and_enable, object_fcurves, shape_key_fcurves_survive_reload))
+    run_cases((install_and_enable, object_fcurves, shape_key_fcurves_survive_reload, sample_files_open))
 
 
 if __name__ == "__main__":
