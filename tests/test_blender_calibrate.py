@@ -119,6 +119,8 @@ def test_character_setups(run):
     assert text.startswith("calibrated (performer ") and "marker RMS" in text and " mm, p95 " in text, text
     assert text.index("marker RMS") < text.index("scaled non-uniformly") and "points are not markers" in text, text
     assert res["again_result"] == ["FINISHED"], res
+    # the scene's frame rate changed to 25 fps after import: the fit's rate is the take's own (Walk1: 60 Hz)
+    assert res["again_rates"] == [60.0] and res["scene_fps"] == 60.0, res
     kind, text = res["again_reports"][-1]
     assert kind == "WARNING" and text.startswith("reused the stored calibration (take, model and placement "
                                                  "unchanged) (performer "), text
@@ -133,6 +135,19 @@ def test_a_deleted_marker_empty_is_left_out(run):
     res = run["cases"]["bad_input"]["marker_deleted"]
     assert res["result"] == ["FINISHED"], res
     assert f"the empty of marker {res['label']} was deleted: left out" in res["message"], res
+
+
+def test_a_marker_with_cleared_animation_is_left_out(run):
+    """A marker empty whose animation was cleared (Clear Keyframes) in the same run: left out like a deleted one
+    (before: fitted as a marker standing still at its empty's location) and named in one line -- not as a point
+    that is no marker."""
+    res = run["cases"]["bad_input"]["marker_deleted"]
+    label = res["cleared"]
+    assert res["result"] == ["FINISHED"], res
+    assert (f"marker '{label}' has no keyed positions (its animation was cleared): left out; re-import the take to "
+            "restore it") in res["message"], res
+    assert len(res["message"].splitlines()) == 1 and f"{label} (never visible)" not in res["message"], res
+    assert label not in res["bound"] and label not in res["not_bound"], res
 
 
 @pytest.mark.parametrize("case, words", [
