@@ -352,6 +352,8 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD', missing_ok=False)
         curves = keyed_location(obj)
         if curves is None and several:
             continue  # no keyed positions: never visible (unkeyed_markers)
+        if curves is not None and any(len(fc.keyframe_points) == 0 for fc in curves):
+            continue  # never seen (imported so), whatever its ["visible"] says
         fcurves = _fcurves_for(obj)
         vis_fc = fcurves.find(f'["{VISIBLE_PROP}"]') if fcurves is not None else None
         seen = (_evaluate_step(vis_fc, frames) >= 0.5) if vis_fc is not None else np.full(F, True)

@@ -445,7 +445,7 @@ def test_bind_with_subdivision_and_mirror(run):
     assert np.array_equal(sub["barycentric"], plain["barycentric"]) and np.array_equal(sub["offsets"],
                                                                                         plain["offsets"])
     assert res["shown_after"] == [True, True, False] == res["shown_after_error"]
-    assert res["error"] == "simulated failure while evaluating"
+    assert res["error"] == "RuntimeError: simulated failure while evaluating"
     deformed = res["deformed"]
     assert deformed["result"] == ["FINISHED"] and res["modifiers"] == ["Inflate", "Subdivision", "Mirror", "Displace"]
     # Displace of strength 0.1 (mid-level 0.5) moves the surface 0.05 dm along its normals: the offsets follow

@@ -126,6 +126,7 @@ def test_cleared_markers_are_never_visible(run):
     assert res["others_same_mask"] and res["others_max_abs"] < FLOAT32_METRES
     assert res["unkeyed"] == [a, b, c] and res["n_never_seen"] > 0  # Walk1 has never-seen points: not these
     assert not set(res["never_seen"]) & set(res["unkeyed"])
+    assert res["never_seen_finite"] == 0                            # no location keys: not at the origin
     assert res["unkeyed_of"] == [b]
     one, several, none = res["notes"]
     assert one == (f"marker '{a}' has no keyed positions (its animation was cleared): left out; re-import the take "

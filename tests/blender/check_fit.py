@@ -883,8 +883,8 @@ def bind_with_modifiers():
     try:
         fit.bind_run(bpy.context, obj, take)
         out["error"] = ""
-    except RuntimeError as exc:
-        out["error"] = str(exc)
+    except Exception as exc:  # the simulated failure, not another one
+        out["error"] = f"{type(exc).__name__}: {exc}"
     finally:
         fit._evaluated_co = original
     out["shown_after_error"] = [m.show_viewport for m in obj.modifiers]

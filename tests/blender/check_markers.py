@@ -382,11 +382,14 @@ def cleared_markers():
         curves.remove(curves.find("location", index=axis))
     curves = fcurves(markers[cleared[2]])                           # one location channel deleted
     curves.remove(curves.find("location", index=1))
+    curves = fcurves(markers[never[0]])                             # never seen, its visible channel deleted
+    curves.remove(curves.find('["visible"]'))
     back = mod.read_take(take_obj)
     idx = [take.labels.index(lb) for lb in cleared]
     others = [m for m in range(take.n_markers) if m not in idx]
     out = {"cleared": cleared, "never_seen": never[:3], "n_never_seen": len(never),
            "cleared_finite": int(np.isfinite(back.positions[:, idx]).sum()),
+           "never_seen_finite": int(np.isfinite(back.positions[:, take.labels.index(never[0])]).sum()),
            "others_same_mask": bool(np.array_equal(back.visible[:, others], take.visible[:, others])),
            "others_max_abs": float(np.abs(back.positions[:, others][take.visible[:, others]]
                                           - take.positions[:, others][take.visible[:, others]]).max())}
