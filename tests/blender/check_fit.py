@@ -633,7 +633,7 @@ def fit_settings():
                                "penetration_weight": lacore_defaults.penetration_weight,
                                "coefficient_weight": lacore_defaults.coefficient_weight}}
     runner = doctest.DocTestRunner()
-    for f in (fit.fit_settings, fit.typed, quality.settings_text):
+    for f in (fit.fit_settings, fit.typed, quality.settings_text, ext("addon.operators_markers").unkeyed_note):
         for test in doctest.DocTestFinder().find(f):
             runner.run(test)
     out["doctests"] = [runner.failures, runner.tries]
