@@ -192,12 +192,17 @@ def first_calibration_frame(visible):
 MAX_PLACED_DISTANCE = 0.2
 
 
-def _placement(obj, markers, labels, pins, mode, rest, frame_of):
+def _placement(obj, markers, labels, pins, mode, rest, frame_of, left_out=None):
     """How to place the character: ``(kind, pins)`` with kind ``'HINTS'`` (lacore, by marker names),
     ``'PINS'`` or ``'PLACED'`` (:data:`.operators_pins.PLACEMENT_ITEMS`), and the pins as
-    ``{label: vertex}`` (validated: one-line FitSetupError naming what to do)."""
+    ``{label: vertex}`` (validated: one-line FitSetupError naming what to do).  ``left_out``: ``{label: why}`` of
+    the take's markers left out before (empty deleted, animation cleared)."""
     pinned = {}
     for label, v in pins.items():
+        gone = (left_out or {}).get(label)
+        if gone is not None:
+            raise FitSetupError(f"pin '{label}' of '{obj.name}': {gone}, so it is left out: remove the pin (Pins in "
+                                "the Lengths & Angles: Model and Markers panel) or re-import the take")
         if label not in markers.labels:
             why = "is not a marker (left out)" if label in labels else "is not a marker of the take"
             raise FitSetupError(f"pin '{label}' of '{obj.name}' {why}: remove it (Pins in the Lengths & Angles: "
@@ -307,7 +312,9 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     co = np.empty(3 * len(rest), np.float32)
     rest.foreach_get("co", co)
     rest = co.reshape(-1, 3).astype(np.float64)
-    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]))
+    left_out = {**dict.fromkeys(deleted, "the marker's empty was deleted"),
+                **dict.fromkeys(unkeyed, "the marker has no keyed positions (its animation was cleared)")}
+    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]), left_out)
     if kind == 'PLACED':
         _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
     # the world's up in the character's space: exact (checked by lacore) for a humanoid placed by marker names,

@@ -326,6 +326,11 @@ def bad_input():
     op = fake_operator()
     op.interactive = False
     res = op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(context, obj, take, 1, N_FRAMES))
+    pins = ext("addon.operators_pins")
+    for name, label in (("pin_cleared", cleared["lengths_angles_marker"]), ("pin_deleted", deleted)):
+        obj[pins.PINS_PROP] = {label: 5}          # a pin on a marker left out: named, nothing changed
+        attempt(name, obj)
+        del obj[pins.PINS_PROP]
     out["marker_deleted"] = {"result": sorted(res), "message": op.reports[-1][1] if op.reports else "",
                              "label": deleted, "cleared": cleared["lengths_angles_marker"],
                              "bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["labels"]),
