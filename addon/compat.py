@@ -24,7 +24,7 @@ the bake checks), and by hand with bpy 4.2.0, 4.5.15 and 5.0.1.
 import bpy
 
 __all__ = ["HAS_SLOTTED_ACTIONS", "BLEND_RELATIVE_PATH", "animation_channels", "ensure_animation_channels",
-           "id_fcurves", "fcurve_group"]
+           "id_fcurves", "strip_fcurves", "fcurve_group"]
 
 
 HAS_SLOTTED_ACTIONS = bpy.app.version >= (4, 4, 0)
@@ -68,6 +68,19 @@ def animation_channels(id_data):
     if ad.action_slot is None:
         return None
     return _channelbag(ad.action, ad.action_slot)
+
+
+def strip_fcurves(strip):
+    """The F-curves an NLA strip plays: its action's channelbag of the strip's slot (Blender 4.4+; none without a
+    slot) or the action's F-curves (4.2, 4.3); an empty tuple without an action.  Never creates anything."""
+    action = strip.action
+    if action is None:
+        return ()
+    if not HAS_SLOTTED_ACTIONS:
+        return action.fcurves
+    slot = strip.action_slot
+    bag = _channelbag(action, slot) if slot is not None else None
+    return bag.fcurves if bag else ()
 
 
 def ensure_animation_channels(id_data, action_name):

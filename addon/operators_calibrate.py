@@ -9,7 +9,9 @@ some of its marker empties; with none selected, the scene's only take).  One :cl
 1. *Build Model* when the mesh has none (:meth:`lacore.models.ShapeModel.fit` on its shape keys);
 2. *calibrate* (:func:`lacore.markers.calibrate` inside :func:`lacore.markers.fit_take`): placement and
    up axis, units, the performer's size, the starting pose and the binding of every marker where it is
-   visible; points that are not markers are dropped (:func:`lacore.markers.drop_non_markers`);
+   visible; points that are not markers are dropped (:func:`lacore.markers.drop_non_markers`), markers whose
+   empties were deleted or whose animation was cleared (:func:`.operators_markers.unkeyed_markers`) left out,
+   each noted;
 3. *fit* every frame of the range (:func:`lacore.markers.fit_take`).
 
 Placement (the object's Placement option, :mod:`.operators_pins`): standard marker-set names place a humanoid
@@ -53,7 +55,7 @@ from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
                             nonuniform_scale_note, read_model, recorded_settings, require_still, typed)
-from .operators_markers import TAKE_PROP, marker_objects, read_take
+from .operators_markers import TAKE_PROP, marker_objects, read_take, take_frame_rate, unkeyed_markers, unkeyed_note
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
 from .storage import PayloadError, load_payload, payload_header, release_payload, saved_bytes, store_payload
@@ -190,12 +192,17 @@ def first_calibration_frame(visible):
 MAX_PLACED_DISTANCE = 0.2
 
 
-def _placement(obj, markers, labels, pins, mode, rest, frame_of):
+def _placement(obj, markers, labels, pins, mode, rest, frame_of, left_out=None):
     """How to place the character: ``(kind, pins)`` with kind ``'HINTS'`` (lacore, by marker names),
     ``'PINS'`` or ``'PLACED'`` (:data:`.operators_pins.PLACEMENT_ITEMS`), and the pins as
-    ``{label: vertex}`` (validated: one-line FitSetupError naming what to do)."""
+    ``{label: vertex}`` (validated: one-line FitSetupError naming what to do).  ``left_out``: ``{label: why}`` of
+    the take's markers left out before (empty deleted, animation cleared)."""
     pinned = {}
     for label, v in pins.items():
+        gone = (left_out or {}).get(label)
+        if gone is not None:
+            raise FitSetupError(f"pin '{label}' of '{obj.name}': {gone}, so it is left out: remove the pin (Pins in "
+                                "the Lengths & Angles: Model and Markers panel) or re-import the take")
         if label not in markers.labels:
             why = "is not a marker (left out)" if label in labels else "is not a marker of the take"
             raise FitSetupError(f"pin '{label}' of '{obj.name}' {why}: remove it (Pins in the Lengths & Angles: "
@@ -281,15 +288,20 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     require_still(take, obj)
     take_name = take.name
     filepath, path = _pc2_path(filepath, obj, take)
-    empties = {lb: o.name for lb, o in marker_objects(take, missing_ok=True)}   # a marker empty deleted: left out
+    # left out: markers whose empties were deleted, and those whose animation was cleared (no keyed positions)
+    unkeyed = unkeyed_markers(take)
+    empties = {lb: o.name for lb, o in marker_objects(take, missing_ok=True) if lb not in unkeyed}
     labels = list(empties)
-    deleted = [str(lb) for lb in meta["labels"] if lb not in labels]
-    world = read_take(take, frames=frames, missing_ok=True).positions
+    deleted = [str(lb) for lb in meta["labels"] if lb not in labels and lb not in unkeyed]
+    if not labels:
+        raise FitSetupError(f"take '{take.name}' has no marker with keyed positions left (empties deleted or their "
+                            "animation cleared): re-import the take")
+    read = read_take(take, frames=frames, missing_ok=True)
+    world = read.positions[:, [read.labels.index(lb) for lb in labels]]
     inv = world_to_object(obj)
     unit = metres_per_unit(obj, take, context.scene)
     local = world @ inv[:3, :3].T + inv[:3, 3]
-    render = context.scene.render
-    rate = render.fps / render.fps_base  # one sample per scene frame
+    rate = take_frame_rate(take)  # one sample per scene frame, in the take's time
     not_markers = {str(lb): str(why) for lb, why in meta.get("not_markers", [])}
     keep = [m for m, lb in enumerate(labels) if lb not in not_markers]
     markers = drop_non_markers(MarkerTake(labels=tuple(labels[m] for m in keep), positions=local[:, keep] * unit,
@@ -300,7 +312,9 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     co = np.empty(3 * len(rest), np.float32)
     rest.foreach_get("co", co)
     rest = co.reshape(-1, 3).astype(np.float64)
-    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]))
+    left_out = {**dict.fromkeys(deleted, "the marker's empty was deleted"),
+                **dict.fromkeys(unkeyed, "the marker has no keyed positions (its animation was cleared)")}
+    kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]), left_out)
     if kind == 'PLACED':
         _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
     # the world's up in the character's space: exact (checked by lacore) for a humanoid placed by marker names,
@@ -372,6 +386,8 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             shown = ", ".join(deleted[:5]) + (" ..." if len(deleted) > 5 else "")
             job.notes.append(f"the empty of marker {shown} was deleted: left out" if len(deleted) == 1 else
                              f"the empties of {len(deleted)} markers were deleted, left out: {shown}")
+        if unkeyed:
+            job.notes.append(unkeyed_note(unkeyed))
         dropped = list(getattr(markers, "dropped", ()))
         if dropped:
             job.notes.append(f"{len(dropped)} points are not markers and were left out: "

@@ -22,7 +22,8 @@ Mode sliders
 ``lengths_angles.bind_markers``
     Binds the take's marker empties (the active/selected take empty, or the selected
     marker empties) to the active mesh at the current frame: each marker to the
-    nearest surface point of the evaluated mesh with its signed normal offset
+    nearest surface point of the mesh as its shape keys and leading deformers pose it
+    (:func:`_mesh_vertices`) with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
     markers are where the mesh is; *Align* runs ICP first).  Stored on the object in
     ``obj["lengths_angles_binding"]``; the panel lists each marker with its offset and the
@@ -68,11 +69,12 @@ from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
 from ..lacore.multiresolution import coarsen
 from . import storage
-from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
+from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels, strip_fcurves
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
 from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
-from .operators_markers import MARKER_PROP, TAKE_PROP, marker_objects, read_take
+from .operators_markers import (MARKER_PROP, TAKE_PROP, marker_objects, read_take, take_frame_rate,
+                                unkeyed_markers, unkeyed_note)
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
@@ -371,20 +373,45 @@ def read_model(obj):
     return model
 
 
-def _mesh_vertices(obj, depsgraph):
-    """(V, 3) float64 positions of the evaluated ``obj`` in its own space (V of its mesh data)."""
+def _bound_modifiers_off(obj):
+    """The modifiers of ``obj`` a binding leaves out: from the first that is no deformer (:data:`DEFORM_MODIFIERS`:
+    Subdivision Surface, Mirror ...) to the end of the stack, those shown in the viewport."""
+    mods = list(obj.modifiers)
+    first = next((i for i, m in enumerate(mods) if m.type not in DEFORM_MODIFIERS), len(mods))
+    return [m for m in mods[first:] if m.show_viewport]
+
+
+def _evaluated_co(obj, depsgraph):
+    """(V, 3) float32 vertex positions of the evaluated ``obj``."""
     ev = obj.evaluated_get(depsgraph)
     me = ev.to_mesh()
     try:
-        V = len(me.vertices)
-        co = np.empty(3 * V, np.float32)
+        co = np.empty(3 * len(me.vertices), np.float32)
         me.vertices.foreach_get("co", co)
     finally:
         ev.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
+def _mesh_vertices(obj, context=None):
+    """(V, 3) float64 positions of ``obj`` in its own space (V of its mesh data) as its shape keys and the
+    deformers at the top of its modifier stack pose it: the mesh the fit's Mesh Cache modifier replaces
+    (:func:`_fit_modifier`).  The modifiers from the first other one on (:func:`_bound_modifiers_off`) are off in
+    the viewport while it is evaluated and on again after it, also on error."""
+    context = context or bpy.context
+    off = _bound_modifiers_off(obj)
+    try:
+        for m in off:
+            m.show_viewport = False
+        co = _evaluated_co(obj, context.evaluated_depsgraph_get())
+    finally:
+        for m in off:
+            m.show_viewport = True
+    V = len(co)
     if V != len(obj.data.vertices):
         raise FitSetupError(f"object '{obj.name}': its modifiers change the vertex count ({V} evaluated, "
                             f"{len(obj.data.vertices)} in the mesh): bind with those modifiers off")
-    return co.reshape(V, 3).astype(np.float64)
+    return co.astype(np.float64)
 
 
 # -------------------------------------------------------------------------------------------- preview
@@ -465,7 +492,7 @@ def _posed_mesh_state(obj_name):
         obj = bpy.data.objects.get(obj_name)
         if obj is None:
             return None
-        X = _mesh_vertices(obj, bpy.context.evaluated_depsgraph_get())
+        X = _mesh_vertices(obj)
         return bpy.context.scene.frame_current, hashlib.blake2b(X.tobytes(), digest_size=16).hexdigest()
     return state
 
@@ -510,8 +537,10 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     storing the binding (validated; raises InputError subclasses).
 
     Markers occluded at the current frame are not bound (the report names them; Calibrate & Fit binds every
-    marker where it is visible); at least :data:`MIN_BOUND_MARKERS` must be visible.  ``warn_distance`` is in
-    metres (:func:`metres_per_unit`).
+    marker where it is visible), nor markers without keyed positions (:func:`.operators_markers.unkeyed_markers`:
+    named too); at least :data:`MIN_BOUND_MARKERS` must be visible.  The mesh is the one the fit replaces: shape
+    keys and the deformers at the top of the stack (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what
+    follows them are left out).  ``warn_distance`` is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)
     model = read_model(obj)
@@ -521,16 +550,19 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     frame = context.scene.frame_current
     world = read_take(take, frames=[frame]).positions[0][idx]
     seen = np.isfinite(world).all(1)
-    hidden = [lb for lb, s in zip(labels, seen, strict=True) if not s]
+    unkeyed = unkeyed_markers(take, labels)     # read as never visible: named, not counted as occluded
+    hidden = [lb for lb, s in zip(labels, seen, strict=True) if not s and lb not in unkeyed]
     if seen.sum() < MIN_BOUND_MARKERS:
+        why = [f"{what}: {', '.join(map(repr, lbs[:5]))}{' ...' if len(lbs) > 5 else ''}"
+               for what, lbs in (("occluded", hidden), ("no keyed positions", unkeyed)) if lbs]
         raise FitSetupError(f"only {int(seen.sum())} of the {len(labels)} markers are visible at frame {frame} "
-                            f"(occluded: {', '.join(map(repr, hidden[:5]))}{' ...' if len(hidden) > 5 else ''}): "
-                            f"bind at a frame where at least {MIN_BOUND_MARKERS} are visible, or use Calibrate & Fit")
+                            f"({'; '.join(why)}): bind at a frame where at least {MIN_BOUND_MARKERS} are visible, or "
+                            "use Calibrate & Fit")
     labels = [lb for lb, s in zip(labels, seen, strict=True) if s]
     world = world[seen]
     inv = world_to_object(obj)
     local = world @ inv[:3, :3].T + inv[:3, 3]
-    X = model_mesh_vertices(model, _mesh_vertices(obj, context.evaluated_depsgraph_get()))
+    X = model_mesh_vertices(model, _mesh_vertices(obj, context))
     faces = model.faces
     iterations = 100
     job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
@@ -551,6 +583,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
         }
         if note is not None:
             job.notes.append(note)
+        if unkeyed:
+            job.notes.append(unkeyed_note(unkeyed))
         if hidden:
             job.notes.append(f"{len(hidden)} markers occluded at frame {frame} were not bound: "
                              + ", ".join(hidden[:8]) + (" ..." if len(hidden) > 8 else ""))
@@ -593,32 +627,82 @@ _TRANSFORM_PATHS = frozenset({"location", "rotation_euler", "rotation_quaternion
                               "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale"})
 
 
+def _moving_curve(fcurves):
+    """The first F-curve of ``fcurves`` keying a transform channel that changes over time (keys of different
+    values, or modifiers) and is not muted, else None."""
+    for fc in fcurves:
+        if fc.data_path not in _TRANSFORM_PATHS or fc.mute:
+            continue
+        co = np.empty(2 * len(fc.keyframe_points), np.float32)
+        fc.keyframe_points.foreach_get("co", co)
+        if len(fc.modifiers) or (co.size and np.ptp(co[1::2]) > 0):
+            return fc
+    return None
+
+
+def _channel_name(data_path):
+    """The UI name of an object's transform property (``"Location"``, ``"Euler Rotation"`` ...)."""
+    prop = bpy.types.Object.bl_rna.properties.get(data_path)
+    return prop.name if prop is not None else data_path
+
+
+def transform_dependence(ob):
+    """Why ``ob``'s own transform may change over time, read from its data (no ``frame_set``): ``(reason,
+    advice)`` one-line phrases, or None.
+
+    In this order: a keyed transform of its action that changes (:func:`_moving_curve`), a driver on a transform
+    channel, a strip of a playing NLA track whose action keys a changing transform, an enabled constraint with
+    influence (any: it makes the placement depend on something else)."""
+    name = ob.name
+    owner = animation_channels(ob)
+    if _moving_curve(owner.fcurves if owner is not None else ()) is not None:
+        return ("keyed location, rotation or scale",
+                f"clear the transform keys of '{name}' (Object > Animation > Clear Keyframes)")
+    ad = ob.animation_data
+    if ad is not None:
+        driver = next((fc for fc in ad.drivers if fc.data_path in _TRANSFORM_PATHS and not fc.mute), None)
+        if driver is not None:
+            channel = _channel_name(driver.data_path)
+            return (f"a driver on its {channel}",
+                    f"delete the driver of '{name}' (right-click {channel} > Delete Driver)")
+        tracks = [t for t in ad.nla_tracks if not t.mute] if ad.use_nla else []
+        if any(t.is_solo for t in tracks):
+            tracks = [t for t in tracks if t.is_solo]
+        for track in tracks:
+            for strip in track.strips:
+                fc = None if strip.mute else _moving_curve(strip_fcurves(strip))
+                if fc is not None:
+                    return (f"its NLA strip '{strip.name}' keys {_channel_name(fc.data_path)}",
+                            f"mute the NLA track '{track.name}' of '{name}' (Nonlinear Animation editor)")
+    con = next((c for c in ob.constraints if c.enabled and c.influence > 0 and c.is_valid), None)
+    if con is not None:
+        return (f"its constraint '{con.name}' places it",
+                f"apply, disable or delete the constraint '{con.name}' of '{name}' (Object Constraint Properties)")
+    return None
+
+
 def moving_transform(ob):
-    """The first of ``ob`` and its parents whose keyed transform changes over time (an F-curve of location,
-    rotation or scale with keys of different values, or with modifiers), else None."""
+    """``(object, reason, advice)`` for the first of ``ob`` and its parents whose transform may change over time
+    (:func:`transform_dependence`), else None."""
     while ob is not None:
-        fcurves = animation_channels(ob)
-        for fc in (fcurves.fcurves if fcurves is not None else ()):
-            if fc.data_path not in _TRANSFORM_PATHS or fc.mute:
-                continue
-            co = np.empty(2 * len(fc.keyframe_points), np.float32)
-            fc.keyframe_points.foreach_get("co", co)
-            if len(fc.modifiers) or (co.size and np.ptp(co[1::2]) > 0):
-                return ob
+        why = transform_dependence(ob)
+        if why is not None:
+            return (ob, *why)
         ob = ob.parent
     return None
 
 
 def require_still(take, obj):
-    """FitSetupError if the take empty or the character moves over time (itself or a parent): the markers are
-    mapped into the character's space with their transforms at the current frame."""
+    """FitSetupError if the take empty or the character moves over time (itself or a parent: keyed, driven,
+    played by the NLA or constrained): the markers are mapped into the character's space with their transforms
+    at the current frame."""
     for what, ob in (("take empty", take), ("character", obj)):
-        moving = moving_transform(ob)
-        if moving is not None:
+        found = moving_transform(ob)
+        if found is not None:
+            moving, reason, advice = found
             whose = "" if moving is ob else f" with its parent '{moving.name}'"
-            raise FitSetupError(f"the {what} '{ob.name}' moves{whose} (keyed location, rotation or scale): the fit "
-                                f"uses one placement of it, so clear the transform keys of '{moving.name}' (Object > "
-                                "Animation > Clear Keyframes) and place it once")
+            raise FitSetupError(f"the {what} '{ob.name}' moves{whose} ({reason}): the fit uses one placement of it, "
+                                f"so {advice} and place it once")
 
 
 def _pc2_path(filepath, obj, take):
@@ -645,7 +729,8 @@ def _pc2_path(filepath, obj, take):
 
 def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     """What a fit reads from Blender (validated): ``dict(model, binding, take, markers (T, M, 3) in the object's
-    space, frames, filepath, path)``."""
+    space, frames, filepath, path, labels, unkeyed)`` (``unkeyed``: the bound markers without keyed positions,
+    NaN in ``markers``)."""
     require_mesh_object(obj)
     model = read_model(obj)
     binding, take, labels = read_binding(obj)
@@ -664,11 +749,15 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     frames = np.arange(frame_start, frame_end + 1)
     require_still(take, obj)
     filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
+    unkeyed = unkeyed_markers(take, labels)       # read as never visible: left out by the fit, named
+    if len(unkeyed) == len(labels):
+        raise FitSetupError(f"none of the markers bound to '{obj.name}' has keyed positions in take '{take.name}' "
+                            "(their animation was cleared): re-import the take and bind again")
     all_labels = [lb for lb, _ in marker_objects(take)]
     world = read_take(take, frames=frames).positions[:, [all_labels.index(lb) for lb in labels]]
     inv = world_to_object(obj)
     return {"model": model, "binding": binding, "take": take, "markers": world @ inv[:3, :3].T + inv[:3, 3],
-            "frames": frames, "filepath": filepath, "path": path, "labels": labels}
+            "frames": frames, "filepath": filepath, "path": path, "labels": labels, "unkeyed": unkeyed}
 
 
 def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=None, temporal_weight=None, filepath="",
@@ -684,8 +773,7 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
                            coefficient_weight=coefficient_weight)
     inputs = fit_inputs(context, obj, frame_start, frame_end, output, filepath)
     model, markers, binding, frames = inputs["model"], inputs["markers"], inputs["binding"], inputs["frames"]
-    render = context.scene.render
-    rate = render.fps / render.fps_base  # one sample per scene frame (scales the temporal weight)
+    rate = take_frame_rate(inputs["take"])  # one sample per scene frame, in the take's time (the temporal weight)
     fine = getattr(model, "fine_level", None)
     job = CallJob(lambda progress: fit_markers(model, markers, binding, options, rate=rate, prolongation=fine,
                                                progress=progress), "marker fit", total=len(frames))
@@ -701,6 +789,8 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
         text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
         quality = write_quality(obj, frames, job.result, labels, unit, take_name, recorded_settings(options))
         job.notes.extend([note] if note is not None else [])
+        if inputs["unkeyed"]:
+            job.notes.append(unkeyed_note(inputs["unkeyed"]))
         job.notes.extend(quality["notes"])
         return f"{text}; {quality['text']}"
     take_name = inputs["take"].name

@@ -35,7 +35,10 @@ the keyed ones (``keyed_rate``, ``keyed_samples``).
 
 Keys are written in bulk (``keyframe_points.add`` + ``foreach_set``), never per
 frame.  :func:`read_take` reads a take back from the empties' F-curves in bulk (for
-fitting: no ``frame_set`` per frame), NaN where ``["visible"]`` is 0.
+fitting: no ``frame_set`` per frame), NaN where ``["visible"]`` is 0, and NaN throughout for a
+marker whose location keys are gone (Object > Animation > Clear Keyframes: :func:`unkeyed_markers`,
+named by the fitting operators with :func:`unkeyed_note`).  The take's own time per scene frame,
+which changing the scene's frame rate later does not change, is :func:`take_frame_rate`.
 
 Several files (``directory`` + ``files``: multi-select in the file browser, or a
 drop of several files) are read first and imported together, all or nothing
@@ -59,7 +62,7 @@ from ..lacore.markers.takes import drop_non_markers, resample, sample_frames, vi
 from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",
-           "remove_take", "read_take",
+           "remove_take", "read_take", "take_frame_rate", "keyed_location", "unkeyed_markers", "unkeyed_note",
            "marker_objects", "menu_func_import", "register_menu", "unregister_menu", "TAKE_PROP", "MARKER_PROP",
            "VISIBLE_PROP"]
 
@@ -227,6 +230,53 @@ def marker_objects(take_obj, missing_ok=False):
     return [(lb, by_label[lb]) for lb in labels]
 
 
+def take_frame_rate(take_obj):
+    """Scene frames per second of the take's own time (float): ``keyed_rate * frame_step`` of its metadata.
+
+    Sample ``i`` (``keyed_rate`` samples a second) is keyed at scene frame ``frame_start + i * frame_step``: with
+    Set Scene Rate the take's rate (one sample per frame), with Map by Time and Resample the scene's rate at
+    import.  The keys stay where they are when the scene's frame rate is changed afterwards, and so does this.
+    """
+    meta = take_obj[TAKE_PROP]
+    return float(meta["keyed_rate"]) * float(meta["frame_step"])
+
+
+def keyed_location(obj):
+    """The three location F-curves of a marker empty, or None when one is gone (its animation cleared: no
+    action, or a location channel deleted)."""
+    fcurves = _fcurves_for(obj)
+    curves = [fcurves.find("location", index=axis) for axis in range(3)] if fcurves is not None else [None]
+    return None if any(fc is None for fc in curves) else curves
+
+
+def unkeyed_markers(take_obj, labels=None):
+    """Labels (of ``labels``, default all whose empties are there) of the take's markers without keyed positions
+    (:func:`keyed_location`), in a take of more than one sample: :func:`read_take` gives them NaN throughout (a
+    marker standing still at its empty's location would corrupt a fit).  A one-sample take is read at the
+    empties' locations and has none."""
+    if int(take_obj[TAKE_PROP]["keyed_samples"]) < 2:
+        return []
+    markers = marker_objects(take_obj, missing_ok=True)
+    return [lb for lb, obj in markers if (labels is None or lb in labels) and keyed_location(obj) is None]
+
+
+def unkeyed_note(labels):
+    """The one-line note naming markers left out for having no keyed positions (:func:`unkeyed_markers`), or
+    None if there are none.
+
+    >>> unkeyed_note(["LASI"])
+    "marker 'LASI' has no keyed positions (its animation was cleared): left out; re-import the take to restore it"
+    """
+    if not labels:
+        return None
+    if len(labels) == 1:
+        return (f"marker '{labels[0]}' has no keyed positions (its animation was cleared): left out; re-import the "
+                "take to restore it")
+    shown = ", ".join(f"'{lb}'" for lb in labels[:5]) + (f" and {len(labels) - 5} more" if len(labels) > 5 else "")
+    return (f"{len(labels)} markers have no keyed positions (their animation was cleared): {shown} left out; "
+            "re-import the take to restore them")
+
+
 def _curve_keys(fc):
     n = len(fc.keyframe_points)
     co = np.empty(2 * n, np.float32)
@@ -271,7 +321,8 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD', missing_ok=False)
     frames : (F,) array_like of float, optional
         Scene frames to sample; default: the keyed samples (``frame_start + i * frame_step``).
     rate : float, optional
-        Rate of the returned take; default: the keyed rate (default frames) or the scene's fps.
+        Rate of the returned take; default: the keyed rate (default frames) or the take's scene frames per
+        second (:func:`take_frame_rate`).
     space : {'WORLD', 'LOCAL'}
         World positions (through the take empty's current ``matrix_world``) or the
         empties' own locations in the take empty's space.
@@ -281,7 +332,8 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD', missing_ok=False)
     Returns
     -------
     MarkerTake
-        positions (F, M, 3) (Blender units), NaN where the keyed ``["visible"]`` is 0.
+        positions (F, M, 3) (Blender units), NaN where the keyed ``["visible"]`` is 0, and at every frame for
+        a marker without keyed positions in a take of more than one sample (:func:`unkeyed_markers`).
         Plain LINEAR / CONSTANT curves (as imported) are read in bulk; edited curves
         (other interpolation, modifiers) are evaluated key by key, so edits count.
     """
@@ -291,18 +343,23 @@ def read_take(take_obj, frames=None, rate=None, space='WORLD', missing_ok=False)
         frames = meta["frame_start"] + np.arange(int(meta["keyed_samples"])) * meta["frame_step"]
         rate = meta["keyed_rate"] if rate is None else rate
     elif rate is None:
-        render = bpy.context.scene.render
-        rate = render.fps / render.fps_base
+        rate = take_frame_rate(take_obj)
     frames = np.asarray(frames, np.float64).ravel()
     F, M = len(frames), len(markers)
     local = np.full((F, M, 3), np.nan)
+    several = int(meta["keyed_samples"]) > 1
     for m, (_label, obj) in enumerate(markers):
-        ad = obj.animation_data
-        fcurves = _fcurves_for(obj) if ad is not None and ad.action is not None else None
+        curves = keyed_location(obj)
+        if curves is None and several:
+            continue  # no keyed positions: never visible (unkeyed_markers)
+        if curves is not None and any(len(fc.keyframe_points) == 0 for fc in curves):
+            continue  # never seen (imported so), whatever its ["visible"] says
+        fcurves = _fcurves_for(obj)
         vis_fc = fcurves.find(f'["{VISIBLE_PROP}"]') if fcurves is not None else None
         seen = (_evaluate_step(vis_fc, frames) >= 0.5) if vis_fc is not None else np.full(F, True)
         for axis in range(3):
-            fc = fcurves.find("location", index=axis) if fcurves is not None else None
+            fc = curves[axis] if curves is not None else (
+                fcurves.find("location", index=axis) if fcurves is not None else None)
             values = _evaluate_linear(fc, frames) if fc is not None else np.full(F, obj.location[axis])
             local[seen, m, axis] = values[seen]
         if space == 'WORLD':  # the marker's origin: take matrix_world @ matrix_parent_inverse @ location

@@ -119,6 +119,8 @@ def test_character_setups(run):
     assert text.startswith("calibrated (performer ") and "marker RMS" in text and " mm, p95 " in text, text
     assert text.index("marker RMS") < text.index("scaled non-uniformly") and "points are not markers" in text, text
     assert res["again_result"] == ["FINISHED"], res
+    # the scene's frame rate changed to 25 fps after import: the fit's rate is the take's own (Walk1: 60 Hz)
+    assert res["again_rates"] == [60.0] and res["scene_fps"] == 60.0, res
     kind, text = res["again_reports"][-1]
     assert kind == "WARNING" and text.startswith("reused the stored calibration (take, model and placement "
                                                  "unchanged) (performer "), text
@@ -135,6 +137,19 @@ def test_a_deleted_marker_empty_is_left_out(run):
     assert f"the empty of marker {res['label']} was deleted: left out" in res["message"], res
 
 
+def test_a_marker_with_cleared_animation_is_left_out(run):
+    """A marker empty whose animation was cleared (Clear Keyframes) in the same run: left out like a deleted one
+    (before: fitted as a marker standing still at its empty's location) and named in one line -- not as a point
+    that is no marker."""
+    res = run["cases"]["bad_input"]["marker_deleted"]
+    label = res["cleared"]
+    assert res["result"] == ["FINISHED"], res
+    assert (f"marker '{label}' has no keyed positions (its animation was cleared): left out; re-import the take to "
+            "restore it") in res["message"], res
+    assert len(res["message"].splitlines()) == 1 and f"{label} (never visible)" not in res["message"], res
+    assert label not in res["bound"] and label not in res["not_bound"], res
+
+
 @pytest.mark.parametrize("case, words", [
     ("outside_take", "set the frame range inside the take"), ("no_model_no_keys", "has no shape model"),
     ("no_take", "no marker take"),
@@ -146,7 +161,10 @@ def test_a_deleted_marker_empty_is_left_out(run):
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
                        "(0.3, 0.1)"),
     ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),
-    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a finite number >= 0, got -0.5")])
+    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a finite number >= 0, got -0.5"),
+    ("pin_cleared", "the marker has no keyed positions (its animation was cleared), so it is left out: remove the "
+                    "pin (Pins in the Lengths & Angles: Model and Markers panel) or re-import the take"),
+    ("pin_deleted", "the marker's empty was deleted, so it is left out: remove the pin")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res

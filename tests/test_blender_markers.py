@@ -106,6 +106,36 @@ def test_read_take(run):
                                           "(deleted or unparented): re-import the take")
 
 
+@pytest.mark.parametrize("mode, rate", [("SCENE", 60.0), ("RETIME", 24.0), ("RESAMPLE", 24.0)])
+def test_take_frame_rate(run, mode, rate):
+    """Walk1 (60 Hz, 151 samples) into a 24 fps scene: the take's scene frames per second is the take's rate with
+    Set Scene Rate and the scene's at import with Map by Time and Resample; its keys span the take's 2.5 s at that
+    rate, and changing the scene's frame rate afterwards changes nothing (nor read_take's rate)."""
+    res = run["cases"]["take_time"][mode]
+    assert res["rate"] == pytest.approx(rate, rel=1e-12) and res["rate"] == pytest.approx(res["scene_fps_at_import"])
+    assert res["rate_after_fps_change"] == res["rate"] == res["read_rate"]
+    assert res["seconds"] == pytest.approx(150 / 60.0, rel=1e-6)
+
+
+def test_cleared_markers_are_never_visible(run):
+    """Clear Keyframes on a marker empty (or its location channels deleted): read as never visible, not as a marker
+    standing still; named for the fitting operators' note; a marker never seen in the file is not one of them."""
+    res = run["cases"]["cleared_markers"]
+    a, b, c = res["cleared"]
+    assert res["cleared_finite"] == 0                               # standing still before: 3 * 151 * 3 values
+    assert res["others_same_mask"] and res["others_max_abs"] < FLOAT32_METRES
+    assert res["unkeyed"] == [a, b, c] and res["n_never_seen"] > 0  # Walk1 has never-seen points: not these
+    assert not set(res["never_seen"]) & set(res["unkeyed"])
+    assert res["never_seen_finite"] == 0                            # no location keys: not at the origin
+    assert res["unkeyed_of"] == [b]
+    one, several, none = res["notes"]
+    assert one == (f"marker '{a}' has no keyed positions (its animation was cleared): left out; re-import the take "
+                   "to restore it")
+    assert several == (f"3 markers have no keyed positions (their animation was cleared): '{a}', '{b}', '{c}' left "
+                       "out; re-import the take to restore them") and none is None
+    assert res["one_sample_max_abs"] < FLOAT32_METRES and res["one_sample_unkeyed"] == []
+
+
 def test_errors_create_nothing(run):
     messages = run["cases"]["errors_create_nothing"]["messages"]
     assert set(messages) == {"truncated_data", "truncated_header", "not_c3d", "empty", "missing", "mid_way"}

@@ -244,9 +244,23 @@ def character_setups():
     out["stretched_reports"] = op.reports
     op = fake_operator()                 # again, unchanged: the report says the calibration was reused
     op.interactive = False
-    out["again_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
-        context, obj, take, 1, 3)))
+    # ... with the scene's frame rate changed after import (the keys stay on their frames): lacore gets the take's
+    render, lacore_markers = bpy.context.scene.render, ext("lacore.markers")
+    fps, original, rates = (render.fps, render.fps_base), lacore_markers.fit_take, []
+
+    def spy(model, markers, *args, **kwargs):
+        rates.append(markers.rate)
+        return original(model, markers, *args, **kwargs)
+    render.fps, render.fps_base = 25, 1.0
+    lacore_markers.fit_take = spy
+    try:
+        out["again_result"] = sorted(op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(
+            context, obj, take, 1, 3)))
+    finally:
+        lacore_markers.fit_take = original
+        render.fps, render.fps_base = fps
     out["again_reports"] = op.reports
+    out["again_rates"], out["scene_fps"] = rates, fps[0] / fps[1]
     obj.scale = (0.1, 0.1, 0.1)
     obj.rotation_euler.x = 0.0           # the body's Y up along the scene's Y: lying on the floor
     bpy.context.view_layer.update()
@@ -305,12 +319,22 @@ def bad_input():
     attempt("no_model_no_keys", bare)
     deleted = take.children[0].get("lengths_angles_marker")
     bpy.data.objects.remove(take.children[0])  # a marker empty deleted: that marker is left out, said
+    not_markers = {lb for lb, _why in take["lengths_angles_take"]["not_markers"]}
+    cleared = next(c for c in take.children if c.get("lengths_angles_marker") not in not_markers)
+    cleared.animation_data_clear()             # a marker's animation cleared: left out too, said
     select_only(obj, take)
     op = fake_operator()
     op.interactive = False
     res = op.start_run(bpy.context, lambda context: cal.calibrate_fit_run(context, obj, take, 1, N_FRAMES))
+    pins = ext("addon.operators_pins")
+    for name, label in (("pin_cleared", cleared["lengths_angles_marker"]), ("pin_deleted", deleted)):
+        obj[pins.PINS_PROP] = {label: 5}          # a pin on a marker left out: named, nothing changed
+        attempt(name, obj)
+        del obj[pins.PINS_PROP]
     out["marker_deleted"] = {"result": sorted(res), "message": op.reports[-1][1] if op.reports else "",
-                             "label": deleted}
+                             "label": deleted, "cleared": cleared["lengths_angles_marker"],
+                             "bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["labels"]),
+                             "not_bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["not_bound"])}
     obj, take = open_scene()
     ext("addon.operators_markers").remove_take(take)
     bpy.context.view_layer.update()

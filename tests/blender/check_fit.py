@@ -122,7 +122,7 @@ def whole_path():
     scene.frame_set(1)
     select_only(obj, take)
     fit = ext("addon.operators_fit")
-    OUT["bind_mesh"] = fit._mesh_vertices(obj, bpy.context.evaluated_depsgraph_get())
+    OUT["bind_mesh"] = fit._mesh_vertices(obj)
     OUT["bind_markers"] = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
     assert bpy.ops.lengths_angles.bind_markers() == {"FINISHED"}
     obj.shape_key_remove(kb)
@@ -633,7 +633,7 @@ def fit_settings():
                                "penetration_weight": lacore_defaults.penetration_weight,
                                "coefficient_weight": lacore_defaults.coefficient_weight}}
     runner = doctest.DocTestRunner()
-    for f in (fit.fit_settings, fit.typed, quality.settings_text):
+    for f in (fit.fit_settings, fit.typed, quality.settings_text, ext("addon.operators_markers").unkeyed_note):
         for test in doctest.DocTestFinder().find(f):
             runner.run(test)
     out["doctests"] = [runner.failures, runner.tries]
@@ -695,6 +695,208 @@ def fit_settings():
     return out
 
 
+def finish(run):
+    """Compute ``run`` synchronously and finish it as the operator does: ``(result, reports)``."""
+    run.run()
+    op = fake_operator()
+    return sorted(op._finish_run(run)), op.reports
+
+
+def one_line_attempt(out, name, obj, operator, **kw):
+    """``operator(**kw)`` recorded in ``out[name]``: result, message, its line count, whether ``obj`` is unchanged."""
+    before = state(obj)
+    try:
+        res, msg = operator(**kw), ""
+    except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+        res, msg = {"CANCELLED"}, str(exc).strip()
+    out[name] = {"result": sorted(res), "message": msg, "lines": len(msg.splitlines()),
+                 "unchanged": state(obj) == before}
+
+
+def cleared_marker():
+    """A bound marker's empty with its animation cleared (Clear Keyframes): Fit to Markers fits the others (the
+    marker never visible, said in one line) -- the markers and the fit are written for pytest to fit again with
+    lacore; Bind Markers leaves it out and says so; with every bound marker cleared the fit is refused."""
+    fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    select_only(obj)
+    labels = list(obj[fit.BINDING_PROP]["labels"])
+    label = labels[4]
+    empties = {c["lengths_angles_marker"]: c for c in take.children if "lengths_angles_marker" in c}
+    empties[label].animation_data_clear()
+    run = fit.fit_run(bpy.context, obj, 1, 3)
+    result, reports = finish(run)
+    arrays = {"markers": run.job.inputs["markers"], "vertices": run.job.result.vertices}
+    q = obj[quality.FIT_PROP].to_dict()
+    out = {"label": label, "index": labels.index(label), "fit": {"result": result, "reports": reports,
+                                                                  "marker_rms_mm": q["marker_rms_mm"],
+                                                                  "flagged_markers": list(q["flagged_markers"])}}
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    kb = obj.shape_key_add(name="bind pose", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
+    kb.value = 1.0
+    bpy.context.scene.frame_set(1)
+    result, reports = finish(fit.bind_run(bpy.context, obj, take))
+    binding = obj[fit.BINDING_PROP].to_dict()
+    out["bind"] = {"result": result, "reports": reports, "labels": list(binding["labels"]),
+                   "not_bound": list(binding["not_bound"]), "n_markers": len(empties)}
+    obj.shape_key_remove(kb)
+    for c in empties.values():
+        c.animation_data_clear()
+    select_only(obj)
+    one_line_attempt(out, "all_cleared", obj, bpy.ops.lengths_angles.fit_markers)
+    np.savez(os.path.join(ARGS.workdir, "cleared.npz"), **arrays)
+    return out
+
+
+def moving_setups():
+    """What makes the take empty or the character move besides keys of its action: a driver on a transform channel,
+    a constraint, an NLA strip (on a parent): Fit to Markers refuses in one line naming it, nothing changed; muted,
+    disabled, influence 0, invalid, a muted or non-solo track: still.  require_still reads data only (timed)."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    select_only(obj)
+    out, still = {}, {}
+
+    def check(name):
+        try:
+            fit.require_still(take, obj)
+            still[name] = None
+        except ext("lacore.errors").InputError as exc:
+            still[name] = str(exc)
+
+    def attempt(name):
+        one_line_attempt(out, name, obj, bpy.ops.lengths_angles.fit_markers, use_scene_range=False, frame_start=1,
+                         frame_end=2)
+
+    check("plain")
+    fc = take.driver_add("location", 2)            # the take empty's Z driven
+    fc.driver.expression = "frame / 100"
+    attempt("take_driver")
+    fc.mute = True
+    check("muted_driver")
+    take.driver_remove("location", 2)
+    con = obj.constraints.new('COPY_LOCATION')     # the character follows an object
+    con.name = "Follow Take"
+    con.target = take
+    attempt("character_constraint")
+    con.enabled = False
+    check("disabled_constraint")
+    con.enabled, con.influence = True, 0.0
+    check("constraint_no_influence")
+    con.influence, con.target = 1.0, None          # no target: invalid, Blender does not evaluate it
+    check("invalid_constraint")
+    obj.constraints.remove(con)
+    rig = bpy.data.objects.new("Rig", None)        # a parent played by an NLA strip
+    bpy.context.scene.collection.objects.link(rig)
+    obj.parent = rig
+    rig.keyframe_insert("location", frame=1)
+    rig.location.x = 1.0
+    rig.keyframe_insert("location", frame=8)
+    rig.location.x = 0.0
+    action = rig.animation_data.action
+    track = rig.animation_data.nla_tracks.new()
+    track.name = "Walk Track"
+    track.strips.new("Walk", 1, action)
+    rig.animation_data.action = None
+    bpy.context.view_layer.update()
+    attempt("parent_nla")
+    t = time.perf_counter()
+    for _ in range(100):
+        check("nla_timed")
+    out["seconds_per_check"] = (time.perf_counter() - t) / 100
+    track.mute = True
+    check("muted_track")
+    track.mute = False
+    solo = rig.animation_data.nla_tracks.new()
+    solo.is_solo = True
+    check("other_track_solo")
+    out["still"] = still
+    return out
+
+
+def take_rate():
+    """The scene's frame rate changed after import (the take at 10 Hz, one sample per frame): Fit to Markers hands
+    lacore the take's rate, and fits the same as at the scene's original rate."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    select_only(obj)
+    render = bpy.context.scene.render
+    original, rates, vertices = fit.fit_markers, [], []
+
+    def spy(*args, **kwargs):
+        rates.append(kwargs["rate"])
+        return original(*args, **kwargs)
+    fit.fit_markers = spy
+    try:
+        for fps, base in ((render.fps, render.fps_base), (24, 1.0), (30, 1.001)):
+            render.fps, render.fps_base = fps, base
+            run = fit.fit_run(bpy.context, obj, 1, 3)
+            assert finish(run)[0] == ["FINISHED"]
+            vertices.append(run.job.result.vertices)
+    finally:
+        fit.fit_markers = original
+    return {"rates": rates, "max_difference": float(max(np.abs(v - vertices[0]).max() for v in vertices[1:]))}
+
+
+def bind_with_modifiers():
+    """Subdivision Surface and Mirror on the character (the vertex count changed): Bind Markers binds the mesh of
+    its shape keys and leading deformers -- the same binding as without them; the modifiers' viewport switches
+    are back as they were (also after an error); a deformer at the top of the stack counts."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    kb = obj.shape_key_add(name="bind pose", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
+    kb.value = 1.0
+    bpy.context.scene.frame_set(1)
+    select_only(obj, take)
+
+    def bind():
+        try:
+            result, reports = finish(fit.bind_run(bpy.context, obj, take))
+        except ext("lacore.errors").InputError as exc:
+            return {"result": ["CANCELLED"], "message": str(exc)}
+        b = obj[fit.BINDING_PROP].to_dict()
+        return {"result": result, "reports": reports, "labels": list(b["labels"]), "faces": list(b["faces"]),
+                "barycentric": list(b["barycentric"]), "offsets": list(b["offsets"])}
+    out = {"plain": bind()}
+    sub = obj.modifiers.new("Subdivision", 'SUBSURF')
+    sub.levels = 1
+    obj.modifiers.new("Mirror", 'MIRROR')
+    hidden = obj.modifiers.new("Displace", 'DISPLACE')
+    hidden.show_viewport = False                   # off before: stays off
+    out["evaluated_before"] = len(evaluated(obj))
+    out["subdivided"] = bind()
+    out["shown_after"] = [m.show_viewport for m in obj.modifiers]
+    out["evaluated_after"] = len(evaluated(obj))
+    out["n_vertices"] = len(obj.data.vertices)
+    original = fit._evaluated_co
+
+    def failing(*args):
+        raise RuntimeError("simulated failure while evaluating")
+    fit._evaluated_co = failing
+    try:
+        fit.bind_run(bpy.context, obj, take)
+        out["error"] = ""
+    except Exception as exc:  # the simulated failure, not another one
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        fit._evaluated_co = original
+    out["shown_after_error"] = [m.show_viewport for m in obj.modifiers]
+    top = obj.modifiers.new("Inflate", 'DISPLACE')  # a deformer at the top: the bound mesh is inflated
+    top.strength = 0.1
+    obj.modifiers.move(len(obj.modifiers) - 1, 0)
+    out["deformed"] = bind()
+    out["modifiers"] = [m.name for m in obj.modifiers]
+    return out
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
-               runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings])
+               runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
+               moving_setups, take_rate, bind_with_modifiers])

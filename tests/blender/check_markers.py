@@ -335,6 +335,77 @@ def read_take_cases():
             "deleted_label": world.labels[2]}
 
 
+def take_time():
+    """The take's own scene frames per second (take_frame_rate) under each rate mode, and after the scene's frame
+    rate is changed: the keys' span over it is the take's duration in seconds; read_take's rate for given frames."""
+    mod = ext("addon.operators_markers")
+    path = os.path.join(MOCAP, "Walk1.c3d")
+    out = {}
+    for mode in ("SCENE", "RETIME", "RESAMPLE"):
+        reset()
+        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 24, 1.0
+        assert import_markers(path, rate_mode=mode) == {"FINISHED"}
+        take_obj = bpy.data.objects["Walk1"]
+        rate = mod.take_frame_rate(take_obj)
+        at_import = scene_fps()
+        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = 30, 1.001   # changed after import
+        first, last = math.inf, -math.inf
+        for obj in take_obj.children:
+            for axis in range(3):
+                kf, _ = keys(fcurves(obj).find("location", index=axis))
+                if len(kf):
+                    first, last = min(first, kf.min()), max(last, kf.max())
+        out[mode] = {"rate": rate, "rate_after_fps_change": mod.take_frame_rate(take_obj), "scene_fps_at_import":
+                     at_import, "seconds": float((last - first) / mod.take_frame_rate(take_obj)),
+                     "read_rate": mod.read_take(take_obj, frames=[1, 2, 3]).rate}
+    return out
+
+
+def cleared_markers():
+    """Marker empties whose animation was cleared (no action; location channels deleted, all or one) read as never
+    visible in a take of several samples, named by unkeyed_markers; a marker never seen in the file is not one of
+    them; in a one-sample take a cleared marker is read where its empty is."""
+    mod = ext("addon.operators_markers")
+    mio = ext("lacore.markers.io")
+    path = os.path.join(MOCAP, "Walk1.c3d")
+    take = mio.read_markers(path)
+    reset()
+    assert import_markers(path) == {"FINISHED"}
+    take_obj = bpy.data.objects["Walk1"]
+    markers = dict(mod.marker_objects(take_obj))
+    seen = [lb for m, lb in enumerate(take.labels) if take.visible[:, m].all()]
+    never = [lb for m, lb in enumerate(take.labels) if not take.visible[:, m].any()]
+    cleared = seen[:3]
+    markers[cleared[0]].animation_data_clear()                      # Clear Keyframes: no action left
+    curves = fcurves(markers[cleared[1]])                           # the location channels deleted, visible kept
+    for axis in range(3):
+        curves.remove(curves.find("location", index=axis))
+    curves = fcurves(markers[cleared[2]])                           # one location channel deleted
+    curves.remove(curves.find("location", index=1))
+    curves = fcurves(markers[never[0]])                             # never seen, its visible channel deleted
+    curves.remove(curves.find('["visible"]'))
+    back = mod.read_take(take_obj)
+    idx = [take.labels.index(lb) for lb in cleared]
+    others = [m for m in range(take.n_markers) if m not in idx]
+    out = {"cleared": cleared, "never_seen": never[:3], "n_never_seen": len(never),
+           "cleared_finite": int(np.isfinite(back.positions[:, idx]).sum()),
+           "never_seen_finite": int(np.isfinite(back.positions[:, take.labels.index(never[0])]).sum()),
+           "others_same_mask": bool(np.array_equal(back.visible[:, others], take.visible[:, others])),
+           "others_max_abs": float(np.abs(back.positions[:, others][take.visible[:, others]]
+                                          - take.positions[:, others][take.visible[:, others]]).max())}
+    out["unkeyed"] = mod.unkeyed_markers(take_obj)
+    out["unkeyed_of"] = mod.unkeyed_markers(take_obj, labels=[cleared[1], seen[5]])
+    out["notes"] = [mod.unkeyed_note(cleared[:1]), mod.unkeyed_note(cleared), mod.unkeyed_note([])]
+    # one sample: the empty's location is the marker (nothing to corrupt over time)
+    one = mio.MarkerTake(labels=["A", "B", "C"], positions=take.positions[:1, idx], rate=60.0, source="one")
+    one_obj, one_markers = mod.import_take(bpy.context, one, "one")
+    one_markers[0].animation_data_clear()
+    one_back = mod.read_take(one_obj, space='LOCAL')
+    out["one_sample_max_abs"] = float(np.abs(one_back.positions[0] - one.positions[0]).max())
+    out["one_sample_unkeyed"] = mod.unkeyed_markers(one_obj)
+    return out
+
+
 def several_files():
     """Several files at once (file browser multi-select, or a drop): all or nothing."""
     mod = ext("addon.operators_markers")
@@ -445,5 +516,5 @@ def speed():
 
 
 if __name__ == "__main__":
-    run_cases([install_and_enable, real_files, options, read_take_cases, errors_create_nothing, several_files,
-               save_and_reload, speed])
+    run_cases([install_and_enable, real_files, options, read_take_cases, take_time, cleared_markers,
+               errors_create_nothing, several_files, save_and_reload, speed])
