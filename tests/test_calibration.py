@@ -150,12 +150,13 @@ def test_unit_and_axis_mismatches_are_errors(model):
     with pytest.raises(UnitMismatchError, match=r"unit mismatch: the performer measures 10\.\d times the model"):
         calibrate(model, wrong)
     m = _copy(model, length_unit=1.0)                                    # a model declared in metres
-    with pytest.raises(UnitMismatchError, match="decimetres"):
+    with pytest.raises(UnitMismatchError, match=r"declare the model's unit as dm \(model.length_unit\)"):
         calibrate(m, take)
     # a model of undeclared unit: the performer's height in metres catches a take read in the wrong unit
     free = _copy(model, length_unit=None)
-    with pytest.raises(UnitMismatchError, match=r"the performer measures 1\.\d+e\+03 m tall .* check its POINT:UNITS"):
-        calibrate(free, dataclasses.replace(take, positions=take.positions * 1000.0))   # millimetres read as metres
+    with pytest.raises(UnitMismatchError, match=r"the performer measures 1\.\d+e\+03 m tall .* check its POINT:UNITS; "
+                                                r"read the take in mm \(lacore fit --units mm,"):
+        calibrate(free, dataclasses.replace(take, positions=take.positions * 1000.0, units="m"))   # mm read as m
     m = _copy(model, up_axis="x", forward_axis="z")                      # up declared wrongly
     with pytest.raises(AxisMismatchError, match=r"axis mismatch: the model's declared axes \(up x, forward z\)"):
         calibrate(m, take)

@@ -83,6 +83,10 @@ def test_sweep_writes_plys(capsys, tmp_path, bar_files):
     # -o with a mesh extension sets the format (not sweep.obj_000.ply)
     code, _, err = run_main(capsys, "model-sweep", model_path, "--mode", 0, "--frames", 2, "-o", tmp_path / "s.obj")
     assert code == 0 and (tmp_path / "s_000.obj").exists() and (tmp_path / "s_001.obj").exists(), err
+    # every mesh format lacore reads, STL included (the formats of lacore interpolate)
+    code, _, err = run_main(capsys, "model-sweep", model_path, "--mode", 0, "--frames", 2, "-o", tmp_path / "t",
+                            "--format", "stl")
+    assert code == 0 and load_mesh(tmp_path / "t_001.stl")[0].shape == X[0].shape, err
 
 
 def test_bad_input_exit_2_without_output(capsys, tmp_path, bar_files):

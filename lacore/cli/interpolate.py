@@ -51,7 +51,7 @@ import numpy as np
 from dataclasses import replace
 
 from ..errors import InputError
-from ..io.meshes import save_mesh
+from ..io.meshes import MESH_FORMATS, save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import DEFAULT_PROJECTION, PROJECTION_PRESETS, SOLVERS, WEIGHTS, projection_preset
 from .common import (CliError, add_allow_failure, check_outputs, finish, frame_count, json_float,
@@ -65,7 +65,6 @@ PATH = "path"
 
 HELP = "interpolate or extrapolate shapes in lengths and angles (in-betweens, keyframes)"
 
-_FORMATS = ("ply", "obj", "off", "stl")
 
 
 def configure(parser):
@@ -107,13 +106,13 @@ def configure(parser):
                              "(default 1; pays for many frames of large meshes, up to the number of cores)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_PREFIX",
                         help="output prefix: writes OUT_PREFIX_000.ply, OUT_PREFIX_001.ply, ...")
-    parser.add_argument("--format", choices=_FORMATS, default=None,
+    parser.add_argument("--format", choices=MESH_FORMATS, default=None,
                         help="output mesh format (default: the extension of -o if it is one of these, else ply)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
 
 
-def output_format(prefix, given=None, formats=_FORMATS):
+def output_format(prefix, given=None, formats=MESH_FORMATS):
     """The mesh format of ``-o PREFIX``: ``--format`` when given, else the prefix's extension when it is one of
     ``formats`` (``-o walk.obj`` writes OBJ files), else ply.
 

@@ -32,7 +32,7 @@ import time
 
 import numpy as np
 
-from ..io.meshes import save_mesh
+from ..io.meshes import MESH_FORMATS, save_mesh
 from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_keys
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, json_float, load_meshes_in_correspondence,
                      positive_int, print_json)
@@ -43,7 +43,6 @@ __all__ = ["register", "configure_mixer", "run_mixer", "configure_mix", "run_mix
 
 MIXER_HELP = "build a shape mixer (nonlinear blends of shape keys in lengths and angles) from meshes"
 MIX_HELP = "mix shape keys with a mixer built by `lacore mixer`: one mesh per --weights group"
-_FORMATS = ("ply", "obj", "off")
 
 
 def register(register_subcommand):
@@ -61,8 +60,8 @@ def configure_mixer(parser):
                         help="largest size of the reduced space (default: automatic)")
     parser.add_argument("--range", type=float, nargs=2, default=(MixerOptions.low, MixerOptions.high),
                         metavar=("LOW", "HIGH"),
-                        help="weights the mixer is built accurate for, per key (default %(default)s); outside, a "
-                             "mix is flagged")
+                        help=f"weights the mixer is built accurate for, per key (default {MixerOptions.low:g} "
+                             f"{MixerOptions.high:g}); outside, a mix is flagged")
     parser.add_argument("--local-vertices", type=int, default=MixerOptions.local_vertices, metavar="N",
                         help="vertices of the local correction, where the reduced space misses most (default "
                              "%(default)s; 0: none)")
@@ -120,8 +119,8 @@ def mix_output_paths(output, n):
     """``[output]`` for one mix, else ``stem_000.ext ... stem_{n-1}.ext``; the extension gives the format."""
     stem, ext = os.path.splitext(output)
     fmt = ext[1:].lower()
-    if fmt not in _FORMATS:
-        raise MixerError(f"the output must end in {', '.join('.' + f for f in _FORMATS)}, got {output}")
+    if fmt not in MESH_FORMATS:
+        raise MixerError(f"the output must end in {', '.join('.' + f for f in MESH_FORMATS)}, got {output}")
     return [output] if n == 1 else output_paths(stem, n, fmt)
 
 

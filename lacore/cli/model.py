@@ -4,7 +4,7 @@ Usage::
 
     lacore model TRAIN_MESH... -o MODEL.npz [--modes J] [--tangent ambient|projected]
                  [--bending-weight ETA] [--reference I] [--localize] [--json]
-    lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off] [--json]
+    lacore model-sweep MODEL.npz --mode J --range T0 T1 --frames K -o PREFIX [--format ply|obj|off|stl] [--json]
 
 ``lacore model`` fits a :class:`lacore.models.shape_model.ShapeModel` (thesis 4.3:
 extrinsic mean (4.16), tangent vectors (4.18, the default) or (4.17), PCA in the metric of
@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..io.meshes import save_mesh
+from ..io.meshes import MESH_FORMATS, save_mesh
 from ..models.settings import DEFAULT_TANGENT, MODEL_SETTINGS, PROJECTION_METRICS, TANGENTS, ShapeModelError
 from ..models.shape_model import ShapeModel
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, frame_count, load_meshes_in_correspondence,
@@ -47,8 +47,6 @@ __all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_s
 
 MODEL_HELP = "fit a statistical shape model (PCA / simplified PGA in lengths and angles) to meshes"
 SWEEP_HELP = "write meshes along one mode of a shape model"
-#: Mesh formats of ``model-sweep`` (``--format``, or the extension of ``-o``).
-SWEEP_FORMATS = ("ply", "obj", "off")
 
 
 def register(register_subcommand):
@@ -89,7 +87,7 @@ def configure_sweep(parser):
     parser.add_argument("--frames", type=frame_count, default=5, metavar="K", help="number of meshes (default 5)")
     parser.add_argument("-o", "--output", required=True, metavar="PREFIX",
                         help="writes PREFIX_000.ply, PREFIX_001.ply, ...")
-    parser.add_argument("--format", choices=SWEEP_FORMATS, default=None,
+    parser.add_argument("--format", choices=MESH_FORMATS, default=None,
                         help="mesh format (default: the extension of -o if it is one of these, else ply)")
     add_allow_failure(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -168,7 +166,7 @@ def run_sweep(args):
     if not np.all(np.isfinite(args.range)):
         raise ShapeModelError(f"--range must be two finite numbers (standard deviations), got "
                               f"{args.range[0]:g} {args.range[1]:g}")
-    paths = output_paths(args.output, args.frames, output_format(args.output, args.format, SWEEP_FORMATS))
+    paths = output_paths(args.output, args.frames, output_format(args.output, args.format))
     check_outputs(paths, inputs=[args.model])
     model = ShapeModel.load(args.model)
     if not 0 <= args.mode < model.n_modes:

@@ -22,9 +22,11 @@ import trimesh
 from .atomic import atomic_write
 from ..errors import MeshError
 
-__all__ = ["load_mesh", "save_mesh", "SUPPORTED_EXTENSIONS"]
+__all__ = ["load_mesh", "save_mesh", "SUPPORTED_EXTENSIONS", "MESH_FORMATS"]
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".off", ".stl")
+#: The same formats without the dot (the CLI's ``--format`` choices).
+MESH_FORMATS = tuple(ext[1:] for ext in SUPPORTED_EXTENSIONS)
 
 
 def _extension(path):

@@ -66,7 +66,7 @@ from ..geometry.rigid import apply_rigid, rigid_fit
 from ..progress import report
 from .binding import MarkerBinding, closest_surface_points, surface_points
 from .fitting import (ANCHOR_WEIGHT, FIT_DEFAULTS, FrameSolver, fit_options, mean_edge_length)
-from .io import MarkerTake
+from .io import UNIT_SCALES, MarkerTake
 from .takes import drop_inconsistent_samples, drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
 
@@ -509,6 +509,41 @@ def _unit_name(u):
     return next((v for k, v in names.items() if abs(np.log10(u / k)) < 0.05), f"{u:g} m")
 
 
+#: Length units a take or a model is commonly in (symbol: metres), to name the one a size mismatch points to.
+_COMMON_UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 0.1, "m": 1.0, "in": 0.0254, "ft": 0.3048}
+
+
+def _common_unit(metres):
+    """The symbol of the common unit within 5 % of ``metres``, else None."""
+    return next((k for k, v in _COMMON_UNITS.items() if abs(np.log(metres / v)) < 0.05), None) \
+        if metres > 0 else None
+
+
+def _unit_advice(take_units, ratio, metres_per_model_unit=None):
+    """What fits when the performer measures ``ratio`` times the model: the take read in another unit, or the
+    model declared in another (each named where it is a common unit, :data:`_COMMON_UNITS`; the model's only
+    when ``metres_per_model_unit`` is given).
+
+    >>> _unit_advice("m", 1000.0, 100.0)     # millimetres read as metres
+    "read the take in mm (lacore fit --units mm, read_take(..., units='mm'))"
+    >>> _unit_advice("mm", 0.1, 0.1)         # a model in decimetres declared in metres
+    "read the take in cm (lacore fit --units cm, read_take(..., units='cm')) or declare the model's unit as dm \
+(model.length_unit)"
+    """
+    read = UNIT_SCALES.get(str(take_units).strip().lower())
+    take_fits = _common_unit(read / ratio) if read else None
+    model_fits = None if metres_per_model_unit is None else \
+        _common_unit(10.0 ** np.round(np.log10(metres_per_model_unit)))
+    ways = ([f"read the take in {take_fits} (lacore fit --units {take_fits}, read_take(..., units='{take_fits}'))"]
+            if take_fits else []) + \
+           ([f"declare the model's unit as {model_fits} (model.length_unit)"] if model_fits else [])
+    if ways:
+        return " or ".join(ways)
+    return ("read the take in its file's unit (read_take(..., units=...), lacore fit --units)"
+            if metres_per_model_unit is None else "check the model's length unit or the take's POINT:UNITS "
+                                                  "(read_take(..., units=...), lacore fit --units)")
+
+
 def atlas_distance(vertices, faces, up, forward):
     """Mean distance of the humanoid atlas' landmarks from a mesh, in its heights, with the given axes.
 
@@ -776,19 +811,17 @@ def calibrate(model, take, options=None, *, fit=None, placement=None, pins=None,
         ratio = s_used / u
         lo, hi = o.ratio_limits
         if not lo <= ratio <= hi:
-            guess = 10.0 ** np.round(np.log10(s_used))
             raise UnitMismatchError(
                 f"unit mismatch: the performer measures {ratio:.3g} times the model in its declared unit "
-                f"({_unit_name(u)}); the take fits a model in {_unit_name(guess)}: check the model's length unit "
-                "or the take's POINT:UNITS (read_take(..., units=...), lacore fit --units)", ratio=float(ratio))
+                f"({_unit_name(u)}); {_unit_advice(take.units, ratio, s_used)}", ratio=float(ratio))
     else:
         height = s_used * float(np.ptp(Xr @ _axis(up)))
         lo, hi = PERFORMER_HEIGHT_RANGE
         if any(h is not None for h in hints) and placement is None and not lo <= height <= hi:
             raise UnitMismatchError(
                 f"unit mismatch: the performer measures {height:.3g} m tall in the take's unit (a person: "
-                f"{lo:g}-{hi:g} m), so the take's unit is wrong: check its POINT:UNITS (read_take(..., units=...), "
-                "lacore fit --units)")
+                f"{lo:g}-{hi:g} m), so the take's unit is wrong: check its POINT:UNITS; "
+                f"{_unit_advice(take.units, 10.0 ** np.round(np.log10(height)))}")
         u = float(10.0 ** np.round(np.log10(s_used)))
         notes.append(f"model unit not declared: {_unit_name(u)} inferred (set model.length_unit)")
     # ---- axes
