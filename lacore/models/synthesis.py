@@ -29,7 +29,8 @@ def _check_reachable(model, zs):
     overflow = np.flatnonzero(~(growth < _MAX_LENGTH_GROWTH))
     if overflow.size:
         k = int(overflow[0])
-        raise ShapeModelError(f"pose {k + 1} of {len(zs)} is too far from the training poses: its lengths reach "
+        raise ShapeModelError(f"the pose of coefficient row {k} (of {len(zs)}) is too far from the training "
+                              f"poses: its lengths reach "
                               f"{growth[k]:.3g} times the mean's, beyond what double precision can reconstruct "
                               "(use coefficients of a few standard deviations)")
     L = zs[:, :E][:, model.topology.face_edges]  # (K, F, 3) target lengths per face
@@ -37,7 +38,8 @@ def _check_reachable(model, zs):
     far = np.flatnonzero(2 * broken > model.topology.n_faces)
     if far.size:
         k = int(far[0])
-        raise ShapeModelError(f"pose {k + 1} of {len(zs)} is too far from the training poses: its lengths violate "
+        raise ShapeModelError(f"the pose of coefficient row {k} (of {len(zs)}) is too far from the training "
+                              f"poses: its lengths violate "
                               f"the triangle inequality at {broken[k]} of {model.topology.n_faces} faces, no mesh "
                               "has them (use coefficients of a few standard deviations)")
 
@@ -73,11 +75,12 @@ def synthesis_targets(model, coefficients, min_length_ratio=MIN_LENGTH_RATIO):
 
 
 def _warn_failed(results, stacklevel):
-    """A :class:`~lacore.errors.ReconstructionWarning` naming the poses (1-based) that failed their checks."""
+    """A :class:`~lacore.errors.ReconstructionWarning` naming the poses that failed their checks by their rows of
+    the coefficients (from 0, as the CLI numbers its files)."""
     failed = [k for k, res in enumerate(results) if not res.success]
     if failed:
-        shown = ", ".join(str(k + 1) for k in failed[:8]) + (" ..." if len(failed) > 8 else "")
-        warnings.warn(f"{len(failed)} of {len(results)} poses failed their checks (pose {shown}): "
+        shown = ", ".join(str(k) for k in failed[:8]) + (" ..." if len(failed) > 8 else "")
+        warnings.warn(f"{len(failed)} of {len(results)} poses failed their checks (coefficient rows {shown}): "
                       f"{results[failed[0]].message}; use coefficients of a few standard deviations, or "
                       "return_results=True to inspect them", ReconstructionWarning, stacklevel=stacklevel)
 
