@@ -370,12 +370,16 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         if reused is None:
             _store_calibration(obj.data, cal, key_of(obj.data[MODEL_PROP].get("token", "")))
         bound = list(res.labels)
+        dropped = list(getattr(markers, "dropped", ()))     # points that are not markers, with why
+        not_bound = [lb for lb in labels if lb not in bound]
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
             "frame": int(frames[0]), "calibrated": True,
             "faces": b.faces.tolist(), "barycentric": b.barycentric.ravel().tolist(), "offsets": b.offsets.tolist(),
             "n_vertices": len(obj.data.vertices),
-            "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": [lb for lb in labels if lb not in bound],
+            "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": not_bound,
+            "not_bound_reasons": [dict(dropped).get(lb, "left out by the calibration: see its report")
+                                  for lb in not_bound],
             "performer_ratio": float(cal.performer_ratio),
         }
         quality = write_quality(obj, frames, res, bound, unit, take_name, recorded_settings(options))
@@ -388,7 +392,6 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
                              f"the empties of {len(deleted)} markers were deleted, left out: {shown}")
         if unkeyed:
             job.notes.append(unkeyed_note(unkeyed))
-        dropped = list(getattr(markers, "dropped", ()))
         if dropped:
             job.notes.append(f"{len(dropped)} points are not markers and were left out: "
                              + ", ".join(f"{lb} ({why})" for lb, why in dropped[:5])

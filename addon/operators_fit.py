@@ -580,6 +580,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
+            "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden),
         }
         if note is not None:
             job.notes.append(note)

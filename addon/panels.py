@@ -149,8 +149,10 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
                 row.label(text=label, icon='ERROR' if abs(offset) * unit > warn else 'CHECKMARK')
                 row.label(text=f"triangle {face}")
                 row.label(text=f"{1000 * offset * unit:.1f} mm")
-            for label in binding.get("not_bound", []):
-                box.row().label(text=f"{label}: not bound (occluded)", icon='HIDE_ON')
+            not_bound = list(binding.get("not_bound", []))
+            reasons = list(binding.get("not_bound_reasons", ["occluded"] * len(not_bound)))  # (older bindings)
+            for label, why in zip(not_bound, reasons, strict=True):
+                box.row().label(text=f"{label}: not bound ({why})", icon='HIDE_ON')
             layout.operator(fit.LENGTHS_ANGLES_OT_fit_markers.bl_idname, icon='ARMATURE_DATA')
         draw_fit_quality(layout, obj)
 

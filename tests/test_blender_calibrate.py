@@ -73,6 +73,11 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
     crossing = q["self_intersection_frames"]
     assert set(crossing) <= set(range(1, N_FRAMES + 1)), crossing
     assert res["panel_texts"] and res["panel_texts"][0].startswith("Fit of")
+    # the panel says why each point was not bound (Walk1's points that are not markers), not "occluded"
+    assert res["not_bound"] and len(res["not_bound_reasons"]) == len(res["not_bound"]), res
+    assert res["not_bound_texts"] == [f"{lb}: not bound ({why})"
+                                      for lb, why in zip(res["not_bound"], res["not_bound_reasons"], strict=True)]
+    assert not any("occluded" in why for why in res["not_bound_reasons"]), res["not_bound_reasons"]
     assert "lengths_angles.calibrate_fit" in " ".join(map(str, res["panel_operators"])) or res["panel_operators"]
 
 

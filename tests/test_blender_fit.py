@@ -180,6 +180,7 @@ def test_bind_skips_occluded_markers_and_warns_in_metres(run):
     d, strict = res["default"], res["strict"]
     assert d["result"] == ["FINISHED"] and d["n_bound"] == res["n_markers"] - 3
     assert sorted(d["not_bound"]) == sorted(res["occluded_labels"])
+    assert d["not_bound_reasons"] == ["occluded at frame 3"] * 3, d
     assert abs(d["metres_per_unit"] - 0.1) < 1e-6  # imported with Scale 10
     kind, text = d["reports"][-1]
     assert kind == "WARNING" and "3 markers occluded at frame 3 were not bound" in text

@@ -115,11 +115,12 @@ def test_warm_started_gauss_newton_does_not_claim_a_stall_as_success(holed_sheet
     mst = reconstruct(z3, topo, A, method="mst")
     assert not mst.success and mst.failure in ("folded", "not_reproduced")
     # warm-started from the MST result, Gauss-Newton used to stop after 9 iterations at energy 747 with
-    # status 2, success=True; now the stall is detected (it ends at 0.82, 1.6x the cold start's minimum) and the
-    # restart reaches the cold start's minimum
+    # status 2, success=True; now it fails: on some CPUs the stall is detected (it ends at 0.82, 1.6x the cold
+    # start's minimum, status -3), on others it creeps on to the iteration limit (0.704 and folded, status 0);
+    # either way the restart reaches the cold start's minimum
     ctx = get_context(topo, A, ReconstructionSettings())
     raw = gauss_newton_reconstruction(z3, topo, initial_vertices=mst.vertices, context=ctx)
-    assert not raw.success and raw.status == -3 and raw.energy > 1.2 * cold.energy, (raw.message, raw.energy)
+    assert not raw.success and raw.status in (-3, 0) and raw.energy > 1.2 * cold.energy, (raw.message, raw.energy)
     warm = reconstruct(z3, topo, A, method="gn", initial_vertices=mst.vertices)
     assert warm.success and warm.energy == pytest.approx(cold.energy, rel=1e-3), warm.message
     assert any("restarted" in n for n in warm.notes)

@@ -45,8 +45,9 @@ minimizer); ``failure`` names a failed check.  Gauss-Newton (``"gn"``, and
 ``"hybrid"`` from a given or tree start) checks its start
 (``start_check``, :mod:`.gauss_newton`): when its first damped step gets less
 than halfway, it continues from the least-squares relaxation if that is 1000
-times better.  A ``"gn"`` run that stalls (status -1 or -3) and did not continue
-from the relaxation is restarted once from it.
+times better.  A ``"gn"`` run that fails after a stall (status -1 or -3), or
+ends folded at the iteration limit (status 0), and did not continue from the
+relaxation, is restarted once from it.
 
 Reuse
 -----
@@ -97,7 +98,7 @@ __all__ = [
 
 METHODS = ("gn", "bfs", "mst", "spt", "lsq", "hybrid")
 _FRAME_KINDS = ("bfs", "mst", "spt")
-#: Gauss-Newton statuses after which ``"gn"`` restarts from the least-squares relaxation.
+#: Gauss-Newton statuses after which a failed ``"gn"`` run restarts from the least-squares relaxation.
 _STALLED = (-3, -1)
 
 
@@ -270,7 +271,9 @@ def reconstruct(z_target, topology, reference_vertices, method="gn", *, settings
         res = gauss_newton_reconstruction(z, topology, initial_vertices=initial_vertices, context=context,
                                           options=options, started=t_start,
                                           start_check=options.start_check)  # checked there
-        if res.status in _STALLED and not res.success and not any(SWITCH_NOTE in n for n in res.notes):
+        # a warm start in a poor basin stalls, or on some CPUs creeps on to the iteration limit, folded
+        poor_basin = res.status in _STALLED or (res.status == 0 and res.failure == "folded")
+        if poor_basin and not res.success and not any(SWITCH_NOTE in n for n in res.notes):
             res = _restart_from_least_squares(res, z, topology, context, options, t_start)
         return replace(res, notes=notes + res.notes)
 
@@ -314,7 +317,8 @@ def _direct(z, topology, context, kind, tree=None):
 
 
 def _restart_from_least_squares(first, z, topology, context, options, t_start):
-    """Gauss-Newton again from the least-squares relaxation after ``first`` stalled (status -1 or -3).
+    """Gauss-Newton again from the least-squares relaxation after ``first`` stalled (status -1 or -3) or ended
+    folded at the iteration limit.
 
     On very thin triangles (aspect ~1e4) the Gauss-Newton matrix at a flat
     start is too ill-conditioned for progress (condition ~ aspect^4 with the

@@ -131,6 +131,8 @@ def whole_path():
             "modifier": {"type": mod.type, "frame_start": mod.frame_start, "filepath": mod.filepath},
             "quality": obj[quality.FIT_PROP].to_dict(), "binding_labels": list(binding["labels"]),
             "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
+            "not_bound_reasons": list(binding["not_bound_reasons"]),
+            "not_bound_texts": [t for t in texts if "not bound (" in t],
             "performer_ratio": binding["performer_ratio"], "model_keys": list(meta["keys"]),
             "panel_texts": [t for t in texts if t.startswith(("Fit of", "Prior", "Flagged"))],
             "panel_operators": ops, "keys_unchanged": before["keys"] == state(obj)["keys"]}

@@ -210,6 +210,7 @@ def bind_units_and_occlusion():
         binding = obj[fit.BINDING_PROP].to_dict()
         out[label] = {"result": sorted(result), "reports": op.reports, "n_bound": len(binding["labels"]),
                       "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
+                      "not_bound_reasons": list(binding["not_bound_reasons"]),
                       "offsets_mm": [1000 * abs(o) * binding["metres_per_unit"] for o in binding["offsets"]]}
     labels = [lb for lb, _ in ext("addon.operators_markers").marker_objects(take)]
     out["occluded_labels"] = [labels[i] for i in (3, 10, 20)]
