@@ -371,6 +371,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             _store_calibration(obj.data, cal, key_of(obj.data[MODEL_PROP].get("token", "")))
         bound = list(res.labels)
         dropped = list(getattr(markers, "dropped", ()))     # points that are not markers, with why
+        not_marker = dict(dropped)
         not_bound = [lb for lb in labels if lb not in bound]
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
@@ -378,7 +379,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             "faces": b.faces.tolist(), "barycentric": b.barycentric.ravel().tolist(), "offsets": b.offsets.tolist(),
             "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": not_bound,
-            "not_bound_reasons": [dict(dropped).get(lb, "left out by the calibration: see its report")
+            "not_bound_reasons": [not_marker.get(lb, "left out by the calibration: see its report")
                                   for lb in not_bound],
             "performer_ratio": float(cal.performer_ratio),
         }

@@ -54,7 +54,7 @@ from ..errors import InputError
 from ..io.atomic import save_npz_atomic
 from ..markers.take_fit import fit_take, frame_indices
 from ..markers.fitting import FIT_DEFAULTS, fit_markers
-from ..markers.io import UNIT_SCALES, read_marker_arrays
+from ..markers.io import COMMON_UNITS, UNIT_SCALES, read_marker_arrays
 from ..markers.takes import read_take
 from ..models.shape_model import ShapeModel
 from ..result import json_value
@@ -64,7 +64,7 @@ __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
 
 HELP = "fit a shape model to motion-capture markers (poses per frame, no skeleton)"
 #: The units ``--units`` names in its help (:data:`lacore.markers.io.UNIT_SCALES` also takes their spelled-out names).
-KNOWN_UNITS = "mm, cm, dm, m, in, ft"
+KNOWN_UNITS = ", ".join(COMMON_UNITS)
 
 
 def register(register_subcommand):

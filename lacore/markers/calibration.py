@@ -66,7 +66,7 @@ from ..geometry.rigid import apply_rigid, rigid_fit
 from ..progress import report
 from .binding import MarkerBinding, closest_surface_points, surface_points
 from .fitting import (ANCHOR_WEIGHT, FIT_DEFAULTS, FrameSolver, fit_options, mean_edge_length)
-from .io import UNIT_SCALES, MarkerTake
+from .io import COMMON_UNITS, UNIT_SCALES, MarkerTake
 from .takes import drop_inconsistent_samples, drop_non_markers
 from .marker_sets import AXES, match_label, place_hints
 
@@ -509,19 +509,15 @@ def _unit_name(u):
     return next((v for k, v in names.items() if abs(np.log10(u / k)) < 0.05), f"{u:g} m")
 
 
-#: Length units a take or a model is commonly in (symbol: metres), to name the one a size mismatch points to.
-_COMMON_UNITS = {"mm": 1e-3, "cm": 1e-2, "dm": 0.1, "m": 1.0, "in": 0.0254, "ft": 0.3048}
-
-
 def _common_unit(metres):
     """The symbol of the common unit within 5 % of ``metres``, else None."""
-    return next((k for k, v in _COMMON_UNITS.items() if abs(np.log(metres / v)) < 0.05), None) \
+    return next((k for k in COMMON_UNITS if abs(np.log(metres / UNIT_SCALES[k])) < 0.05), None) \
         if metres > 0 else None
 
 
 def _unit_advice(take_units, ratio, metres_per_model_unit=None):
     """What fits when the performer measures ``ratio`` times the model: the take read in another unit, or the
-    model declared in another (each named where it is a common unit, :data:`_COMMON_UNITS`; the model's only
+    model declared in another (each named where it is a common unit, :data:`~.io.COMMON_UNITS`; the model's only
     when ``metres_per_model_unit`` is given).
 
     >>> _unit_advice("m", 1000.0, 100.0)     # millimetres read as metres

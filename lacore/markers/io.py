@@ -42,7 +42,7 @@ from ..io.atomic import atomic_write
 
 __all__ = ["MarkerTake", "MarkerError", "MarkerFileError", "read_markers", "read_c3d", "read_trc", "write_c3d",
            "write_trc", "unit_scale", "read_marker_arrays", "MODEL_OUTPUT_GROUPS", "UNIT_SCALES",
-           "NON_MARKER_GROUPS"]
+           "COMMON_UNITS", "NON_MARKER_GROUPS"]
 
 #: POINT parameters whose labels name model outputs (angles, forces...), not markers.
 MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS")
@@ -56,6 +56,10 @@ UNIT_SCALES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "um": 1e-
                "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "millimeter": 1e-3,
                "millimeters": 1e-3, "millimetre": 1e-3, "millimetres": 1e-3, "centimeter": 1e-2,
                "centimeters": 1e-2, "centimetre": 1e-2, "centimetres": 1e-2}
+
+#: The units lengths are commonly given in (keys of :data:`UNIT_SCALES`): what help texts list and what a unit
+#: mismatch names.
+COMMON_UNITS = ("mm", "cm", "dm", "m", "in", "ft")
 
 _C3D_MAGIC = 0x50
 _PROCESSORS = {84: "Intel", 85: "DEC", 86: "SGI/MIPS"}
