@@ -3,9 +3,10 @@
 
 ``load_addon()`` imports the repository root as the package ``lengths_angles``
 (so ``lengths_angles.addon`` and ``lengths_angles.lacore`` resolve exactly as in
-the installed extension) and registers it.  Needs ``bpy``.
+the installed extension) and registers it until the interpreter exits.  Needs ``bpy``.
 """
 
+import atexit
 import importlib.util
 import os
 import sys
@@ -30,4 +31,16 @@ def load_addon(register=True):
 
         if not hasattr(bpy.types, "LENGTHS_ANGLES_OT_encode"):
             pkg.register()
+            # bpy 4.2 as a module frees its space types (with the panels registered on them) in a C++ exit
+            # handler that runs after Python is finalized, and crashes there (exit code -11, after the script's
+            # work is done) while a panel is still registered; unregistered at exit, it leaves cleanly.
+            atexit.register(_unregister, pkg)
     return pkg
+
+
+def _unregister(pkg):
+    """Unregister the add-on if it still is (the script may have done so itself)."""
+    import bpy
+
+    if hasattr(bpy.types, "LENGTHS_ANGLES_OT_encode"):
+        pkg.unregister()
