@@ -32,7 +32,8 @@ help:
 	@echo "make venv       create $(VENV) (Python 3.11, NumPy 1.26) and install lacore[test] in editable mode"
 	@echo "make venv-np2   create $(VENV_NP2) (Python 3.13, NumPy 2.5) with lacore[test]"
 	@echo "make venv-blender  create $(VENV_BLENDER42) ($(BPY42)) and $(VENV_BLENDER52) ($(BPY52)), bpy only"
-	@echo "make demo       encode a shared mesh (CLI) and a generated Blender scene (add-on, bpy 5.2) into demo_output/"
+	@echo "make demo       encode a shared mesh (CLI) and a generated Blender scene (add-on) into demo_output/"
+	@echo "                (.blend files saved with bpy 4.2: they open in 4.2 to 5.2; panel pictures drawn with 5.2)"
 	@echo "make test       the whole suite: lacore under NumPy 1.26 and 2.5, wheel tags, Blender checks on bpy 4.2 and 5.2,"
 	@echo "                and the numerically sensitive tests again on other SIMD/BLAS kernels (make test-kernels)"
 	@echo "make extension  download the bundled wheels (4 platforms) and build dist/lengths_angles-*.zip"
@@ -79,10 +80,14 @@ $(STAMP_BLENDER52):
 
 venv-blender: $(STAMP_BLENDER42) $(STAMP_BLENDER52)
 
-# The Blender part runs in bpy 5.2's venv, finding SciPy & co. in $(VENV_NP2) (same Python 3.13).
-demo: venv venv-np2 $(STAMP_BLENDER52)
-	LACORE_DEMO_BLENDER_PYTHON=$(abspath $(VENV_BLENDER52))/bin/python \
-	LACORE_DEMO_BLENDER_PYTHONPATH=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
+# The Blender steps that save .blend files run in bpy 4.2's venv (SciPy & co. from $(VENV), same Python 3.11), as
+# `make samples`: Blender 4.2 cannot open a .blend saved by 5.x, and every newer Blender opens 4.2's.  The panel
+# pictures are drawn in bpy 5.2's venv, finding SciPy & co. in $(VENV_NP2) (same Python 3.13).
+demo: venv venv-np2 $(STAMP_BLENDER42) $(STAMP_BLENDER52)
+	LACORE_DEMO_BLENDER_PYTHON=$(abspath $(VENV_BLENDER42))/bin/python \
+	LACORE_DEMO_BLENDER_PYTHONPATH=$$($(PY) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
+	LACORE_DEMO_PANEL_BLENDER_PYTHON=$(abspath $(VENV_BLENDER52))/bin/python \
+	LACORE_DEMO_PANEL_BLENDER_PYTHONPATH=$$($(PY_NP2) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") \
 	$(PY) scripts/demo.py --output demo_output
 
 # 1. everything (lacore under NumPy 1.26, wheel-tag check, Blender checks on bpy 4.2 AND 5.2: a missing one fails)

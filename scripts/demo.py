@@ -30,6 +30,9 @@ Steps now:
    ``human_mocap_fit.blend`` with a Mesh Cache modifier playing its PC2 next to it, ``human_mocap_fit.json``.
 8. ``blender_panel``: the add-on's panels and the In-betweens dialog drawn from their own ``draw()`` calls
    (scripts/draw_panel.py) -> ``panel.png`` and ``inbetweens_dialog.png`` (the README's panel picture).
+
+Steps 5-7 save .blend files, so they run in the oldest supported Blender (``make demo``: bpy 4.2): Blender 4.2
+cannot open a .blend saved by 5.x, and every newer Blender opens 4.2's.  Step 8 draws in the newest (bpy 5.2).
 """
 
 import argparse
@@ -112,21 +115,33 @@ def cli_encode(out_dir):
     }
 
 
-# The Blender steps run in this interpreter (must have bpy; `make demo`: the newest Blender's venv, bpy 5.2)
-# with LACORE_DEMO_BLENDER_PYTHONPATH (where that Python finds scipy & co.) as its PYTHONPATH.
-BLENDER_PYTHON = os.environ.get("LACORE_DEMO_BLENDER_PYTHON") or sys.executable
+# The Blender steps run in bpy interpreters, each with its *_PYTHONPATH (where that Python finds SciPy & co.):
+#   LACORE_DEMO_BLENDER_PYTHON        the steps that save .blend files (`make demo`: bpy 4.2, the oldest supported
+#                                     Blender, whose files every supported Blender opens); unset: this interpreter
+#   LACORE_DEMO_PANEL_BLENDER_PYTHON  the panel pictures (`make demo`: bpy 5.2, the newest); unset: the one above
+SAVING, DRAWING = "LACORE_DEMO_BLENDER", "LACORE_DEMO_PANEL_BLENDER"
 
 
-def blender_env(user_dir):
-    env = dict(os.environ, BLENDER_USER_RESOURCES=user_dir)  # do not touch the user's Blender config
-    if os.environ.get("LACORE_DEMO_BLENDER_PYTHONPATH"):
-        env["PYTHONPATH"] = os.environ["LACORE_DEMO_BLENDER_PYTHONPATH"]
-    return env
+def blender_python(role=SAVING):
+    """``(interpreter, PYTHONPATH or None)`` of the Blender that runs the steps of ``role`` (SAVING or DRAWING)."""
+    if role == DRAWING and os.environ.get(DRAWING + "_PYTHON"):
+        return os.environ[DRAWING + "_PYTHON"], os.environ.get(DRAWING + "_PYTHONPATH")
+    return os.environ.get(SAVING + "_PYTHON") or sys.executable, os.environ.get(SAVING + "_PYTHONPATH")
+
+
+def run_blender_script(args, user_dir, role=SAVING, stdout=None):
+    """Run ``python args...`` in the Blender of ``role`` (:func:`blender_python`), its Blender config in
+    ``user_dir`` (the user's is not touched)."""
+    python, path = blender_python(role)
+    env = dict(os.environ, BLENDER_USER_RESOURCES=user_dir)
+    if path:
+        env["PYTHONPATH"] = path
+    run_blender([python, *args], env=env, stdout=stdout)
 
 
 def blender_encode(out_dir):
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        run_blender([BLENDER_PYTHON, os.path.join(HERE, "demo_blender.py"), out_dir], env=blender_env(user_dir))
+        run_blender_script([os.path.join(HERE, "demo_blender.py"), out_dir], user_dir)
     with open(os.path.join(out_dir, "demo_scene.json")) as fh:
         result = json.load(fh)
     parts = []
@@ -139,7 +154,7 @@ def blender_encode(out_dir):
         outputs.append(os.path.basename(result["picture"]))
     return {
         "outputs": outputs,
-        "text": "Blender add-on Encode operator: " + "; ".join(parts),
+        "text": "Blender add-on Encode operator: " + "; ".join(parts) + f"; saved by Blender {result['saved_by']}",
         "result": result,
     }
 
@@ -150,8 +165,8 @@ def blender_interpolate(out_dir):
     blend = os.path.join(out_dir, "bar_inbetweens.blend")
     numbers = os.path.join(out_dir, "bar_blend_comparison.json")
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        run_blender([BLENDER_PYTHON, os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
-                     "--json", numbers, "--bake"], env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+        run_blender_script([os.path.join(HERE, "render_comparison.py"), "--output", picture, "--blend", blend,
+                            "--json", numbers, "--bake"], user_dir, stdout=subprocess.DEVNULL)
     with open(numbers) as fh:
         result = json.load(fh)
     la, lin = result["lengths_and_angles"], result["linear_blend"]
@@ -165,7 +180,7 @@ def blender_interpolate(out_dir):
                  f"{100 * la['max_edge_error_vs_reference']:.3f} % "
                  f"(linear {100 * lin['max_edge_error_vs_reference']:.0f} %); bar_inbetweens.blend has the "
                  f"in-between keys and a baked motion ({result['bake']['baked_keys']} "
-                 "keys, frames 1-48, press Play)"),
+                 f"keys, frames 1-48, press Play), saved by Blender {result['saved_by']}"),
         "result": result,
     }
 
@@ -302,8 +317,8 @@ def blender_mocap_fit(out_dir):
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
         inputs = os.path.join(user_dir, "inputs.npz")
         np.savez(inputs, faces=body.faces, basis=body.vertices, training=train, true=take)
-        run_blender([BLENDER_PYTHON, os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d],
-                    env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+        run_blender_script([os.path.join(HERE, "demo_mocap_blender.py"), out_dir, inputs, c3d], user_dir,
+                           stdout=subprocess.DEVNULL)
     with open(os.path.join(out_dir, "human_mocap_fit.json")) as fh:
         result = json.load(fh)
     s = result["seconds"]
@@ -314,7 +329,7 @@ def blender_mocap_fit(out_dir):
                  f"{result['frames']} frames), Bind Markers, Fit to Markers ({s['fit_markers']:.1f} s) -> "
                  f"{result['pc2']} played by a Mesh Cache modifier: mean per-vertex error vs the true poses "
                  f"{result['mean_vertex_error_mm']:.1f} mm (max {result['max_vertex_error_mm']:.0f} mm); "
-                 "open human_mocap_fit.blend and press Play"),
+                 f"open human_mocap_fit.blend (saved by Blender {result['saved_by']}) and press Play"),
         "result": result,
     }
 
@@ -324,8 +339,8 @@ def blender_panel(out_dir):
     panel = os.path.join(out_dir, "panel.png")
     dialog = os.path.join(out_dir, "inbetweens_dialog.png")
     with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
-        run_blender([BLENDER_PYTHON, os.path.join(HERE, "draw_panel.py"), "--output", panel, "--dialog", dialog],
-                    env=blender_env(user_dir), stdout=subprocess.DEVNULL)
+        run_blender_script([os.path.join(HERE, "draw_panel.py"), "--output", panel, "--dialog", dialog], user_dir,
+                           role=DRAWING, stdout=subprocess.DEVNULL)
     return {
         "outputs": ["panel.png", "inbetweens_dialog.png"],
         "text": ("the add-on's panels (a bar with shape keys, an in-between, a shape model and a bound take) and the "

@@ -218,7 +218,7 @@ def main(out_dir, render=True):
         except Exception as exc:  # rendering is a bonus: no GPU/EGL must not break the demo
             print(f"demo_blender: rendering skipped ({type(exc).__name__}: {exc})", file=sys.stderr)
     with open(os.path.join(out_dir, "demo_scene.json"), "w") as fh:
-        json.dump({"blend": blend, "picture": picture, "blender": bpy.app.version_string, "objects": summary},
+        json.dump({"blend": blend, "picture": picture, "saved_by": bpy.app.version_string, "objects": summary},
                   fh, indent=1)
 
 

@@ -99,7 +99,7 @@ def main(out_dir, inputs_path, c3d_path):
     bpy.ops.wm.save_mainfile()
     result = {"frames": T, "vertices": len(obj.data.vertices), "markers": len(take.children),
               "modifier": {"type": mod.type, "cache_format": mod.cache_format, "filepath": mod.filepath},
-              "pc2": os.path.basename(bpy.path.abspath(mod.filepath)),
+              "pc2": os.path.basename(bpy.path.abspath(mod.filepath)), "saved_by": bpy.app.version_string,
               "mean_vertex_error_mm": float(err_mm.mean()), "max_vertex_error_mm": float(err_mm.max()),
               "seconds": {k: round(v, 3) for k, v in timings.items()}}
     with open(os.path.join(out_dir, "human_mocap_fit.json"), "w") as fh:

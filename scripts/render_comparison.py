@@ -194,6 +194,7 @@ def main(argv=None):
         os.makedirs(os.path.dirname(os.path.abspath(args.blend)), exist_ok=True)
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.blend), compress=True)
         numbers["blend"] = os.path.abspath(args.blend)
+        numbers["saved_by"] = bpy.app.version_string  # Blender opens a .blend saved by its version or an older one
     text = json.dumps(numbers, indent=1)
     if args.json:
         with open(args.json, "w") as fh:

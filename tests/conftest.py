@@ -159,17 +159,18 @@ def extension_zip(request) -> ExtensionZip:
     return ExtensionZip(request.getfixturevalue("_extension_zip_file"), request.param, python)
 
 
-def run_blender_check(script, zip_path, work: Path, timeout=600) -> dict:
+def run_blender_check(script, zip_path, work: Path, timeout=600, env=None) -> dict:
     """Run a tests/blender/check_*.py script (installs ``zip_path`` into a throw-away
     BLENDER_USER_RESOURCES under ``work``) in a subprocess; returns its JSON result.
 
-    The subprocess is the bpy interpreter of the Blender ``zip_path`` (an :class:`ExtensionZip`) is for.
+    The subprocess is the bpy interpreter of the Blender ``zip_path`` (an :class:`ExtensionZip`) is for; ``env``:
+    more environment variables for it.
     """
     import json
     import subprocess
 
     python = getattr(zip_path, "python", None) or blender_python(BLENDERS[-1])  # a plain path: the newest
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user_resources"))
+    env = dict(os.environ, **(env or {}), BLENDER_USER_RESOURCES=str(work / "user_resources"))
     env.pop("PYTHONPATH", None)  # the bpy venv alone: the extension's bundled wheels must be the ones used
     result = work / "result.json"
     proc = subprocess.run([python, str(script), "--zip", str(zip_path), "--workdir", str(work / "files"),

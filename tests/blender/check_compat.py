@@ -1,7 +1,9 @@
-"""Blender-side checks of addon/compat.py (the 4.2 .. 5.2 API shims) in the INSTALLED extension
+"""Blender-side checks of addon/compat.py (the 4.2 .. 5.2 API shims) in the INSTALLED extension, and of the
+.blend files the repository gives users (blend_samples/, `make demo`'s) opening in every supported Blender
 (run in a SUBPROCESS by tests/test_blender_compat.py, once per tested Blender).
 
-usage: BLENDER_USER_RESOURCES=<tmp> python check_compat.py --zip EXT.zip --workdir DIR --result OUT.json
+usage: BLENDER_USER_RESOURCES=<tmp> [LACORE_DEMO_OUTPUT=<dir>] python check_compat.py --zip EXT.zip --workdir DIR
+       --result OUT.json
 """
 
 import importlib
@@ -93,8 +95,44 @@ def sample_files_open():
     return {"opened": opened}
 
 
+def demo_files_open():
+    """The .blend files of `make demo` (its Blender steps, run into LACORE_DEMO_OUTPUT by the test) open in this
+    Blender with what the demo stored: the encodings, the in-betweens and baked motion, a Mesh Cache modifier
+    that plays its PC2 next to the file."""
+    from harness import evaluated
+    folder = os.environ["LACORE_DEMO_OUTPUT"]
+    storage = importlib.import_module(MODULE + ".addon.storage")
+    read_pc2 = importlib.import_module(MODULE + ".lacore.io.point_cache").read_pc2
+    saved_in = {}
+
+    def open_blend(name):
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, name))  # RuntimeError if it cannot
+        saved_in[name] = list(bpy.data.version)
+
+    open_blend("demo_scene.blend")
+    encoded = {name: sorted(storage.read_encoding(bpy.data.objects[name].data)["keys"])
+               for name in ("Cube", "Bar", "Grid")}
+    open_blend("bar_inbetweens.blend")
+    keys = [k.name for k in bpy.data.objects["Bar"].data.shape_keys.key_blocks]
+    open_blend("human_mocap_fit.blend")
+    body, scene = bpy.data.objects["Body"], bpy.context.scene
+    mod = body.modifiers["LA Fit"]
+    cache, _, _ = read_pc2(bpy.path.abspath(mod.filepath))
+    frame = scene.frame_start + len(cache) // 2
+    scene.frame_set(frame)
+    played = float(abs(evaluated(body) - cache[frame - scene.frame_start]).max())
+    moved = float(abs(cache[frame - scene.frame_start] - cache[0]).max())
+    reset()
+    return {"saved_in": saved_in, "encoded": encoded, "inbetweens": [k for k in keys if k.startswith("LA Basis>")],
+            "baked_keys": len([k for k in keys if k.startswith("LA bake ")]), "modifier": mod.type,
+            "cache_frames": len(cache), "played_vs_cache": played, "cache_moved": moved}
+
+
 def main():
-    run_cases((install_and_enable, object_fcurves, shape_key_fcurves_survive_reload, sample_files_open))
+    cases = [install_and_enable, object_fcurves, shape_key_fcurves_survive_reload, sample_files_open]
+    if os.environ.get("LACORE_DEMO_OUTPUT"):
+        cases.append(demo_files_open)
+    run_cases(cases)
 
 
 if __name__ == "__main__":
