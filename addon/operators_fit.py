@@ -73,7 +73,7 @@ from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_ch
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
 from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
-from .operators_markers import (MARKER_PROP, TAKE_PROP, marker_objects, read_take, take_frame_rate,
+from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate,
                                 unkeyed_markers, unkeyed_note)
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
@@ -538,9 +538,10 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
 
     Markers occluded at the current frame are not bound (the report names them; Calibrate & Fit binds every
     marker where it is visible), nor markers without keyed positions (:func:`.operators_markers.unkeyed_markers`:
-    named too); at least :data:`MIN_BOUND_MARKERS` must be visible.  The mesh is the one the fit replaces: shape
-    keys and the deformers at the top of the stack (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what
-    follows them are left out).  ``warn_distance`` is in metres (:func:`metres_per_unit`).
+    named too); both are stored as not bound with why (the panel lists them).  At least :data:`MIN_BOUND_MARKERS`
+    must be visible.  The mesh is the one the fit replaces: shape keys and the deformers at the top of the stack
+    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them are left out).  ``warn_distance``
+    is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)
     model = read_model(obj)
@@ -579,8 +580,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
-            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
-            "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden),
+            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden + unkeyed,
+            "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden) + [UNKEYED_REASON] * len(unkeyed),
         }
         if note is not None:
             job.notes.append(note)

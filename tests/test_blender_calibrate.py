@@ -145,14 +145,20 @@ def test_a_deleted_marker_empty_is_left_out(run):
 def test_a_marker_with_cleared_animation_is_left_out(run):
     """A marker empty whose animation was cleared (Clear Keyframes) in the same run: left out like a deleted one
     (before: fitted as a marker standing still at its empty's location) and named in one line -- not as a point
-    that is no marker."""
+    that is no marker.  The binding and the panel list it as not bound with why, and the deleted one too (before:
+    left out of the list)."""
     res = run["cases"]["bad_input"]["marker_deleted"]
     label = res["cleared"]
     assert res["result"] == ["FINISHED"], res
     assert (f"marker '{label}' has no keyed positions (its animation was cleared): left out; re-import the take to "
             "restore it") in res["message"], res
     assert len(res["message"].splitlines()) == 1 and f"{label} (never visible)" not in res["message"], res
-    assert label not in res["bound"] and label not in res["not_bound"], res
+    assert label not in res["bound"] and res["label"] not in res["bound"], res
+    reasons = dict(zip(res["not_bound"], res["not_bound_reasons"], strict=True))
+    assert reasons[label] == "the marker has no keyed positions (its animation was cleared)", reasons
+    assert reasons[res["label"]] == "the marker's empty was deleted", reasons
+    for lb in (label, res["label"]):
+        assert f"{lb}: not bound ({reasons[lb]})" in res["not_bound_texts"], res["not_bound_texts"]
 
 
 @pytest.mark.parametrize("case, words", [

@@ -333,10 +333,15 @@ def bad_input():
         obj[pins.PINS_PROP] = {label: 5}          # a pin on a marker left out: named, nothing changed
         attempt(name, obj)
         del obj[pins.PINS_PROP]
+    from types import SimpleNamespace
+    binding = obj[ext("addon.operators_fit").BINDING_PROP]
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
     out["marker_deleted"] = {"result": sorted(res), "message": op.reports[-1][1] if op.reports else "",
                              "label": deleted, "cleared": cleared["lengths_angles_marker"],
-                             "bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["labels"]),
-                             "not_bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["not_bound"])}
+                             "bound": list(binding["labels"]), "not_bound": list(binding["not_bound"]),
+                             "not_bound_reasons": list(binding["not_bound_reasons"]),
+                             "not_bound_texts": [t for t in texts if "not bound (" in t]}
     obj, take = open_scene()
     ext("addon.operators_markers").remove_take(take)
     bpy.context.view_layer.update()

@@ -717,7 +717,8 @@ def one_line_attempt(out, name, obj, operator, **kw):
 def cleared_marker():
     """A bound marker's empty with its animation cleared (Clear Keyframes): Fit to Markers fits the others (the
     marker never visible, said in one line) -- the markers and the fit are written for pytest to fit again with
-    lacore; Bind Markers leaves it out and says so; with every bound marker cleared the fit is refused."""
+    lacore; Bind Markers leaves it out, says so and lists it as not bound with why (the panel too); with every
+    bound marker cleared the fit is refused."""
     fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
@@ -740,8 +741,12 @@ def cleared_marker():
     bpy.context.scene.frame_set(1)
     result, reports = finish(fit.bind_run(bpy.context, obj, take))
     binding = obj[fit.BINDING_PROP].to_dict()
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
     out["bind"] = {"result": result, "reports": reports, "labels": list(binding["labels"]),
-                   "not_bound": list(binding["not_bound"]), "n_markers": len(empties)}
+                   "not_bound": list(binding["not_bound"]), "not_bound_reasons": list(binding["not_bound_reasons"]),
+                   "not_bound_texts": [t for t in texts if "not bound (" in t], "n_markers": len(empties)}
     obj.shape_key_remove(kb)
     for c in empties.values():
         c.animation_data_clear()
