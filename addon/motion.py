@@ -168,13 +168,21 @@ def _constant_property(id_data, data_path, depth):
     return animated(id_data, lambda p: p == root, depth) is None
 
 
+#: Verdicts of :func:`_still` during one :func:`moving_transform` call: each target is looked at once, and a
+#: dependency cycle counts as moving.
+_SEEN = {}
+
+
 def _still(ob, bone="", depth=0):
     """True if the object ``ob`` (and its bone ``bone``, if it is an armature) does not move."""
     if not isinstance(ob, bpy.types.Object) or depth > MAX_DEPTH:
         return False
-    if moving_transform(ob, depth) is not None:
-        return False
-    return not (bone and ob.type == 'ARMATURE' and bone_dependence(ob, bone, depth) is not None)
+    key = (ob.as_pointer(), bone)
+    if key not in _SEEN:
+        _SEEN[key] = False                  # while it is being looked at: reached again through a cycle
+        _SEEN[key] = moving_transform(ob, depth) is None and not (
+            bone and ob.type == 'ARMATURE' and bone_dependence(ob, bone, depth) is not None)
+    return _SEEN[key]
 
 
 def constant_constraint(con, owner_id, prefix, depth=0):
@@ -336,6 +344,8 @@ def moving_transform(ob, depth=0):
     time, else None.  ``object`` is the one whose data moves it; ``link`` is ``""`` when it is ``ob`` or a parent
     moving by itself (:func:`transform_dependence`), else how the child ``link`` names is attached: a parent bone
     whose pose changes (:func:`bone_dependence`) or parent vertices that are deformed (:func:`deformation`)."""
+    if depth == 0:
+        _SEEN.clear()
     child = None
     while ob is not None:
         why = transform_dependence(ob, depth)

@@ -167,6 +167,9 @@ def test_a_marker_with_cleared_animation_is_left_out(run):
     ("unit_mismatch", "import the take again with Scale 1 instead of 1000"),
     ("take_moving", "the take empty 'take' moves (keyed location, rotation or scale): the fit uses one placement "
                     "of it, so clear the transform keys of 'take'"),
+    ("take_on_keyed_bone", "the take empty 'take' moves with its parent bone 'Hand' of 'Rig' (keyed Location of its "
+                           "bone 'Hand'): the fit uses one placement of it, so clear the keys of bone 'Hand' of 'Rig' "
+                           "(Pose Mode: Pose > Animation > Clear Keyframes) and place it once"),
     ("placed_not_over", "Placement is As Placed and the character is not over the markers of 'take' at frame 1 "
                         "(median distance"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
