@@ -55,7 +55,8 @@ from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
                             nonuniform_scale_note, read_model, recorded_settings, require_still, typed)
-from .operators_markers import TAKE_PROP, marker_objects, read_take, take_frame_rate, unkeyed_markers, unkeyed_note
+from .operators_markers import (TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate, unkeyed_markers,
+                                unkeyed_note)
 from .operators_pins import PLACEMENT_PROP, pins_of
 from .runs import ObjectWatch, Run, RunOperator
 from .storage import PayloadError, load_payload, payload_header, release_payload, saved_bytes, store_payload
@@ -312,8 +313,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     co = np.empty(3 * len(rest), np.float32)
     rest.foreach_get("co", co)
     rest = co.reshape(-1, 3).astype(np.float64)
-    left_out = {**dict.fromkeys(deleted, "the marker's empty was deleted"),
-                **dict.fromkeys(unkeyed, "the marker has no keyed positions (its animation was cleared)")}
+    left_out = {**dict.fromkeys(deleted, "the marker's empty was deleted"), **dict.fromkeys(unkeyed, UNKEYED_REASON)}
     kind, pinned = _placement(obj, markers, labels, pins, mode, rest, lambda f: int(frames[f]), left_out)
     if kind == 'PLACED':
         _check_placed(rest, triangulate(mesh).faces, markers, unit, take.name, lambda f: int(frames[f]))
@@ -372,14 +372,14 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
         bound = list(res.labels)
         dropped = list(getattr(markers, "dropped", ()))     # points that are not markers, with why
         not_marker = dict(dropped)
-        not_bound = [lb for lb in labels if lb not in bound]
+        not_bound = [lb for lb in labels if lb not in bound] + list(left_out)   # left out: deleted, no keys
         obj[BINDING_PROP] = {
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
             "frame": int(frames[0]), "calibrated": True,
             "faces": b.faces.tolist(), "barycentric": b.barycentric.ravel().tolist(), "offsets": b.offsets.tolist(),
             "n_vertices": len(obj.data.vertices),
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": not_bound,
-            "not_bound_reasons": [not_marker.get(lb, "left out by the calibration: see its report")
+            "not_bound_reasons": [left_out.get(lb) or not_marker.get(lb, "left out by the calibration: see its report")
                                   for lb in not_bound],
             "performer_ratio": float(cal.performer_ratio),
         }

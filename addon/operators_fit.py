@@ -69,11 +69,12 @@ from ..lacore.models import FineLevel
 from ..lacore.models.shape_model import ShapeModel
 from ..lacore.multiresolution import coarsen
 from . import storage
-from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels, strip_fcurves
+from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
+from .motion import moving_transform
 from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
-from .operators_markers import (MARKER_PROP, TAKE_PROP, marker_objects, read_take, take_frame_rate,
+from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate,
                                 unkeyed_markers, unkeyed_note)
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
@@ -538,9 +539,10 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
 
     Markers occluded at the current frame are not bound (the report names them; Calibrate & Fit binds every
     marker where it is visible), nor markers without keyed positions (:func:`.operators_markers.unkeyed_markers`:
-    named too); at least :data:`MIN_BOUND_MARKERS` must be visible.  The mesh is the one the fit replaces: shape
-    keys and the deformers at the top of the stack (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what
-    follows them are left out).  ``warn_distance`` is in metres (:func:`metres_per_unit`).
+    named too); both are stored as not bound with why (the panel lists them).  At least :data:`MIN_BOUND_MARKERS`
+    must be visible.  The mesh is the one the fit replaces: shape keys and the deformers at the top of the stack
+    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them are left out).  ``warn_distance``
+    is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)
     model = read_model(obj)
@@ -579,8 +581,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
-            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden,
-            "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden),
+            "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden + unkeyed,
+            "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden) + [UNKEYED_REASON] * len(unkeyed),
         }
         if note is not None:
             job.notes.append(note)
@@ -624,84 +626,16 @@ def read_binding(obj):
 
 
 # ------------------------------------------------------------------------------------------------ fit
-_TRANSFORM_PATHS = frozenset({"location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",
-                              "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale"})
-
-
-def _moving_curve(fcurves):
-    """The first F-curve of ``fcurves`` keying a transform channel that changes over time (keys of different
-    values, or modifiers) and is not muted, else None."""
-    for fc in fcurves:
-        if fc.data_path not in _TRANSFORM_PATHS or fc.mute:
-            continue
-        co = np.empty(2 * len(fc.keyframe_points), np.float32)
-        fc.keyframe_points.foreach_get("co", co)
-        if len(fc.modifiers) or (co.size and np.ptp(co[1::2]) > 0):
-            return fc
-    return None
-
-
-def _channel_name(data_path):
-    """The UI name of an object's transform property (``"Location"``, ``"Euler Rotation"`` ...)."""
-    prop = bpy.types.Object.bl_rna.properties.get(data_path)
-    return prop.name if prop is not None else data_path
-
-
-def transform_dependence(ob):
-    """Why ``ob``'s own transform may change over time, read from its data (no ``frame_set``): ``(reason,
-    advice)`` one-line phrases, or None.
-
-    In this order: a keyed transform of its action that changes (:func:`_moving_curve`), a driver on a transform
-    channel, a strip of a playing NLA track whose action keys a changing transform, an enabled constraint with
-    influence (any: it makes the placement depend on something else)."""
-    name = ob.name
-    owner = animation_channels(ob)
-    if _moving_curve(owner.fcurves if owner is not None else ()) is not None:
-        return ("keyed location, rotation or scale",
-                f"clear the transform keys of '{name}' (Object > Animation > Clear Keyframes)")
-    ad = ob.animation_data
-    if ad is not None:
-        driver = next((fc for fc in ad.drivers if fc.data_path in _TRANSFORM_PATHS and not fc.mute), None)
-        if driver is not None:
-            channel = _channel_name(driver.data_path)
-            return (f"a driver on its {channel}",
-                    f"delete the driver of '{name}' (right-click {channel} > Delete Driver)")
-        tracks = [t for t in ad.nla_tracks if not t.mute] if ad.use_nla else []
-        if any(t.is_solo for t in tracks):
-            tracks = [t for t in tracks if t.is_solo]
-        for track in tracks:
-            for strip in track.strips:
-                fc = None if strip.mute else _moving_curve(strip_fcurves(strip))
-                if fc is not None:
-                    return (f"its NLA strip '{strip.name}' keys {_channel_name(fc.data_path)}",
-                            f"mute the NLA track '{track.name}' of '{name}' (Nonlinear Animation editor)")
-    con = next((c for c in ob.constraints if c.enabled and c.influence > 0 and c.is_valid), None)
-    if con is not None:
-        return (f"its constraint '{con.name}' places it",
-                f"apply, disable or delete the constraint '{con.name}' of '{name}' (Object Constraint Properties)")
-    return None
-
-
-def moving_transform(ob):
-    """``(object, reason, advice)`` for the first of ``ob`` and its parents whose transform may change over time
-    (:func:`transform_dependence`), else None."""
-    while ob is not None:
-        why = transform_dependence(ob)
-        if why is not None:
-            return (ob, *why)
-        ob = ob.parent
-    return None
-
-
 def require_still(take, obj):
     """FitSetupError if the take empty or the character moves over time (itself or a parent: keyed, driven,
-    played by the NLA or constrained): the markers are mapped into the character's space with their transforms
-    at the current frame."""
+    played by the NLA or constrained, or parented to a bone that is posed or to vertices that are deformed over time:
+    :func:`.motion.moving_transform`): the markers are mapped into the character's space with their transforms at
+    the current frame."""
     for what, ob in (("take empty", take), ("character", obj)):
         found = moving_transform(ob)
         if found is not None:
-            moving, reason, advice = found
-            whose = "" if moving is ob else f" with its parent '{moving.name}'"
+            moving, reason, advice, link = found
+            whose = f" with {link}" if link else ("" if moving is ob else f" with its parent '{moving.name}'")
             raise FitSetupError(f"the {what} '{ob.name}' moves{whose} ({reason}): the fit uses one placement of it, "
                                 f"so {advice} and place it once")
 

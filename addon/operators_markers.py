@@ -63,6 +63,7 @@ from .compat import ensure_animation_channels, id_fcurves
 
 __all__ = ["LENGTHS_ANGLES_OT_import_markers", "LENGTHS_ANGLES_FH_markers", "classes", "import_take", "import_takes",
            "remove_take", "read_take", "take_frame_rate", "keyed_location", "unkeyed_markers", "unkeyed_note",
+           "UNKEYED_REASON",
            "marker_objects", "menu_func_import", "register_menu", "unregister_menu", "TAKE_PROP", "MARKER_PROP",
            "VISIBLE_PROP"]
 
@@ -258,6 +259,10 @@ def unkeyed_markers(take_obj, labels=None):
         return []
     markers = marker_objects(take_obj, missing_ok=True)
     return [lb for lb, obj in markers if (labels is None or lb in labels) and keyed_location(obj) is None]
+
+
+#: Why a marker without keyed positions (:func:`unkeyed_markers`) is not bound or fitted (the panel's list).
+UNKEYED_REASON = "the marker has no keyed positions (its animation was cleared)"
 
 
 def unkeyed_note(labels):

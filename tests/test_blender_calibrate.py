@@ -145,14 +145,20 @@ def test_a_deleted_marker_empty_is_left_out(run):
 def test_a_marker_with_cleared_animation_is_left_out(run):
     """A marker empty whose animation was cleared (Clear Keyframes) in the same run: left out like a deleted one
     (before: fitted as a marker standing still at its empty's location) and named in one line -- not as a point
-    that is no marker."""
+    that is no marker.  The binding and the panel list it as not bound with why, and the deleted one too (before:
+    left out of the list)."""
     res = run["cases"]["bad_input"]["marker_deleted"]
     label = res["cleared"]
     assert res["result"] == ["FINISHED"], res
     assert (f"marker '{label}' has no keyed positions (its animation was cleared): left out; re-import the take to "
             "restore it") in res["message"], res
     assert len(res["message"].splitlines()) == 1 and f"{label} (never visible)" not in res["message"], res
-    assert label not in res["bound"] and label not in res["not_bound"], res
+    assert label not in res["bound"] and res["label"] not in res["bound"], res
+    reasons = dict(zip(res["not_bound"], res["not_bound_reasons"], strict=True))
+    assert reasons[label] == "the marker has no keyed positions (its animation was cleared)", reasons
+    assert reasons[res["label"]] == "the marker's empty was deleted", reasons
+    for lb in (label, res["label"]):
+        assert f"{lb}: not bound ({reasons[lb]})" in res["not_bound_texts"], res["not_bound_texts"]
 
 
 @pytest.mark.parametrize("case, words", [
@@ -161,6 +167,9 @@ def test_a_marker_with_cleared_animation_is_left_out(run):
     ("unit_mismatch", "import the take again with Scale 1 instead of 1000"),
     ("take_moving", "the take empty 'take' moves (keyed location, rotation or scale): the fit uses one placement "
                     "of it, so clear the transform keys of 'take'"),
+    ("take_on_keyed_bone", "the take empty 'take' moves with its parent bone 'Hand' of 'Rig' (keyed Location of its "
+                           "bone 'Hand'): the fit uses one placement of it, so clear the keys of bone 'Hand' of 'Rig' "
+                           "(Pose Mode: Pose > Animation > Clear Keyframes) and place it once"),
     ("placed_not_over", "Placement is As Placed and the character is not over the markers of 'take' at frame 1 "
                         "(median distance"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "

@@ -304,6 +304,22 @@ def bad_input():
     attempt("take_moving", obj)
     take.animation_data_clear()
     take.location.x -= 0.5
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))  # parented to a bone whose pose is keyed
+    bpy.context.scene.collection.objects.link(rig)
+    select_only(rig)
+    bpy.ops.object.mode_set(mode='EDIT')
+    bone = rig.data.edit_bones.new("Hand")
+    bone.head, bone.tail = (0, 0, 0), (0, 0, 1)
+    bpy.ops.object.mode_set(mode='OBJECT')
+    hand = rig.pose.bones["Hand"]
+    hand.keyframe_insert("location", frame=1)
+    hand.location.y = 0.5
+    hand.keyframe_insert("location", frame=N_FRAMES)
+    take.parent, take.parent_type, take.parent_bone = rig, 'BONE', "Hand"
+    select_only(obj, take)
+    attempt("take_on_keyed_bone", obj)
+    take.parent = None
+    bpy.data.objects.remove(rig)
     # negative weights from a script (the operator's properties stop at 0): the run function refuses them
     cal = ext("addon.operators_calibrate")
     for name, kw in (("penetration_negative", {"penetration_weight": -1.0}),
@@ -333,10 +349,15 @@ def bad_input():
         obj[pins.PINS_PROP] = {label: 5}          # a pin on a marker left out: named, nothing changed
         attempt(name, obj)
         del obj[pins.PINS_PROP]
+    from types import SimpleNamespace
+    binding = obj[ext("addon.operators_fit").BINDING_PROP]
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
     out["marker_deleted"] = {"result": sorted(res), "message": op.reports[-1][1] if op.reports else "",
                              "label": deleted, "cleared": cleared["lengths_angles_marker"],
-                             "bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["labels"]),
-                             "not_bound": list(obj[ext("addon.operators_fit").BINDING_PROP]["not_bound"])}
+                             "bound": list(binding["labels"]), "not_bound": list(binding["not_bound"]),
+                             "not_bound_reasons": list(binding["not_bound_reasons"]),
+                             "not_bound_texts": [t for t in texts if "not bound (" in t]}
     obj, take = open_scene()
     ext("addon.operators_markers").remove_take(take)
     bpy.context.view_layer.update()

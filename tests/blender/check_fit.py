@@ -634,7 +634,8 @@ def fit_settings():
                                "penetration_weight": lacore_defaults.penetration_weight,
                                "coefficient_weight": lacore_defaults.coefficient_weight}}
     runner = doctest.DocTestRunner()
-    for f in (fit.fit_settings, fit.typed, quality.settings_text, ext("addon.operators_markers").unkeyed_note):
+    for f in (fit.fit_settings, fit.typed, quality.settings_text, ext("addon.operators_markers").unkeyed_note,
+              ext("addon.motion").expression_names):
         for test in doctest.DocTestFinder().find(f):
             runner.run(test)
     out["doctests"] = [runner.failures, runner.tries]
@@ -717,7 +718,8 @@ def one_line_attempt(out, name, obj, operator, **kw):
 def cleared_marker():
     """A bound marker's empty with its animation cleared (Clear Keyframes): Fit to Markers fits the others (the
     marker never visible, said in one line) -- the markers and the fit are written for pytest to fit again with
-    lacore; Bind Markers leaves it out and says so; with every bound marker cleared the fit is refused."""
+    lacore; Bind Markers leaves it out, says so and lists it as not bound with why (the panel too); with every
+    bound marker cleared the fit is refused."""
     fit, quality = ext("addon.operators_fit"), ext("addon.fit_quality")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
@@ -740,8 +742,12 @@ def cleared_marker():
     bpy.context.scene.frame_set(1)
     result, reports = finish(fit.bind_run(bpy.context, obj, take))
     binding = obj[fit.BINDING_PROP].to_dict()
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    texts = [kw.get("text", "") for name, _args, kw in calls if name == "label"]
     out["bind"] = {"result": result, "reports": reports, "labels": list(binding["labels"]),
-                   "not_bound": list(binding["not_bound"]), "n_markers": len(empties)}
+                   "not_bound": list(binding["not_bound"]), "not_bound_reasons": list(binding["not_bound_reasons"]),
+                   "not_bound_texts": [t for t in texts if "not bound (" in t], "n_markers": len(empties)}
     obj.shape_key_remove(kb)
     for c in empties.values():
         c.animation_data_clear()
@@ -779,9 +785,14 @@ def moving_setups():
     fc.mute = True
     check("muted_driver")
     take.driver_remove("location", 2)
-    con = obj.constraints.new('COPY_LOCATION')     # the character follows an object
+    mover = bpy.data.objects.new("Mover", None)    # the character follows an object that moves
+    bpy.context.scene.collection.objects.link(mover)
+    mover.keyframe_insert("location", frame=1)
+    mover.location.z = 1.0
+    mover.keyframe_insert("location", frame=8)
+    con = obj.constraints.new('COPY_LOCATION')
     con.name = "Follow Take"
-    con.target = take
+    con.target = mover
     attempt("character_constraint")
     con.enabled = False
     check("disabled_constraint")
@@ -816,6 +827,213 @@ def moving_setups():
     check("other_track_solo")
     out["still"] = still
     return out
+
+
+def evaluated_motion(ob, frames=(1, 8)):
+    """How far ``ob``'s origin moves between ``frames`` (frame_set; the scene is reopened after each case)."""
+    scene, where = bpy.context.scene, []
+    for f in frames:
+        scene.frame_set(f)
+        where.append(np.array(ob.matrix_world.translation))
+    scene.frame_set(1)
+    return float(np.linalg.norm(where[-1] - where[0]))
+
+
+def constant_setups():
+    """Drivers and constraints whose effect cannot change over time (a constant expression, variables reading a
+    property or a transform that nothing animates, a constraint following an object that stands still) are no
+    reason to refuse; the same setups made to change (the property keyed, the target keyed, the influence keyed, a
+    'frame' in the expression) and constraint types that read time or geometry are refused.  Each verdict is
+    compared with the take's or the character's evaluated motion over the take (frame_set); checks timed."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    select_only(obj)
+    out, verdict, motion, timing = {}, {}, {}, {}
+
+    def check(name, ob, timed=False):
+        try:
+            fit.require_still(take, obj)
+            verdict[name] = None
+        except ext("lacore.errors").InputError as exc:
+            verdict[name] = str(exc)
+        motion[name] = evaluated_motion(ob)
+        if timed:
+            t = time.perf_counter()
+            for _ in range(100):
+                try:
+                    fit.require_still(take, obj)
+                except ext("lacore.errors").InputError:
+                    pass
+            timing[name] = (time.perf_counter() - t) / 100
+
+    def link(ob):
+        bpy.context.scene.collection.objects.link(ob)
+        return ob
+
+    z = take.location.z
+    fc = take.driver_add("location", 2)            # the take empty's Z driven by a constant expression
+    fc.driver.expression = f"{z} + 0 * pi"
+    check("constant_expression", take, timed=True)
+    control = link(bpy.data.objects.new("Control", None))
+    control["height"] = z
+    var = fc.driver.variables.new()                # a variable reading a property nothing animates
+    var.name, var.targets[0].id, var.targets[0].data_path = "h", control, '["height"]'
+    fc.driver.expression = "h"
+    check("constant_property", take, timed=True)
+    control.keyframe_insert('["height"]', frame=1)  # the property keyed changing: the take moves
+    control["height"] = z + 1.0
+    control.keyframe_insert('["height"]', frame=8)
+    check("keyed_property", take)
+    control.animation_data_clear()
+    control["height"] = z
+    var.type = 'TRANSFORMS'                        # the Z of an object standing still
+    var.targets[0].id, var.targets[0].transform_type = control, 'LOC_Z'
+    control.location.z = z
+    check("still_transform", take, timed=True)
+    fc.driver.expression = "h + frame / 100"       # the frame in the expression
+    check("frame_expression", take)
+    take.driver_remove("location", 2)
+    take.location.z = z
+    anchor = link(bpy.data.objects.new("Anchor", None))
+    anchor.location = obj.matrix_world.translation
+    con = obj.constraints.new('COPY_LOCATION')     # the character follows an object standing still
+    con.name = "Follow Anchor"
+    con.target = anchor
+    check("constraint_still_target", obj, timed=True)
+    anchor.keyframe_insert("location", frame=1)     # the target keyed moving
+    anchor.location.x += 1.0
+    anchor.keyframe_insert("location", frame=8)
+    check("constraint_moving_target", obj)
+    anchor.animation_data_clear()
+    anchor.location = obj.matrix_world.translation
+    curve = link(bpy.data.objects.new("Path", bpy.data.curves.new("Path", 'CURVE')))
+    path = obj.constraints.new('FOLLOW_PATH')      # a type that reads time: refused whatever it does
+    path.name, path.target = "On Path", curve
+    check("follow_path", obj)
+    obj.constraints.remove(path)
+    obj.keyframe_insert('constraints["Follow Anchor"].influence', frame=1)  # its influence keyed changing
+    con.influence = 0.0
+    obj.keyframe_insert('constraints["Follow Anchor"].influence', frame=8)
+    anchor.location.x += 1.0
+    check("keyed_influence", obj)
+    select_only(obj)
+    return {"verdict": verdict, "motion": motion, "timing": timing, **out}
+
+
+def add_rig():
+    """An armature 'Rig' with bones Arm > Hand > Finger and Other (Edit Mode in background Blender)."""
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(rig)
+    select_only(rig)
+    bpy.ops.object.mode_set(mode='EDIT')
+    bones = rig.data.edit_bones
+    parent = None
+    for name, head, tail in (("Arm", (0, 0, 0), (0, 0, 1)), ("Hand", (0, 0, 1), (0, 0, 2)),
+                             ("Finger", (0, 0, 2), (0, 0, 2.5))):
+        b = bones.new(name)
+        b.head, b.tail, b.parent = head, tail, parent
+        parent = b
+    other = bones.new("Other")
+    other.head, other.tail = (1, 0, 0), (1, 0, 1)
+    bpy.ops.object.mode_set(mode='OBJECT')
+    return rig
+
+
+def parent_links():
+    """The take empty parented to a bone (parent type Bone) of an animated armature, or to vertices of a deformed
+    mesh: Fit to Markers refuses in one line naming the bone or the mesh and what to do, nothing changed (before:
+    read as still, the markers placed wrongly); a bone whose pose does not change (keys on another bone, Rest
+    Position) and a mesh that is not deformed (a Subdivision Surface) are still.  Each verdict is compared with the
+    take empty's evaluated motion (frame_set); the check stays data only (timed)."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    rig = add_rig()
+    take.parent, take.parent_type, take.parent_bone = rig, 'BONE', "Hand"
+    select_only(obj)
+    out, verdict, motion = {}, {}, {}
+
+    def check(name):
+        try:
+            fit.require_still(take, obj)
+            verdict[name] = None
+        except ext("lacore.errors").InputError as exc:
+            verdict[name] = str(exc)
+        motion[name] = evaluated_motion(take)
+
+    def attempt(name):
+        one_line_attempt(out, name, obj, bpy.ops.lengths_angles.fit_markers, use_scene_range=False, frame_start=1,
+                         frame_end=2)
+
+    def key_bone(bone, path="rotation_euler", value=(0.5, 0.0, 0.0)):
+        pb = rig.pose.bones[bone]
+        pb.rotation_mode = 'XYZ'
+        pb.keyframe_insert(path, frame=1)
+        setattr(pb, path, value)
+        pb.keyframe_insert(path, frame=8)
+        setattr(pb, path, (0.0, 0.0, 0.0))
+
+    check("bone_still")
+    key_bone("Other")                              # another bone keyed: the take's bone does not move
+    check("other_bone_keyed")
+    key_bone("Hand")
+    attempt("bone_keyed")
+    check("bone_keyed")
+    t = time.perf_counter()
+    for _ in range(100):
+        try:
+            fit.require_still(take, obj)
+        except ext("lacore.errors").InputError:
+            pass
+    out["seconds_per_check"] = (time.perf_counter() - t) / 100
+    rig.data.pose_position = 'REST'                # the armature in Rest Position: no pose is played
+    check("rest_position")
+    rig.data.pose_position = 'POSE'
+    rig.animation_data_clear()
+    key_bone("Arm", "location", (0.0, 0.3, 0.0))   # an ancestor bone keyed
+    attempt("ancestor_keyed")
+    check("ancestor_keyed")
+    rig.animation_data_clear()
+    target = bpy.data.objects.new("Target", None)
+    bpy.context.scene.collection.objects.link(target)
+    target.location = (0.0, 2.0, 2.0)
+    ik = rig.pose.bones["Finger"].constraints.new('IK')  # an IK chain from a child bone through the take's bone
+    ik.name, ik.target, ik.chain_count = "Reach", target, 2
+    target.keyframe_insert("location", frame=1)
+    target.location = (0.0, -2.0, 1.0)
+    target.keyframe_insert("location", frame=8)
+    check("ik_from_child")
+    rig.pose.bones["Finger"].constraints.remove(ik)
+    take.parent_bone = ""
+    blob = bpy.data.objects.new("Blob", bpy.data.meshes.new("Blob"))
+    blob.data.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)], [], [(0, 1, 3, 2)])
+    bpy.context.scene.collection.objects.link(blob)
+    take.parent, take.parent_type = blob, 'VERTEX'
+    take.parent_vertices[0] = 3
+    check("vertex_still")
+    blob.modifiers.new("Subdivision", 'SUBSURF')   # static: the same at every frame
+    check("vertex_subdivided")
+    blob.shape_key_add(name="Basis")
+    up = blob.shape_key_add(name="Up")
+    for v in up.data:
+        v.co.z += 1.0
+    up.value = 0.0                                 # (a new key's value is not 0 in every Blender)
+    up.keyframe_insert("value", frame=1)           # the shape key keyed: the vertices move
+    up.value = 1.0
+    up.keyframe_insert("value", frame=8)
+    up.value = 0.0
+    attempt("shape_keyed")
+    check("shape_keyed")
+    blob.shape_key_clear()
+    arm = blob.modifiers.new("Armature", 'ARMATURE')  # deformed by an armature whose pose is keyed
+    arm.object = rig
+    group = blob.vertex_groups.new(name="Hand")
+    group.add([0, 1, 2, 3], 1.0, 'REPLACE')
+    blob.modifiers.move(1, 0)
+    key_bone("Hand")
+    check("armature_deformed")
+    return {"verdict": verdict, "motion": motion, **out}
 
 
 def take_rate():
@@ -900,4 +1118,4 @@ def bind_with_modifiers():
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
-               moving_setups, take_rate, bind_with_modifiers])
+               moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers])
