@@ -13,6 +13,11 @@
 * At most 350 lines; every relative link points to a file that exists.
 * Every number the prose states is in :data:`NUMBER_CLAIMS`, with the test (or declaration) that asserts it.
 
+The user pages under ``docs/`` (:data:`DOC_PAGES`): every ```python block that does not use the sample human runs
+in page order in one directory beside ``../shared/data`` and prints what its comments say (those on the human take
+seconds each; they, the ```sh blocks and the Blender steps were run by hand); every ``lacore.<name>`` and
+``from lacore... import`` name resolves; every ``lacore <command> --option`` parses with the real parser.
+
 A section between ``<!-- lead: NAME -->`` and ``<!-- /lead -->`` that still holds its placeholder
 (``*Placeholder``) belongs to a feature not yet merged: it is left out of every check above, and
 :func:`test_lead_sections` says so.
@@ -221,6 +226,105 @@ def test_make_commands():
         assert re.search(rf"^{re.escape(target)}:", makefile, re.M), f"README: `make {target}`, no such target"
     ci = (REPO / ".ci" / "run").read_text()
     assert re.search(r"^make test$", ci, re.M), ".ci/run does not run `make test`"
+
+
+# ------------------------------------------------------------------------------------------ docs/ pages
+#: The user pages checked (``benchmarks.md`` is generated, ``development.md`` is for contributors).
+DOC_PAGES = ["python", "cli", "reconstruction", "shape-space", "models-and-markers", "blender", "solvers", "theory"]
+
+
+def doc_text(page):
+    return (REPO / "docs" / f"{page}.md").read_text()
+
+
+def quick_python_blocks(page):
+    """The page's python blocks that do not use the sample human (those take seconds each)."""
+    return [code for lang, code in blocks(doc_text(page)) if lang == "python" and "lacore.samples.human" not in code]
+
+
+def python_names(text):
+    """``lacore.<name>`` of a markdown text and the names its python blocks import from lacore."""
+    names = set(re.findall(r"(?<![\w.])(lacore(?:\.\w+)+)", prose(text)))
+    for lang, code in blocks(text):
+        if lang == "python":
+            names.update(f"{m[0]}.{n.strip()}" for m in re.findall(r"^from (lacore[\w.]*) import (.+)$", code, re.M)
+                         for n in m[1].split(","))
+    return names
+
+
+@pytest.fixture(scope="module")
+def docs_dir(tmp_path_factory):
+    """``<tmp>`` with ``<tmp>/shared/data`` -> the shared data; a page's code runs in ``<tmp>/<page>``."""
+    data = shared_data_dir()
+    if not (data / "meshes").is_dir():
+        pytest.fail(f"shared data not found at {data}: put shared/ beside the repository or set "
+                    "LACORE_SHARED_DATA", pytrace=False)
+    root = tmp_path_factory.mktemp("docs")
+    (root / "shared").mkdir()
+    (root / "shared" / "data").symlink_to(data.resolve(), target_is_directory=True)
+    return root
+
+
+#: What the quick python blocks print (their comments say so): per page, lines or patterns in order.
+DOC_OUTPUTS = {
+    "python": [r"ReconstructionSettings\(energy='shells', weights='frohlich_botsch', bending_weight=0\.001, ",
+               r"fast hybrid 1"],
+    # the finger average: gn and hybrid give the closest mesh at the energy of reconstruction.md's table
+    "reconstruction": [r"gn True closest 0\.001843 ", r"lsq False failed ", r"hybrid True closest 0\.001843 ",
+                       r"\{'max_length_error': "],
+    # the path in-betweens' largest error estimate: below 0.1 %, within PathOptions.tolerance (0.3 %)
+    "shape-space": [r"\(11, 513, 3\) True", r"\(10,\) 0\.0\d\d%", r"True \[True, True, True\]"],
+    "models-and-markers": [r"49 \(151, 49, 3\) 60\.0 mm", r"25 \('RKNE#2', 'never visible'\)"],
+}
+
+
+def test_docs_quick_python_blocks_run(docs_dir, monkeypatch, capsys):
+    """The quick python blocks of every page, in order, as a reader runs them; what they print."""
+    ran = []
+    for page in DOC_PAGES:
+        workdir = docs_dir / page
+        workdir.mkdir()
+        monkeypatch.chdir(workdir)
+        for i, code in enumerate(quick_python_blocks(page)):
+            exec(compile(code, f"docs/{page}.md python block {i}", "exec"), {"__name__": "__main__"})
+        out = capsys.readouterr().out.splitlines()
+        assert len(out) == len(DOC_OUTPUTS.get(page, [])), (page, out)
+        for line, pattern in zip(out, DOC_OUTPUTS.get(page, []), strict=True):
+            assert re.match(pattern, line), (page, pattern, line)
+        ran.append(page)
+    assert set(DOC_OUTPUTS) <= set(ran)
+    assert (docs_dir / "models-and-markers" / "out.c3d").is_file()
+
+
+def test_docs_names_and_cli_options_exist():
+    """Every lacore name of the pages resolves; every ``lacore <command> --option`` they show exists."""
+    from lacore.cli import build_parser
+
+    options = cli_options()
+    checked = 0
+    for page in DOC_PAGES:
+        text = doc_text(page)
+        for name in sorted(python_names(text)):
+            try:
+                pkgutil.resolve_name(name)
+            except (ImportError, AttributeError) as exc:
+                raise AssertionError(f"docs/{page}.md names {name}, which does not exist ({exc})") from None
+            checked += 1
+        for lang, code in blocks(text):
+            if lang == "sh":
+                for line in lacore_lines(code):
+                    build_parser().parse_args(shlex.split(line)[1:])  # SystemExit on an unknown command or option
+                    checked += 1
+        for command in inline_lacore_commands(text):
+            words = command.replace("[", " ").replace("]", " ").split()
+            if words[1].startswith("<") or words[1] == "..." or words[1].endswith(":"):  # generic, or a message
+                continue
+            assert words[1] in options, f"docs/{page}.md shows `{command}`: lacore has no command {words[1]!r}"
+            flags = [w.split("=")[0] for w in words[2:] if w.startswith("-") and not re.fullmatch(r"-[\d.e]+", w)]
+            missing = [f for f in flags if f not in options[words[1]]]
+            assert not missing, f"docs/{page}.md shows `{command}`: `lacore {words[1]}` has no {missing}"
+            checked += 1
+    assert checked >= 100, checked  # 133 names, commands and options
 
 
 # ------------------------------------------------------------------------------------------ generated

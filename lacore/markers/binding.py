@@ -270,6 +270,12 @@ def closest_surface_points(vertices, mesh_faces, points, chunk=2_000_000):
 
 
 # --------------------------------------------------------------------------- binding helper
+#: ICP stops when the markers' RMS distance to their targets has not fallen by this fraction ...
+ICP_RTOL = 1e-3
+#: ... for this many iterations in a row, and keeps the placement with the smallest distance.
+ICP_PATIENCE = 5
+
+
 def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iterations=100, offsets="signed",
                  progress=None):
     """Bind markers to the nearest surface points of a mesh pose, after a rigid alignment.
@@ -282,7 +288,11 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     offsets of the right placement (ICP cannot tell a marker's offset from a
     misplacement: the targets are the nearest points lifted by the median
     signed distance, exact for markers sharing one offset; pass
-    ``align=False`` for markers already in the mesh's frame).
+    ``align=False`` for markers already in the mesh's frame).  It stops when
+    the placement no longer changes, or when the markers' RMS distance to their
+    targets has not fallen by :data:`ICP_RTOL` in :data:`ICP_PATIENCE`
+    iterations (noisy markers or markers of different offsets, whose nearest
+    points keep switching faces), with the placement of the smallest distance.
 
     Parameters
     ----------
@@ -323,12 +333,22 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     total = int(iterations) if align else 1
     report(progress, 0, total, "aligning the markers" if align else "binding")
     if align:
+        best, stalled = (np.inf, R, t), 0
         for it in range(int(iterations)):
             y = apply_rigid(x, R, t)
             q, tri, _ = closest_surface_points(X, F, y)
             n = face_normals(X, F[tri])
             lift = np.median(np.einsum("mc,mc->m", y - q, n))   # common marker offset, estimated
-            R_new, t_new = rigid_fit(x, q + lift * n)
+            target = q + lift * n
+            rms = np.sqrt(np.mean(np.einsum("mc,mc->m", y - target, y - target)))
+            if rms < (1.0 - ICP_RTOL) * best[0]:
+                best, stalled = (rms, R, t), 0
+            else:
+                stalled += 1
+                if stalled >= ICP_PATIENCE:  # noise or markers' own offsets: the nearest points keep switching
+                    R, t = best[1], best[2]
+                    break
+            R_new, t_new = rigid_fit(x, target)
             if np.allclose(R_new, R, atol=1e-10) and np.allclose(t_new, t, atol=1e-10 * (1 + np.abs(t).max())):
                 R, t = R_new, t_new
                 break
