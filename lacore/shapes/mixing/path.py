@@ -26,7 +26,8 @@ t`` for keys of one size).  A probe's step length is the *error estimate* of the
 first order, the distance to the projection); its *offset* is the distance from the step's landing point (in the
 space once the step joins it) to the reduced in-between there in that space, what the step's first-order model
 misses.  The *indicator* of an in-between is :data:`SAFETY` times the largest of the last estimate and every
-probe's offset, each scaled from its probe along the path by :func:`_error_shape`.  Probing stops as soon as every
+probe's offset (an earlier probe's at most the estimate of the later probe nearest to it, scaled to it), each scaled
+from its probe along the path by :func:`_error_shape` (:func:`_scaled_errors`).  Probing stops as soon as every
 indicator is at most :attr:`PathOptions.tolerance`, or when a probe's estimate is not below half of the one before
 (a space that does not converge: the rolled plates of the shared data, estimates 10-20 % of the diagonal, go to
 the polish after two probes).
@@ -70,6 +71,12 @@ __all__ = ["PathOptions", "PathResult", "path_inbetweens", "SAFETY", "FAST_POLIS
 #: (a 302-vertex bar bent by 2.5 and twisted by 2 radians), 4 to 300 times on milder paths and on the CC0 body
 #: (``tests/test_path_inbetweens.py`` asserts that the indicator covers the error).
 SAFETY = 2.0
+
+#: In-betweens whose distance to the keys and the probes along the path is within this fraction of the largest are
+#: equally far: the next probe is the first of them in the order given, so keys of nearly one size probe where keys
+#: of exactly one size do (the flat 121-vertex plate and its roll, 0.8 % shorter: at 0.25 rather than at 0.5 after
+#: 0.75, whose estimate there did not halve the first and sent every in-between to Gauss-Newton).
+FARTHEST_TIE = 0.01
 
 #: ``polish_method="auto"`` polishes by Fast when the largest indicator is at most this many times the tolerance.
 FAST_POLISH = 10.0
@@ -155,7 +162,7 @@ class PathResult:
         in-betweens polished by converged Gauss-Newton; for those polished by Fast the reduced in-between's (an
         upper estimate: on the 50k bar twisted by 90 degrees Fast ended within 0.15 % of Gauss-Newton where the
         reduced in-betweens were estimated up to 0.6 % off); else :data:`SAFETY` times the largest of the last
-        probe's estimate and every probe's offset, scaled along the path (module docstring).
+        probe's estimate and the probes' offsets, scaled along the path (module docstring).
     estimates : list of (float, float)
         ``(t, estimate)`` of every probe, in order: its Gauss-Newton step's RMS length over the in-between's size.
     offsets : list of (float, float)
@@ -193,15 +200,17 @@ class PathResult:
 
 def _next_probe(u, probed, u1, shape=None):
     """Index of the in-between farthest from the keys and the probed in-betweens along the path (``u``: their
-    :func:`_own_length`, ``u1`` that of ``B``; ``probed``: indices), None when all are keys or probed; with ``shape``
-    (:func:`_error_shape`), the in-between in ``[0, 1]`` where it is largest."""
+    :func:`_own_length`, ``u1`` that of ``B``; ``probed``: indices; the first in the order given of those within
+    :data:`FARTHEST_TIE` of the farthest), None when all are keys or probed; with ``shape`` (:func:`_error_shape`),
+    the in-between in ``[0, 1]`` where it is largest."""
     inside = (u > 0.0) & (u < u1)
     if shape is not None and inside.any():
         return int(np.argmax(np.where(inside, shape, -1.0)))
     known = np.array([0.0, u1] + [u[j] for j in probed])
     dist = np.abs(u[:, None] - known[None, :]).min(axis=1)
-    i = int(np.argmax(dist))
-    return None if dist[i] <= 1e-12 * max(u1, 1e-300) else i
+    if dist.max() <= 1e-12 * u1:
+        return None
+    return int(np.argmax(dist >= (1.0 - FARTHEST_TIE) * dist.max()))      # the first of the farthest
 
 
 def _own_length(factors, rel):
@@ -221,6 +230,21 @@ def _error_shape(U, tangents):
     the path's own length ``U = u(t) / u(1)`` (:func:`_own_length`; ``U = t`` along a path of one size)."""
     U = np.asarray(U, float)
     return U * U * (np.abs(1.0 - U) if tangents == "from" else (1.0 - U) ** 2)
+
+
+def _scaled_errors(probed, estimates, offsets, u, shape):
+    """The error measurements of the space scaled along the path from their probes by ``shape``
+    (:func:`_error_shape`), ``(M, N)``: the last probe's estimate and every probe's offset, an earlier probe's at most
+    the estimate of the later probe nearest to it (along ``u``, :func:`_own_length`) scaled to it, a measurement of a
+    later space next to it."""
+    out = [estimates[-1] * shape / shape[probed[-1]]]
+    for k, (j, off) in enumerate(zip(probed, offsets, strict=True)):
+        later = probed[k + 1:]
+        if later:
+            n = min(range(len(later)), key=lambda m: abs(u[later[m]] - u[j]))
+            off = min(off, estimates[k + 1 + n] * shape[j] / shape[later[n]])
+        out.append(off * shape / shape[j])
+    return np.array(out)
 
 
 def _rms(x, size):
@@ -352,8 +376,8 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
         solved[float(T[i])] = q
         # the step's landing point is in the space now: how far the reduced in-between there lands from it
         offsets.append((float(T[i]), _rms(x - start[0][1] - new[0], size) / rel[i]))
-        at = [(i, estimates[-1][1])] + [(j, e) for j, (_, e) in zip(probed, offsets, strict=True)]
-        indicator = np.where(keys, 0.0, SAFETY * np.max([e * shape / shape[j] for j, e in at], axis=0))
+        indicator = np.where(keys, 0.0, SAFETY * _scaled_errors(probed, [e for _, e in estimates],
+                                                                [e for _, e in offsets], u, shape).max(axis=0))
         if indicator.max() <= o.tolerance:
             break
         if len(estimates) >= 2 and estimates[-1][1] > 0.5 * estimates[-2][1]:
