@@ -354,6 +354,30 @@ def test_indicator(long_bar):
     assert tight.mix([1.0, 0.0]).in_range                            # 0 at the keys
 
 
+def test_indicator_is_over_the_mix_size():
+    """Keys of very different sizes (the finger and the bent finger scaled by 0.1): the indicator is over the mix's
+    own size (:meth:`ShapeMixer.relative_size`) and covers the distance to the polished mix over that size."""
+    from conftest import shared_mesh
+
+    from lacore.io.meshes import load_mesh
+
+    A, F = load_mesh(shared_mesh("finger/finger0.ply"))
+    B, _ = load_mesh(shared_mesh("finger/finger1.ply"))
+    mixer = ShapeMixer.build([A, 0.1 * B], F)
+    E = mixer.n_edges
+    ratio = mixer.z_keys[1, :E].sum() / mixer.z_keys[0, :E].sum()
+    np.testing.assert_allclose(mixer.relative_size([[0.0], [0.75], [1.0]]), [1.0, 0.25 + 0.75 * ratio, ratio],
+                               rtol=1e-12)
+    for w in (0.25, 0.75, 0.9):
+        r, exact = mixer.mix([w]), mixer.mix([w], polish=True)
+        assert exact.polished
+        own = np.sqrt(((r.vertices - exact.vertices) ** 2).sum(axis=1).mean()) / (_diag(A) * mixer.relative_size([w]))
+        # measured at 0.75: 0.107 % of the mix's size (0.035 % of A's diagonal), indicator 0.24 % (over A's diagonal
+        # it was 0.077 %)
+        assert own <= r.indicator < mixer.options.max_indicator
+    assert mixer.relative_size([0.75]) < 0.33 and mixer.indicator([0.0]) == 0.0
+
+
 def test_reduced_energy_gradient_fd(long_bar):
     """The reduced energy's analytic gradient and its Gauss-Newton matrix against finite differences."""
     keys, F, mixer = long_bar

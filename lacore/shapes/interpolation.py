@@ -130,8 +130,8 @@ class InterpolationResult(SolverResult):
         Wall time of the whole call (including encoding and set-up).
     total_iterations : int
     indicator : (N,) ndarray or None
-        ``method="path"``: the error estimate of every frame (RMS distance to the projection over the
-        bounding-box diagonal, :func:`lacore.shapes.mixing.path_inbetweens`); None for the other methods.
+        ``method="path"``: the error estimate of every frame (RMS distance to the projection over the frame's
+        own size, :func:`lacore.shapes.mixing.path_inbetweens`); None for the other methods.
     """
 
     vertices: np.ndarray

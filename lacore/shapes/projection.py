@@ -404,6 +404,9 @@ class SequenceProjection:
         A worker process that cannot start or dies (:class:`lacore.parallel.WorkerError`)
         hands its remaining frames to this process, which computes them and adds a line
         to :attr:`notes`; default False raises the error.  Input errors always raise.
+    context : ReconstructionContext, optional
+        The set-up (and with it the energy) of every frame, made for ``topology`` and ``reference_vertices``
+        (default: :func:`lacore.reconstruction.get_context`'s); only with ``workers = 1``.
 
     Attributes
     ----------
@@ -438,12 +441,15 @@ class SequenceProjection:
     """
 
     def __init__(self, z_targets, topology, reference_vertices, times=None, anchors=None, options=None, *,
-                 samples=None, workers=1, chains=None, all_in_workers=False, take_over=False):
+                 samples=None, workers=1, chains=None, all_in_workers=False, take_over=False, context=None):
         self.options = ProjectionOptions() if options is None else options
         if not isinstance(self.options, ProjectionOptions):
             raise TypeError(f"options must be a ProjectionOptions, got {type(self.options).__name__}")
         self.targets = ProjectionTargets.make(z_targets, topology, reference_vertices, times, anchors)
         self.workers = check_workers(workers)
+        if context is not None and self.workers > 1:
+            raise InputError("a given context works in this process only: use workers=1 with it")
+        self._given_context = context
         self._samples = None if samples is None else np.asarray(samples, float)
         self._explicit_chains = None if chains is None else [np.asarray(c, np.int64) for c in chains]
         self.all_in_workers = bool(all_in_workers)
@@ -476,7 +482,7 @@ class SequenceProjection:
 
     def _start(self):
         tg = self.targets
-        self.context = get_context(tg.topology, tg.reference_vertices, self.options.settings)
+        self.context = self._given_context or get_context(tg.topology, tg.reference_vertices, self.options.settings)
         samples = tg.z_targets if self._samples is None else self._samples
         self.tree = _frame_tree(self.options, samples, tg.topology, self.context)
         self.chains = self._explicit_chains or frame_chains(tg.times, self._known_t, self.workers)

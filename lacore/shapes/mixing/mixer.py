@@ -258,8 +258,8 @@ class MixerOptions:
         A mix stops when a step moves the vertices by less than this fraction of the bounding-box
         diagonal (RMS over the vertices).
     max_indicator : float
-        Indicator (:meth:`ShapeMixer.indicator`, the estimated RMS error as a fraction of the
-        bounding-box diagonal) above which a result is flagged (``in_range`` False).
+        Indicator (:meth:`ShapeMixer.indicator`, the estimated RMS error as a fraction of the mix's
+        size, :meth:`ShapeMixer.relative_size`) above which a result is flagged (``in_range`` False).
     bending_weight : float or None
         ``eta`` of ``W_q`` (default: the reconstruction's default).
     local_vertices : int
@@ -381,7 +381,7 @@ class MixResult:
         exact change of the local correction, :mod:`.local`), or the full energy when ``polished``
         (:meth:`ShapeMixer.full_energy` computes it for any mix).
     indicator : float
-        Estimated error (relative to the bounding-box diagonal of the basis, dimensionless).
+        Estimated RMS error over the mix's own size (:meth:`ShapeMixer.indicator`, dimensionless).
     in_range : bool
         False when the weights leave the range where the mixer is accurate (see ``message``).
     message : str
@@ -571,6 +571,7 @@ class ShapeMixer:
         ctx = self._context = ReconstructionContext(self.topology, self.keys[0], self.options.settings)
         ctx.follows_target_scale = False
         self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
+        self._length_sums = self.z_keys[:, :E].sum(axis=1)          # relative_size
         zi = np.stack([ctx.internal_z(z) for z in self.z_keys])
         dz = zi[1:] - zi[0]
         dz[:, E:] = wrap_angle(dz[:, E:])
@@ -995,22 +996,57 @@ class ShapeMixer:
             dist = np.where(self._exp_order >= 1, dist, np.inf)
         return int(np.argmin(dist))
 
+    def relative_size(self, weights):
+        """The size the distances of a mix are relative to, as a multiple of the basis' bounding-box diagonal.
+
+        The total edge length of the blend ``z(w)`` over the basis' (linear in the weights: ``1 + sum_k w_k
+        (L_k / L_0 - 1)`` for total lengths ``L_k`` of the keys, held at least :data:`MIN_LENGTH_RATIO`, the floor
+        of every blended length): 1 wherever the keys are poses of one size, ``s`` at weight 1 of a key scaled by
+        ``s``, whatever the poses; ``O(K)`` per call.  Distances over the basis' diagonal divided by it are
+        distances over the blend's own size.  The indicators of :meth:`indicator` and of
+        :func:`lacore.shapes.mixing.path_inbetweens` are relative to it.
+
+        Parameters
+        ----------
+        weights : (K-1,) or (N, K-1) array_like
+
+        Returns
+        -------
+        float or (N,) ndarray
+
+        Examples
+        --------
+        >>> from lacore.samples.bar import bar_mesh, bar_pose
+        >>> X, faces = bar_mesh(n_along=4, n_side=1)
+        >>> mixer = ShapeMixer([X, 0.1 * bar_pose(X, 0.4, 0.0)], faces)
+        >>> mixer.relative_size([[0.0], [0.5], [1.0]]).round(3).tolist()
+        [1.0, 0.55, 0.1]
+        """
+        w = np.asarray(weights, float)
+        size = np.maximum(1.0 + w @ (self._length_sums[1:] / self._length_sums[0] - 1.0), MIN_LENGTH_RATIO)
+        return float(size) if size.ndim == 0 else size
+
     def indicator(self, weights):
-        """Estimated RMS error of the mix, relative to the bounding-box diagonal.
+        """Estimated RMS error of the mix, relative to its own size (the basis' bounding-box diagonal times
+        :meth:`relative_size`).
 
         The build measures the error of the space at the candidate weights (the RMS length of the
         last round's Newton vectors, :func:`.subspace.newton_vectors`, before they join the space: an
-        upper estimate) and knows it is 0 at the keys; this interpolates those values by inverse
-        squared distances in weight space.  Without Newton vectors: NaN.
+        upper estimate; over the basis' diagonal) and knows it is 0 at the keys; this interpolates those
+        values by inverse squared distances in weight space and divides by :meth:`relative_size` at
+        ``weights``.  Without Newton vectors: NaN.
         """
         if self._error_w is None:
             return float("nan")
-        d2 = ((self._error_w - np.asarray(weights, float)) ** 2).sum(axis=1)
+        w = self.check_weights(weights)
+        d2 = ((self._error_w - w) ** 2).sum(axis=1)
         i = int(np.argmin(d2))
         if d2[i] <= 1e-24:
-            return float(self._error_v[i])
-        inv = 1.0 / d2
-        return float(inv @ self._error_v / inv.sum())
+            error = float(self._error_v[i])
+        else:
+            inv = 1.0 / d2
+            error = float(inv @ self._error_v / inv.sum())
+        return error / self.relative_size(w) if error else error
 
     def mix(self, weights, *, warm_start=True, polish=False):
         """The mix for ``weights`` ``(K-1,)``: the projection of ``z(w)``.

@@ -3,8 +3,10 @@
 An in-between of the keys ``A`` (``t = 0``) and ``B`` (``t = 1``) is the projection of the target
 ``z(t) = z_A + t (z_B - z_A)`` (angles on the circle, lengths floored: the blend of a two-key
 :class:`~lacore.shapes.mixing.ShapeMixer`, thesis 4.2), the minimizer of ``W_q[z(t), Z(X)]`` (3.19),
-the energy of :func:`lacore.reconstruction.reconstruct`.  The targets lie on a segment, so a subspace
-made for that segment needs far fewer factorizations than a general mixer of the keys
+the energy of :func:`lacore.reconstruction.reconstruct` with ``A``'s weights at every ``t`` (as the mixer's; for
+keys more than 1.5 times apart in size :func:`~lacore.reconstruction.reconstruct` itself would scale the length
+weights with the target, :mod:`lacore.reconstruction.context`, "Target scale").  The targets lie on a segment, so a
+subspace made for that segment needs far fewer factorizations than a general mixer of the keys
 (``K + C`` of them, :mod:`.mixer`) or the full projection (one or more per in-between):
 
 * the keys: ``X_B - X_A`` (the projection is ``A`` at ``t = 0`` and ``B`` at ``t = 1``);
@@ -15,18 +17,35 @@ made for that segment needs far fewer factorizations than a general mixer of the
   in-between where the error of the space is expected to be largest (:func:`_error_shape`), then at the
   one farthest from the keys and the points already probed, one full Gauss-Newton step from the
   minimizer in the space (a new numeric factorization, the symbolic analysis reused) and the tangent
-  there from the same factorization.  The step's RMS length over the bounding-box diagonal is the
-  *error estimate* of the reduced in-between there (to first order, the distance to the projection);
-  probing stops as soon as it is at most :attr:`PathOptions.tolerance` along the path (see
-  :func:`_error_shape`), or when a probe's estimate is not below half of the one before (a space that
-  does not converge: the rolled plates of the shared data, estimates 10-20 % of the diagonal, go to
-  the polish after two probes).
+  there from the same factorization.
+
+Distances are over each in-between's own size: ``A``'s bounding-box diagonal times the in-between's
+:meth:`~.mixer.ShapeMixer.relative_size` (its total edge length over ``A``'s, ``1 + t (L_B / L_A - 1)``), and
+"along the path" is in the path's own length ``u(t) = int_0^t ds / relative_size(s)`` (:func:`_own_length`; ``u =
+t`` for keys of one size).  A probe's step length is the *error estimate* of the reduced in-between there (to
+first order, the distance to the projection); its *offset* is the distance from the step's landing point (in the
+space once the step joins it) to the reduced in-between there in that space, what the step's first-order model
+misses.  The *indicator* of an in-between is :data:`SAFETY` times the largest of the last estimate and every
+probe's offset (an earlier probe's at most the estimate of the later probe nearest to it, scaled to it), each scaled
+from its probe along the path by :func:`_error_shape` (:func:`_scaled_errors`).  Probing stops as soon as every
+indicator is at most :attr:`PathOptions.tolerance`, or when a probe's estimate is not below half of the one before
+(a space that does not converge: the rolled plates of the shared data, estimates 10-20 % of the diagonal, go to
+the polish after two probes).
+
+Keys of very different sizes are where the size and the offsets matter.  ``W_q`` with ``A``'s weights weighs
+stretching against bending by the square of the in-between's size over ``A``'s, so the projection changes most,
+relative to its size, where the in-betweens are small: between the finger of the shared data and the bent finger
+scaled by 0.1 the reduced in-between at ``t = 0.91`` was 0.36 % of its size from the projection, where an
+estimate over ``A``'s diagonal scaled by ``t`` alone (the last probe at ``t = 0.27``) said 0.015 %.  With the sizes,
+the own length and the offsets the probes go to ``t = 0.91, 0.64, 0.36``, the error there is 0.074 % and the
+indicator 0.19 %.  On keys of one size the sizes are 1 and the offsets far below the estimates (1.0e-6 of the
+diagonal against 7.5e-4 on the bent bar of the tests): the indicator is the last estimate's, as without them.
 
 Every in-between is the minimizer of the exact reduced energy (every edge, ``O(n r)`` per Gauss-Newton
 step for ``r`` columns, no cubature: :class:`.reduced.ReducedEnergy`).  When the indicator stays above
 the tolerance after :attr:`PathOptions.max_newton_vectors` probes, the in-betweens where it does are
-polished by full Gauss-Newton from the reduced result (or, with ``polish=False``, returned with
-``success`` False and a message), never a silently wrong shape.
+polished by the full projection of the same energy (Fast or Gauss-Newton, :attr:`PathOptions.polish_method`;
+or, with ``polish=False``, returned with ``success`` False and a message), never a silently wrong shape.
 
 Cost: ``1 + p`` factorizations for ``p`` probes (``p >= 1``: the estimate needs one; one more with
 ``tangents="both"``), whatever the number of in-betweens.  On the 50k bar (a 90-degree bend) and the CC0
@@ -47,11 +66,17 @@ from .subspace import _extend, newton_vectors, orthonormal_basis
 
 __all__ = ["PathOptions", "PathResult", "path_inbetweens", "SAFETY", "FAST_POLISH"]
 
-#: The indicator is this many times the probes' first-order estimate, scaled along the path
+#: The indicator is this many times the probes' first-order estimate (or offset), scaled along the path
 #: (:func:`_error_shape`).  With the factor 1 it was down to 0.98 times the RMS distance to converged Gauss-Newton
 #: (a 302-vertex bar bent by 2.5 and twisted by 2 radians), 4 to 300 times on milder paths and on the CC0 body
 #: (``tests/test_path_inbetweens.py`` asserts that the indicator covers the error).
 SAFETY = 2.0
+
+#: In-betweens whose distance to the keys and the probes along the path is within this fraction of the largest are
+#: equally far: the next probe is the first of them in the order given, so keys of nearly one size probe where keys
+#: of exactly one size do (the flat 121-vertex plate and its roll, 0.8 % shorter: at 0.25 rather than at 0.5 after
+#: 0.75, whose estimate there did not halve the first and sent every in-between to Gauss-Newton).
+FARTHEST_TIE = 0.01
 
 #: ``polish_method="auto"`` polishes by Fast when the largest indicator is at most this many times the tolerance.
 FAST_POLISH = 10.0
@@ -64,9 +89,9 @@ class PathOptions:
     Attributes
     ----------
     tolerance : float
-        Largest accepted indicator (the estimated RMS distance to the projection over the bounding-box
-        diagonal of ``A``, :data:`SAFETY` times a first-order estimate); default 0.003, the 0.3 % the
-        in-betweens are held to.
+        Largest accepted indicator (the estimated RMS distance to the projection over the in-between's own size,
+        the bounding-box diagonal of ``A`` times :meth:`~.mixer.ShapeMixer.relative_size`; module docstring);
+        default 0.003, the 0.3 % the in-betweens are held to.
     max_newton_vectors : int
         Most probes (factorizations beyond the two at the keys) before falling back (at least 1).
     iterations : int
@@ -132,13 +157,17 @@ class PathResult:
     energy : (N,) ndarray
         ``W_q[z(t), Z(vertices)]`` on the whole mesh.
     indicator : (N,) ndarray
-        Error estimate of every in-between (RMS distance to the projection over the bounding-box diagonal):
-        0 at the keys and for in-betweens polished by converged Gauss-Newton; for those polished by Fast the
-        reduced in-between's (an upper estimate: on the 50k bar twisted by 90 degrees Fast ended within 0.15 % of
-        Gauss-Newton where the reduced in-betweens were estimated up to 0.6 % off); else :data:`SAFETY` times the
-        last probe's estimate, scaled along the path (:func:`_error_shape`).
+        Error estimate of every in-between (RMS distance to the projection over the in-between's own size, the
+        bounding-box diagonal of ``A`` times :meth:`~.mixer.ShapeMixer.relative_size`): 0 at the keys and for
+        in-betweens polished by converged Gauss-Newton; for those polished by Fast the reduced in-between's (an
+        upper estimate: on the 50k bar twisted by 90 degrees Fast ended within 0.15 % of Gauss-Newton where the
+        reduced in-betweens were estimated up to 0.6 % off); else :data:`SAFETY` times the largest of the last
+        probe's estimate and the probes' offsets, scaled along the path (module docstring).
     estimates : list of (float, float)
-        ``(t, estimate)`` of every probe, in order.
+        ``(t, estimate)`` of every probe, in order: its Gauss-Newton step's RMS length over the in-between's size.
+    offsets : list of (float, float)
+        ``(t, offset)`` of every probe, in order: the RMS distance from its step's landing point to the reduced
+        in-between there in the space the step joined, over the in-between's size.
     polished : bool
         Whether full Gauss-Newton produced in-betweens: those whose indicator stayed above the tolerance (their
         indicator is then 0).
@@ -159,6 +188,7 @@ class PathResult:
     energy: np.ndarray
     indicator: np.ndarray
     estimates: list
+    offsets: list
     polished: bool
     success: bool
     message: str
@@ -168,29 +198,65 @@ class PathResult:
     cpu_seconds: dict
 
 
-def _next_probe(factors, probed, shape=None):
-    """Index of the factor farthest from the keys and the probed factors (None when all are keys); with ``shape``
-    (:func:`_error_shape`), the factor in ``[0, 1]`` where it is largest."""
-    inside = (factors > 0.0) & (factors < 1.0)
+def _next_probe(u, probed, u1, shape=None):
+    """Index of the in-between farthest from the keys and the probed in-betweens along the path (``u``: their
+    :func:`_own_length`, ``u1`` that of ``B``; ``probed``: indices; the first in the order given of those within
+    :data:`FARTHEST_TIE` of the farthest), None when all are keys or probed; with ``shape`` (:func:`_error_shape`),
+    the in-between in ``[0, 1]`` where it is largest."""
+    inside = (u > 0.0) & (u < u1)
     if shape is not None and inside.any():
         return int(np.argmax(np.where(inside, shape, -1.0)))
-    known = np.array([0.0, 1.0] + list(probed))
-    dist = np.abs(factors[:, None] - known[None, :]).min(axis=1)
-    i = int(np.argmax(dist))
-    return None if dist[i] <= 1e-12 else i
+    known = np.array([0.0, u1] + [u[j] for j in probed])
+    dist = np.abs(u[:, None] - known[None, :]).min(axis=1)
+    if dist.max() <= 1e-12 * u1:
+        return None
+    return int(np.argmax(dist >= (1.0 - FARTHEST_TIE) * dist.max()))      # the first of the farthest
 
 
-def _error_shape(T, tangents):
+def _own_length(factors, rel):
+    """``u(t) = int_0^t ds / rel(s)``: the path's parameter in units of the in-betweens' own size, for ``rel`` the
+    :meth:`~.mixer.ShapeMixer.relative_size` at ``factors`` (linear in ``t``: ``u = t ln(rel) / (rel - 1)``, and
+    ``u = t`` where the size does not change).  Along a path of one size ``u = t``; where the size shrinks, equal steps
+    of ``t`` are longer steps of ``u``: the in-betweens change more relative to their size."""
+    t, r = np.asarray(factors, float), np.asarray(rel, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = t * np.log(r) / (r - 1.0)
+    return np.where(np.abs(r - 1.0) <= 1e-9, t, u)
+
+
+def _error_shape(U, tangents):
     """How the error of the space grows along the path, up to a factor: that of the polynomial interpolant of
-    ``X(t)`` the space holds (``X_A``, ``X_B`` and ``X'(0)``: ``t^2 |1 - t|``; also ``X'(1)``: ``t^2 (1 - t)^2``)."""
-    T = np.asarray(T, float)
-    return T * T * (np.abs(1.0 - T) if tangents == "from" else (1.0 - T) ** 2)
+    ``X(U)`` the space holds (``X_A``, ``X_B`` and ``X'(0)``: ``U^2 |1 - U|``; also ``X'(1)``: ``U^2 (1 - U)^2``), in
+    the path's own length ``U = u(t) / u(1)`` (:func:`_own_length`; ``U = t`` along a path of one size)."""
+    U = np.asarray(U, float)
+    return U * U * (np.abs(1.0 - U) if tangents == "from" else (1.0 - U) ** 2)
+
+
+def _scaled_errors(probed, estimates, offsets, u, shape):
+    """The error measurements of the space scaled along the path from their probes by ``shape``
+    (:func:`_error_shape`), ``(M, N)``: the last probe's estimate and every probe's offset, an earlier probe's at most
+    the estimate of the later probe nearest to it (along ``u``, :func:`_own_length`) scaled to it, a measurement of a
+    later space next to it."""
+    out = [estimates[-1] * shape / shape[probed[-1]]]
+    for k, (j, off) in enumerate(zip(probed, offsets, strict=True)):
+        later = probed[k + 1:]
+        if later:
+            n = min(range(len(later)), key=lambda m: abs(u[later[m]] - u[j]))
+            off = min(off, estimates[k + 1 + n] * shape[j] / shape[later[n]])
+        out.append(off * shape / shape[j])
+    return np.array(out)
+
+
+def _rms(x, size):
+    """RMS length of the vertex displacements ``x`` ``(3V,)`` over ``size``."""
+    return float(np.linalg.norm(x)) / np.sqrt(len(x) / 3) / size
 
 
 def _polish_fast(mixer, topology, T, X, over):
     """The in-betweens ``over`` by lacore's default projection (Fast: continuation along ``t``, one Gauss-Newton step
-    per in-between, more where a step disagrees with its quadratic model), started from the keys and the
-    in-betweens within the tolerance: ``(vertices, energy, failures)``."""
+    per in-between, more where a step disagrees with its quadratic model) of the mixer's energy (``A``'s weights at
+    every ``t``, as the reduced model and the Gauss-Newton polish), started from the keys and the in-betweens within
+    the tolerance: ``(vertices, energy, failures)``."""
     from ..projection import SequenceProjection, projection_options
 
     keep = np.setdiff1d(np.arange(len(T)), over)
@@ -198,7 +264,7 @@ def _polish_fast(mixer, topology, T, X, over):
     anchors += [(float(T[j]), X[j]) for j in keep if T[j] not in (0.0, 1.0)]
     targets = np.array([mixer.target([T[j]]) for j in over])
     opts = projection_options(None, True, None, mixer.options.settings, None, None, {}, "path_inbetweens")
-    run = SequenceProjection(targets, topology, mixer.keys[0], T[over], anchors, opts).run()
+    run = SequenceProjection(targets, topology, mixer.keys[0], T[over], anchors, opts, context=mixer._context).run()
     res = [f.result for f in run.frames]
     failed = [f"t = {T[j]:g}: {r.message}" for j, r in zip(over, res, strict=True) if not r.success]
     return np.array([r.vertices for r in res]), np.array([float(r.energy) for r in res]), failed
@@ -287,23 +353,31 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
         return q, x0 + U @ q, e
 
     keys = (T == 0.0) | (T == 1.0)
-    shape = _error_shape(T, o.tangents)
-    estimates, indicator = [], np.zeros(len(T))
+    rel = mixer.relative_size(T[:, None])                      # over A's diagonal / rel: over the in-between's size
+    u, u1 = _own_length(T, rel), float(_own_length(1.0, mixer.relative_size([1.0])))
+    shape = _error_shape(u / u1, o.tangents)
+    estimates, offsets, indicator = [], [], np.zeros(len(T))
+    probed = []
     while len(estimates) < o.max_newton_vectors:
-        i = _next_probe(T, [t for t, _ in estimates], None if estimates else shape)
+        i = _next_probe(u, probed, u1, None if estimates else shape)
         if i is None:
             break
         report(progress, 2 + len(estimates), total, f"Newton vector {len(estimates) + 1} (t = {T[i]:g})")
         with watch("reduced"):
             q, _, _ = solve(U, float(T[i]), o.iterations)
         with watch("newton_vectors"):
-            new, _, sizes, _, _ = newton_vectors(P, x0, U, [(np.array([T[i]]), q)], size, derivatives=True,
-                                           reduced_iterations=0)
-        estimates.append((float(T[i]), float(sizes[0])))
-        solved[float(T[i])] = q
+            new, start, sizes, _, _ = newton_vectors(P, x0, U, [(np.array([T[i]]), q)], size, derivatives=True,
+                                                     reduced_iterations=0)
+        probed.append(i)
+        estimates.append((float(T[i]), float(sizes[0] / rel[i])))
         with watch("reduced"):
             U = _extend(U, new)
-        indicator = np.where(keys, 0.0, SAFETY * sizes[0] * shape / shape[i])
+            q, x, _ = solve(U, float(T[i]), o.iterations)
+        solved[float(T[i])] = q
+        # the step's landing point is in the space now: how far the reduced in-between there lands from it
+        offsets.append((float(T[i]), _rms(x - start[0][1] - new[0], size) / rel[i]))
+        indicator = np.where(keys, 0.0, SAFETY * _scaled_errors(probed, [e for _, e in estimates],
+                                                                [e for _, e in offsets], u, shape).max(axis=0))
         if indicator.max() <= o.tolerance:
             break
         if len(estimates) >= 2 and estimates[-1][1] > 0.5 * estimates[-2][1]:
@@ -356,6 +430,6 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
     report(progress, total, total, "done")
     watch.wall["total"] = sum(watch.wall.values())
     watch.cpu["total"] = sum(watch.cpu.values())
-    return PathResult(vertices=X, factors=T, energy=energy, indicator=indicator, estimates=estimates,
+    return PathResult(vertices=X, factors=T, energy=energy, indicator=indicator, estimates=estimates, offsets=offsets,
                       polished=polished, success=success, message=message, reduced_size=int(U.shape[1]),
                       factorizations=len(ends) + len(estimates), seconds=dict(watch.wall), cpu_seconds=dict(watch.cpu))
