@@ -83,16 +83,22 @@ def uses_bpy(code):
 
 
 # ---------------------------------------------------------------------------------------------- code runs
-@pytest.fixture(scope="module")
-def clone_dir(tmp_path_factory):
-    """``<tmp>/clone`` (the working directory) with ``<tmp>/shared/data`` -> the shared data, and a ``lacore``."""
+def shared_root(tmp_path_factory, name):
+    """A new ``<tmp>`` with ``<tmp>/shared/data`` -> the shared data (a user's layout beside a clone)."""
     data = shared_data_dir()
     if not (data / "meshes").is_dir():
         pytest.fail(f"shared data not found at {data}: put shared/ beside the repository or set "
                     "LACORE_SHARED_DATA", pytrace=False)
-    root = tmp_path_factory.mktemp("readme")
+    root = tmp_path_factory.mktemp(name)
     (root / "shared").mkdir()
     (root / "shared" / "data").symlink_to(data.resolve(), target_is_directory=True)
+    return root
+
+
+@pytest.fixture(scope="module")
+def clone_dir(tmp_path_factory):
+    """``<tmp>/clone`` (the working directory) with ``<tmp>/shared/data`` -> the shared data, and a ``lacore``."""
+    root = shared_root(tmp_path_factory, "readme")
     clone = root / "clone"
     clone.mkdir()
     bin_dir = root / "bin"
@@ -102,7 +108,7 @@ def clone_dir(tmp_path_factory):
     wrapper.chmod(wrapper.stat().st_mode | stat.S_IXUSR)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
                PATH=os.pathsep.join([str(bin_dir), os.environ.get("PATH", "")]),
-               LACORE_SHARED_DATA=str(data), MPLBACKEND="Agg")
+               LACORE_SHARED_DATA=str(shared_data_dir()), MPLBACKEND="Agg")
     return clone, env
 
 
@@ -255,14 +261,7 @@ def python_names(text):
 @pytest.fixture(scope="module")
 def docs_dir(tmp_path_factory):
     """``<tmp>`` with ``<tmp>/shared/data`` -> the shared data; a page's code runs in ``<tmp>/<page>``."""
-    data = shared_data_dir()
-    if not (data / "meshes").is_dir():
-        pytest.fail(f"shared data not found at {data}: put shared/ beside the repository or set "
-                    "LACORE_SHARED_DATA", pytrace=False)
-    root = tmp_path_factory.mktemp("docs")
-    (root / "shared").mkdir()
-    (root / "shared" / "data").symlink_to(data.resolve(), target_is_directory=True)
-    return root
+    return shared_root(tmp_path_factory, "docs")
 
 
 #: What the quick python blocks print (their comments say so): per page, lines or patterns in order.
