@@ -177,3 +177,15 @@ def test_the_addon_imports_public_lacore_names_only():
                         (path.name, node.module, alias.name)
                     assert alias.name not in internals, (path.name, alias.name)
     assert "SequenceProjection" in found and "ProjectionOptions" in found
+
+
+def test_a_given_context_is_the_runs_and_works_in_this_process_only(finger):
+    from lacore.reconstruction.context import ReconstructionContext
+
+    topo, X0, X1, _ = finger
+    ctx = ReconstructionContext(topo, X0, ProjectionOptions("gn").settings)     # not the cached one
+    run = sequence(finger, context=ctx)
+    run.step()
+    assert run.context is ctx and run.frames[0].result.success
+    with pytest.raises(InputError, match=r"^a given context works in this process only: use workers=1 with it$"):
+        sequence(finger, context=ctx, workers=2)

@@ -715,6 +715,23 @@ def one_line_attempt(out, name, obj, operator, **kw):
                  "unchanged": state(obj) == before}
 
 
+def still_verdict(take, obj):
+    """``require_still(take, obj)``'s verdict: None, or the message it refuses with."""
+    try:
+        ext("addon.operators_fit").require_still(take, obj)
+    except ext("lacore.errors").InputError as exc:
+        return str(exc)
+    return None
+
+
+def seconds_per_still_check(take, obj, repeat=100):
+    """Mean seconds of one ``require_still(take, obj)``, refusing or not."""
+    t = time.perf_counter()
+    for _ in range(repeat):
+        still_verdict(take, obj)
+    return (time.perf_counter() - t) / repeat
+
+
 def cleared_marker():
     """A bound marker's empty with its animation cleared (Clear Keyframes): Fit to Markers fits the others (the
     marker never visible, said in one line) -- the markers and the fit are written for pytest to fit again with
@@ -761,18 +778,13 @@ def moving_setups():
     """What makes the take empty or the character move besides keys of its action: a driver on a transform channel,
     a constraint, an NLA strip (on a parent): Fit to Markers refuses in one line naming it, nothing changed; muted,
     disabled, influence 0, invalid, a muted or non-solo track: still.  require_still reads data only (timed)."""
-    fit = ext("addon.operators_fit")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
     select_only(obj)
     out, still = {}, {}
 
     def check(name):
-        try:
-            fit.require_still(take, obj)
-            still[name] = None
-        except ext("lacore.errors").InputError as exc:
-            still[name] = str(exc)
+        still[name] = still_verdict(take, obj)
 
     def attempt(name):
         one_line_attempt(out, name, obj, bpy.ops.lengths_angles.fit_markers, use_scene_range=False, frame_start=1,
@@ -845,27 +857,16 @@ def constant_setups():
     reason to refuse; the same setups made to change (the property keyed, the target keyed, the influence keyed, a
     'frame' in the expression) and constraint types that read time or geometry are refused.  Each verdict is
     compared with the take's or the character's evaluated motion over the take (frame_set); checks timed."""
-    fit = ext("addon.operators_fit")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
     select_only(obj)
     out, verdict, motion, timing = {}, {}, {}, {}
 
     def check(name, ob, timed=False):
-        try:
-            fit.require_still(take, obj)
-            verdict[name] = None
-        except ext("lacore.errors").InputError as exc:
-            verdict[name] = str(exc)
+        verdict[name] = still_verdict(take, obj)
         motion[name] = evaluated_motion(ob)
         if timed:
-            t = time.perf_counter()
-            for _ in range(100):
-                try:
-                    fit.require_still(take, obj)
-                except ext("lacore.errors").InputError:
-                    pass
-            timing[name] = (time.perf_counter() - t) / 100
+            timing[name] = seconds_per_still_check(take, obj)
 
     def link(ob):
         bpy.context.scene.collection.objects.link(ob)
@@ -946,7 +947,6 @@ def parent_links():
     read as still, the markers placed wrongly); a bone whose pose does not change (keys on another bone, Rest
     Position) and a mesh that is not deformed (a Subdivision Surface) are still.  Each verdict is compared with the
     take empty's evaluated motion (frame_set); the check stays data only (timed)."""
-    fit = ext("addon.operators_fit")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
     rig = add_rig()
@@ -955,11 +955,7 @@ def parent_links():
     out, verdict, motion = {}, {}, {}
 
     def check(name):
-        try:
-            fit.require_still(take, obj)
-            verdict[name] = None
-        except ext("lacore.errors").InputError as exc:
-            verdict[name] = str(exc)
+        verdict[name] = still_verdict(take, obj)
         motion[name] = evaluated_motion(take)
 
     def attempt(name):
@@ -980,13 +976,7 @@ def parent_links():
     key_bone("Hand")
     attempt("bone_keyed")
     check("bone_keyed")
-    t = time.perf_counter()
-    for _ in range(100):
-        try:
-            fit.require_still(take, obj)
-        except ext("lacore.errors").InputError:
-            pass
-    out["seconds_per_check"] = (time.perf_counter() - t) / 100
+    out["seconds_per_check"] = seconds_per_still_check(take, obj)
     rig.data.pose_position = 'REST'                # the armature in Rest Position: no pose is played
     check("rest_position")
     rig.data.pose_position = 'POSE'

@@ -34,12 +34,11 @@ the polish after two probes).
 
 Keys of very different sizes are where the size and the offsets matter.  ``W_q`` with ``A``'s weights weighs
 stretching against bending by the square of the in-between's size over ``A``'s, so the projection changes most,
-relative to its size, where the in-betweens are small: between the finger of the shared data and the bent finger
-scaled by 0.1 the reduced in-between at ``t = 0.91`` was 0.36 % of its size from the projection, where an
-estimate over ``A``'s diagonal scaled by ``t`` alone (the last probe at ``t = 0.27``) said 0.015 %.  With the sizes,
-the own length and the offsets the probes go to ``t = 0.91, 0.64, 0.36``, the error there is 0.074 % and the
-indicator 0.19 %.  On keys of one size the sizes are 1 and the offsets far below the estimates (1.0e-6 of the
-diagonal against 7.5e-4 on the bent bar of the tests): the indicator is the last estimate's, as without them.
+relative to its size, where the in-betweens are small, and a probe far from there does not see it.  Between the
+finger of the shared data and the bent finger scaled by 0.1 the probes go to ``t = 0.91, 0.64, 0.36``; the largest
+error is 0.074 % of the in-between's size, the indicator there 0.19 %.  On keys of one size the sizes are 1 and the
+offsets far below the estimates (1.0e-6 of the diagonal against 7.5e-4 on the bent bar of the tests): the indicator
+is the last estimate's.
 
 Every in-between is the minimizer of the exact reduced energy (every edge, ``O(n r)`` per Gauss-Newton
 step for ``r`` columns, no cubature: :class:`.reduced.ReducedEnergy`).  When the indicator stays above
@@ -62,7 +61,7 @@ from ...progress import report
 from ...reconstruction import reconstruct
 from ...reconstruction.settings import GaussNewtonOptions
 from .mixer import MixerOptions, ShapeMixer, _Stopwatch
-from .subspace import _extend, newton_vectors, orthonormal_basis
+from .subspace import _extend, newton_vectors, orthonormal_basis, relative_rms
 
 __all__ = ["PathOptions", "PathResult", "path_inbetweens", "SAFETY", "FAST_POLISH"]
 
@@ -247,11 +246,6 @@ def _scaled_errors(probed, estimates, offsets, u, shape):
     return np.array(out)
 
 
-def _rms(x, size):
-    """RMS length of the vertex displacements ``x`` ``(3V,)`` over ``size``."""
-    return float(np.linalg.norm(x)) / np.sqrt(len(x) / 3) / size
-
-
 def _polish_fast(mixer, topology, T, X, over):
     """The in-betweens ``over`` by lacore's default projection (Fast: continuation along ``t``, one Gauss-Newton step
     per in-between, more where a step disagrees with its quadratic model) of the mixer's energy (``A``'s weights at
@@ -375,7 +369,7 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
             q, x, _ = solve(U, float(T[i]), o.iterations)
         solved[float(T[i])] = q
         # the step's landing point is in the space now: how far the reduced in-between there lands from it
-        offsets.append((float(T[i]), _rms(x - start[0][1] - new[0], size) / rel[i]))
+        offsets.append((float(T[i]), relative_rms(x - start[0][1] - new[0], size) / rel[i]))
         indicator = np.where(keys, 0.0, SAFETY * _scaled_errors(probed, [e for _, e in estimates],
                                                                 [e for _, e in offsets], u, shape).max(axis=0))
         if indicator.max() <= o.tolerance:

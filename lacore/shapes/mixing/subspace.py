@@ -56,7 +56,7 @@ from ...progress import report
 from ...reconstruction.objectives import QuadraticGNMatrix
 from ...reconstruction.pcg import preconditioned_cg
 
-__all__ = ["FullProblem", "build_space", "candidate_weights", "exploration_weights", "space_indicator"]
+__all__ = ["FullProblem", "build_space", "candidate_weights", "exploration_weights", "space_indicator", "relative_rms"]
 
 
 class FullProblem:
@@ -459,6 +459,15 @@ def reduced_solve(problem, x0, U, q, wk, iterations=4, linearized=False):
     return q, x, e
 
 
+def relative_rms(x, size):
+    """RMS length of the vertex displacements ``x`` ``(3V,)`` over ``size`` (a float).
+
+    >>> round(relative_rms(np.array([3.0, 4.0, 0.0, 0.0, 0.0, 0.0]), 2.0), 6)     # 5 / sqrt(2) / 2
+    1.767767
+    """
+    return float(np.linalg.norm(x)) / np.sqrt(len(x) / 3) / size
+
+
 def _extend(U, vectors, rtol=1e-8):
     """``U`` ``(n, r)`` (orthonormal columns) followed by orthonormal columns for what ``vectors`` add to its span."""
     V = _unit_columns(vectors, U.shape[0])
@@ -558,7 +567,7 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
 
                 d, _, _ = preconditioned_cg(matvec, -g, problem.solve, problem.fixed, 1e-6, pcg_iterations)
                 steps[i] = d
-    sizes = np.array([float(np.linalg.norm(d)) / np.sqrt(len(d) / 3) / size for d in steps])
+    sizes = np.array([relative_rms(d, size) for d in steps])
     if pcg_iterations:
         return steps + extra, solved, sizes, gains, None
     return kept + extra, solved, sizes, gains, space
