@@ -465,7 +465,7 @@ def relative_rms(x, size):
     >>> round(relative_rms(np.array([3.0, 4.0, 0.0, 0.0, 0.0, 0.0]), 2.0), 6)     # 5 / sqrt(2) / 2
     1.767767
     """
-    return float(np.linalg.norm(x)) / np.sqrt(len(x) / 3) / size
+    return float(np.linalg.norm(x) / np.sqrt(len(x) / 3) / size)
 
 
 def _extend(U, vectors, rtol=1e-8):
