@@ -64,6 +64,15 @@ def reference_workload_seconds(repeats=3):
     return round(best, 4)
 
 
+def cache_dir(name):
+    """A folder for results a benchmark computes once and reads again on this machine (made if missing):
+    ``$XDG_CACHE_HOME/lacore-benchmarks/<name>`` (``~/.cache/...`` without the variable)."""
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = os.path.join(root, "lacore-benchmarks", name)
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
 def machine_info(**extra):
     """Platform, CPU, core count, load, library versions and :func:`reference_workload_seconds`
     (plus ``extra`` entries)."""

@@ -11,15 +11,17 @@ Meshes (keys: K = 3 at 50k, K = 4 on the CC0 body):
 
 Accuracy is measured against converged full Gauss-Newton projections (``reconstruct(..., method="gn",
 max_iterations=300)`` from the basis, by continuation along the straight line in steps of 0.25) at the
-weights of :func:`reference_weights`, computed here (hours at 50k vertices) or read from a cache
-``--reference DIR`` of the same computation (``<mesh>.npz`` with ``weights (N, K-1)``, ``n_in`` (the
-first ``n_in`` weights lie in [0, 1]), ``vertices (N, V, 3)``, ``energy (N,)``).  RMS vertex
+weights of :func:`reference_weights`, computed once (hours at 50k vertices) and kept in a cache,
+``--reference DIR`` (default :func:`bench_common.cache_dir`), as ``<mesh>.npz`` with ``weights (N, K-1)``,
+``n_in`` (the first ``n_in`` weights lie in [0, 1]), ``vertices (N, V, 3)``, ``energy (N,)`` and ``digest``
+(of the keys, faces and weights: a file made for other keys or weights is computed again).  RMS vertex
 distance after the best rigid motion, in % of the bounding-box diagonal of the basis.
 
 The continuation can stop in a worse local minimum than the projection: where a mix's full energy is below the
 reference's or its distance misses the goal, full Gauss-Newton from the mix (a polish) is run, and if it ends at a
-lower energy it is the reference there (``references_checked``; on the CC0 body at ``w = (1.5, 1.5, 1.5)`` the
-continuation ends at ``W_q`` = 4.48, the polished mix at 0.150, 1.96 % of the diagonal away).
+lower energy it is the reference there and in the cache (``references_checked``; on the CC0 body at
+``w = (1.5, 1.5, 1.5)`` the continuation ends at ``W_q`` = 4.48, the polished mix at 0.150, 1.96 % of the
+diagonal away).
 
 Energy: the full ``W_q`` at the mix over that at the converged Gauss-Newton mix (``energy_ratio``),
 and the goal as a margin, ``energy_goal`` = ``(E_mix - E_gn) / (0.02 E_gn + floor)`` (at most 1: within
@@ -32,6 +34,7 @@ Prints one JSON object.  Times: wall (``perf_counter``) and CPU (``process_time`
 """
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -46,7 +49,7 @@ for p in (REPO, HERE):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from bench_common import machine_info  # noqa: E402
+from bench_common import cache_dir, machine_info  # noqa: E402
 
 from lacore.geometry.rigid import rigid_align  # noqa: E402
 from lacore.samples.simple_deform import box_bar, simple_deform_bend  # noqa: E402
@@ -125,6 +128,31 @@ def compute_references(keys, faces, W):
     return np.array(X), np.array(E)
 
 
+def reference_digest(keys, faces, W):
+    """What a stored reference was computed for: SHA-256 of the keys (to 1e-9), the faces and the weights."""
+    h = hashlib.sha256()
+    for a in (np.round(np.asarray(keys, float), 9), np.asarray(faces, np.int64), np.asarray(W, float)):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def load_references(path, digest):
+    """``(weights, n_in, vertices, energy)`` stored at ``path`` for ``digest``, else None."""
+    if not os.path.exists(path):
+        return None
+    with np.load(path) as ref:
+        if "digest" not in ref or str(ref["digest"]) != digest:
+            return None
+        return ref["weights"], int(ref["n_in"]), ref["vertices"], ref["energy"]
+
+
+def save_references(path, digest, W, n_in, X, E):
+    """Store references at ``path`` (written whole, then renamed)."""
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, weights=W, n_in=n_in, vertices=X, energy=E, digest=digest)
+    os.replace(tmp, path)
+
+
 def rms_percent(A, B, diag):
     Y = rigid_align(A, B)
     return 100.0 * float(np.sqrt(np.mean(np.sum((Y - B) ** 2, axis=1)))) / diag
@@ -134,16 +162,19 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     keys, faces = mesh_keys(name)
     diag = float(np.linalg.norm(np.ptp(keys[0], axis=0)))
     out = {"mesh": name, "vertices": int(keys.shape[1]), "keys": int(len(keys))}
-    path = os.path.join(reference_dir, f"{name}.npz") if reference_dir else None
-    if path and os.path.exists(path):
-        ref = np.load(path)
-        W, n_in, Xref, Eref = ref["weights"], int(ref["n_in"]), ref["vertices"], ref["energy"]
-    else:
-        W, n_in = reference_weights(len(keys) - 1)
-        if references:
-            W = np.concatenate([W[:references], W[n_in:n_in + references]])
-            n_in = references
+    W, n_in = reference_weights(len(keys) - 1)
+    if references:
+        W = np.concatenate([W[:references], W[n_in:n_in + references]])
+        n_in = references
+    path = os.path.join(reference_dir or cache_dir("bench_mixer_references"),
+                        f"{name}{f'_{references}' if references else ''}.npz")
+    digest = reference_digest(keys, faces, W)
+    stored = load_references(path, digest)
+    if stored is None:
         Xref, Eref = compute_references(keys, faces, W)
+        save_references(path, digest, W, n_in, Xref, Eref)
+    else:
+        W, n_in, Xref, Eref = stored
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     c0, t0 = time.process_time(), time.perf_counter()
     mixer = ShapeMixer.build(keys, faces, options)
@@ -183,6 +214,7 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
             if e_p < Eref[i]:
                 Xref[i], Eref[i] = p.vertices, e_p
                 err = rms_percent(r.vertices, Xref[i], diag)
+                save_references(path, digest, W, n_in, Xref, Eref)
         errs.append(err)
         exacts.append(exact)
         ratios.append(exact / Eref[i] if Eref[i] > 0 else float("nan"))
@@ -232,10 +264,11 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("meshes", nargs="*", default=list(MESHES), help=f"of {', '.join(MESHES)}")
-    ap.add_argument("--reference", help="folder of stored converged full Gauss-Newton mixes <mesh>.npz")
+    ap.add_argument("--reference", help="folder of the converged full Gauss-Newton mixes <mesh>.npz, computed "
+                                        "there when missing (default: a folder under ~/.cache)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--references", type=int, default=None, metavar="N",
-                    help="without stored references: compute only N weights in [0, 1] and N outside (default 10 + 10)")
+                    help="only N weights in [0, 1] and N outside (default 10 + 10)")
     args = ap.parse_args(argv)
     results = {"benchmark": "shape mixer (build by stage, ms per mix, RMS % of the diagonal against converged full "
                             "Gauss-Newton, energy ratio and goal margin, memory)",

@@ -18,6 +18,10 @@ bench-quick`` the quick variants, and both then rewrite the docs.  One benchmark
 not change the results (``--save FILE`` writes the fitted take for ``scripts/render_marker_fit.py``).
 The ``bench_blender_*`` scripts need bpy and SciPy in one Python: ``--blender-python`` (bpy 5.2's venv)
 with ``--blender-pythonpath`` (where that Python finds SciPy & co.).
+
+Every script runs with one BLAS thread (:data:`ONE_THREAD`, unless the caller's environment sets those
+variables): the goals are stated for one core, and a BLAS that starts a thread per core makes the figures
+depend on the machine's core count and on its other jobs.  Each result's ``machine`` block records them.
 """
 
 import argparse
@@ -33,6 +37,10 @@ from dataclasses import dataclass
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 STORE = os.path.join(REPO, "docs", "benchmarks")
+
+
+#: The environment every benchmark runs in unless the caller sets these variables: one BLAS/OpenMP thread.
+ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 @dataclass(frozen=True)
@@ -133,7 +141,7 @@ def run_one(name, quick, python, blender_python, blender_pythonpath, extra=(), s
     bench = BENCHMARKS[name]
     args = list(bench.quick if quick else bench.full) + list(extra)
     interpreter = blender_python if bench.blender else python
-    env = dict(os.environ)
+    env = {**ONE_THREAD, **os.environ}
     if bench.blender and blender_pythonpath:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (blender_pythonpath, env.get("PYTHONPATH")) if p)
     with tempfile.TemporaryDirectory(prefix="lacore_bench_") as tmp:
