@@ -25,7 +25,8 @@ Mode sliders
     nearest surface point of the mesh as its shape keys and leading deformers pose it
     (:func:`_mesh_vertices`) with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
-    markers are where the mesh is; *Align* runs ICP first).  Stored on the object in
+    markers are where the mesh is; *Align* runs ICP first, at most :data:`ALIGN_ITERATIONS`
+    iterations, and the report says how many it ran).  Stored on the object in
     ``obj["lengths_angles_binding"]``; the panel lists each marker with its offset and the
     operator warns about markers farther than ``warn_distance`` from the surface.
 ``lengths_angles.fit_markers``
@@ -79,7 +80,8 @@ from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_o
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
-__all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run",
+__all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "ALIGN_ITERATIONS",
+           "model_run",
            "bind_run", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
            "draw_fit_settings", "draw_frame_range", "typed", "SETTING_LABELS", "store_model", "read_model",
            "migrate_models", "read_binding", "remove_model", "classes"]
@@ -531,6 +533,9 @@ def nonuniform_scale_note(obj):
 
 #: Markers needed to bind (and to place a pose by them).
 MIN_BOUND_MARKERS = 3
+#: Bind Markers' *Align*: at most this many ICP iterations (lacore's ICP stops earlier once the placement no longer
+#: improves).
+ALIGN_ITERATIONS = 100
 
 
 def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
@@ -566,9 +571,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     local = world @ inv[:3, :3].T + inv[:3, 3]
     X = model_mesh_vertices(model, _mesh_vertices(obj, context))
     faces = model.faces
-    iterations = 100
-    job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
-                                                progress=progress), "binding", total=iterations if align else 1)
+    job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=ALIGN_ITERATIONS,
+                                                progress=progress), "binding", total=ALIGN_ITERATIONS if align else 1)
     empties = {lb: o.name for lb, o in marker_objects(take)}
     take_name = take.name
     unit = metres_per_unit(obj, take, context.scene)
@@ -576,7 +580,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     note = nonuniform_scale_note(obj)
 
     def write(obj, job):
-        binding, _info = job.result
+        binding, info = job.result
         obj[BINDING_PROP] = {
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
@@ -596,7 +600,12 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             job.notes.append(f"{far.size} markers are farther than {1000 * warn_distance:g} mm from the surface: "
                              + ", ".join(f"{labels[i]} ({1000 * abs(binding.offsets[i]) * unit:.0f} mm)"
                                          for i in far[:8]))
-        return f"bound {binding.n_markers} markers"
+        if not align:
+            return f"bound {binding.n_markers} markers"
+        if info["iterations"] >= ALIGN_ITERATIONS:
+            job.notes.append(f"the alignment ran to its limit of {ALIGN_ITERATIONS} ICP iterations: place the take "
+                             "nearer the character and bind again")
+        return f"bound {binding.n_markers} markers, aligned in {info['iterations']} ICP iterations"
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The take '{take_name}' or its marker empties": _take_state(take_name),
               f"The posed mesh of '{obj.name}' (frame, shape keys, modifiers)": _posed_mesh_state(obj.name)}
@@ -939,7 +948,7 @@ class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operat
 
     align: BoolProperty(name="Align", default=False,
                         description="Rigidly align the markers to the mesh first (iterative closest points, up to "
-                                    "100 iterations); off: bind them where they are")
+                                    f"{ALIGN_ITERATIONS} iterations); off: bind them where they are")
     warn_distance: FloatProperty(name="Warn Distance (m)", default=0.05, min=0.0, soft_max=0.5, precision=3,
                                  step=0.1,
                                  description="Warn about markers farther than this from the surface, in metres of "

@@ -1105,7 +1105,63 @@ def bind_with_modifiers():
     return out
 
 
+#: The noisy take's rigid misplacement relative to the character (the take empty's rotation, radians, and location,
+#: decimetres): 5.3 degrees about the origin at the body's feet and 4 cm, which puts the markers 63 mm (RMS) off.
+MISPLACEMENT = ((0.05, -0.03, 0.07), (0.25, -0.3, 0.1))
+
+
+def bind_align():
+    """Bind Markers with Align on a noisy take (``take_noisy.c3d``: 3 mm noise) whose take empty is rigidly misplaced
+    (:data:`MISPLACEMENT`): the operator's Align reaches lacore's ICP, which stops early; the binding is stored.  The
+    markers as read (object space), the rotation and translation ICP found and the binding are written to
+    ``align.npz`` for pytest; the same bind without Align for comparison; the report says how many ICP
+    iterations ran."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    assert bpy.ops.lengths_angles.import_markers(filepath=os.path.join(WORK, "take_noisy.c3d"),
+                                                 scale=10.0) == {"FINISHED"}
+    take = bpy.data.objects["take_noisy"]
+    take.rotation_euler, take.location = MISPLACEMENT
+    kb = obj.shape_key_add(name="bind pose", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
+    kb.value = 1.0
+    bpy.context.scene.frame_set(1)
+    original, calls = fit.bind_markers, []
+
+    def spy(*args, **kwargs):
+        found = original(*args, **kwargs)
+        calls.append({"align": kwargs["align"], "cap": kwargs["iterations"], "info": found[1]})
+        return found
+    fit.bind_markers = spy
+    try:
+        select_only(obj, take)
+        t = time.perf_counter()
+        result = sorted(bpy.ops.lengths_angles.bind_markers(align=True))
+        seconds = time.perf_counter() - t
+        binding = obj[fit.BINDING_PROP].to_dict()
+        again, reports = finish(fit.bind_run(bpy.context, obj, take, align=True))
+        plain = finish(fit.bind_run(bpy.context, obj, take))[0]
+        unaligned = obj[fit.BINDING_PROP].to_dict()
+    finally:
+        fit.bind_markers = original
+    inv = ext("addon.mesh_access").world_to_object(obj)
+    seen = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
+    info = calls[0]["info"]
+    np.savez(os.path.join(ARGS.workdir, "align.npz"), markers=seen @ inv[:3, :3].T + inv[:3, 3],
+             rotation=info["rotation"], translation=info["translation"], faces=np.array(binding["faces"]),
+             barycentric=np.array(binding["barycentric"]).reshape(-1, 3), offsets=np.array(binding["offsets"]),
+             plain_faces=np.array(unaligned["faces"]),
+             plain_barycentric=np.array(unaligned["barycentric"]).reshape(-1, 3),
+             plain_offsets=np.array(unaligned["offsets"]), take_matrix=np.array(take.matrix_world))
+    return {"result": result, "seconds": round(seconds, 3), "align": [c["align"] for c in calls],
+            "caps": [c["cap"] for c in calls], "iterations": [int(c["info"]["iterations"]) for c in calls],
+            "labels": list(binding["labels"]), "n_markers": len(list(take.children)), "again": again,
+            "reports": reports, "plain": plain, "take": binding["take"]}
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
-               moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers])
+               moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, bind_align])
