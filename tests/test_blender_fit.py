@@ -528,6 +528,62 @@ def test_bind_with_subdivision_and_mirror(run):
     assert 0.03 < np.median(shift) < 0.07, np.median(shift)
 
 
+def test_armature_deformed_character_shows_the_fit(run):
+    """The body skinned to an armature whose pose is keyed over the take (its upper half turns 0.4 rad): after Fit
+    to Markers (point cache) the evaluated mesh at frames 1, 3, 5, 8 is the fit mapped to world -- with an Armature
+    modifier added after an earlier fit's Mesh Cache modifier (the fit's modifier moves after it; before, the
+    armature deformed the fit again), with the armature object keyed moving too (the character stands still: fitted,
+    not refused), and parented with parent type Armature (Blender's deforming parent, evaluated before the stack)."""
+    res = run["cases"]["armature_character"]
+    assert res["modifiers_before"] == ["LA Fit", "Armature"]
+    assert res["modifier"]["modifiers"] == res["modifier_moving_rig"]["modifiers"] == ["Armature", "LA Fit"], res
+    assert res["parent_type"] == "ARMATURE" and res["parent"]["modifiers"] == ["LA Fit"], res
+    assert res["modifier_still"] is res["moving_rig_still"] is res["parent_still"] is None, res
+    assert abs(res["moving_rig_motion"] - 2.0) < 1e-4 and res["moving_rig_character_motion"] < 1e-6, res  # the
+    # armature object moves 2 dm (keyed), the character object does not
+    for case in ("modifier", "modifier_moving_rig", "parent"):
+        r = res[case]
+        assert r["result"] == ["FINISHED"], (case, r)
+        # decimetres, world space: measured 4.8e-7 at most (bpy 4.2 and 5.2; the float32 point cache of ~10 dm
+        # coordinates); with the earlier fit's modifier left before the Armature modifier it was 0.63, 2.07 and
+        # 3.22 at frames 3, 5, 8 (the fit deformed again by the armature)
+        assert max(r["shown_minus_fit"]) < 2e-6, (case, r)
+        # the armature alone moves the mesh (the motion the point cache replaces): measured 3.31 dm
+        assert r["deformer_motion"] > 1.0, (case, r)
+
+
+SHAPE_KEYS_AGAIN = "deforms its shape keys and would deform the fitted keys again: use the Point Cache output, or "
+
+
+@pytest.mark.parametrize("case, words", [
+    ("modifier_shape_keys", f"Output Shape Keys: the modifier 'Armature' of 'Body' (armature 'Skin') {SHAPE_KEYS_AGAIN}"
+                            "disable the modifier 'Armature'"),
+    ("parent_shape_keys", f"Output Shape Keys: the armature 'Skin' (parent of 'Body' with parent type Armature) "
+                          f"{SHAPE_KEYS_AGAIN}parent 'Body' to 'Skin' as an object")])
+def test_shape_key_output_on_an_armature_refused(run, case, words):
+    """Shape keys are the mesh before the armature deforms it, and the fit is of the mesh the armature poses: written
+    as keys, the fitted frames would be deformed a second time (measured before the refusal: shown 0.63, 2.07, 3.22 dm
+    away from the fit at frames 3, 5, 8, with the modifier or the parent, bpy 4.2 and 5.2).  Fit
+    to Markers refuses up front in one line naming the modifier or parent armature and what to do; nothing
+    changes."""
+    res = run["cases"]["armature_character"][case]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
+    assert words in res["message"], res
+
+
+def test_armature_object_moving_the_character_refused(run):
+    """The armature object keyed moving (2 dm along X over the take) carries the character parented to it (parent
+    type Armature): the placement check refuses in one line naming the armature, nothing changed."""
+    res = run["cases"]["armature_character"]
+    expected = _refusal("character", "Body", " with its parent 'Skin'", "keyed location, rotation or scale",
+                        "clear the transform keys of 'Skin' (Object > Animation > Clear Keyframes)")
+    assert res["parent_moving_still"] == expected, res["parent_moving_still"]
+    attempt = res["parent_moving"]
+    assert attempt["result"] == ["CANCELLED"] and attempt["unchanged"] and attempt["lines"] == 1, attempt
+    assert expected in attempt["message"], attempt
+    assert abs(res["parent_moving_character_motion"] - 2.0) < 1e-4, res
+
+
 def _rms(d):
     return float(np.sqrt(np.mean(np.sum(d ** 2, axis=-1))))
 
