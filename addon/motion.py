@@ -16,7 +16,9 @@ What moves an object, in the order checked:
   NLA strips or constraints on the bone or its ancestors, an IK chain through them; none in the armature's Rest
   Position), parent vertices (Vertex, 3 Vertices) of a mesh that is deformed (:func:`deformation`: animated shape
   keys, a modifier that may deform it over time);
-* the same for each parent up the chain.
+* the same for each parent up the chain (an object parent, or an armature with parent type Armature: its object
+  transform places the child, its pose only deforms the child's mesh -- not the placement; the fit's point cache
+  replaces that deformation).
 
 Every unknown case (a Python driver expression, a constraint type that reads time or geometry, a modifier that is
 not known to be static) counts as moving: the check never lets through what may move.

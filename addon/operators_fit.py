@@ -25,7 +25,8 @@ Mode sliders
     nearest surface point of the mesh as its shape keys and leading deformers pose it
     (:func:`_mesh_vertices`) with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
-    markers are where the mesh is; *Align* runs ICP first).  Stored on the object in
+    markers are where the mesh is; *Align* runs ICP first, at most :data:`ALIGN_ITERATIONS`
+    iterations, and the report says how many it ran).  Stored on the object in
     ``obj["lengths_angles_binding"]``; the panel lists each marker with its offset and the
     operator warns about markers farther than ``warn_distance`` from the surface.
 ``lengths_angles.fit_markers``
@@ -37,10 +38,13 @@ Mode sliders
       next to the .blend, which must be saved; ``//`` paths are relative to the .blend)
       played by a Mesh Cache modifier :data:`.naming.FIT_MODIFIER` with ``frame_start`` =
       the first fitted frame and ``frame_scale`` 1, so scene frame ``f`` shows fitted frame
-      ``f`` (a new modifier goes after the deformers at the top of the stack and before the first other
-      modifier: :func:`_fit_modifier`);
+      ``f``; the modifier goes after the deformers at the top of the stack and before the first other
+      modifier (:func:`_fit_modifier`), so it replaces the motion of the deformers the binding saw (an
+      Armature modifier, an armature parent with parent type Armature) and the evaluated mesh is the fit;
     * ``'SHAPE_KEYS'`` (clips of at most :data:`MAX_SHAPE_KEY_FRAMES` frames): one
-      shape key per frame, keyed 0/1/0 around its frame (CONSTANT).
+      shape key per frame, keyed 0/1/0 around its frame (CONSTANT).  Refused up front when a
+      deformer would move the keys again (:func:`shape_key_deformer`: an armature parent, an enabled
+      deformer at the top of the stack).
 
 Build, Bind and Fit run through the one background-run mechanism (:mod:`.runs`): from the UI
 modal with a progress bar (model stages, ICP iterations, frames) and Esc; from scripts and in
@@ -79,7 +83,8 @@ from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_o
 from .fit_quality import write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
-__all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "model_run",
+__all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "ALIGN_ITERATIONS",
+           "shape_key_deformer", "model_run",
            "bind_run", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
            "draw_fit_settings", "draw_frame_range", "typed", "SETTING_LABELS", "store_model", "read_model",
            "migrate_models", "read_binding", "remove_model", "classes"]
@@ -531,6 +536,9 @@ def nonuniform_scale_note(obj):
 
 #: Markers needed to bind (and to place a pose by them).
 MIN_BOUND_MARKERS = 3
+#: Bind Markers' *Align*: at most this many ICP iterations (lacore's ICP stops earlier once the placement no longer
+#: improves).
+ALIGN_ITERATIONS = 100
 
 
 def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
@@ -566,9 +574,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     local = world @ inv[:3, :3].T + inv[:3, 3]
     X = model_mesh_vertices(model, _mesh_vertices(obj, context))
     faces = model.faces
-    iterations = 100
-    job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=iterations,
-                                                progress=progress), "binding", total=iterations if align else 1)
+    job = CallJob(lambda progress: bind_markers(X, faces, local, align=align, iterations=ALIGN_ITERATIONS,
+                                                progress=progress), "binding", total=ALIGN_ITERATIONS if align else 1)
     empties = {lb: o.name for lb, o in marker_objects(take)}
     take_name = take.name
     unit = metres_per_unit(obj, take, context.scene)
@@ -576,7 +583,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     note = nonuniform_scale_note(obj)
 
     def write(obj, job):
-        binding, _info = job.result
+        binding, info = job.result
         obj[BINDING_PROP] = {
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
@@ -596,7 +603,12 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             job.notes.append(f"{far.size} markers are farther than {1000 * warn_distance:g} mm from the surface: "
                              + ", ".join(f"{labels[i]} ({1000 * abs(binding.offsets[i]) * unit:.0f} mm)"
                                          for i in far[:8]))
-        return f"bound {binding.n_markers} markers"
+        if not align:
+            return f"bound {binding.n_markers} markers"
+        if info["iterations"] >= ALIGN_ITERATIONS:
+            job.notes.append(f"the alignment ran to its limit of {ALIGN_ITERATIONS} ICP iterations: place the take "
+                             "nearer the character and bind again")
+        return f"bound {binding.n_markers} markers, aligned in {info['iterations']} ICP iterations"
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
               f"The take '{take_name}' or its marker empties": _take_state(take_name),
               f"The posed mesh of '{obj.name}' (frame, shape keys, modifiers)": _posed_mesh_state(obj.name)}
@@ -683,6 +695,10 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
                             f"{frame_start}..{frame_end}: set the frame range inside the take")
     frames = np.arange(frame_start, frame_end + 1)
     require_still(take, obj)
+    if output == 'SHAPE_KEYS':
+        deformer = shape_key_deformer(obj)
+        if deformer is not None:
+            raise FitSetupError(f"Output Shape Keys: {deformer}")
     filepath, path = _pc2_path(filepath, obj, take) if output == 'PC2' else ("", "")
     unkeyed = unkeyed_markers(take, labels)       # read as never visible: left out by the fit, named
     if len(unkeyed) == len(labels):
@@ -758,17 +774,53 @@ DEFORM_MODIFIERS = frozenset({'ARMATURE', 'CAST', 'CORRECTIVE_SMOOTH', 'CURVE', 
                               'SMOOTH', 'SURFACE_DEFORM', 'WARP', 'WAVE'})
 
 
+#: Parent types whose parent deforms the child's mesh: Blender evaluates such a parent (an armature with parent type
+#: Armature, a lattice with parent type Lattice) as a modifier before the stack.
+DEFORMING_PARENT_TYPES = frozenset({'ARMATURE', 'LATTICE'})
+
+
 def _fit_modifier(obj):
-    """The fit's Mesh Cache modifier (made if there is none) before the first modifier of ``obj``'s stack that is
-    no deformer (Subdivision Surface, Mirror, physics ...: they apply to the fit; placed after one that changes the
-    vertex count, the cache would not play): a new one after the deformers at the top (it replaces their motion),
-    one of an earlier fit moved up only when it stands after such a modifier."""
+    """The fit's Mesh Cache modifier (made if there is none), placed after the deformers at the top of ``obj``'s
+    stack and before the first modifier that is no deformer: it replaces the deformers' motion (the fit is of the
+    mesh they pose, :func:`_mesh_vertices`; a deformer after it would deform the fit again), and the modifiers from
+    the first other one on (Subdivision Surface, Mirror, physics ...) apply to the fit (placed after one that changes
+    the vertex count, the cache would not play).  A deforming parent (parent type Armature) is evaluated before the
+    whole stack, so the cache replaces its motion too."""
     mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
     here = list(obj.modifiers).index(mod)
-    first = next((i for i, m in enumerate(obj.modifiers) if m.type not in DEFORM_MODIFIERS and m != mod), here)
-    if first < here:
-        obj.modifiers.move(here, first)
+    others = [m for m in obj.modifiers if m != mod]
+    place = next((i for i, m in enumerate(others) if m.type not in DEFORM_MODIFIERS), len(others))
+    if place != here:
+        obj.modifiers.move(here, place)
     return mod
+
+
+def shape_key_deformer(obj):
+    """What deforms the fitted frames if they are written as shape keys of ``obj``, as a phrase naming it and what
+    to do, else None.
+
+    Shape keys are the mesh before every modifier: a deforming parent (parent type Armature or Lattice, evaluated
+    before the stack) and every deformer at the top of the stack that is on in the viewport or the render (an Armature,
+    Lattice, a Mesh Cache ... other than the fit's own, which the shape-key output removes) would move them again
+    -- the fit is of the mesh they pose already (:func:`_mesh_vertices`).  The point-cache output replaces their
+    motion (:func:`_fit_modifier`).
+    """
+    parent = obj.parent
+    if parent is not None and obj.parent_type in DEFORMING_PARENT_TYPES and parent.type == obj.parent_type:
+        kind = parent.type.lower()
+        return (f"the {kind} '{parent.name}' (parent of '{obj.name}' with parent type {kind.title()}) deforms its "
+                f"shape keys and would deform the fitted keys again: use the Point Cache output, or parent "
+                f"'{obj.name}' to '{parent.name}' as an object")
+    mods = list(obj.modifiers)
+    first = next((i for i, m in enumerate(mods) if m.type not in DEFORM_MODIFIERS), len(mods))
+    for m in mods[:first]:
+        if m.name == FIT_MODIFIER or not (m.show_viewport or m.show_render):
+            continue
+        target = getattr(m, "object", None)
+        by = f" (armature '{target.name}')" if m.type == 'ARMATURE' and target is not None else ""
+        return (f"the modifier '{m.name}' of '{obj.name}'{by} deforms its shape keys and would deform the fitted "
+                f"keys again: use the Point Cache output, or disable the modifier '{m.name}'")
+    return None
 
 
 def _write_fit(obj, X, frames, output, filepath, path):
@@ -939,7 +991,7 @@ class LENGTHS_ANGLES_OT_bind_markers(_Interactive, RunOperator, bpy.types.Operat
 
     align: BoolProperty(name="Align", default=False,
                         description="Rigidly align the markers to the mesh first (iterative closest points, up to "
-                                    "100 iterations); off: bind them where they are")
+                                    f"{ALIGN_ITERATIONS} iterations); off: bind them where they are")
     warn_distance: FloatProperty(name="Warn Distance (m)", default=0.05, min=0.0, soft_max=0.5, precision=3,
                                  step=0.1,
                                  description="Warn about markers farther than this from the surface, in metres of "

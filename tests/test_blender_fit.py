@@ -24,6 +24,7 @@ from lacore.models.shape_model import ShapeModel
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_fit.py"
 N_TRAIN, N_FRAMES = 12, 8
 RATE = 10.0
+ALIGN_NOISE = 0.03  # decimetres: 3 mm
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +43,12 @@ def inputs(tmp_path_factory):
     x[5:7, [0, 30]] = np.nan
     # decimetres -> metres; 10 Hz: the 2 m walk over 8 frames is a walking pace (the temporal term is per second)
     take = MarkerTake(labels=tuple(names), positions=x / 10.0, rate=RATE, units="m")
+    # the same walk's first frames with 3 mm noise (Bind Markers with Align: check_fit.bind_align misplaces it)
+    noisy = observe_markers(true[:2], body.faces, binding, noise=ALIGN_NOISE, occlusion=0.0, seed=11)
     return {"faces": body.faces, "basis": body.vertices, "training": training, "true": true,
-            "bind_pose": true[0], "take": take, "occluded": int(np.isnan(x[..., 0]).sum())}
+            "bind_pose": true[0], "take": take, "occluded": int(np.isnan(x[..., 0]).sum()),
+            "noisy_take": MarkerTake(labels=tuple(names), positions=noisy / 10.0, rate=RATE, units="m"),
+            "true_markers": surface_points(true[0], body.faces, binding), "true_binding": binding}
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +57,7 @@ def run(extension_zip, inputs, tmp_path_factory):
     np.savez(work / "inputs.npz", faces=inputs["faces"], basis=inputs["basis"], training=inputs["training"],
              true=inputs["true"], bind_pose=inputs["bind_pose"])
     write_c3d(work / "take.c3d", inputs["take"], units="mm")
+    write_c3d(work / "take_noisy.c3d", inputs["noisy_take"], units="mm")
     data = run_blender_check(CHECK_SCRIPT, extension_zip, work)
     data["work"] = work
     data["faces"] = inputs["faces"]
@@ -61,6 +67,8 @@ def run(extension_zip, inputs, tmp_path_factory):
         data["settings_arrays"] = dict(f)
     with np.load(work / "files" / "cleared.npz") as f:
         data["cleared_arrays"] = dict(f)
+    with np.load(work / "files" / "align.npz") as f:
+        data["align_arrays"] = dict(f)
     return data
 
 
@@ -518,3 +526,98 @@ def test_bind_with_subdivision_and_mirror(run):
     # Displace of strength 0.1 (mid-level 0.5) moves the surface 0.05 dm along its normals: the offsets follow
     shift = np.abs(np.array(deformed["offsets"]) - np.array(plain["offsets"]))
     assert 0.03 < np.median(shift) < 0.07, np.median(shift)
+
+
+def test_armature_deformed_character_shows_the_fit(run):
+    """The body skinned to an armature whose pose is keyed over the take (its upper half turns 0.4 rad): after Fit
+    to Markers (point cache) the evaluated mesh at frames 1, 3, 5, 8 is the fit mapped to world -- with an Armature
+    modifier added after an earlier fit's Mesh Cache modifier (the fit's modifier moves after it; before, the
+    armature deformed the fit again), with the armature object keyed moving too (the character stands still: fitted,
+    not refused), and parented with parent type Armature (Blender's deforming parent, evaluated before the stack)."""
+    res = run["cases"]["armature_character"]
+    assert res["modifiers_before"] == ["LA Fit", "Armature"]
+    assert res["modifier"]["modifiers"] == res["modifier_moving_rig"]["modifiers"] == ["Armature", "LA Fit"], res
+    assert res["parent_type"] == "ARMATURE" and res["parent"]["modifiers"] == ["LA Fit"], res
+    assert res["modifier_still"] is res["moving_rig_still"] is res["parent_still"] is None, res
+    assert abs(res["moving_rig_motion"] - 2.0) < 1e-4 and res["moving_rig_character_motion"] < 1e-6, res  # the
+    # armature object moves 2 dm (keyed), the character object does not
+    for case in ("modifier", "modifier_moving_rig", "parent"):
+        r = res[case]
+        assert r["result"] == ["FINISHED"], (case, r)
+        # decimetres, world space: measured 4.8e-7 at most (bpy 4.2 and 5.2; the float32 point cache of ~10 dm
+        # coordinates); with the earlier fit's modifier left before the Armature modifier it was 0.63, 2.07 and
+        # 3.22 at frames 3, 5, 8 (the fit deformed again by the armature)
+        assert max(r["shown_minus_fit"]) < 2e-6, (case, r)
+        # the armature alone moves the mesh (the motion the point cache replaces): measured 3.31 dm
+        assert r["deformer_motion"] > 1.0, (case, r)
+
+
+SHAPE_KEYS_AGAIN = "deforms its shape keys and would deform the fitted keys again: use the Point Cache output, or "
+
+
+@pytest.mark.parametrize("case, words", [
+    ("modifier_shape_keys", f"Output Shape Keys: the modifier 'Armature' of 'Body' (armature 'Skin') {SHAPE_KEYS_AGAIN}"
+                            "disable the modifier 'Armature'"),
+    ("parent_shape_keys", f"Output Shape Keys: the armature 'Skin' (parent of 'Body' with parent type Armature) "
+                          f"{SHAPE_KEYS_AGAIN}parent 'Body' to 'Skin' as an object")])
+def test_shape_key_output_on_an_armature_refused(run, case, words):
+    """Shape keys are the mesh before the armature deforms it, and the fit is of the mesh the armature poses: written
+    as keys, the fitted frames would be deformed a second time (measured before the refusal: shown 0.63, 2.07, 3.22 dm
+    away from the fit at frames 3, 5, 8, with the modifier or the parent, bpy 4.2 and 5.2).  Fit
+    to Markers refuses up front in one line naming the modifier or parent armature and what to do; nothing
+    changes."""
+    res = run["cases"]["armature_character"][case]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
+    assert words in res["message"], res
+
+
+def test_armature_object_moving_the_character_refused(run):
+    """The armature object keyed moving (2 dm along X over the take) carries the character parented to it (parent
+    type Armature): the placement check refuses in one line naming the armature, nothing changed."""
+    res = run["cases"]["armature_character"]
+    expected = _refusal("character", "Body", " with its parent 'Skin'", "keyed location, rotation or scale",
+                        "clear the transform keys of 'Skin' (Object > Animation > Clear Keyframes)")
+    assert res["parent_moving_still"] == expected, res["parent_moving_still"]
+    attempt = res["parent_moving"]
+    assert attempt["result"] == ["CANCELLED"] and attempt["unchanged"] and attempt["lines"] == 1, attempt
+    assert expected in attempt["message"], attempt
+    assert abs(res["parent_moving_character_motion"] - 2.0) < 1e-4, res
+
+
+def _rms(d):
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=-1))))
+
+
+def test_bind_with_align_on_a_noisy_misplaced_take(run, inputs):
+    """Bind Markers with Align on a take with 3 mm noise whose take empty is rotated 5.3 degrees and moved 4 cm off
+    the character (the markers 63 mm RMS off): lacore's ICP stops early (no gain for ICP_PATIENCE iterations) well
+    below the 100-iteration cap, the aligned markers lie within the noise of the true (noise-free) markers, the take
+    empty's misplacement is undone, and the binding of every marker is stored -- its surface points as near the true
+    ones as the noise allows, unlike the binding without Align.  The report says how many ICP iterations ran."""
+    res, a = run["cases"]["bind_align"], run["align_arrays"]
+    assert res["result"] == ["FINISHED"] and res["again"] == ["FINISHED"] and res["plain"] == ["FINISHED"], res
+    assert res["align"] == [True, True, False] and res["caps"] == [100, 100, 100], res
+    n = res["iterations"][0]
+    assert 0 < n <= 60 and res["iterations"] == [n, n, 0], res  # measured 30 (bpy 4.2), 31 (5.2) of the cap 100
+    kind, text = res["reports"][-1]
+    assert text.startswith(f"bound {len(res['labels'])} markers, aligned in {n} ICP iterations"), res["reports"]
+    assert "limit" not in text
+    assert res["take"] == "take_noisy" and len(res["labels"]) == res["n_markers"] == 41, res
+    truth = inputs["true_markers"]                       # decimetres, the character's space
+    aligned = a["markers"] @ a["rotation"].T + a["translation"]
+    noise = np.sqrt(3) * ALIGN_NOISE                     # RMS length of the 3-D noise: 0.052 dm
+    misplaced = _rms(a["markers"] - truth)
+    assert misplaced > 5 * noise, misplaced              # the take as placed: measured 0.63 dm (12 x the noise)
+    assert _rms(aligned - truth) < 2.5 * noise, _rms(aligned - truth)  # measured 0.052-0.053 dm (1.0 x the noise)
+    recovered = _rms(aligned - inputs["noisy_take"].positions[0] * 10.0)   # the noisy markers where they belong
+    assert recovered < 0.05, recovered                   # decimetres: measured 0.016-0.017 (the rigid fit's error)
+    M = a["take_matrix"]
+    R = a["rotation"] @ M[:3, :3]                        # ICP's rotation after the take empty's: the identity
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    assert angle < 0.4, angle                            # degrees: measured 0.12 (misplaced by 5.3)
+    found = MarkerBinding.from_surface(a["faces"], a["barycentric"], a["offsets"])
+    plain = MarkerBinding.from_surface(a["plain_faces"], a["plain_barycentric"], a["plain_offsets"])
+    bound = _rms(surface_points(inputs["bind_pose"], inputs["faces"], found) - truth)
+    unaligned = _rms(surface_points(inputs["bind_pose"], inputs["faces"], plain) - truth)
+    assert bound < 2.5 * noise, bound                    # measured 0.053-0.054 dm (1.0 x the noise)
+    assert unaligned > 5 * bound, (unaligned, bound)     # measured 0.62 dm (12 x)

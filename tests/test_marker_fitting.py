@@ -315,13 +315,16 @@ def test_bind_markers_recovers_a_binding_after_a_rigid_motion(bar):
     assert np.array_equal(found.faces, binding.faces)
     assert np.abs(found.offsets - 0.05).max() < 1e-4
     # without the alignment the binding is off by the misplacement
-    off, _ = bind_markers(X, F, x, align=False)
+    off, off_info = bind_markers(X, F, x, align=False)
+    assert off_info["iterations"] == 0
     assert np.abs(surface_points(X, F, off) - surface_points(X, F, binding)).max() > 0.05
     # progress after every ICP iteration (the add-on's progress bar); True cancels
     seen = []
-    again, _ = bind_markers(X, F, x, iterations=200, progress=lambda done, total, message: seen.append((done, total)))
+    again, again_info = bind_markers(X, F, x, iterations=200,
+                                     progress=lambda done, total, message: seen.append((done, total)))
     assert seen[0] == (0, 200) and seen[-1] == (200, 200) and len(seen) > 3
     assert [d for d, _ in seen[1:-1]] == list(range(1, len(seen) - 1))  # one per iteration until convergence
+    assert again_info["iterations"] == seen[-2][0]  # the last one reported
     assert np.array_equal(again.faces, found.faces)
     with pytest.raises(Cancelled):
         bind_markers(X, F, x, progress=lambda done, total, message: done >= 2)
@@ -338,6 +341,7 @@ def test_bind_markers_stops_when_noisy_markers_keep_switching_faces(bar):
     seen = []
     found, info = bind_markers(X, F, x, iterations=200, progress=lambda done, total, message: seen.append(done))
     assert seen[-2] <= 40, seen[-2]                                          # measured 25 (200 before: the limit)
+    assert info["iterations"] == seen[-2]        # stopped before the next rigid fit: the last one reported
     assert np.abs(info["rotation"] @ R - np.eye(3)).max() < 0.01           # measured 0.0034 (0.0057 after 200)
     assert np.array_equal(found.faces, binding.faces)
     assert np.abs(surface_points(X, F, found) - surface_points(X, F, binding)).max() < 0.04   # measured 0.023

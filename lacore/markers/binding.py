@@ -319,7 +319,9 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
         ``rotation`` (3, 3) and ``translation`` (3,) mapping the markers onto the
         mesh, ``offsets`` (M,), ``tangential`` (M,): distance of each aligned
         marker from the line through its surface point along the normal (0 if it
-        sits straight above a face interior).
+        sits straight above a face interior), ``iterations``: the ICP iterations
+        run (nearest points and a rigid fit each; ``iterations`` when ICP ran to
+        its limit, 0 without ``align``).
     """
     X = np.asarray(vertices, float)
     F = np.asarray(mesh_faces, np.int64)
@@ -332,6 +334,7 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     R, t = np.eye(3), np.zeros(3)
     total = int(iterations) if align else 1
     report(progress, 0, total, "aligning the markers" if align else "binding")
+    done = 0
     if align:
         best, stalled = (np.inf, R, t), 0
         for it in range(int(iterations)):
@@ -349,11 +352,12 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
                     R, t = best[1], best[2]
                     break
             R_new, t_new = rigid_fit(x, target)
+            done = it + 1
+            report(progress, done, total, f"ICP iteration {done}")
             if np.allclose(R_new, R, atol=1e-10) and np.allclose(t_new, t, atol=1e-10 * (1 + np.abs(t).max())):
                 R, t = R_new, t_new
                 break
             R, t = R_new, t_new
-            report(progress, it + 1, total, f"ICP iteration {it + 1}")
     y = apply_rigid(x, R, t)
     q, tri, bary = closest_surface_points(X, F, y)
     n = face_normals(X, F[tri])
@@ -363,4 +367,4 @@ def bind_markers(vertices, mesh_faces, marker_positions, *, align=True, iteratio
     binding = MarkerBinding.from_surface(tri, bary, o)
     tangential = np.linalg.norm(d - signed[:, None] * n, axis=1)
     report(progress, total, total, "bound")
-    return binding, {"rotation": R, "translation": t, "offsets": o, "tangential": tangential}
+    return binding, {"rotation": R, "translation": t, "offsets": o, "tangential": tangential, "iterations": done}

@@ -1105,7 +1105,220 @@ def bind_with_modifiers():
     return out
 
 
+def skin_body(obj):
+    """An armature 'Skin' standing in the body (bones Lower and Upper along its longest axis) placed off the origin,
+    and the body's vertex groups Lower and Upper (below / above the middle, weight 1); Upper's rotation keyed from 0
+    at frame 1 (the rest pose: the binding's mesh) to 0.4 rad at frame 8.  Returns the armature."""
+    X = INPUTS["basis"]
+    axis = int(np.argmax(np.ptp(X, axis=0)))
+    lo, hi = X[:, axis].min(), X[:, axis].max()
+    mid = 0.5 * (lo + hi)
+    centre = X.mean(0)
+    rig = bpy.data.objects.new("Skin", bpy.data.armatures.new("Skin"))
+    bpy.context.scene.collection.objects.link(rig)
+    rig.location, rig.rotation_euler = (0.3, -0.2, 0.1), (0.0, 0.0, 0.3)
+    bpy.context.view_layer.update()
+    select_only(rig)
+    bpy.ops.object.mode_set(mode='EDIT')
+    inv = np.linalg.inv(np.array(rig.matrix_world))
+
+    def at(v):                                     # a point of the body's (object = world) space in the rig's
+        p = centre.copy()
+        p[axis] = v
+        return tuple(inv[:3, :3] @ p + inv[:3, 3])
+    lower = rig.data.edit_bones.new("Lower")
+    lower.head, lower.tail = at(lo), at(mid)
+    upper = rig.data.edit_bones.new("Upper")
+    upper.head, upper.tail, upper.parent = at(mid), at(hi), lower
+    bpy.ops.object.mode_set(mode='OBJECT')
+    above = X[:, axis] > mid
+    obj.vertex_groups.new(name="Lower").add(np.flatnonzero(~above).tolist(), 1.0, 'REPLACE')
+    obj.vertex_groups.new(name="Upper").add(np.flatnonzero(above).tolist(), 1.0, 'REPLACE')
+    pb = rig.pose.bones["Upper"]
+    pb.rotation_mode = 'XYZ'
+    pb.keyframe_insert("rotation_euler", frame=1)
+    pb.rotation_euler = (0.4, 0.0, 0.0)
+    pb.keyframe_insert("rotation_euler", frame=8)
+    pb.rotation_euler = (0.0, 0.0, 0.0)
+    return rig
+
+
+def world(obj, X):
+    """Object-space positions ``X`` of ``obj`` in world space (its evaluated placement at the current frame)."""
+    M = np.array(obj.matrix_world, np.float64)
+    return np.asarray(X, np.float64) @ M[:3, :3].T + M[:3, 3]
+
+
+SHOWN_FRAMES = (1, 3, 5, 8)
+
+
+def shown_minus_fit(obj, fitted, frames=SHOWN_FRAMES, first=1):
+    """Per frame of ``frames``: the largest world-space distance between the evaluated mesh (depsgraph) and the
+    fitted frame ``fitted[f - first]`` (object space) mapped to world."""
+    out = []
+    for f in frames:
+        bpy.context.scene.frame_set(f)
+        out.append(float(np.linalg.norm(world(obj, evaluated(obj)) - world(obj, fitted[f - first]), axis=1).max()))
+    bpy.context.scene.frame_set(1)
+    return out
+
+
+def deformer_motion(obj, frames=(1, 8)):
+    """How far the deformers move the mesh between ``frames`` with the fit's modifier off: the largest vertex
+    displacement in world space (the motion the fit's point cache replaces)."""
+    mod = obj.modifiers.get("LA Fit")
+    if mod is not None:
+        mod.show_viewport = False
+    shown = []
+    for f in frames:
+        bpy.context.scene.frame_set(f)
+        shown.append(world(obj, evaluated(obj)))
+    if mod is not None:
+        mod.show_viewport = True
+    bpy.context.scene.frame_set(1)
+    return float(np.linalg.norm(shown[-1] - shown[0], axis=1).max())
+
+
+def keys_shown(obj, frames=SHOWN_FRAMES):
+    """The fitted frames as written in the shape keys 'LA fit <f>' (object space), ``{frame: (V, 3)}``."""
+    out = {}
+    for f in frames:
+        co = np.empty(3 * len(obj.data.vertices), np.float32)
+        obj.data.shape_keys.key_blocks[f"LA fit {f}"].data.foreach_get("co", co)
+        out[f] = co.reshape(-1, 3).astype(np.float64)
+    return out
+
+
+def armature_character():
+    """The body skinned to an armature whose pose is keyed over the take: Fit to Markers (point cache) with an
+    Armature modifier (added after an earlier fit's modifier: the new fit goes after it), with the armature object
+    itself keyed moving (the character stays: the fit replaces the motion), and parented with parent type Armature
+    (the deforming parent Blender evaluates before the stack): the evaluated mesh at frames 1, 3, 5, 8 is the fit,
+    in world space.  The shape-key output with either (the armature would deform the keys again) is refused in one
+    line, nothing changed; the armature object keyed moving the parented character: refused.  Records what was
+    shown when an output was written, and how far the armature moves the mesh by itself."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    rig = skin_body(obj)
+    out = {"size": float(np.linalg.norm(np.ptp(INPUTS["basis"], axis=0)))}
+
+    def pc2(name):
+        select_only(obj)
+        run = fit.fit_run(bpy.context, obj, 1, 8)
+        result, reports = finish(run)
+        out[name] = {"result": result, "modifiers": [m.name for m in obj.modifiers],
+                     "shown_minus_fit": shown_minus_fit(obj, run.job.result.vertices),
+                     "deformer_motion": deformer_motion(obj)}
+
+    def shape_keys(name):
+        select_only(obj)
+        one_line_attempt(out, name, obj, bpy.ops.lengths_angles.fit_markers, output='SHAPE_KEYS',
+                         use_scene_range=False, frame_start=1, frame_end=8)
+        if out[name]["result"] == ["FINISHED"]:   # what a written shape-key fit shows
+            keys = keys_shown(obj)
+            shown = []
+            for f in SHOWN_FRAMES:
+                bpy.context.scene.frame_set(f)
+                shown.append(float(np.linalg.norm(world(obj, evaluated(obj)) - world(obj, keys[f]), axis=1).max()))
+            out[name]["shown_minus_keys"] = shown
+            bpy.context.scene.frame_set(1)
+            fit.remove_fit_keys(obj)
+
+    mod = obj.modifiers.new("Armature", 'ARMATURE')   # added after whole_path's fit modifier
+    mod.object = rig
+    out["modifiers_before"] = [m.name for m in obj.modifiers]
+    pc2("modifier")
+    shape_keys("modifier_shape_keys")
+    out["modifier_still"] = still_verdict(take, obj)
+    home = rig.location.x
+    rig.keyframe_insert("location", frame=1)          # the armature object keyed moving (the modifier's armature):
+    rig.location.x += 2.0                             # the character object stays
+    rig.keyframe_insert("location", frame=8)
+    out["moving_rig_still"] = still_verdict(take, obj)
+    out["moving_rig_character_motion"] = evaluated_motion(obj)
+    out["moving_rig_motion"] = evaluated_motion(rig)
+    pc2("modifier_moving_rig")
+    for f in (1, 8):
+        rig.keyframe_delete("location", frame=f)
+    rig.location.x = home
+    obj.modifiers.remove(obj.modifiers["Armature"])
+    obj.parent, obj.parent_type = rig, 'ARMATURE'     # Ctrl+P > With Empty Groups: the placement kept
+    obj.matrix_parent_inverse = rig.matrix_world.inverted()
+    bpy.context.view_layer.update()
+    out["parent_type"] = obj.parent_type
+    out["parent_still"] = still_verdict(take, obj)
+    pc2("parent")
+    shape_keys("parent_shape_keys")
+    rig.keyframe_insert("location", frame=1)          # the armature object keyed moving: so does the character
+    rig.location.x += 2.0
+    rig.keyframe_insert("location", frame=8)
+    rig.location.x = home
+    out["parent_moving_still"] = still_verdict(take, obj)
+    out["parent_moving_character_motion"] = evaluated_motion(obj)
+    one_line_attempt(out, "parent_moving", obj, bpy.ops.lengths_angles.fit_markers, use_scene_range=False,
+                     frame_start=1, frame_end=8)
+    return out
+
+
+#: The noisy take's rigid misplacement relative to the character (the take empty's rotation, radians, and location,
+#: decimetres): 5.3 degrees about the origin at the body's feet and 4 cm, which puts the markers 63 mm (RMS) off.
+MISPLACEMENT = ((0.05, -0.03, 0.07), (0.25, -0.3, 0.1))
+
+
+def bind_align():
+    """Bind Markers with Align on a noisy take (``take_noisy.c3d``: 3 mm noise) whose take empty is rigidly misplaced
+    (:data:`MISPLACEMENT`): the operator's Align reaches lacore's ICP, which stops early; the binding is stored.  The
+    markers as read (object space), the rotation and translation ICP found and the binding are written to
+    ``align.npz`` for pytest; the same bind without Align for comparison; the report says how many ICP
+    iterations ran."""
+    fit = ext("addon.operators_fit")
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    assert bpy.ops.lengths_angles.import_markers(filepath=os.path.join(WORK, "take_noisy.c3d"),
+                                                 scale=10.0) == {"FINISHED"}
+    take = bpy.data.objects["take_noisy"]
+    take.rotation_euler, take.location = MISPLACEMENT
+    kb = obj.shape_key_add(name="bind pose", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
+    kb.value = 1.0
+    bpy.context.scene.frame_set(1)
+    original, calls = fit.bind_markers, []
+
+    def spy(*args, **kwargs):
+        found = original(*args, **kwargs)
+        calls.append({"align": kwargs["align"], "cap": kwargs["iterations"], "info": found[1]})
+        return found
+    fit.bind_markers = spy
+    try:
+        select_only(obj, take)
+        t = time.perf_counter()
+        result = sorted(bpy.ops.lengths_angles.bind_markers(align=True))
+        seconds = time.perf_counter() - t
+        binding = obj[fit.BINDING_PROP].to_dict()
+        again, reports = finish(fit.bind_run(bpy.context, obj, take, align=True))
+        plain = finish(fit.bind_run(bpy.context, obj, take))[0]
+        unaligned = obj[fit.BINDING_PROP].to_dict()
+    finally:
+        fit.bind_markers = original
+    inv = ext("addon.mesh_access").world_to_object(obj)
+    seen = ext("addon.operators_markers").read_take(take, frames=[1]).positions[0]
+    info = calls[0]["info"]
+    np.savez(os.path.join(ARGS.workdir, "align.npz"), markers=seen @ inv[:3, :3].T + inv[:3, 3],
+             rotation=info["rotation"], translation=info["translation"], faces=np.array(binding["faces"]),
+             barycentric=np.array(binding["barycentric"]).reshape(-1, 3), offsets=np.array(binding["offsets"]),
+             plain_faces=np.array(unaligned["faces"]),
+             plain_barycentric=np.array(unaligned["barycentric"]).reshape(-1, 3),
+             plain_offsets=np.array(unaligned["offsets"]), take_matrix=np.array(take.matrix_world))
+    return {"result": result, "seconds": round(seconds, 3), "align": [c["align"] for c in calls],
+            "caps": [c["cap"] for c in calls], "iterations": [int(c["info"]["iterations"]) for c in calls],
+            "labels": list(binding["labels"]), "n_markers": len(list(take.children)), "again": again,
+            "reports": reports, "plain": plain, "take": binding["take"]}
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
-               moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers])
+               moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
+               bind_align])
