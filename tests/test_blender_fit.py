@@ -559,13 +559,17 @@ SHAPE_KEYS_AGAIN = "deforms its shape keys and would deform the fitted keys agai
     ("modifier_shape_keys", f"Output Shape Keys: the modifier 'Armature' of 'Body' (armature 'Skin') {SHAPE_KEYS_AGAIN}"
                             "disable the modifier 'Armature'"),
     ("parent_shape_keys", f"Output Shape Keys: the armature 'Skin' (parent of 'Body' with parent type Armature) "
-                          f"{SHAPE_KEYS_AGAIN}parent 'Body' to 'Skin' as an object")])
-def test_shape_key_output_on_an_armature_refused(run, case, words):
+                          f"{SHAPE_KEYS_AGAIN}parent 'Body' to 'Skin' as an object"),
+    ("lattice_shape_keys", f"Output Shape Keys: the lattice 'Cage' (parent of 'Body' with parent type Lattice) "
+                           f"{SHAPE_KEYS_AGAIN}parent 'Body' to 'Cage' as an object")])
+def test_shape_key_output_under_a_deformer_refused(run, case, words):
     """Shape keys are the mesh before the armature deforms it, and the fit is of the mesh the armature poses: written
     as keys, the fitted frames would be deformed a second time (measured before the refusal: shown 0.63, 2.07, 3.22 dm
     away from the fit at frames 3, 5, 8, with the modifier or the parent, bpy 4.2 and 5.2).  Fit
-    to Markers refuses up front in one line naming the modifier or parent armature and what to do; nothing
-    changes."""
+    to Markers refuses up front in one line naming the modifier or parent armature (or lattice) and what to do;
+    nothing changes."""
+    if case == "lattice_shape_keys":
+        assert run["cases"]["armature_character"]["lattice_parent_type"] == "LATTICE"
     res = run["cases"]["armature_character"][case]
     assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
     assert words in res["message"], res

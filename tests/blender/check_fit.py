@@ -1195,7 +1195,8 @@ def armature_character():
     itself keyed moving (the character stays: the fit replaces the motion), and parented with parent type Armature
     (the deforming parent Blender evaluates before the stack): the evaluated mesh at frames 1, 3, 5, 8 is the fit,
     in world space.  The shape-key output with either (the armature would deform the keys again) is refused in one
-    line, nothing changed; the armature object keyed moving the parented character: refused.  Records what was
+    line, nothing changed, and so is it under a lattice parent (parent type Lattice); the armature object keyed moving
+    the parented character: refused.  Records what was
     shown when an output was written, and how far the armature moves the mesh by itself."""
     fit = ext("addon.operators_fit")
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
@@ -1258,6 +1259,13 @@ def armature_character():
     out["parent_moving_character_motion"] = evaluated_motion(obj)
     one_line_attempt(out, "parent_moving", obj, bpy.ops.lengths_angles.fit_markers, use_scene_range=False,
                      frame_start=1, frame_end=8)
+    cage = bpy.data.objects.new("Cage", bpy.data.lattices.new("Cage"))  # a lattice parent (parent type Lattice)
+    bpy.context.scene.collection.objects.link(cage)
+    obj.parent, obj.parent_type = cage, 'LATTICE'
+    obj.matrix_parent_inverse = cage.matrix_world.inverted()
+    bpy.context.view_layer.update()
+    out["lattice_parent_type"] = obj.parent_type
+    shape_keys("lattice_shape_keys")
     return out
 
 
