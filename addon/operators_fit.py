@@ -379,12 +379,17 @@ def read_model(obj):
     return model
 
 
+def _deformers_on_top(modifiers):
+    """How many of ``modifiers`` (a stack, in order) are deformers (:data:`DEFORM_MODIFIERS`) before the first that
+    is not (Subdivision Surface, Mirror ...)."""
+    return next((i for i, m in enumerate(modifiers) if m.type not in DEFORM_MODIFIERS), len(modifiers))
+
+
 def _bound_modifiers_off(obj):
-    """The modifiers of ``obj`` a binding leaves out: from the first that is no deformer (:data:`DEFORM_MODIFIERS`:
-    Subdivision Surface, Mirror ...) to the end of the stack, those shown in the viewport."""
+    """The modifiers of ``obj`` a binding leaves out: from the first that is no deformer (:func:`_deformers_on_top`)
+    to the end of the stack, those shown in the viewport."""
     mods = list(obj.modifiers)
-    first = next((i for i, m in enumerate(mods) if m.type not in DEFORM_MODIFIERS), len(mods))
-    return [m for m in mods[first:] if m.show_viewport]
+    return [m for m in mods[_deformers_on_top(mods):] if m.show_viewport]
 
 
 def _evaluated_co(obj, depsgraph):
@@ -788,8 +793,7 @@ def _fit_modifier(obj):
     whole stack, so the cache replaces its motion too."""
     mod = obj.modifiers.get(FIT_MODIFIER) or obj.modifiers.new(FIT_MODIFIER, 'MESH_CACHE')
     here = list(obj.modifiers).index(mod)
-    others = [m for m in obj.modifiers if m != mod]
-    place = next((i for i, m in enumerate(others) if m.type not in DEFORM_MODIFIERS), len(others))
+    place = _deformers_on_top([m for m in obj.modifiers if m != mod])
     if place != here:
         obj.modifiers.move(here, place)
     return mod
@@ -812,8 +816,7 @@ def shape_key_deformer(obj):
                 f"shape keys and would deform the fitted keys again: use the Point Cache output, or parent "
                 f"'{obj.name}' to '{parent.name}' as an object")
     mods = list(obj.modifiers)
-    first = next((i for i, m in enumerate(mods) if m.type not in DEFORM_MODIFIERS), len(mods))
-    for m in mods[:first]:
+    for m in mods[:_deformers_on_top(mods)]:
         if m.name == FIT_MODIFIER or not (m.show_viewport or m.show_render):
             continue
         target = getattr(m, "object", None)

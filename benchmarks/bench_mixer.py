@@ -137,13 +137,13 @@ def reference_digest(keys, faces, W):
 
 
 def load_references(path, digest):
-    """``(weights, n_in, vertices, energy)`` stored at ``path`` for ``digest``, else None."""
+    """``(vertices, energy)`` stored at ``path`` for ``digest``, else None."""
     if not os.path.exists(path):
         return None
     with np.load(path) as ref:
         if "digest" not in ref or str(ref["digest"]) != digest:
             return None
-        return ref["weights"], int(ref["n_in"]), ref["vertices"], ref["energy"]
+        return ref["vertices"], ref["energy"]
 
 
 def save_references(path, digest, W, n_in, X, E):
@@ -169,12 +169,11 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     path = os.path.join(reference_dir or cache_dir("bench_mixer_references"),
                         f"{name}{f'_{references}' if references else ''}.npz")
     digest = reference_digest(keys, faces, W)
-    stored = load_references(path, digest)
+    stored = load_references(path, digest)   # the digest covers W, so the stored weights are these
     if stored is None:
-        Xref, Eref = compute_references(keys, faces, W)
-        save_references(path, digest, W, n_in, Xref, Eref)
-    else:
-        W, n_in, Xref, Eref = stored
+        stored = compute_references(keys, faces, W)
+        save_references(path, digest, W, n_in, *stored)
+    Xref, Eref = stored
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     c0, t0 = time.process_time(), time.perf_counter()
     mixer = ShapeMixer.build(keys, faces, options)
