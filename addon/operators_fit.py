@@ -22,8 +22,8 @@ Mode sliders
 ``lengths_angles.bind_markers``
     Binds the take's marker empties (the active/selected take empty, or the selected
     marker empties) to the active mesh at the current frame: each marker to the
-    nearest surface point of the mesh as its shape keys and leading deformers pose it
-    (:func:`_mesh_vertices`) with its signed normal offset
+    nearest surface point of the mesh as its shape keys and leading deformers pose it, an earlier fit's
+    modifier and keys left out (:func:`_mesh_vertices`), with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
     markers are where the mesh is; *Align* runs ICP first, at most :data:`ALIGN_ITERATIONS`
     iterations, and the report says how many it ran).  Stored on the object in
@@ -386,10 +386,19 @@ def _deformers_on_top(modifiers):
 
 
 def _bound_modifiers_off(obj):
-    """The modifiers of ``obj`` a binding leaves out: from the first that is no deformer (:func:`_deformers_on_top`)
-    to the end of the stack, those shown in the viewport."""
+    """The modifiers of ``obj`` a binding leaves out, those shown in the viewport: an earlier fit's Mesh Cache
+    modifier (:data:`.naming.FIT_MODIFIER`), and from the first modifier that is no deformer
+    (:func:`_deformers_on_top`) to the end of the stack."""
     mods = list(obj.modifiers)
-    return [m for m in mods[_deformers_on_top(mods):] if m.show_viewport]
+    top = _deformers_on_top(mods)
+    return [m for i, m in enumerate(mods) if m.show_viewport and (i >= top or m.name == FIT_MODIFIER)]
+
+
+def _bound_keys_off(obj):
+    """The shape keys of ``obj`` a binding leaves out, those not muted: an earlier fit's keys
+    (:func:`.naming.is_fit_key`)."""
+    key = obj.data.shape_keys
+    return [] if key is None else [kb for kb in key.key_blocks if is_fit_key(kb.name) and not kb.mute]
 
 
 def _evaluated_co(obj, depsgraph):
@@ -407,17 +416,22 @@ def _evaluated_co(obj, depsgraph):
 def _mesh_vertices(obj, context=None):
     """(V, 3) float64 positions of ``obj`` in its own space (V of its mesh data) as its shape keys and the
     deformers at the top of its modifier stack pose it: the mesh the fit's Mesh Cache modifier replaces
-    (:func:`_fit_modifier`).  The modifiers from the first other one on (:func:`_bound_modifiers_off`) are off in
-    the viewport while it is evaluated and on again after it, also on error."""
+    (:func:`_fit_modifier`), without an earlier fit.  The modifiers from the first other one on and an earlier
+    fit's modifier (:func:`_bound_modifiers_off`) are off in the viewport, and an earlier fit's keys
+    (:func:`_bound_keys_off`) muted, while it is evaluated, and on again after it, also on error."""
     context = context or bpy.context
-    off = _bound_modifiers_off(obj)
+    off, muted = _bound_modifiers_off(obj), _bound_keys_off(obj)
     try:
         for m in off:
             m.show_viewport = False
+        for kb in muted:
+            kb.mute = True
         co = _evaluated_co(obj, context.evaluated_depsgraph_get())
     finally:
         for m in off:
             m.show_viewport = True
+        for kb in muted:
+            kb.mute = False
     V = len(co)
     if V != len(obj.data.vertices):
         raise FitSetupError(f"object '{obj.name}': its modifiers change the vertex count ({V} evaluated, "
@@ -554,7 +568,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     marker where it is visible), nor markers without keyed positions (:func:`.operators_markers.unkeyed_markers`:
     named too); both are stored as not bound with why (the panel lists them).  At least :data:`MIN_BOUND_MARKERS`
     must be visible.  The mesh is the one the fit replaces: shape keys and the deformers at the top of the stack
-    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them are left out).  ``warn_distance``
+    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them, and an earlier fit's modifier and
+    keys, are left out: binding again after a fit binds as without it).  ``warn_distance``
     is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)
