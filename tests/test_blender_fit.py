@@ -69,6 +69,8 @@ def run(extension_zip, inputs, tmp_path_factory):
         data["cleared_arrays"] = dict(f)
     with np.load(work / "files" / "align.npz") as f:
         data["align_arrays"] = dict(f)
+    with np.load(work / "files" / "rebind.npz") as f:
+        data["rebind_arrays"] = dict(f)
     return data
 
 
@@ -625,3 +627,40 @@ def test_bind_with_align_on_a_noisy_misplaced_take(run, inputs):
     unaligned = _rms(surface_points(inputs["bind_pose"], inputs["faces"], plain) - truth)
     assert bound < 2.5 * noise, bound                    # measured 0.053-0.054 dm (1.0 x the noise)
     assert unaligned > 5 * bound, (unaligned, bound)     # measured 0.62 dm (12 x)
+
+
+@pytest.mark.parametrize("output", ["pc2", "shape_keys"])
+def test_bind_and_fit_again_after_a_fit_as_without_it(run, inputs, output):
+    """Bind Markers at another frame (8; the first binding was at frame 1) on a character with an earlier fit (a point
+    cache, or keyed shape keys), then Fit to Markers again in the same output: the binding is of the character as
+    posed (the earlier fit's modifier off, its keys muted while the mesh is read, then as they were), the same as on a
+    fresh copy without the earlier fit, and so is the fit, which replaces the earlier one (one modifier, or one key
+    with one F-curve per frame).  Before, the binding saw the earlier fit's frame 8: the bound mesh 0.53 dm (point
+    cache) and 9.8 dm (keys: the fitted key added to the pose) from the pose, the marker points on the pose 0.16 and
+    5.5 dm off, the second fit 0.57 and 9.0 dm (bpy 5.2)."""
+    res, a = run["cases"]["rebind_after_fit"], run["rebind_arrays"]
+    again, fresh = res[f"{output}_again"], res[f"{output}_fresh"]
+    for r in (again, fresh):
+        assert r["bind"] == r["fit"] == ["FINISHED"] and r["frame"] == 8, r
+        assert max(r["shown_minus_fit"]) < 2e-6, r     # decimetres: the fit is what is shown (measured 9.2e-7)
+    fit_keys = [f"LA fit {f}" for f in range(1, 9)]
+    if output == "pc2":
+        assert again["modifiers"] == fresh["modifiers"] == ["LA Fit"] and again["fit_keys"] == [], again
+    else:
+        assert again["modifiers"] == fresh["modifiers"] == [] and again["fit_keys"] == fit_keys, again
+        assert again["fit_key_curves"] == sorted(f'key_blocks["{k}"].value' for k in fit_keys), again
+    # the earlier fit is back as it was after binding: its modifier shown, its keys not muted
+    assert again["after_bind"]["muted"] == [] and again["after_bind"]["shown"] == (["LA Fit"] if output == "pc2"
+                                                                                    else []), again
+    true = inputs["true"][7]                            # the pose the character was given at frame 8
+    g, f = (lambda k, o=output: a[f"{o}_again_{k}"]), (lambda k, o=output: a[f"{o}_fresh_{k}"])
+    assert np.abs(g("seen") - true).max() < 2e-6         # decimetres: float32 (measured 7.1e-7)
+    assert again["labels"] == fresh["labels"] and np.array_equal(g("faces"), f("faces"))
+    # measured 0.0 (bpy 4.2 and 5.2): the same mesh, the same markers, the same computation
+    assert np.abs(g("offsets") - f("offsets")).max() < 1e-9 and np.abs(g("barycentric") - f("barycentric")).max() < 1e-9
+    points = [surface_points(true, inputs["faces"], MarkerBinding.from_surface(h("faces"), h("barycentric"),
+                                                                               h("offsets"))) for h in (g, f)]
+    assert np.linalg.norm(points[0] - points[1], axis=1).max() < 1e-9
+    assert np.linalg.norm(g("fit") - f("fit"), axis=2).max() < 1e-9, output   # decimetres: measured 0.0
+    err = np.linalg.norm(g("fit") - inputs["true"], axis=2).mean(1)   # decimetres, per frame
+    assert err.max() < 0.5, err     # as the fit bound at frame 1 (test_mesh_cache_matches_lacore_fit_and_true_poses)

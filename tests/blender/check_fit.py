@@ -1325,8 +1325,58 @@ def bind_align():
             "reports": reports, "plain": plain, "take": binding["take"]}
 
 
+#: The frame Bind Markers runs at again (the take's last: every marker visible; the first binding was at frame 1).
+REBIND_FRAME = 8
+
+
+def rebind_after_fit():
+    """Bind Markers and Fit to Markers again on a character with an earlier fit, for each output: the earlier fit
+    (whole_path's binding at frame 1, fitted over frames 1-8 as a point cache or as shape keys) is there, the
+    character is posed like frame 8 (a shape key at 1) and bound at frame 8, the pose key removed, and frames 1-8
+    fitted again in the same output.  The same on a fresh copy without the earlier fit.  Records the mesh the
+    binding saw, the bindings, the fits and what is shown (``rebind.npz``), and the fit's modifiers and keys left."""
+    fit = ext("addon.operators_fit")
+    out, arrays = {}, {}
+    for output in ('PC2', 'SHAPE_KEYS'):
+        for earlier in (True, False):
+            name = f"{output.lower()}_{'again' if earlier else 'fresh'}"
+            bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+            obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+            scene = bpy.context.scene
+            obj.modifiers.remove(obj.modifiers["LA Fit"])
+            select_only(obj, take)
+            if earlier:
+                assert finish(fit.fit_run(bpy.context, obj, 1, 8, output=output))[0] == ["FINISHED"]
+            kb = obj.shape_key_add(name="pose 8", from_mix=False)
+            kb.data.foreach_set("co", INPUTS["true"][REBIND_FRAME - 1].astype(np.float32).ravel())
+            kb.value = 1.0
+            scene.frame_set(REBIND_FRAME)
+            arrays[f"{name}_seen"] = fit._mesh_vertices(obj)
+            bound = sorted(bpy.ops.lengths_angles.bind_markers())
+            after_bind = {"muted": [k.name for k in obj.data.shape_keys.key_blocks if k.mute],
+                          "shown": [m.name for m in obj.modifiers if m.show_viewport]}
+            obj.shape_key_remove(kb)
+            binding = obj[fit.BINDING_PROP].to_dict()
+            run = fit.fit_run(bpy.context, obj, 1, 8, output=output)
+            result = finish(run)[0]
+            X = run.job.result.vertices
+            arrays.update({f"{name}_faces": np.array(binding["faces"]), f"{name}_offsets": np.array(binding["offsets"]),
+                           f"{name}_barycentric": np.array(binding["barycentric"]).reshape(-1, 3),
+                           f"{name}_fit": X})
+            keys = [k.name for k in obj.data.shape_keys.key_blocks if k.name.startswith("LA fit ")]
+            fcurves = ext("addon.compat").animation_channels(obj.data.shape_keys)
+            paths = [fc.data_path for fc in fcurves.fcurves] if fcurves is not None else []
+            out[name] = {"bind": bound, "after_bind": after_bind, "fit": result, "frame": binding["frame"],
+                         "labels": list(binding["labels"]),
+                         "modifiers": [m.name for m in obj.modifiers], "fit_keys": keys,
+                         "fit_key_curves": sorted(p for p in paths if "LA fit " in p),
+                         "shown_minus_fit": shown_minus_fit(obj, X)}
+    np.savez(os.path.join(ARGS.workdir, "rebind.npz"), **arrays)
+    return out
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
                moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
-               bind_align])
+               bind_align, rebind_after_fit])
