@@ -644,6 +644,10 @@ def test_bind_and_fit_again_after_a_fit_as_without_it(run, inputs, output):
         assert r["bind"] == r["fit"] == ["FINISHED"] and r["frame"] == 8, r
         assert max(r["shown_minus_fit"]) < 2e-6, r     # decimetres: the fit is what is shown (measured 9.2e-7)
     fit_keys = [f"LA fit {f}" for f in range(1, 9)]
+    # when binding again: the earlier fit is there (its modifier, or its keys), the fresh copy has none
+    earlier = ({"modifiers": ["LA Fit"], "fit_keys": []} if output == "pc2"
+               else {"modifiers": [], "fit_keys": fit_keys})
+    assert again["before_bind"] == earlier and fresh["before_bind"] == {"modifiers": [], "fit_keys": []}, again
     if output == "pc2":
         assert again["modifiers"] == fresh["modifiers"] == ["LA Fit"] and again["fit_keys"] == [], again
     else:

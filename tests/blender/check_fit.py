@@ -1351,6 +1351,8 @@ def rebind_after_fit():
             kb.data.foreach_set("co", INPUTS["true"][REBIND_FRAME - 1].astype(np.float32).ravel())
             kb.value = 1.0
             scene.frame_set(REBIND_FRAME)
+            before_bind = {"modifiers": [m.name for m in obj.modifiers],
+                           "fit_keys": [k.name for k in obj.data.shape_keys.key_blocks if k.name.startswith("LA fit ")]}
             arrays[f"{name}_seen"] = fit._mesh_vertices(obj)
             bound = sorted(bpy.ops.lengths_angles.bind_markers())
             after_bind = {"muted": [k.name for k in obj.data.shape_keys.key_blocks if k.mute],
@@ -1366,8 +1368,8 @@ def rebind_after_fit():
             keys = [k.name for k in obj.data.shape_keys.key_blocks if k.name.startswith("LA fit ")]
             fcurves = ext("addon.compat").animation_channels(obj.data.shape_keys)
             paths = [fc.data_path for fc in fcurves.fcurves] if fcurves is not None else []
-            out[name] = {"bind": bound, "after_bind": after_bind, "fit": result, "frame": binding["frame"],
-                         "labels": list(binding["labels"]),
+            out[name] = {"bind": bound, "before_bind": before_bind, "after_bind": after_bind, "fit": result,
+                         "frame": binding["frame"], "labels": list(binding["labels"]),
                          "modifiers": [m.name for m in obj.modifiers], "fit_keys": keys,
                          "fit_key_curves": sorted(p for p in paths if "LA fit " in p),
                          "shown_minus_fit": shown_minus_fit(obj, X)}
