@@ -204,6 +204,27 @@ def test_appended_object_mixes_and_deleted_mixer_is_released(run):
     assert res["legacy_pointed"] and res["status_legacy"]["stale"] == "", res
 
 
+def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
+    """Linked from a library its mix key cannot be rewritten (Blender keeps linked data as saved): the panel says so
+    instead of calling it live, Enable and Disable are refused in one line and change nothing; after Make Local it
+    mixes live again (keyframed values through frame_set)."""
+    res, a = run["cases"]["linked_from_library"], run["arrays"]
+    stale = res["status"]["stale"]
+    assert stale.startswith("the mesh is linked from '") and "library.blend" in stale, res["status"]
+    assert "Make Local" in stale and res["status"]["linked"].endswith("library.blend"), res["status"]
+    assert f"Stale: {stale}" in res["panel"], res["panel"]
+    assert not any(t and t.startswith("Showing Blender's linear mix") for t in res["panel"]), res["panel"]
+    for name in ("enable", "disable"):
+        r = res[name]
+        assert r["result"] == ["CANCELLED"] and r["one_line"] and r["unchanged"], r
+        assert "is linked from '" in r["message"] and f"{name} live mixing in that file" in r["message"], r
+    assert res["local"] == [True, ""], res
+    assert 0.0 < a["local_values"][0][0] < 1.0 and 0.0 < a["local_values"][1][0] < a["local_values"][0][0]
+    for w, shown in zip(a["local_values"], a["local_mixed"], strict=True):
+        want, _ = expected(a["linked_mixer_npz"], inputs, w)
+        assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())
+
+
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),

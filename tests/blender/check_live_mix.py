@@ -447,6 +447,54 @@ def appended_and_deleted():
     return out
 
 
+def linked_from_library():
+    """A live object linked from another .blend: its mix key cannot be rewritten there, so the panel says so and
+    Enable / Disable are refused in one line (nothing changed); made local, it mixes live."""
+    reset()
+    obj = make_bar()
+    assert enable(obj) == ["FINISHED"]
+    OUT["linked_mixer_npz"] = stored_mixer(obj)
+    kb = obj.data.shape_keys.key_blocks["Bend"]
+    for f, v in ((1, 0.0), (10, 1.0)):
+        kb.value = v
+        kb.keyframe_insert("value", frame=f)
+    bpy.context.scene.frame_set(1)
+    plain = make_bar("Plain")  # not live
+    library = os.path.join(ARGS.workdir, "library.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=library)
+    reset()
+    with bpy.data.libraries.load(library, link=True) as (_source, target):
+        target.objects = ["Bar", "Plain"]
+    linked, plain = (next(o for o in target.objects if o.name == n) for n in ("Bar", "Plain"))
+    for o in (linked, plain):
+        bpy.context.scene.collection.objects.link(o)
+    bpy.context.scene.frame_set(5)
+    evaluated(linked)
+    out = {"status": status(linked), "panel": panel_labels(linked)}
+    for name, o, op in (("enable", plain, bpy.ops.lengths_angles.live_mix_enable),
+                        ("disable", linked, bpy.ops.lengths_angles.live_mix_disable)):
+        before = snapshot(o)
+        try:
+            with ops_context(o):
+                res, msg = sorted(op()), ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = ["CANCELLED"], str(exc).strip()
+        out[name] = {"result": res, "message": msg, "one_line": "\n" not in msg, "unchanged": snapshot(o) == before}
+    select_only(linked)
+    with bpy.context.temp_override(active_object=linked, object=linked, selected_objects=[linked],
+                                   selected_editable_objects=[linked]):
+        assert bpy.ops.object.make_local(type='ALL') == {'FINISHED'}
+    local = bpy.data.objects["Bar"]
+    out["local"] = [local.data.library is None, status(local)["stale"]]
+    shapes, weights = [], []
+    for f in (5, 3):
+        bpy.context.scene.frame_set(f)
+        shapes.append(evaluated(local))
+        weights.append(values(local))
+    OUT["local_mixed"], OUT["local_values"] = np.array(shapes), np.array(weights)
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer: one line, nothing changed."""
@@ -690,5 +738,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, bad_input,
+           appended_and_deleted, linked_from_library, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
