@@ -4,10 +4,13 @@ A box bar with keys Bend, Twist and Both: ``live_mix_enable`` stores a mixer wit
 the evaluated mesh is lacore's mix of the keys' values (placed like the in-betweens: the rigid motion onto
 Blender's linear blend) -- for values set by hand, keyframed values through ``frame_set``, a driven value,
 after saving and reopening the .blend, for two objects at once, a duplicate and an object appended from another
-.blend, with a key limited to a vertex group mixed linearly on top, in Cycles animation and still renders; a
-modifier after the keys applies to the mix.  ``live_mix_disable`` and undo give back Blender's linear mix bit for
-bit; an edited key or mesh makes the mixer stale (the linear mix, a panel warning); bad input is refused in one
-line and changes nothing; a deleted object's mixer is gone once the saved file is opened again.
+.blend, with a key limited to a vertex group or relative to another key mixed linearly on top, a muted key and a
+negative slider value, in Cycles animation and still renders; modifiers after the keys (Displace, Armature,
+Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer stale, Edit Mode without an edit
+does not; an object linked from a library is said to be stale and refused, and mixes once made local.
+``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
+stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
+mixer is gone once the saved file is opened again.
 """
 
 import io
@@ -202,6 +205,43 @@ def test_appended_object_mixes_and_deleted_mixer_is_released(run):
     assert res["texts_reopened"] == ["LA live mixer Bar.001"] and res["status_reopened"]["stale"] == "", res
     assert res["record_text_reopened"] == "LA live mixer Bar.001", res
     assert res["legacy_pointed"] and res["status_legacy"]["stale"] == "", res
+
+
+def test_mute_slider_range_and_a_key_relative_to_another(run, inputs):
+    """Bend muted: weight 0; Bend at -0.6 (slider min -1): mixed at -0.6; Twist (relative to Bend) added linearly on
+    top of the mix of Bend and Both."""
+    res, a = run["cases"]["key_mixes"], run["arrays"]
+    assert res["status"]["keys"] == ["Bend", "Both"] and res["status"]["linear"] == ["Twist"], res["status"]
+    mixer = ShapeMixer.load(io.BytesIO(a["keys_mixer_npz"].tobytes()))
+    B, K = f32(inputs["basis"]), f32(inputs["keys"])
+    bend, twist, both = K
+    assert np.allclose(a["keys_values"][0], [-0.6, 0.3, 0.4])
+    for shown, (w_bend, w_twist, w_both) in zip([a["keys_muted"], a["keys_negative"]],
+                                                [(0.0, 0.3, 0.4), (-0.6, 0.3, 0.4)], strict=True):
+        w = np.array([w_bend, w_both])
+        linear = B + w[0] * (bend - B) + w[1] * (both - B)
+        want = rigid_align(mixer.mix(w, warm_start=False).vertices, linear) + w_twist * (twist - bend)
+        assert np.abs(shown - want).max() < TOL, (w_bend, np.abs(shown - want).max())
+        # not the mix of all three keys' values nor the linear blend: measured 0.03 and more from the linear one
+        assert np.abs(shown - (linear + w_twist * (twist - bend))).max() > 0.01
+
+
+def test_renamed_or_deleted_key_and_edit_mode(run):
+    res = run["cases"]["key_mixes"]
+    assert res["edit_mode_round_trip"] == [["", 0.0], ["", 0.0]], res  # Edit Mode without an edit: still live
+    assert res["renamed"] == ["shape key 'Both' was renamed or deleted", True], res  # the linear mix, bit for bit
+    assert res["renamed_back"][0] == "" and res["renamed_back"][1] < TOL, res  # mixed again (warm start: ~5e-7)
+    assert res["deleted"] == ["shape key 'Both' was renamed or deleted", True], res
+
+
+def test_armature_and_subdivision_after_the_keys(run, inputs):
+    """An Armature and a Subdivision Surface modifier deform the mix: the same evaluated mesh as a plain copy of the
+    mix with the same modifiers (not the linear blend's)."""
+    mods = run["cases"]["key_mixes"]["modifiers"]
+    faces = inputs["faces"]
+    edges = {tuple(sorted(e)) for f in faces for e in zip(f, np.roll(f, -1), strict=True)}
+    assert mods["vertices"] == len(inputs["basis"]) + len(edges) + len(faces), mods  # subdivided once
+    assert mods["vs_plain"] < TOL and mods["linear_vs_plain"] > 0.05, mods
 
 
 def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):

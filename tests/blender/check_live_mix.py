@@ -447,6 +447,88 @@ def appended_and_deleted():
     return out
 
 
+def key_mixes():
+    """Mute and a negative slider range on a mixed key; a key relative to another key than the basis (mixed linearly
+    on top); a mixed key renamed, then deleted (stale: the linear mix); Edit Mode entered and left without an edit
+    (still live); Armature and Subdivision Surface after the keys (the same mesh as a plain copy holding the mix)."""
+    reset()
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    kbs["Bend"].slider_min = -1.0
+    kbs["Twist"].relative_key = kbs["Bend"]  # mixed linearly: w * (Twist - Bend) on top of the mix
+    assert enable(obj) == ["FINISHED"]
+    OUT["keys_mixer_npz"] = stored_mixer(obj)
+    out = {"status": status(obj)}
+    # Bend muted at 0.5: weight 0 (Both 0.4 mixed, Twist 0.3 linear)
+    set_values(obj, (0.5, 0.3, 0.4))
+    kbs["Bend"].mute = True
+    OUT["keys_muted"] = evaluated(obj)
+    kbs["Bend"].mute = False
+    set_values(obj, (-0.6, 0.3, 0.4))  # below 0, within the slider range
+    OUT["keys_negative"] = evaluated(obj)
+    OUT["keys_values"] = np.array([values(obj)])
+    # Edit Mode entered and left without an edit, with the basis and then the add-on's key active: still live
+    live_shape = evaluated(obj)
+    edit = []
+    for active in (0, len(kbs) - 1):
+        obj.active_shape_key_index = active
+        with ops_context(obj):
+            bpy.ops.object.mode_set(mode='EDIT')
+            bpy.ops.object.mode_set(mode='OBJECT')
+        edit.append([status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())])
+    out["edit_mode_round_trip"] = edit
+
+    def linear():  # Blender's linear mix of the keys as they are (the add-on's key muted)
+        kbs["LA live mix"].mute = True
+        shape = evaluated(obj)
+        kbs["LA live mix"].mute = False
+        return shape
+
+    # a mixed key renamed: stale, the linear mix; renamed back: live
+    kbs["Both"].name = "Both2"
+    shown = evaluated(obj)
+    out["renamed"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
+    kbs["Both2"].name = "Both"
+    set_values(obj, (-0.5, 0.3, 0.4))  # the next update (a slider moved) finds the key again
+    evaluated(obj)
+    set_values(obj, (-0.6, 0.3, 0.4))
+    out["renamed_back"] = [status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())]
+    # Armature and Subdivision Surface after the keys: the same evaluated mesh as a plain copy holding the mix
+    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(arm)
+    select_only(arm)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bone = arm.data.edit_bones.new("Tip")
+        bone.head, bone.tail = (3.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+        bpy.ops.object.mode_set(mode='OBJECT')
+    arm.pose.bones["Tip"].rotation_mode = 'XYZ'
+    arm.pose.bones["Tip"].rotation_euler = (0.3, 0.0, 0.2)
+    plain_mesh = bpy.data.meshes.new("Plain")
+    plain_mesh.from_pydata(live_shape.tolist(), [], INPUTS["faces"].tolist())
+    plain = bpy.data.objects.new("Plain", plain_mesh)
+    bpy.context.scene.collection.objects.link(plain)
+    weights = np.clip((INPUTS["basis"][:, 0] - 2.0) / 3.0, 0.0, 1.0)
+    for o in (obj, plain):
+        group = o.vertex_groups.new(name="Tip")
+        for i, w in enumerate(weights):
+            group.add([i], float(w), 'REPLACE')
+        o.modifiers.new("Armature", 'ARMATURE').object = arm
+        o.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    deformed, plain_deformed = evaluated(obj), evaluated(plain)
+    out["modifiers"] = {"vertices": len(deformed), "vs_plain": float(np.abs(deformed - plain_deformed).max()),
+                        "linear_vs_plain": float(np.abs(linear() - plain_deformed).max())}
+    for o in (obj, plain):
+        o.modifiers.clear()
+    # a mixed key deleted: stale, the linear mix
+    obj.active_shape_key_index = list(kbs).index(kbs["Both"])
+    with ops_context(obj):
+        bpy.ops.object.shape_key_remove()
+    shown = evaluated(obj)
+    out["deleted"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
+    return out
+
+
 def linked_from_library():
     """A live object linked from another .blend: its mix key cannot be rewritten there, so the panel says so and
     Enable / Disable are refused in one line (nothing changed); made local, it mixes live."""
@@ -738,5 +820,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, linked_from_library, bad_input,
+           appended_and_deleted, key_mixes, linked_from_library, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
