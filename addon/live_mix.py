@@ -28,8 +28,8 @@ bit.  Why a correction key rather than muting the user's keys: nothing of the us
 remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
 mixer shows the exact linear mix by zeroing one key.
 
-The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update;
-muted, or keyed or driven to another value, the mixer is stale (below).
+The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights, a slider range without 1) is set back
+by the next update; muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
 ``'RENDER'`` mode) finishes the mix with the full Gauss-Newton projection (``ShapeMixer.mix(polish=True)``),
@@ -360,12 +360,17 @@ def _animated(key, kb):
 
 
 def _restore_mix_value(mesh):
-    """Set the mix key's value back to 1 where an edit of all keys' values changed it (Clear Shape Key
-    Weights, a script) and it is neither keyed nor driven; True if set."""
+    """Set the mix key's value back to 1 where an edit changed it (Clear Shape Key Weights, a script, its slider
+    range set to exclude 1: the range is widened to take 1 in again) and it is neither keyed nor driven; True if
+    set."""
     key = mesh.shape_keys
     kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
     if kb is None or kb.value == 1.0 or _animated(key, kb):
         return False
+    if kb.slider_max < 1.0:
+        kb.slider_max = 1.0
+    if kb.slider_min > 1.0:
+        kb.slider_min = 0.0
     kb.value = 1.0
     return True
 

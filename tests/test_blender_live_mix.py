@@ -153,6 +153,8 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert changed["value_set_back"] == 1.0 and changed["value_status"] == "" and changed["value_vs_live"] < TOL
     assert changed["clear_weights"] == ["FINISHED"] and changed["cleared_value"] == 1.0, changed
     assert changed["cleared_status"] == "", changed
+    assert changed["range_clamped"] == 0.5, changed  # its slider range set to exclude 1: widened, value 1, still live
+    assert changed["range_restored"][:3] == [1.0, 1.0, ""] and changed["range_restored"][3] < TOL, changed
     # driven to another value: stale, said; the driver removed: live again
     assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
                                         "value is 1"), changed

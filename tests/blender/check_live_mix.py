@@ -308,6 +308,11 @@ def stale_when_edited():
     scene.frame_set(7)                  # the keys' own animation back
     mix_changed["undriven_status"] = status(obj)["stale"]
     mix_changed["undriven_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_kb.slider_max = 0.5  # its range set to exclude 1 (Blender clamps the value to 0.5): widened, 1 again
+    mix_changed["range_clamped"] = mix_kb.value
+    evaluated(obj)
+    mix_changed["range_restored"] = [mix_kb.slider_max, mix_kb.value, status(obj)["stale"],
+                                     float(np.abs(evaluated(obj) - live_shape).max())]
     # a topology edit (a vertex deleted in Edit Mode)
     select_only(obj)
     with ops_context(obj):
