@@ -82,6 +82,14 @@ def test_evaluated_mesh_is_lacores_mix(run, inputs):
     assert res["status"]["keys"] == ["Bend", "Twist", "Both"] and res["status"]["stale"] == ""
     assert res["status"]["in_range"] and res["status"]["linear"] == []
     assert any(t and t.startswith("Live: 3 keys") for t in res["panel"]), res["panel"]
+    # the build time the operator measured, Rebuild, Disable and the quality choice
+    assert 0.0 < res["status"]["build_seconds"] < res["seconds"], (res["status"], res["seconds"])
+    assert any(t and t.startswith(f"Built in {res['status']['build_seconds']:.2f} s;") for t in res["panel"])
+    assert res["controls"]["operators"] == [["lengths_angles.live_mix_enable", "Rebuild"],
+                                            ["lengths_angles.live_mix_disable", ""]], res["controls"]
+    assert [p for p, _ in res["controls"]["props"]] == ["lengths_angles_live_mix_reduced_size",
+                                                        "lengths_angles_live_mix_exact_renders"], res["controls"]
+    assert res["controls_after_disable"]["operators"] == [["lengths_angles.live_mix_enable", "Enable Live Mixing"]]
     for w, shown, linear in zip(a["weights"], a["mixed"], a["linear"], strict=True):
         want, _ = expected(a["mixer_npz"], inputs, w)
         assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())

@@ -111,6 +111,13 @@ def panel_labels(obj):
     return [kw.get("text") for name, _, kw in calls if name == "label"]
 
 
+def panel_controls(obj):
+    """The panel's buttons ``[operator idname, text]`` and properties ``[property name, text]``."""
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_live_mix, SimpleNamespace(object=obj))
+    return {"operators": [[args[0], kw.get("text")] for name, args, kw in calls if name == "operator"],
+            "props": [[args[1], kw.get("text")] for name, args, kw in calls if name == "prop"]}
+
+
 def stored_mixer(obj):
     live_mix = ext("live_mix")
     return np.frombuffer(live_mix.stored_npz(obj.data[live_mix.MIXER_PROP]), np.uint8)
@@ -155,6 +162,7 @@ def enable_mix_disable():
     OUT["linear"] = np.array(linear)
     st = status(obj)
     labels = panel_labels(obj)
+    controls = panel_controls(obj)
     # a modifier after the shape keys applies to the mix: Displace along X without a texture shifts every
     # vertex by strength * (1 - midlevel)
     set_values(obj, WEIGHTS[3])
@@ -177,7 +185,8 @@ def enable_mix_disable():
             "active_kept": after_enable["active"] == before["active"],
             "linear_bit_for_bit": all(np.array_equal(a, b) for a, b in zip(linear, relinear, strict=True)),
             "snapshot_restored": snapshot(obj) == before, "status_after_disable": status(obj),
-            "panel_after_disable": panel_labels(obj)}
+            "panel_after_disable": panel_labels(obj), "controls": controls,
+            "controls_after_disable": panel_controls(obj)}
 
 
 def keyframes_drivers_and_save():
