@@ -239,6 +239,10 @@ def test_mute_slider_range_and_a_key_relative_to_another(run, inputs):
 def test_renamed_or_deleted_key_and_edit_mode(run):
     res = run["cases"]["key_mixes"]
     assert res["edit_mode_round_trip"] == [["", 0.0], ["", 0.0]], res  # Edit Mode without an edit: still live
+    # the add-on's key active (Edit Mode and Shape Key Lock would show the correction alone): the panel says so
+    warning = "'LA live mix' is the correction to the linear mix, not a shape"
+    assert any(t and t.startswith(warning) for t in res["panel_mix_key_active"]), res["panel_mix_key_active"]
+    assert not any(t and t.startswith(warning) for t in res["panel_basis_active"]), res["panel_basis_active"]
     assert res["renamed"] == ["shape key 'Both' was renamed or deleted", True], res  # the linear mix, bit for bit
     assert res["renamed_back"][0] == "" and res["renamed_back"][1] < TOL, res  # mixed again (warm start: ~5e-7)
     assert res["deleted"] == ["shape key 'Both' was renamed or deleted", True], res

@@ -491,6 +491,9 @@ def key_mixes():
             bpy.ops.object.mode_set(mode='OBJECT')
         edit.append([status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())])
     out["edit_mode_round_trip"] = edit
+    out["panel_mix_key_active"] = panel_labels(obj)  # (Edit Mode shows the active key: here the correction)
+    obj.active_shape_key_index = 0
+    out["panel_basis_active"] = panel_labels(obj)
 
     def linear():  # Blender's linear mix of the keys as they are (the add-on's key muted)
         kbs["LA live mix"].mute = True
