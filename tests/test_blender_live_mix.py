@@ -199,6 +199,12 @@ def test_several_objects_and_undo(run, inputs):
     assert res["copy_mesh"] == "A.001"  # a duplicate (Shift+D) with its own mesh, live as well
     want, _ = expected(a["mixer_npz"], inputs, (0.0, 0.0, 0.6))
     assert np.abs(a["copy_mixed"] - want).max() < TOL
+    # the original disabled: the duplicate still mixes (the shared text kept); obj.copy() shares its mesh and shape
+    want, linear = expected(a["mixer_npz"], inputs, (0.3, 0.0, 0.6))
+    shown = a["copy_after_original_disabled"]
+    assert np.abs(shown - want).max() < TOL and np.abs(shown - linear).max() > 0.05
+    assert res["shared_vs_copy"] == 0.0 and res["texts_one_left"] == ["LA live mixer A", "LA live mixer B"], res
+    assert res["texts_none_left"] == ["LA live mixer B"], res  # disabled through the object sharing the mesh
     assert res["undo_linear_bit_for_bit"] and not res["undone_live"], res
     assert res["redo_live"] and res["redo_vs_live"] < TOL and res["live_differs"] > 0.1, res
 

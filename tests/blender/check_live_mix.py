@@ -391,6 +391,17 @@ def several_objects_and_undo():
     set_values(copy, (0.0, 0.0, 0.6))
     OUT["copy_mixed"] = evaluated(copy)
     copy_mesh = copy.data.name
+    # the original disabled: the duplicate (sharing its mixer text) still mixes live; an object sharing the
+    # duplicate's mesh (obj.copy()) shows the same; disabled from that object, the text goes with the last record
+    assert disable(a) == ["FINISHED"]
+    shared = copy.copy()
+    bpy.context.scene.collection.objects.link(shared)
+    set_values(copy, (0.3, 0.0, 0.6))
+    OUT["copy_after_original_disabled"] = evaluated(copy)
+    shared_vs_copy = float(np.abs(evaluated(shared) - OUT["copy_after_original_disabled"]).max())
+    texts_one_left = sorted(t.name for t in bpy.data.texts)
+    assert disable(shared) == ["FINISHED"]
+    texts_none_left = sorted(t.name for t in bpy.data.texts)
     # undo / redo (memfile undo: the mix key and the stored mixer come and go with the mesh)
     reset()
     obj = make_bar()
@@ -407,7 +418,9 @@ def several_objects_and_undo():
     bpy.ops.ed.redo()
     obj = bpy.data.objects["Bar"]
     redone = evaluated(obj)
-    return {"copy_mesh": copy_mesh, "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
+    return {"copy_mesh": copy_mesh, "shared_vs_copy": shared_vs_copy, "texts_one_left": texts_one_left,
+            "texts_none_left": texts_none_left,
+            "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
             "undone_live": undone_live,
             "redo_live": ext("live_mix").is_live(obj.data),
             "redo_vs_live": float(np.abs(redone - live_shape).max()),
