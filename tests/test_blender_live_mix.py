@@ -289,7 +289,8 @@ def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
-    ("degenerate_key", "'Key 1': degenerate triangles"),
+    ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move those faces' vertices apart in it"),
+    ("no_faces", "has no faces: the add-on works on surfaces; fill the mesh with faces"),
     ("edit_mode", "is in Edit Mode: switch to Object Mode")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]

@@ -609,7 +609,7 @@ def linked_from_library():
 
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
-    mixer: one line, nothing changed."""
+    mixer, a mesh without faces: one line, nothing changed."""
     reset()
     out = {}
 
@@ -646,6 +646,14 @@ def bad_input():
     attempt("edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
     with ops_context(obj):
         bpy.ops.object.mode_set(mode='OBJECT')
+    points = bpy.data.meshes.new("Points")  # vertices only, keys shaped
+    points.from_pydata(INPUTS["basis"].tolist(), [], [])
+    cloud = bpy.data.objects.new("Points", points)
+    bpy.context.scene.collection.objects.link(cloud)
+    cloud.shape_key_add(name="Basis", from_mix=False)
+    cloud.shape_key_add(name="Key 1", from_mix=False).data[0].co = (9.0, 9.0, 9.0)
+    select_only(cloud)
+    attempt("no_faces", cloud, bpy.ops.lengths_angles.live_mix_enable)
     return out
 
 
