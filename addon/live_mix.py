@@ -634,8 +634,9 @@ def mixer_for_keys(obj, keys):
     if live is None:
         raise LiveMixError(f"the live mixer of '{mesh.name}' cannot be read: Rebuild it")
     why = live.check(mesh)
-    if why:
-        raise LiveMixError(f"the live mixer of '{mesh.name}' is stale ({why}): Rebuild it")
+    if why:  # (a linked mesh cannot be rebuilt here: ``why`` says to make it local)
+        raise LiveMixError(f"the live mixer of '{mesh.name}' is stale ({why})"
+                           + ("" if linked_from(mesh) else ": Rebuild it"))
     order = [live.basis, *live.names]
     missing = [k for k in keys if k not in order]
     if missing:

@@ -274,6 +274,8 @@ def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
     assert "Make Local" in stale and res["status"]["linked"].endswith("library.blend"), res["status"]
     assert f"Stale: {stale}" in res["panel"], res["panel"]
     assert not any(t and t.startswith("Showing Blender's linear mix") for t in res["panel"]), res["panel"]
+    note = res["inbetween_note"]  # In-betweens: no Live Mixer method, and why (not "Rebuild": it is refused)
+    assert note.startswith("Live Mixer not available:") and "Make Local" in note and "Rebuild" not in note, note
     for name in ("enable", "disable"):
         r = res[name]
         assert r["result"] == ["CANCELLED"] and r["one_line"] and r["unchanged"], r

@@ -582,7 +582,8 @@ def linked_from_library():
         bpy.context.scene.collection.objects.link(o)
     bpy.context.scene.frame_set(5)
     evaluated(linked)
-    out = {"status": status(linked), "panel": panel_labels(linked)}
+    out = {"status": status(linked), "panel": panel_labels(linked),
+           "inbetween_note": ext("operators_interpolate").mixer_note(linked, ["Basis", "Bend"])}
     for name, o, op in (("enable", plain, bpy.ops.lengths_angles.live_mix_enable),
                         ("disable", linked, bpy.ops.lengths_angles.live_mix_disable)):
         before = snapshot(o)
