@@ -28,8 +28,8 @@ bit.  Why a correction key rather than muting the user's keys: nothing of the us
 remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
 mixer shows the exact linear mix by zeroing one key.
 
-The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update;
-muted, or keyed or driven to another value, the mixer is stale (below).
+The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights, a slider range without 1) is set back
+by the next update; muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
 ``'RENDER'`` mode) finishes the mix with the full Gauss-Newton projection (``ShapeMixer.mix(polish=True)``),
@@ -52,6 +52,10 @@ Storage (saved in the .blend, decoded once per session: :func:`live_meshes` afte
 mixer's ``.npz`` (:meth:`ShapeMixer.save`) is a payload of :func:`.storage.store_payload` (a text
 datablock ``"LA live mixer <mesh>"``), and ``mesh["lengths_angles_live_mix"]`` its record: the text's
 name, the token, the key names, a fingerprint digest and the build time.
+
+Linked meshes: Blender keeps data linked from a library as saved there (writes to it are dropped), so the mix key of
+a linked live mesh cannot follow its values: :meth:`_Live.check` calls it stale, naming the library and Make Local,
+and enabling or disabling it is refused (:func:`linked_from`).
 """
 
 import hashlib
@@ -78,7 +82,7 @@ from .runs import ObjectWatch, Run
 
 __all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
            "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
-           "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP"]
+           "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP", "linked_from"]
 
 MIXER_PROP = "lengths_angles_live_mix"
 #: Mesh property (bool): renders show the exact projection (the mix polished by full Gauss-Newton).
@@ -131,6 +135,14 @@ def _digest(coords, corners):
     return hashlib.blake2b(coords.tobytes() + corners.tobytes(), digest_size=16).hexdigest()
 
 
+def linked_from(mesh):
+    """The file path of the library ``mesh`` or its shape keys are linked from ("" when both are local): Blender
+    keeps linked data as the library saved it, so its mix key cannot be rewritten here."""
+    key = mesh.shape_keys
+    lib = mesh.library or (key.library if key is not None else None)
+    return "" if lib is None else lib.filepath
+
+
 # ------------------------------------------------------------------------------------------- runtime
 class _Live:
     """The session state of one live mesh: the decoded mixer, what it was built from, the last mix."""
@@ -164,6 +176,11 @@ class _Live:
 
     def check(self, mesh):
         """Why the mixer does not fit ``mesh`` now ("" if it does): structure, then coordinates."""
+        library = linked_from(mesh)
+        if library:
+            return (f"the mesh is linked from '{library}', where its mix key cannot be rewritten: it shows the "
+                    "library's mix only at the key values saved there; make it local (Object > Relations > Make "
+                    "Local) to mix live")
         key = mesh.shape_keys
         if key is None:
             return "the shape keys were removed"
@@ -276,25 +293,29 @@ def is_live(mesh):
 
 def status(mesh):
     """What the panel shows: ``dict(keys, linear, build_seconds, reduced_size, stale, in_range, message,
-    mix_seconds, polished)`` (``polished``: the last mix is a render's exact one) or None when ``mesh`` has no
-    mixer."""
+    mix_seconds, polished, linked)`` (``polished``: the last mix is a render's exact one; ``linked``: the library
+    path of a linked mesh, whose mix key cannot be rewritten, else "") or None when ``mesh`` has no mixer."""
     if not is_live(mesh):
         return None
     live = _live(mesh)
     if live is None:
         return {"keys": [], "linear": [], "build_seconds": 0.0, "reduced_size": 0, "stale": "the stored mixer "
-                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0, "polished": False}
+                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0, "polished": False,
+                "linked": linked_from(mesh)}
     res = live.result
     key = mesh.shape_keys
+    linked = linked_from(mesh)
     linear = [] if key is None else [kb.name for kb in key.key_blocks[1:]
                                      if kb.name not in live.names and not is_own_key(kb.name)]
     exact = res is not None and res.polished and res.in_range  # a converged polish: the exact projection
     message = "" if res is None or exact else (live.mixer.range_message(res.weights, names=live.names,
                                                                         advice=RANGE_ADVICE) or res.message)
+    stale = live.stale or live.error or (live.check(mesh) if linked else "")  # (a linked mesh is never updated)
     return {"keys": live.names, "linear": linear, "build_seconds": live.build_seconds,
-            "reduced_size": live.reduced_size, "stale": live.stale or live.error,
+            "reduced_size": live.reduced_size, "stale": stale,
             "in_range": True if res is None else bool(res.in_range), "message": message,
-            "mix_seconds": live.mix_seconds, "polished": bool(res is not None and res.polished)}
+            "mix_seconds": live.mix_seconds, "polished": bool(res is not None and res.polished),
+            "linked": linked}
 
 
 # ------------------------------------------------------------------------------------------- updating
@@ -339,12 +360,17 @@ def _animated(key, kb):
 
 
 def _restore_mix_value(mesh):
-    """Set the mix key's value back to 1 where an edit of all keys' values changed it (Clear Shape Key
-    Weights, a script) and it is neither keyed nor driven; True if set."""
+    """Set the mix key's value back to 1 where an edit changed it (Clear Shape Key Weights, a script, its slider
+    range set to exclude 1: the range is widened to take 1 in again) and it is neither keyed nor driven; True if
+    set."""
     key = mesh.shape_keys
     kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
     if kb is None or kb.value == 1.0 or _animated(key, kb):
         return False
+    if kb.slider_max < 1.0:
+        kb.slider_max = 1.0
+    if kb.slider_min > 1.0:
+        kb.slider_min = 0.0
     kb.value = 1.0
     return True
 
@@ -353,6 +379,9 @@ def _update_mesh(mesh, depsgraph, force=False):
     """Bring the mix key of ``mesh`` up to date with the key values evaluated in ``depsgraph``; True if written."""
     live = _live(mesh)
     if live is None or mesh.is_editmode:
+        return False
+    if linked_from(mesh):  # nothing can be written: the panel says why
+        live.stale = live.check(mesh)
         return False
     if depsgraph is None or depsgraph.mode != 'RENDER':
         _restore_mix_value(mesh)
@@ -498,6 +527,7 @@ def unregister_handlers():
 def _inputs(obj):
     """Validated inputs of a mixer of ``obj``: ``(basis, nonlinear, linear, coords (K, V, 3), faces)``."""
     mesh = require_mesh_object(obj)
+    _require_local(mesh, "enable live mixing")
     if obj.mode == 'EDIT':
         raise LiveMixError(f"'{obj.name}' is in Edit Mode: switch to Object Mode to enable live mixing")
     if mesh.shape_keys is None:
@@ -604,8 +634,9 @@ def mixer_for_keys(obj, keys):
     if live is None:
         raise LiveMixError(f"the live mixer of '{mesh.name}' cannot be read: Rebuild it")
     why = live.check(mesh)
-    if why:
-        raise LiveMixError(f"the live mixer of '{mesh.name}' is stale ({why}): Rebuild it")
+    if why:  # (a linked mesh cannot be rebuilt here: ``why`` says to make it local)
+        raise LiveMixError(f"the live mixer of '{mesh.name}' is stale ({why})"
+                           + ("" if linked_from(mesh) else ": Rebuild it"))
     order = [live.basis, *live.names]
     missing = [k for k in keys if k not in order]
     if missing:
@@ -620,5 +651,15 @@ def require_live(obj):
     mesh = require_mesh_object(obj)
     if MIXER_PROP not in mesh:
         raise LiveMixError(f"mesh '{mesh.name}' does not mix live: nothing to disable")
+    _require_local(mesh, "disable live mixing")
     return mesh
+
+
+def _require_local(mesh, what):
+    """:class:`LiveMixError` when ``mesh`` or its shape keys are linked from a library (a change would not be
+    saved: the library's data comes back when the file is opened again)."""
+    library = linked_from(mesh)
+    if library:
+        raise LiveMixError(f"mesh '{mesh.name}' is linked from '{library}': {what} in that file, or make the mesh "
+                           "local first (Object > Relations > Make Local)")
 

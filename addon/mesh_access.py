@@ -94,7 +94,8 @@ def triangulate(mesh):
     n_vertices = len(mesh.vertices)
     n_polys = len(mesh.polygons)
     if n_polys == 0:
-        raise MeshAccessError(f"Mesh '{mesh.name}' has no faces")
+        raise MeshAccessError(f"Mesh '{mesh.name}' has no faces: the add-on works on surfaces; fill the mesh with "
+                              "faces (Edit Mode > Face > Fill) or choose another object")
     loop_start = _get(mesh.polygons, "loop_start", np.int32, n_polys).astype(np.int64)
     loop_total = _get(mesh.polygons, "loop_total", np.int32, n_polys).astype(np.int64)
     corner_vert = _get(mesh.loops, "vertex_index", np.int32, len(mesh.loops)).astype(np.int64)

@@ -11,6 +11,7 @@ from . import fit_quality
 from . import operators_fit as fit
 from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
+from .naming import LIVE_MIX_KEY
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
 from .operators_calibrate import LENGTHS_ANGLES_OT_calibrate_fit
 from .operators_pins import draw_pins
@@ -204,7 +205,8 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         col = layout.column(align=True)
         if state["stale"]:
             col.label(text=f"Stale: {state['stale']}", icon='ERROR')
-            col.label(text="Showing Blender's linear mix: Rebuild to mix live again")
+            if not state["linked"]:  # a linked mesh's mix key is the library's (Rebuild is refused)
+                col.label(text="Showing Blender's linear mix: Rebuild to mix live again")
         else:
             col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['reduced_size'] or 'auto'}",
                       icon='CHECKMARK')
@@ -215,6 +217,10 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         if state["linear"]:
             col.label(text=f"Mixed linearly (vertex group or other relative key): {', '.join(state['linear'])}",
                       icon='INFO')
+        active = context.object.active_shape_key
+        if active is not None and active.name == LIVE_MIX_KEY:  # Edit Mode and the pin show the active key alone
+            col.label(text=f"'{LIVE_MIX_KEY}' is the correction to the linear mix, not a shape: Edit Mode and "
+                           "Shape Key Lock show it as one; select another key", icon='ERROR')
 
 
 classes = (LENGTHS_ANGLES_PT_shape_keys, LENGTHS_ANGLES_PT_live_mix, LENGTHS_ANGLES_PT_mocap)

@@ -4,10 +4,13 @@ A box bar with keys Bend, Twist and Both: ``live_mix_enable`` stores a mixer wit
 the evaluated mesh is lacore's mix of the keys' values (placed like the in-betweens: the rigid motion onto
 Blender's linear blend) -- for values set by hand, keyframed values through ``frame_set``, a driven value,
 after saving and reopening the .blend, for two objects at once, a duplicate and an object appended from another
-.blend, with a key limited to a vertex group mixed linearly on top, in Cycles animation and still renders; a
-modifier after the keys applies to the mix.  ``live_mix_disable`` and undo give back Blender's linear mix bit for
-bit; an edited key or mesh makes the mixer stale (the linear mix, a panel warning); bad input is refused in one
-line and changes nothing; a deleted object's mixer is gone once the saved file is opened again.
+.blend, with a key limited to a vertex group or relative to another key mixed linearly on top, a muted key and a
+negative slider value, in Cycles animation and still renders; modifiers after the keys (Displace, Armature,
+Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer stale, Edit Mode without an edit
+does not; an object linked from a library is said to be stale and refused, and mixes once made local.
+``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
+stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
+mixer is gone once the saved file is opened again.
 """
 
 import io
@@ -79,6 +82,14 @@ def test_evaluated_mesh_is_lacores_mix(run, inputs):
     assert res["status"]["keys"] == ["Bend", "Twist", "Both"] and res["status"]["stale"] == ""
     assert res["status"]["in_range"] and res["status"]["linear"] == []
     assert any(t and t.startswith("Live: 3 keys") for t in res["panel"]), res["panel"]
+    # the build time the operator measured, Rebuild, Disable and the quality choice
+    assert 0.0 < res["status"]["build_seconds"] < res["seconds"], (res["status"], res["seconds"])
+    assert any(t and t.startswith(f"Built in {res['status']['build_seconds']:.2f} s;") for t in res["panel"])
+    assert res["controls"]["operators"] == [["lengths_angles.live_mix_enable", "Rebuild"],
+                                            ["lengths_angles.live_mix_disable", ""]], res["controls"]
+    assert [p for p, _ in res["controls"]["props"]] == ["lengths_angles_live_mix_reduced_size",
+                                                        "lengths_angles_live_mix_exact_renders"], res["controls"]
+    assert res["controls_after_disable"]["operators"] == [["lengths_angles.live_mix_enable", "Enable Live Mixing"]]
     for w, shown, linear in zip(a["weights"], a["mixed"], a["linear"], strict=True):
         want, _ = expected(a["mixer_npz"], inputs, w)
         assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())
@@ -150,6 +161,8 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert changed["value_set_back"] == 1.0 and changed["value_status"] == "" and changed["value_vs_live"] < TOL
     assert changed["clear_weights"] == ["FINISHED"] and changed["cleared_value"] == 1.0, changed
     assert changed["cleared_status"] == "", changed
+    assert changed["range_clamped"] == 0.5, changed  # its slider range set to exclude 1: widened, value 1, still live
+    assert changed["range_restored"][:3] == [1.0, 1.0, ""] and changed["range_restored"][3] < TOL, changed
     # driven to another value: stale, said; the driver removed: live again
     assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
                                         "value is 1"), changed
@@ -186,6 +199,12 @@ def test_several_objects_and_undo(run, inputs):
     assert res["copy_mesh"] == "A.001"  # a duplicate (Shift+D) with its own mesh, live as well
     want, _ = expected(a["mixer_npz"], inputs, (0.0, 0.0, 0.6))
     assert np.abs(a["copy_mixed"] - want).max() < TOL
+    # the original disabled: the duplicate still mixes (the shared text kept); obj.copy() shares its mesh and shape
+    want, linear = expected(a["mixer_npz"], inputs, (0.3, 0.0, 0.6))
+    shown = a["copy_after_original_disabled"]
+    assert np.abs(shown - want).max() < TOL and np.abs(shown - linear).max() > 0.05
+    assert res["shared_vs_copy"] == 0.0 and res["texts_one_left"] == ["LA live mixer A", "LA live mixer B"], res
+    assert res["texts_none_left"] == ["LA live mixer B"], res  # disabled through the object sharing the mesh
     assert res["undo_linear_bit_for_bit"] and not res["undone_live"], res
     assert res["redo_live"] and res["redo_vs_live"] < TOL and res["live_differs"] > 0.1, res
 
@@ -204,11 +223,76 @@ def test_appended_object_mixes_and_deleted_mixer_is_released(run):
     assert res["legacy_pointed"] and res["status_legacy"]["stale"] == "", res
 
 
+def test_mute_slider_range_and_a_key_relative_to_another(run, inputs):
+    """Bend muted: weight 0; Bend at -0.6 (slider min -1): mixed at -0.6; Twist (relative to Bend) added linearly on
+    top of the mix of Bend and Both."""
+    res, a = run["cases"]["key_mixes"], run["arrays"]
+    assert res["status"]["keys"] == ["Bend", "Both"] and res["status"]["linear"] == ["Twist"], res["status"]
+    mixer = ShapeMixer.load(io.BytesIO(a["keys_mixer_npz"].tobytes()))
+    B, K = f32(inputs["basis"]), f32(inputs["keys"])
+    bend, twist, both = K
+    assert np.allclose(a["keys_values"][0], [-0.6, 0.3, 0.4])
+    for shown, (w_bend, w_twist, w_both) in zip([a["keys_muted"], a["keys_negative"]],
+                                                [(0.0, 0.3, 0.4), (-0.6, 0.3, 0.4)], strict=True):
+        w = np.array([w_bend, w_both])
+        linear = B + w[0] * (bend - B) + w[1] * (both - B)
+        want = rigid_align(mixer.mix(w, warm_start=False).vertices, linear) + w_twist * (twist - bend)
+        assert np.abs(shown - want).max() < TOL, (w_bend, np.abs(shown - want).max())
+        # not the mix of all three keys' values nor the linear blend: measured 0.03 and more from the linear one
+        assert np.abs(shown - (linear + w_twist * (twist - bend))).max() > 0.01
+
+
+def test_renamed_or_deleted_key_and_edit_mode(run):
+    res = run["cases"]["key_mixes"]
+    assert res["edit_mode_round_trip"] == [["", 0.0], ["", 0.0]], res  # Edit Mode without an edit: still live
+    # the add-on's key active (Edit Mode and Shape Key Lock would show the correction alone): the panel says so
+    warning = "'LA live mix' is the correction to the linear mix, not a shape"
+    assert any(t and t.startswith(warning) for t in res["panel_mix_key_active"]), res["panel_mix_key_active"]
+    assert not any(t and t.startswith(warning) for t in res["panel_basis_active"]), res["panel_basis_active"]
+    assert res["renamed"] == ["shape key 'Both' was renamed or deleted", True], res  # the linear mix, bit for bit
+    assert res["renamed_back"][0] == "" and res["renamed_back"][1] < TOL, res  # mixed again (warm start: ~5e-7)
+    assert res["deleted"] == ["shape key 'Both' was renamed or deleted", True], res
+
+
+def test_armature_and_subdivision_after_the_keys(run, inputs):
+    """An Armature and a Subdivision Surface modifier deform the mix: the same evaluated mesh as a plain copy of the
+    mix with the same modifiers (not the linear blend's)."""
+    mods = run["cases"]["key_mixes"]["modifiers"]
+    faces = inputs["faces"]
+    edges = {tuple(sorted(e)) for f in faces for e in zip(f, np.roll(f, -1), strict=True)}
+    assert mods["vertices"] == len(inputs["basis"]) + len(edges) + len(faces), mods  # subdivided once
+    assert mods["vs_plain"] < TOL and mods["linear_vs_plain"] > 0.05, mods
+
+
+def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
+    """Linked from a library its mix key cannot be rewritten (Blender keeps linked data as saved): the panel says so
+    instead of calling it live, Enable and Disable are refused in one line and change nothing; after Make Local it
+    mixes live again (keyframed values through frame_set)."""
+    res, a = run["cases"]["linked_from_library"], run["arrays"]
+    stale = res["status"]["stale"]
+    assert stale.startswith("the mesh is linked from '") and "library.blend" in stale, res["status"]
+    assert "Make Local" in stale and res["status"]["linked"].endswith("library.blend"), res["status"]
+    assert f"Stale: {stale}" in res["panel"], res["panel"]
+    assert not any(t and t.startswith("Showing Blender's linear mix") for t in res["panel"]), res["panel"]
+    note = res["inbetween_note"]  # In-betweens: no Live Mixer method, and why (not "Rebuild": it is refused)
+    assert note.startswith("Live Mixer not available:") and "Make Local" in note and "Rebuild" not in note, note
+    for name in ("enable", "disable"):
+        r = res[name]
+        assert r["result"] == ["CANCELLED"] and r["one_line"] and r["unchanged"], r
+        assert "is linked from '" in r["message"] and f"{name} live mixing in that file" in r["message"], r
+    assert res["local"] == [True, ""], res
+    assert 0.0 < a["local_values"][0][0] < 1.0 and 0.0 < a["local_values"][1][0] < a["local_values"][0][0]
+    for w, shown in zip(a["local_values"], a["local_mixed"], strict=True):
+        want, _ = expected(a["linked_mixer_npz"], inputs, w)
+        assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())
+
+
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
-    ("degenerate_key", "'Key 1': degenerate triangles"),
+    ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move those faces' vertices apart in it"),
+    ("no_faces", "has no faces: the add-on works on surfaces; fill the mesh with faces"),
     ("edit_mode", "is in Edit Mode: switch to Object Mode")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]

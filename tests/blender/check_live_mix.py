@@ -111,6 +111,13 @@ def panel_labels(obj):
     return [kw.get("text") for name, _, kw in calls if name == "label"]
 
 
+def panel_controls(obj):
+    """The panel's buttons ``[operator idname, text]`` and properties ``[property name, text]``."""
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_live_mix, SimpleNamespace(object=obj))
+    return {"operators": [[args[0], kw.get("text")] for name, args, kw in calls if name == "operator"],
+            "props": [[args[1], kw.get("text")] for name, args, kw in calls if name == "prop"]}
+
+
 def stored_mixer(obj):
     live_mix = ext("live_mix")
     return np.frombuffer(live_mix.stored_npz(obj.data[live_mix.MIXER_PROP]), np.uint8)
@@ -155,6 +162,7 @@ def enable_mix_disable():
     OUT["linear"] = np.array(linear)
     st = status(obj)
     labels = panel_labels(obj)
+    controls = panel_controls(obj)
     # a modifier after the shape keys applies to the mix: Displace along X without a texture shifts every
     # vertex by strength * (1 - midlevel)
     set_values(obj, WEIGHTS[3])
@@ -177,7 +185,8 @@ def enable_mix_disable():
             "active_kept": after_enable["active"] == before["active"],
             "linear_bit_for_bit": all(np.array_equal(a, b) for a, b in zip(linear, relinear, strict=True)),
             "snapshot_restored": snapshot(obj) == before, "status_after_disable": status(obj),
-            "panel_after_disable": panel_labels(obj)}
+            "panel_after_disable": panel_labels(obj), "controls": controls,
+            "controls_after_disable": panel_controls(obj)}
 
 
 def keyframes_drivers_and_save():
@@ -308,6 +317,11 @@ def stale_when_edited():
     scene.frame_set(7)                  # the keys' own animation back
     mix_changed["undriven_status"] = status(obj)["stale"]
     mix_changed["undriven_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_kb.slider_max = 0.5  # its range set to exclude 1 (Blender clamps the value to 0.5): widened, 1 again
+    mix_changed["range_clamped"] = mix_kb.value
+    evaluated(obj)
+    mix_changed["range_restored"] = [mix_kb.slider_max, mix_kb.value, status(obj)["stale"],
+                                     float(np.abs(evaluated(obj) - live_shape).max())]
     # a topology edit (a vertex deleted in Edit Mode)
     select_only(obj)
     with ops_context(obj):
@@ -377,6 +391,17 @@ def several_objects_and_undo():
     set_values(copy, (0.0, 0.0, 0.6))
     OUT["copy_mixed"] = evaluated(copy)
     copy_mesh = copy.data.name
+    # the original disabled: the duplicate (sharing its mixer text) still mixes live; an object sharing the
+    # duplicate's mesh (obj.copy()) shows the same; disabled from that object, the text goes with the last record
+    assert disable(a) == ["FINISHED"]
+    shared = copy.copy()
+    bpy.context.scene.collection.objects.link(shared)
+    set_values(copy, (0.3, 0.0, 0.6))
+    OUT["copy_after_original_disabled"] = evaluated(copy)
+    shared_vs_copy = float(np.abs(evaluated(shared) - OUT["copy_after_original_disabled"]).max())
+    texts_one_left = sorted(t.name for t in bpy.data.texts)
+    assert disable(shared) == ["FINISHED"]
+    texts_none_left = sorted(t.name for t in bpy.data.texts)
     # undo / redo (memfile undo: the mix key and the stored mixer come and go with the mesh)
     reset()
     obj = make_bar()
@@ -393,7 +418,9 @@ def several_objects_and_undo():
     bpy.ops.ed.redo()
     obj = bpy.data.objects["Bar"]
     redone = evaluated(obj)
-    return {"copy_mesh": copy_mesh, "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
+    return {"copy_mesh": copy_mesh, "shared_vs_copy": shared_vs_copy, "texts_one_left": texts_one_left,
+            "texts_none_left": texts_none_left,
+            "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
             "undone_live": undone_live,
             "redo_live": ext("live_mix").is_live(obj.data),
             "redo_vs_live": float(np.abs(redone - live_shape).max()),
@@ -447,9 +474,143 @@ def appended_and_deleted():
     return out
 
 
+def key_mixes():
+    """Mute and a negative slider range on a mixed key; a key relative to another key than the basis (mixed linearly
+    on top); a mixed key renamed, then deleted (stale: the linear mix); Edit Mode entered and left without an edit
+    (still live); Armature and Subdivision Surface after the keys (the same mesh as a plain copy holding the mix)."""
+    reset()
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    kbs["Bend"].slider_min = -1.0
+    kbs["Twist"].relative_key = kbs["Bend"]  # mixed linearly: w * (Twist - Bend) on top of the mix
+    assert enable(obj) == ["FINISHED"]
+    OUT["keys_mixer_npz"] = stored_mixer(obj)
+    out = {"status": status(obj)}
+    # Bend muted at 0.5: weight 0 (Both 0.4 mixed, Twist 0.3 linear)
+    set_values(obj, (0.5, 0.3, 0.4))
+    kbs["Bend"].mute = True
+    OUT["keys_muted"] = evaluated(obj)
+    kbs["Bend"].mute = False
+    set_values(obj, (-0.6, 0.3, 0.4))  # below 0, within the slider range
+    OUT["keys_negative"] = evaluated(obj)
+    OUT["keys_values"] = np.array([values(obj)])
+    # Edit Mode entered and left without an edit, with the basis and then the add-on's key active: still live
+    live_shape = evaluated(obj)
+    edit = []
+    for active in (0, len(kbs) - 1):
+        obj.active_shape_key_index = active
+        with ops_context(obj):
+            bpy.ops.object.mode_set(mode='EDIT')
+            bpy.ops.object.mode_set(mode='OBJECT')
+        edit.append([status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())])
+    out["edit_mode_round_trip"] = edit
+    out["panel_mix_key_active"] = panel_labels(obj)  # (Edit Mode shows the active key: here the correction)
+    obj.active_shape_key_index = 0
+    out["panel_basis_active"] = panel_labels(obj)
+
+    def linear():  # Blender's linear mix of the keys as they are (the add-on's key muted)
+        kbs["LA live mix"].mute = True
+        shape = evaluated(obj)
+        kbs["LA live mix"].mute = False
+        return shape
+
+    # a mixed key renamed: stale, the linear mix; renamed back: live
+    kbs["Both"].name = "Both2"
+    shown = evaluated(obj)
+    out["renamed"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
+    kbs["Both2"].name = "Both"
+    set_values(obj, (-0.5, 0.3, 0.4))  # the next update (a slider moved) finds the key again
+    evaluated(obj)
+    set_values(obj, (-0.6, 0.3, 0.4))
+    out["renamed_back"] = [status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())]
+    # Armature and Subdivision Surface after the keys: the same evaluated mesh as a plain copy holding the mix
+    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(arm)
+    select_only(arm)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bone = arm.data.edit_bones.new("Tip")
+        bone.head, bone.tail = (3.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+        bpy.ops.object.mode_set(mode='OBJECT')
+    arm.pose.bones["Tip"].rotation_mode = 'XYZ'
+    arm.pose.bones["Tip"].rotation_euler = (0.3, 0.0, 0.2)
+    plain_mesh = bpy.data.meshes.new("Plain")
+    plain_mesh.from_pydata(live_shape.tolist(), [], INPUTS["faces"].tolist())
+    plain = bpy.data.objects.new("Plain", plain_mesh)
+    bpy.context.scene.collection.objects.link(plain)
+    weights = np.clip((INPUTS["basis"][:, 0] - 2.0) / 3.0, 0.0, 1.0)
+    for o in (obj, plain):
+        group = o.vertex_groups.new(name="Tip")
+        for i, w in enumerate(weights):
+            group.add([i], float(w), 'REPLACE')
+        o.modifiers.new("Armature", 'ARMATURE').object = arm
+        o.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    deformed, plain_deformed = evaluated(obj), evaluated(plain)
+    out["modifiers"] = {"vertices": len(deformed), "vs_plain": float(np.abs(deformed - plain_deformed).max()),
+                        "linear_vs_plain": float(np.abs(linear() - plain_deformed).max())}
+    for o in (obj, plain):
+        o.modifiers.clear()
+    # a mixed key deleted: stale, the linear mix
+    obj.active_shape_key_index = list(kbs).index(kbs["Both"])
+    with ops_context(obj):
+        bpy.ops.object.shape_key_remove()
+    shown = evaluated(obj)
+    out["deleted"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
+    return out
+
+
+def linked_from_library():
+    """A live object linked from another .blend: its mix key cannot be rewritten there, so the panel says so and
+    Enable / Disable are refused in one line (nothing changed); made local, it mixes live."""
+    reset()
+    obj = make_bar()
+    assert enable(obj) == ["FINISHED"]
+    OUT["linked_mixer_npz"] = stored_mixer(obj)
+    kb = obj.data.shape_keys.key_blocks["Bend"]
+    for f, v in ((1, 0.0), (10, 1.0)):
+        kb.value = v
+        kb.keyframe_insert("value", frame=f)
+    bpy.context.scene.frame_set(1)
+    plain = make_bar("Plain")  # not live
+    library = os.path.join(ARGS.workdir, "library.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=library)
+    reset()
+    with bpy.data.libraries.load(library, link=True) as (_source, target):
+        target.objects = ["Bar", "Plain"]
+    linked, plain = (next(o for o in target.objects if o.name == n) for n in ("Bar", "Plain"))
+    for o in (linked, plain):
+        bpy.context.scene.collection.objects.link(o)
+    bpy.context.scene.frame_set(5)
+    evaluated(linked)
+    out = {"status": status(linked), "panel": panel_labels(linked),
+           "inbetween_note": ext("operators_interpolate").mixer_note(linked, ["Basis", "Bend"])}
+    for name, o, op in (("enable", plain, bpy.ops.lengths_angles.live_mix_enable),
+                        ("disable", linked, bpy.ops.lengths_angles.live_mix_disable)):
+        before = snapshot(o)
+        try:
+            with ops_context(o):
+                res, msg = sorted(op()), ""
+        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+            res, msg = ["CANCELLED"], str(exc).strip()
+        out[name] = {"result": res, "message": msg, "one_line": "\n" not in msg, "unchanged": snapshot(o) == before}
+    select_only(linked)
+    with bpy.context.temp_override(active_object=linked, object=linked, selected_objects=[linked],
+                                   selected_editable_objects=[linked]):
+        assert bpy.ops.object.make_local(type='ALL') == {'FINISHED'}
+    local = bpy.data.objects["Bar"]
+    out["local"] = [local.data.library is None, status(local)["stale"]]
+    shapes, weights = [], []
+    for f in (5, 3):
+        bpy.context.scene.frame_set(f)
+        shapes.append(evaluated(local))
+        weights.append(values(local))
+    OUT["local_mixed"], OUT["local_values"] = np.array(shapes), np.array(weights)
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
-    mixer: one line, nothing changed."""
+    mixer, a mesh without faces: one line, nothing changed."""
     reset()
     out = {}
 
@@ -486,6 +647,14 @@ def bad_input():
     attempt("edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
     with ops_context(obj):
         bpy.ops.object.mode_set(mode='OBJECT')
+    points = bpy.data.meshes.new("Points")  # vertices only, keys shaped
+    points.from_pydata(INPUTS["basis"].tolist(), [], [])
+    cloud = bpy.data.objects.new("Points", points)
+    bpy.context.scene.collection.objects.link(cloud)
+    cloud.shape_key_add(name="Basis", from_mix=False)
+    cloud.shape_key_add(name="Key 1", from_mix=False).data[0].co = (9.0, 9.0, 9.0)
+    select_only(cloud)
+    attempt("no_faces", cloud, bpy.ops.lengths_angles.live_mix_enable)
     return out
 
 
@@ -690,5 +859,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, bad_input,
+           appended_and_deleted, key_mixes, linked_from_library, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
