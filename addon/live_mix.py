@@ -28,7 +28,8 @@ bit.  Why a correction key rather than muting the user's keys: nothing of the us
 remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
 mixer shows the exact linear mix by zeroing one key.
 
-The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update;
+The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
+so are a slider range that excludes 1 and a new name (the renamed key is found by the correction it holds);
 muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
@@ -147,6 +148,7 @@ class _Live:
         self.corners = None
         self.deltas = None  # (K-1, 3V) float64 K_k - B
         self.last = None  # weights of the mix in the mix key
+        self.correction = None  # the coordinates last written into the mix key when they were not the basis'
         self.result = None  # its MixResult
         self.stale = ""  # why the mixer does not fit the mesh now ("" when it does)
         self.error = ""  # a mix that failed (the linear mix is shown)
@@ -338,15 +340,45 @@ def _animated(key, kb):
     return ad.drivers.find(path) is not None or (channels is not None and channels.fcurves.find(path) is not None)
 
 
-def _restore_mix_value(mesh):
-    """Set the mix key's value back to 1 where an edit of all keys' values changed it (Clear Shape Key
-    Weights, a script) and it is neither keyed nor driven; True if set."""
+def _renamed_mix_key(mesh, live):
+    """The key block of ``mesh`` holding the mix key's last correction under another name (the mix key renamed),
+    None if there is none.  Only a correction identifies it: a key at the basis' coordinates adds nothing."""
+    key = mesh.shape_keys
+    if key is None or live.correction is None or key.key_blocks.get(LIVE_MIX_KEY) is not None:
+        return None
+    co = np.empty_like(live.correction)
+    for kb in key.key_blocks:
+        if kb == key.reference_key or kb.name in live.names or len(kb.points) * 3 != len(co):
+            continue
+        kb.points.foreach_get("co", co)
+        if np.array_equal(co, live.correction):
+            return kb
+    return None
+
+
+def _restore_mix_key(mesh, live):
+    """Set the mix key back where an edit changed it: its name (renamed: found by its coordinates), its slider
+    range (down to 1 at least) and its value 1 (Clear Shape Key Weights, a script) unless keyed or driven;
+    True if something was set."""
     key = mesh.shape_keys
     kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
-    if kb is None or kb.value == 1.0 or _animated(key, kb):
-        return False
-    kb.value = 1.0
-    return True
+    changed = False
+    if kb is None:
+        kb = _renamed_mix_key(mesh, live)
+        if kb is None:
+            return False
+        kb.name = LIVE_MIX_KEY
+        changed = True
+    if kb.slider_max < 1.0:
+        kb.slider_max = 1.0
+        changed = True
+    if kb.slider_min > 1.0:
+        kb.slider_min = 0.0
+        changed = True
+    if kb.value != 1.0 and not _animated(key, kb):
+        kb.value = 1.0
+        changed = True
+    return changed
 
 
 def _update_mesh(mesh, depsgraph, force=False):
@@ -355,7 +387,7 @@ def _update_mesh(mesh, depsgraph, force=False):
     if live is None or mesh.is_editmode:
         return False
     if depsgraph is None or depsgraph.mode != 'RENDER':
-        _restore_mix_value(mesh)
+        _restore_mix_key(mesh, live)
     live.stale = live.check(mesh)
     key = mesh.shape_keys
     mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
@@ -370,6 +402,7 @@ def _update_mesh(mesh, depsgraph, force=False):
 
     def write(coords):
         written = _write(mix_kb, coords)
+        live.correction = None  # set by the caller when ``coords`` are a mix's correction
         if written and key_eval is not key and depsgraph.mode == 'RENDER':
             _flush_values(key, key_eval)
         return written
@@ -395,7 +428,10 @@ def _update_mesh(mesh, depsgraph, force=False):
     offsets = w @ live.deltas  # Blender's linear sum of the mixer keys, minus the basis
     linear = (live.reference[0] + offsets).reshape(-1, 3)
     placed = rigid_align(np.asarray(res.vertices, np.float64), linear)  # placed like the in-betweens
-    return write((placed.ravel() - offsets).astype(np.float32))
+    correction = (placed.ravel() - offsets).astype(np.float32)
+    written = write(correction)
+    live.correction = correction
+    return written
 
 
 def update_all(depsgraph=None, force=False):

@@ -150,6 +150,12 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert changed["value_set_back"] == 1.0 and changed["value_status"] == "" and changed["value_vs_live"] < TOL
     assert changed["clear_weights"] == ["FINISHED"] and changed["cleared_value"] == 1.0, changed
     assert changed["cleared_status"] == "", changed
+    # renamed by hand: named back (a frozen correction under another name would be a wrong shape at other values)
+    assert changed["renamed_back"] == ["Basis", "Bend", "Twist", "Both", "LA live mix"], changed
+    assert changed["renamed_status"] == "" and changed["renamed_vs_live"] < TOL, changed
+    # its slider range cut below 1: set back, value 1, live
+    assert changed["range_set_back"] == [1.0, 1.0] and changed["range_status"] == "", changed
+    assert changed["range_vs_live"] < TOL, changed
     # driven to another value: stale, said; the driver removed: live again
     assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
                                         "value is 1"), changed

@@ -296,6 +296,24 @@ def stale_when_edited():
     evaluated(obj)
     mix_changed["cleared_value"] = mix_kb.value
     mix_changed["cleared_status"] = status(obj)["stale"]
+    # renamed (found by the correction it holds) or its slider range cut below 1: set back, still live -- the
+    # mix at other key values too (frame 4), not the correction of frame 7 frozen under another name
+    scene.frame_set(4)
+    live_4 = evaluated(obj)
+    scene.frame_set(7)
+    mix_kb.name = "Mine"
+    evaluated(obj)
+    scene.frame_set(4)
+    mix_changed["renamed_back"] = [kb.name for kb in obj.data.shape_keys.key_blocks]
+    mix_changed["renamed_status"] = status(obj)["stale"]
+    mix_changed["renamed_vs_live"] = float(np.abs(evaluated(obj) - live_4).max())
+    scene.frame_set(7)
+    mix_kb = obj.data.shape_keys.key_blocks["LA live mix"]
+    mix_kb.slider_max = 0.5
+    evaluated(obj)
+    mix_changed["range_set_back"] = [mix_kb.slider_max, mix_kb.value]
+    mix_changed["range_status"] = status(obj)["stale"]
+    mix_changed["range_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
     key = obj.data.shape_keys
     fc = key.driver_add('key_blocks["LA live mix"].value')
     fc.driver.type = 'SCRIPTED'
