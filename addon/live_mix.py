@@ -29,7 +29,8 @@ remembered and restored, mute and the slider range keep working as Blender's own
 mixer shows the exact linear mix by zeroing one key.
 
 The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
-so are a slider range that excludes 1 and a new name (the renamed key is found by the correction it holds);
+so are its coordinates, a slider range that excludes 1 and a new name (the renamed key is found by the
+correction it holds);
 muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
@@ -416,7 +417,13 @@ def _update_mesh(mesh, depsgraph, force=False):
     exact = depsgraph is not None and depsgraph.mode == 'RENDER' and bool(getattr(mesh, EXACT_RENDERS_PROP, False))
     if (not force and live.last is not None and np.array_equal(w, live.last)
             and (live.result.polished or not exact)):
-        return False
+        # the same mix: only an edit of the mix key itself (a script, Edit Mode, sculpting) is written over
+        correction = live.correction
+        if correction is None:
+            return False
+        written = write(correction)
+        live.correction = correction
+        return written
     try:
         res = live.mixer.mix(w, polish=exact)
     except Exception as exc:  # never a traceback from a handler: show the linear mix and say why

@@ -314,6 +314,22 @@ def stale_when_edited():
     mix_changed["range_set_back"] = [mix_kb.slider_max, mix_kb.value]
     mix_changed["range_status"] = status(obj)["stale"]
     mix_changed["range_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    # its coordinates edited (a script; Edit Mode on the key): written over by the next update, at the same values
+    co_mix = np.empty(3 * len(mix_kb.points), np.float32)
+    mix_kb.points.foreach_get("co", co_mix)
+    mix_kb.points.foreach_set("co", co_mix + 0.3)
+    obj.data.update()
+    mix_changed["edited_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    select_only(obj)
+    active = obj.active_shape_key_index
+    obj.active_shape_key_index = list(obj.data.shape_keys.key_blocks).index(mix_kb)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bpy.ops.mesh.select_all(action='SELECT')
+        bpy.ops.transform.translate(value=(0.0, 0.0, 1.0))
+        bpy.ops.object.mode_set(mode='OBJECT')
+    obj.active_shape_key_index = active
+    mix_changed["edit_mode_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
     key = obj.data.shape_keys
     fc = key.driver_add('key_blocks["LA live mix"].value')
     fc.driver.type = 'SCRIPTED'
