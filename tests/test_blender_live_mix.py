@@ -212,6 +212,36 @@ def test_appended_object_mixes_and_deleted_mixer_is_released(run):
     assert res["legacy_pointed"] and res["status_legacy"]["stale"] == "", res
 
 
+
+def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
+    """A muted key weighs 0, a negative slider range is mixed, a key relative to another key is added linearly
+    on top; Armature and Subdivision Surface after the keys deform the mix."""
+    res, a = run["cases"]["artist_edits"], run["arrays"]
+    assert res["linear"] == ["OnBend"], res
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.0, 0.3, 0.0))  # Bend at 0.5, muted
+    assert np.abs(a["muted_mixed"] - want).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.4, -0.5, 0.0))
+    assert np.abs(a["negative_mixed"] - want).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.4, 0.0, 0.0))
+    assert np.abs(a["on_bend_mixed"] - (want + [0.0, 0.0, 0.5 * 0.2])).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.5, 0.3, 0.0))
+    assert np.abs(a["armature_mixed"] - (want + [0.5, 0.0, 0.0])).max() < TOL  # the bone moved along x
+    assert res["subdivided_vertices"][0] > res["subdivided_vertices"][1] and res["subdivided_vs_plain"] < TOL, res
+    assert res["mix_vs_linear"] > 0.05, res
+
+
+def test_artist_edits_renamed_deleted_keys_and_copies(run, inputs):
+    """A renamed or deleted key makes the mixer stale (Blender's linear mix, bit for bit); named back it is live.
+    A Shift+D copy keeps mixing when the original is disabled; obj.copy() shares the mesh and its mixer."""
+    res, a = run["cases"]["artist_edits"], run["arrays"]
+    assert res["renamed_status"] == "shape key 'Twist' was renamed or deleted" and res["renamed_linear_bit_for_bit"]
+    assert res["named_back_status"] == "" and res["named_back_vs_live"] < TOL, res
+    assert res["deleted_status"] == "shape key 'Twist' was renamed or deleted" and res["deleted_linear_bit_for_bit"]
+    assert res["copy_status"] == "" and res["texts"] == ["LA live mixer A"], res
+    want, linear = expected(a["copy_mixer_npz"], inputs, (0.6, 0.1, 0.0))
+    assert np.abs(a["copy_after_disable"] - want).max() < TOL and np.abs(want - linear).max() > 0.05
+    assert res["shared_vs_copy"] == 0.0 and res["shared_disabled_both"] and res["shared_linear"], res
+
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),

@@ -481,6 +481,112 @@ def appended_and_deleted():
     return out
 
 
+def mix_key_muted_shape(obj):
+    """The evaluated mesh without the add-on's key: Blender's linear mix of the keys as they are."""
+    kb = obj.data.shape_keys.key_blocks["LA live mix"]
+    kb.mute = True
+    shape = evaluated(obj)
+    kb.mute = False
+    evaluated(obj)
+    return shape
+
+
+def artist_edits():
+    """What an artist does to a live mesh: a muted key, a negative slider range, a key relative to another key
+    (mixed linearly on top), Armature and Subdivision Surface after the keys, a key renamed (stale, the linear mix;
+    named back: live) or deleted, Shift+D then the original disabled (the copy stays live), obj.copy() sharing the
+    mesh."""
+    reset()
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    on_bend = obj.shape_key_add(name="OnBend", from_mix=False)
+    co = np.empty(3 * len(on_bend.points), np.float32)
+    kbs["Bend"].points.foreach_get("co", co)
+    on_bend.points.foreach_set("co", co + np.tile(np.float32([0.0, 0.0, 0.2]), len(on_bend.points)))
+    on_bend.relative_key, on_bend.value = kbs["Bend"], 0.0
+    assert enable(obj) == ["FINISHED"]
+    OUT["edits_mixer_npz"] = stored_mixer(obj)
+    out = {"linear": status(obj)["linear"]}
+    set_values(obj, (0.5, 0.3, 0.0))
+    kbs["Bend"].mute = True
+    OUT["muted_mixed"] = evaluated(obj)
+    kbs["Bend"].mute = False
+    kbs["Twist"].slider_min = -1.0
+    set_values(obj, (0.4, -0.5, 0.0))
+    OUT["negative_mixed"] = evaluated(obj)
+    set_values(obj, (0.4, 0.0, 0.0))
+    on_bend.value = 0.5
+    OUT["on_bend_mixed"] = evaluated(obj)
+    on_bend.value = 0.0
+    # an Armature (the bone, along x, moved 0.5 along itself) and a Subdivision Surface after the keys
+    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(arm)
+    select_only(arm)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='EDIT')
+    bone = arm.data.edit_bones.new("Bone")
+    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    arm.pose.bones["Bone"].location = (0.0, 0.5, 0.0)
+    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
+    obj.modifiers.new("Rig", 'ARMATURE').object = arm
+    select_only(obj)
+    set_values(obj, (0.5, 0.3, 0.0))
+    plain_shape = mix_key_muted_shape(obj)  # (its linear mix: the plain mesh below must differ from it)
+    obj.modifiers["Rig"].show_viewport = False
+    mixed = evaluated(obj)
+    obj.modifiers["Rig"].show_viewport = True
+    OUT["armature_mixed"] = evaluated(obj)
+    obj.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    subdivided = evaluated(obj)
+    plain = bpy.data.objects.new("Plain", bpy.data.meshes.new("Plain"))
+    plain.data.from_pydata(mixed.tolist(), [], INPUTS["faces"].tolist())
+    bpy.context.scene.collection.objects.link(plain)
+    plain.vertex_groups.new(name="Bone").add(list(range(len(plain.data.vertices))), 1.0, 'REPLACE')
+    plain.modifiers.new("Rig", 'ARMATURE').object = arm
+    plain.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    out["subdivided_vs_plain"] = float(np.abs(subdivided - evaluated(plain)).max())
+    out["subdivided_vertices"] = [len(subdivided), len(mixed)]
+    out["mix_vs_linear"] = float(np.abs(mixed - plain_shape).max())
+    obj.modifiers.clear()
+    # a key renamed: stale, Blender's linear mix bit for bit; named back: live again
+    live_shape = evaluated(obj)
+    kbs["Twist"].name = "Twisted"
+    shown = evaluated(obj)
+    out["renamed_status"] = status(obj)["stale"]
+    out["renamed_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    kbs["Twisted"].name = "Twist"
+    out["named_back_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    out["named_back_status"] = status(obj)["stale"]
+    obj.shape_key_remove(kbs["Twist"])
+    shown = evaluated(obj)
+    out["deleted_status"] = status(obj)["stale"]
+    out["deleted_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    # Shift+D, then the original disabled: the copy keeps its mixer (the shared text stays) and mixes
+    reset()
+    a = make_bar("A")
+    assert enable(a) == ["FINISHED"]
+    select_only(a)
+    with ops_context(a):
+        bpy.ops.object.duplicate()
+    copy = bpy.context.view_layer.objects.active
+    assert disable(a) == ["FINISHED"]
+    set_values(copy, (0.6, 0.1, 0.0))
+    OUT["copy_after_disable"] = evaluated(copy)
+    OUT["copy_mixer_npz"] = stored_mixer(copy)
+    out["copy_status"] = status(copy)["stale"]
+    out["texts"] = sorted(t.name for t in bpy.data.texts)
+    # obj.copy() shares the mesh: the same mix, and disabling one disables both (one mesh, one mixer)
+    shared = copy.copy()
+    bpy.context.scene.collection.objects.link(shared)
+    out["shared_vs_copy"] = float(np.abs(evaluated(shared) - OUT["copy_after_disable"]).max())
+    assert disable(shared) == ["FINISHED"]
+    out["shared_disabled_both"] = not ext("live_mix").is_live(copy.data)
+    out["shared_linear"] = bool(np.array_equal(evaluated(copy), evaluated(shared)))
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer: one line, nothing changed."""
@@ -724,5 +830,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, bad_input,
+           appended_and_deleted, artist_edits, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
