@@ -213,8 +213,8 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         if not state["in_range"]:
             col.label(text=state["message"] or "weights outside the mixer's accurate range", icon='ERROR')
         if state["linear"]:
-            col.label(text=f"Mixed linearly (vertex group or other relative key): {', '.join(state['linear'])}",
-                      icon='INFO')
+            col.label(text=f"Mixed linearly (added after the build, a vertex group or another relative key): "
+                           f"{', '.join(state['linear'])}", icon='INFO')
 
 
 classes = (LENGTHS_ANGLES_PT_shape_keys, LENGTHS_ANGLES_PT_live_mix, LENGTHS_ANGLES_PT_mocap)

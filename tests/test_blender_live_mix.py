@@ -179,6 +179,8 @@ def test_out_of_range_and_vertex_group_keys(run, inputs):
     assert far["message"] in res["panel"]
     assert res["clamped"] == 3.0  # slider_max
     assert res["linear_after_adding"] == ["Grouped", "Later"]
+    assert ("Mixed linearly (added after the build, a vertex group or another relative key): Grouped, Later"
+            in res["panel_after_adding"]), res["panel_after_adding"]
     # Rebuild with the quality set to 12: the new mixer has reduced size 12, takes Later in, replaces the old text
     assert res["rebuilt"] == ["FINISHED"] and res["rebuilt_size"] == 12 and res["rebuilt_status"]["reduced_size"] == 12
     assert res["rebuilt_status"]["keys"] == ["Bend", "Twist", "Both", "Later"]
@@ -196,6 +198,13 @@ def test_several_objects_and_undo(run, inputs):
     assert np.abs(a["copy_mixed"] - want).max() < TOL
     assert res["undo_linear_bit_for_bit"] and not res["undone_live"], res
     assert res["redo_live"] and res["redo_vs_live"] < TOL and res["live_differs"] > 0.1, res
+    # Disable undone: live, the mixer text back, mixing other values; redone: the linear mix bit for bit
+    undone = res["disable_undone"]
+    assert undone["live"] and undone["status"] == "" and undone["vs_live"] < TOL, undone
+    assert undone["texts"] == ["LA live mixer Bar"], undone
+    want, _ = expected(a["mixer_npz"], inputs, (0.0, 0.0, 0.6))
+    assert np.abs(a["disable_undone_mixed"] - want).max() < TOL
+    assert undone["redo_linear_bit_for_bit"] and not undone["redo_live"], undone
 
 
 def test_appended_object_mixes_and_deleted_mixer_is_released(run):

@@ -387,17 +387,20 @@ def out_of_range_and_vertex_groups():
     clamped = values(obj, ["Bend"])[0]
     obj.shape_key_add(name="Later", from_mix=False)  # a key added after the build: mixed linearly
     linear_after = status(obj)["linear"]
+    panel_after = panel_labels(obj)
     # the quality choice (the panel's Reduced Size), applied by Rebuild (= Enable on a live mesh)
     obj.data.lengths_angles_live_mix_reduced_size = 12
     rebuilt = enable(obj)
     return {"status": st, "far": far, "panel": labels, "clamped": clamped, "linear_after_adding": linear_after,
+            "panel_after_adding": panel_after,
             "rebuilt": rebuilt, "rebuilt_status": status(obj),
             "rebuilt_size": ext("live_mix")._live(obj.data).mixer.reduced_size,
             "texts_after_rebuild": sorted(t.name for t in bpy.data.texts)}
 
 
 def several_objects_and_undo():
-    """Two live objects at once; undo of Enable gives back the linear mix, redo the live one."""
+    """Two live objects at once; undo of Enable gives back the linear mix, redo the live one; undo of Disable the
+    live mix again (its mixer text back), redo the linear one."""
     reset()
     a, b = make_bar("A"), make_bar("B")
     assert enable(a) == ["FINISHED"] and enable(b) == ["FINISHED"]
@@ -427,9 +430,27 @@ def several_objects_and_undo():
     bpy.ops.ed.redo()
     obj = bpy.data.objects["Bar"]
     redone = evaluated(obj)
-    return {"copy_mesh": copy_mesh, "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
+    redo_live = ext("live_mix").is_live(obj.data)
+    # Disable undone: live again (its mixer text back), the mix follows the sliders; redone: linear again
+    bpy.ops.ed.undo_push(message="live again")
+    assert disable(obj) == ["FINISHED"]
+    bpy.ops.ed.undo_push(message="disabled")
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["Bar"]
+    disable_undone = {"live": ext("live_mix").is_live(obj.data), "status": status(obj)["stale"],
+                      "vs_live": float(np.abs(evaluated(obj) - live_shape).max()),
+                      "texts": sorted(t.name for t in bpy.data.texts)}
+    set_values(obj, (0.0, 0.0, 0.6))
+    OUT["disable_undone_mixed"] = evaluated(obj)
+    bpy.ops.ed.redo()
+    obj = bpy.data.objects["Bar"]
+    set_values(obj, (0.5, 0.3, 0.0))
+    disable_undone["redo_linear_bit_for_bit"] = bool(np.array_equal(evaluated(obj), linear))
+    disable_undone["redo_live"] = ext("live_mix").is_live(obj.data)
+    return {"disable_undone": disable_undone, "copy_mesh": copy_mesh,
+            "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
             "undone_live": undone_live,
-            "redo_live": ext("live_mix").is_live(obj.data),
+            "redo_live": redo_live,
             "redo_vs_live": float(np.abs(redone - live_shape).max()),
             "live_differs": float(np.abs(live_shape - linear).max())}
 
