@@ -29,8 +29,8 @@ remembered and restored, mute and the slider range keep working as Blender's own
 mixer shows the exact linear mix by zeroing one key.
 
 The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
-so are its coordinates, a slider range that excludes 1 and a new name (the renamed key is found by the
-correction it holds);
+so are its coordinates, its relative key and vertex group, a slider range that excludes 1 and a new name (the
+renamed key is found by the correction it holds);
 muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
@@ -321,14 +321,20 @@ def _flush_values(key, key_eval):
 
 
 def _zero_mix_key(mesh):
-    """The mix key at the basis' coordinates (Blender's linear mix); True if written."""
+    """The mix key at its relative key's coordinates (Blender's linear mix); True if written."""
     key = mesh.shape_keys
     kb = None if key is None or mesh.is_editmode else key.key_blocks.get(LIVE_MIX_KEY)
     if kb is None or len(kb.points) != len(mesh.vertices):
         return False
-    basis = np.empty(3 * len(mesh.vertices), np.float32)
-    key.reference_key.points.foreach_get("co", basis)
-    return _write(kb, basis)
+    return _write(kb, _zero_offset(kb))
+
+
+def _zero_offset(kb):
+    """Coordinates that make the key block ``kb`` add nothing: those of its relative key (the basis unless an edit
+    changed it)."""
+    co = np.empty(3 * len(kb.points), np.float32)
+    kb.relative_key.points.foreach_get("co", co)
+    return co
 
 
 def _animated(key, kb):
@@ -358,9 +364,9 @@ def _renamed_mix_key(mesh, live):
 
 
 def _restore_mix_key(mesh, live):
-    """Set the mix key back where an edit changed it: its name (renamed: found by its coordinates), its slider
-    range (down to 1 at least) and its value 1 (Clear Shape Key Weights, a script) unless keyed or driven;
-    True if something was set."""
+    """Set the mix key back where an edit changed it: its name (renamed: found by its coordinates), its relative
+    key (the basis) and vertex group (none), its slider range (down to 1 at least) and its value 1 (Clear Shape Key
+    Weights, a script) unless keyed or driven; True if something was set."""
     key = mesh.shape_keys
     kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
     changed = False
@@ -369,6 +375,9 @@ def _restore_mix_key(mesh, live):
         if kb is None:
             return False
         kb.name = LIVE_MIX_KEY
+        changed = True
+    if kb.relative_key != key.reference_key or kb.vertex_group:
+        kb.relative_key, kb.vertex_group = key.reference_key, ""
         changed = True
     if kb.slider_max < 1.0:
         kb.slider_max = 1.0
@@ -410,9 +419,7 @@ def _update_mesh(mesh, depsgraph, force=False):
 
     if live.stale:
         live.last = None
-        basis = np.empty(3 * len(mesh.vertices), np.float32)
-        key.reference_key.points.foreach_get("co", basis)
-        return write(basis)  # a zero offset: Blender's linear mix, exactly
+        return write(_zero_offset(mix_kb))  # Blender's linear mix, exactly
     w = live.weights(key_eval)
     exact = depsgraph is not None and depsgraph.mode == 'RENDER' and bool(getattr(mesh, EXACT_RENDERS_PROP, False))
     if (not force and live.last is not None and np.array_equal(w, live.last)

@@ -158,6 +158,8 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert changed["range_vs_live"] < TOL, changed
     # its coordinates edited by a script (+0.3) or moved in Edit Mode (+1 in z): written over, the live mix again
     assert changed["edited_vs_live"] < TOL and changed["edit_mode_vs_live"] < TOL, changed
+    # made relative to Bend by hand: set back to the basis, live (not the mix minus Bend: measured 2.4 off)
+    assert changed["relative_set_back"] == ["Basis", ""] and changed["relative_vs_live"] < TOL, changed
     # driven to another value: stale, said; the driver removed: live again
     assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
                                         "value is 1"), changed

@@ -330,6 +330,10 @@ def stale_when_edited():
         bpy.ops.object.mode_set(mode='OBJECT')
     obj.active_shape_key_index = active
     mix_changed["edit_mode_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    # made relative to another key (with the basis' coordinates it would subtract that key): set back to the basis
+    mix_kb.relative_key = obj.data.shape_keys.key_blocks["Bend"]
+    mix_changed["relative_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_changed["relative_set_back"] = [mix_kb.relative_key.name, status(obj)["stale"]]
     key = obj.data.shape_keys
     fc = key.driver_add('key_blocks["LA live mix"].value')
     fc.driver.type = 'SCRIPTED'
