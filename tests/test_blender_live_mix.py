@@ -257,7 +257,7 @@ def test_artist_edits_renamed_deleted_keys_and_copies(run, inputs):
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
-    ("degenerate_key", "'Key 1': degenerate triangles"),
+    ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move the vertices of those faces apart"),
     ("edit_mode", "is in Edit Mode: switch to Object Mode")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
