@@ -169,7 +169,7 @@ class _Live:
         """Why the mixer does not fit ``mesh`` now ("" if it does): structure, then coordinates."""
         key = mesh.shape_keys
         if key is None:
-            return "the shape keys were removed"
+            return "the shape keys were removed (applied or cleared): Disable drops the stored mixer"
         if not key.use_relative:
             return "the shape keys are not Relative any more"
         if len(mesh.vertices) != self.n_vertices:

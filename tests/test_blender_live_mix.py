@@ -248,6 +248,10 @@ def test_artist_edits_renamed_deleted_keys_and_copies(run, inputs):
     assert res["renamed_status"] == "shape key 'Twist' was renamed or deleted" and res["renamed_linear_bit_for_bit"]
     assert res["named_back_status"] == "" and res["named_back_vs_live"] < TOL, res
     assert res["deleted_status"] == "shape key 'Twist' was renamed or deleted" and res["deleted_linear_bit_for_bit"]
+    assert res["applied"] == ["FINISHED"] and res["applied_vs_shown"] == 0.0, res
+    assert res["applied_status"] == ("the shape keys were removed (applied or cleared): Disable drops the stored "
+                                     "mixer"), res
+    assert res["applied_disable"] == [["FINISHED"], [], []], res
     assert res["copy_status"] == "" and res["texts"] == ["LA live mixer A"], res
     want, linear = expected(a["copy_mixer_npz"], inputs, (0.6, 0.1, 0.0))
     assert np.abs(a["copy_after_disable"] - want).max() < TOL and np.abs(want - linear).max() > 0.05

@@ -588,6 +588,14 @@ def artist_edits():
     shown = evaluated(obj)
     out["deleted_status"] = status(obj)["stale"]
     out["deleted_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    # every key applied (Apply All Shape Keys): the mesh keeps the shape shown, Disable drops the mixer
+    set_values(obj, (0.5, 0.0), ["Bend", "Both"])
+    shown = evaluated(obj)
+    with ops_context(obj):
+        out["applied"] = sorted(bpy.ops.object.shape_key_remove(all=True, apply_mix=True))
+    out["applied_vs_shown"] = float(np.abs(evaluated(obj) - shown).max())
+    out["applied_status"] = status(obj)["stale"]
+    out["applied_disable"] = [disable(obj), sorted(t.name for t in bpy.data.texts), sorted(obj.data.keys())]
     # Shift+D, then the original disabled: the copy keeps its mixer (the shared text stays) and mixes
     reset()
     a = make_bar("A")
