@@ -550,6 +550,7 @@ def _inputs(obj):
     mesh = require_mesh_object(obj)
     if obj.mode == 'EDIT':
         raise LiveMixError(f"'{obj.name}' is in Edit Mode: switch to Object Mode to enable live mixing")
+    _require_not_edited(mesh, "enable")
     if mesh.shape_keys is None:
         raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
     if not mesh.shape_keys.use_relative:
@@ -670,5 +671,15 @@ def require_live(obj):
     mesh = require_mesh_object(obj)
     if MIXER_PROP not in mesh:
         raise LiveMixError(f"mesh '{mesh.name}' does not mix live: nothing to disable")
+    if obj.mode != 'EDIT':  # (the object's own Edit Mode is left for the change: operators_live_mix)
+        _require_not_edited(mesh, "disable")
     return mesh
 
+
+def _require_not_edited(mesh, what):
+    """:class:`LiveMixError` when ``mesh`` is in Edit Mode through another object sharing it (keys changed now would
+    be overwritten from the edit mesh when that object leaves Edit Mode)."""
+    if mesh.is_editmode:
+        users = ", ".join(repr(o.name) for o in bpy.data.objects if o.data == mesh and o.mode == 'EDIT')
+        raise LiveMixError(f"mesh '{mesh.name}' is in Edit Mode through {users or 'another object'}: switch that "
+                           f"object to Object Mode to {what} live mixing")

@@ -262,7 +262,9 @@ def test_artist_edits_renamed_deleted_keys_and_copies(run, inputs):
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
     ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move the vertices of those faces apart"),
-    ("edit_mode", "is in Edit Mode: switch to Object Mode")])
+    ("edit_mode", "is in Edit Mode: switch to Object Mode"),
+    ("shared_edit_mode", "mesh 'Bar' is in Edit Mode through 'Bar.001': switch that object to Object Mode to enable"),
+    ("shared_edit_mode_disable", "through 'Bar.001': switch that object to Object Mode to disable live mixing")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and words in res["message"], res

@@ -659,6 +659,21 @@ def bad_input():
     attempt("edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
     with ops_context(obj):
         bpy.ops.object.mode_set(mode='OBJECT')
+    other = obj.copy()  # the same mesh, in Edit Mode through another object
+    bpy.context.scene.collection.objects.link(other)
+
+    def other_mode(mode):
+        select_only(other)
+        with ops_context(other):
+            bpy.ops.object.mode_set(mode=mode)
+        select_only(obj)
+    other_mode('EDIT')
+    attempt("shared_edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
+    other_mode('OBJECT')
+    assert enable(obj) == ["FINISHED"]
+    other_mode('EDIT')
+    attempt("shared_edit_mode_disable", obj, bpy.ops.lengths_angles.live_mix_disable)
+    other_mode('OBJECT')
     return out
 
 
