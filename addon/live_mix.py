@@ -28,8 +28,10 @@ bit.  Why a correction key rather than muting the user's keys: nothing of the us
 remembered and restored, mute and the slider range keep working as Blender's own controls, and a stale
 mixer shows the exact linear mix by zeroing one key.
 
-The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights, a slider range without 1) is set back
-by the next update; muted, or keyed or driven to another value, the mixer is stale (below).
+The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
+so are its coordinates, its relative key and vertex group, a slider range that excludes 1 and a new name (the
+renamed key is found by the correction it holds);
+muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
 ``'RENDER'`` mode) finishes the mix with the full Gauss-Newton projection (``ShapeMixer.mix(polish=True)``),
@@ -159,6 +161,7 @@ class _Live:
         self.corners = None
         self.deltas = None  # (K-1, 3V) float64 K_k - B
         self.last = None  # weights of the mix in the mix key
+        self.correction = None  # the coordinates last written into the mix key when they were not the basis'
         self.result = None  # its MixResult
         self.stale = ""  # why the mixer does not fit the mesh now ("" when it does)
         self.error = ""  # a mix that failed (the linear mix is shown)
@@ -183,7 +186,7 @@ class _Live:
                     "Local) to mix live")
         key = mesh.shape_keys
         if key is None:
-            return "the shape keys were removed"
+            return "the shape keys were removed (applied or cleared): Disable drops the stored mixer"
         if not key.use_relative:
             return "the shape keys are not Relative any more"
         if len(mesh.vertices) != self.n_vertices:
@@ -339,14 +342,20 @@ def _flush_values(key, key_eval):
 
 
 def _zero_mix_key(mesh):
-    """The mix key at the basis' coordinates (Blender's linear mix); True if written."""
+    """The mix key at its relative key's coordinates (Blender's linear mix); True if written."""
     key = mesh.shape_keys
     kb = None if key is None or mesh.is_editmode else key.key_blocks.get(LIVE_MIX_KEY)
     if kb is None or len(kb.points) != len(mesh.vertices):
         return False
-    basis = np.empty(3 * len(mesh.vertices), np.float32)
-    key.reference_key.points.foreach_get("co", basis)
-    return _write(kb, basis)
+    return _write(kb, _zero_offset(kb))
+
+
+def _zero_offset(kb):
+    """Coordinates that make the key block ``kb`` add nothing: those of its relative key (the basis unless an edit
+    changed it)."""
+    co = np.empty(3 * len(kb.points), np.float32)
+    kb.relative_key.points.foreach_get("co", co)
+    return co
 
 
 def _animated(key, kb):
@@ -359,20 +368,48 @@ def _animated(key, kb):
     return ad.drivers.find(path) is not None or (channels is not None and channels.fcurves.find(path) is not None)
 
 
-def _restore_mix_value(mesh):
-    """Set the mix key's value back to 1 where an edit changed it (Clear Shape Key Weights, a script, its slider
-    range set to exclude 1: the range is widened to take 1 in again) and it is neither keyed nor driven; True if
-    set."""
+def _renamed_mix_key(mesh, live):
+    """The key block of ``mesh`` holding the mix key's last correction under another name (the mix key renamed),
+    None if there is none.  Only a correction identifies it: a key at the basis' coordinates adds nothing."""
+    key = mesh.shape_keys
+    if key is None or live.correction is None or key.key_blocks.get(LIVE_MIX_KEY) is not None:
+        return None
+    co = np.empty_like(live.correction)
+    for kb in key.key_blocks:
+        if kb == key.reference_key or kb.name in live.names or len(kb.points) * 3 != len(co):
+            continue
+        kb.points.foreach_get("co", co)
+        if np.array_equal(co, live.correction):
+            return kb
+    return None
+
+
+def _restore_mix_key(mesh, live):
+    """Set the mix key back where an edit changed it: its name (renamed: found by its coordinates), its relative
+    key (the basis) and vertex group (none), its slider range (down to 1 at least) and its value 1 (Clear Shape Key
+    Weights, a script) unless keyed or driven; True if something was set."""
     key = mesh.shape_keys
     kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
-    if kb is None or kb.value == 1.0 or _animated(key, kb):
-        return False
+    changed = False
+    if kb is None:
+        kb = _renamed_mix_key(mesh, live)
+        if kb is None:
+            return False
+        kb.name = LIVE_MIX_KEY
+        changed = True
+    if kb.relative_key != key.reference_key or kb.vertex_group:
+        kb.relative_key, kb.vertex_group = key.reference_key, ""
+        changed = True
     if kb.slider_max < 1.0:
         kb.slider_max = 1.0
+        changed = True
     if kb.slider_min > 1.0:
         kb.slider_min = 0.0
-    kb.value = 1.0
-    return True
+        changed = True
+    if kb.value != 1.0 and not _animated(key, kb):
+        kb.value = 1.0
+        changed = True
+    return changed
 
 
 def _update_mesh(mesh, depsgraph, force=False):
@@ -384,7 +421,7 @@ def _update_mesh(mesh, depsgraph, force=False):
         live.stale = live.check(mesh)
         return False
     if depsgraph is None or depsgraph.mode != 'RENDER':
-        _restore_mix_value(mesh)
+        _restore_mix_key(mesh, live)
     live.stale = live.check(mesh)
     key = mesh.shape_keys
     mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
@@ -399,20 +436,25 @@ def _update_mesh(mesh, depsgraph, force=False):
 
     def write(coords):
         written = _write(mix_kb, coords)
+        live.correction = None  # set by the caller when ``coords`` are a mix's correction
         if written and key_eval is not key and depsgraph.mode == 'RENDER':
             _flush_values(key, key_eval)
         return written
 
     if live.stale:
         live.last = None
-        basis = np.empty(3 * len(mesh.vertices), np.float32)
-        key.reference_key.points.foreach_get("co", basis)
-        return write(basis)  # a zero offset: Blender's linear mix, exactly
+        return write(_zero_offset(mix_kb))  # Blender's linear mix, exactly
     w = live.weights(key_eval)
     exact = depsgraph is not None and depsgraph.mode == 'RENDER' and bool(getattr(mesh, EXACT_RENDERS_PROP, False))
     if (not force and live.last is not None and np.array_equal(w, live.last)
             and (live.result.polished or not exact)):
-        return False
+        # the same mix: only an edit of the mix key itself (a script, Edit Mode, sculpting) is written over
+        correction = live.correction
+        if correction is None:
+            return False
+        written = write(correction)
+        live.correction = correction
+        return written
     try:
         res = live.mixer.mix(w, polish=exact)
     except Exception as exc:  # never a traceback from a handler: show the linear mix and say why
@@ -424,7 +466,10 @@ def _update_mesh(mesh, depsgraph, force=False):
     offsets = w @ live.deltas  # Blender's linear sum of the mixer keys, minus the basis
     linear = (live.reference[0] + offsets).reshape(-1, 3)
     placed = rigid_align(np.asarray(res.vertices, np.float64), linear)  # placed like the in-betweens
-    return write((placed.ravel() - offsets).astype(np.float32))
+    correction = (placed.ravel() - offsets).astype(np.float32)
+    written = write(correction)
+    live.correction = correction
+    return written
 
 
 def update_all(depsgraph=None, force=False):
@@ -530,6 +575,7 @@ def _inputs(obj):
     _require_local(mesh, "enable live mixing")
     if obj.mode == 'EDIT':
         raise LiveMixError(f"'{obj.name}' is in Edit Mode: switch to Object Mode to enable live mixing")
+    _require_not_edited(mesh, "enable")
     if mesh.shape_keys is None:
         raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
     if not mesh.shape_keys.use_relative:
@@ -652,6 +698,8 @@ def require_live(obj):
     if MIXER_PROP not in mesh:
         raise LiveMixError(f"mesh '{mesh.name}' does not mix live: nothing to disable")
     _require_local(mesh, "disable live mixing")
+    if obj.mode != 'EDIT':  # (the object's own Edit Mode is left for the change: operators_live_mix)
+        _require_not_edited(mesh, "disable")
     return mesh
 
 
@@ -663,3 +711,11 @@ def _require_local(mesh, what):
         raise LiveMixError(f"mesh '{mesh.name}' is linked from '{library}': {what} in that file, or make the mesh "
                            "local first (Object > Relations > Make Local)")
 
+
+def _require_not_edited(mesh, what):
+    """:class:`LiveMixError` when ``mesh`` is in Edit Mode through another object sharing it (keys changed now would
+    be overwritten from the edit mesh when that object leaves Edit Mode)."""
+    if mesh.is_editmode:
+        users = ", ".join(repr(o.name) for o in bpy.data.objects if o.data == mesh and o.mode == 'EDIT')
+        raise LiveMixError(f"mesh '{mesh.name}' is in Edit Mode through {users or 'another object'}: switch that "
+                           f"object to Object Mode to {what} live mixing")

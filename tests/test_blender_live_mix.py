@@ -161,8 +161,16 @@ def test_edited_key_or_mesh_is_stale_and_shows_the_linear_mix(run):
     assert changed["value_set_back"] == 1.0 and changed["value_status"] == "" and changed["value_vs_live"] < TOL
     assert changed["clear_weights"] == ["FINISHED"] and changed["cleared_value"] == 1.0, changed
     assert changed["cleared_status"] == "", changed
-    assert changed["range_clamped"] == 0.5, changed  # its slider range set to exclude 1: widened, value 1, still live
-    assert changed["range_restored"][:3] == [1.0, 1.0, ""] and changed["range_restored"][3] < TOL, changed
+    # renamed by hand: named back (a frozen correction under another name would be a wrong shape at other values)
+    assert changed["renamed_back"] == ["Basis", "Bend", "Twist", "Both", "LA live mix"], changed
+    assert changed["renamed_status"] == "" and changed["renamed_vs_live"] < TOL, changed
+    # its slider range cut below 1: set back, value 1, live
+    assert changed["range_set_back"] == [1.0, 1.0] and changed["range_status"] == "", changed
+    assert changed["range_vs_live"] < TOL, changed
+    # its coordinates edited by a script (+0.3) or moved in Edit Mode (+1 in z): written over, the live mix again
+    assert changed["edited_vs_live"] < TOL and changed["edit_mode_vs_live"] < TOL, changed
+    # made relative to Bend by hand: set back to the basis, live (not the mix minus Bend: measured 2.4 off)
+    assert changed["relative_set_back"] == ["Basis", ""] and changed["relative_vs_live"] < TOL, changed
     # driven to another value: stale, said; the driver removed: live again
     assert changed["driven_status"] == ("the value of the key 'LA live mix' is keyed or driven: remove that, its "
                                         "value is 1"), changed
@@ -184,6 +192,8 @@ def test_out_of_range_and_vertex_group_keys(run, inputs):
     assert far["message"] in res["panel"]
     assert res["clamped"] == 3.0  # slider_max
     assert res["linear_after_adding"] == ["Grouped", "Later"]
+    assert ("Mixed linearly (added after the build, a vertex group or another relative key): Grouped, Later"
+            in res["panel_after_adding"]), res["panel_after_adding"]
     # Rebuild with the quality set to 12: the new mixer has reduced size 12, takes Later in, replaces the old text
     assert res["rebuilt"] == ["FINISHED"] and res["rebuilt_size"] == 12 and res["rebuilt_status"]["reduced_size"] == 12
     assert res["rebuilt_status"]["keys"] == ["Bend", "Twist", "Both", "Later"]
@@ -207,6 +217,13 @@ def test_several_objects_and_undo(run, inputs):
     assert res["texts_none_left"] == ["LA live mixer B"], res  # disabled through the object sharing the mesh
     assert res["undo_linear_bit_for_bit"] and not res["undone_live"], res
     assert res["redo_live"] and res["redo_vs_live"] < TOL and res["live_differs"] > 0.1, res
+    # Disable undone: live, the mixer text back, mixing other values; redone: the linear mix bit for bit
+    undone = res["disable_undone"]
+    assert undone["live"] and undone["status"] == "" and undone["vs_live"] < TOL, undone
+    assert undone["texts"] == ["LA live mixer Bar"], undone
+    want, _ = expected(a["mixer_npz"], inputs, (0.0, 0.0, 0.6))
+    assert np.abs(a["disable_undone_mixed"] - want).max() < TOL
+    assert undone["redo_linear_bit_for_bit"] and not undone["redo_live"], undone
 
 
 def test_appended_object_mixes_and_deleted_mixer_is_released(run):
@@ -286,14 +303,49 @@ def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
         want, _ = expected(a["linked_mixer_npz"], inputs, w)
         assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())
 
+def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
+    """A muted key weighs 0, a negative slider range is mixed, a key relative to another key is added linearly
+    on top; Armature and Subdivision Surface after the keys deform the mix."""
+    res, a = run["cases"]["artist_edits"], run["arrays"]
+    assert res["linear"] == ["OnBend"], res
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.0, 0.3, 0.0))  # Bend at 0.5, muted
+    assert np.abs(a["muted_mixed"] - want).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.4, -0.5, 0.0))
+    assert np.abs(a["negative_mixed"] - want).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.4, 0.0, 0.0))
+    assert np.abs(a["on_bend_mixed"] - (want + [0.0, 0.0, 0.5 * 0.2])).max() < TOL
+    want, _ = expected(a["edits_mixer_npz"], inputs, (0.5, 0.3, 0.0))
+    assert np.abs(a["armature_mixed"] - (want + [0.5, 0.0, 0.0])).max() < TOL  # the bone moved along x
+    assert res["subdivided_vertices"][0] > res["subdivided_vertices"][1] and res["subdivided_vs_plain"] < TOL, res
+    assert res["mix_vs_linear"] > 0.05, res
+
+
+def test_artist_edits_renamed_deleted_keys_and_copies(run, inputs):
+    """A renamed or deleted key makes the mixer stale (Blender's linear mix, bit for bit); named back it is live.
+    A Shift+D copy keeps mixing when the original is disabled; obj.copy() shares the mesh and its mixer."""
+    res, a = run["cases"]["artist_edits"], run["arrays"]
+    assert res["renamed_status"] == "shape key 'Twist' was renamed or deleted" and res["renamed_linear_bit_for_bit"]
+    assert res["named_back_status"] == "" and res["named_back_vs_live"] < TOL, res
+    assert res["deleted_status"] == "shape key 'Twist' was renamed or deleted" and res["deleted_linear_bit_for_bit"]
+    assert res["applied"] == ["FINISHED"] and res["applied_vs_shown"] == 0.0, res
+    assert res["applied_status"] == ("the shape keys were removed (applied or cleared): Disable drops the stored "
+                                     "mixer"), res
+    assert res["applied_disable"] == [["FINISHED"], [], []], res
+    assert res["copy_status"] == "" and res["texts"] == ["LA live mixer A"], res
+    want, linear = expected(a["copy_mixer_npz"], inputs, (0.6, 0.1, 0.0))
+    assert np.abs(a["copy_after_disable"] - want).max() < TOL and np.abs(want - linear).max() > 0.05
+    assert res["shared_vs_copy"] == 0.0 and res["shared_disabled_both"] and res["shared_linear"], res
+
 
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"), ("one_key", "no shape key to mix besides the basis 'Basis'"),
     ("disable_not_live", "does not mix live"), ("absolute_keys", "needs Relative shape keys"),
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
-    ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move those faces' vertices apart in it"),
+    ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move the vertices of those faces apart"),
     ("no_faces", "has no faces: the add-on works on surfaces; fill the mesh with faces"),
-    ("edit_mode", "is in Edit Mode: switch to Object Mode")])
+    ("edit_mode", "is in Edit Mode: switch to Object Mode"),
+    ("shared_edit_mode", "mesh 'Bar' is in Edit Mode through 'Bar.001': switch that object to Object Mode to enable"),
+    ("shared_edit_mode_disable", "through 'Bar.001': switch that object to Object Mode to disable live mixing")])
 def test_bad_input_one_line_and_unchanged(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and words in res["message"], res

@@ -305,6 +305,44 @@ def stale_when_edited():
     evaluated(obj)
     mix_changed["cleared_value"] = mix_kb.value
     mix_changed["cleared_status"] = status(obj)["stale"]
+    # renamed (found by the correction it holds) or its slider range cut below 1: set back, still live -- the
+    # mix at other key values too (frame 4), not the correction of frame 7 frozen under another name
+    scene.frame_set(4)
+    live_4 = evaluated(obj)
+    scene.frame_set(7)
+    mix_kb.name = "Mine"
+    evaluated(obj)
+    scene.frame_set(4)
+    mix_changed["renamed_back"] = [kb.name for kb in obj.data.shape_keys.key_blocks]
+    mix_changed["renamed_status"] = status(obj)["stale"]
+    mix_changed["renamed_vs_live"] = float(np.abs(evaluated(obj) - live_4).max())
+    scene.frame_set(7)
+    mix_kb = obj.data.shape_keys.key_blocks["LA live mix"]
+    mix_kb.slider_max = 0.5
+    evaluated(obj)
+    mix_changed["range_set_back"] = [mix_kb.slider_max, mix_kb.value]
+    mix_changed["range_status"] = status(obj)["stale"]
+    mix_changed["range_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    # its coordinates edited (a script; Edit Mode on the key): written over by the next update, at the same values
+    co_mix = np.empty(3 * len(mix_kb.points), np.float32)
+    mix_kb.points.foreach_get("co", co_mix)
+    mix_kb.points.foreach_set("co", co_mix + 0.3)
+    obj.data.update()
+    mix_changed["edited_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    select_only(obj)
+    active = obj.active_shape_key_index
+    obj.active_shape_key_index = list(obj.data.shape_keys.key_blocks).index(mix_kb)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+        bpy.ops.mesh.select_all(action='SELECT')
+        bpy.ops.transform.translate(value=(0.0, 0.0, 1.0))
+        bpy.ops.object.mode_set(mode='OBJECT')
+    obj.active_shape_key_index = active
+    mix_changed["edit_mode_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    # made relative to another key (with the basis' coordinates it would subtract that key): set back to the basis
+    mix_kb.relative_key = obj.data.shape_keys.key_blocks["Bend"]
+    mix_changed["relative_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    mix_changed["relative_set_back"] = [mix_kb.relative_key.name, status(obj)["stale"]]
     key = obj.data.shape_keys
     fc = key.driver_add('key_blocks["LA live mix"].value')
     fc.driver.type = 'SCRIPTED'
@@ -317,11 +355,6 @@ def stale_when_edited():
     scene.frame_set(7)                  # the keys' own animation back
     mix_changed["undriven_status"] = status(obj)["stale"]
     mix_changed["undriven_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
-    mix_kb.slider_max = 0.5  # its range set to exclude 1 (Blender clamps the value to 0.5): widened, 1 again
-    mix_changed["range_clamped"] = mix_kb.value
-    evaluated(obj)
-    mix_changed["range_restored"] = [mix_kb.slider_max, mix_kb.value, status(obj)["stale"],
-                                     float(np.abs(evaluated(obj) - live_shape).max())]
     # a topology edit (a vertex deleted in Edit Mode)
     select_only(obj)
     with ops_context(obj):
@@ -367,17 +400,20 @@ def out_of_range_and_vertex_groups():
     clamped = values(obj, ["Bend"])[0]
     obj.shape_key_add(name="Later", from_mix=False)  # a key added after the build: mixed linearly
     linear_after = status(obj)["linear"]
+    panel_after = panel_labels(obj)
     # the quality choice (the panel's Reduced Size), applied by Rebuild (= Enable on a live mesh)
     obj.data.lengths_angles_live_mix_reduced_size = 12
     rebuilt = enable(obj)
     return {"status": st, "far": far, "panel": labels, "clamped": clamped, "linear_after_adding": linear_after,
+            "panel_after_adding": panel_after,
             "rebuilt": rebuilt, "rebuilt_status": status(obj),
             "rebuilt_size": ext("live_mix")._live(obj.data).mixer.reduced_size,
             "texts_after_rebuild": sorted(t.name for t in bpy.data.texts)}
 
 
 def several_objects_and_undo():
-    """Two live objects at once; undo of Enable gives back the linear mix, redo the live one."""
+    """Two live objects at once; undo of Enable gives back the linear mix, redo the live one; undo of Disable the
+    live mix again (its mixer text back), redo the linear one."""
     reset()
     a, b = make_bar("A"), make_bar("B")
     assert enable(a) == ["FINISHED"] and enable(b) == ["FINISHED"]
@@ -418,11 +454,28 @@ def several_objects_and_undo():
     bpy.ops.ed.redo()
     obj = bpy.data.objects["Bar"]
     redone = evaluated(obj)
-    return {"copy_mesh": copy_mesh, "shared_vs_copy": shared_vs_copy, "texts_one_left": texts_one_left,
-            "texts_none_left": texts_none_left,
+    redo_live = ext("live_mix").is_live(obj.data)
+    # Disable undone: live again (its mixer text back), the mix follows the sliders; redone: linear again
+    bpy.ops.ed.undo_push(message="live again")
+    assert disable(obj) == ["FINISHED"]
+    bpy.ops.ed.undo_push(message="disabled")
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["Bar"]
+    disable_undone = {"live": ext("live_mix").is_live(obj.data), "status": status(obj)["stale"],
+                      "vs_live": float(np.abs(evaluated(obj) - live_shape).max()),
+                      "texts": sorted(t.name for t in bpy.data.texts)}
+    set_values(obj, (0.0, 0.0, 0.6))
+    OUT["disable_undone_mixed"] = evaluated(obj)
+    bpy.ops.ed.redo()
+    obj = bpy.data.objects["Bar"]
+    set_values(obj, (0.5, 0.3, 0.0))
+    disable_undone["redo_linear_bit_for_bit"] = bool(np.array_equal(evaluated(obj), linear))
+    disable_undone["redo_live"] = ext("live_mix").is_live(obj.data)
+    return {"disable_undone": disable_undone, "copy_mesh": copy_mesh, "shared_vs_copy": shared_vs_copy,
+            "texts_one_left": texts_one_left, "texts_none_left": texts_none_left,
             "undo_linear_bit_for_bit": bool(np.array_equal(undone, linear)),
             "undone_live": undone_live,
-            "redo_live": ext("live_mix").is_live(obj.data),
+            "redo_live": redo_live,
             "redo_vs_live": float(np.abs(redone - live_shape).max()),
             "live_differs": float(np.abs(live_shape - linear).max())}
 
@@ -608,6 +661,121 @@ def linked_from_library():
     return out
 
 
+
+def mix_key_muted_shape(obj):
+    """The evaluated mesh without the add-on's key: Blender's linear mix of the keys as they are."""
+    kb = obj.data.shape_keys.key_blocks["LA live mix"]
+    kb.mute = True
+    shape = evaluated(obj)
+    kb.mute = False
+    evaluated(obj)
+    return shape
+
+
+def artist_edits():
+    """What an artist does to a live mesh: a muted key, a negative slider range, a key relative to another key
+    (mixed linearly on top), Armature and Subdivision Surface after the keys, a key renamed (stale, the linear mix;
+    named back: live) or deleted, Shift+D then the original disabled (the copy stays live), obj.copy() sharing the
+    mesh."""
+    reset()
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    on_bend = obj.shape_key_add(name="OnBend", from_mix=False)
+    co = np.empty(3 * len(on_bend.points), np.float32)
+    kbs["Bend"].points.foreach_get("co", co)
+    on_bend.points.foreach_set("co", co + np.tile(np.float32([0.0, 0.0, 0.2]), len(on_bend.points)))
+    on_bend.relative_key, on_bend.value = kbs["Bend"], 0.0
+    assert enable(obj) == ["FINISHED"]
+    OUT["edits_mixer_npz"] = stored_mixer(obj)
+    out = {"linear": status(obj)["linear"]}
+    set_values(obj, (0.5, 0.3, 0.0))
+    kbs["Bend"].mute = True
+    OUT["muted_mixed"] = evaluated(obj)
+    kbs["Bend"].mute = False
+    kbs["Twist"].slider_min = -1.0
+    set_values(obj, (0.4, -0.5, 0.0))
+    OUT["negative_mixed"] = evaluated(obj)
+    set_values(obj, (0.4, 0.0, 0.0))
+    on_bend.value = 0.5
+    OUT["on_bend_mixed"] = evaluated(obj)
+    on_bend.value = 0.0
+    # an Armature (the bone, along x, moved 0.5 along itself) and a Subdivision Surface after the keys
+    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(arm)
+    select_only(arm)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='EDIT')
+    bone = arm.data.edit_bones.new("Bone")
+    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+    with ops_context(arm):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    arm.pose.bones["Bone"].location = (0.0, 0.5, 0.0)
+    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
+    obj.modifiers.new("Rig", 'ARMATURE').object = arm
+    select_only(obj)
+    set_values(obj, (0.5, 0.3, 0.0))
+    plain_shape = mix_key_muted_shape(obj)  # (its linear mix: the plain mesh below must differ from it)
+    obj.modifiers["Rig"].show_viewport = False
+    mixed = evaluated(obj)
+    obj.modifiers["Rig"].show_viewport = True
+    OUT["armature_mixed"] = evaluated(obj)
+    obj.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    subdivided = evaluated(obj)
+    plain = bpy.data.objects.new("Plain", bpy.data.meshes.new("Plain"))
+    plain.data.from_pydata(mixed.tolist(), [], INPUTS["faces"].tolist())
+    bpy.context.scene.collection.objects.link(plain)
+    plain.vertex_groups.new(name="Bone").add(list(range(len(plain.data.vertices))), 1.0, 'REPLACE')
+    plain.modifiers.new("Rig", 'ARMATURE').object = arm
+    plain.modifiers.new("Subdivision", 'SUBSURF').levels = 1
+    out["subdivided_vs_plain"] = float(np.abs(subdivided - evaluated(plain)).max())
+    out["subdivided_vertices"] = [len(subdivided), len(mixed)]
+    out["mix_vs_linear"] = float(np.abs(mixed - plain_shape).max())
+    obj.modifiers.clear()
+    # a key renamed: stale, Blender's linear mix bit for bit; named back: live again
+    live_shape = evaluated(obj)
+    kbs["Twist"].name = "Twisted"
+    shown = evaluated(obj)
+    out["renamed_status"] = status(obj)["stale"]
+    out["renamed_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    kbs["Twisted"].name = "Twist"
+    out["named_back_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
+    out["named_back_status"] = status(obj)["stale"]
+    obj.shape_key_remove(kbs["Twist"])
+    shown = evaluated(obj)
+    out["deleted_status"] = status(obj)["stale"]
+    out["deleted_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    # every key applied (Apply All Shape Keys): the mesh keeps the shape shown, Disable drops the mixer
+    set_values(obj, (0.5, 0.0), ["Bend", "Both"])
+    shown = evaluated(obj)
+    with ops_context(obj):
+        out["applied"] = sorted(bpy.ops.object.shape_key_remove(all=True, apply_mix=True))
+    out["applied_vs_shown"] = float(np.abs(evaluated(obj) - shown).max())
+    out["applied_status"] = status(obj)["stale"]
+    out["applied_disable"] = [disable(obj), sorted(t.name for t in bpy.data.texts), sorted(obj.data.keys())]
+    # Shift+D, then the original disabled: the copy keeps its mixer (the shared text stays) and mixes
+    reset()
+    a = make_bar("A")
+    assert enable(a) == ["FINISHED"]
+    select_only(a)
+    with ops_context(a):
+        bpy.ops.object.duplicate()
+    copy = bpy.context.view_layer.objects.active
+    assert disable(a) == ["FINISHED"]
+    set_values(copy, (0.6, 0.1, 0.0))
+    OUT["copy_after_disable"] = evaluated(copy)
+    OUT["copy_mixer_npz"] = stored_mixer(copy)
+    out["copy_status"] = status(copy)["stale"]
+    out["texts"] = sorted(t.name for t in bpy.data.texts)
+    # obj.copy() shares the mesh: the same mix, and disabling one disables both (one mesh, one mixer)
+    shared = copy.copy()
+    bpy.context.scene.collection.objects.link(shared)
+    out["shared_vs_copy"] = float(np.abs(evaluated(shared) - OUT["copy_after_disable"]).max())
+    assert disable(shared) == ["FINISHED"]
+    out["shared_disabled_both"] = not ext("live_mix").is_live(copy.data)
+    out["shared_linear"] = bool(np.array_equal(evaluated(copy), evaluated(shared)))
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer, a mesh without faces: one line, nothing changed."""
@@ -655,6 +823,21 @@ def bad_input():
     cloud.shape_key_add(name="Key 1", from_mix=False).data[0].co = (9.0, 9.0, 9.0)
     select_only(cloud)
     attempt("no_faces", cloud, bpy.ops.lengths_angles.live_mix_enable)
+    other = obj.copy()  # the same mesh, in Edit Mode through another object
+    bpy.context.scene.collection.objects.link(other)
+
+    def other_mode(mode):
+        select_only(other)
+        with ops_context(other):
+            bpy.ops.object.mode_set(mode=mode)
+        select_only(obj)
+    other_mode('EDIT')
+    attempt("shared_edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
+    other_mode('OBJECT')
+    assert enable(obj) == ["FINISHED"]
+    other_mode('EDIT')
+    attempt("shared_edit_mode_disable", obj, bpy.ops.lengths_angles.live_mix_disable)
+    other_mode('OBJECT')
     return out
 
 
@@ -859,5 +1042,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, key_mixes, linked_from_library, bad_input,
+           appended_and_deleted, key_mixes, artist_edits, linked_from_library, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])

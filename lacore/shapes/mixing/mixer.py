@@ -507,8 +507,8 @@ def check_keys(keys, faces, names=None):
         try:
             check_nondegenerate(K[k], topo)
         except MeshError as exc:
-            raise MeshError(f"{names[k]}{' (the basis)' if k == 0 else ''}: {exc}; move those faces' vertices apart "
-                            "in it (or dissolve the faces) and try again") from None
+            raise MeshError(f"{names[k]}{' (the basis)' if k == 0 else ''}: {exc}; move the vertices of those faces "
+                            "apart in that key, or leave the key out") from None
     E = topo.n_edges
     z = np.stack([lengths_and_angles(k, topo, check=False) for k in K])
     change = np.maximum(np.abs(z[1:, :E] - z[0, :E]) / z[0, :E], np.abs(wrap_angle(z[1:, E:] - z[0, E:]))).max(axis=1)
