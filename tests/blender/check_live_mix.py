@@ -411,6 +411,23 @@ def out_of_range_and_vertex_groups():
             "texts_after_rebuild": sorted(t.name for t in bpy.data.texts)}
 
 
+def try_op(obj, op, **kw):
+    """``(result, message)`` of ``op`` run on ``obj`` (an ERROR report's message, the result CANCELLED)."""
+    try:
+        with ops_context(obj):
+            return sorted(op(**kw)), ""
+    except RuntimeError as exc:  # bpy.ops raise on ERROR reports
+        return ["CANCELLED"], str(exc).strip()
+
+
+def refusal(obj, op):
+    """``op`` run on ``obj``: its result and message, whether the message is one line and ``obj`` unchanged."""
+    before = snapshot(obj)
+    res, msg = try_op(obj, op)
+    return {"result": res, "message": msg, "one_line": "\n" not in msg and "Traceback" not in msg,
+            "unchanged": snapshot(obj) == before}
+
+
 def several_objects_and_undo():
     """Two live objects at once; undo of Enable gives back the linear mix, redo the live one; undo of Disable the
     live mix again (its mixer text back), redo the linear one."""
@@ -527,27 +544,14 @@ def appended_and_deleted():
     return out
 
 
-def key_mixes():
-    """Mute and a negative slider range on a mixed key; a key relative to another key than the basis (mixed linearly
-    on top); a mixed key renamed, then deleted (stale: the linear mix); Edit Mode entered and left without an edit
-    (still live); Armature and Subdivision Surface after the keys (the same mesh as a plain copy holding the mix)."""
+def edit_mode_round_trip():
+    """Edit Mode entered and left without an edit, with the basis and then the add-on's key active: still live; the
+    panel warns while the add-on's key is the active one (Edit Mode and Shape Key Lock show the active key alone)."""
     reset()
     obj = make_bar()
     kbs = obj.data.shape_keys.key_blocks
-    kbs["Bend"].slider_min = -1.0
-    kbs["Twist"].relative_key = kbs["Bend"]  # mixed linearly: w * (Twist - Bend) on top of the mix
     assert enable(obj) == ["FINISHED"]
-    OUT["keys_mixer_npz"] = stored_mixer(obj)
-    out = {"status": status(obj)}
-    # Bend muted at 0.5: weight 0 (Both 0.4 mixed, Twist 0.3 linear)
     set_values(obj, (0.5, 0.3, 0.4))
-    kbs["Bend"].mute = True
-    OUT["keys_muted"] = evaluated(obj)
-    kbs["Bend"].mute = False
-    set_values(obj, (-0.6, 0.3, 0.4))  # below 0, within the slider range
-    OUT["keys_negative"] = evaluated(obj)
-    OUT["keys_values"] = np.array([values(obj)])
-    # Edit Mode entered and left without an edit, with the basis and then the add-on's key active: still live
     live_shape = evaluated(obj)
     edit = []
     for active in (0, len(kbs) - 1):
@@ -556,59 +560,9 @@ def key_mixes():
             bpy.ops.object.mode_set(mode='EDIT')
             bpy.ops.object.mode_set(mode='OBJECT')
         edit.append([status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())])
-    out["edit_mode_round_trip"] = edit
-    out["panel_mix_key_active"] = panel_labels(obj)  # (Edit Mode shows the active key: here the correction)
+    out = {"edit_mode_round_trip": edit, "panel_mix_key_active": panel_labels(obj)}
     obj.active_shape_key_index = 0
     out["panel_basis_active"] = panel_labels(obj)
-
-    def linear():  # Blender's linear mix of the keys as they are (the add-on's key muted)
-        kbs["LA live mix"].mute = True
-        shape = evaluated(obj)
-        kbs["LA live mix"].mute = False
-        return shape
-
-    # a mixed key renamed: stale, the linear mix; renamed back: live
-    kbs["Both"].name = "Both2"
-    shown = evaluated(obj)
-    out["renamed"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
-    kbs["Both2"].name = "Both"
-    set_values(obj, (-0.5, 0.3, 0.4))  # the next update (a slider moved) finds the key again
-    evaluated(obj)
-    set_values(obj, (-0.6, 0.3, 0.4))
-    out["renamed_back"] = [status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())]
-    # Armature and Subdivision Surface after the keys: the same evaluated mesh as a plain copy holding the mix
-    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
-    bpy.context.scene.collection.objects.link(arm)
-    select_only(arm)
-    with ops_context(arm):
-        bpy.ops.object.mode_set(mode='EDIT')
-        bone = arm.data.edit_bones.new("Tip")
-        bone.head, bone.tail = (3.0, 0.0, 0.0), (6.0, 0.0, 0.0)
-        bpy.ops.object.mode_set(mode='OBJECT')
-    arm.pose.bones["Tip"].rotation_mode = 'XYZ'
-    arm.pose.bones["Tip"].rotation_euler = (0.3, 0.0, 0.2)
-    plain_mesh = bpy.data.meshes.new("Plain")
-    plain_mesh.from_pydata(live_shape.tolist(), [], INPUTS["faces"].tolist())
-    plain = bpy.data.objects.new("Plain", plain_mesh)
-    bpy.context.scene.collection.objects.link(plain)
-    weights = np.clip((INPUTS["basis"][:, 0] - 2.0) / 3.0, 0.0, 1.0)
-    for o in (obj, plain):
-        group = o.vertex_groups.new(name="Tip")
-        for i, w in enumerate(weights):
-            group.add([i], float(w), 'REPLACE')
-        o.modifiers.new("Armature", 'ARMATURE').object = arm
-        o.modifiers.new("Subdivision", 'SUBSURF').levels = 1
-    deformed, plain_deformed = evaluated(obj), evaluated(plain)
-    out["modifiers"] = {"vertices": len(deformed), "vs_plain": float(np.abs(deformed - plain_deformed).max()),
-                        "linear_vs_plain": float(np.abs(linear() - plain_deformed).max())}
-    for o in (obj, plain):
-        o.modifiers.clear()
-    # a mixed key deleted: stale, the linear mix
-    obj.active_shape_key_index = list(kbs).index(kbs["Both"])
-    with ops_context(obj):
-        bpy.ops.object.shape_key_remove()
-    shown = evaluated(obj)
-    out["deleted"] = [status(obj)["stale"], bool(np.array_equal(shown, linear()))]
     return out
 
 
@@ -639,13 +593,7 @@ def linked_from_library():
            "inbetween_note": ext("operators_interpolate").mixer_note(linked, ["Basis", "Bend"])}
     for name, o, op in (("enable", plain, bpy.ops.lengths_angles.live_mix_enable),
                         ("disable", linked, bpy.ops.lengths_angles.live_mix_disable)):
-        before = snapshot(o)
-        try:
-            with ops_context(o):
-                res, msg = sorted(op()), ""
-        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
-            res, msg = ["CANCELLED"], str(exc).strip()
-        out[name] = {"result": res, "message": msg, "one_line": "\n" not in msg, "unchanged": snapshot(o) == before}
+        out[name] = refusal(o, op)
     select_only(linked)
     with bpy.context.temp_override(active_object=linked, object=linked, selected_objects=[linked],
                                    selected_editable_objects=[linked]):
@@ -675,8 +623,7 @@ def mix_key_muted_shape(obj):
 def artist_edits():
     """What an artist does to a live mesh: a muted key, a negative slider range, a key relative to another key
     (mixed linearly on top), Armature and Subdivision Surface after the keys, a key renamed (stale, the linear mix;
-    named back: live) or deleted, Shift+D then the original disabled (the copy stays live), obj.copy() sharing the
-    mesh."""
+    named back: live) or deleted, Apply All Shape Keys."""
     reset()
     obj = make_bar()
     kbs = obj.data.shape_keys.key_blocks
@@ -752,27 +699,6 @@ def artist_edits():
     out["applied_vs_shown"] = float(np.abs(evaluated(obj) - shown).max())
     out["applied_status"] = status(obj)["stale"]
     out["applied_disable"] = [disable(obj), sorted(t.name for t in bpy.data.texts), sorted(obj.data.keys())]
-    # Shift+D, then the original disabled: the copy keeps its mixer (the shared text stays) and mixes
-    reset()
-    a = make_bar("A")
-    assert enable(a) == ["FINISHED"]
-    select_only(a)
-    with ops_context(a):
-        bpy.ops.object.duplicate()
-    copy = bpy.context.view_layer.objects.active
-    assert disable(a) == ["FINISHED"]
-    set_values(copy, (0.6, 0.1, 0.0))
-    OUT["copy_after_disable"] = evaluated(copy)
-    OUT["copy_mixer_npz"] = stored_mixer(copy)
-    out["copy_status"] = status(copy)["stale"]
-    out["texts"] = sorted(t.name for t in bpy.data.texts)
-    # obj.copy() shares the mesh: the same mix, and disabling one disables both (one mesh, one mixer)
-    shared = copy.copy()
-    bpy.context.scene.collection.objects.link(shared)
-    out["shared_vs_copy"] = float(np.abs(evaluated(shared) - OUT["copy_after_disable"]).max())
-    assert disable(shared) == ["FINISHED"]
-    out["shared_disabled_both"] = not ext("live_mix").is_live(copy.data)
-    out["shared_linear"] = bool(np.array_equal(evaluated(copy), evaluated(shared)))
     return out
 
 
@@ -783,14 +709,7 @@ def bad_input():
     out = {}
 
     def attempt(name, obj, op):
-        before = snapshot(obj)
-        try:
-            with ops_context(obj):
-                res, msg = sorted(op()), ""
-        except RuntimeError as exc:  # bpy.ops raise on ERROR reports
-            res, msg = ["CANCELLED"], str(exc).strip()
-        out[name] = {"result": res, "message": msg, "one_line": "\n" not in msg and "Traceback" not in msg,
-                     "unchanged": snapshot(obj) == before}
+        out[name] = refusal(obj, op)
 
     mesh = bpy.data.meshes.new("Plain")
     mesh.from_pydata(INPUTS["basis"].tolist(), [], INPUTS["faces"].tolist())
@@ -971,14 +890,6 @@ def key_coords(obj, names):
     return np.array(out)
 
 
-def try_op(obj, op, **kw):
-    try:
-        with ops_context(obj):
-            return sorted(op(**kw)), ""
-    except RuntimeError as exc:  # bpy.ops raise on ERROR reports
-        return ["CANCELLED"], str(exc).strip()
-
-
 def inbetweens_and_bake_with_mixer():
     """In-betweens and Bake with the live mixer (the default on a live mesh): one mix per in-between, placed like
     the other methods; Gauss-Newton for comparison; without a mixer (or a stale one) the default stays Fast and
@@ -1042,5 +953,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, key_mixes, artist_edits, linked_from_library, bad_input,
+           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
