@@ -76,8 +76,9 @@ from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
 from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
-from .motion import moving_transform
-from .naming import FIT_MODIFIER, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
+from .bake import value_path
+from .motion import animated, moving_transform
+from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
 from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate,
                                 unkeyed_markers, unkeyed_note)
 from .fit_quality import write_quality
@@ -553,6 +554,27 @@ def nonuniform_scale_note(obj):
             "mm are approximate; apply the scale (Ctrl+A) for an exact fit")
 
 
+def keys_on_note(obj):
+    """The warning for a fit written as shape keys when other keys of ``obj`` are on, else None: a key with a value
+    other than 0, keyed or driven (not muted) adds to the fitted keys, so the mesh shown is not the fit.  The live
+    mix key is left out (its correction is 0 while the keys it mixes are at 0; those that are not are named)."""
+    key = obj.data.shape_keys
+    if key is None:
+        return None
+    on = []
+    for kb in key.key_blocks:
+        if kb == key.reference_key or kb.mute or is_fit_key(kb.name) or kb.name == LIVE_MIX_KEY:
+            continue
+        path = value_path(kb.name)
+        if kb.value != 0.0 or animated(key, lambda p, path=path: p == path) is not None:
+            on.append(kb.name)
+    if not on:
+        return None
+    names = ", ".join(f"'{n}'" for n in on[:4]) + (f" and {len(on) - 4} more" if len(on) > 4 else "")
+    return (f"the shape keys {names} of '{obj.name}' are on (a value other than 0, keyed or driven) and add to the "
+            "fitted keys, so the mesh shown is not the fit: set them to 0 or mute them")
+
+
 #: Markers needed to bind (and to place a pose by them).
 MIN_BOUND_MARKERS = 3
 #: Bind Markers' *Align*: at most this many ICP iterations (lacore's ICP stops earlier once the placement no longer
@@ -760,6 +782,8 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
         text = _write_fit(obj, X, frames, output, inputs["filepath"], inputs["path"])
         quality = write_quality(obj, frames, job.result, labels, unit, take_name, recorded_settings(options))
         job.notes.extend([note] if note is not None else [])
+        keys_on = keys_on_note(obj) if output == 'SHAPE_KEYS' else None
+        job.notes.extend([keys_on] if keys_on is not None else [])
         if inputs["unkeyed"]:
             job.notes.append(unkeyed_note(inputs["unkeyed"]))
         job.notes.extend(quality["notes"])

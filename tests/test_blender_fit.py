@@ -218,6 +218,12 @@ def test_shape_key_output(run):
     assert again["names"] == res["names"], again
     assert again["shows_key"] < 1e-5 * again["size"], again
     assert again["evaluated_change"] < 1e-3 * again["size"], again
+    # a training key left at 0.4 moves the shown mesh off the fit (measured 2.0 of a 15.5-unit body): the report warns
+    assert again["note_off"] is None and again["note_muted"] is None, again
+    assert again["on_shown_vs_key"] > 1e-2 * again["size"], again
+    assert again["note_on"] == ("the shape keys 'train01' of 'Body' are on (a value other than 0, keyed or driven) "
+                                "and add to the fitted keys, so the mesh shown is not the fit: set them to 0 or mute "
+                                "them"), again
 
 
 def test_renamed_marker_empty_still_fits(run):

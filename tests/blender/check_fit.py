@@ -246,6 +246,16 @@ def shape_key_output():
              "shows_key": float(np.abs(first - key3.reshape(-1, 3)).max()),
              "size": float(np.ptp(first, axis=0).max()), "modifier": "LA Fit" in obj.modifiers,
              "had_modifier": had_modifier}
+    # a training key left on adds to the fitted keys: the fit's report says so (keys_on_note)
+    fit_ops = ext("addon.operators_fit")
+    again["note_off"] = fit_ops.keys_on_note(obj)
+    kb = obj.data.shape_keys.key_blocks["train01"]
+    kb.value = 0.4
+    again["on_shown_vs_key"] = float(np.abs(evaluated(obj).astype(np.float64) - key3.reshape(-1, 3)).max())
+    again["note_on"] = fit_ops.keys_on_note(obj)
+    kb.mute = True
+    again["note_muted"] = fit_ops.keys_on_note(obj)
+    kb.mute, kb.value = False, 0.0
     # a clip too long for shape keys
     scene.frame_start, scene.frame_end = 1, 200
     before = state(obj)
