@@ -434,9 +434,10 @@ def _update_mesh(mesh, depsgraph, force=False):
         except (RuntimeError, ReferenceError):  # not in that depsgraph: the values as set
             key_eval = key
 
-    def write(coords):
+    def write(coords, correction=False):
+        """Write ``coords`` into the mix key; ``correction``: they are a mix's (kept to find the key again)."""
         written = _write(mix_kb, coords)
-        live.correction = None  # set by the caller when ``coords`` are a mix's correction
+        live.correction = coords if correction else None
         if written and key_eval is not key and depsgraph.mode == 'RENDER':
             _flush_values(key, key_eval)
         return written
@@ -449,27 +450,19 @@ def _update_mesh(mesh, depsgraph, force=False):
     if (not force and live.last is not None and np.array_equal(w, live.last)
             and (live.result.polished or not exact)):
         # the same mix: only an edit of the mix key itself (a script, Edit Mode, sculpting) is written over
-        correction = live.correction
-        if correction is None:
-            return False
-        written = write(correction)
-        live.correction = correction
-        return written
+        return False if live.correction is None else write(live.correction, correction=True)
     try:
         res = live.mixer.mix(w, polish=exact)
     except Exception as exc:  # never a traceback from a handler: show the linear mix and say why
         live.error = f"the mix failed ({type(exc).__name__}: {exc}): showing the linear mix"
         live.last = None
-        return write(live.reference[0].copy())
+        return write(_zero_offset(mix_kb))  # Blender's linear mix
     live.error = ""
     live.result, live.last, live.mix_seconds = res, w, float(res.seconds)
     offsets = w @ live.deltas  # Blender's linear sum of the mixer keys, minus the basis
     linear = (live.reference[0] + offsets).reshape(-1, 3)
     placed = rigid_align(np.asarray(res.vertices, np.float64), linear)  # placed like the in-betweens
-    correction = (placed.ravel() - offsets).astype(np.float32)
-    written = write(correction)
-    live.correction = correction
-    return written
+    return write((placed.ravel() - offsets).astype(np.float32), correction=True)
 
 
 def update_all(depsgraph=None, force=False):

@@ -565,8 +565,7 @@ def keys_on_note(obj):
     for kb in key.key_blocks:
         if kb == key.reference_key or kb.mute or is_fit_key(kb.name) or kb.name == LIVE_MIX_KEY:
             continue
-        path = value_path(kb.name)
-        if kb.value != 0.0 or animated(key, lambda p, path=path: p == path) is not None:
+        if kb.value != 0.0 or animated(key, value_path(kb.name).__eq__) is not None:
             on.append(kb.name)
     if not on:
         return None
