@@ -23,7 +23,7 @@ Mode sliders
     Binds the take's marker empties (the active/selected take empty, or the selected
     marker empties) to the active mesh at the current frame: each marker to the
     nearest surface point of the mesh as its shape keys and leading deformers pose it, an earlier fit's
-    modifier and keys left out (:func:`_mesh_vertices`), with its signed normal offset
+    modifier and keys and the sliders' preview key left out (:func:`_mesh_vertices`), with its signed normal offset
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
     markers are where the mesh is; *Align* runs ICP first, at most :data:`ALIGN_ITERATIONS`
     iterations, and the report says how many it ran).  Stored on the object in
@@ -397,9 +397,11 @@ def _bound_modifiers_off(obj):
 
 def _bound_keys_off(obj):
     """The shape keys of ``obj`` a binding leaves out, those not muted: an earlier fit's keys
-    (:func:`.naming.is_fit_key`)."""
+    (:func:`.naming.is_fit_key`) and the mode sliders' preview key (:data:`.naming.PREVIEW_KEY`: at 1 it adds the
+    model's pose to the character's)."""
     key = obj.data.shape_keys
-    return [] if key is None else [kb for kb in key.key_blocks if is_fit_key(kb.name) and not kb.mute]
+    return [] if key is None else [kb for kb in key.key_blocks
+                                   if (is_fit_key(kb.name) or kb.name == PREVIEW_KEY) and not kb.mute]
 
 
 def _evaluated_co(obj, depsgraph):
@@ -417,9 +419,10 @@ def _evaluated_co(obj, depsgraph):
 def _mesh_vertices(obj, context=None):
     """(V, 3) float64 positions of ``obj`` in its own space (V of its mesh data) as its shape keys and the
     deformers at the top of its modifier stack pose it: the mesh the fit's Mesh Cache modifier replaces
-    (:func:`_fit_modifier`), without an earlier fit.  The modifiers from the first other one on and an earlier
-    fit's modifier (:func:`_bound_modifiers_off`) are off in the viewport, and an earlier fit's keys
-    (:func:`_bound_keys_off`) muted, while it is evaluated, and on again after it, also on error."""
+    (:func:`_fit_modifier`), without an earlier fit or the sliders' preview.  The modifiers from the first other one
+    on and an earlier fit's modifier (:func:`_bound_modifiers_off`) are off in the viewport, and an earlier fit's keys
+    and the preview key (:func:`_bound_keys_off`) muted, while it is evaluated, and on again after it, also on
+    error."""
     context = context or bpy.context
     off, muted = _bound_modifiers_off(obj), _bound_keys_off(obj)
     try:
@@ -589,8 +592,8 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     marker where it is visible), nor markers without keyed positions (:func:`.operators_markers.unkeyed_markers`:
     named too); both are stored as not bound with why (the panel lists them).  At least :data:`MIN_BOUND_MARKERS`
     must be visible.  The mesh is the one the fit replaces: shape keys and the deformers at the top of the stack
-    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them, and an earlier fit's modifier and
-    keys, are left out: binding again after a fit binds as without it).  ``warn_distance``
+    (:func:`_mesh_vertices`; Subdivision Surface, Mirror and what follows them, an earlier fit's modifier and keys,
+    and the sliders' preview key are left out: binding again after a fit binds as without it).  ``warn_distance``
     is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)

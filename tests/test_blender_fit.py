@@ -674,3 +674,22 @@ def test_bind_and_fit_again_after_a_fit_as_without_it(run, inputs, output):
     assert np.linalg.norm(g("fit") - f("fit"), axis=2).max() < 1e-9, output   # decimetres: measured 0.0
     err = np.linalg.norm(g("fit") - inputs["true"], axis=2).mean(1)   # decimetres, per frame
     assert err.max() < 0.5, err     # as the fit bound at frame 1 (test_mesh_cache_matches_lacore_fit_and_true_poses)
+
+
+def test_bind_with_the_preview_key_on_as_without_it(run):
+    """Bind Markers with the mode sliders' preview key 'LA model preview' on (mode 1 at +1 std, the key at 1: it adds
+    the model's pose to the character's, moving the mesh up to 5.9 dm): the binding is of the character as posed,
+    the same as with no preview key; the key is muted while the mesh is read and as it was after, also after an
+    error.  Before, the binding saw the pose plus the preview: the mesh it read 5.9 dm off, the bound marker points
+    on the pose up to 2.7 dm off (bpy 4.2 and 5.2)."""
+    res = run["cases"]["bind_with_preview_key"]
+    plain, previewed = res["plain"], res["previewed"]
+    assert plain["result"] == previewed["result"] == ["FINISHED"], res
+    assert res["preview"] == res["after"] == res["after_error"] == {"value": 1.0, "mute": False}, res
+    assert res["error"] == "RuntimeError: simulated failure while evaluating"
+    assert res["preview_moves"] > 1.0, res               # decimetres: the preview on the pose (measured 5.9)
+    assert res["seen_minus_pose"] < 1e-6, res            # the mesh the binding read: measured 0.0
+    assert previewed["labels"] == plain["labels"] and previewed["faces"] == plain["faces"]
+    for k in ("barycentric", "offsets"):                 # measured 0.0: the same mesh, the same computation
+        assert np.abs(np.subtract(previewed[k], plain[k])).max() < 1e-9, k
+

@@ -1061,39 +1061,41 @@ def take_rate():
     return {"rates": rates, "max_difference": float(max(np.abs(v - vertices[0]).max() for v in vertices[1:]))}
 
 
-def bind_with_modifiers():
-    """Subdivision Surface and Mirror on the character (the vertex count changed): Bind Markers binds the mesh of
-    its shape keys and leading deformers -- the same binding as without them; the modifiers' viewport switches
-    are back as they were (also after an error); a deformer at the top of the stack counts."""
-    fit = ext("addon.operators_fit")
+def posed_for_binding(placement=None, keep_fit=False):
+    """whole_path's scene reopened, 'Body' posed like the take's first frame (a shape key 'bind pose' at 1) at frame
+    1, placed at ``placement`` (location, rotation, scale) if given, its fit's modifier removed unless ``keep_fit``;
+    'Body' and the take selected.  Returns (body, take, the pose key)."""
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
     obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
-    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    if not keep_fit:
+        obj.modifiers.remove(obj.modifiers["LA Fit"])
+    if placement is not None:
+        obj.location, obj.rotation_euler, obj.scale = placement
     kb = obj.shape_key_add(name="bind pose", from_mix=False)
     kb.data.foreach_set("co", INPUTS["bind_pose"].astype(np.float32).ravel())
     kb.value = 1.0
     bpy.context.scene.frame_set(1)
     select_only(obj, take)
+    return obj, take, kb
 
-    def bind():
-        try:
-            result, reports = finish(fit.bind_run(bpy.context, obj, take))
-        except ext("lacore.errors").InputError as exc:
-            return {"result": ["CANCELLED"], "message": str(exc)}
-        b = obj[fit.BINDING_PROP].to_dict()
-        return {"result": result, "reports": reports, "labels": list(b["labels"]), "faces": list(b["faces"]),
-                "barycentric": list(b["barycentric"]), "offsets": list(b["offsets"])}
-    out = {"plain": bind()}
-    sub = obj.modifiers.new("Subdivision", 'SUBSURF')
-    sub.levels = 1
-    obj.modifiers.new("Mirror", 'MIRROR')
-    hidden = obj.modifiers.new("Displace", 'DISPLACE')
-    hidden.show_viewport = False                   # off before: stays off
-    out["evaluated_before"] = len(evaluated(obj))
-    out["subdivided"] = bind()
-    out["shown_after"] = [m.show_viewport for m in obj.modifiers]
-    out["evaluated_after"] = len(evaluated(obj))
-    out["n_vertices"] = len(obj.data.vertices)
+
+def bind_record(obj, take):
+    """Bind Markers' run on ``obj`` and ``take`` finished as the operator does: its result and reports and the binding
+    stored (labels, faces, barycentric coordinates, offsets), or the refusal's message."""
+    fit = ext("addon.operators_fit")
+    try:
+        result, reports = finish(fit.bind_run(bpy.context, obj, take))
+    except ext("lacore.errors").InputError as exc:
+        return {"result": ["CANCELLED"], "message": str(exc)}
+    b = obj[fit.BINDING_PROP].to_dict()
+    return {"result": result, "reports": reports, "labels": list(b["labels"]), "faces": list(b["faces"]),
+            "barycentric": list(b["barycentric"]), "offsets": list(b["offsets"])}
+
+
+def bind_failing(obj, take):
+    """Bind Markers on ``obj`` failing while it evaluates the mesh (a simulated error): ``"<type>: <message>"`` of
+    the error it raised, "" if none."""
+    fit = ext("addon.operators_fit")
     original = fit._evaluated_co
 
     def failing(*args):
@@ -1101,17 +1103,58 @@ def bind_with_modifiers():
     fit._evaluated_co = failing
     try:
         fit.bind_run(bpy.context, obj, take)
-        out["error"] = ""
+        return ""
     except Exception as exc:  # the simulated failure, not another one
-        out["error"] = f"{type(exc).__name__}: {exc}"
+        return f"{type(exc).__name__}: {exc}"
     finally:
         fit._evaluated_co = original
+
+
+def bind_with_modifiers():
+    """Subdivision Surface and Mirror on the character (the vertex count changed): Bind Markers binds the mesh of
+    its shape keys and leading deformers -- the same binding as without them; the modifiers' viewport switches
+    are back as they were (also after an error); a deformer at the top of the stack counts."""
+    obj, take, _ = posed_for_binding()
+    out = {"plain": bind_record(obj, take)}
+    sub = obj.modifiers.new("Subdivision", 'SUBSURF')
+    sub.levels = 1
+    obj.modifiers.new("Mirror", 'MIRROR')
+    hidden = obj.modifiers.new("Displace", 'DISPLACE')
+    hidden.show_viewport = False                   # off before: stays off
+    out["evaluated_before"] = len(evaluated(obj))
+    out["subdivided"] = bind_record(obj, take)
+    out["shown_after"] = [m.show_viewport for m in obj.modifiers]
+    out["evaluated_after"] = len(evaluated(obj))
+    out["n_vertices"] = len(obj.data.vertices)
+    out["error"] = bind_failing(obj, take)
     out["shown_after_error"] = [m.show_viewport for m in obj.modifiers]
     top = obj.modifiers.new("Inflate", 'DISPLACE')  # a deformer at the top: the bound mesh is inflated
     top.strength = 0.1
     obj.modifiers.move(len(obj.modifiers) - 1, 0)
-    out["deformed"] = bind()
+    out["deformed"] = bind_record(obj, take)
     out["modifiers"] = [m.name for m in obj.modifiers]
+    return out
+
+
+def bind_with_preview_key():
+    """Bind Markers with the mode sliders' preview key on (mode 1 at +1 std: the key 'LA model preview' at 1, which
+    adds the model's pose to the character's): the binding is of the character as posed without it, the same as
+    with no preview key; the key is muted while the mesh is read and as it was after, also after an error.  Records
+    how far the preview moves the mesh and the mesh the binding saw."""
+    fit = ext("addon.operators_fit")
+    obj, take, _ = posed_for_binding()
+    pose = fit._mesh_vertices(obj)
+    out = {"plain": bind_record(obj, take)}
+    obj.lengths_angles_mode_weights[0] = 1.0
+    fit.update_previews()                          # the slider's timer callback
+    preview = obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY]
+    out["preview"] = {"value": preview.value, "mute": preview.mute}
+    out["preview_moves"] = float(np.linalg.norm(evaluated(obj) - pose, axis=1).max())
+    out["seen_minus_pose"] = float(np.linalg.norm(fit._mesh_vertices(obj) - pose, axis=1).max())
+    out["previewed"] = bind_record(obj, take)
+    out["after"] = {"value": preview.value, "mute": preview.mute}
+    out["error"] = bind_failing(obj, take)
+    out["after_error"] = {"value": preview.value, "mute": preview.mute}
     return out
 
 
@@ -1391,4 +1434,4 @@ if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
                moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
-               bind_align, rebind_after_fit])
+               bind_align, rebind_after_fit, bind_with_preview_key])
