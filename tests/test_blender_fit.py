@@ -69,8 +69,9 @@ def run(extension_zip, inputs, tmp_path_factory):
         data["cleared_arrays"] = dict(f)
     with np.load(work / "files" / "align.npz") as f:
         data["align_arrays"] = dict(f)
-    with np.load(work / "files" / "rebind.npz") as f:
-        data["rebind_arrays"] = dict(f)
+    for name in ("rebind", "moved"):
+        with np.load(work / "files" / f"{name}.npz") as f:
+            data[f"{name}_arrays"] = dict(f)
     return data
 
 
@@ -692,4 +693,26 @@ def test_bind_with_the_preview_key_on_as_without_it(run):
     assert previewed["labels"] == plain["labels"] and previewed["faces"] == plain["faces"]
     for k in ("barycentric", "offsets"):                 # measured 0.0: the same mesh, the same computation
         assert np.abs(np.subtract(previewed[k], plain[k])).max() < 1e-9, k
+
+
+def test_bind_and_fit_again_after_moving_the_character(run, inputs):
+    """Bind Markers and Fit to Markers (frames 1-3) again after the character with a fit was moved 5 mm, turned 3
+    degrees and scaled by 1.02: the binding and the fit are those of a fresh copy placed the same way without the
+    fit (measured equal: 0.0), the fit is what is shown, and the placement counts (the offsets 0.29 dm and the fit
+    1.0 dm from those made where the character was)."""
+    res, a, unmoved = run["cases"]["rebind_after_moving"], run["moved_arrays"], run["arrays"]
+    again, fresh = res["again"], res["fresh"]
+    assert again["modifiers_before"] == ["LA Fit"] and fresh["modifiers_before"] == [], res
+    for r in (again, fresh):
+        assert r["bind"] == r["fit"] == ["FINISHED"] and r["modifiers"] == ["LA Fit"] and r["fit_keys"] == [], r
+        assert max(r["shown_minus_fit"]) < 2e-6, r     # decimetres: measured 4.9e-7 (float32)
+    M = a["again_matrix"]
+    assert np.array_equal(M, a["fresh_matrix"]) and np.abs(M[:3, 3] - (0.03, -0.04, 0.02)).max() < 1e-6, M
+    assert np.array_equal(a["again_faces"], a["fresh_faces"])
+    size = float(np.linalg.norm(np.ptp(inputs["basis"], axis=0)))      # 19.8 dm
+    for k in ("barycentric", "offsets", "fit"):          # relative to the body's size: measured 0.0
+        assert np.abs(a[f"again_{k}"] - a[f"fresh_{k}"]).max() < 1e-6 * size, k
+    moved_offsets = np.abs(a["fresh_offsets"] - unmoved["bind_offsets"]).max()
+    moved_fit = np.abs(a["fresh_fit"] - unmoved["evaluated"][:3]).max()
+    assert moved_offsets > 0.1 and moved_fit > 0.3, (moved_offsets, moved_fit)   # measured 0.29 and 1.0 dm
 

@@ -1382,6 +1382,15 @@ def bind_align():
 REBIND_FRAME = 8
 
 
+def fit_output(obj):
+    """The fit's output on ``obj``: its modifiers, the fitted frames' keys and their F-curves' data paths."""
+    keys = [k.name for k in obj.data.shape_keys.key_blocks if k.name.startswith("LA fit ")]
+    fcurves = ext("addon.compat").animation_channels(obj.data.shape_keys)
+    paths = [fc.data_path for fc in fcurves.fcurves] if fcurves is not None else []
+    return {"modifiers": [m.name for m in obj.modifiers], "fit_keys": keys,
+            "fit_key_curves": sorted(p for p in paths if "LA fit " in p)}
+
+
 def rebind_after_fit():
     """Bind Markers and Fit to Markers again on a character with an earlier fit, for each output: the earlier fit
     (whole_path's binding at frame 1, fitted over frames 1-8 as a point cache or as shape keys) is there, the
@@ -1418,15 +1427,41 @@ def rebind_after_fit():
             arrays.update({f"{name}_faces": np.array(binding["faces"]), f"{name}_offsets": np.array(binding["offsets"]),
                            f"{name}_barycentric": np.array(binding["barycentric"]).reshape(-1, 3),
                            f"{name}_fit": X})
-            keys = [k.name for k in obj.data.shape_keys.key_blocks if k.name.startswith("LA fit ")]
-            fcurves = ext("addon.compat").animation_channels(obj.data.shape_keys)
-            paths = [fc.data_path for fc in fcurves.fcurves] if fcurves is not None else []
             out[name] = {"bind": bound, "before_bind": before_bind, "after_bind": after_bind, "fit": result,
-                         "frame": binding["frame"], "labels": list(binding["labels"]),
-                         "modifiers": [m.name for m in obj.modifiers], "fit_keys": keys,
-                         "fit_key_curves": sorted(p for p in paths if "LA fit " in p),
+                         "frame": binding["frame"], "labels": list(binding["labels"]), **fit_output(obj),
                          "shown_minus_fit": shown_minus_fit(obj, X)}
     np.savez(os.path.join(ARGS.workdir, "rebind.npz"), **arrays)
+    return out
+
+
+#: The character's placement after its fit (location in decimetres, rotation in radians, scale): 5 mm, 3 degrees and
+#: 2 % from where it was bound and fitted.
+PLACEMENT = ((0.03, -0.04, 0.02), (0.02, -0.03, 0.035), (1.02, 1.02, 1.02))
+#: The frames rebind_after_moving fits (short: the fit of one frame takes about a second).
+SHORT_FRAMES = (1, 2, 3)
+
+
+def rebind_after_moving():
+    """Bind Markers (at frame 1, posed like it) and Fit to Markers (frames 1-3, point cache) again after the character
+    was moved, turned and scaled (:data:`PLACEMENT`) following a fit (whole_path's point cache); the same on a fresh
+    copy placed the same way without the fit.  Records the bindings, the fits (``moved.npz``) and what is shown."""
+    fit = ext("addon.operators_fit")
+    out, arrays = {}, {}
+    for name, keep_fit in (("again", True), ("fresh", False)):
+        obj, _, kb = posed_for_binding(PLACEMENT, keep_fit=keep_fit)
+        before = [m.name for m in obj.modifiers]
+        bound = sorted(bpy.ops.lengths_angles.bind_markers())
+        obj.shape_key_remove(kb)
+        binding = obj[fit.BINDING_PROP].to_dict()
+        run = fit.fit_run(bpy.context, obj, SHORT_FRAMES[0], SHORT_FRAMES[-1])
+        result = finish(run)[0]
+        X = run.job.result.vertices
+        arrays.update({f"{name}_faces": np.array(binding["faces"]), f"{name}_offsets": np.array(binding["offsets"]),
+                       f"{name}_barycentric": np.array(binding["barycentric"]).reshape(-1, 3), f"{name}_fit": X,
+                       f"{name}_matrix": np.array(obj.matrix_world)})
+        out[name] = {"bind": bound, "fit": result, "modifiers_before": before, **fit_output(obj),
+                     "shown_minus_fit": shown_minus_fit(obj, X, SHORT_FRAMES)}
+    np.savez(os.path.join(ARGS.workdir, "moved.npz"), **arrays)
     return out
 
 
@@ -1434,4 +1469,4 @@ if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
                moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
-               bind_align, rebind_after_fit, bind_with_preview_key])
+               bind_align, rebind_after_fit, bind_with_preview_key, rebind_after_moving])
