@@ -69,7 +69,7 @@ def run(extension_zip, inputs, tmp_path_factory):
         data["cleared_arrays"] = dict(f)
     with np.load(work / "files" / "align.npz") as f:
         data["align_arrays"] = dict(f)
-    for name in ("rebind", "moved"):
+    for name in ("rebind", "moved", "switch"):
         with np.load(work / "files" / f"{name}.npz") as f:
             data[f"{name}_arrays"] = dict(f)
     return data
@@ -716,3 +716,22 @@ def test_bind_and_fit_again_after_moving_the_character(run, inputs):
     moved_fit = np.abs(a["fresh_fit"] - unmoved["evaluated"][:3]).max()
     assert moved_offsets > 0.1 and moved_fit > 0.3, (moved_offsets, moved_fit)   # measured 0.29 and 1.0 dm
 
+
+@pytest.mark.parametrize("order", ["pc2_then_shape_keys", "shape_keys_then_pc2"])
+def test_fit_as_the_other_output_replaces_the_fit(run, order):
+    """Fit to Markers (frames 1-3) as Shape Keys after a fit as a point cache, and the reverse: one output is left (the
+    keys with one F-curve each and no modifier, or the modifier and no keys), and the mesh shown at each frame is the
+    second fit alone, as the first fit in that output on a fresh copy shows it (measured equal: 0.0)."""
+    res, a = run["cases"]["fit_output_switch"], run["switch_arrays"]
+    other = "shape_keys_then_pc2" if order == "pc2_then_shape_keys" else "pc2_then_shape_keys"
+    keys = [f"LA fit {f}" for f in (1, 2, 3)]
+    cache = {"modifiers": ["LA Fit"], "fit_keys": [], "fit_key_curves": []}
+    shape_keys = {"modifiers": [], "fit_keys": keys, "fit_key_curves": [f'key_blocks["{k}"].value' for k in keys]}
+    first, second = (cache, shape_keys) if order == "pc2_then_shape_keys" else (shape_keys, cache)
+    for step, expected in (("first", first), ("second", second)):
+        r = res[order][step]
+        assert r["fit"] == ["FINISHED"] and {k: v for k, v in r.items() if k != "fit"} == expected, (step, r)
+    fresh = a[f"{other}_first_shown"]                    # the same output, fitted on a fresh copy
+    assert np.abs(a[f"{order}_second_fit"] - a[f"{other}_first_fit"]).max() < 1e-9   # decimetres: measured 0.0
+    assert np.abs(a[f"{order}_second_shown"] - fresh).max() < 1e-9                      # measured 0.0
+    assert np.abs(a[f"{order}_second_shown"] - a[f"{order}_second_fit"]).max() < 2e-6   # float32: measured 7.1e-7

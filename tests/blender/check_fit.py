@@ -1437,7 +1437,7 @@ def rebind_after_fit():
 #: The character's placement after its fit (location in decimetres, rotation in radians, scale): 5 mm, 3 degrees and
 #: 2 % from where it was bound and fitted.
 PLACEMENT = ((0.03, -0.04, 0.02), (0.02, -0.03, 0.035), (1.02, 1.02, 1.02))
-#: The frames rebind_after_moving fits (short: the fit of one frame takes about a second).
+#: The frames the cases after rebind_after_fit fit (short: the fit of one frame takes about a second).
 SHORT_FRAMES = (1, 2, 3)
 
 
@@ -1465,8 +1465,35 @@ def rebind_after_moving():
     return out
 
 
+def fit_output_switch():
+    """Fit to Markers (frames 1-3) as Shape Keys after a fit as a point cache, and as a point cache after one as shape
+    keys, on whole_path's binding: records the output left (modifiers, keys, F-curves), the fits and the mesh shown
+    at each frame after each fit (``switch.npz``); each order's first fit is the other's second on a fresh copy."""
+    fit = ext("addon.operators_fit")
+    out, arrays = {}, {}
+    for order in (('PC2', 'SHAPE_KEYS'), ('SHAPE_KEYS', 'PC2')):
+        name = "_then_".join(o.lower() for o in order)
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+        obj = bpy.data.objects["Body"]
+        obj.modifiers.remove(obj.modifiers["LA Fit"])
+        select_only(obj)
+        out[name] = {}
+        for step, output in zip(("first", "second"), order, strict=True):
+            run = fit.fit_run(bpy.context, obj, SHORT_FRAMES[0], SHORT_FRAMES[-1], output=output)
+            out[name][step] = {"fit": finish(run)[0], **fit_output(obj)}
+            shown = []
+            for f in SHORT_FRAMES:
+                bpy.context.scene.frame_set(f)
+                shown.append(evaluated(obj))
+            arrays[f"{name}_{step}_fit"] = run.job.result.vertices
+            arrays[f"{name}_{step}_shown"] = np.array(shown)
+        bpy.context.scene.frame_set(1)
+    np.savez(os.path.join(ARGS.workdir, "switch.npz"), **arrays)
+    return out
+
+
 if __name__ == "__main__":
     run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
                moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
-               bind_align, rebind_after_fit, bind_with_preview_key, rebind_after_moving])
+               bind_align, rebind_after_fit, bind_with_preview_key, rebind_after_moving, fit_output_switch])
