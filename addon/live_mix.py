@@ -30,7 +30,8 @@ mixer shows the exact linear mix by zeroing one key.
 
 The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
 so are its coordinates, its relative key and vertex group, a slider range that excludes 1 and a new name (the
-renamed key is found by the correction it holds);
+renamed key is found by the correction it holds); Enable refuses a mesh with a key of that name it did not make (the
+user's coordinates would be written over);
 muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
@@ -571,6 +572,9 @@ def _inputs(obj):
     _require_not_edited(mesh, "enable")
     if mesh.shape_keys is None:
         raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
+    if MIXER_PROP not in mesh and mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) is not None:
+        raise LiveMixError(f"mesh '{mesh.name}' has a shape key named '{LIVE_MIX_KEY}' that live mixing did not make: "
+                           "rename it (live mixing writes its correction into a key of that name)")
     if not mesh.shape_keys.use_relative:
         raise LiveMixError(f"mesh '{mesh.name}': live mixing needs Relative shape keys (check Relative in the "
                            "Shape Keys panel)")

@@ -10,7 +10,7 @@ Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer
 does not; an object linked from a library is said to be stale and refused, and mixes once made local.
 ``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
 stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
-mixer is gone once the saved file is opened again.
+mixer is gone once the saved file is opened again.  A key of the user's named like the add-on's is refused.
 """
 
 import io
@@ -299,6 +299,16 @@ def test_artist_edits_renamed_deleted_and_applied_keys(run):
     assert res["applied_status"] == ("the shape keys were removed (applied or cleared): Disable drops the stored "
                                      "mixer"), res
     assert res["applied_disable"] == [["FINISHED"], [], []], res
+
+
+def test_user_key_named_like_the_mix_key_is_refused(run):
+    """Enable would write its correction into a user's key named 'LA live mix': refused in one line naming the key,
+    nothing changed; renamed, Enable mixes and leaves the user's key as it was."""
+    res = run["cases"]["mix_key_name"]
+    clash = res["clash"]
+    assert clash["result"] == ["CANCELLED"] and clash["one_line"] and clash["unchanged"], clash
+    assert "has a shape key named 'LA live mix' that live mixing did not make: rename it" in clash["message"], clash
+    assert res["mine_kept"], res
 
 
 @pytest.mark.parametrize("case, words", [

@@ -702,6 +702,24 @@ def artist_edits():
     return out
 
 
+def mix_key_name():
+    """A user key already named 'LA live mix': Enable refused, nothing changed; renamed, Enable mixes and leaves it
+    alone."""
+    reset()
+    obj = make_bar()
+    kb = obj.shape_key_add(name="LA live mix", from_mix=False)
+    mine = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", mine)
+    mine += np.tile(np.float32([0.0, 0.0, 0.2]), len(kb.points))
+    kb.points.foreach_set("co", mine)
+    kb.value, kb.relative_key = 0.0, obj.data.shape_keys.key_blocks["Bend"]  # (mixed linearly, adds nothing at 0)
+    out = {"clash": refusal(obj, bpy.ops.lengths_angles.live_mix_enable)}
+    kb.name = "Mine"
+    assert enable(obj) == ["FINISHED"]
+    out["mine_kept"] = bool(np.array_equal(key_coords(obj, ["Mine"])[0].ravel(), mine))
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer, a mesh without faces: one line, nothing changed."""
@@ -953,5 +971,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, bad_input,
+           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, mix_key_name, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
