@@ -30,7 +30,9 @@ mixer shows the exact linear mix by zeroing one key.
 
 The mix key's value is 1: an edit of it (a script, Clear Shape Key Weights) is set back by the next update,
 so are its coordinates, its relative key and vertex group, a slider range that excludes 1 and a new name (the
-renamed key is found by the correction it holds);
+renamed key is found by the correction it holds, and named back before the file is saved, where only the name
+identifies it); Enable refuses a mesh with a key of that name it did not make (the user's coordinates would be
+written over);
 muted, or keyed or driven to another value, the mixer is stale (below).
 
 Exact renders: with the mesh's :data:`EXACT_RENDERS_PROP` on, a render's update (its depsgraph in
@@ -133,8 +135,11 @@ def _key_coords(key, names, n_vertices):
     return out
 
 
-def _digest(coords, corners):
-    return hashlib.blake2b(coords.tobytes() + corners.tobytes(), digest_size=16).hexdigest()
+def _digest(coords, corners, signed_zeros=False):
+    """A digest of key coordinates and corners by value: -0.0 and 0.0 (which an Edit Mode round trip may swap) digest
+    alike, unless ``signed_zeros`` (the digest of the bytes as they are, which records may hold too)."""
+    values = coords if signed_zeros else coords + np.float32(0.0)  # -0.0 + 0.0 is 0.0
+    return hashlib.blake2b(values.tobytes() + corners.tobytes(), digest_size=16).hexdigest()
 
 
 def linked_from(mesh):
@@ -170,7 +175,7 @@ class _Live:
             if mesh.shape_keys is not None and len(mesh.vertices) == self.n_vertices else None
         if coords is not None:
             corners = _corners(mesh)
-            if _digest(coords, corners) == str(meta["fingerprint"]):
+            if str(meta["fingerprint"]) in (_digest(coords, corners), _digest(coords, corners, signed_zeros=True)):
                 self._set_reference(coords, corners)
 
     def _set_reference(self, coords, corners):
@@ -384,19 +389,28 @@ def _renamed_mix_key(mesh, live):
     return None
 
 
+def _name_back(mesh, live):
+    """``(mix key block, renamed)``: the mix key of ``mesh``, named back if it was renamed by hand (found by the
+    correction it holds); ``(None, False)`` if there is none."""
+    key = mesh.shape_keys
+    kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
+    if kb is not None:
+        return kb, False
+    kb = _renamed_mix_key(mesh, live)
+    if kb is None:
+        return None, False
+    kb.name = LIVE_MIX_KEY
+    return kb, True
+
+
 def _restore_mix_key(mesh, live):
     """Set the mix key back where an edit changed it: its name (renamed: found by its coordinates), its relative
     key (the basis) and vertex group (none), its slider range (down to 1 at least) and its value 1 (Clear Shape Key
     Weights, a script) unless keyed or driven; True if something was set."""
     key = mesh.shape_keys
-    kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
-    changed = False
+    kb, changed = _name_back(mesh, live)
     if kb is None:
-        kb = _renamed_mix_key(mesh, live)
-        if kb is None:
-            return False
-        kb.name = LIVE_MIX_KEY
-        changed = True
+        return False
     if kb.relative_key != key.reference_key or kb.vertex_group:
         kb.relative_key, kb.vertex_group = key.reference_key, ""
         changed = True
@@ -529,6 +543,18 @@ def _on_load(*_args):
 
 
 @persistent
+def _on_save(*_args):
+    """Name back a mix key renamed and not yet named back by an update (in Edit Mode nothing is updated) before the
+    file is written: the correction that finds it under another name is the session's, so in a reopened file only
+    its name identifies it."""
+    with _LOCK:
+        for name, live in list(_LIVE.items()):
+            mesh = bpy.data.meshes.get(name)
+            if mesh is not None and not linked_from(mesh):
+                _name_back(mesh, live)
+
+
+@persistent
 def _on_undo(*_args):
     """Undo / redo restored the meshes (mix key included): forget the session's last mixes."""
     for live in _LIVE.values():
@@ -537,7 +563,7 @@ def _on_undo(*_args):
 
 
 _HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("frame_change_post", _on_frame_change),
-             ("load_post", _on_load), ("undo_post", _on_undo), ("redo_post", _on_undo))
+             ("load_post", _on_load), ("save_pre", _on_save), ("undo_post", _on_undo), ("redo_post", _on_undo))
 
 
 def register_handlers():
@@ -571,6 +597,9 @@ def _inputs(obj):
     _require_not_edited(mesh, "enable")
     if mesh.shape_keys is None:
         raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
+    if MIXER_PROP not in mesh and mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) is not None:
+        raise LiveMixError(f"mesh '{mesh.name}' has a shape key named '{LIVE_MIX_KEY}' that live mixing did not make: "
+                           "rename it (live mixing writes its correction into a key of that name)")
     if not mesh.shape_keys.use_relative:
         raise LiveMixError(f"mesh '{mesh.name}': live mixing needs Relative shape keys (check Relative in the "
                            "Shape Keys panel)")

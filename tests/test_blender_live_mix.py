@@ -10,7 +10,8 @@ Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer
 does not; an object linked from a library is said to be stale and refused, and mixes once made local.
 ``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
 stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
-mixer is gone once the saved file is opened again.
+mixer is gone once the saved file is opened again.  A key of the user's named like the add-on's is refused; the
+add-on's key renamed (in Edit Mode too) and the file saved reopens with it named back, live.
 """
 
 import io
@@ -69,7 +70,8 @@ def expected(mixer_npz, inputs, weights):
 def test_enable_registers_operators_and_handlers(run):
     res = run["cases"]["install_and_enable"]
     assert res["operators"] == ["LENGTHS_ANGLES_OT_live_mix_enable", "LENGTHS_ANGLES_OT_live_mix_disable"]
-    assert res["handlers"] == ["depsgraph_update_post", "frame_change_post", "load_post", "redo_post", "undo_post"]
+    assert res["handlers"] == ["depsgraph_update_post", "frame_change_post", "load_post", "redo_post", "save_pre",
+                               "undo_post"]
 
 
 def test_evaluated_mesh_is_lacores_mix(run, inputs):
@@ -299,6 +301,48 @@ def test_artist_edits_renamed_deleted_and_applied_keys(run):
     assert res["applied_status"] == ("the shape keys were removed (applied or cleared): Disable drops the stored "
                                      "mixer"), res
     assert res["applied_disable"] == [["FINISHED"], [], []], res
+
+
+def test_user_key_named_like_the_mix_key_is_refused(run):
+    """Enable would write its correction into a user's key named 'LA live mix': refused in one line naming the key,
+    nothing changed; renamed, Enable mixes and leaves the user's key as it was."""
+    res = run["cases"]["mix_key_name"]
+    clash = res["clash"]
+    assert clash["result"] == ["CANCELLED"] and clash["one_line"] and clash["unchanged"], clash
+    assert "has a shape key named 'LA live mix' that live mixing did not make: rename it" in clash["message"], clash
+    assert res["mine_kept"], res
+
+
+def test_mix_key_renamed_then_saved_is_found_after_reopening(run, inputs):
+    """The add-on's key renamed: saving in Object Mode runs an update, which names it back (measured: no update sees
+    the new name); renamed in Edit Mode, where nothing is updated, it is named back before the file is written.  The
+    file reopens in Edit Mode; back in Object Mode the mesh mixes other values live (the Edit Mode round trip does
+    not make the stored mixer look stale)."""
+    res, a = run["cases"]["mix_key_name"], run["arrays"]
+    assert res["save_updates"] and set(res["save_updates"]) == {"LA live mix"}, res["save_updates"]
+    assert res["renamed_in_edit_mode"] == "Renamed" and res["reopened_mode"] == "EDIT", res
+    assert res["reopened_keys"] == ["Basis", "Bend", "Twist", "Both", "Mine", "LA live mix"], res
+    assert res["reopened_status"] == "", res
+    assert np.allclose(a["reopened_values"], [0.2, 0.6, 0.0])
+    want, linear = expected(a["name_mixer_npz"], inputs, a["reopened_values"])
+    assert np.abs(a["reopened_mixed"] - want).max() < TOL, np.abs(a["reopened_mixed"] - want).max()
+    assert np.abs(a["reopened_mixed"] - linear).max() > 0.05
+
+
+def test_record_with_a_digest_of_signed_zeros_reopens_live(run):
+    """A record whose digest tells -0.0 from 0.0 in the keys (the bar's keys hold both) still matches its keys."""
+    res = run["cases"]["mix_key_name"]
+    assert res["signed_zeros_digest_differs"] and res["signed_zeros_digest_status"] == "", res
+
+
+def test_user_key_named_back_before_an_update(run):
+    """A user key renamed (stale: the mix key zeroed) and named back: until the next update the mesh shows Blender's
+    linear mix, and the panel says so; the update makes it live."""
+    res = run["cases"]["mix_key_name"]
+    assert res["user_renamed"] == "shape key 'Twist' was renamed or deleted", res
+    assert res["named_back_before_update"] == ["shape key 'Twist' was renamed or deleted", 0.0], res
+    assert "Showing Blender's linear mix: Rebuild to mix live again" in res["named_back_panel"], res
+    assert res["named_back_after_update"] == "", res
 
 
 @pytest.mark.parametrize("case, words", [

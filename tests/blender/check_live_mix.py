@@ -702,6 +702,76 @@ def artist_edits():
     return out
 
 
+def mix_key_name():
+    """A user key already named 'LA live mix': Enable refused, nothing changed; renamed, Enable mixes and leaves it
+    alone.  The add-on's key renamed, then saved (Object Mode: which name the save's updates see), renamed in Edit Mode
+    (nothing is updated there) and saved, reopened: the mix key again and live at other values.  A user key renamed
+    and named back before an update: the panel's state then and after the update."""
+    reset()
+    obj = make_bar()
+    kb = obj.shape_key_add(name="LA live mix", from_mix=False)
+    mine = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", mine)
+    mine += np.tile(np.float32([0.0, 0.0, 0.2]), len(kb.points))
+    kb.points.foreach_set("co", mine)
+    kb.value, kb.relative_key = 0.0, obj.data.shape_keys.key_blocks["Bend"]  # (mixed linearly, adds nothing at 0)
+    out = {"clash": refusal(obj, bpy.ops.lengths_angles.live_mix_enable)}
+    kb.name = "Mine"
+    assert enable(obj) == ["FINISHED"]
+    OUT["name_mixer_npz"] = stored_mixer(obj)
+    kbs = obj.data.shape_keys.key_blocks
+    out["mine_kept"] = bool(np.array_equal(key_coords(obj, ["Mine"])[0].ravel(), mine))
+    # a copy saved with the record's digest of the keys' bytes as they are (-0.0 and 0.0 apart), as stored before
+    live_mix = ext("live_mix")
+    meta, live = obj.data[live_mix.MIXER_PROP], live_mix._live(obj.data)
+    coords = live_mix._key_coords(obj.data.shape_keys, [live.basis, *live.names], live.n_vertices)
+    by_value = meta["fingerprint"]
+    meta["fingerprint"] = live_mix._digest(coords, live_mix._corners(obj.data), signed_zeros=True)
+    out["signed_zeros_digest_differs"] = meta["fingerprint"] != by_value
+    legacy = os.path.join(ARGS.workdir, "signed_zeros_digest.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=legacy, copy=True)
+    meta["fingerprint"] = by_value
+    set_values(obj, (0.5, 0.3, 0.0))
+    evaluated(obj)
+    seen = []  # the add-on's key's name at each update while saving (after the add-on's handler)
+    bpy.app.handlers.depsgraph_update_post.append(lambda *_a: seen.append(kbs[-1].name))
+    kbs["LA live mix"].name = "Renamed"
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(ARGS.workdir, "renamed.blend"))
+    out["save_updates"] = list(seen)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='EDIT')
+    kbs["LA live mix"].name = "Renamed"
+    evaluated(obj)
+    out["renamed_in_edit_mode"] = kbs[-1].name
+    path = os.path.join(ARGS.workdir, "renamed_edit.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Bar"]
+    out["reopened_mode"] = obj.mode
+    select_only(obj)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    kbs = obj.data.shape_keys.key_blocks
+    out["reopened_keys"] = [kb.name for kb in kbs]
+    set_values(obj, (0.2, 0.6, 0.0))
+    OUT["reopened_mixed"] = evaluated(obj)
+    OUT["reopened_values"] = np.array(values(obj))
+    out["reopened_status"] = status(obj)["stale"]
+    # a user key renamed (an update: stale) and named back before the next update
+    kbs["Twist"].name = "Twisted"
+    evaluated(obj)
+    out["user_renamed"] = status(obj)["stale"]
+    kbs["Twisted"].name = "Twist"
+    offset = key_coords(obj, [kbs[-1].name])[0] - key_coords(obj, ["Basis"])[0]  # (the add-on's key, last)
+    out["named_back_before_update"] = [status(obj)["stale"], float(np.abs(offset).max())]
+    out["named_back_panel"] = panel_labels(obj)
+    evaluated(obj)
+    out["named_back_after_update"] = status(obj)["stale"]
+    bpy.ops.wm.open_mainfile(filepath=legacy)
+    out["signed_zeros_digest_status"] = status(bpy.data.objects["Bar"])["stale"]
+    return out
+
+
 def bad_input():
     """No shape keys, one key, a key not yet shaped, a degenerate key, Edit Mode, absolute keys, disable without a
     mixer, a mesh without faces: one line, nothing changed."""
@@ -953,5 +1023,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, bad_input,
+           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, mix_key_name, bad_input,
            modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
