@@ -205,7 +205,9 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         col = layout.column(align=True)
         if state["stale"]:
             col.label(text=f"Stale: {state['stale']}", icon='ERROR')
-            if not state["linked"]:  # a linked mesh's mix key is the library's (Rebuild is refused)
+            if state["override"]:  # an override's mixer is the library's (Rebuild is refused here)
+                col.label(text=f"Showing Blender's linear mix: Rebuild in '{state['override']}'")
+            elif not state["linked"]:  # a linked mesh's mix key is the library's (Rebuild is refused)
                 col.label(text="Showing Blender's linear mix: Rebuild to mix live again")
         else:
             col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['reduced_size'] or 'auto'}",

@@ -7,7 +7,8 @@ after saving and reopening the .blend, for two objects at once, a duplicate and 
 .blend, with a key limited to a vertex group or relative to another key mixed linearly on top, a muted key and a
 negative slider value, in Cycles animation and still renders; modifiers after the keys (Displace, Armature,
 Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer stale, Edit Mode without an edit
-does not; an object linked from a library is said to be stale and refused, and mixes once made local.
+does not; an object linked from a library is said to be stale and refused, and mixes once made local; a character
+linked into a shot and made a library override, its mesh too, mixes the values keyed in the shot, also reopened.
 ``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
 stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
 mixer is gone once the saved file is opened again.  A key of the user's named like the add-on's is refused; the
@@ -272,6 +273,49 @@ def test_linked_object_is_said_and_refused_then_mixes_once_local(run, inputs):
     for w, shown in zip(a["local_values"], a["local_mixed"], strict=True):
         want, _ = expected(a["linked_mixer_npz"], inputs, w)
         assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())
+
+def test_library_override_mixes_live_and_reopens_live(run, inputs):
+    """A live character linked into a shot as a collection and made a library override: the hierarchy leaves the mesh
+    linked (stale, the panel naming Library Override); the mesh made an override too, the values keyed in the shot mix
+    live (the mixer's text came along from the library), also after an undo push and after saving and reopening the
+    shot, and as a system override; Enable and Disable are refused in one line (the mixer is the library's), an edited
+    key makes it stale (the panel names the library to rebuild in), and the shot follows a Rebuild and a Disable in the
+    library when reopened."""
+    res, a = run["cases"]["library_override"], run["arrays"]
+    assert res["object"] == [True, False] and res["mesh_linked"], res  # the hierarchy overrides the object only
+    stale = res["status_linked"]["stale"]
+    assert stale.startswith("the mesh is linked from '") and "Library Override > Make > Selected" in stale, stale
+    assert res["mesh"] == [True, True, False] and res["texts"] == [["LA live mixer Bar", True]], res
+    st = res["status"]
+    assert st["stale"] == "" and st["linked"] == "" and st["override"].endswith("character.blend"), st
+    assert any(t and t.startswith("Live: 3 keys") for t in res["panel"]), res["panel"]
+    for name in ("enable", "disable"):
+        r = res[name]
+        assert r["result"] == ["CANCELLED"] and r["one_line"] and r["unchanged"], r
+        assert "is a library override of '" in r["message"] and f"{name} live mixing in that file" in r["message"], r
+    assert res["after_undo_push"] == 0.0 and res["reopened"] == [True, ""] and res["system_override"] == [True, ""]
+    values = a["override_values"]
+    assert len(values) == 6 and 0.0 < values[0][0] < values[1][0] < 1.0 and values[-1][2] == np.float32(0.7)
+    # reopened at frames 8 and 4: the keyed values and the one set by hand (Both 0.4) were saved with the override
+    assert np.array_equal(values[3], values[2]) and np.array_equal(values[4], [*values[0][:2], values[2][2]]), values
+    for w, shown in zip(values, a["override_mixed"], strict=True):
+        want, linear = expected(a["override_mixer_npz"], inputs, w)
+        assert np.abs(shown - want).max() < TOL, (w, np.abs(shown - want).max())  # measured up to 6.1e-7
+        assert np.abs(shown - linear).max() > 0.05, w  # not Blender's linear mix (measured 0.097 .. 0.136)
+    edited, panel = res["edited"]
+    assert edited == "shape key 'Twist' was edited", res["edited"]
+    assert any(t and t.startswith("Showing Blender's linear mix: Rebuild in '") and t.endswith("character.blend'")
+               for t in panel), panel
+    assert res["edit_undone"][0] == "" and res["edit_undone"][1] < TOL, res["edit_undone"]  # the mix again
+    # the library rebuilt with another quality, then disabled: the reopened shot follows
+    assert res["rebuilt"] == [["", 12], ["Basis", "Bend", "Twist", "Both", "LA live mix"]], res["rebuilt"]
+    w = a["override_rebuilt_values"]
+    want, linear = expected(a["override_rebuilt_npz"], inputs, w)
+    assert np.abs(a["override_rebuilt_mixed"] - want).max() < TOL and np.abs(want - linear).max() > 0.05, w
+    assert res["disabled"] == [None, ["Basis", "Bend", "Twist", "Both"]], res["disabled"]
+    _, linear = expected(a["override_rebuilt_npz"], inputs, a["override_disabled_values"])
+    assert np.abs(a["override_disabled_mixed"] - linear).max() < TOL  # Blender's linear mix
+
 
 def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
     """A muted key weighs 0, a negative slider range is mixed, a key relative to another key is added linearly

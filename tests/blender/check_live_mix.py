@@ -610,6 +610,101 @@ def linked_from_library():
 
 
 
+def library_override():
+    """A live character linked into a shot as a collection and made a library override: the hierarchy leaves the mesh
+    linked (said stale, naming Library Override); the mesh made an override too, its key values keyed in the shot mix
+    live (the mixer's text came along), also after an undo push; Enable and Disable are refused; the saved shot
+    reopens live, and a system override of the mesh mixes live too; an edited key is stale (rebuilt in the library),
+    and the shot follows the library's Rebuild and Disable when reopened."""
+    reset()
+    obj = make_bar()
+    character = bpy.data.collections.new("Character")
+    bpy.context.scene.collection.children.link(character)
+    character.objects.link(obj)
+    bpy.context.scene.collection.objects.unlink(obj)
+    assert enable(obj) == ["FINISHED"]
+    OUT["override_mixer_npz"] = stored_mixer(obj)
+    library = os.path.join(ARGS.workdir, "character.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=library)
+    reset()
+    with bpy.data.libraries.load(library, link=True) as (_source, target):
+        target.collections = ["Character"]
+    scene = bpy.context.scene
+    scene.collection.children.link(target.collections[0])
+    shot = target.collections[0].override_hierarchy_create(scene, bpy.context.view_layer, do_fully_editable=True)
+    obj = shot.objects["Bar"]
+    out = {"object": [obj.override_library is not None, obj.override_library.is_system_override],
+           "mesh_linked": obj.data.library is not None, "status_linked": status(obj)}
+    mesh = obj.data.override_create(remap_local_usages=True)  # the Outliner's Library Override > Make > Selected
+    out["mesh"] = [obj.data == mesh, mesh.override_library is not None, mesh.override_library.is_system_override]
+    out["texts"] = [[t.name, t.library is not None] for t in bpy.data.texts]
+    kbs = mesh.shape_keys.key_blocks
+    for f, v in ((1, 0.0), (11, 1.0)):
+        kbs["Bend"].value = v
+        kbs["Bend"].keyframe_insert("value", frame=f)
+    kbs["Twist"].value = 0.3
+    kbs["Twist"].keyframe_insert("value", frame=1)
+
+    def frames(*numbers):
+        shapes, weights = [], []
+        for f in numbers:
+            scene.frame_set(f)
+            shapes.append(evaluated(obj))
+            weights.append(values(obj))
+        return shapes, weights
+
+    shapes, weights = frames(4, 8)
+    kbs["Both"].value = 0.4  # a slider set by hand
+    shapes.append(evaluated(obj))
+    weights.append(values(obj))
+    bpy.ops.ed.undo_push(message="keyed")
+    out["after_undo_push"] = float(np.abs(evaluated(obj) - shapes[-1]).max())
+    out["status"], out["panel"] = status(obj), panel_labels(obj)
+    point = kbs["Twist"].data[0]
+    x = point.co.x
+    point.co.x = x + 0.1  # an edit of a key in the shot: stale, rebuilt in the library; undone: live again
+    evaluated(obj)
+    out["edited"] = [status(obj)["stale"], panel_labels(obj)]
+    point.co.x = x
+    shown = evaluated(obj)
+    out["edit_undone"] = [status(obj)["stale"], float(np.abs(shown - shapes[-1]).max())]
+    for name, op in (("enable", bpy.ops.lengths_angles.live_mix_enable),
+                     ("disable", bpy.ops.lengths_angles.live_mix_disable)):
+        out[name] = refusal(obj, op)
+    path = os.path.join(ARGS.workdir, "shot.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    scene = bpy.context.scene
+    obj = next(o for o in bpy.data.objects if o.name == "Bar" and o.library is None)
+    out["reopened"] = [obj.data.override_library is not None, status(obj)["stale"]]
+    reopened, reopened_weights = frames(8, 4)
+    # a system override (not editable in the UI: its values driven, here set by a script) mixes live too
+    obj.data.override_library.is_system_override = True
+    obj.data.shape_keys.key_blocks["Both"].value = 0.7
+    reopened.append(evaluated(obj))
+    reopened_weights.append(values(obj))
+    out["system_override"] = [obj.data.override_library.is_system_override, status(obj)["stale"]]
+    OUT["override_mixed"], OUT["override_values"] = np.array(shapes + reopened), np.array(weights + reopened_weights)
+    # rebuilt in the library (another quality), then disabled there: the shot follows when reopened
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    for step in ("rebuilt", "disabled"):
+        bpy.ops.wm.open_mainfile(filepath=library)
+        obj = bpy.data.objects["Bar"]
+        if step == "rebuilt":
+            obj.data.lengths_angles_live_mix_reduced_size = 12
+            assert enable(obj) == ["FINISHED"]
+            OUT["override_rebuilt_npz"] = stored_mixer(obj)
+        else:
+            assert disable(obj) == ["FINISHED"]
+        bpy.ops.wm.save_mainfile()
+        bpy.ops.wm.open_mainfile(filepath=path)
+        obj = next(o for o in bpy.data.objects if o.name == "Bar" and o.library is None)
+        st = status(obj)
+        out[step] = [None if st is None else [st["stale"], st["reduced_size"]],
+                     [kb.name for kb in obj.data.shape_keys.key_blocks]]
+        OUT[f"override_{step}_values"], OUT[f"override_{step}_mixed"] = np.array(values(obj)), evaluated(obj)
+    return out
+
 def mix_key_muted_shape(obj):
     """The evaluated mesh without the add-on's key: Blender's linear mix of the keys as they are."""
     kb = obj.data.shape_keys.key_blocks["LA live mix"]
@@ -1023,5 +1118,5 @@ def finish():
 
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, mix_key_name, bad_input,
-           modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
+           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
+           mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
