@@ -8,7 +8,8 @@ after saving and reopening the .blend, for two objects at once, a duplicate and 
 negative slider value, in Cycles animation and still renders; modifiers after the keys (Displace, Armature,
 Subdivision Surface) apply to the mix.  A renamed or deleted key makes the mixer stale, Edit Mode without an edit
 does not; an object linked from a library is said to be stale and refused, and mixes once made local; a character
-linked into a shot and made a library override, its mesh too, mixes the values keyed in the shot, also reopened.
+linked into a shot and made a library override, its mesh too, mixes the values keyed in the shot, also reopened, and
+a driven key (the mesh then overridden by Blender) follows its control.
 ``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer
 stale (the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's
 mixer is gone once the saved file is opened again.  A key of the user's named like the add-on's is refused; the
@@ -316,6 +317,17 @@ def test_library_override_mixes_live_and_reopens_live(run, inputs):
     _, linear = expected(a["override_rebuilt_npz"], inputs, a["override_disabled_values"])
     assert np.abs(a["override_disabled_mixed"] - linear).max() < TOL  # Blender's linear mix
 
+
+def test_library_override_with_a_driven_key_mixes_live(run, inputs):
+    """A key driven by an object of the character (a rig's control) makes the hierarchy override the mesh too, as a
+    system override: moving the control in the shot mixes live."""
+    res, a = run["cases"]["library_override_driven"], run["arrays"]
+    assert res == {"seconds": res["seconds"], "mesh": [True, True], "stale": ""}, res
+    w = a["driven_override_values"]
+    assert np.allclose(w, [0.0, 0.0, 0.6]), w
+    want, linear = expected(a["driven_override_mixer_npz"], inputs, w)
+    assert np.abs(a["driven_override_mixed"] - want).max() < TOL  # measured 3.8e-7
+    assert np.abs(want - linear).max() > 0.05  # (0.070)
 
 def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
     """A muted key weighs 0, a negative slider range is mixed, a key relative to another key is added linearly

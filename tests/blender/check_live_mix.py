@@ -610,28 +610,51 @@ def linked_from_library():
 
 
 
-def library_override():
-    """A live character linked into a shot as a collection and made a library override: the hierarchy leaves the mesh
-    linked (said stale, naming Library Override); the mesh made an override too, its key values keyed in the shot mix
-    live (the mixer's text came along), also after an undo push; Enable and Disable are refused; the saved shot
-    reopens live, and a system override of the mesh mixes live too; an edited key is stale (rebuilt in the library),
-    and the shot follows the library's Rebuild and Disable when reopened."""
+def live_character(path, driven=False):
+    """Save a library .blend at ``path`` holding the collection 'Character': the bar mixing live (its mixer ``.npz``
+    returned), with ``driven`` also an empty 'Control' whose x location drives the value of Both."""
     reset()
     obj = make_bar()
     character = bpy.data.collections.new("Character")
     bpy.context.scene.collection.children.link(character)
     character.objects.link(obj)
     bpy.context.scene.collection.objects.unlink(obj)
+    if driven:
+        control = bpy.data.objects.new("Control", None)
+        character.objects.link(control)
+        fc = obj.data.shape_keys.key_blocks["Both"].driver_add("value")
+        var = fc.driver.variables.new()
+        var.name, var.type = "x", 'TRANSFORMS'
+        var.targets[0].id = control
+        var.targets[0].transform_type = 'LOC_X'
+        fc.driver.expression = "x"
     assert enable(obj) == ["FINISHED"]
-    OUT["override_mixer_npz"] = stored_mixer(obj)
-    library = os.path.join(ARGS.workdir, "character.blend")
-    bpy.ops.wm.save_as_mainfile(filepath=library)
+    npz = stored_mixer(obj)
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    return npz
+
+
+def override_character(path, editable):
+    """A new file with the collection 'Character' linked from ``path`` and made a library override (what Make Library
+    Override does; ``editable``: fully editable); returns the scene and the override collection."""
     reset()
-    with bpy.data.libraries.load(library, link=True) as (_source, target):
+    with bpy.data.libraries.load(path, link=True) as (_source, target):
         target.collections = ["Character"]
     scene = bpy.context.scene
     scene.collection.children.link(target.collections[0])
-    shot = target.collections[0].override_hierarchy_create(scene, bpy.context.view_layer, do_fully_editable=True)
+    return scene, target.collections[0].override_hierarchy_create(scene, bpy.context.view_layer,
+                                                                  do_fully_editable=editable)
+
+
+def library_override():
+    """A live character linked into a shot as a collection and made a library override: the hierarchy leaves the mesh
+    linked (said stale, naming Library Override); the mesh made an override too, its key values keyed in the shot mix
+    live (the mixer's text came along), also after an undo push; Enable and Disable are refused; the saved shot
+    reopens live, and a system override of the mesh mixes live too; an edited key is stale (rebuilt in the library),
+    and the shot follows the library's Rebuild and Disable when reopened."""
+    library = os.path.join(ARGS.workdir, "character.blend")
+    OUT["override_mixer_npz"] = live_character(library)
+    scene, shot = override_character(library, editable=True)
     obj = shot.objects["Bar"]
     out = {"object": [obj.override_library is not None, obj.override_library.is_system_override],
            "mesh_linked": obj.data.library is not None, "status_linked": status(obj)}
@@ -704,6 +727,20 @@ def library_override():
                      [kb.name for kb in obj.data.shape_keys.key_blocks]]
         OUT[f"override_{step}_values"], OUT[f"override_{step}_mixed"] = np.array(values(obj)), evaluated(obj)
     return out
+
+def library_override_driven():
+    """A live character whose key is driven by an object of its own (a rig's control): the hierarchy overrides the
+    mesh too (a system override); the control made editable and moved in the shot, the mesh mixes live."""
+    OUT["driven_override_mixer_npz"] = live_character(os.path.join(ARGS.workdir, "driven.blend"), driven=True)
+    _scene, shot = override_character(os.path.join(ARGS.workdir, "driven.blend"), editable=False)
+    obj, control = shot.objects["Bar"], shot.objects["Control"]
+    control.override_library.is_system_override = False  # Make Editable
+    control.location.x = 0.6
+    OUT["driven_override_mixed"] = evaluated(obj)
+    OUT["driven_override_values"] = np.array(values(obj))
+    override = obj.data.override_library
+    return {"mesh": [obj.data.library is None, override is not None and override.is_system_override],
+            "stale": status(obj)["stale"]}
 
 def mix_key_muted_shape(obj):
     """The evaluated mesh without the add-on's key: Blender's linear mix of the keys as they are."""
@@ -1119,4 +1156,5 @@ def finish():
 run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
-           mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer, renders, finish])
+           library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
+           renders, finish])
