@@ -771,7 +771,7 @@ def _require_local(mesh, what):
     if library:
         raise LiveMixError(f"mesh '{mesh.name}' is a library override of '{library}': {what} in that file (the "
                            "override's keys and mixer come from there), or make the mesh local first (Object > "
-                           "Relations > Make Local)")
+                           "Relations > Make Local > Selected Objects and Data)")
 
 
 def _require_not_edited(mesh, what):
