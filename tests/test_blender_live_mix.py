@@ -320,9 +320,11 @@ def test_library_override_mixes_live_and_reopens_live(run, inputs):
 
 def test_library_override_with_a_driven_key_mixes_live(run, inputs):
     """A key driven by an object of the character (a rig's control) makes the hierarchy override the mesh too, as a
-    system override: moving the control in the shot mixes live."""
+    system override: moving the control in the shot mixes live, also in an animation render (the control keyed)."""
     res, a = run["cases"]["library_override_driven"], run["arrays"]
-    assert res == {"seconds": res["seconds"], "mesh": [True, True], "stale": ""}, res
+    assert res["mesh"] == [True, True] and res["stale"] == "", res
+    for vs_plain, vs_linear, covered in res["render"]:  # alpha of the render vs the viewport's mix, the linear mix
+        assert vs_plain < 0.05 and vs_linear > 0.5 and 0.02 < covered < 0.5, res["render"]  # (measured 0.0, 1.0)
     w = a["driven_override_values"]
     assert np.allclose(w, [0.0, 0.0, 0.6]), w
     want, linear = expected(a["driven_override_mixer_npz"], inputs, w)

@@ -730,17 +730,30 @@ def library_override():
 
 def library_override_driven():
     """A live character whose key is driven by an object of its own (a rig's control): the hierarchy overrides the
-    mesh too (a system override); the control made editable and moved in the shot, the mesh mixes live."""
+    mesh too (a system override); the control made editable and moved in the shot, the mesh mixes live, also in an
+    animation render."""
     OUT["driven_override_mixer_npz"] = live_character(os.path.join(ARGS.workdir, "driven.blend"), driven=True)
-    _scene, shot = override_character(os.path.join(ARGS.workdir, "driven.blend"), editable=False)
+    scene, shot = override_character(os.path.join(ARGS.workdir, "driven.blend"), editable=False)
     obj, control = shot.objects["Bar"], shot.objects["Control"]
     control.override_library.is_system_override = False  # Make Editable
     control.location.x = 0.6
     OUT["driven_override_mixed"] = evaluated(obj)
     OUT["driven_override_values"] = np.array(values(obj))
     override = obj.data.override_library
-    return {"mesh": [obj.data.library is None, override is not None and override.is_system_override],
-            "stale": status(obj)["stale"]}
+    out = {"mesh": [obj.data.library is None, override is not None and override.is_system_override],
+           "stale": status(obj)["stale"]}
+    # an animation render (the control keyed) shows the mix the viewport shows, not the linear one
+    for f, x in ((1, 0.5), (2, 0.4)):
+        control.location.x = x
+        control.keyframe_insert("location", index=0, frame=f)
+    render_setup(scene)
+    live = render_png(scene, os.path.join(ARGS.workdir, "override_"), animation=True)
+    plain = plain_renders(scene, obj, "override_")
+    obj.data.shape_keys.key_blocks["LA live mix"].mute = True
+    linear = render_png(scene, os.path.join(ARGS.workdir, "override_linear_"), animation=True)
+    out["render"] = [[float(np.abs(a - b).max()), float(np.abs(a - c).max()), float((a > 0.5).mean())]
+                     for a, b, c in zip(live, plain, linear, strict=True)]
+    return out
 
 def mix_key_muted_shape(obj):
     """The evaluated mesh without the add-on's key: Blender's linear mix of the keys as they are."""
@@ -1011,6 +1024,40 @@ def render_png(scene, path, animation=False):
     return out
 
 
+def render_setup(scene):
+    """An orthographic camera onto the bar, Cycles at 1 sample and 48 x 48 pixels, frames 1 to 2."""
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.data.type, cam.data.ortho_scale = 'ORTHO', 9.0
+    cam.location, cam.rotation_euler = (3.0, -20.0, 2.0), (np.pi / 2, 0.0, 0.0)
+    scene.camera = cam
+    scene.render.engine = 'CYCLES'
+    scene.cycles.samples = 1
+    scene.render.film_transparent = True
+    scene.render.resolution_x = scene.render.resolution_y = 48
+    scene.render.image_settings.file_format = 'PNG'
+    scene.frame_start, scene.frame_end = 1, 2
+
+
+def plain_renders(scene, obj, prefix):
+    """Renders (alpha) of the viewport's evaluated ``obj`` at frames 1 and 2, each as a plain mesh in its place."""
+    copies = []
+    for f in (1, 2):
+        scene.frame_set(f)
+        X = evaluated(obj)
+        mesh = bpy.data.meshes.new(f"Copy{f}")
+        mesh.from_pydata(X.tolist(), [], INPUTS["faces"].tolist())
+        copies.append(bpy.data.objects.new(f"Copy{f}", mesh))
+    obj.hide_render = True
+    plain = []
+    for copy in copies:
+        scene.collection.objects.link(copy)
+        plain.append(render_png(scene, os.path.join(ARGS.workdir, f"{prefix}{copy.name}.png"))[0])
+        scene.collection.objects.unlink(copy)
+    obj.hide_render = False
+    return plain
+
+
 def renders():
     """An animation render (as on the command line: the render's own depsgraph at every frame) shows the live
     mix -- the same pixels as a render of a plain mesh holding the viewport's evaluated mix -- and not the
@@ -1024,37 +1071,13 @@ def renders():
         kb.keyframe_insert("value", frame=f)
     assert enable(obj) == ["FINISHED"]
     scene = bpy.context.scene
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(cam)
-    cam.data.type, cam.data.ortho_scale = 'ORTHO', 9.0
-    cam.location, cam.rotation_euler = (3.0, -20.0, 2.0), (np.pi / 2, 0.0, 0.0)
-    scene.camera = cam
-    scene.render.engine = 'CYCLES'
-    scene.cycles.samples = 1
-    scene.render.film_transparent = True
-    scene.render.resolution_x = scene.render.resolution_y = 48
-    scene.render.image_settings.file_format = 'PNG'
-    scene.frame_start, scene.frame_end = 1, 2
+    render_setup(scene)
     t = time.perf_counter()
     live = render_png(scene, os.path.join(ARGS.workdir, "live_"), animation=True)
     seconds = time.perf_counter() - t
     scene.frame_set(2)
     still = render_png(scene, os.path.join(ARGS.workdir, "still.png"))[0]
-    # the viewport's evaluated mix at each frame, as a plain mesh in place of the live one
-    copies = []
-    for f in (1, 2):
-        scene.frame_set(f)
-        X = evaluated(obj)
-        mesh = bpy.data.meshes.new(f"Copy{f}")
-        mesh.from_pydata(X.tolist(), [], INPUTS["faces"].tolist())
-        copies.append(bpy.data.objects.new(f"Copy{f}", mesh))
-    obj.hide_render = True
-    plain = []
-    for copy in copies:
-        scene.collection.objects.link(copy)
-        plain.append(render_png(scene, os.path.join(ARGS.workdir, f"{copy.name}.png"))[0])
-        scene.collection.objects.unlink(copy)
-    obj.hide_render = False
+    plain = plain_renders(scene, obj, "")
     # Exact in Renders: a still render at frame 2, two more keys set (one extrapolated), polishes the mix; the
     # viewport keeps the render's shape
     live_mix = ext("live_mix")
