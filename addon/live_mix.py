@@ -88,7 +88,8 @@ from . import storage
 from .bake import value_path
 from .compat import animation_channels
 from .jobs import CallJob
-from .mesh_access import read_shape_keys, require_mesh_object, shows_stored_shape, triangulate
+from .mesh_access import (MeshAccessError, linked_from, override_from, read_shape_keys, require_mesh_object,
+                          require_writable_keys, shows_stored_shape, triangulate)
 from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
@@ -148,22 +149,6 @@ def _digest(coords, corners, signed_zeros=False):
     alike, unless ``signed_zeros`` (the digest of the bytes as they are, which records may hold too)."""
     values = coords if signed_zeros else coords + np.float32(0.0)  # -0.0 + 0.0 is 0.0
     return hashlib.blake2b(values.tobytes() + corners.tobytes(), digest_size=16).hexdigest()
-
-
-def linked_from(mesh):
-    """The file path of the library ``mesh`` or its shape keys are linked from ("" when both are local): Blender
-    keeps linked data as the library saved it, so its mix key cannot be rewritten here."""
-    key = mesh.shape_keys
-    lib = mesh.library or (key.library if key is not None else None)
-    return "" if lib is None else lib.filepath
-
-
-def override_from(mesh):
-    """The file path of the library ``mesh`` is a library override of ("" when it is not one): its keys and mixer are
-    the library's, reapplied whenever the file is opened, so the mixer is built or removed in that file."""
-    override = mesh.override_library
-    reference = None if override is None else override.reference
-    return "" if reference is None or reference.library is None else reference.library.filepath
 
 
 # ------------------------------------------------------------------------------------------- runtime
@@ -766,15 +751,10 @@ def require_live(obj):
 def _require_local(mesh, what):
     """:class:`LiveMixError` when ``mesh`` or its shape keys are linked from a library, or ``mesh`` is a library
     override (a change would not be saved: the library's keys and mixer come back when the file is opened again)."""
-    library = linked_from(mesh)
-    if library:
-        raise LiveMixError(f"mesh '{mesh.name}' is linked from '{library}': {what} in that file, or make the mesh "
-                           "local first (Object > Relations > Make Local)")
-    library = override_from(mesh)
-    if library:
-        raise LiveMixError(f"mesh '{mesh.name}' is a library override of '{library}': {what} in that file (the "
-                           "override's keys and mixer come from there), or make the mesh local first (Object > "
-                           "Relations > Make Local > Selected Objects and Data)")
+    try:
+        require_writable_keys(mesh, what)
+    except MeshAccessError as exc:
+        raise LiveMixError(str(exc)) from None
 
 
 def _require_not_edited(mesh, what):

@@ -4,6 +4,9 @@
 * :func:`read_shape_keys` / :func:`write_shape_key` / :func:`set_shape_key` move shape-key
   coordinates between Blender and ``(K, V, 3)`` float64 arrays with ``foreach_get``/``foreach_set``;
   :func:`object_mode` makes writes of shape keys stick in Edit Mode.
+* :func:`require_writable_keys` refuses a mesh whose shape keys a write would not persist in: linked from a library
+  (Blender keeps it as the library saved it) or a library override (Blender does not keep keys added to an override
+  and drops bulk writes into its keys' coordinates).
 * :func:`triangulate` builds a FIXED triangulation of the polygons: a fan from each
   polygon's first loop vertex.  It depends only on connectivity (unlike
   ``mesh.loop_triangles``, which follows vertex positions for quads), so all shape
@@ -21,7 +24,8 @@ import numpy as np
 from ..lacore.errors import InputError
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
-           "require_whole_keys", "write_shape_key", "set_shape_key", "key_names", "require_mesh_object",
+           "require_whole_keys", "require_writable_keys", "linked_from", "override_from", "write_shape_key",
+           "set_shape_key", "key_names", "require_mesh_object",
            "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
 
 
@@ -231,6 +235,37 @@ def require_whole_keys(mesh, names, what):
         raise MeshAccessError(f"{what}: shape key '{name}' {why}, so it shows other than its stored shape; make a "
                               "key of what it shows (set its value to 1, the others to 0, then Shape Keys > New Shape "
                               "from Mix) and use that")
+
+
+def linked_from(mesh):
+    """The file path of the library ``mesh`` or its shape keys are linked from ("" when both are local): Blender
+    keeps linked data as the library saved it."""
+    key = mesh.shape_keys
+    lib = mesh.library or (key.library if key is not None else None)
+    return "" if lib is None else lib.filepath
+
+
+def override_from(mesh):
+    """The file path of the library ``mesh`` is a library override of ("" when it is not one): its keys are the
+    library's, reapplied whenever the file is opened."""
+    override = mesh.override_library
+    reference = None if override is None else override.reference
+    return "" if reference is None or reference.library is None else reference.library.filepath
+
+
+def require_writable_keys(mesh, what):
+    """:class:`MeshAccessError` when shape keys added to or written into ``mesh`` would not persist: ``mesh`` or its
+    keys are linked from a library, or ``mesh`` is a library override (Blender keeps neither keys added to it nor bulk
+    writes into its keys).  ``what`` (e.g. "bake") completes "<what> in that file"."""
+    library = linked_from(mesh)
+    if library:
+        raise MeshAccessError(f"mesh '{mesh.name}' is linked from '{library}': {what} in that file, or make the mesh "
+                              "local first (Object > Relations > Make Local > Selected Objects and Data)")
+    library = override_from(mesh)
+    if library:
+        raise MeshAccessError(f"mesh '{mesh.name}' is a library override of '{library}', whose shape keys come from "
+                              f"that file when the shot is opened: {what} in that file, or make the mesh local first "
+                              "(Object > Relations > Make Local > Selected Objects and Data)")
 
 
 def write_shape_key(mesh, name, coords):

@@ -14,6 +14,7 @@ import time
 from types import SimpleNamespace
 
 from harness import ARGS, MODULE, bpy, draw_panel, esc, evaluated, fake_operator, reset, run_cases, timer
+import libraries
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -582,11 +583,7 @@ def linked_from_library():
     library = os.path.join(ARGS.workdir, "library.blend")
     bpy.ops.wm.save_as_mainfile(filepath=library)
     reset()
-    with bpy.data.libraries.load(library, link=True) as (_source, target):
-        target.objects = ["Bar", "Plain"]
-    linked, plain = (next(o for o in target.objects if o.name == n) for n in ("Bar", "Plain"))
-    for o in (linked, plain):
-        bpy.context.scene.collection.objects.link(o)
+    linked, plain = libraries.link_objects(library, ["Bar", "Plain"])
     bpy.context.scene.frame_set(5)
     evaluated(linked)
     out = {"status": status(linked), "panel": panel_labels(linked),
@@ -615,13 +612,11 @@ def live_character(path, driven=False):
     returned), with ``driven`` also an empty 'Control' whose x location drives the value of Both."""
     reset()
     obj = make_bar()
-    character = bpy.data.collections.new("Character")
-    bpy.context.scene.collection.children.link(character)
-    character.objects.link(obj)
-    bpy.context.scene.collection.objects.unlink(obj)
+    objects = [obj]
     if driven:
         control = bpy.data.objects.new("Control", None)
-        character.objects.link(control)
+        bpy.context.scene.collection.objects.link(control)
+        objects.append(control)
         fc = obj.data.shape_keys.key_blocks["Both"].driver_add("value")
         var = fc.driver.variables.new()
         var.name, var.type = "x", 'TRANSFORMS'
@@ -630,20 +625,14 @@ def live_character(path, driven=False):
         fc.driver.expression = "x"
     assert enable(obj) == ["FINISHED"]
     npz = stored_mixer(obj)
-    bpy.ops.wm.save_as_mainfile(filepath=path)
+    libraries.save_character(path, objects)
     return npz
 
 
 def override_character(path, editable):
-    """A new file with the collection 'Character' linked from ``path`` and made a library override (what Make Library
-    Override does; ``editable``: fully editable); returns the scene and the override collection."""
+    """A new file with the collection 'Character' linked from ``path`` and made a library override."""
     reset()
-    with bpy.data.libraries.load(path, link=True) as (_source, target):
-        target.collections = ["Character"]
-    scene = bpy.context.scene
-    scene.collection.children.link(target.collections[0])
-    return scene, target.collections[0].override_hierarchy_create(scene, bpy.context.view_layer,
-                                                                  do_fully_editable=editable)
+    return libraries.override_character(path, editable)
 
 
 def library_override():
