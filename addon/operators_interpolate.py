@@ -132,6 +132,7 @@ def _job(data, keys, keyframes, times, smooth, method, workers=1, obj=None):
 def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
     """Validate and set up in-betweens: ``(data, names of the new keys, job)``; nothing written."""
     data = session.read_mesh(obj, "interpolated")
+    mesh_access.require_writable_keys(data.mesh, "make the in-betweens")
     if not key_from or not key_to or NO_KEY in (key_from, key_to):
         raise OperatorInputError("Choose the two shape keys to interpolate between (From and To)")
     if key_from == key_to:
@@ -157,7 +158,7 @@ def _inbetween_plan(obj, key_from, key_to, factors, method, workers=1):
 
 def _bake_plan(obj, keys, frames, smooth, method, workers=1):
     """Validate a bake and set it up: ``(data, plan without shapes, job or None)``; nothing written."""
-    mesh_access.require_mesh_object(obj)
+    mesh_access.require_writable_keys(mesh_access.require_mesh_object(obj), "bake")
     inbetween = bake.bake_frames(keys, frames)
     data = session.read_mesh(obj, "interpolated")
     plan = bake.check_bake(obj, data.names, keys, frames)
@@ -534,7 +535,7 @@ class LENGTHS_ANGLES_OT_clear_bake(bpy.types.Operator):
     def execute(self, context):
         obj = context.object
         try:
-            mesh_access.require_mesh_object(obj)
+            mesh_access.require_writable_keys(mesh_access.require_mesh_object(obj), "clear the bake")
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}

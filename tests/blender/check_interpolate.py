@@ -16,6 +16,7 @@ from harness import ARGS, MODULE, REPO, bpy, draw_panel, plain, reset, run_cases
 import numpy as np
 import blend_sample_cases as cases
 import blender_samples as samples
+import libraries
 
 BAR_SEGMENTS = (64, 4, 4)  # 1058 vertices
 
@@ -626,9 +627,31 @@ def processes_side_by_side():
             "auto_large_mesh": jobs_mod.job_workers(0, 50000, 6)}
 
 
+def library_meshes():
+    """The bar saved in a library and linked into a shot as a library override, its mesh left linked or made an
+    override too (where Blender keeps neither added keys nor bulk writes into keys when the shot is saved): In-betweens
+    and Bake are refused in one line naming the mesh, the library and Make Local, and change nothing."""
+    reset()
+    library = os.path.join(ARGS.workdir, "bar_library.blend")
+    libraries.save_character(library, [bar_with_keys()])
+    runs = {"interpolate": lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="0.5"),
+            "bake": lambda o: bake(o, keys="Basis, Bend180", frames="1 9")}
+    out = {}
+    for mesh_kind in ("linked", "override"):
+        reset()
+        obj = libraries.override_character(library, editable=True)[1].objects["Bar"]
+        if mesh_kind == "override":
+            obj.data.override_create(remap_local_usages=True)
+        out[f"{mesh_kind}_mesh"] = [obj.data.library is not None, obj.data.override_library is not None]
+        for name, run in runs.items():
+            out[f"{mesh_kind}_{name}"] = expect_error(run, obj, "mesh 'Bar'", library, "Make Local")
+        out[f"{mesh_kind}_keys"] = key_names(obj)
+    return out
+
+
 def main():
     run_cases((install_and_enable, interpolate_bar, path_method, redo_replaces, quads_ngons_and_edit_mode,
-               errors_change_nothing, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons,
+               errors_change_nothing, library_meshes, bake_and_rebake, finger_pair, failed_checks_warn, panel_buttons,
                processes_side_by_side))
 
 
