@@ -75,7 +75,8 @@ from ..lacore.multiresolution import coarsen
 from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import read_shape_keys, require_mesh_object, require_whole_keys, triangulate, world_to_object
+from .mesh_access import (read_shape_keys, require_mesh_object, require_whole_keys, require_writable_keys, triangulate,
+                          world_to_object)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
@@ -722,7 +723,9 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     """What a fit reads from Blender (validated): ``dict(model, binding, take, markers (T, M, 3) in the object's
     space, frames, filepath, path, labels, unkeyed)`` (``unkeyed``: the bound markers without keyed positions,
     NaN in ``markers``)."""
-    require_mesh_object(obj)
+    mesh = require_mesh_object(obj)
+    if output == 'SHAPE_KEYS':
+        require_writable_keys(mesh, "fit to shape keys")
     model = read_model(obj)
     binding, take, labels = read_binding(obj)
     frame_start, frame_end = int(frame_start), int(frame_end)
@@ -1011,6 +1014,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         obj = context.active_object
         try:
             model = read_model(obj)
+            require_writable_keys(obj.data, "add the model pose as a shape key")
             w = np.array(obj.lengths_angles_mode_weights[:model.n_modes], np.float64)
             X, result = model_vertices(model, w * model.standard_deviations)
         except InputError as exc:

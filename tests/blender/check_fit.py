@@ -15,6 +15,7 @@ import time
 
 from harness import (ARGS, MODULE, bpy, draw_panel, drive, esc, evaluated, fake_operator, reset, run_cases,
                      select_only)
+import libraries
 import numpy as np
 
 WORK = os.path.dirname(ARGS.workdir)
@@ -1492,8 +1493,59 @@ def fit_output_switch():
     return out
 
 
+def library_meshes():
+    """'Body' with its model, binding and take saved in a library and linked into a shot as a library override, its
+    mesh left linked or made an override too: Fit with the Shape Keys output and Model Pose to Shape Key, whose keys
+    Blender would not keep, are refused in one line and change nothing; the Point Cache output (a modifier of the
+    override object and a file) fits and shows the same shape after the shot is saved and opened again."""
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj, take = bpy.data.objects["Body"], bpy.data.objects["take"]
+    obj.modifiers.remove(obj.modifiers["LA Fit"])
+    library = os.path.join(ARGS.workdir, "body_library.blend")
+    libraries.save_character(library, [obj, take, *take.children_recursive])
+    shot = os.path.join(ARGS.workdir, "body_shot.blend")
+    out = {}
+    for mesh_kind in ("linked", "override"):
+        reset()
+        libraries.override_character(library, editable=True)
+        obj = next(o for o in bpy.data.objects if o.name == "Body" and o.library is None)
+        if mesh_kind == "override":
+            obj.data.override_create(remap_local_usages=True)
+        bpy.ops.wm.save_as_mainfile(filepath=shot)
+        select_only(obj)
+        got = {"mesh": [obj.data.library is not None, obj.data.override_library is not None]}
+        for name, op, kw in (("shape_keys", bpy.ops.lengths_angles.fit_markers,
+                              {"output": 'SHAPE_KEYS', "use_scene_range": False, "frame_start": 2, "frame_end": 4}),
+                             ("pose_key", bpy.ops.lengths_angles.model_pose_to_shape_key, {"name": "pose"})):
+            before = state(obj)
+            try:
+                got[name] = sorted(op(**kw))
+            except RuntimeError as exc:
+                got[name] = str(exc).replace("Error: ", "").strip()
+            got[f"{name}_unchanged"] = state(obj) == before
+        got["keys"] = [kb.name for kb in obj.data.shape_keys.key_blocks]
+        bpy.ops.wm.save_as_mainfile(filepath=shot)
+        bpy.ops.wm.open_mainfile(filepath=shot)
+        obj = next(o for o in bpy.data.objects if o.name == "Body" and o.library is None)
+        got["reopened_keys"] = [kb.name for kb in obj.data.shape_keys.key_blocks]
+        select_only(obj)
+        got["pc2"] = sorted(bpy.ops.lengths_angles.fit_markers(use_scene_range=False, frame_start=2, frame_end=4))
+        bpy.context.scene.frame_set(3)
+        shown = evaluated(obj)
+        got["pc2_rms_to_true"] = float(np.sqrt(((shown - INPUTS["true"][2]) ** 2).sum(1).mean()))  # frame 3
+        bpy.ops.wm.save_as_mainfile(filepath=shot)
+        bpy.ops.wm.open_mainfile(filepath=shot)
+        obj = next(o for o in bpy.data.objects if o.name == "Body" and o.library is None)
+        bpy.context.scene.frame_set(3)
+        got["pc2_reopened"] = ["LA Fit" in obj.modifiers, float(np.abs(evaluated(obj) - shown).max()),
+                               float(np.ptp(shown, axis=0).max())]
+        out[mesh_kind] = got
+    return out
+
+
 if __name__ == "__main__":
-    run_cases([install_and_enable, whole_path, model_storage, shape_key_output, bad_input, runs_progress_and_cancel,
+    run_cases([install_and_enable, whole_path, model_storage, shape_key_output, library_meshes, bad_input,
+               runs_progress_and_cancel,
                runs_object_changed, script_defaults_and_paths, bind_units_and_occlusion, fit_settings, cleared_marker,
                moving_setups, constant_setups, parent_links, take_rate, bind_with_modifiers, armature_character,
                bind_align, rebind_after_fit, bind_with_preview_key, rebind_after_moving, fit_output_switch])
