@@ -95,7 +95,7 @@ from .runs import ObjectWatch, Run
 
 __all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
            "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
-           "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP", "linked_from", "override_from"]
+           "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP"]
 
 MIXER_PROP = "lengths_angles_live_mix"
 #: Mesh property (bool): renders show the exact projection (the mix polished by full Gauss-Newton).
@@ -176,7 +176,8 @@ class _Live:
             if mesh.shape_keys is not None and len(mesh.vertices) == self.n_vertices else None
         if coords is not None:
             corners = _corners(mesh)
-            if str(meta["fingerprint"]) in (_digest(coords, corners), _digest(coords, corners, signed_zeros=True)):
+            fingerprint = str(meta["fingerprint"])
+            if fingerprint == _digest(coords, corners) or fingerprint == _digest(coords, corners, signed_zeros=True):
                 self._set_reference(coords, corners)
 
     def _set_reference(self, coords, corners):
