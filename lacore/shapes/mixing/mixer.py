@@ -8,7 +8,10 @@ values) the target is the blend in lengths and angles (the thesis' linear interp
     z(w) = z_0 + sum_k w_k (z_k - z_0)
 
 angles on the circle (every difference ``theta_k - theta_0`` wrapped to ``(-pi, pi]``), lengths
-floored at :data:`MIN_LENGTH_RATIO` of the basis' (as the shape model's synthesis does).  The mix
+floored at :data:`MIN_LENGTH_RATIO` of the basis' (as the shape model's synthesis does).  Keys masked by a vertex
+group and keys relative to another key (Blender's *Relative To*) blend as Blender adds them, in lengths and angles:
+``z(w) = z_0 + sum_k w_k m_k (z_k - z_rel(k))`` with per-edge factors ``m_k`` (:func:`key_directions`; ``masks`` and
+``relative_to`` of :meth:`ShapeMixer.build`).  The mix
 is its energy-based projection (Definition 4.3): the minimizer of ``W_q[z(w), Z(X)]`` (3.19), the
 energy and weights of :func:`lacore.reconstruction.reconstruct`, in the frame of the basis key.  The
 weights are the basis' at every mix, also where the blend's size leaves the band in which
@@ -92,7 +95,8 @@ from .reduced import ReducedEnergy, edge_stencils
 from .subspace import (Expansion, FullProblem, build_space, candidate_weights, exploration_weights, newton_vectors,
                        orthonormal_basis, reduced_solve, space_indicator)
 
-__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "MIN_LENGTH_RATIO",
+__all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "key_directions", "edge_masks",
+           "check_masks", "MIN_LENGTH_RATIO",
            "FORMAT", "FORMAT_VERSION", "mixer_bytes", "build_mixer_bytes"]
 
 #: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
@@ -417,8 +421,81 @@ class MixResult:
     polished: bool
 
 
-def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
-    """``z(w) = z_0 + sum_k w_k (z_k - z_0)``, angle differences on the circle, lengths floored.
+def key_directions(z_keys, n_edges, relative_to=None, edge_masks=None):
+    """The directions ``D_k = m_k (z_k - z_rel(k))`` ``(K-1, 2E)`` of a blend of keys in lengths and angles.
+
+    Blender adds a relative shape key as ``value * g(v) * (K_k - K_rel(k))`` (``g`` the weights of the key's vertex
+    group, ``rel(k)`` its *Relative To* key); this is the same in lengths and angles: the difference of the key's
+    lengths and angles and its relative key's (angles on the circle, wrapped to ``(-pi, pi]``), scaled per edge by
+    the key's mask.
+
+    Parameters
+    ----------
+    z_keys : (K, 2E) array_like
+        Lengths and angles of the keys (``z_keys[0]`` the basis).
+    n_edges : int
+    relative_to : (K-1,) array_like of int, optional
+        Each non-basis key's relative key, an index into ``z_keys`` (default: 0, the basis).
+    edge_masks : (K-1, E) array_like, optional
+        Each non-basis key's factor per edge (:func:`edge_masks`; default: 1).
+
+    Returns
+    -------
+    D : (K-1, 2E) ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> z = np.array([[1.0, 0.0], [2.0, 0.5], [3.0, 0.5]])   # one edge: length, angle
+    >>> key_directions(z, 1, relative_to=[0, 1], edge_masks=[[1.0], [0.5]]).tolist()
+    [[1.0, 0.5], [0.5, 0.0]]
+    """
+    Z = np.asarray(z_keys, float)
+    rel = np.zeros(len(Z) - 1, np.int64) if relative_to is None else np.asarray(relative_to, np.int64)
+    D = Z[1:] - Z[rel]
+    D[:, n_edges:] = wrap_angle(D[:, n_edges:])
+    if edge_masks is not None:
+        M = np.asarray(edge_masks, float)
+        D[:, :n_edges] *= M
+        D[:, n_edges:] *= M
+    return D
+
+
+def edge_masks(masks, edges):
+    """Per-edge factors ``(K-1, E)`` of per-vertex ones ``(K-1, V)``: the mean of an edge's two vertices'.
+
+    Parameters
+    ----------
+    masks : (K-1, V) array_like
+        Each non-basis key's factor per vertex (Blender's vertex-group weights).
+    edges : (E, 2) array_like of int
+        :attr:`lacore.MeshTopology.edges`.
+
+    Returns
+    -------
+    (K-1, E) ndarray
+
+    Examples
+    --------
+    >>> edge_masks([[0.0, 1.0, 1.0]], [[0, 1], [1, 2]]).tolist()
+    [[0.5, 1.0]]
+    """
+    M = np.asarray(masks, float)
+    e = np.asarray(edges)
+    return 0.5 * (M[:, e[:, 0]] + M[:, e[:, 1]])
+
+
+def _blend(z0, D, weights, n_edges, min_length_ratio):
+    z = z0 + np.asarray(weights, float) @ D
+    z[..., n_edges:] = wrap_angle(z[..., n_edges:])
+    z[..., :n_edges] = np.maximum(z[..., :n_edges], min_length_ratio * z0[:n_edges])
+    return z
+
+
+def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO, *, relative_to=None, edge_masks=None):
+    """``z(w) = z_0 + sum_k w_k D_k``, ``D_k = m_k (z_k - z_rel(k))`` (:func:`key_directions`), lengths floored.
+
+    With the defaults (every key relative to the basis, no mask) ``z(w) = z_0 + sum_k w_k (z_k - z_0)``.
 
     Parameters
     ----------
@@ -428,6 +505,10 @@ def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
     n_edges : int
     min_length_ratio : float
         Lengths below this fraction of the basis' are raised to it.
+    relative_to : (K-1,) array_like of int, optional
+        Each non-basis key's relative key (index into ``z_keys``; default 0, the basis).
+    edge_masks : (K-1, E) array_like, optional
+        Each non-basis key's factor per edge (:func:`edge_masks`; default 1).
 
     Returns
     -------
@@ -441,12 +522,7 @@ def blend_targets(z_keys, weights, n_edges, min_length_ratio=MIN_LENGTH_RATIO):
     array([1.5   , 3.1416])
     """
     Z = np.asarray(z_keys, float)
-    D = Z[1:] - Z[0]
-    D[:, n_edges:] = wrap_angle(D[:, n_edges:])
-    z = Z[0] + np.asarray(weights, float) @ D
-    z[..., n_edges:] = wrap_angle(z[..., n_edges:])
-    z[..., :n_edges] = np.maximum(z[..., :n_edges], min_length_ratio * Z[0, :n_edges])
-    return z
+    return _blend(Z[0], key_directions(Z, n_edges, relative_to, edge_masks), weights, n_edges, min_length_ratio)
 
 
 #: A key whose edge lengths (relative to the basis') and dihedral angles (radians) all differ from the basis' by
@@ -520,6 +596,80 @@ def check_keys(keys, faces, names=None):
     return K, topo
 
 
+def check_masks(masks, relative_to, n_keys, n_vertices, names=None):
+    """Validated masks and relative keys of a mixer's non-basis keys; raises naming the key and what to do.
+
+    Parameters
+    ----------
+    masks : (K-1, V) array_like or None
+        Each non-basis key's factor per vertex, in ``[0, 1]`` (Blender's vertex-group weights); None: 1.
+    relative_to : (K-1,) array_like of int or None
+        Each non-basis key's relative key, an index into the keys (0 the basis, never the key itself); None: 0.
+    n_keys, n_vertices : int
+        ``K`` and ``V``.
+    names : sequence of str, optional
+        How the messages name the keys (default ``"key k"``).
+
+    Returns
+    -------
+    masks : (K-1, V) float64 ndarray
+    relative_to : (K-1,) int64 ndarray
+
+    Raises
+    ------
+    MixerError
+        Another shape, NaN or a factor outside ``[0, 1]``, a relative key out of range or the key itself.
+
+    Examples
+    --------
+    >>> masks, rel = check_masks(None, [0, 1], 3, 4)
+    >>> masks.shape, rel.tolist()
+    ((2, 4), [0, 1])
+    >>> try:
+    ...     check_masks(None, [0, 2], 3, 4)
+    ... except MixerError as e:
+    ...     print(str(e).split(":")[0])
+    key 2 is relative to itself
+    """
+    m = n_keys - 1
+    names = [f"key {k}" for k in range(n_keys)] if names is None else [str(n) for n in names]
+    if masks is None:
+        M = np.ones((m, n_vertices))
+    else:
+        try:
+            M = np.array(masks, float)
+        except (TypeError, ValueError):
+            raise MixerError(f"masks must be a ({m}, {n_vertices}) array of numbers in [0, 1], one row per non-basis "
+                             "key") from None
+        if M.shape != (m, n_vertices):
+            raise MixerError(f"masks must be a ({m}, {n_vertices}) array, one row of vertex factors per non-basis key, "
+                             f"got shape {M.shape}")
+        bad = np.flatnonzero(~np.all((M >= 0.0) & (M <= 1.0), axis=1))
+        if bad.size:
+            raise MixerError(f"the mask of {names[bad[0] + 1]} has factors outside [0, 1] or NaN: vertex-group weights "
+                             "lie in [0, 1]; clamp them")
+    if relative_to is None:
+        R = np.zeros(m, np.int64)
+    else:
+        try:
+            R = np.asarray(relative_to)
+            ok = R.shape == (m,) and (R.dtype.kind in "iu" or (R.dtype.kind == "f" and np.all(R == np.round(R))))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise MixerError(f"relative_to must be {m} key indices, one per non-basis key (0: the basis)")
+        R = R.astype(np.int64)
+        out = np.flatnonzero((R < 0) | (R >= n_keys))
+        if out.size:
+            raise MixerError(f"{names[out[0] + 1]} is relative to key index {R[out[0]]}: there are keys 0 to "
+                             f"{n_keys - 1}")
+        self_rel = np.flatnonzero(R == np.arange(1, n_keys))
+        if self_rel.size:
+            raise MixerError(f"{names[self_rel[0] + 1]} is relative to itself: it adds nothing; leave it out or make "
+                             "it relative to another key")
+    return M, R
+
+
 #: Inverse-distance weights of the cubature's gradient corrections: ``|w - w_s|^(-2 p)``.
 _CORRECTION_POWER = 2
 
@@ -560,7 +710,7 @@ class ShapeMixer:
     False
     """
 
-    def __init__(self, keys, faces, options=None, *, _topology=None):
+    def __init__(self, keys, faces, options=None, *, masks=None, relative_to=None, _topology=None, _corners=None):
         self.options = MixerOptions() if options is None else options
         if _topology is None:
             keys, _topology = check_keys(keys, faces)
@@ -568,18 +718,30 @@ class ShapeMixer:
         self.topology = _topology
         self.faces = self.topology.faces
         E = self.n_edges = self.topology.n_edges
+        self.masks, self.relative_to = check_masks(masks, relative_to, self.n_keys, self.n_vertices)
+        # keys whose blend at weight 1 is not the key itself: a mask below 1 somewhere, or another relative key
+        self._derived = (self.relative_to != 0) | np.any(self.masks != 1.0, axis=1)
+        em = edge_masks(self.masks, self.topology.edges) if self._derived.any() else None
         # its own context, with the basis' weights for every target (reconstruction.context, "Target scale")
         ctx = self._context = ReconstructionContext(self.topology, self.keys[0], self.options.settings)
         ctx.follows_target_scale = False
         self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
-        self._length_sums = self.z_keys[:, :E].sum(axis=1)          # relative_size
+        self._directions = key_directions(self.z_keys, E, self.relative_to, em)
+        if em is not None:
+            change = np.maximum(np.abs(self._directions[:, :E]) / self.z_keys[0, :E],
+                                np.abs(self._directions[:, E:])).max(axis=1)
+            if not np.any(change > SAME_SHAPE_TOL):
+                raise MixerError("every key's mask is 0 where it differs from its relative key: there is nothing to "
+                                 "mix; check the masks (vertex groups) and relative keys")
+        self._length_gains = self._directions[:, :E].sum(axis=1) / self.z_keys[0, :E].sum()   # relative_size
         zi = np.stack([ctx.internal_z(z) for z in self.z_keys])
-        dz = zi[1:] - zi[0]
-        dz[:, E:] = wrap_angle(dz[:, E:])
+        dz = key_directions(zi, E, self.relative_to, em)
         w = np.array(ctx.residual_weights, float)
         w[E:][self.topology.is_boundary_edge] = 0.0
         self._problem = FullProblem(ctx, zi, dz, MIN_LENGTH_RATIO * zi[0, :E], w)
-        self._key_x = np.stack([ctx.to_canonical(k).ravel() for k in self.keys])
+        # the shapes at the weights 0 and e_k: the keys, or the projections of derived keys (_project_corners)
+        self._corners = self.keys.copy() if _corners is None else np.asarray(_corners, float)
+        self._key_x = np.stack([ctx.to_canonical(k).ravel() for k in self._corners])
         self._stencils = edge_stencils(self.topology)
         self._gn = GaussNewtonOptions(max_iterations=self.options.polish_iterations)
         self.diagonal = float(np.linalg.norm(np.ptp(self.keys[0], axis=0))) or 1.0
@@ -594,7 +756,7 @@ class ShapeMixer:
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def build(cls, keys, faces, options=None, *, progress=None):
+    def build(cls, keys, faces, options=None, *, masks=None, relative_to=None, progress=None):
         """A mixer of ``keys`` ``(K, V, 3)`` (``keys[0]`` the basis) on ``faces`` ``(F, 3)``.
 
         Parameters
@@ -603,6 +765,15 @@ class ShapeMixer:
             K >= 2 shapes of one mesh in dense correspondence.
         faces : (F, 3) array_like of int
         options : MixerOptions, optional
+        masks : (K-1, V) array_like, optional
+            Each non-basis key's factor per vertex in ``[0, 1]``, Blender's vertex-group weights of the key (default:
+            1 everywhere).  An edge's factor is the mean of its vertices' (:func:`edge_masks`).
+        relative_to : (K-1,) array_like of int, optional
+            Each non-basis key's *Relative To* key, an index into ``keys`` (default: 0, the basis).  The target of
+            weights ``w`` is ``z_0 + sum_k w_k m_k (z_k - z_rel(k))`` (:func:`key_directions`), as Blender adds
+            ``w_k g(v) (K_k - K_rel(k))``.  For a key with a mask or another relative key the shape at weight 1
+            alone is not the key: the build projects that target first (one Gauss-Newton reconstruction each,
+            from Blender's linear blend).
         progress : callable, optional
             ``progress(done, total, message)``; returning True raises :class:`lacore.progress.Cancelled`.
 
@@ -612,14 +783,30 @@ class ShapeMixer:
             Keys of different vertex counts, fewer than two keys, bad faces, NaN coordinates, degenerate
             triangles in a key.
         MixerError
-            No key differs from the basis in lengths or angles (nothing to mix).
+            No key differs from the basis in lengths or angles (nothing to mix); bad masks or relative keys
+            (:func:`check_masks`); a key's blend at weight 1 that no mesh comes near (no projection).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from lacore.samples.bar import bar_mesh, bar_pose
+        >>> X, faces = bar_mesh(n_along=4, n_side=1)
+        >>> A, B = bar_pose(X, 0.4, 0.0), bar_pose(X, 0.4, 0.3)       # B: a twist on top of the bend A
+        >>> half = (X[:, 0] > X[:, 0].mean()).astype(float)           # a vertex group: one half of the bar
+        >>> mixer = ShapeMixer.build([X, A, B], faces, masks=[half, np.ones(len(X))], relative_to=[0, 1])
+        >>> from lacore.geometry.rigid import rigid_rms
+        >>> bool(rigid_rms(mixer.mix([0.0, 1.0]).vertices, X) > 0.01)   # the twist B - A alone, on the straight bar
+        True
         """
         if options is not None and not isinstance(options, MixerOptions):
             raise InputError(f"options must be MixerOptions, got {type(options).__name__}")
         watch = _Stopwatch()
         report(progress, 0, 4, "lengths and angles of the keys")
         with watch("setup"):
-            mixer = cls(keys, faces, options)
+            mixer = cls(keys, faces, options, masks=masks, relative_to=relative_to)
+        if mixer._derived.any():
+            with watch("corners"):
+                mixer._project_corners()
         o = mixer.options
         if o.reduced_size is not None and o.reduced_size < mixer.n_keys - 1:
             raise InputError(f"reduced_size {o.reduced_size} is below the {mixer.n_keys - 1} non-basis keys: the space "
@@ -708,6 +895,23 @@ class ShapeMixer:
         mixer.build_cpu_seconds = dict(watch.cpu, total=sum(watch.cpu.values()))
         report(progress, 4, 4, "done")
         return mixer
+
+    def _project_corners(self):
+        """The shapes at the weights ``e_k`` of the derived keys (a mask or another relative key): the projections of
+        their targets by Gauss-Newton from Blender's linear blend ``B + m_k (K_k - K_rel(k))``."""
+        m = self.n_keys - 1
+        for k in np.flatnonzero(self._derived) + 1:
+            w = np.zeros(m)
+            w[k - 1] = 1.0
+            start = self.keys[0] + self.masks[k - 1][:, None] * (self.keys[k] - self.keys[self.relative_to[k - 1]])
+            try:
+                res = reconstruct(self.target(w), self.topology, self.keys[0], context=self._context,
+                                  options=self._gn, initial_vertices=start)
+            except LengthsAnglesError as exc:
+                raise MixerError(f"key {k} at weight 1 (its mask and relative key applied) is no shape a mesh comes "
+                                 f"near: {exc}; check its vertex group and relative key") from None
+            self._corners[k] = res.vertices
+            self._key_x[k] = self._context.to_canonical(res.vertices).ravel()
 
     def _set_basis(self, U, exps):
         """Reduced expansions ``(w, q, A (r, m) or None, T (m, m, r) or None)`` from full ones (the output basis
@@ -939,8 +1143,9 @@ class ShapeMixer:
         return w
 
     def target(self, weights):
-        """The blended lengths and angles ``z(w)`` ``(2E,)``."""
-        return blend_targets(self.z_keys, self.check_weights(weights), self.n_edges)
+        """The blended lengths and angles ``z(w)`` ``(2E,)`` (:func:`blend_targets` with the mixer's masks and
+        relative keys)."""
+        return _blend(self.z_keys[0], self._directions, self.check_weights(weights), self.n_edges, MIN_LENGTH_RATIO)
 
     def range_message(self, weights, names=None, advice=None):
         """``""`` when ``weights`` lie in the accurate range, else one line saying which do not.
@@ -1002,8 +1207,9 @@ class ShapeMixer:
 
         The total edge length of the blend ``z(w)`` over the basis' (linear in the weights: ``1 + sum_k w_k
         (L_k / L_0 - 1)`` for total lengths ``L_k`` of the keys, held at least :data:`MIN_LENGTH_RATIO`, the floor
-        of every blended length): 1 wherever the keys are poses of one size, ``s`` at weight 1 of a key scaled by
-        ``s``, whatever the poses; ``O(K)`` per call.  Distances over the basis' diagonal divided by it are
+        of every blended length; with masks or relative keys ``L_k - L_0`` is the total length of the key's
+        direction, :func:`key_directions`): 1 wherever the keys are poses of one size, ``s`` at weight 1 of a key
+        scaled by ``s``, whatever the poses; ``O(K)`` per call.  Distances over the basis' diagonal divided by it are
         distances over the blend's own size.  The indicators of :meth:`indicator` and of
         :func:`lacore.shapes.mixing.path_inbetweens` are relative to it.
 
@@ -1024,7 +1230,7 @@ class ShapeMixer:
         [1.0, 0.55, 0.1]
         """
         w = np.asarray(weights, float)
-        size = np.maximum(1.0 + w @ (self._length_sums[1:] / self._length_sums[0] - 1.0), MIN_LENGTH_RATIO)
+        size = np.maximum(1.0 + w @ self._length_gains, MIN_LENGTH_RATIO)
         return float(size) if size.ndim == 0 else size
 
     def indicator(self, weights):
@@ -1115,6 +1321,7 @@ class ShapeMixer:
         m, r = self.n_keys - 1, self.reduced_size
         return write_mixer_file(path, {
             "keys": self.keys, "faces": self.faces, "options": self.options.to_array(), "basis": self.basis,
+            "masks": self.masks, "relative_to": self.relative_to, "corners": self._corners,
             "cubature_edges": self._cubature.edges, "cubature_weights": self._cubature.c,
             "expansion_weights": self._exp_w, "expansion_q": self._exp_q, "expansion_order": self._exp_order,
             "expansion_first": self._exp_A, "expansion_second": self._exp_T,
@@ -1133,7 +1340,12 @@ class ShapeMixer:
         name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else str(path)
         a = read_mixer_file(path, MixerError)
         try:
-            mixer = cls(a["keys"], a["faces"], MixerOptions.from_array(a["options"]))
+            keys = a["keys"]
+            corners = keys if a["corners"] is None else a["corners"]
+            if corners.shape != keys.shape or not np.all(np.isfinite(corners)):
+                raise MixerError(f"'corners' has shape {corners.shape}, expected {keys.shape}, or is not finite")
+            mixer = cls(keys, a["faces"], MixerOptions.from_array(a["options"]), masks=a["masks"],
+                        relative_to=a["relative_to"], _corners=corners)
         except InputError as exc:
             raise MixerError(f"{name} is not a valid shape mixer: {exc}") from None
         U, edges, c, hot = a["basis"], a["cubature_edges"], a["cubature_weights"], a["local_vertices"]
@@ -1178,7 +1390,7 @@ def mixer_bytes(mixer):
             return fh.read()
 
 
-def build_mixer_bytes(keys, faces, options=None, *, progress=None):
+def build_mixer_bytes(keys, faces, options=None, *, masks=None, relative_to=None, progress=None):
     """:meth:`ShapeMixer.build` returning :func:`mixer_bytes`: what crosses a process boundary
     (:func:`lacore.parallel.call_in_process`; a built mixer holds sparse factorizations, which do not pickle)."""
-    return mixer_bytes(ShapeMixer.build(keys, faces, options, progress=progress))
+    return mixer_bytes(ShapeMixer.build(keys, faces, options, masks=masks, relative_to=relative_to, progress=progress))
