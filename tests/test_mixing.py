@@ -1,6 +1,7 @@
 """The shape mixer (lacore.shapes.mixing): blends of keys in lengths and angles, projected."""
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -904,3 +905,36 @@ def test_bad_masks_and_relative_keys(bar, masks, rel, match):
     with pytest.raises(MixerError, match=match) as info:
         ShapeMixer(keys, F, masks=M, relative_to=rel)
     assert "\n" not in str(info.value)
+
+
+def test_cli_masks_and_relative_keys(capsys, tmp_path, key_files, bar):
+    """``lacore mixer --relative-to --masks`` builds the mixer ShapeMixer.build does with them; bad ones: one line,
+    exit 2, nothing written."""
+    _, paths = key_files
+    keys, F = bar
+    V = keys.shape[1]
+    masks = np.stack([np.linspace(0.0, 1.0, V), np.ones(V)])
+    np.save(tmp_path / "masks.npy", masks)
+    np.savetxt(tmp_path / "masks.csv", masks, delimiter=",")
+    for name in ("masks.npy", "masks.csv"):
+        code, out, err = _run(capsys, "mixer", *paths, "-o", tmp_path / f"{name}.npz", "--relative-to", 0, 1,
+                              "--masks", tmp_path / name)
+        assert code == 0, err
+        m = ShapeMixer.load(tmp_path / f"{name}.npz")
+        np.testing.assert_allclose(m.masks, masks, atol=1e-15)
+        assert m.relative_to.tolist() == [0, 1]
+    direct = ShapeMixer.build(keys, F, masks=masks, relative_to=[0, 1])
+    np.testing.assert_allclose(m.mix([0.5, 0.5]).vertices, direct.mix([0.5, 0.5]).vertices, atol=1e-9 * _diag(keys[0]))
+    np.save(tmp_path / "short.npy", masks[:1])
+    (tmp_path / "text.txt").write_text("a b c\n")
+    for extra, match in [(("--relative-to", 0), "relative_to must be 2 key indices"),
+                         (("--relative-to", 0, 2), r"'.*key2\.ply' is relative to itself"),
+                         (("--masks", tmp_path / "short.npy"), r"masks must be a \(2, \d+\) array"),
+                         (("--masks", tmp_path / "none.npy"), r"--masks .*none\.npy: cannot read it"),
+                         (("--masks", tmp_path / "text.txt"), r"--masks .*text\.txt: not an array of numbers"),
+                         (("--masks", tmp_path / "masks.json"), r"use a \.npy file or a text file")]:
+        before = _listing(tmp_path)
+        code, out, err = _run(capsys, "mixer", *paths, "-o", tmp_path / "bad.npz", *extra)
+        assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert re.search(match, err), err
+        assert _listing(tmp_path) == before

@@ -3,16 +3,19 @@
 Usage::
 
     lacore mixer KEY0.ply KEY1.ply ... -o MIXER.npz [--reduced-size R] [--range LOW HIGH] [--local-vertices N]
-                 [--json]
+                 [--relative-to I1 I2 ...] [--masks MASKS.npy] [--json]
     lacore mix MIXER.npz --weights W1 W2 ... [--weights ...] -o OUT.ply [--polish] [--json]
 
 ``lacore mixer`` builds a :class:`lacore.shapes.mixing.ShapeMixer` from two or more meshes in dense
 correspondence (the first is the basis, like Blender's relative shape keys) and saves it to one
-``.npz``.  ``--json`` prints one object with ``vertices``, ``keys``, ``reduced_size``,
-``cubature_edges``, ``local_vertices`` (how many vertices the local correction moves; 0: none),
-``megabytes`` (the mixer in memory), ``seconds`` and the wall seconds of each
-build stage (``build_seconds``: ``setup``, ``derivatives``, ``basis``, ``newton_vectors``,
-``cubature``, plus ``load`` and ``save``) and their CPU seconds (``build_cpu_seconds``).
+``.npz``.  ``--relative-to`` gives each non-basis key's relative key (an index of the keys, 0 the basis; Blender's
+*Relative To*) and ``--masks`` a ``(K-1, V)`` array of per-vertex factors in ``[0, 1]`` (``.npy``, or text with one
+row per non-basis key, ``.txt``/``.csv``; Blender's vertex-group weights of each key): the mixer blends
+``z_0 + sum_k w_k m_k (z_k - z_rel(k))`` (:meth:`ShapeMixer.build`).  ``--json`` prints one object with
+``vertices``, ``keys``, ``reduced_size``, ``cubature_edges``, ``local_vertices`` (how many vertices the local
+correction moves; 0: none), ``megabytes`` (the mixer in memory), ``seconds`` and the wall seconds of each build stage
+(``build_seconds``: ``setup``, ``corners`` with masks or relative keys, ``derivatives``, ``basis``,
+``newton_vectors``, ``cubature``, plus ``load`` and ``save``) and their CPU seconds (``build_cpu_seconds``).
 
 ``lacore mix`` mixes: one weight per non-basis key in each ``--weights`` group.  One group writes
 ``OUT.ply``; several write ``OUT_000.ply``, ``OUT_001.ply``, ... (one per group, in order; the
@@ -33,12 +36,12 @@ import time
 import numpy as np
 
 from ..io.meshes import MESH_FORMATS, save_mesh
-from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_keys
+from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_keys, check_masks
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, json_float, load_meshes_in_correspondence,
                      positive_int, print_json)
 from .interpolate import output_paths
 
-__all__ = ["register", "configure_mixer", "run_mixer", "configure_mix", "run_mix", "mix_output_paths",
+__all__ = ["register", "configure_mixer", "run_mixer", "configure_mix", "run_mix", "mix_output_paths", "read_masks",
            "MIXER_HELP", "MIX_HELP"]
 
 MIXER_HELP = "build a shape mixer (nonlinear blends of shape keys in lengths and angles) from meshes"
@@ -65,6 +68,11 @@ def configure_mixer(parser):
     parser.add_argument("--local-vertices", type=int, default=MixerOptions.local_vertices, metavar="N",
                         help="vertices of the local correction, where the reduced space misses most (default "
                              "%(default)s; 0: none)")
+    parser.add_argument("--relative-to", type=int, nargs="+", default=None, metavar="I",
+                        help="each non-basis key's relative key, an index of the keys (0: the basis, the default)")
+    parser.add_argument("--masks", default=None, metavar="MASKS.npy",
+                        help="per-vertex factors in [0, 1] of each non-basis key, one row per key (.npy, or text: "
+                             ".txt, .csv); default 1")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the mixer's summary")
 
 
@@ -92,9 +100,12 @@ def run_mixer(args):
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
                            local_vertices=args.local_vertices)                 # checks --range, --local-vertices
     shapes, topology = load_meshes_in_correspondence(args.keys)
-    check_keys(shapes, topology.faces, names=[repr(k) for k in args.keys])   # names the files, before the build
+    names = [repr(k) for k in args.keys]
+    check_keys(shapes, topology.faces, names=names)                        # names the files, before the build
+    masks = None if args.masks is None else read_masks(args.masks)
+    masks, relative_to = check_masks(masks, args.relative_to, len(shapes), len(shapes[0]), names=names)
     t_load = time.perf_counter() - start
-    mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options)
+    mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options, masks=masks, relative_to=relative_to)
     t = time.perf_counter()
     mixer.save(args.output)
     t_save = time.perf_counter() - t
@@ -113,6 +124,23 @@ def run_mixer(args):
         print("  stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in stages.items()))
         print(f"  wrote {args.output} in {seconds:.3f} s")
     return EXIT_OK
+
+
+def read_masks(path):
+    """The ``(K-1, V)`` array of a ``--masks`` file: ``.npy``, or text (``.txt``, ``.csv``: one row per key)."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".npy", ".txt", ".csv"):
+        raise MixerError(f"--masks {path}: use a .npy file or a text file (.txt, .csv) with one row per non-basis key")
+    try:
+        if ext == ".npy":
+            a = np.load(path, allow_pickle=False)
+        else:
+            a = np.loadtxt(path, delimiter="," if ext == ".csv" else None, ndmin=2)
+        return np.asarray(a, float)
+    except OSError as exc:
+        raise MixerError(f"--masks {path}: cannot read it ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise MixerError(f"--masks {path}: not an array of numbers ({str(exc).splitlines()[0]})") from None
 
 
 def mix_output_paths(output, n):
