@@ -858,9 +858,19 @@ def test_relative_key_reaches_its_key(masked_bar):
     assert rigid_rms(mixer.mix([1.0, 0.0], warm_start=False).vertices, keys[1]) < 1e-5 * diag
 
 
+def test_inbetweens_refuse_a_masked_mixer(masked_bar):
+    import lacore
+
+    keys, F, _, _, mixer = masked_bar
+    assert mixer.derived_keys.tolist() == [True, True]
+    with pytest.raises(lacore.InputError, match="the mixer blends key 1 with a mask or relative to another key"):
+        lacore.interpolate(keys, MeshTopology.from_faces(F), factors=[0.5], mixer=mixer)
+
+
 def test_unit_masks_are_no_masks(bar, mixer):
     keys, F = bar
     same = ShapeMixer.build(keys, F, masks=np.ones((2, keys.shape[1])), relative_to=[0, 0])
+    assert not same.derived_keys.any()
     for w in ([0.5, 0.5], [1.2, -0.3]):
         assert np.array_equal(same.mix(w, warm_start=False).vertices, mixer.mix(w, warm_start=False).vertices)
 

@@ -535,6 +535,11 @@ def _mixer_run(mixer, z_keys, keyframes, times, smooth, bc_type, reference, refe
     if not same:
         raise InputError("the mixer was built from other keys than these shapes: build it from the shapes, in "
                          "order, or interpolate without it")
+    derived = np.flatnonzero(mixer.derived_keys) + 1
+    if derived.size:
+        raise InputError(f"the mixer blends key {derived[0]} with a mask or relative to another key, not the shape "
+                         "itself: in-betweens of the shapes need a mixer of unmasked keys relative to the basis, or "
+                         "none")
     if reference != 0 or reference_vertices is not None:
         raise InputError("with a mixer the reference is its basis, shape 0: leave reference and reference_vertices "
                          "at their defaults")

@@ -1111,6 +1111,12 @@ class ShapeMixer:
         return self.keys.shape[1]
 
     @property
+    def derived_keys(self):
+        """``(K-1,)`` bool: the keys whose blend at weight 1 alone is not the key itself (a mask below 1 somewhere, or
+        another relative key than the basis; ``masks``, ``relative_to`` of :meth:`build`)."""
+        return self._derived.copy()
+
+    @property
     def reduced_size(self):
         """Size ``r`` of the reduced space."""
         return int(self.basis.shape[1])
