@@ -408,8 +408,8 @@ class CallJob:
     total : int
         Units of work until the call reports its own total.
     process : tuple, optional
-        ``(lacore_function, args, convert)``: the same call in a worker process
-        (:func:`lacore.parallel.call_in_process`, the result ``convert(value)``), used when
+        ``(lacore_function, args, convert)`` or ``(lacore_function, args, convert, kwargs)``: the same call in a
+        worker process (:func:`lacore.parallel.call_in_process`, the result ``convert(value)``), used when
         :attr:`all_in_workers` is set (a modal run: CHOLMOD holds the interpreter lock, so
         a long call in a thread would freeze Blender's Python; Esc kills the process at once).
 
@@ -448,8 +448,8 @@ class CallJob:
             raise Cancelled(f"{self.label} cancelled")
         if not self.finished:
             if self.all_in_workers and self.process is not None:
-                function, args, convert = self.process
-                self.result = convert(call_in_process(function, args, progress=self._progress))
+                function, args, convert, *kwargs = self.process
+                self.result = convert(call_in_process(function, args, *kwargs, progress=self._progress))
             else:
                 self.result = self.function(self._progress)
             self.done, self.finished = self.total, True

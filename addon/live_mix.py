@@ -11,7 +11,12 @@ The user's keys are never changed (values, mutes, ranges, drivers, keyframes): t
 and Blender keeps adding them linearly.  One add-on key, :data:`.naming.LIVE_MIX_KEY` (relative to the
 basis, value 1), carries the *correction* from Blender's linear sum to the mix::
 
-    mix key = N(w) - sum_k w_k (K_k - B)        so that     B + sum_k w_k (K_k - B) + (mix key - B) = N(w)
+    mix key = N(w) - sum_k w_k g_k (K_k - K_rel(k))
+    so that   B + sum_k w_k g_k (K_k - K_rel(k)) + (mix key - B) = N(w)
+
+where ``g_k`` are the per-vertex weights of key ``k``'s vertex group (1 without one) and ``K_rel(k)`` its relative
+key (:func:`vertex_masks`, :meth:`_Live._set_reference`): Blender's own sum, which the mixer blends in lengths and
+angles (``ShapeMixer.build(..., masks=, relative_to=)``).
 
 with ``N(w)`` = :meth:`ShapeMixer.mix` of the weights ``w``, placed like the in-betweens (the rigid motion
 that best fits it to Blender's linear blend, :func:`lacore.geometry.rigid.rigid_align`: at a single key at
@@ -41,21 +46,28 @@ so F12, animation and command-line renders show the exact lengths-and-angles ble
 real-time.  A polish costs a full reconstruction per rendered frame (about a second at 13k vertices); where
 it does not converge the render keeps the reduced mix and the panel says so.
 
-Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.
-Keys with a vertex group, or relative to another key than the basis, are not mixed nonlinearly (the
-mixer takes one weight per whole key): Blender mixes them linearly on top of the nonlinear mix, as it
-does keys added after the mixer was built (the panel lists them).
+Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.  Which keys are
+mixed (:func:`split_keys`): every key relative to the basis or to another mixed key, with or without a vertex
+group (Blender's rule for the group, matched by :func:`vertex_masks`: a name the mesh lacks, or a mesh without
+vertex-group weights, limits nothing).  Blender mixes linearly on top of the mix the keys added after the build,
+keys relative to themselves (they add nothing) and keys relative to a key that is not mixed (an add-on ``"LA ..."``
+key, or a key relative to one); the panel lists them with the reason (:func:`linear_reason`).
 
-Staleness: every update compares the basis and mixer keys' coordinates and the mesh's corners with
-the ones the mixer was built from (and after loading a .blend, with their stored digest).  An edited
-mesh or key, a renamed or deleted key, a key given a vertex group or another relative key makes the
-mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel says so
-until Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
+Staleness: every update compares the basis and mixer keys' coordinates, relative keys and vertex-group names and
+the mesh's corners with the ones the mixer was built from (and after loading a .blend, with their stored digest
+and record).  The vertex-group weights (:func:`vertex_masks`: 12-30 ms at 13k vertices, 45-110 ms at 50k) are
+read again and compared with the mixer's only when a key's group name or the group it resolves to changed, after
+undo and loading, and after an update that changed the mesh's data but no key value (a weight painted, a
+script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders and playback never pay for it.  An edited
+mesh or key, a renamed or deleted key, an edited weight, a key given another vertex group or relative key makes
+the mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel says so until
+Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
 
 Storage (saved in the .blend, decoded once per session: :func:`live_meshes` after ``load_post``): the
-mixer's ``.npz`` (:meth:`ShapeMixer.save`) is a payload of :func:`.storage.store_payload` (a text
-datablock ``"LA live mixer <mesh>"``), and ``mesh["lengths_angles_live_mix"]`` its record: the text's
-name, the token, the key names, a fingerprint digest and the build time.
+mixer's ``.npz`` (:meth:`ShapeMixer.save`, masks and relative keys included) is a payload of
+:func:`.storage.store_payload` (a text datablock ``"LA live mixer <mesh>"``), and ``mesh["lengths_angles_live_mix"]``
+its record: the text's name, the token, the key names, each key's vertex-group name (``groups``) and relative key
+(``relative``; records without them: none and the basis), a fingerprint digest and the build time.
 
 Linked meshes: Blender keeps data linked from a library as saved there (writes to it are dropped), so the mix key of
 a linked live mesh cannot follow its values: :meth:`_Live.check` calls it stale, naming the library, Library Override
@@ -89,7 +101,7 @@ from .bake import value_path
 from .compat import animation_channels
 from .jobs import CallJob
 from .mesh_access import (MeshAccessError, linked_from, override_from, read_shape_keys, require_mesh_object,
-                          require_writable_keys, shows_stored_shape, triangulate)
+                          require_writable_keys, triangulate)
 from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
@@ -109,17 +121,89 @@ class LiveMixError(InputError):
 
 # ------------------------------------------------------------------------------------------- reading
 def split_keys(mesh):
-    """``(basis, nonlinear, linear)`` key names of ``mesh``: the reference key, the keys the mixer mixes
-    (relative to the basis, no vertex group) and the keys Blender keeps mixing linearly (a vertex group or
-    another relative key).  The add-on's own ``"LA ..."`` keys are in neither list."""
+    """``(basis, nonlinear, linear)`` key names of ``mesh``: the reference key, the keys the mixer mixes and the keys
+    Blender keeps mixing linearly.  The add-on's own ``"LA ..."`` keys are in neither list.
+
+    Mixed: every key relative to the basis or to another mixed key, with or without a vertex group.  Linear: a key
+    relative to itself (it adds nothing) or to a key that is not mixed (an add-on key, a key relative to one)."""
     key = mesh.shape_keys
     ref = key.reference_key
-    nonlinear, linear = [], []
-    for kb in key.key_blocks:
-        if kb == ref or is_own_key(kb.name):
-            continue
-        (nonlinear if shows_stored_shape(kb, ref) else linear).append(kb.name)
-    return ref.name, nonlinear, linear
+    blocks = [kb for kb in key.key_blocks if kb != ref and not is_own_key(kb.name)]
+    mixed = {kb.name for kb in blocks if kb.relative_key != kb}
+    while True:  # drop the keys relative to a key that is not mixed, until none is left
+        keep = {kb.name for kb in blocks
+                if kb.name in mixed and (kb.relative_key == ref or kb.relative_key.name in mixed)}
+        if keep == mixed:
+            break
+        mixed = keep
+    return (ref.name, [kb.name for kb in blocks if kb.name in mixed],
+            [kb.name for kb in blocks if kb.name not in mixed])
+
+
+def linear_reason(kb, reference, mixed):
+    """Why Blender mixes the key block ``kb`` linearly while ``mixed`` (names) are mixed on the basis ``reference``
+    (a few words for the panel)."""
+    rel = kb.relative_key
+    if rel == kb:
+        return "relative to itself: adds nothing"
+    if rel != reference and rel.name not in mixed:
+        return f"relative to '{rel.name}', which is not mixed"
+    return "added or changed after the build: Rebuild to mix it"
+
+
+def _owner(mesh, hint=""):
+    """An object using ``mesh`` (the object ``hint`` if it does), None if none: its vertex groups are the mesh's."""
+    obj = bpy.data.objects.get(hint) if hint else None
+    if obj is not None and obj.data == mesh:
+        return obj
+    if mesh.users <= mesh.use_fake_user:  # no object uses it: no scan
+        return None
+    return next((o for o in bpy.data.objects if o.data == mesh), None)
+
+
+def _group_indices(obj, groups):
+    """The index of the vertex group Blender applies for each vertex-group name of ``groups`` (-1: the key applies to
+    all vertices: no name, or a name ``obj``, the mesh's user, does not have)."""
+    vgs = None if obj is None else obj.vertex_groups
+    found = [vgs.get(g) if g and vgs is not None else None for g in groups]
+    return tuple(-1 if vg is None else vg.index for vg in found)
+
+
+def vertex_masks(mesh, indices):
+    """``(len(indices), V)`` float32: the factor Blender applies to each vertex of a key limited to the vertex group
+    of index ``indices[k]``: its weight, 0 outside the group; 1 everywhere for -1 (:func:`_group_indices`) and when
+    the mesh stores no vertex-group weights at all (Blender then limits nothing).
+
+    Read through a BMesh copy: reading ``mesh.vertices[i].groups`` would add an empty weight layer to a mesh without
+    one, and so limit its keys' groups to nothing.  12-13 ms at 13k vertices and 46-49 ms at 50k with 3 shape keys,
+    26-28 ms and 106-109 ms with 50 (the copy takes the keys along), two groups, bpy 4.2 and 5.2."""
+    import bmesh
+    out = np.ones((len(indices), len(mesh.vertices)), np.float32)
+    wanted = {g for g in indices if g >= 0}
+    if not wanted:
+        return out
+    bm = bmesh.new()
+    try:
+        bm.from_mesh(mesh)
+        layer = bm.verts.layers.deform.active
+        if layer is None:
+            return out
+        groups, verts, weights = [], [], []
+        for i, v in enumerate(bm.verts):
+            for g, w in v[layer].items():
+                if g in wanted:
+                    groups.append(g)
+                    verts.append(i)
+                    weights.append(w)
+    finally:
+        bm.free()
+    groups, verts, weights = np.array(groups, np.int64), np.array(verts, np.int64), np.array(weights, np.float32)
+    for row, g in enumerate(indices):
+        if g >= 0:
+            out[row] = 0.0
+            sel = groups == g
+            out[row, verts[sel]] = weights[sel]
+    return out
 
 
 def _corners(mesh):
@@ -160,12 +244,21 @@ class _Live:
         self.basis = str(meta["basis"])
         self.names = list(meta["keys"])
         self.n_vertices = int(meta["n_vertices"])
+        # each key's vertex group ("" none) and relative key when the mixer was built (records without them: no
+        # group, relative to the basis)
+        self.groups = [str(g) for g in meta.get("groups", [""] * len(self.names))]
+        self.relative = [str(r) for r in meta.get("relative", [self.basis] * len(self.names))]
         self.build_seconds = float(meta.get("build_seconds", 0.0))
         self.reduced_size = int(meta.get("reduced_size", 0))
         self.mixer = mixer
         self.reference = None  # (K, 3V) float32 basis + mixer keys as built (None: not verified yet)
         self.corners = None
-        self.deltas = None  # (K-1, 3V) float64 K_k - B
+        self.deltas = None  # (K-1, 3V) float64 g_k (K_k - K_rel(k)): Blender's linear contribution of key k at 1
+        self.owner = ""  # an object using the mesh (whose vertex groups are read)
+        self.groups_seen = None  # the keys' vertex-group names and indices at the last check of the weights
+        self.check_masks = True  # read the weights again at the next check (built, loaded, undone, edited)
+        self.mask_reason = ""  # why the weights Blender applies differ from the mixer's ("" when they do not)
+        self.values_seen = None  # the evaluated key values of the last update
         self.last = None  # weights of the mix in the mix key
         self.correction = None  # the coordinates last written into the mix key when they were not the basis'
         self.result = None  # its MixResult
@@ -182,7 +275,41 @@ class _Live:
 
     def _set_reference(self, coords, corners):
         self.reference, self.corners = coords, corners
-        self.deltas = coords[1:].astype(np.float64) - coords[0].astype(np.float64)
+        c = coords.astype(np.float64)
+        masks = np.repeat(np.asarray(self.mixer.masks, np.float64), 3, axis=1)
+        self.deltas = masks * (c[1:] - c[np.asarray(self.mixer.relative_to, np.int64)])
+
+    def _masks_changed(self, mesh, key):
+        """Why the vertex-group weights Blender applies to the mixer's keys differ from the mixer's now ("" if they
+        do not).  The weights are read again (:func:`vertex_masks`) only when a key's group or the mesh's groups
+        changed, or :attr:`check_masks` asks for it (an update that edited the mesh and no key value, undo, load)."""
+        obj = _owner(mesh, self.owner)
+        if obj is None:  # no object shows the mesh: nothing to compare with
+            return self.mask_reason
+        self.owner = obj.name
+        groups = [key.key_blocks[n].vertex_group for n in self.names]
+        seen = (tuple(groups), _group_indices(obj, groups))
+        if seen == self.groups_seen and not self.check_masks:
+            return self.mask_reason
+        self.groups_seen, self.check_masks = seen, False
+        masks = vertex_masks(mesh, seen[1])
+        built = np.asarray(self.mixer.masks, np.float32)
+        self.mask_reason = ""
+        for name, g, g0, now, then in zip(self.names, groups, self.groups, masks, built, strict=True):
+            if np.array_equal(now, then):
+                continue
+            if g != g0:
+                self.mask_reason = (f"shape key '{name}' is limited to the vertex group '{g}' now, "
+                                    f"'{g0}' when the mixer was built" if g and g0 else
+                                    f"shape key '{name}' has the vertex group '{g}' now" if g else
+                                    f"shape key '{name}' has no vertex group now ('{g0}' when the mixer was built)")
+            elif g and obj.vertex_groups.get(g) is None:
+                self.mask_reason = (f"the vertex group '{g}' of shape key '{name}' is missing now (Blender applies "
+                                    "the key to all vertices)")
+            else:
+                self.mask_reason = f"the weights of the vertex group '{g}' of shape key '{name}' were edited"
+            break
+        return self.mask_reason
 
     def check(self, mesh):
         """Why the mixer does not fit ``mesh`` now ("" if it does): structure, then coordinates."""
@@ -203,13 +330,12 @@ class _Live:
         if ref.name != self.basis:
             return f"the basis key is '{ref.name}' now, '{self.basis}' when the mixer was built"
         for name in self.names:
-            kb = key.key_blocks.get(name)
-            if kb is None:
+            if key.key_blocks.get(name) is None:
                 return f"shape key '{name}' was renamed or deleted"
-            if kb.relative_key != ref:
-                return f"shape key '{name}' is relative to '{kb.relative_key.name}' now"
-            if kb.vertex_group:
-                return f"shape key '{name}' has a vertex group now (a mixer key takes one weight for all vertices)"
+        for name, rel in zip(self.names, self.relative, strict=True):
+            now = key.key_blocks[name].relative_key.name
+            if now != rel:
+                return f"shape key '{name}' is relative to '{now}' now, '{rel}' when the mixer was built"
         mix = key.key_blocks.get(LIVE_MIX_KEY)
         if mix is None:
             return f"the key '{LIVE_MIX_KEY}' was deleted"
@@ -228,7 +354,7 @@ class _Live:
                   if not np.array_equal(a, b)]
         if edited:
             return f"shape key '{edited[0]}' was edited"
-        return ""
+        return self._masks_changed(mesh, key)
 
     def weights(self, key_eval):
         """The mixer weights from the evaluated key: values within the slider range, 0 for muted keys."""
@@ -303,27 +429,32 @@ def is_live(mesh):
 
 
 def status(mesh):
-    """What the panel shows: ``dict(keys, linear, build_seconds, reduced_size, stale, in_range, message,
-    mix_seconds, polished, linked, override)`` (``polished``: the last mix is a render's exact one; ``linked``: the
+    """What the panel shows: ``dict(keys, linear, linear_reasons, build_seconds, reduced_size, stale, in_range,
+    message, mix_seconds, polished, linked, override)`` (``linear``: the keys Blender mixes linearly on top,
+    ``linear_reasons`` why, :func:`linear_reason`; ``polished``: the last mix is a render's exact one; ``linked``: the
     library path of a linked mesh, whose mix key cannot be rewritten, else ""; ``override``: the library path of a
     library override, whose mixer is rebuilt there, else "") or None when ``mesh`` has no mixer."""
     if not is_live(mesh):
         return None
     live = _live(mesh)
     if live is None:
-        return {"keys": [], "linear": [], "build_seconds": 0.0, "reduced_size": 0, "stale": "the stored mixer "
-                "cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0, "polished": False,
+        return {"keys": [], "linear": [], "linear_reasons": {}, "build_seconds": 0.0, "reduced_size": 0,
+                "stale": "the stored mixer cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0,
+                "polished": False,
                 "linked": linked_from(mesh), "override": override_from(mesh)}
     res = live.result
     key = mesh.shape_keys
     linked = linked_from(mesh)
-    linear = [] if key is None else [kb.name for kb in key.key_blocks[1:]
-                                     if kb.name not in live.names and not is_own_key(kb.name)]
+    linear = [] if key is None else [kb for kb in key.key_blocks
+                                     if kb != key.reference_key and kb.name not in live.names
+                                     and not is_own_key(kb.name)]
+    reasons = {kb.name: linear_reason(kb, key.reference_key, live.names) for kb in linear}
     exact = res is not None and res.polished and res.in_range  # a converged polish: the exact projection
     message = "" if res is None or exact else (live.mixer.range_message(res.weights, names=live.names,
                                                                         advice=RANGE_ADVICE) or res.message)
     stale = live.stale or live.error or (live.check(mesh) if linked else "")  # (a linked mesh is never updated)
-    return {"keys": live.names, "linear": linear, "build_seconds": live.build_seconds,
+    return {"keys": live.names, "linear": list(reasons), "linear_reasons": reasons,
+            "build_seconds": live.build_seconds,
             "reduced_size": live.reduced_size, "stale": stale,
             "in_range": True if res is None else bool(res.in_range), "message": message,
             "mix_seconds": live.mix_seconds, "polished": bool(res is not None and res.polished),
@@ -440,8 +571,10 @@ def _restore_mix_key(mesh, live):
     return changed
 
 
-def _update_mesh(mesh, depsgraph, force=False):
-    """Bring the mix key of ``mesh`` up to date with the key values evaluated in ``depsgraph``; True if written."""
+def _update_mesh(mesh, depsgraph, force=False, edited=False):
+    """Bring the mix key of ``mesh`` up to date with the key values evaluated in ``depsgraph``; True if written.
+    ``edited``: the update changed the mesh's data (then, with no key value changed, vertex-group weights may have
+    been edited: :meth:`_Live.check` reads them again)."""
     live = _live(mesh)
     if live is None or mesh.is_editmode:
         return False
@@ -450,17 +583,21 @@ def _update_mesh(mesh, depsgraph, force=False):
         return False
     if depsgraph is None or depsgraph.mode != 'RENDER':
         _restore_mix_key(mesh, live)
-    live.stale = live.check(mesh)
     key = mesh.shape_keys
-    mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
-    if mix_kb is None:
-        return False
     key_eval = key
-    if depsgraph is not None:
+    if depsgraph is not None and key is not None:
         try:
             key_eval = key.evaluated_get(depsgraph)
         except (RuntimeError, ReferenceError):  # not in that depsgraph: the values as set
             key_eval = key
+    if key_eval is not None:  # an edit that changed no value (a weight painted, a script): read the weights again
+        values = [kb.value for kb in key_eval.key_blocks]
+        live.check_masks |= edited and values == live.values_seen
+        live.values_seen = values
+    live.stale = live.check(mesh)
+    mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
+    if mix_kb is None:
+        return False
 
     def write(coords, correction=False):
         """Write ``coords`` into the mix key; ``correction``: they are a mix's (kept to find the key again)."""
@@ -493,8 +630,9 @@ def _update_mesh(mesh, depsgraph, force=False):
     return write((placed.ravel() - offsets).astype(np.float32), correction=True)
 
 
-def update_all(depsgraph=None, force=False):
-    """Update the mix key of every live mesh (the handlers' work; ``depsgraph`` None: the values as set).
+def update_all(depsgraph=None, force=False, edited=()):
+    """Update the mix key of every live mesh (the handlers' work; ``depsgraph`` None: the values as set; ``edited``:
+    the names of the meshes whose data the update changed, :func:`_edited_meshes`).
 
     A render (its own depsgraph, possibly in the render thread) waits for an update running in the main
     thread; the viewport's updates skip while a render's runs (they come again with the next update)."""
@@ -517,7 +655,7 @@ def update_all(depsgraph=None, force=False):
                 _LIVE.pop(name, None)
                 continue
             try:
-                written = _update_mesh(mesh, depsgraph, force)
+                written = _update_mesh(mesh, depsgraph, force, name in edited)
             except Exception as exc:  # e.g. a linked (read-only) mesh: never a traceback from a handler
                 live = _LIVE.get(name)
                 if live is not None and not live.error:
@@ -543,10 +681,27 @@ def _register_updated(depsgraph):
             _live(data)
 
 
+def _edited_meshes(depsgraph):
+    """Names of the live meshes whose data ``depsgraph``'s update changed (the mesh, or an object showing it: a key
+    value, a vertex-group weight ...)."""
+    if depsgraph is None or not _LIVE:
+        return set()
+    out = set()
+    for u in depsgraph.updates:
+        if not u.is_updated_geometry:
+            continue
+        data = u.id.original
+        if isinstance(data, bpy.types.Object):
+            data = data.data
+        if isinstance(data, bpy.types.Mesh):
+            out.add(data.name_full)
+    return out
+
+
 @persistent
 def _on_depsgraph_update(scene, depsgraph=None):
     _register_updated(depsgraph)
-    update_all(depsgraph)
+    update_all(depsgraph, edited=_edited_meshes(depsgraph))
 
 
 @persistent
@@ -582,6 +737,7 @@ def _on_undo(*_args):
     """Undo / redo restored the meshes (mix key included): forget the session's last mixes."""
     for live in _LIVE.values():
         live.last = None
+        live.check_masks = True  # (vertex-group weights restored too)
     live_meshes()
 
 
@@ -611,8 +767,21 @@ def unregister_handlers():
 
 
 # ------------------------------------------------------------------------------------------- enable / disable
+def _structure(obj, basis, nonlinear):
+    """``(groups, relative, masks, relative_to)`` of the mixed keys ``nonlinear`` of ``obj``'s mesh: each key's
+    vertex-group name and relative key's name (the record's), the weights Blender applies (K-1, V) and each relative
+    key's index in ``[basis, *nonlinear]`` (the mixer's)."""
+    blocks = obj.data.shape_keys.key_blocks
+    groups = [blocks[n].vertex_group for n in nonlinear]
+    relative = [blocks[n].relative_key.name for n in nonlinear]
+    order = [basis, *nonlinear]
+    masks = vertex_masks(obj.data, _group_indices(obj, groups))
+    return groups, relative, masks, np.array([order.index(r) for r in relative], np.int64)
+
+
 def _inputs(obj):
-    """Validated inputs of a mixer of ``obj``: ``(basis, nonlinear, linear, coords (K, V, 3), faces)``."""
+    """Validated inputs of a mixer of ``obj``: ``(basis, nonlinear, linear, coords (K, V, 3), faces, structure)``
+    (:func:`_structure`)."""
     mesh = require_mesh_object(obj)
     _require_local(mesh, "enable live mixing")
     if obj.mode == 'EDIT':
@@ -628,40 +797,59 @@ def _inputs(obj):
                            "Shape Keys panel)")
     basis, nonlinear, linear = split_keys(mesh)
     if not nonlinear:
-        why = (f" ({', '.join(map(repr, linear[:3]))} have a vertex group or another relative key)" if linear
-               else "")
+        why = (f" ({', '.join(map(repr, linear[:3]))} are relative to themselves or to a key that is not mixed)"
+               if linear else "")
         raise LiveMixError(f"mesh '{mesh.name}' has no shape key to mix besides the basis '{basis}'{why}: add a "
                            "key relative to the basis")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
     keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
                          names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
-    return basis, nonlinear, linear, keys, faces
+    return basis, nonlinear, linear, keys, faces, _structure(obj, basis, nonlinear)
 
 
 def enable_run(obj, reduced_size=0):
     """A :class:`.runs.Run` building the mixer of ``obj``'s keys and making the mesh mix live (validated;
     raises InputError subclasses).  ``reduced_size`` 0: automatic (:class:`MixerOptions`)."""
-    basis, nonlinear, linear, coords, faces = _inputs(obj)
+    basis, nonlinear, linear, coords, faces, structure = _inputs(obj)
+    groups, relative, masks, relative_to = structure
     options = MixerOptions(reduced_size=int(reduced_size) or None)
-    job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress), "live mixer",
-                  process=(build_mixer_bytes, (coords, faces, options), lambda data: ShapeMixer.load(io.BytesIO(data))))
+    extra = {"masks": masks.astype(np.float64), "relative_to": relative_to}
+    job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress, **extra), "live mixer",
+                  process=(build_mixer_bytes, (coords, faces, options), lambda data: ShapeMixer.load(io.BytesIO(data)),
+                           extra))
     t0 = time.perf_counter()
+    reasons = {n: linear_reason(obj.data.shape_keys.key_blocks[n], obj.data.shape_keys.reference_key, nonlinear)
+               for n in linear}
 
     def write(obj, job):
         seconds = time.perf_counter() - t0
-        store_mixer(obj, job.result, basis, nonlinear, linear, seconds, int(reduced_size))
+        store_mixer(obj, job.result, basis, nonlinear, linear, seconds, int(reduced_size), groups, relative)
         return (f"live mixing of {len(nonlinear)} key{'s' if len(nonlinear) != 1 else ''} on '{obj.name}' "
-                f"(built in {seconds:.2f} s)" + (f"; mixed linearly: {', '.join(linear)}" if linear else ""))
-    return Run(job, ObjectWatch(obj, [basis, *nonlinear]), write, what="mixer")
+                f"(built in {seconds:.2f} s)"
+                + (f"; mixed linearly: {', '.join(f'{n} ({reasons[n]})' for n in linear)}" if linear else ""))
+    watch = ObjectWatch(obj, [basis, *nonlinear], {
+        f"The vertex-group weights or relative keys of the keys of '{obj.name}'":
+            lambda: _structure_digest(obj, basis, nonlinear)})
+    return Run(job, watch, write, what="mixer")
 
 
-def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_size=0):
-    """Store ``mixer`` with ``obj``'s mesh, add the mix key (if missing) and show the mix of the current values."""
+def _structure_digest(obj, basis, nonlinear):
+    """What :func:`_structure` reads, comparable with ``==`` (the weights by digest)."""
+    groups, relative, masks, _ = _structure(obj, basis, nonlinear)
+    return groups, relative, hashlib.blake2b(masks.tobytes(), digest_size=16).hexdigest()
+
+
+def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_size=0, groups=None, relative=None):
+    """Store ``mixer`` with ``obj``'s mesh, add the mix key (if missing) and show the mix of the current values.
+    ``groups``, ``relative``: the vertex-group name and relative key name of each key of ``nonlinear`` (None: none,
+    the basis)."""
     mesh = obj.data
     data = mixer_bytes(mixer)
     coords = _key_coords(mesh.shape_keys, [basis, *nonlinear], len(mesh.vertices))
     record = {"format_version": FORMAT_VERSION, "basis": basis, "keys": list(nonlinear), "linear": list(linear),
+              "groups": list(groups or [""] * len(nonlinear)),
+              "relative": list(relative or [basis] * len(nonlinear)),
               "n_vertices": len(mesh.vertices), "fingerprint": _digest(coords, _corners(mesh)),
               "build_seconds": float(build_seconds), "reduced_size": int(reduced_size)}
     token = storage.store_payload(mesh, MIXER_PROP, data, header=TEXT_HEADER, name=f"LA live mixer {mesh.name}",
@@ -715,8 +903,9 @@ def mixer_for_keys(obj, keys):
 
     The weights of the basis are all zero, those of the mixer's key ``k`` are ``e_k``, so an in-between of keys
     ``A`` and ``B`` at ``t`` is the mix of ``(1 - t) w_A + t w_B``.  Raises :class:`LiveMixError` saying why
-    there is no usable mixer: none, unreadable, stale (the mesh or a key edited since the build), or a key of
-    ``keys`` that it does not mix.
+    there is no usable mixer: none, unreadable, stale (the mesh or a key edited since the build), a key of
+    ``keys`` that it does not mix, or one it mixes limited to a vertex group or relative to another key than the
+    basis (its weight 1 is then not the key's shape).
     """
     mesh = require_mesh_object(obj)
     if not is_live(mesh):
@@ -734,6 +923,14 @@ def mixer_for_keys(obj, keys):
     if missing:
         raise LiveMixError(f"the live mixer of '{mesh.name}' does not mix {', '.join(map(repr, missing))} (it mixes "
                            f"{', '.join(map(repr, live.names))} on the basis '{live.basis}')")
+    derived = live.mixer.derived_keys
+    for k in keys:
+        i = order.index(k) - 1
+        if i >= 0 and derived[i]:
+            why = (f"is relative to '{live.relative[i]}'" if live.relative[i] != live.basis else
+                   f"is limited to the vertex group '{live.groups[i]}'")
+            raise LiveMixError(f"shape key '{k}' {why}: the live mixer of '{mesh.name}' mixes what its slider shows, "
+                               "not the key's shape")
     eye = np.eye(len(order))[:, 1:]
     return live.mixer, eye[[order.index(k) for k in keys]], live.token, _LOCK
 

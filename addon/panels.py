@@ -217,8 +217,9 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         if not state["in_range"]:
             col.label(text=state["message"] or "weights outside the mixer's accurate range", icon='ERROR')
         if state["linear"]:
-            col.label(text=f"Mixed linearly (added after the build, a vertex group or another relative key): "
-                           f"{', '.join(state['linear'])}", icon='INFO')
+            col.label(text="Mixed linearly: " + ", ".join(f"{name} ({why})"
+                                                          for name, why in state["linear_reasons"].items()),
+                      icon='INFO')
         active = context.object.active_shape_key
         if active is not None and active.name == LIVE_MIX_KEY:  # Edit Mode and the pin show the active key alone
             col.label(text=f"'{LIVE_MIX_KEY}' is the correction to the linear mix, not a shape: Edit Mode and "

@@ -1,6 +1,7 @@
 """Blender-side checks of live nonlinear mixing of the INSTALLED extension (run in a SUBPROCESS by
 tests/test_blender_live_mix.py, which prepares ``<work>/inputs.npz`` with the repo's lacore: a box bar's
-``basis``, ``faces``, ``keys`` (Bend, Twist, Both) and ``grouped`` (a key used with a vertex group)).
+``basis``, ``faces``, ``keys`` (Bend, Twist, Both), ``grouped`` (a key used with a vertex group), ``group_weights``
+(a ramp of weights 0 .. 1 along the bar) and the keys of :func:`vertex_groups_and_relative_keys`).
 
 usage: BLENDER_USER_RESOURCES=<tmp> python check_live_mix.py --zip EXT.zip --workdir DIR --result OUT.json
 
@@ -23,6 +24,10 @@ NAMES = ["Bend", "Twist", "Both"]
 WEIGHTS = [(0.5, 0.0, 0.0), (0.5, 0.3, 0.0), (1.0, 0.0, 0.0), (0.3, 0.6, 0.4), (0.0, 0.0, 0.0)]
 FRAMES = [1, 4, 7, 11]
 BLEND = os.path.join(ARGS.workdir, "live.blend")
+#: The mixed keys of :func:`make_rig_bar` and the values they are mixed at.
+VG_NAMES = ["Bend", "Twist", "Both", "Masked", "OnBend", "Ghost"]
+VG_WEIGHTS = [(0.0, 0.0, 0.0, 1.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0, 0.5, 0.0), (0.3, 0.2, 0.0, 0.6, 0.4, 0.3),
+              (0.0, 0.0, 0.0, 0.0, 0.0, 1.0)]
 OUT = {}
 
 
@@ -226,12 +231,16 @@ def keyframes_drivers_and_save():
     scene.frame_set(4)
     OUT["driven_values"], OUT["driven_mixed"] = np.array(values(obj)), evaluated(obj)
     scene.frame_set(7)
+    record = obj.data[ext("live_mix").MIXER_PROP]
+    for name in ("groups", "relative"):  # saved as a record made before keys with vertex groups were mixed
+        del record[name]
     bpy.ops.wm.save_as_mainfile(filepath=BLEND)
     return {"frame_seconds": round(seconds / len(FRAMES), 4)}
 
 
 def reload_still_live():
-    """The saved .blend reopens mixing live: load_post re-registers the mesh; playback and sliders mix."""
+    """The saved .blend reopens mixing live (its record without the keys' vertex groups and relative keys, as made
+    before those keys were mixed): load_post re-registers the mesh; playback and sliders mix."""
     bpy.ops.wm.open_mainfile(filepath=BLEND)
     obj = bpy.data.objects["Bar"]
     st = status(obj)
@@ -382,7 +391,7 @@ def stale_when_edited():
 
 def out_of_range_and_vertex_groups():
     """A value outside the mixer's accurate range: the result's message in the panel.  A key with a vertex
-    group is mixed linearly on top of the nonlinear mix."""
+    group is mixed; a key added after the build is mixed linearly on top until Rebuild."""
     reset()
     obj = make_bar(grouped=True)
     assert enable(obj) == ["FINISHED"]
@@ -755,9 +764,9 @@ def mix_key_muted_shape(obj):
 
 
 def artist_edits():
-    """What an artist does to a live mesh: a muted key, a negative slider range, a key relative to another key
-    (mixed linearly on top), Armature and Subdivision Surface after the keys, a key renamed (stale, the linear mix;
-    named back: live) or deleted, Apply All Shape Keys."""
+    """What an artist does to a live mesh: a muted key, a negative slider range, a key relative to a key that is not
+    mixed (an add-on key: mixed linearly on top), Armature and Subdivision Surface after the keys, a key renamed
+    (stale, the linear mix; named back: live) or deleted, Apply All Shape Keys."""
     reset()
     obj = make_bar()
     kbs = obj.data.shape_keys.key_blocks
@@ -765,7 +774,10 @@ def artist_edits():
     co = np.empty(3 * len(on_bend.points), np.float32)
     kbs["Bend"].points.foreach_get("co", co)
     on_bend.points.foreach_set("co", co + np.tile(np.float32([0.0, 0.0, 0.2]), len(on_bend.points)))
-    on_bend.relative_key, on_bend.value = kbs["Bend"], 0.0
+    base = obj.shape_key_add(name="LA Base", from_mix=False)  # a key named like the add-on's: not mixed
+    base.points.foreach_set("co", co)
+    base.value = 0.0
+    on_bend.relative_key, on_bend.value = base, 0.0
     assert enable(obj) == ["FINISHED"]
     OUT["edits_mixer_npz"] = stored_mixer(obj)
     out = {"linear": status(obj)["linear"]}
@@ -848,7 +860,7 @@ def mix_key_name():
     kb.points.foreach_get("co", mine)
     mine += np.tile(np.float32([0.0, 0.0, 0.2]), len(kb.points))
     kb.points.foreach_set("co", mine)
-    kb.value, kb.relative_key = 0.0, obj.data.shape_keys.key_blocks["Bend"]  # (mixed linearly, adds nothing at 0)
+    kb.value, kb.relative_key = 0.0, kb  # (relative to itself: mixed linearly, adds nothing)
     out = {"clash": refusal(obj, bpy.ops.lengths_angles.live_mix_enable)}
     kb.name = "Mine"
     assert enable(obj) == ["FINISHED"]
@@ -1058,6 +1070,12 @@ def renders():
     for f, v in ((1, 0.5), (2, 0.75)):
         kb.value = v
         kb.keyframe_insert("value", frame=f)
+    group = obj.vertex_groups.new(name="ramp")  # a twist limited to a ramp of weights, set for the exact render
+    for i, w in enumerate(INPUTS["group_weights"]):
+        group.add([i], float(w), 'REPLACE')
+    kb = obj.shape_key_add(name="Ramp", from_mix=False)
+    kb.data.foreach_set("co", INPUTS["masked"].astype(np.float32).ravel())
+    kb.vertex_group, kb.value = "ramp", 0.0
     assert enable(obj) == ["FINISHED"]
     scene = bpy.context.scene
     render_setup(scene)
@@ -1067,11 +1085,11 @@ def renders():
     scene.frame_set(2)
     still = render_png(scene, os.path.join(ARGS.workdir, "still.png"))[0]
     plain = plain_renders(scene, obj, "")
-    # Exact in Renders: a still render at frame 2, two more keys set (one extrapolated), polishes the mix; the
-    # viewport keeps the render's shape
+    # Exact in Renders: a still render at frame 2, three more keys set (one extrapolated, one limited to a vertex
+    # group), polishes the mix; the viewport keeps the render's shape
     live_mix = ext("live_mix")
     keys = obj.data.shape_keys.key_blocks
-    keys["Bend"].value, keys["Twist"].value = 0.7, 1.4
+    keys["Bend"].value, keys["Twist"].value, keys["Ramp"].value = 0.7, 1.4, 0.8
     reduced = evaluated(obj)
     setattr(obj.data, live_mix.EXACT_RENDERS_PROP, True)
     t = time.perf_counter()
@@ -1082,7 +1100,7 @@ def renders():
     OUT["render_weights"] = ext("live_mix")._live(obj.data).last
     exact_state = live_mix.status(obj.data)
     setattr(obj.data, live_mix.EXACT_RENDERS_PROP, False)
-    keys["Bend"].value = keys["Twist"].value = 0.0
+    keys["Bend"].value = keys["Twist"].value = keys["Ramp"].value = 0.0
     assert disable(obj) == ["FINISHED"]
     linear = render_png(scene, os.path.join(ARGS.workdir, "linear_"), animation=True)
     diff = lambda a, b: float(np.abs(a - b).max())  # noqa: E731
@@ -1161,6 +1179,130 @@ def inbetweens_and_bake_with_mixer():
     return out
 
 
+def make_rig_bar():
+    """The bar as a facial rig has its keys: besides Bend, Twist and Both, Masked (a twist limited to the vertex group
+    'ramp', weights 0 .. 1 along the bar), OnBend (relative to Bend), Ghost (limited to the group 'nope', which the
+    mesh does not have), SelfRel (relative to itself), an add-on key 'LA Extra' and OnExtra relative to it."""
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    group = obj.vertex_groups.new(name="ramp")
+    for i, w in enumerate(INPUTS["group_weights"]):
+        group.add([i], float(w), 'REPLACE')
+
+    def add(name, co, relative=None, group=""):
+        kb = obj.shape_key_add(name=name, from_mix=False)
+        kb.data.foreach_set("co", np.asarray(co, np.float32).ravel())
+        kb.value = 0.0
+        if relative is not None:
+            kb.relative_key = kb if relative == name else kbs[relative]
+        kb.vertex_group = group
+    add("Masked", INPUTS["masked"], group="ramp")
+    add("OnBend", INPUTS["on_bend"], relative="Bend")
+    add("Ghost", INPUTS["ghost"], group="nope")
+    add("SelfRel", INPUTS["on_bend"], relative="SelfRel")
+    add("LA Extra", INPUTS["extra"])
+    add("OnExtra", INPUTS["on_extra"], relative="LA Extra")
+    return obj
+
+
+def vertex_groups_and_relative_keys():
+    """Keys limited to a vertex group and keys relative to another key are mixed (the evaluated mesh = lacore's mix
+    with the same masks and relative keys); keys relative to themselves or to a key that is not mixed stay linear
+    on top.  A weight edited, a key's group or relative key changed: stale; undone or set back: live.  Saved and
+    reopened: live; Disable: Blender's linear mix bit for bit.  A group name the mesh lacks: the key applies to all
+    vertices, in Blender and in the mix."""
+    live_mix, ops_mod = ext("live_mix"), ext("operators_interpolate")
+    reset()
+    out = {}
+    # a vertex group but no weights stored on the mesh at all: Blender limits nothing, nor does the add-on's read
+    probe = make_bar("Probe")
+    probe.vertex_groups.new(name="empty")
+    kb = probe.data.shape_keys.key_blocks["Bend"]
+    kb.value = 1.0
+    full = evaluated(probe)
+    kb.vertex_group = "empty"
+    masks = live_mix.vertex_masks(probe.data, live_mix._group_indices(probe, ["empty"]))  # (must not add weights)
+    out["no_weights_stored"] = [bool(np.array_equal(evaluated(probe), full)), float(masks.min())]
+    reset()
+    obj = make_rig_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    # what Blender does with a group name the mesh does not have: the key applies to all vertices
+    kbs["Ghost"].value = 1.0
+    ghost_shown = evaluated(obj)
+    kbs["Ghost"].vertex_group = ""
+    out["missing_group_as_none"] = bool(np.array_equal(ghost_shown, evaluated(obj)))
+    kbs["Ghost"].vertex_group, kbs["Ghost"].value = "nope", 0.0
+    before = []
+    for w in VG_WEIGHTS:
+        set_values(obj, w, VG_NAMES)
+        before.append(evaluated(obj))
+    set_values(obj, [0.0] * len(VG_NAMES), VG_NAMES)
+    assert enable(obj) == ["FINISHED"]
+    OUT["vg_mixer_npz"] = stored_mixer(obj)
+    record = obj.data[live_mix.MIXER_PROP]
+    out["record"] = {k: list(record[k]) for k in ("keys", "groups", "relative")}
+    st = status(obj)
+    out["status"] = {k: st[k] for k in ("keys", "linear", "linear_reasons", "stale")}
+    out["panel"] = panel_labels(obj)
+    mixed, linear = [], []
+    for w in VG_WEIGHTS:
+        set_values(obj, w, VG_NAMES)
+        mixed.append(evaluated(obj))
+        linear.append(mix_key_muted_shape(obj))
+    OUT["vg_mixed"], OUT["vg_linear"], OUT["vg_weights"] = np.array(mixed), np.array(linear), np.array(VG_WEIGHTS)
+    kbs["OnExtra"].value = 0.5  # linear on top of the mix
+    OUT["vg_on_extra"] = evaluated(obj)
+    kbs["OnExtra"].value = 0.0
+    # in-betweens: the mixer only for keys whose weight 1 is their shape
+    out["inbetween"] = {"default_bend": ops_mod.default_method(obj, ["Basis", "Bend"]),
+                        "default_masked": ops_mod.default_method(obj, ["Basis", "Masked"]),
+                        "note_masked": ops_mod.mixer_note(obj, ["Basis", "Masked"]),
+                        "note_on_bend": ops_mod.mixer_note(obj, ["Bend", "OnBend"])}
+    # a weight painted (a script's edit: vertex 0 from 0 to 0.9): stale, the linear mix; undone: live
+    live_shape = evaluated(obj)
+    bpy.ops.ed.undo_push(message="before the weight edit")
+    obj.vertex_groups["ramp"].add([0], 0.9, 'REPLACE')
+    shown = evaluated(obj)
+    out["weight_edit"] = [status(obj)["stale"], bool(np.array_equal(shown, mix_key_muted_shape(obj)))]
+    bpy.ops.ed.undo_push(message="weight edit")
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["Bar"]
+    kbs = obj.data.shape_keys.key_blocks
+    out["weight_undone"] = [status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())]
+    # a key's relative key, a key's vertex group, the group renamed: stale; set back: live
+    changes = []
+    for what, change, back in (
+            ("relative", lambda: setattr(kbs["OnBend"], "relative_key", kbs["Basis"]),
+             lambda: setattr(kbs["OnBend"], "relative_key", kbs["Bend"])),
+            ("group", lambda: setattr(kbs["Masked"], "vertex_group", ""),
+             lambda: setattr(kbs["Masked"], "vertex_group", "ramp")),
+            ("renamed", lambda: setattr(obj.vertex_groups["ramp"], "name", "ramp2"),
+             lambda: setattr(obj.vertex_groups["ramp2"], "name", "ramp"))):
+        change()
+        shown = evaluated(obj)
+        changes.append([what, status(obj)["stale"], bool(np.array_equal(shown, mix_key_muted_shape(obj)))])
+        back()
+        shown = evaluated(obj)
+        changes[-1] += [status(obj)["stale"], float(np.abs(shown - live_shape).max())]
+    out["changes"] = changes
+    # saved and reopened: live; Disable: the linear mix bit for bit
+    path = os.path.join(ARGS.workdir, "rig.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["Bar"]
+    set_values(obj, VG_WEIGHTS[2], VG_NAMES)
+    OUT["vg_reopened"] = evaluated(obj)
+    out["reopened"] = status(obj)["stale"]
+    assert disable(obj) == ["FINISHED"]
+    after = []
+    for w in VG_WEIGHTS:
+        set_values(obj, w, VG_NAMES)
+        after.append(evaluated(obj))
+    out["disable_bit_for_bit"] = all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))
+    out["disabled_vs_linear"] = all(np.array_equal(a, b) for a, b in zip(linear, after, strict=True))
+    return out
+
+
 def finish():
     np.savez(os.path.join(ARGS.workdir, "live_mix.npz"), **OUT)
 
@@ -1169,4 +1311,4 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           renders, finish])
+           vertex_groups_and_relative_keys, renders, finish])
