@@ -596,6 +596,9 @@ def test_vertex_group_and_relative_keys_stale_and_reopened(run, inputs):
     # in-betweens use the mixer for whole keys only
     inb = res["inbetween"]
     assert inb["default_bend"] == "MIXER" and inb["default_masked"] == "FAST", inb
+    # the in-between Basis > Bend at 0.5 by that mixer (its masked and relative keys at 0): the mix of 0.5 e_Bend
+    want, _ = rig_expected(a["vg_mixer_npz"], inputs, [0.5, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert np.abs(a["vg_inbetween"] - want).max() < TOL, np.abs(a["vg_inbetween"] - want).max()
     assert inb["note_masked"] == ("Live Mixer not available: shape key 'Masked' is limited to the vertex group "
                                   "'ramp': the live mixer of 'Bar' mixes what its slider shows, not the key's shape")
     assert inb["note_on_bend"] == ("Live Mixer not available: shape key 'OnBend' is relative to 'Bend': the live "

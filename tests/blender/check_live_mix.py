@@ -1258,6 +1258,9 @@ def vertex_groups_and_relative_keys():
                         "default_masked": ops_mod.default_method(obj, ["Basis", "Masked"]),
                         "note_masked": ops_mod.mixer_note(obj, ["Basis", "Masked"]),
                         "note_on_bend": ops_mod.mixer_note(obj, ["Bend", "OnBend"])}
+    res, msg = try_op(obj, bpy.ops.lengths_angles.interpolate, key_from="Basis", key_to="Bend", factors="0.5")
+    assert res == ["FINISHED"], (res, msg)
+    OUT["vg_inbetween"] = key_coords(obj, [ext("naming").inbetween_key_name("Basis", "Bend", 0.5)])[0]
     # a weight painted (a script's edit: vertex 0 from 0 to 0.9): stale, the linear mix; undone: live
     live_shape = evaluated(obj)
     bpy.ops.ed.undo_push(message="before the weight edit")
