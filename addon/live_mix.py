@@ -789,9 +789,7 @@ def _inputs(obj):
     _require_not_edited(mesh, "enable")
     if mesh.shape_keys is None:
         raise LiveMixError(f"mesh '{mesh.name}' has no shape keys: add a Basis and at least one key to mix")
-    if MIXER_PROP not in mesh and mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) is not None:
-        raise LiveMixError(f"mesh '{mesh.name}' has a shape key named '{LIVE_MIX_KEY}' that live mixing did not make: "
-                           "rename it (live mixing writes its correction into a key of that name)")
+    _require_no_user_mix_key(mesh)
     if not mesh.shape_keys.use_relative:
         raise LiveMixError(f"mesh '{mesh.name}': live mixing needs Relative shape keys (check Relative in the "
                            "Shape Keys panel)")
@@ -806,6 +804,14 @@ def _inputs(obj):
     keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
                          names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
     return basis, nonlinear, linear, keys, faces, _structure(obj, basis, nonlinear)
+
+
+def _require_no_user_mix_key(mesh):
+    """:class:`LiveMixError` if a shape key of ``mesh`` live mixing did not make is named :data:`LIVE_MIX_KEY` (its
+    coordinates would be written over): checked when Enable starts and again when its build ends."""
+    if MIXER_PROP not in mesh and mesh.shape_keys is not None and mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY):
+        raise LiveMixError(f"mesh '{mesh.name}' has a shape key named '{LIVE_MIX_KEY}' that live mixing did not make: "
+                           "rename it (live mixing writes its correction into a key of that name)")
 
 
 def enable_run(obj, reduced_size=0):
@@ -823,6 +829,7 @@ def enable_run(obj, reduced_size=0):
                for n in linear}
 
     def write(obj, job):
+        _require_no_user_mix_key(obj.data)  # (a key given that name during the build)
         seconds = time.perf_counter() - t0
         store_mixer(obj, job.result, basis, nonlinear, linear, seconds, int(reduced_size), groups, relative)
         return (f"live mixing of {len(nonlinear)} key{'s' if len(nonlinear) != 1 else ''} on '{obj.name}' "

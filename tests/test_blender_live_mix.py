@@ -384,6 +384,10 @@ def test_user_key_named_like_the_mix_key_is_refused(run):
     assert clash["result"] == ["CANCELLED"] and clash["one_line"] and clash["unchanged"], clash
     assert "has a shape key named 'LA live mix' that live mixing did not make: rename it" in clash["message"], clash
     assert res["mine_kept"], res
+    # a user key given the name while the mixer is built: refused when the build ends, the key as it was
+    assert res["named_during_build"].startswith("LiveMixError: mesh 'Bar' has a shape key named 'LA live mix' "
+                                                "that live mixing did not make"), res["named_during_build"]
+    assert res["named_during_build_kept"], res
 
 
 def test_mix_key_renamed_then_saved_is_found_after_reopening(run, inputs):

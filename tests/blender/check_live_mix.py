@@ -863,6 +863,17 @@ def mix_key_name():
     kb.value, kb.relative_key = 0.0, kb  # (relative to itself: mixed linearly, adds nothing)
     out = {"clash": refusal(obj, bpy.ops.lengths_angles.live_mix_enable)}
     kb.name = "Mine"
+    run = ext("live_mix").enable_run(obj)   # the user's key takes the name while the mixer is built
+    kb.name = "LA live mix"
+    run.run()
+    try:
+        run.finish()
+        out["named_during_build"] = "written"
+    except Exception as exc:
+        out["named_during_build"] = f"{type(exc).__name__}: {exc}"
+    out["named_during_build_kept"] = bool(np.array_equal(key_coords(obj, ["LA live mix"])[0].ravel(), mine)
+                                          and ext("live_mix").MIXER_PROP not in obj.data)
+    kb.name = "Mine"
     assert enable(obj) == ["FINISHED"]
     OUT["name_mixer_npz"] = stored_mixer(obj)
     kbs = obj.data.shape_keys.key_blocks
