@@ -17,6 +17,7 @@
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+import ctypes
 import hashlib
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..lacore.errors import InputError
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
            "require_whole_keys", "require_writable_keys", "linked_from", "override_from", "write_shape_key",
-           "set_shape_key", "key_names", "require_mesh_object",
+           "set_shape_key", "key_names", "require_mesh_object", "key_block_array",
            "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
 
 
@@ -251,6 +252,29 @@ def override_from(mesh):
     override = mesh.override_library
     reference = None if override is None else override.reference
     return "" if reference is None or reference.library is None else reference.library.filepath
+
+
+def key_block_array(kb, current):
+    """Blender's own coordinate array of the mesh key block ``kb`` as a writable ``(3V,)`` float32 view, or None.
+
+    Writing into it does for all points at once what ``point.co = ...`` does for one, where ``foreach_set`` is
+    refused: Blender's bulk write (``rna_raw_access`` in ``rna_access.cc``) asks ``RNA_property_editable``, which on a
+    library override refuses every property that is not overridable (a key point's ``co``) and so skips each point
+    without a word, while setting a point's ``co`` from Python asks only the property's own editable flag.  The view
+    starts at the address Blender gives the first point (``as_pointer``); None when the second and last points are not
+    where one array of 3 floats per point puts them, or when the array does not hold ``current`` bit for bit (``kb``'s
+    coordinates as ``foreach_get`` reads them, float32), so that nothing is ever written through a wrong address."""
+    points = kb.points
+    n = len(points)
+    if n == 0 or current.dtype != np.float32 or current.shape != (3 * n,):
+        return None
+    step = 3 * ctypes.sizeof(ctypes.c_float)
+    start = points[0].as_pointer()
+    if not start or (n > 1 and (points[1].as_pointer() != start + step
+                                or points[n - 1].as_pointer() != start + step * (n - 1))):
+        return None
+    view = np.ctypeslib.as_array((ctypes.c_float * (3 * n)).from_address(start))
+    return view if view.tobytes() == current.tobytes() else None
 
 
 def require_writable_keys(mesh, what):
