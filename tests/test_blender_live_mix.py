@@ -305,6 +305,7 @@ def test_library_override_mixes_live_and_reopens_live(run, inputs):
     st = res["status"]
     assert st["stale"] == "" and st["linked"] == "" and st["override"].endswith("character.blend"), st
     assert any(t and t.startswith("Live: 3 keys") for t in res["panel"]), res["panel"]
+    assert res["key_block_array"], res  # the fast write into the key block's array, not point by point
     for name in ("enable", "disable"):
         r = res[name]
         assert r["result"] == ["CANCELLED"] and r["one_line"] and r["unchanged"], r

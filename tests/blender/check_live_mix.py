@@ -681,6 +681,10 @@ def library_override():
     bpy.ops.ed.undo_push(message="keyed")
     out["after_undo_push"] = float(np.abs(evaluated(obj) - shapes[-1]).max())
     out["status"], out["panel"] = status(obj), panel_labels(obj)
+    mix_kb = kbs["LA live mix"]  # the override's mix key is written through Blender's own array, not point by point
+    current = np.empty(3 * len(mix_kb.points), np.float32)
+    mix_kb.points.foreach_get("co", current)
+    out["key_block_array"] = ext("mesh_access").key_block_array(mix_kb, current) is not None
     point = kbs["Twist"].data[0]
     x = point.co.x
     point.co.x = x + 0.1  # an edit of a key in the shot: stale, rebuilt in the library; undone: live again
