@@ -875,6 +875,19 @@ def test_unit_masks_are_no_masks(bar, mixer):
         assert np.array_equal(same.mix(w, warm_start=False).vertices, mixer.mix(w, warm_start=False).vertices)
 
 
+def test_masked_build_progress_and_cancel(masked_bar):
+    from lacore.progress import Cancelled
+
+    keys, F, masks, rel, _ = masked_bar
+    seen = []
+    ShapeMixer.build(keys, F, masks=masks, relative_to=rel, progress=lambda *r: seen.append(r[2]))
+    assert [m for m in seen if m.startswith("key ")] == [f"key {k} at weight 1, its mask and relative key applied"
+                                                          for k in (1, 2)]
+    with pytest.raises(Cancelled):
+        ShapeMixer.build(keys, F, masks=masks, relative_to=rel,
+                         progress=lambda done, total, message: message.startswith("key 2"))
+
+
 def test_masked_save_load(tmp_path, masked_bar):
     keys, F, masks, rel, mixer = masked_bar
     loaded = ShapeMixer.load(mixer.save(tmp_path / "m.npz"))

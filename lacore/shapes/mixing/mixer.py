@@ -806,7 +806,7 @@ class ShapeMixer:
             mixer = cls(keys, faces, options, masks=masks, relative_to=relative_to)
         if mixer._derived.any():
             with watch("corners"):
-                mixer._project_corners()
+                mixer._project_corners(progress)
         o = mixer.options
         if o.reduced_size is not None and o.reduced_size < mixer.n_keys - 1:
             raise InputError(f"reduced_size {o.reduced_size} is below the {mixer.n_keys - 1} non-basis keys: the space "
@@ -896,11 +896,13 @@ class ShapeMixer:
         report(progress, 4, 4, "done")
         return mixer
 
-    def _project_corners(self):
+    def _project_corners(self, progress=None):
         """The shapes at the weights ``e_k`` of the derived keys (a mask or another relative key): the projections of
-        their targets by Gauss-Newton from Blender's linear blend ``B + m_k (K_k - K_rel(k))``."""
+        their targets by Gauss-Newton from Blender's linear blend ``B + m_k (K_k - K_rel(k))``; ``progress`` is
+        reported (and may cancel) before each."""
         m = self.n_keys - 1
         for k in np.flatnonzero(self._derived) + 1:
+            report(progress, 0, 4, f"key {k} at weight 1, its mask and relative key applied")
             w = np.zeros(m)
             w[k - 1] = 1.0
             start = self.keys[0] + self.masks[k - 1][:, None] * (self.keys[k] - self.keys[self.relative_to[k - 1]])
