@@ -888,6 +888,16 @@ def test_masked_build_progress_and_cancel(masked_bar):
                          progress=lambda done, total, message: message.startswith("key 2"))
 
 
+def test_masked_key_without_projection_is_refused(masked_bar):
+    """A masked key's shape at weight 1 that Gauss-Newton does not reach within the budget is refused, not taken as
+    exact."""
+    keys, F, masks, rel, _ = masked_bar
+    with pytest.raises(MixerError, match=r"key 1 at weight 1 \(its mask and relative key applied\) has no projection: "
+                                         r".*raise MixerOptions\.polish_iterations") as info:
+        ShapeMixer.build(keys, F, MixerOptions(polish_iterations=1), masks=masks, relative_to=rel)
+    assert "\n" not in str(info.value)
+
+
 def test_masked_save_load(tmp_path, masked_bar):
     keys, F, masks, rel, mixer = masked_bar
     loaded = ShapeMixer.load(mixer.save(tmp_path / "m.npz"))
@@ -919,12 +929,14 @@ def test_version_2_file_is_unmasked(tmp_path, mixer):
     (None, [0, 3], r"key 2 is relative to key index 3: there are keys 0 to 2"),
     (None, [0.5, 0], r"relative_to must be 2 key indices"),
     ("zero", None, r"every key's mask is 0 where it differs from its relative key: there is nothing to mix"),
+    ("text", None, r"masks must be a \(2, \d+\) array of numbers in \[0, 1\], one row per non-basis key"),
 ])
 def test_bad_masks_and_relative_keys(bar, masks, rel, match):
     keys, F = bar
     V = keys.shape[1]
     M = {"shape": np.ones((2, 3)), "nan": np.where(np.arange(V) == 3, np.nan, 1.0)[None].repeat(2, 0),
-         "above": np.stack([np.ones(V), np.full(V, 1.5)]), "zero": np.zeros((2, V)), None: None}[masks]
+         "above": np.stack([np.ones(V), np.full(V, 1.5)]), "zero": np.zeros((2, V)), "text": [["a"] * V] * 2,
+         None: None}[masks]
     with pytest.raises(MixerError, match=match) as info:
         ShapeMixer(keys, F, masks=M, relative_to=rel)
     assert "\n" not in str(info.value)
@@ -950,11 +962,14 @@ def test_cli_masks_and_relative_keys(capsys, tmp_path, key_files, bar):
     np.testing.assert_allclose(m.mix([0.5, 0.5]).vertices, direct.mix([0.5, 0.5]).vertices, atol=1e-9 * _diag(keys[0]))
     np.save(tmp_path / "short.npy", masks[:1])
     (tmp_path / "text.txt").write_text("a b c\n")
+    with open(tmp_path / "archive.npy", "wb") as fh:
+        np.savez(fh, masks=masks)
     for extra, match in [(("--relative-to", 0), "relative_to must be 2 key indices"),
                          (("--relative-to", 0, 2), r"'.*key2\.ply' is relative to itself"),
                          (("--masks", tmp_path / "short.npy"), r"masks must be a \(2, \d+\) array"),
                          (("--masks", tmp_path / "none.npy"), r"--masks .*none\.npy: cannot read it"),
                          (("--masks", tmp_path / "text.txt"), r"--masks .*text\.txt: not an array of numbers"),
+                         (("--masks", tmp_path / "archive.npy"), r"--masks .*archive\.npy: not an array of numbers"),
                          (("--masks", tmp_path / "masks.json"), r"use a \.npy file or a text file")]:
         before = _listing(tmp_path)
         code, out, err = _run(capsys, "mixer", *paths, "-o", tmp_path / "bad.npz", *extra)

@@ -139,7 +139,7 @@ def read_masks(path):
         return np.asarray(a, float)
     except OSError as exc:
         raise MixerError(f"--masks {path}: cannot read it ({exc.strerror or exc})") from None
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:  # (TypeError: an .npz archive named .npy)
         raise MixerError(f"--masks {path}: not an array of numbers ({str(exc).splitlines()[0]})") from None
 
 

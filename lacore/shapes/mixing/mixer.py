@@ -899,7 +899,8 @@ class ShapeMixer:
     def _project_corners(self, progress=None):
         """The shapes at the weights ``e_k`` of the derived keys (a mask or another relative key): the projections of
         their targets by Gauss-Newton from Blender's linear blend ``B + m_k (K_k - K_rel(k))``; ``progress`` is
-        reported (and may cancel) before each."""
+        reported (and may cancel) before each.  A projection that does not succeed
+        (:mod:`lacore.reconstruction.checks`) is a :class:`MixerError`: the build takes these shapes as exact."""
         m = self.n_keys - 1
         for k in np.flatnonzero(self._derived) + 1:
             report(progress, 0, 4, f"key {k} at weight 1, its mask and relative key applied")
@@ -912,6 +913,10 @@ class ShapeMixer:
             except LengthsAnglesError as exc:
                 raise MixerError(f"key {k} at weight 1 (its mask and relative key applied) is no shape a mesh comes "
                                  f"near: {exc}; check its vertex group and relative key") from None
+            if not res.success:  # the build takes this shape as exact (the indicator is 0 there)
+                raise MixerError(f"key {k} at weight 1 (its mask and relative key applied) has no projection: "
+                                 f"{res.message}; check its vertex group and relative key, or raise "
+                                 "MixerOptions.polish_iterations")
             self._corners[k] = res.vertices
             self._key_x[k] = self._context.to_canonical(res.vertices).ravel()
 
