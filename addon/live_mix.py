@@ -55,10 +55,14 @@ key, or a key relative to one); the panel lists them with the reason (:func:`lin
 
 Staleness: every update compares the basis and mixer keys' coordinates, relative keys and vertex-group names and
 the mesh's corners with the ones the mixer was built from (and after loading a .blend, with their stored digest
-and record).  The vertex-group weights (:func:`vertex_masks`: 12-30 ms at 13k vertices, 45-110 ms at 50k) are
+and record).  The vertex-group weights (:func:`vertex_masks`: 10-36 ms at 13k vertices, 42-130 ms at 50k) are
 read again and compared with the mixer's only when a key's group name or the group it resolves to changed, after
 undo and loading, and after an update that changed the mesh's data but no key value (a weight painted, a
-script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders and playback never pay for it.  An edited
+script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders and playback never pay for it.  While an
+object showing the mesh is in Weight Paint mode, such updates (every dab of a stroke) are not read: the weights
+are read once the painting pauses for :data:`PAINT_SETTLE` seconds (:func:`settle_painting`, a timer) and when
+the mode is left.  Until then the mesh shows the mix with the weights it was built with, plus Blender's own linear
+change of the painted weights.  An edited
 mesh or key, a renamed or deleted key, an edited weight, a key given another vertex group or relative key makes
 the mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel says so until
 Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
@@ -175,11 +179,11 @@ def vertex_masks(mesh, indices):
     the mesh stores no vertex-group weights at all (Blender then limits nothing).
 
     Read through a BMesh copy: reading ``mesh.vertices[i].groups`` would add an empty weight layer to a mesh without
-    one, and so limit its keys' groups to nothing.  12-13 ms at 13k vertices and 46-49 ms at 50k with 3 shape keys,
-    26-28 ms and 106-109 ms with 50 (the copy takes the keys along), two groups, bpy 4.2 and 5.2."""
+    one, and so limit its keys' groups to nothing.  10-11 ms at 13k vertices and 42-43 ms at 50k with 3 shape keys,
+    36 ms and 107-130 ms with 50 (the copy takes the keys along), two groups read, bpy 4.2 and 5.2."""
     import bmesh
     out = np.ones((len(indices), len(mesh.vertices)), np.float32)
-    wanted = {g for g in indices if g >= 0}
+    wanted = sorted({g for g in indices if g >= 0})
     if not wanted:
         return out
     bm = bmesh.new()
@@ -188,21 +192,13 @@ def vertex_masks(mesh, indices):
         layer = bm.verts.layers.deform.active
         if layer is None:
             return out
-        groups, verts, weights = [], [], []
-        for i, v in enumerate(bm.verts):
-            for g, w in v[layer].items():
-                if g in wanted:
-                    groups.append(g)
-                    verts.append(i)
-                    weights.append(w)
+        dverts = [v[layer] for v in bm.verts]
+        read = {g: np.fromiter((d.get(g, 0.0) for d in dverts), np.float32, count=len(dverts)) for g in wanted}
     finally:
         bm.free()
-    groups, verts, weights = np.array(groups, np.int64), np.array(verts, np.int64), np.array(weights, np.float32)
     for row, g in enumerate(indices):
         if g >= 0:
-            out[row] = 0.0
-            sel = groups == g
-            out[row, verts[sel]] = weights[sel]
+            out[row] = read[g]
     return out
 
 
@@ -257,6 +253,7 @@ class _Live:
         self.owner = ""  # an object using the mesh (whose vertex groups are read)
         self.groups_seen = None  # the keys' vertex-group names and indices at the last check of the weights
         self.check_masks = True  # read the weights again at the next check (built, loaded, undone, edited)
+        self.painted_at = None  # time.monotonic() of the last edit in Weight Paint mode not read yet (None: none)
         self.mask_reason = ""  # why the weights Blender applies differ from the mixer's ("" when they do not)
         self.values_seen = None  # the evaluated key values of the last update
         self.last = None  # weights of the mix in the mix key
@@ -291,7 +288,7 @@ class _Live:
         seen = (tuple(groups), _group_indices(obj, groups))
         if seen == self.groups_seen and not self.check_masks:
             return self.mask_reason
-        self.groups_seen, self.check_masks = seen, False
+        self.groups_seen, self.check_masks, self.painted_at = seen, False, None
         masks = vertex_masks(mesh, seen[1])
         built = np.asarray(self.mixer.masks, np.float32)
         self.mask_reason = ""
@@ -355,6 +352,18 @@ class _Live:
         if edited:
             return f"shape key '{edited[0]}' was edited"
         return self._masks_changed(mesh, key)
+
+    def weights_edited(self, mesh):
+        """An update changed ``mesh`` and no key value (a weight painted, a script's edit): read the weights again at
+        the next check; while an object showing it is in Weight Paint mode, once the painting pauses
+        (:func:`settle_painting`)."""
+        obj = _owner(mesh, self.owner)
+        if obj is not None and obj.mode == 'WEIGHT_PAINT':
+            self.painted_at = time.monotonic()
+            if not bpy.app.timers.is_registered(settle_painting):
+                bpy.app.timers.register(settle_painting, first_interval=PAINT_SETTLE)
+        else:
+            self.check_masks = True
 
     def weights(self, key_eval):
         """The mixer weights from the evaluated key: values within the slider range, 0 for muted keys."""
@@ -596,7 +605,8 @@ def _update_mesh(mesh, depsgraph, force=False, edited=False):
             key_eval = key
     if key_eval is not None:  # an edit that changed no value (a weight painted, a script): read the weights again
         values = [kb.value for kb in key_eval.key_blocks]
-        live.check_masks |= edited and values == live.values_seen
+        if edited and values == live.values_seen:
+            live.weights_edited(mesh)
         live.values_seen = values
     live.stale = live.check(mesh)
     mix_kb = None if key is None else key.key_blocks.get(LIVE_MIX_KEY)
@@ -671,6 +681,31 @@ def update_all(depsgraph=None, force=False, edited=()):
     finally:
         _GUARD[0] = False
         _LOCK.release()
+
+
+#: Seconds without an edit in Weight Paint mode after which the painted weights are read (:func:`settle_painting`).
+PAINT_SETTLE = 0.25
+
+
+def settle_painting():
+    """Have the vertex-group weights read of the live meshes painted in Weight Paint mode whose painting paused for
+    :data:`PAINT_SETTLE` seconds: their shape keys are tagged, and the update that follows reads the weights (stale if
+    a mixed key's group was painted).  A timer (``bpy.app.timers``, registered by the first edit of a pause); returns
+    the seconds until it is due again, None when no painting is pending."""
+    now = time.monotonic()
+    wait = []
+    for name, live in _LIVE.items():
+        if live.painted_at is None:
+            continue
+        left = live.painted_at + PAINT_SETTLE - now
+        if left > 0:
+            wait.append(left)
+            continue
+        live.painted_at, live.check_masks = None, True
+        mesh = bpy.data.meshes.get(name)
+        if mesh is not None and mesh.shape_keys is not None:
+            mesh.shape_keys.update_tag()
+    return min(wait) if wait else None
 
 
 def _register_updated(depsgraph):
@@ -761,6 +796,8 @@ def register_handlers():
 
 
 def unregister_handlers():
+    if bpy.app.timers.is_registered(settle_painting):
+        bpy.app.timers.unregister(settle_painting)
     for name, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, name)
         if fn in handlers:

@@ -588,6 +588,12 @@ def test_vertex_group_and_relative_keys_stale_and_reopened(run, inputs):
     res, a = run["cases"]["vertex_groups_and_relative_keys"], run["arrays"]
     assert res["weight_edit"] == ["the weights of the vertex group 'ramp' of shape key 'Masked' were edited", True]
     assert res["weight_undone"][0] == "" and res["weight_undone"][1] < TOL, res["weight_undone"]
+    # Weight Paint: weights read once the painting pauses and on leaving the mode, not at every dab
+    paint = res["weight_paint"]
+    assert paint[0] == 0 and paint[1][:2] == [1, ""] and paint[1][2] < TOL, paint
+    assert paint[2] == [1, ""], paint
+    assert paint[3] == [2, "the weights of the vertex group 'ramp' of shape key 'Masked' were edited", True], paint
+    assert paint[4][:2] == [3, ""] and paint[4][2] < TOL, paint
     stale = {"relative": "shape key 'OnBend' is relative to 'Basis' now, 'Bend' when the mixer was built",
              "group": "shape key 'Masked' has no vertex group now ('ramp' when the mixer was built)",
              "renamed": "the vertex group 'ramp' of shape key 'Masked' is missing now (Blender applies the key to all "

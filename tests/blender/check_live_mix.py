@@ -1287,6 +1287,43 @@ def vertex_groups_and_relative_keys():
     obj = bpy.data.objects["Bar"]
     kbs = obj.data.shape_keys.key_blocks
     out["weight_undone"] = [status(obj)["stale"], float(np.abs(evaluated(obj) - live_shape).max())]
+    # Weight Paint: no weights read while painting, one read once the painting pauses (a group no key uses: still
+    # live; a mixed key's group: stale) and one on leaving the mode (the weights painted back: live)
+    reads, read = [], live_mix.vertex_masks
+    live_mix.vertex_masks = lambda *a: (reads.append(1), read(*a))[1]
+    try:
+        select_only(obj)
+        with ops_context(obj):
+            bpy.ops.object.mode_set(mode='WEIGHT_PAINT')
+        skin = obj.vertex_groups.new(name="skin")
+        for i in range(3):
+            skin.add([i], 0.5, 'REPLACE')
+            evaluated(obj)
+        paint = [len(reads)]
+        time.sleep(live_mix.PAINT_SETTLE)
+        live_mix.settle_painting()
+        shown = evaluated(obj)
+        paint.append([len(reads), status(obj)["stale"], float(np.abs(shown - live_shape).max())])
+        ramp = obj.vertex_groups["ramp"]
+        for i in range(3):
+            ramp.add([i], 0.9, 'REPLACE')
+            evaluated(obj)
+        paint.append([len(reads), status(obj)["stale"]])
+        time.sleep(live_mix.PAINT_SETTLE)
+        live_mix.settle_painting()
+        shown = evaluated(obj)
+        paint.append([len(reads), status(obj)["stale"], bool(np.array_equal(shown, mix_key_muted_shape(obj)))])
+        for i in range(3):
+            ramp.add([i], float(INPUTS["group_weights"][i]), 'REPLACE')
+            evaluated(obj)
+        with ops_context(obj):
+            bpy.ops.object.mode_set(mode='OBJECT')
+        shown = evaluated(obj)
+        paint.append([len(reads), status(obj)["stale"], float(np.abs(shown - live_shape).max())])
+        obj.vertex_groups.remove(skin)
+    finally:
+        live_mix.vertex_masks = read
+    out["weight_paint"] = paint
     # a key's relative key, a key's vertex group, the group renamed: stale; set back: live
     changes = []
     for what, change, back in (
