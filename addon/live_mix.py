@@ -438,8 +438,9 @@ def is_live(mesh):
 
 
 def status(mesh):
-    """What the panel shows: ``dict(keys, linear, linear_reasons, build_seconds, reduced_size, stale, in_range,
-    message, mix_seconds, polished, linked, override)`` (``linear``: the keys Blender mixes linearly on top,
+    """What the panel shows: ``dict(keys, linear, linear_reasons, build_seconds, reduced_size, space_size, stale,
+    in_range, message, mix_seconds, polished, linked, override)`` (``reduced_size``: the quality asked for, 0
+    automatic; ``space_size``: the mixer's reduced size; ``linear``: the keys Blender mixes linearly on top,
     ``linear_reasons`` why, :func:`linear_reason`; ``polished``: the last mix is a render's exact one; ``linked``: the
     library path of a linked mesh, whose mix key cannot be rewritten, else ""; ``override``: the library path of a
     library override, whose mixer is rebuilt there, else "") or None when ``mesh`` has no mixer."""
@@ -448,8 +449,8 @@ def status(mesh):
     live = _live(mesh)
     if live is None:
         return {"keys": [], "linear": [], "linear_reasons": {}, "build_seconds": 0.0, "reduced_size": 0,
-                "stale": "the stored mixer cannot be read", "in_range": True, "message": "", "mix_seconds": 0.0,
-                "polished": False,
+                "space_size": 0, "stale": "the stored mixer cannot be read", "in_range": True, "message": "",
+                "mix_seconds": 0.0, "polished": False,
                 "linked": linked_from(mesh), "override": override_from(mesh)}
     res = live.result
     key = mesh.shape_keys
@@ -464,7 +465,7 @@ def status(mesh):
     stale = live.stale or live.error or (live.check(mesh) if linked else "")  # (a linked mesh is never updated)
     return {"keys": live.names, "linear": list(reasons), "linear_reasons": reasons,
             "build_seconds": live.build_seconds,
-            "reduced_size": live.reduced_size, "stale": stale,
+            "reduced_size": live.reduced_size, "space_size": int(live.mixer.reduced_size), "stale": stale,
             "in_range": True if res is None else bool(res.in_range), "message": message,
             "mix_seconds": live.mix_seconds, "polished": bool(res is not None and res.polished),
             "linked": linked, "override": override_from(mesh)}

@@ -210,7 +210,8 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
             elif not state["linked"]:  # a linked mesh's mix key is the library's (Rebuild is refused)
                 col.label(text="Showing Blender's linear mix: Rebuild to mix live again")
         else:
-            col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['reduced_size'] or 'auto'}",
+            chosen = "" if state["reduced_size"] else " (auto)"
+            col.label(text=f"Live: {len(state['keys'])} keys, reduced size {state['space_size']}{chosen}",
                       icon='CHECKMARK')
         exact = " (exact, a render's)" if state["polished"] else ""
         col.label(text=f"Built in {state['build_seconds']:.2f} s; last mix {1000 * state['mix_seconds']:.1f} ms{exact}")

@@ -28,11 +28,15 @@ Steps now:
 7. ``blender_mocap_fit``: the take of step 4 as ``human_take.c3d``; the add-on's Build Shape Model (from shape
    keys), Import Markers, Bind Markers and Fit to Markers operators (scripts/demo_mocap_blender.py) ->
    ``human_mocap_fit.blend`` with a Mesh Cache modifier playing its PC2 next to it, ``human_mocap_fit.json``.
-8. ``blender_panel``: the add-on's panels and the In-betweens dialog drawn from their own ``draw()`` calls
+8. ``blender_live_mix``: the full CC0 human (13,380 vertices) with three pose keys; the add-on's Enable Live Mixing,
+   the arm's slider at 0.5 compared with Blender's linear mix and the body skinned at half the key's angle,
+   keyframed sliders played (scripts/demo_live_mix.py) -> ``human_live_mix.blend`` (press Play),
+   ``human_live_mix.json`` and ``human_live_mix.png``.
+9. ``blender_panel``: the add-on's panels and the In-betweens dialog drawn from their own ``draw()`` calls
    (scripts/draw_panel.py) -> ``panel.png`` and ``inbetweens_dialog.png`` (the README's panel picture).
 
-Steps 5-7 save .blend files, so they run in the oldest supported Blender (``make demo``: bpy 4.2): Blender 4.2
-cannot open a .blend saved by 5.x, and every newer Blender opens 4.2's.  Step 8 draws in the newest (bpy 5.2).
+Steps 5-8 save .blend files, so they run in the oldest supported Blender (``make demo``: bpy 4.2): Blender 4.2
+cannot open a .blend saved by 5.x, and every newer Blender opens 4.2's.  Step 9 draws in the newest (bpy 5.2).
 """
 
 import argparse
@@ -334,6 +338,43 @@ def blender_mocap_fit(out_dir):
     }
 
 
+def blender_live_mix(out_dir):
+    """Live mixing on the full CC0 human: Blender's slider at 0.5 vs its linear mix and the skinned pose."""
+    import numpy as np
+
+    from lacore.samples.human import POSE_KEYS, dof_angles, limb_ends, load_human, pose_keys
+    body = load_human()
+    names, keys = pose_keys(body)
+    half = body.pose(dof_angles({dof: degrees / 2 for dof, degrees in POSE_KEYS[0][1].items()}))  # the arm's key
+    shoulder, fingertip = limb_ends(body, "left_arm")
+    with tempfile.TemporaryDirectory(prefix="lengths_angles_demo_") as user_dir:
+        inputs = os.path.join(user_dir, "inputs.npz")
+        np.savez(inputs, faces=body.faces, keys=keys, names=np.array(names), half=half, shoulder=shoulder,
+                 fingertip=fingertip)
+        run_blender_script([os.path.join(HERE, "demo_live_mix.py"), out_dir, inputs], user_dir,
+                           stdout=subprocess.DEVNULL)
+    with open(os.path.join(out_dir, "human_live_mix.json")) as fh:
+        result = json.load(fh)
+    n = result["at_half_arm"]
+    lin, live, ref = n["blender_linear"], n["live_mix"], n["skinned_half_angle"]
+    outputs = ["human_live_mix.blend", "human_live_mix.json"]
+    if result["picture"]:
+        outputs.append("human_live_mix.png")
+    return {
+        "outputs": outputs,
+        "text": (f"Enable Live Mixing on the CC0 human ({result['vertices']} vertices, keys "
+                 f"{', '.join(result['keys'][1:])}; built in {result['enable_seconds']:.1f} s, reduced size "
+                 f"{result['reduced_size']}): with {result['keys'][1]} at 0.5 the arm measures "
+                 f"{live['arm_length_cm']:.1f} cm shoulder to fingertip (Blender's linear mix "
+                 f"{lin['arm_length_cm']:.1f} cm, the body skinned at half the angle {ref['arm_length_cm']:.1f} cm, "
+                 f"at rest {n['rest']['arm_length_cm']:.1f} cm) and lies {100 * live['rms_per_diagonal']:.2f} % of the "
+                 f"diagonal from that skinned pose (linear {100 * lin['rms_per_diagonal']:.2f} %); the keyframed "
+                 f"sliders played at {result['playback_fps']:.0f} fps here; open human_live_mix.blend (saved by "
+                 f"Blender {result['saved_by']}) and press Play"),
+        "result": result,
+    }
+
+
 def blender_panel(out_dir):
     """The README's picture of the panels (and of the In-betweens dialog), drawn in headless Blender."""
     panel = os.path.join(out_dir, "panel.png")
@@ -349,9 +390,10 @@ def blender_panel(out_dir):
 
 
 STEPS = [cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_encode, blender_interpolate,
-         blender_mocap_fit, blender_panel]
+         blender_mocap_fit, blender_live_mix, blender_panel]
 # the steps that read the shared data (the finger meshes, the CC0 human)
-NEEDS_SHARED_DATA = {cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_mocap_fit}
+NEEDS_SHARED_DATA = {cli_encode, cli_interpolate, cli_human_model, cli_human_fit, blender_mocap_fit,
+                     blender_live_mix}
 
 
 def main(argv=None):

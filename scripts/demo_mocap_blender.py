@@ -25,15 +25,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from addon_dev import load_addon
 
 
-def make_body(faces, basis, training):
-    """Mesh object 'Body' with Basis + one shape key (value 0) per training pose."""
+def make_body(faces, basis, training, names=None):
+    """Mesh object 'Body' with Basis + one shape key (value 0) per training pose (named ``names``, default
+    ``train00``, ``train01`` ...)."""
     mesh = bpy.data.meshes.new("Body")
     mesh.from_pydata(basis.tolist(), [], faces.tolist())
     obj = bpy.data.objects.new("Body", mesh)
     bpy.context.scene.collection.objects.link(obj)
     obj.shape_key_add(name="Basis", from_mix=False)
     for k, X in enumerate(training):
-        kb = obj.shape_key_add(name=f"train{k:02d}", from_mix=False)
+        kb = obj.shape_key_add(name=f"train{k:02d}" if names is None else names[k], from_mix=False)
         kb.data.foreach_set("co", X.astype(np.float32).ravel())
         kb.value = 0.0  # (new keys are at 1 in Blender 5)
     return obj

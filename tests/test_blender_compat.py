@@ -14,7 +14,7 @@ from conftest import REPO, blender_python, blender_python_version, run_blender_c
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_compat.py"
 OLDEST = "4.2"  # blender_manifest.toml's blender_version_min: `make demo` and `make samples` save with it
 # the demo's steps that save .blend files (scripts/demo.py)
-DEMO_BLEND_STEPS = ("blender_encode", "blender_interpolate", "blender_mocap_fit")
+DEMO_BLEND_STEPS = ("blender_encode", "blender_interpolate", "blender_mocap_fit", "blender_live_mix")
 
 
 @pytest.fixture(scope="module")
@@ -73,10 +73,11 @@ def test_sample_files_open(run):
 
 def test_demo_files_open(run):
     """Every .blend file `make demo` writes opens in every supported Blender (saved by the oldest, 4.2), with the
-    encodings, in-betweens, baked motion and the Mesh Cache modifier playing its PC2."""
+    encodings, in-betweens, baked motion, the Mesh Cache modifier playing its PC2 and the live mixer mixing."""
     res = run["cases"]["demo_files_open"]
     assert {name: version[:2] for name, version in res["saved_in"].items()} == {
-        "demo_scene.blend": [4, 2], "bar_inbetweens.blend": [4, 2], "human_mocap_fit.blend": [4, 2]}
+        "demo_scene.blend": [4, 2], "bar_inbetweens.blend": [4, 2], "human_mocap_fit.blend": [4, 2],
+        "human_live_mix.blend": [4, 2]}
     assert res["encoded"] == {"Cube": ["Basis", "Rigid", "Scaled"], "Bar": ["Basis", "Bend", "Rigid", "Twist"],
                               "Grid": ["Basis", "Roll", "Wave"]}
     assert res["inbetweens"] == ["LA Basis>Bend180 0.250", "LA Basis>Bend180 0.500", "LA Basis>Bend180 0.750"]
@@ -84,6 +85,11 @@ def test_demo_files_open(run):
     assert res["modifier"] == "MESH_CACHE" and res["cache_frames"] == 20
     assert res["cache_moved"] > 0.5  # decimetres: the body moves between the first and the middle frame
     assert res["played_vs_cache"] < 1e-5
+    # the live mixer saved by 4.2 mixes the keyframed sliders: the arm at 0.5 differs from the linear mix by
+    # decimetres (the linear mix shortens it by 0.9 dm), and unmuting the mix key brings the mix back exactly
+    live = res["live_mix"]
+    assert live["status"] == "" and live["arm_value"] == 0.5, live
+    assert live["mixed_vs_linear"] > 0.5 and live["unmuted_again"] < 1e-5, live
 
 
 def test_make_demo_saves_with_the_oldest_blender(tmp_path):

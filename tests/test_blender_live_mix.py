@@ -97,7 +97,9 @@ def test_evaluated_mesh_is_lacores_mix(run, inputs):
     assert res["user_keys_untouched_by_enable"] and res["active_kept"]
     assert res["status"]["keys"] == ["Bend", "Twist", "Both"] and res["status"]["stale"] == ""
     assert res["status"]["in_range"] and res["status"]["linear"] == []
-    assert any(t and t.startswith("Live: 3 keys") for t in res["panel"]), res["panel"]
+    # the panel names the mixer's reduced size, chosen automatically
+    assert f"Live: 3 keys, reduced size {res['status']['space_size']} (auto)" in res["panel"], res["panel"]
+    assert res["status"]["space_size"] > 3 * 2, res["status"]
     # the build time the operator measured, Rebuild, Disable and the quality choice
     assert 0.0 < res["status"]["build_seconds"] < res["seconds"], (res["status"], res["seconds"])
     assert any(t and t.startswith(f"Built in {res['status']['build_seconds']:.2f} s;") for t in res["panel"])
@@ -215,6 +217,7 @@ def test_out_of_range_and_vertex_group_keys(run, inputs):
             in res["panel_after_adding"]), res["panel_after_adding"]
     # Rebuild with the quality set to 12: the new mixer has reduced size 12, takes Later in, replaces the old text
     assert res["rebuilt"] == ["FINISHED"] and res["rebuilt_size"] == 12 and res["rebuilt_status"]["reduced_size"] == 12
+    assert res["rebuilt_status"]["space_size"] == 12
     assert res["rebuilt_status"]["keys"] == ["Bend", "Twist", "Both", "Grouped", "Later"]
     assert res["rebuilt_status"]["linear"] == []
     assert res["texts_after_rebuild"] == ["LA live mixer Bar"]

@@ -5,8 +5,8 @@ import pytest
 from conftest import shared_data_dir
 
 from lacore import MeshTopology
-from lacore.samples.human import (JOINT_DOFS, LIMBS, N_BODY_VERTICES, TRAINING_SPREAD, base_obj_sha256,
-                                  human_data_dir, load_human, training_angles, training_file)
+from lacore.samples.human import (JOINT_DOFS, LIMBS, N_BODY_VERTICES, POSE_KEYS, TRAINING_SPREAD, base_obj_sha256,
+                                  dof_angles, human_data_dir, load_human, pose_keys, training_angles, training_file)
 
 
 @pytest.fixture(scope="module")
@@ -68,6 +68,23 @@ def test_joints_bend_the_anatomical_way(body):
     assert bent[1] > rest[1] + 1.5  # and up
     hinges = [k for k, d in enumerate(JOINT_DOFS) if d[0] in ("LeftLeg", "RightForeArm") and d[1] == "swing"]
     assert np.all(body.lower[hinges] == 0)  # one-sided
+
+
+def test_pose_keys_move_only_their_limbs(body):
+    names, keys = pose_keys(body)
+    assert names == ["Basis", "ArmRaised", "KneeBent", "TorsoTwisted"] and keys.shape == (4, N_BODY_VERTICES, 3)
+    assert np.array_equal(keys[0], body.vertices)
+    moved = np.linalg.norm(keys[1:] - keys[0], axis=2)  # (3, V) dm
+    bone = np.array(body.bones)[body.vertex_bone]
+    left_arm = np.isin(bone, LIMBS["left_arm"])
+    # the raised arm lifts the left hand by several decimetres, leaves the legs; the knee moves the right foot only
+    assert moved[0][bone == "LeftHand"].min() > 3.0 and moved[0][np.isin(bone, LIMBS["left_leg"])].max() < 1e-12
+    assert moved[1][bone == "RightFoot"].min() > 1.0 and moved[1][left_arm].max() < 1e-12
+    assert moved[2][bone == "RightFoot"].max() < 1e-12 and moved[2][bone == "Head"].min() > 0.05
+    a = dof_angles(POSE_KEYS[0][1])
+    assert np.count_nonzero(a) == 1 and np.isclose(np.degrees(a.max()), 70.0)
+    with pytest.raises(ValueError, match="not a joint angle"):
+        dof_angles({("LeftArm", "swing", "sideways"): 10.0})
 
 
 def test_training_sets_and_takes_are_seeded(body):

@@ -432,6 +432,8 @@ NUMBER_CLAIMS = [
     (r"exits 3 with a message", "tests/test_mixing.py", r'code == 3 and err\.startswith\("lacore mix: failed: "\)'),
     (r"reduced space \(0: automatic\)", "addon/operators_live_mix.py", r"0: chosen automatically"),
     (r"pin 3 or more markers", "tests/test_blender_calibrate.py", r'len\(res\["pins"\]\) == 3'),
+    (r"raised-arm key at 0\.5", "tests/test_mixing.py", r"mix\(\[0\.5, 0\.0, 0\.0\]\)"),
+    (r"shortens the arm by 9 cm", "tests/test_mixing.py", r'round\(cm\["rest"\] - cm\["linear"\]\) == 9'),
 ]
 #: numbers that are not claims: list numbering, the factors of an example, the licence's name
 NOT_CLAIMS = re.compile(r"^\s*\d\. |`0\.25 0\.5 0\.75 1\.5`|GPL-3\.0")

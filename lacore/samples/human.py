@@ -47,7 +47,7 @@ from scipy.spatial.transform import Rotation
 
 __all__ = ["HumanBody", "load_human", "open_body", "coarse_human_coarsening", "human_model", "human_data_dir",
            "training_angles", "training_file", "base_obj_sha256", "JOINT_DOFS", "LIMBS", "N_BODY_VERTICES",
-           "TRAINING_SPREAD"]
+           "TRAINING_SPREAD", "POSE_KEYS", "dof_angles", "pose_keys", "limb_ends"]
 
 #: Vertices of the ``body`` group of ``base.obj`` (the first ones of the file).
 N_BODY_VERTICES = 13380
@@ -98,6 +98,15 @@ LIMBS = {
                    "LeftShoulder", "RightShoulder"),
 }
 
+#: Shape keys of the shape-mixer examples (:func:`pose_keys`): each a name and its joint angles in degrees,
+#: ``{(bone, kind, toward): degrees}`` (:data:`JOINT_DOFS`' first three entries; the other angles 0).
+POSE_KEYS = (
+    ("ArmRaised", {("LeftArm", "swing", "up"): 70.0}),
+    ("KneeBent", {("RightLeg", "swing", "backward"): 35.0}),
+    ("TorsoTwisted", {("LowerBack", "twist", None): 10.0, ("Spine", "twist", None): 15.0,
+                      ("Spine1", "twist", None): 10.0}),
+)
+
 _DIRECTIONS = {"forward": (0.0, 0.0, 1.0), "backward": (0.0, 0.0, -1.0), "up": (0.0, 1.0, 0.0),
                "left": (1.0, 0.0, 0.0)}
 
@@ -120,6 +129,91 @@ def human_data_dir(path=None):
         raise FileNotFoundError(f"human body data not found: {path / 'base.obj'} (set LACORE_SHARED_DATA or pass "
                                 "path=)")
     return path
+
+
+def dof_angles(degrees):
+    """Joint angles of one pose from the few that are not zero.
+
+    Parameters
+    ----------
+    degrees : dict
+        ``{(bone, kind, toward): angle in degrees}``, keys as the first three entries of :data:`JOINT_DOFS`.
+
+    Returns
+    -------
+    (P,) ndarray
+        Radians, in the order of :data:`JOINT_DOFS` (0 for the angles not given), for :meth:`HumanBody.pose`.
+
+    Examples
+    --------
+    >>> a = dof_angles({("LeftArm", "swing", "up"): 70.0})
+    >>> a.shape == (len(JOINT_DOFS),), round(float(np.degrees(a.sum())), 6)
+    (True, 70.0)
+    """
+    index = {d[:3]: i for i, d in enumerate(JOINT_DOFS)}
+    angles = np.zeros(len(JOINT_DOFS))
+    for dof, deg in degrees.items():
+        if dof not in index:
+            raise ValueError(f"{dof} is not a joint angle of the body: use (bone, kind, toward) of JOINT_DOFS")
+        angles[index[dof]] = np.radians(deg)
+    return angles
+
+
+def pose_keys(body, poses=POSE_KEYS):
+    """Shape keys of ``body``: its rest pose followed by one posed mesh per entry of ``poses``.
+
+    Parameters
+    ----------
+    body : HumanBody
+    poses : sequence of (str, dict)
+        Names and joint angles in degrees (:func:`dof_angles`); default :data:`POSE_KEYS` (left arm raised by 70
+        degrees, right knee bent by 35, torso twisted by 35 over three joints).
+
+    Returns
+    -------
+    names : list of str
+        ``"Basis"`` and the poses' names.
+    keys : (K, V, 3) ndarray
+        The rest vertices and the posed ones (linear-blend skinning), decimetres.
+
+    Examples
+    --------
+    >>> names, keys = pose_keys(load_human())  # doctest: +SKIP
+    >>> names, keys.shape  # doctest: +SKIP
+    (['Basis', 'ArmRaised', 'KneeBent', 'TorsoTwisted'], (4, 13380, 3))
+    """
+    names = ["Basis", *(name for name, _ in poses)]
+    posed = [body.pose(dof_angles(degrees)) for _, degrees in poses]
+    return names, np.stack([body.vertices, *posed])
+
+
+def limb_ends(body, limb):
+    """Two vertices spanning a limb of :data:`LIMBS` at rest, to measure its length in a pose.
+
+    Parameters
+    ----------
+    body : HumanBody
+    limb : str
+        A key of :data:`LIMBS` (``"left_arm"``, ``"right_leg"`` ...).
+
+    Returns
+    -------
+    root, tip : int
+        The vertex nearest to the head of the limb's first bone (the shoulder or hip joint) and the vertex of the
+        limb (largest skinning weight on one of its bones) farthest from it: a fingertip or the tip of the toes.
+
+    Examples
+    --------
+    >>> body = load_human()  # doctest: +SKIP
+    >>> root, tip = limb_ends(body, "left_arm")  # doctest: +SKIP
+    >>> round(float(np.linalg.norm(body.vertices[tip] - body.vertices[root])), 2)  # decimetres  # doctest: +SKIP
+    5.93
+    """
+    head = body.heads[body.bone_index(LIMBS[limb][0])]
+    members = np.flatnonzero(np.isin(np.asarray(body.bones)[body.vertex_bone], LIMBS[limb]))
+    tip = members[np.argmax(np.linalg.norm(body.vertices[members] - head, axis=1))]
+    root = np.argmin(np.linalg.norm(body.vertices - head, axis=1))
+    return int(root), int(tip)
 
 
 def _read_obj(path):

@@ -122,10 +122,24 @@ def demo_files_open():
     scene.frame_set(frame)
     played = float(abs(evaluated(body) - cache[frame - scene.frame_start]).max())
     moved = float(abs(cache[frame - scene.frame_start] - cache[0]).max())
+    modifier = mod.type  # (read before the next file frees it)
+    # live mixing: the saved mixer reopens live and the keyframed sliders are mixed, not added linearly
+    live_mix = importlib.import_module(MODULE + ".addon.live_mix")
+    open_blend("human_live_mix.blend")
+    body, scene = bpy.data.objects["Body"], bpy.context.scene
+    scene.frame_set(32)
+    blocks = body.data.shape_keys.key_blocks
+    mixed, mix_key = evaluated(body), blocks[live_mix.LIVE_MIX_KEY]
+    mix_key.mute = True  # Blender's linear mix (the mixer is stale while its key is muted)
+    linear = evaluated(body)
+    mix_key.mute = False
+    unmuted = evaluated(body)
+    live = {"status": live_mix.status(body.data)["stale"], "arm_value": blocks["ArmRaised"].value,
+            "mixed_vs_linear": float(abs(mixed - linear).max()), "unmuted_again": float(abs(unmuted - mixed).max())}
     reset()
     return {"saved_in": saved_in, "encoded": encoded, "inbetweens": [k for k in keys if k.startswith("LA Basis>")],
-            "baked_keys": len([k for k in keys if k.startswith("LA bake ")]), "modifier": mod.type,
-            "cache_frames": len(cache), "played_vs_cache": played, "cache_moved": moved}
+            "baked_keys": len([k for k in keys if k.startswith("LA bake ")]), "modifier": modifier,
+            "cache_frames": len(cache), "played_vs_cache": played, "cache_moved": moved, "live_mix": live}
 
 
 def main():
