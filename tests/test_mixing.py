@@ -203,6 +203,32 @@ def test_bad_files(tmp_path, mixer):
         ShapeMixer.load(tmp_path / "nokeys.npz")
 
 
+@pytest.mark.parametrize("entry, value, match", [
+    ("options", "low", "the option 'low' is not a number"),        # NaN where only optional options may be NaN
+    ("expansion", None, "expansion_weights"),                      # no expansion point: nothing to start a mix from
+    ("expansion_weights", np.nan, "expansion_weights"),
+    ("indicator_values", np.nan, "indicator_values"),
+    ("indicator_weights", np.nan, "indicator_weights"),
+])
+def test_damaged_reduced_model_is_named(tmp_path, mixer, entry, value, match):
+    """A file damaged in the options or the reduced model's expansions, indicator or corrections is refused on one
+    line naming the entry (not a traceback, nor a mix that blames the weights or drops the error indicator)."""
+    data = dict(np.load(mixer.save(tmp_path / "good.npz")))
+    if entry == "options":
+        data["options"] = data["options"].copy()
+        data["options"][1] = np.nan                                      # 'low'
+    elif entry == "expansion":
+        for k in ("expansion_weights", "expansion_q", "expansion_order", "expansion_first", "expansion_second"):
+            data[k] = data[k][:0]
+    else:
+        assert data[entry].size > 0
+        data[entry] = np.full_like(data[entry], value)
+    np.savez(tmp_path / "damaged.npz", **data)
+    with pytest.raises(MixerError, match=match) as info:
+        ShapeMixer.load(tmp_path / "damaged.npz")
+    assert "damaged.npz" in str(info.value) and "\n" not in str(info.value)
+
+
 # --------------------------------------------------------------------------- CLI
 def _run(capsys, *argv):
     from lacore.cli import main

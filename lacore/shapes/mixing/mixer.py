@@ -353,6 +353,8 @@ class MixerOptions:
         kw = {}
         for name, v in zip(_OPTION_FIELDS, a, strict=True):
             if np.isnan(v):
+                if "None" not in str(kinds[name]):
+                    raise MixerError(f"the option '{name}' is not a number (NaN)")
                 kw[name] = None
             elif "bool" in str(kinds[name]):
                 kw[name] = bool(v)
@@ -1373,8 +1375,11 @@ class ShapeMixer:
             if a[key].shape != want:
                 raise MixerError(f"{name}: '{key}' has shape {a[key].shape}, expected {want}: the file is damaged; "
                                  "rebuild the mixer")
-        bad = [k for k in ("basis", "cubature_weights", "expansion_q", "expansion_first", "expansion_second",
+        bad = [k for k in ("basis", "cubature_weights", "expansion_weights", "expansion_q", "expansion_first",
+                           "expansion_second", "indicator_weights", "indicator_values", "correction_weights",
                            "correction") if not np.all(np.isfinite(a[k]))]
+        if P == 0:  # (every mix starts from an expansion point)
+            bad.append("expansion_weights")
         if len(hot) and (hot.min() < 0 or hot.max() >= V or np.any(np.diff(hot) <= 0)):
             bad.append("local_vertices")
         if bad or r < 1 or edges.size == 0 or edges.min() < 0 or edges.max() >= mixer.n_edges or np.any(c < 0):
