@@ -356,7 +356,10 @@ class _Live:
     def weights_edited(self, mesh):
         """An update changed ``mesh`` and no key value (a weight painted, a script's edit): read the weights again at
         the next check; while an object showing it is in Weight Paint mode, once the painting pauses
-        (:func:`settle_painting`)."""
+        (:func:`settle_painting`).  With a read pending (:attr:`check_masks`: the painting settled, and the update
+        its tag causes is no further dab) nothing more is needed: that read takes the weights as they are then."""
+        if self.check_masks:
+            return
         obj = _owner(mesh, self.owner)
         if obj is not None and obj.mode == 'WEIGHT_PAINT':
             self.painted_at = time.monotonic()

@@ -632,3 +632,13 @@ def test_alembic_and_usd_exports_hold_the_live_mix(run):
     # FBX and glTF write the keys themselves (the mix key among them), for a program that adds them linearly
     gltf = True if tuple(res["blender"]) >= (5, 2) else None  # (glTF only checked in 5.2: check_live_mix.exports)
     assert res["keys_written"] == {name: [True, gltf] for name in ["Bend", "Twist", "Both", "LA live mix"]}, res
+
+
+def test_weight_paint_on_a_stale_mixer_settles(run):
+    """Painting weights on a mesh whose mixer is stale for another reason leaves nothing pending once the painting
+    paused: the timer's own update does not count as another dab (which re-armed the timer every quarter second for
+    as long as the object stayed in Weight Paint mode)."""
+    res = run["cases"]["weight_paint_while_stale"]
+    assert res["stale"] == "shape key 'Bend' was edited", res
+    assert res["pending"] == [True, False, False, False], res
+    assert res["settled"] == [None, None, None], res

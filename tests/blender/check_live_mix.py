@@ -1358,6 +1358,42 @@ def vertex_groups_and_relative_keys():
     return out
 
 
+def weight_paint_while_stale():
+    """Weight Paint on a mesh whose mixer is stale for another reason (a key edited): the weights read once the
+    painting pauses leave no painting pending, so the pause timer does not tag the keys again and again."""
+    live_mix = ext("live_mix")
+    reset()
+    obj = make_bar(grouped=True)
+    assert enable(obj) == ["FINISHED"]
+    kb = obj.data.shape_keys.key_blocks["Bend"]
+    kb.value = 0.5
+    evaluated(obj)
+    select_only(obj)
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='WEIGHT_PAINT')
+    obj.vertex_groups["end"].add([0], 0.5, 'REPLACE')  # a dab
+    evaluated(obj)
+    co = np.empty(3 * len(kb.points), np.float32)  # and a key edited (a script): stale
+    kb.points.foreach_get("co", co)
+    co[0] += 0.25
+    kb.points.foreach_set("co", co)
+    obj.data.shape_keys.update_tag()
+    evaluated(obj)
+    out = {"stale": status(obj)["stale"]}
+    live = live_mix._LIVE[obj.data.name_full]
+    pending = [live.painted_at is not None]
+    settled = []
+    for _ in range(3):  # the timer's rounds: each a pause, the timer, the update its tag causes
+        time.sleep(live_mix.PAINT_SETTLE)
+        settled.append(live_mix.settle_painting())
+        evaluated(obj)
+        pending.append(live.painted_at is not None)
+    out["pending"], out["settled"] = pending, settled
+    with ops_context(obj):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    return out
+
+
 def exports():
     """Keyframed values exported to Alembic and to USD without shape keys: both write the evaluated mesh per frame,
     so the files hold the live mix (read back: the shapes Blender showed at those frames)."""
@@ -1428,4 +1464,4 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           vertex_groups_and_relative_keys, exports, renders, finish])
+           vertex_groups_and_relative_keys, weight_paint_while_stale, exports, renders, finish])
