@@ -2,6 +2,7 @@
 
 import os
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -956,15 +957,20 @@ def test_version_2_file_is_unmasked(tmp_path, mixer):
     (None, [0.5, 0], r"relative_to must be 2 key indices"),
     ("zero", None, r"every key's mask is 0 where it differs from its relative key: there is nothing to mix"),
     ("text", None, r"masks must be a \(2, \d+\) array of numbers in \[0, 1\], one row per non-basis key"),
+    ("complex", None, r"masks must be a \(2, \d+\) array of numbers in \[0, 1\], one row per non-basis key"),
+    (None, [np.inf, 0], r"relative_to must be 2 key indices"),
 ])
 def test_bad_masks_and_relative_keys(bar, masks, rel, match):
     keys, F = bar
     V = keys.shape[1]
     M = {"shape": np.ones((2, 3)), "nan": np.where(np.arange(V) == 3, np.nan, 1.0)[None].repeat(2, 0),
          "above": np.stack([np.ones(V), np.full(V, 1.5)]), "zero": np.zeros((2, V)), "text": [["a"] * V] * 2,
+         "complex": np.full((2, V), 0.5 + 0.5j),
          None: None}[masks]
-    with pytest.raises(MixerError, match=match) as info:
-        ShapeMixer(keys, F, masks=M, relative_to=rel)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (a complex mask's imaginary parts are not dropped with a warning)
+        with pytest.raises(MixerError, match=match) as info:
+            ShapeMixer(keys, F, masks=M, relative_to=rel)
     assert "\n" not in str(info.value)
 
 
@@ -988,6 +994,7 @@ def test_cli_masks_and_relative_keys(capsys, tmp_path, key_files, bar):
     np.testing.assert_allclose(m.mix([0.5, 0.5]).vertices, direct.mix([0.5, 0.5]).vertices, atol=1e-9 * _diag(keys[0]))
     np.save(tmp_path / "short.npy", masks[:1])
     (tmp_path / "text.txt").write_text("a b c\n")
+    np.save(tmp_path / "complex.npy", masks + 0.5j)
     with open(tmp_path / "archive.npy", "wb") as fh:
         np.savez(fh, masks=masks)
     for extra, match in [(("--relative-to", 0), "relative_to must be 2 key indices"),
@@ -996,6 +1003,7 @@ def test_cli_masks_and_relative_keys(capsys, tmp_path, key_files, bar):
                          (("--masks", tmp_path / "none.npy"), r"--masks .*none\.npy: cannot read it"),
                          (("--masks", tmp_path / "text.txt"), r"--masks .*text\.txt: not an array of numbers"),
                          (("--masks", tmp_path / "archive.npy"), r"--masks .*archive\.npy: not an array of numbers"),
+                         (("--masks", tmp_path / "complex.npy"), r"--masks .*complex\.npy: not an array of numbers"),
                          (("--masks", tmp_path / "masks.json"), r"use a \.npy file or a text file")]:
         before = _listing(tmp_path)
         code, out, err = _run(capsys, "mixer", *paths, "-o", tmp_path / "bad.npz", *extra)

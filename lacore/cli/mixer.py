@@ -136,6 +136,8 @@ def read_masks(path):
             a = np.load(path, allow_pickle=False)
         else:
             a = np.loadtxt(path, delimiter="," if ext == ".csv" else None, ndmin=2)
+        if np.iscomplexobj(a):  # (float() would drop the imaginary parts)
+            raise TypeError("complex numbers")
         return np.asarray(a, float)
     except OSError as exc:
         raise MixerError(f"--masks {path}: cannot read it ({exc.strerror or exc})") from None

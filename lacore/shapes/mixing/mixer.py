@@ -639,6 +639,8 @@ def check_masks(masks, relative_to, n_keys, n_vertices, names=None):
         M = np.ones((m, n_vertices))
     else:
         try:
+            if np.iscomplexobj(masks):  # (float() would drop the imaginary parts)
+                raise TypeError("complex masks")
             M = np.array(masks, float)
         except (TypeError, ValueError):
             raise MixerError(f"masks must be a ({m}, {n_vertices}) array of numbers in [0, 1], one row per non-basis "
@@ -655,7 +657,8 @@ def check_masks(masks, relative_to, n_keys, n_vertices, names=None):
     else:
         try:
             R = np.asarray(relative_to)
-            ok = R.shape == (m,) and (R.dtype.kind in "iu" or (R.dtype.kind == "f" and np.all(R == np.round(R))))
+            ok = R.shape == (m,) and (R.dtype.kind in "iu" or (R.dtype.kind == "f" and np.all(np.isfinite(R))
+                                                                and np.all(R == np.round(R))))
         except (TypeError, ValueError):
             ok = False
         if not ok:
