@@ -10,7 +10,7 @@ import pytest
 from lacore import MeshTopology, lengths_and_angles, reconstruct
 from lacore.geometry.rigid import rigid_rms
 from lacore.samples.bar import bar_mesh, bar_pose
-from lacore.errors import MeshError
+from lacore.errors import InputError, MeshError
 from lacore.shapes.mixing import MixerError, MixerOptions, MixResult, ShapeMixer, blend_targets, check_keys
 
 
@@ -923,6 +923,18 @@ def test_masked_key_without_projection_is_refused(masked_bar):
                                          r".*raise MixerOptions\.polish_iterations") as info:
         ShapeMixer.build(keys, F, MixerOptions(polish_iterations=1), masks=masks, relative_to=rel)
     assert "\n" not in str(info.value)
+
+
+def test_reduced_size_below_the_keys_is_refused_before_the_projections(masked_bar):
+    """A reduced size below the number of keys is refused before the masked and relative keys are projected (one
+    Gauss-Newton reconstruction each), not after."""
+    keys, F, masks, rel, _ = masked_bar
+    seen = []
+    with pytest.raises(InputError, match=r"reduced_size 1 is below the 2 non-basis keys") as info:
+        ShapeMixer.build(keys, F, MixerOptions(reduced_size=1), masks=masks, relative_to=rel,
+                         progress=lambda *r: seen.append(r[2]))
+    assert "\n" not in str(info.value)
+    assert seen == ["lengths and angles of the keys"], seen
 
 
 def test_masked_save_load(tmp_path, masked_bar):

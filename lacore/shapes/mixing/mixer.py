@@ -809,13 +809,13 @@ class ShapeMixer:
         report(progress, 0, 4, "lengths and angles of the keys")
         with watch("setup"):
             mixer = cls(keys, faces, options, masks=masks, relative_to=relative_to)
-        if mixer._derived.any():
-            with watch("corners"):
-                mixer._project_corners(progress)
         o = mixer.options
         if o.reduced_size is not None and o.reduced_size < mixer.n_keys - 1:
             raise InputError(f"reduced_size {o.reduced_size} is below the {mixer.n_keys - 1} non-basis keys: the space "
                              "holds at least the keys")
+        if mixer._derived.any():
+            with watch("corners"):
+                mixer._project_corners(progress)
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
