@@ -58,8 +58,8 @@ the mesh's corners with the ones the mixer was built from (and after loading a .
 and record).  The vertex-group weights (:func:`vertex_masks`: 10-36 ms at 13k vertices, 42-130 ms at 50k) are
 read again and compared with the mixer's only when a key's group name or the group it resolves to changed, after
 undo and loading, and after an update that changed the mesh's data but no key value (a weight painted, a
-script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders and playback never pay for it.  While an
-object showing the mesh is in Weight Paint mode, such updates (every dab of a stroke) are not read: the weights
+script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders, playback and posing a rig never pay for it.
+While an object showing the mesh is in Weight Paint mode, such updates (every dab of a stroke) are not read: the weights
 are read once the painting pauses for :data:`PAINT_SETTLE` seconds (:func:`settle_painting`, a timer) and when
 the mode is left.  Until then the mesh shows the mix with the weights it was built with, plus Blender's own linear
 change of the painted weights.  An edited
@@ -725,8 +725,11 @@ def _register_updated(depsgraph):
 
 
 def _edited_meshes(depsgraph):
-    """Names of the live meshes whose data ``depsgraph``'s update changed (the mesh, or an object showing it: a key
-    value, a vertex-group weight ...)."""
+    """Names of the live meshes whose data ``depsgraph``'s update changed (a key value, a vertex-group weight ...): the
+    mesh's own geometry update, or in Weight Paint mode its object's (weight tools there may tag the object alone).
+    An object's geometry update elsewhere comes from what it depends on (a rig posed, the object moved under an
+    Armature modifier), not from an edit of the mesh: every edit of weights outside Weight Paint mode (scripts,
+    the vertex-group operators, Data Transfer, leaving Edit Mode) updates the mesh itself."""
     if depsgraph is None or not _LIVE:
         return set()
     out = set()
@@ -735,7 +738,7 @@ def _edited_meshes(depsgraph):
             continue
         data = u.id.original
         if isinstance(data, bpy.types.Object):
-            data = data.data
+            data = data.data if data.mode == 'WEIGHT_PAINT' else None
         if isinstance(data, bpy.types.Mesh):
             out.add(data.name_full)
     return out

@@ -1394,6 +1394,50 @@ def weight_paint_while_stale():
     return out
 
 
+def posing_reads_no_weights():
+    """Posing a rig that deforms a live mesh (Armature modifier) or moving the mesh's object changes no mesh data: the
+    vertex-group weights are not read at those updates; a weight edited still is (once, and the mixer is stale)."""
+    live_mix = ext("live_mix")
+    reset()
+    obj = make_bar(grouped=True)
+    assert enable(obj) == ["FINISHED"]
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(rig)
+    select_only(rig)
+    with ops_context(rig):
+        bpy.ops.object.mode_set(mode='EDIT')
+    bone = rig.data.edit_bones.new("Bone")
+    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+    with ops_context(rig):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
+    obj.modifiers.new("Armature", 'ARMATURE').object = rig
+    obj.data.shape_keys.key_blocks["Bend"].value = 0.5
+    evaluated(obj)
+    reads, read = [], live_mix.vertex_masks
+    live_mix.vertex_masks = lambda *a: (reads.append(1), read(*a))[1]
+    try:
+        pose = rig.pose.bones["Bone"]
+        pose.rotation_mode = 'XYZ'
+        counts = []
+        for change in (lambda i: setattr(pose, "rotation_euler", (0.0, 0.0, 0.1 * i)),
+                       lambda i: setattr(obj, "location", (0.0, 0.0, 0.1 * i)),
+                       lambda i: setattr(rig, "location", (0.0, 0.1 * i, 0.0))):
+            before = len(reads)
+            for i in (1, 2, 3):
+                change(i)
+                evaluated(obj)
+            counts.append(len(reads) - before)
+        stale = status(obj)["stale"]
+        before = len(reads)
+        obj.vertex_groups["end"].add([0], 0.5, 'REPLACE')
+        evaluated(obj)
+        edited = [len(reads) - before, status(obj)["stale"]]
+    finally:
+        live_mix.vertex_masks = read
+    return {"reads": counts, "stale": stale, "edited": edited}
+
+
 def exports():
     """Keyframed values exported to Alembic and to USD without shape keys: both write the evaluated mesh per frame,
     so the files hold the live mix (read back: the shapes Blender showed at those frames)."""
@@ -1464,4 +1508,5 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           vertex_groups_and_relative_keys, weight_paint_while_stale, exports, renders, finish])
+           vertex_groups_and_relative_keys, weight_paint_while_stale, posing_reads_no_weights, exports, renders,
+           finish])
