@@ -165,6 +165,17 @@ def _owner(mesh, hint=""):
     return next((o for o in bpy.data.objects if o.data == mesh), None)
 
 
+def _weight_painted(mesh, hint=""):
+    """Whether an object showing ``mesh`` is in Weight Paint mode (the object ``hint`` first; a linked duplicate may be
+    the one painted)."""
+    obj = _owner(mesh, hint)
+    if obj is None:
+        return False
+    if obj.mode == 'WEIGHT_PAINT':
+        return True
+    return mesh.users > 1 and any(o.data == mesh and o.mode == 'WEIGHT_PAINT' for o in bpy.data.objects)
+
+
 def _group_indices(obj, groups):
     """The index of the vertex group Blender applies for each vertex-group name of ``groups`` (-1: the key applies to
     all vertices: no name, or a name ``obj``, the mesh's user, does not have)."""
@@ -360,8 +371,7 @@ class _Live:
         its tag causes is no further dab) nothing more is needed: that read takes the weights as they are then."""
         if self.check_masks:
             return
-        obj = _owner(mesh, self.owner)
-        if obj is not None and obj.mode == 'WEIGHT_PAINT':
+        if _weight_painted(mesh, self.owner):
             self.painted_at = time.monotonic()
             if not bpy.app.timers.is_registered(settle_painting):
                 bpy.app.timers.register(settle_painting, first_interval=PAINT_SETTLE)

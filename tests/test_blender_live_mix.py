@@ -650,3 +650,12 @@ def test_posing_and_moving_read_no_weights(run):
     res = run["cases"]["posing_reads_no_weights"]
     assert res["reads"] == [0, 0, 0] and res["stale"] == "", res
     assert res["edited"] == [1, "the weights of the vertex group 'end' of shape key 'Grouped' were edited"], res
+
+
+def test_weight_paint_through_a_linked_duplicate(run):
+    """Painting through a linked duplicate (the same mesh) while the object the mixer was built on is in Object Mode:
+    no read per dab, one once the painting pauses (then stale: a mixed key's group was painted)."""
+    res = run["cases"]["weight_paint_shared_mesh"]
+    assert res["owner"] == ["OBJECT", "OBJECT", True], res
+    assert res["painting"] == [0, ""], res
+    assert res["settled"] == [1, "the weights of the vertex group 'end' of shape key 'Grouped' were edited"], res

@@ -1438,6 +1438,42 @@ def posing_reads_no_weights():
     return {"reads": counts, "stale": stale, "edited": edited}
 
 
+def weight_paint_shared_mesh():
+    """Weight Paint through a linked duplicate (Alt+D: the same mesh) while the object the mixer was built on stays in
+    Object Mode: the dabs are not read either, only once the painting pauses."""
+    live_mix = ext("live_mix")
+    reset()
+    obj = make_bar(grouped=True)
+    assert enable(obj) == ["FINISHED"]
+    obj.data.shape_keys.key_blocks["Grouped"].value = 0.5
+    evaluated(obj)
+    twin = obj.copy()  # (the same mesh)
+    bpy.context.scene.collection.objects.link(twin)
+    select_only(twin)
+    with ops_context(twin):
+        bpy.ops.object.mode_set(mode='WEIGHT_PAINT')
+    evaluated(twin)
+    time.sleep(live_mix.PAINT_SETTLE)
+    live_mix.settle_painting()
+    evaluated(twin)
+    reads, read = [], live_mix.vertex_masks
+    live_mix.vertex_masks = lambda *a: (reads.append(1), read(*a))[1]
+    try:
+        for i in range(3):
+            twin.vertex_groups["end"].add([i], 0.9, 'REPLACE')  # dabs
+            evaluated(twin)
+        painting = [len(reads), status(obj)["stale"]]
+        time.sleep(live_mix.PAINT_SETTLE)
+        live_mix.settle_painting()
+        evaluated(twin)
+        settled = [len(reads), status(obj)["stale"]]
+    finally:
+        live_mix.vertex_masks = read
+    with ops_context(twin):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    return {"owner": [obj.mode, twin.mode, twin.data == obj.data], "painting": painting, "settled": settled}
+
+
 def exports():
     """Keyframed values exported to Alembic and to USD without shape keys: both write the evaluated mesh per frame,
     so the files hold the live mix (read back: the shapes Blender showed at those frames)."""
@@ -1508,5 +1544,6 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           vertex_groups_and_relative_keys, weight_paint_while_stale, posing_reads_no_weights, exports, renders,
+           vertex_groups_and_relative_keys, weight_paint_while_stale, posing_reads_no_weights, weight_paint_shared_mesh,
+           exports, renders,
            finish])
