@@ -71,6 +71,23 @@ def make_bar(name="Bar", grouped=False):
     return obj
 
 
+def add_rig(obj, modifier):
+    """An armature 'Rig' with one bone along the bar (x, 0 .. 6) deforming ``obj`` through the group 'Bone' (all
+    vertices at 1) and an Armature modifier named ``modifier``; returns the armature object."""
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(rig)
+    select_only(rig)
+    with ops_context(rig):
+        bpy.ops.object.mode_set(mode='EDIT')
+    bone = rig.data.edit_bones.new("Bone")
+    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
+    with ops_context(rig):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
+    obj.modifiers.new(modifier, 'ARMATURE').object = rig
+    return rig
+
+
 def set_values(obj, values, names=NAMES):
     for n, v in zip(names, values, strict=True):
         obj.data.shape_keys.key_blocks[n].value = v
@@ -797,18 +814,8 @@ def artist_edits():
     OUT["on_bend_mixed"] = evaluated(obj)
     on_bend.value = 0.0
     # an Armature (the bone, along x, moved 0.5 along itself) and a Subdivision Surface after the keys
-    arm = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
-    bpy.context.scene.collection.objects.link(arm)
-    select_only(arm)
-    with ops_context(arm):
-        bpy.ops.object.mode_set(mode='EDIT')
-    bone = arm.data.edit_bones.new("Bone")
-    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
-    with ops_context(arm):
-        bpy.ops.object.mode_set(mode='OBJECT')
+    arm = add_rig(obj, "Rig")
     arm.pose.bones["Bone"].location = (0.0, 0.5, 0.0)
-    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
-    obj.modifiers.new("Rig", 'ARMATURE').object = arm
     select_only(obj)
     set_values(obj, (0.5, 0.3, 0.0))
     plain_shape = mix_key_muted_shape(obj)  # (its linear mix: the plain mesh below must differ from it)
@@ -1401,17 +1408,7 @@ def posing_reads_no_weights():
     reset()
     obj = make_bar(grouped=True)
     assert enable(obj) == ["FINISHED"]
-    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
-    bpy.context.scene.collection.objects.link(rig)
-    select_only(rig)
-    with ops_context(rig):
-        bpy.ops.object.mode_set(mode='EDIT')
-    bone = rig.data.edit_bones.new("Bone")
-    bone.head, bone.tail = (0.0, 0.0, 0.0), (6.0, 0.0, 0.0)
-    with ops_context(rig):
-        bpy.ops.object.mode_set(mode='OBJECT')
-    obj.vertex_groups.new(name="Bone").add(list(range(len(obj.data.vertices))), 1.0, 'REPLACE')
-    obj.modifiers.new("Armature", 'ARMATURE').object = rig
+    rig = add_rig(obj, "Armature")
     obj.data.shape_keys.key_blocks["Bend"].value = 0.5
     evaluated(obj)
     reads, read = [], live_mix.vertex_masks
