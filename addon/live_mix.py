@@ -878,7 +878,8 @@ def enable_run(obj, reduced_size=0):
     basis, nonlinear, linear, coords, faces, structure = _inputs(obj)
     groups, relative, masks, relative_to = structure
     options = MixerOptions(reduced_size=int(reduced_size) or None)
-    extra = {"masks": masks.astype(np.float64), "relative_to": relative_to}
+    extra = {"masks": masks.astype(np.float64), "relative_to": relative_to,
+             "names": [f"shape key '{n}'" for n in (basis, *nonlinear)]}
     job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress, **extra), "live mixer",
                   process=(build_mixer_bytes, (coords, faces, options), lambda data: ShapeMixer.load(io.BytesIO(data)),
                            extra))

@@ -920,9 +920,19 @@ def test_masked_key_without_projection_is_refused(masked_bar):
     exact."""
     keys, F, masks, rel, _ = masked_bar
     with pytest.raises(MixerError, match=r"key 1 at weight 1 \(its mask and relative key applied\) has no projection: "
-                                         r".*raise MixerOptions\.polish_iterations") as info:
+                                         r".*make the key relative to the basis or to the key it corrects.*"
+                                         r"MixerOptions\.polish_iterations") as info:
         ShapeMixer.build(keys, F, MixerOptions(polish_iterations=1), masks=masks, relative_to=rel)
     assert "\n" not in str(info.value)
+    # named as the caller names its keys (the CLI its files, the add-on its shape keys), in progress reports too
+    seen = []
+    with pytest.raises(MixerError, match=r"^shape key 'Half' at weight 1 \(its mask"):
+        ShapeMixer.build(keys, F, MixerOptions(polish_iterations=1), masks=masks, relative_to=rel,
+                         names=["shape key 'Basis'", "shape key 'Half'", "shape key 'Twist'"],
+                         progress=lambda *r: seen.append(r[2]))
+    assert "shape key 'Half' at weight 1, its mask and relative key applied" in seen, seen
+    with pytest.raises(InputError, match="names must name the 3 keys, got 2"):
+        ShapeMixer.build(keys, F, masks=masks, relative_to=rel, names=["a", "b"])
 
 
 def test_reduced_size_below_the_keys_is_refused_before_the_projections(masked_bar):

@@ -105,7 +105,8 @@ def run_mixer(args):
     masks = None if args.masks is None else read_masks(args.masks)
     masks, relative_to = check_masks(masks, args.relative_to, len(shapes), len(shapes[0]), names=names)
     t_load = time.perf_counter() - start
-    mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options, masks=masks, relative_to=relative_to)
+    mixer = ShapeMixer.build(np.stack(shapes), topology.faces, options, masks=masks, relative_to=relative_to,
+                             names=names)
     t = time.perf_counter()
     mixer.save(args.output)
     t_save = time.perf_counter() - t

@@ -156,6 +156,11 @@ SCREENING_EDGES = 2000
 MIN_LENGTH_RATIO = 0.01
 
 
+#: What to do about a masked or relative key whose shape at weight 1 has no projection (a key relative to an unrelated
+#: key is that key's anti-pose at weight 1).
+CORNER_ADVICE = "make the key relative to the basis or to the key it corrects, or check its vertex group's weights"
+
+
 class MixerError(InputError):
     """A mixer file or mixer input that lacore cannot use; the message names it and what to do."""
 
@@ -761,7 +766,7 @@ class ShapeMixer:
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def build(cls, keys, faces, options=None, *, masks=None, relative_to=None, progress=None):
+    def build(cls, keys, faces, options=None, *, masks=None, relative_to=None, names=None, progress=None):
         """A mixer of ``keys`` ``(K, V, 3)`` (``keys[0]`` the basis) on ``faces`` ``(F, 3)``.
 
         Parameters
@@ -779,6 +784,9 @@ class ShapeMixer:
             ``w_k g(v) (K_k - K_rel(k))``.  For a key with a mask or another relative key the shape at weight 1
             alone is not the key: the build projects that target first (one Gauss-Newton reconstruction each,
             from Blender's linear blend).
+        names : sequence of str, optional
+            The keys' names for progress and error messages (default ``key 0``, ``key 1`` ...), as for
+            :func:`check_keys`.
         progress : callable, optional
             ``progress(done, total, message)``; returning True raises :class:`lacore.progress.Cancelled`.
 
@@ -810,12 +818,16 @@ class ShapeMixer:
         with watch("setup"):
             mixer = cls(keys, faces, options, masks=masks, relative_to=relative_to)
         o = mixer.options
+        if names is not None:
+            names = [str(n) for n in names]
+            if len(names) != mixer.n_keys:
+                raise InputError(f"names must name the {mixer.n_keys} keys, got {len(names)}")
         if o.reduced_size is not None and o.reduced_size < mixer.n_keys - 1:
             raise InputError(f"reduced_size {o.reduced_size} is below the {mixer.n_keys - 1} non-basis keys: the space "
                              "holds at least the keys")
         if mixer._derived.any():
             with watch("corners"):
-                mixer._project_corners(progress)
+                mixer._project_corners(progress, names)
         P = mixer._problem
         size = mixer._context.size
         vectors, exps = build_space(P, mixer._key_x, o.low, o.high, second_order=o.second_order,
@@ -901,14 +913,16 @@ class ShapeMixer:
         report(progress, 4, 4, "done")
         return mixer
 
-    def _project_corners(self, progress=None):
+    def _project_corners(self, progress=None, names=None):
         """The shapes at the weights ``e_k`` of the derived keys (a mask or another relative key): the projections of
         their targets by Gauss-Newton from Blender's linear blend ``B + m_k (K_k - K_rel(k))``; ``progress`` is
         reported (and may cancel) before each.  A projection that does not succeed
-        (:mod:`lacore.reconstruction.checks`) is a :class:`MixerError`: the build takes these shapes as exact."""
+        (:mod:`lacore.reconstruction.checks`) is a :class:`MixerError` naming the key (``names``, as for
+        :meth:`build`): the build takes these shapes as exact."""
         m = self.n_keys - 1
+        names = [f"key {k}" for k in range(self.n_keys)] if names is None else names
         for k in np.flatnonzero(self._derived) + 1:
-            report(progress, 0, 4, f"key {k} at weight 1, its mask and relative key applied")
+            report(progress, 0, 4, f"{names[k]} at weight 1, its mask and relative key applied")
             w = np.zeros(m)
             w[k - 1] = 1.0
             start = self.keys[0] + self.masks[k - 1][:, None] * (self.keys[k] - self.keys[self.relative_to[k - 1]])
@@ -916,12 +930,12 @@ class ShapeMixer:
                 res = reconstruct(self.target(w), self.topology, self.keys[0], context=self._context,
                                   options=self._gn, initial_vertices=start)
             except LengthsAnglesError as exc:
-                raise MixerError(f"key {k} at weight 1 (its mask and relative key applied) is no shape a mesh comes "
-                                 f"near: {exc}; check its vertex group and relative key") from None
+                raise MixerError(f"{names[k]} at weight 1 (its mask and relative key applied) is no shape a mesh "
+                                 f"comes near: {exc}; {CORNER_ADVICE}") from None
             if not res.success:  # the build takes this shape as exact (the indicator is 0 there)
-                raise MixerError(f"key {k} at weight 1 (its mask and relative key applied) has no projection: "
-                                 f"{res.message}; check its vertex group and relative key, or raise "
-                                 "MixerOptions.polish_iterations")
+                raise MixerError(f"{names[k]} at weight 1 (its mask and relative key applied) has no projection: "
+                                 f"{res.message}; {CORNER_ADVICE} (in Python, MixerOptions.polish_iterations allows "
+                                 "more iterations)")
             self._corners[k] = res.vertices
             self._key_x[k] = self._context.to_canonical(res.vertices).ravel()
 
@@ -1411,7 +1425,8 @@ def mixer_bytes(mixer):
             return fh.read()
 
 
-def build_mixer_bytes(keys, faces, options=None, *, masks=None, relative_to=None, progress=None):
+def build_mixer_bytes(keys, faces, options=None, *, masks=None, relative_to=None, names=None, progress=None):
     """:meth:`ShapeMixer.build` returning :func:`mixer_bytes`: what crosses a process boundary
     (:func:`lacore.parallel.call_in_process`; a built mixer holds sparse factorizations, which do not pickle)."""
-    return mixer_bytes(ShapeMixer.build(keys, faces, options, masks=masks, relative_to=relative_to, progress=progress))
+    return mixer_bytes(ShapeMixer.build(keys, faces, options, masks=masks, relative_to=relative_to, names=names,
+                                        progress=progress))
