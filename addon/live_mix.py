@@ -708,7 +708,7 @@ def settle_painting():
     the seconds until it is due again, None when no painting is pending."""
     now = time.monotonic()
     wait = []
-    for name, live in _LIVE.items():
+    for name, live in list(_LIVE.items()):  # (a render's thread may drop an entry meanwhile)
         if live.painted_at is None:
             continue
         left = live.painted_at + PAINT_SETTLE - now
@@ -791,7 +791,7 @@ def _on_save(*_args):
 @persistent
 def _on_undo(*_args):
     """Undo / redo restored the meshes (mix key included): forget the session's last mixes."""
-    for live in _LIVE.values():
+    for live in list(_LIVE.values()):
         live.last = None
         live.check_masks = True  # (vertex-group weights restored too)
     live_meshes()
@@ -946,20 +946,21 @@ def store_mixer(obj, mixer, basis, nonlinear, linear, build_seconds, reduced_siz
 
 def disable(obj):
     """Remove the mixer and the mix key of ``obj``'s mesh (Blender's linear mixing again); False if there was
-    none.  The user's keys were never changed."""
+    none.  The user's keys were never changed.  Waits for an update writing the mix key (a render's thread)."""
     mesh = obj.data
     if MIXER_PROP not in mesh:
         return False
-    meta = mesh[MIXER_PROP].to_dict()
-    del mesh[MIXER_PROP]
-    storage.release_payload(meta)
-    _LIVE.pop(mesh.name_full, None)
-    kb = mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) if mesh.shape_keys is not None else None
-    if kb is not None:
-        active = obj.active_shape_key_index
-        index = list(mesh.shape_keys.key_blocks).index(kb)
-        obj.shape_key_remove(kb)
-        obj.active_shape_key_index = max(0, min(active - (active > index), len(mesh.shape_keys.key_blocks) - 1))
+    with _LOCK:
+        meta = mesh[MIXER_PROP].to_dict()
+        del mesh[MIXER_PROP]
+        storage.release_payload(meta)
+        _LIVE.pop(mesh.name_full, None)
+        kb = mesh.shape_keys.key_blocks.get(LIVE_MIX_KEY) if mesh.shape_keys is not None else None
+        if kb is not None:
+            active = obj.active_shape_key_index
+            index = list(mesh.shape_keys.key_blocks).index(kb)
+            obj.shape_key_remove(kb)
+            obj.active_shape_key_index = max(0, min(active - (active > index), len(mesh.shape_keys.key_blocks) - 1))
     mesh.update()
     return True
 
