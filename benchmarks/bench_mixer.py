@@ -83,21 +83,10 @@ def mesh_keys(name):
             X, F = midpoint_subdivide(X, F)
         return np.stack([X, beam_bend(X, np.pi / 3), twist(X, np.pi / 3, axis=1)]), F
     if name == "human13k":
-        from lacore.samples.human import JOINT_DOFS, load_human
+        from lacore.samples.human import load_human, pose_keys
 
         body = load_human()
-
-        def pose(angles):
-            p = np.zeros(len(JOINT_DOFS))
-            for (bone, kind, toward), deg in angles.items():
-                i = next(i for i, d in enumerate(JOINT_DOFS) if d[:3] == (bone, kind, toward))
-                p[i] = np.radians(deg)
-            return body.pose(p)
-
-        arm = pose({("LeftArm", "swing", "up"): 70})
-        knee = pose({("RightLeg", "swing", "backward"): 35})
-        torso = pose({("LowerBack", "twist", None): 10, ("Spine", "twist", None): 15, ("Spine1", "twist", None): 10})
-        return np.stack([body.vertices, arm, knee, torso]), body.faces
+        return pose_keys(body)[1], body.faces
     raise KeyError(name)
 
 
@@ -111,27 +100,34 @@ def reference_weights(m, seed=0):
     return np.array(inside + outside), len(inside)
 
 
-def compute_references(keys, faces, W):
+def compute_references(keys, faces, W, masks=None, relative_to=None):
+    """Converged full Gauss-Newton projections ``(X (N, V, 3), E (N,))`` of the blends at the weights ``W``, each by
+    continuation from the basis in steps of 0.25 (``masks``, ``relative_to``: as for :meth:`ShapeMixer.build`)."""
     from lacore import MeshTopology, lengths_and_angles, reconstruct
+    from lacore.shapes.mixing import edge_masks
 
     topo = MeshTopology.from_faces(faces, n_vertices=keys.shape[1])
     zk = np.stack([lengths_and_angles(k, topo) for k in keys])
+    em = None if masks is None else edge_masks(masks, topo.edges)
     X, E = [], []
     for w in W:
         start = None
         for t in np.append(np.arange(0.25, 1.0, 0.25), 1.0):
-            res = reconstruct(blend_targets(zk, t * w, topo.n_edges), topo, keys[0], method="gn",
-                              initial_vertices=start, max_iterations=300)
+            res = reconstruct(blend_targets(zk, t * w, topo.n_edges, relative_to=relative_to, edge_masks=em), topo,
+                              keys[0], method="gn", initial_vertices=start, max_iterations=300)
             start = res.vertices
         X.append(res.vertices)
         E.append(res.energy)
     return np.array(X), np.array(E)
 
 
-def reference_digest(keys, faces, W):
-    """What a stored reference was computed for: SHA-256 of the keys (to 1e-9), the faces and the weights."""
+def reference_digest(keys, faces, W, masks=None, relative_to=None):
+    """What a stored reference was computed for: SHA-256 of the keys (to 1e-9), the faces, the weights and the masks
+    and relative keys when given."""
     h = hashlib.sha256()
-    for a in (np.round(np.asarray(keys, float), 9), np.asarray(faces, np.int64), np.asarray(W, float)):
+    arrays = [np.round(np.asarray(keys, float), 9), np.asarray(faces, np.int64), np.asarray(W, float)]
+    arrays += [np.asarray(a, float) for a in (masks, relative_to) if a is not None]
+    for a in arrays:
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
 
@@ -158,25 +154,34 @@ def rms_percent(A, B, diag):
     return 100.0 * float(np.sqrt(np.mean(np.sum((Y - B) ** 2, axis=1)))) / diag
 
 
-def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=None):
-    keys, faces = mesh_keys(name)
+def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=None, case=None):
+    """The figures of one mesh: ``case`` ``(keys, faces, blend, weights)`` (default :func:`mesh_keys`' keys, no
+    masks, :func:`reference_weights`), ``blend`` the ``masks`` and ``relative_to`` of :meth:`ShapeMixer.build`,
+    ``weights`` a function of the weights of :func:`reference_weights` giving the ones measured."""
+    if case is None:
+        keys, faces = mesh_keys(name)
+        blend, weights = {}, None
+    else:
+        keys, faces, blend, weights = case
     diag = float(np.linalg.norm(np.ptp(keys[0], axis=0)))
     out = {"mesh": name, "vertices": int(keys.shape[1]), "keys": int(len(keys))}
     W, n_in = reference_weights(len(keys) - 1)
+    if weights is not None:
+        W = weights(W, n_in)
     if references:
         W = np.concatenate([W[:references], W[n_in:n_in + references]])
         n_in = references
     path = os.path.join(reference_dir or cache_dir("bench_mixer_references"),
                         f"{name}{f'_{references}' if references else ''}.npz")
-    digest = reference_digest(keys, faces, W)
+    digest = reference_digest(keys, faces, W, **blend)
     stored = load_references(path, digest)   # the digest covers W, so the stored weights are these
     if stored is None:
-        stored = compute_references(keys, faces, W)
+        stored = compute_references(keys, faces, W, **blend)
         save_references(path, digest, W, n_in, *stored)
     Xref, Eref = stored
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     c0, t0 = time.process_time(), time.perf_counter()
-    mixer = ShapeMixer.build(keys, faces, options)
+    mixer = ShapeMixer.build(keys, faces, options, **blend)
     out["build_seconds"] = {k: round(v, 3) for k, v in mixer.build_seconds.items()}
     out["build_cpu_seconds_by_stage"] = {k: round(v, 3) for k, v in mixer.build_cpu_seconds.items()}
     out["build_cpu_seconds"] = round(time.process_time() - c0, 3)
@@ -260,22 +265,30 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     return out
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("meshes", nargs="*", default=list(MESHES), help=f"of {', '.join(MESHES)}")
+def run(argv, meshes, description, benchmark, case=None):
+    """Parse ``argv`` (mesh names of ``meshes``, ``--reference``, ``--repeats``, ``--references``), measure each
+    mesh (:func:`bench_mesh`, ``case(name)`` its case when given) and print the JSON object titled ``benchmark``."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("meshes", nargs="*", default=list(meshes), help=f"of {', '.join(meshes)}")
     ap.add_argument("--reference", help="folder of the converged full Gauss-Newton mixes <mesh>.npz, computed "
                                         "there when missing (default: a folder under ~/.cache)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--references", type=int, default=None, metavar="N",
                     help="only N weights in [0, 1] and N outside (default 10 + 10)")
     args = ap.parse_args(argv)
-    results = {"benchmark": "shape mixer (build by stage, ms per mix, RMS % of the diagonal against converged full "
-                            "Gauss-Newton, energy ratio and goal margin, memory)",
-               "machine": machine_info(), "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "meshes": []}
+    results = {"benchmark": benchmark, "machine": machine_info(),
+               "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "meshes": []}
     for name in args.meshes:
-        results["meshes"].append(bench_mesh(name, args.reference, args.repeats, references=args.references))
+        results["meshes"].append(bench_mesh(name, args.reference, args.repeats, references=args.references,
+                                            case=None if case is None else case(name)))
         print(json.dumps(results["meshes"][-1]), file=sys.stderr, flush=True)
     print(json.dumps(results, indent=1))
+
+
+def main(argv=None):
+    run(argv, MESHES, __doc__.split("\n")[0],
+        "shape mixer (build by stage, ms per mix, RMS % of the diagonal against converged full Gauss-Newton, energy "
+        "ratio and goal margin, memory)")
 
 
 if __name__ == "__main__":

@@ -203,9 +203,8 @@ def _blender_quality(b):
             f"{n} {'frame' if n == 1 else 'frames'} passing through {'itself' if n == 1 else 'themselves'}{where}")
 
 
-def live_mixing(store=STORE):
-    """The shape mixer: build, time per mix and distance to full Gauss-Newton; live playback in Blender."""
-    record = load("bench_mixer", store)
+def _mixer_table(record):
+    """The table of a shape-mixer record (``bench_mixer``, ``bench_mixer_rigs``): one row per mesh."""
     rows = []
     for m in record["result"]["meshes"]:
         mix = m["mix"]
@@ -216,7 +215,13 @@ def live_mixing(store=STORE):
                      _g(m["mixer_megabytes"])])
     head = ["mesh", "vertices", "keys", "build s", "ms per mix", "RMS % of diagonal, weights in [0, 1] (max)",
             "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB"]
-    out = (table(head, rows) + "\n\n"
+    return table(head, rows)
+
+
+def live_mixing(store=STORE):
+    """The shape mixer: build, time per mix and distance to full Gauss-Newton; live playback in Blender."""
+    record = load("bench_mixer", store)
+    out = (_mixer_table(record) + "\n\n"
            + "Against converged full Gauss-Newton; CPU seconds, one thread, vertices written included. Goals: "
              "<= 15 ms per mix at 50k vertices and <= 4 ms at 13k; RMS <= 0.3 % and <= 1 %; build <= 30 s at 50k "
              "(3 keys) and <= 5 s at 13k. " + machine_line(record))
@@ -229,12 +234,23 @@ def live_mixing(store=STORE):
                   f"(`frame_set`, mesh update included): {fps} (goals 30 fps at 50k, 60 at 13k).")
 
 
+def rig_mixing(store=STORE):
+    """The shape mixer on rig keys (a vertex group, a relative key): as :func:`live_mixing`'s table."""
+    record = load("bench_mixer_rigs", store)
+    return (_mixer_table(record) + "\n\n"
+            + "The CC0 body's pose keys with the torso's twist limited to the upper body by a ramp of vertex-group "
+              "weights (`human13k_masked`), and the raised arm with a corrective relative to it, weighted at most "
+              "as the arm (`human13k_relative`); against converged full Gauss-Newton of the same blend, CPU seconds, "
+              "one thread, the public defaults (`benchmarks/bench_mixer_rigs.py`). " + machine_line(record))
+
+
 #: the README's blocks: ``<!-- bench:NAME -->``
 README_BLOCKS = {"inbetweens": inbetweens, "real-takes": real_takes, "live-mixing": live_mixing}
 #: docs/benchmarks.md's summary tables (the README's, then more)
 SUMMARY = {"In-betweens: the defaults against Gauss-Newton": inbetweens,
            "Real takes: calibrate and fit with the defaults": real_takes,
            "Live shape-key mixing": live_mixing,
+           "Live mixing of rig keys: vertex groups and relative keys": rig_mixing,
            "Core maps": core_maps,
            "Marker fitting on the sample human": marker_fitting}
 

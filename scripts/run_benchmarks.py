@@ -72,6 +72,7 @@ BENCHMARKS = {
     "bench_shape_model": Benchmark(quick=("--quick",)),
     "bench_markers": Benchmark(),
     "bench_mixer": Benchmark(quick=("bar5k", "body13k", "--references", "2"), long=True),
+    "bench_mixer_rigs": Benchmark(quick=("--references", "2")),
     "bench_path_inbetweens": Benchmark(quick=("human13k", "--no-fast"), long=True),
     "bench_fit_takes": Benchmark(quick=("--takes", "Walk1.c3d", "--frames", "30"), long=True),
     "bench_self_intersection": Benchmark(),

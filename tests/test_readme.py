@@ -369,6 +369,10 @@ def test_real_takes_and_mixer_tables_cover_every_stored_take_and_mesh():
     text = benchmark_docs.live_mixing()
     assert all(f"| {m['mesh']} | {m['vertices']:,} | {m['keys']} |" in text for m in meshes)
     assert "fps at 13,380 vertices" in text
+    rigs = benchmark_docs.load("bench_mixer_rigs")["result"]["meshes"]
+    text = benchmark_docs.rig_mixing()
+    assert [m["mesh"] for m in rigs] == ["human13k_masked", "human13k_relative"]
+    assert all(f"| {m['mesh']} | {m['vertices']:,} | {m['keys']} |" in text for m in rigs)
 
 
 # ------------------------------------------------------------------------------------------ form
