@@ -95,7 +95,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..lacore.errors import InputError
+from ..lacore.errors import InputError, MeshError
 from ..lacore.geometry.rigid import rigid_align
 from ..lacore.shapes import MixerOptions, ShapeMixer
 from ..lacore.shapes.mixing import check_keys
@@ -105,7 +105,7 @@ from .bake import value_path
 from .compat import animation_channels
 from .jobs import CallJob
 from .mesh_access import (MeshAccessError, key_block_array, linked_from, override_from, read_shape_keys,
-                          require_mesh_object, require_writable_keys, triangulate)
+                          require_mesh_object, require_writable_keys, topology_error, triangulate)
 from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
@@ -859,8 +859,11 @@ def _inputs(obj):
                            "key relative to the basis")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
-    keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
-                         names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
+    try:
+        keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
+                             names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
+    except MeshError as exc:
+        raise topology_error(mesh, "mixed live", exc) from None
     return basis, nonlinear, linear, keys, faces, _structure(obj, basis, nonlinear)
 
 

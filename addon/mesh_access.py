@@ -22,7 +22,7 @@ import hashlib
 
 import numpy as np
 
-from ..lacore.errors import InputError
+from ..lacore.errors import InputError, MeshError
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
            "require_whole_keys", "require_writable_keys", "linked_from", "override_from", "write_shape_key",
@@ -86,6 +86,17 @@ def _get(collection, attr, dtype, count, width=1):
     if count:
         collection.foreach_get(attr, buf)
     return buf
+
+
+#: Where Blender shows the parts of a mesh that the error of :func:`topology_error` names.
+NON_MANIFOLD_HINT = "in Edit Mode, Select > Select All by Trait > Non Manifold selects them"
+
+
+def topology_error(mesh, what, exc):
+    """The :class:`lacore.errors.MeshError` for ``mesh`` whose faces lacore refused (``exc``): names the mesh and what
+    could not be done (``what``: "encoded", "mixed live" ...), and for non-manifold parts where Blender shows them."""
+    hint = f" ({NON_MANIFOLD_HINT})" if "non-manifold" in str(exc) else ""
+    return MeshError(f"Mesh '{mesh.name}' cannot be {what}: {exc}{hint}")
 
 
 def triangulate(mesh):

@@ -106,7 +106,7 @@ def read_mesh(obj, what="processed"):
         try:
             topology = MeshTopology.from_faces(tri.faces, edges=tri.edges, n_vertices=tri.n_vertices)
         except MeshError as exc:
-            raise MeshError(f"Mesh '{mesh.name}' cannot be {what}: {exc}") from exc
+            raise mesh_access.topology_error(mesh, what, exc) from exc
         _lru_put(_TOPOLOGIES, thash, topology, _MAX_TOPOLOGIES)
     else:
         STATS["topology_hit"] += 1

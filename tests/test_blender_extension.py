@@ -8,6 +8,7 @@ into ./wheels (cached; later runs do not download).
 """
 
 import json
+import re
 import subprocess
 import tomllib
 
@@ -62,6 +63,10 @@ def test_errors_leave_object_unchanged(blender_run):
     assert set(messages) == {"no_active_object", "not_a_mesh", "no_shape_keys", "non_manifold", "loose_edge",
                              "degenerate_key"}
     assert "non-manifold" in messages["non_manifold"]
+    # the mesh named, what to do, and where Blender shows the faces
+    assert re.search(r"Mesh '.*' cannot be encoded: non-manifold edges .*keep at most two faces on each edge .*"
+                     r"\(in Edit Mode, Select > Select All by Trait > Non Manifold selects them\)",
+                     messages["non_manifold"]), messages["non_manifold"]
 
 
 def test_blender_time_is_modest(blender_run):

@@ -432,6 +432,9 @@ def test_user_key_named_back_before_an_update(run):
     ("unchanged_key", "'Key 1' is the basis up to a rigid motion): there is nothing to mix; shape a key first"),
     ("degenerate_key", "'Key 1': degenerate triangles"), ("degenerate_key", "move the vertices of those faces apart"),
     ("no_faces", "has no faces: the add-on works on surfaces; fill the mesh with faces"),
+    ("non_manifold", "Mesh 'Fan' cannot be mixed live: non-manifold edges (shared by more than two faces): (0, 1)"),
+    ("non_manifold", "keep at most two faces on each edge"),
+    ("non_manifold", "Select > Select All by Trait > Non Manifold selects them"),
     ("edit_mode", "is in Edit Mode: switch to Object Mode"),
     ("shared_edit_mode", "mesh 'Bar' is in Edit Mode through 'Bar.001': switch that object to Object Mode to enable"),
     ("shared_edit_mode_disable", "through 'Bar.001': switch that object to Object Mode to disable live mixing")])

@@ -196,7 +196,8 @@ class MeshTopology:
         if np.any(counts > 2):
             bad = starts[counts > 2]
             pairs = np.stack([lo[order[bad]], hi[order[bad]]], 1)
-            raise MeshError(f"non-manifold edges (shared by more than two faces): {format_indices(pairs)}")
+            raise MeshError(f"non-manifold edges (shared by more than two faces): {format_indices(pairs)}; keep at "
+                            "most two faces on each edge (delete the extra faces or split them off)")
         unique_keys = skey[starts]
         E = len(unique_keys)
         h_edge = np.empty(3 * F, np.int64)
@@ -267,7 +268,7 @@ class MeshTopology:
         bad = np.flatnonzero(fans > 1)
         if bad.size:
             raise MeshError("non-manifold vertices (their faces form several separate fans): "
-                            f"{format_indices(bad)}")
+                            f"{format_indices(bad)}; split each into one vertex per fan, or join its fans with faces")
 
     # ------------------------------------------------------------- counts
     @property

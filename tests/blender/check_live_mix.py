@@ -980,6 +980,14 @@ def bad_input():
     cloud.shape_key_add(name="Key 1", from_mix=False).data[0].co = (9.0, 9.0, 9.0)
     select_only(cloud)
     attempt("no_faces", cloud, bpy.ops.lengths_angles.live_mix_enable)
+    fan = bpy.data.meshes.new("Fan")  # three triangles on the edge (0, 1): not a surface
+    fan.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1)], [], [(0, 1, 2), (1, 0, 3), (0, 1, 4)])
+    fin = bpy.data.objects.new("Fan", fan)
+    bpy.context.scene.collection.objects.link(fin)
+    fin.shape_key_add(name="Basis", from_mix=False)
+    fin.shape_key_add(name="Key 1", from_mix=False).data[2].co = (0.0, 1.0, 0.5)
+    select_only(fin)
+    attempt("non_manifold", fin, bpy.ops.lengths_angles.live_mix_enable)
     other = obj.copy()  # the same mesh, in Edit Mode through another object
     bpy.context.scene.collection.objects.link(other)
 
