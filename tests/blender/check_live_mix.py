@@ -212,6 +212,17 @@ def enable_mix_disable():
             "controls_after_disable": panel_controls(obj)}
 
 
+def keyframe_values(obj):
+    """Keyframes Bend 0 -> 1 and Twist 0.2 -> 0.9 over frames 1 -> 11; returns the key blocks."""
+    kbs = obj.data.shape_keys.key_blocks
+    for n, (a, b) in zip(NAMES[:2], [(0.0, 1.0), (0.2, 0.9)], strict=True):
+        kbs[n].value = a
+        kbs[n].keyframe_insert("value", frame=1)
+        kbs[n].value = b
+        kbs[n].keyframe_insert("value", frame=11)
+    return kbs
+
+
 def keyframes_drivers_and_save():
     """Keyframed values through frame_set, a driven value, then save the .blend (reopened by the next case)."""
     reset()
@@ -219,12 +230,7 @@ def keyframes_drivers_and_save():
     obj = make_bar()
     assert enable(obj) == ["FINISHED"]
     OUT["anim_mixer_npz"] = stored_mixer(obj)
-    kbs = obj.data.shape_keys.key_blocks
-    for n, (a, b) in zip(NAMES[:2], [(0.0, 1.0), (0.2, 0.9)], strict=True):
-        kbs[n].value = a
-        kbs[n].keyframe_insert("value", frame=1)
-        kbs[n].value = b
-        kbs[n].keyframe_insert("value", frame=11)
+    kbs = keyframe_values(obj)
     # Both: driven by an empty's x location (a simple expression: no Python needed)
     empty = bpy.data.objects.new("Control", None)
     bpy.context.scene.collection.objects.link(empty)
@@ -972,22 +978,21 @@ def bad_input():
     attempt("edit_mode", obj, bpy.ops.lengths_angles.live_mix_enable)
     with ops_context(obj):
         bpy.ops.object.mode_set(mode='OBJECT')
-    points = bpy.data.meshes.new("Points")  # vertices only, keys shaped
-    points.from_pydata(INPUTS["basis"].tolist(), [], [])
-    cloud = bpy.data.objects.new("Points", points)
-    bpy.context.scene.collection.objects.link(cloud)
-    cloud.shape_key_add(name="Basis", from_mix=False)
-    cloud.shape_key_add(name="Key 1", from_mix=False).data[0].co = (9.0, 9.0, 9.0)
-    select_only(cloud)
+    def keyed(name, vertices, faces, moved, to):
+        """A selected object with a Basis and a key 'Key 1' whose vertex ``moved`` is at ``to``."""
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata(vertices, [], faces)
+        made = bpy.data.objects.new(name, mesh)
+        bpy.context.scene.collection.objects.link(made)
+        made.shape_key_add(name="Basis", from_mix=False)
+        made.shape_key_add(name="Key 1", from_mix=False).data[moved].co = to
+        select_only(made)
+        return made
+    cloud = keyed("Points", INPUTS["basis"].tolist(), [], 0, (9.0, 9.0, 9.0))  # vertices only, keys shaped
     attempt("no_faces", cloud, bpy.ops.lengths_angles.live_mix_enable)
-    fan = bpy.data.meshes.new("Fan")  # three triangles on the edge (0, 1): not a surface
-    fan.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1)], [], [(0, 1, 2), (1, 0, 3), (0, 1, 4)])
-    fin = bpy.data.objects.new("Fan", fan)
-    bpy.context.scene.collection.objects.link(fin)
-    fin.shape_key_add(name="Basis", from_mix=False)
-    fin.shape_key_add(name="Key 1", from_mix=False).data[2].co = (0.0, 1.0, 0.5)
-    select_only(fin)
-    attempt("non_manifold", fin, bpy.ops.lengths_angles.live_mix_enable)
+    fan = keyed("Fan", [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1)],  # 3 triangles on the edge (0, 1)
+                [(0, 1, 2), (1, 0, 3), (0, 1, 4)], 2, (0.0, 1.0, 0.5))
+    attempt("non_manifold", fan, bpy.ops.lengths_angles.live_mix_enable)
     other = obj.copy()  # the same mesh, in Edit Mode through another object
     bpy.context.scene.collection.objects.link(other)
 
@@ -1485,12 +1490,7 @@ def exports():
     reset()
     obj = make_bar()
     assert enable(obj) == ["FINISHED"]
-    kbs = obj.data.shape_keys.key_blocks
-    for n, (a, b) in zip(NAMES[:2], [(0.0, 1.0), (0.2, 0.9)], strict=True):
-        kbs[n].value = a
-        kbs[n].keyframe_insert("value", frame=1)
-        kbs[n].value = b
-        kbs[n].keyframe_insert("value", frame=11)
+    keyframe_values(obj)
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = 1, 11
     shown = {}
