@@ -49,8 +49,10 @@ it does not converge the render keeps the reduced mix and the panel says so.
 Weights: a key's value as evaluated (slider min/max applied by Blender), 0 when it is muted.  Which keys are
 mixed (:func:`split_keys`): every key relative to the basis or to another mixed key, with or without a vertex
 group (Blender's rule for the group, matched by :func:`vertex_masks`: a name the mesh lacks, or a mesh without
-vertex-group weights, limits nothing).  Blender mixes linearly on top of the mix the keys added after the build,
-keys relative to themselves (they add nothing) and keys relative to a key that is not mixed (an add-on ``"LA ..."``
+vertex-group weights, limits nothing), up to :attr:`lacore.shapes.MixerOptions.max_keys` of them.  Blender mixes
+linearly on top of the mix the keys added after the build, keys relative to themselves (they add nothing), keys the
+artist chose to keep linear (:data:`LINEAR_KEYS_PROP`, :func:`set_linear_choice`: small local keys such as faces and
+correctives, whose linear sum is already right) and keys relative to a key that is not mixed (an add-on ``"LA ..."``
 key, or a key relative to one); the panel lists them with the reason (:func:`linear_reason`).
 
 Staleness: every update compares the basis and mixer keys' coordinates, relative keys and vertex-group names and
@@ -110,12 +112,15 @@ from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
 __all__ = ["MIXER_PROP", "TEXT_HEADER", "stored_npz", "LiveMixError", "split_keys", "enable_run", "store_mixer",
+           "LINEAR_KEYS_PROP", "linear_choice", "set_linear_choice", "keep_linear",
            "disable", "require_live", "is_live", "status", "update_all", "register_handlers", "unregister_handlers",
            "live_meshes", "mixer_for_keys", "EXACT_RENDERS_PROP"]
 
 MIXER_PROP = "lengths_angles_live_mix"
 #: Mesh property (bool): renders show the exact projection (the mix polished by full Gauss-Newton).
 EXACT_RENDERS_PROP = "lengths_angles_live_mix_exact_renders"
+#: Mesh property (list of str): the names of the keys the artist keeps in Blender's linear mix.
+LINEAR_KEYS_PROP = "lengths_angles_live_mix_linear"
 FORMAT_VERSION = 1
 
 
@@ -124,16 +129,54 @@ class LiveMixError(InputError):
 
 
 # ------------------------------------------------------------------------------------------- reading
+def linear_choice(mesh):
+    """The names of the keys of ``mesh`` the artist keeps in Blender's linear mix (:func:`set_linear_choice`)."""
+    names = mesh.get(LINEAR_KEYS_PROP)
+    return set() if names is None else {str(n) for n in names}
+
+
+def set_linear_choice(mesh, name, linear=True):
+    """Keep the key ``name`` of ``mesh`` in Blender's linear mix (``linear``), or mix it live again.  Applies at the
+    next Enable or Rebuild; a key renamed since is mixed live again."""
+    keep = linear_choice(mesh)
+    keep = keep | {name} if linear else keep - {name}
+    if keep:
+        mesh[LINEAR_KEYS_PROP] = sorted(keep)
+    elif LINEAR_KEYS_PROP in mesh:
+        del mesh[LINEAR_KEYS_PROP]
+
+
+def keep_linear(obj, linear=True):
+    """Keep the active shape key of ``obj`` in Blender's linear mix (``linear``) or mix it live again
+    (:func:`set_linear_choice`); returns the report's line.  Raises :class:`LiveMixError` (one line) for no key, the
+    basis, an add-on key or a linked mesh."""
+    mesh = require_mesh_object(obj)
+    kb = obj.active_shape_key
+    if mesh.shape_keys is None or kb is None:
+        raise LiveMixError(f"'{obj.name}' has no shape keys: add a Basis and the keys to mix")
+    if kb == mesh.shape_keys.reference_key:
+        raise LiveMixError(f"'{kb.name}' is the basis: select the key to keep linear in the key list")
+    if is_own_key(kb.name):
+        raise LiveMixError(f"'{kb.name}' is the add-on's own key: select one of your keys in the key list")
+    _require_local(mesh, "choose its linear keys")
+    set_linear_choice(mesh, kb.name, linear)
+    state = status(mesh)
+    when = "" if state is None or (kb.name in state["keys"]) != linear else " from the next Rebuild"
+    return f"'{kb.name}' {'stays in the linear mix' if linear else 'mixes live'}{when}"
+
+
 def split_keys(mesh):
     """``(basis, nonlinear, linear)`` key names of ``mesh``: the reference key, the keys the mixer mixes and the keys
     Blender keeps mixing linearly.  The add-on's own ``"LA ..."`` keys are in neither list.
 
     Mixed: every key relative to the basis or to another mixed key, with or without a vertex group.  Linear: a key
-    relative to itself (it adds nothing) or to a key that is not mixed (an add-on key, a key relative to one)."""
+    relative to itself (it adds nothing), a key the artist keeps linear (:func:`linear_choice`) or a key relative to a
+    key that is not mixed (an add-on key, a key relative to one)."""
     key = mesh.shape_keys
     ref = key.reference_key
+    chosen = linear_choice(mesh)
     blocks = [kb for kb in key.key_blocks if kb != ref and not is_own_key(kb.name)]
-    mixed = {kb.name for kb in blocks if kb.relative_key != kb}
+    mixed = {kb.name for kb in blocks if kb.relative_key != kb and kb.name not in chosen}
     while True:  # drop the keys relative to a key that is not mixed, until none is left
         keep = {kb.name for kb in blocks
                 if kb.name in mixed and (kb.relative_key == ref or kb.relative_key.name in mixed)}
@@ -144,12 +187,14 @@ def split_keys(mesh):
             [kb.name for kb in blocks if kb.name not in mixed])
 
 
-def linear_reason(kb, reference, mixed):
+def linear_reason(kb, reference, mixed, chosen=()):
     """Why Blender mixes the key block ``kb`` linearly while ``mixed`` (names) are mixed on the basis ``reference``
-    (a few words for the panel)."""
+    and ``chosen`` (names) are kept linear by the artist (a few words for the panel)."""
     rel = kb.relative_key
     if rel == kb:
         return "relative to itself: adds nothing"
+    if kb.name in chosen:
+        return "kept linear"
     if rel != reference and rel.name not in mixed:
         return f"relative to '{rel.name}', which is not mixed"
     return "added or changed after the build: Rebuild to mix it"
@@ -454,14 +499,16 @@ def status(mesh):
     """What the panel shows: ``dict(keys, linear, linear_reasons, build_seconds, reduced_size, space_size, stale,
     in_range, message, mix_seconds, polished, linked, override)`` (``reduced_size``: the quality asked for, 0
     automatic; ``space_size``: the mixer's reduced size; ``linear``: the keys Blender mixes linearly on top,
-    ``linear_reasons`` why, :func:`linear_reason`; ``polished``: the last mix is a render's exact one; ``linked``: the
+    ``linear_reasons`` why, :func:`linear_reason`; ``kept_linear_mixed``: keys the mixer mixes that the artist has
+    chosen to keep linear since, until a Rebuild; ``polished``: the last mix is a render's exact one; ``linked``: the
     library path of a linked mesh, whose mix key cannot be rewritten, else ""; ``override``: the library path of a
     library override, whose mixer is rebuilt there, else "") or None when ``mesh`` has no mixer."""
     if not is_live(mesh):
         return None
     live = _live(mesh)
     if live is None:
-        return {"keys": [], "linear": [], "linear_reasons": {}, "build_seconds": 0.0, "reduced_size": 0,
+        return {"keys": [], "linear": [], "linear_reasons": {}, "kept_linear_mixed": [], "build_seconds": 0.0,
+                "reduced_size": 0,
                 "space_size": 0, "stale": "the stored mixer cannot be read", "in_range": True, "message": "",
                 "mix_seconds": 0.0, "polished": False,
                 "linked": linked_from(mesh), "override": override_from(mesh)}
@@ -471,12 +518,14 @@ def status(mesh):
     linear = [] if key is None else [kb for kb in key.key_blocks
                                      if kb != key.reference_key and kb.name not in live.names
                                      and not is_own_key(kb.name)]
-    reasons = {kb.name: linear_reason(kb, key.reference_key, live.names) for kb in linear}
+    chosen = linear_choice(mesh)
+    reasons = {kb.name: linear_reason(kb, key.reference_key, live.names, chosen) for kb in linear}
     exact = res is not None and res.polished and res.in_range  # a converged polish: the exact projection
     message = "" if res is None or exact else (live.mixer.range_message(res.weights, names=live.names,
                                                                         advice=RANGE_ADVICE) or res.message)
     stale = live.stale or live.error or (live.check(mesh) if linked else "")  # (a linked mesh is never updated)
     return {"keys": live.names, "linear": list(reasons), "linear_reasons": reasons,
+            "kept_linear_mixed": [n for n in live.names if n in chosen],
             "build_seconds": live.build_seconds,
             "reduced_size": live.reduced_size, "space_size": int(live.mixer.reduced_size), "stale": stale,
             "in_range": True if res is None else bool(res.in_range), "message": message,
@@ -857,6 +906,11 @@ def _inputs(obj):
                if linear else "")
         raise LiveMixError(f"mesh '{mesh.name}' has no shape key to mix besides the basis '{basis}'{why}: add a "
                            "key relative to the basis")
+    limit = MixerOptions().max_keys
+    if len(nonlinear) > limit:
+        raise LiveMixError(f"mesh '{mesh.name}' has {len(nonlinear)} shape keys to mix and live mixing mixes at "
+                           f"most {limit}: keep {len(nonlinear) - limit} of them linear (small local shapes such as "
+                           "faces and correctives) with Keep Linear under Live Mixing, each selected in the key list")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
     try:
@@ -887,8 +941,9 @@ def enable_run(obj, reduced_size=0):
                   process=(build_mixer_bytes, (coords, faces, options), lambda data: ShapeMixer.load(io.BytesIO(data)),
                            extra))
     t0 = time.perf_counter()
-    reasons = {n: linear_reason(obj.data.shape_keys.key_blocks[n], obj.data.shape_keys.reference_key, nonlinear)
-               for n in linear}
+    chosen = linear_choice(obj.data)
+    reasons = {n: linear_reason(obj.data.shape_keys.key_blocks[n], obj.data.shape_keys.reference_key, nonlinear,
+                                chosen) for n in linear}
 
     def write(obj, job):
         _require_no_user_mix_key(obj.data)  # (a key given that name during the build)

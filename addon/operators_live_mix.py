@@ -10,6 +10,10 @@
     ``lengths_angles_live_mix_exact_renders`` on, renders show the exact mix (:mod:`.live_mix`).
 ``lengths_angles.live_mix_disable``
     Back to Blender's linear mixing, exactly: the mix key and the stored mixer are removed.
+``lengths_angles.live_mix_keep_linear``
+    Keeps the active shape key in Blender's linear mix (``linear`` False: mixes it live again), from the next Enable
+    or Rebuild on (:func:`.live_mix.set_linear_choice`): a mixer takes at most
+    :attr:`lacore.shapes.MixerOptions.max_keys` keys.
 """
 
 import bpy
@@ -20,7 +24,8 @@ from . import live_mix
 from .mesh_access import object_mode
 from .runs import RunOperator, error_text
 
-__all__ = ["LENGTHS_ANGLES_OT_live_mix_enable", "LENGTHS_ANGLES_OT_live_mix_disable", "classes",
+__all__ = ["LENGTHS_ANGLES_OT_live_mix_enable", "LENGTHS_ANGLES_OT_live_mix_disable",
+           "LENGTHS_ANGLES_OT_live_mix_keep_linear", "classes",
            "register_properties", "unregister_properties", "REDUCED_SIZE_PROP"]
 
 REDUCED_SIZE_PROP = "lengths_angles_live_mix_reduced_size"
@@ -69,7 +74,30 @@ class LENGTHS_ANGLES_OT_live_mix_disable(bpy.types.Operator):
         return {'FINISHED'}
 
 
-classes = (LENGTHS_ANGLES_OT_live_mix_enable, LENGTHS_ANGLES_OT_live_mix_disable)
+class LENGTHS_ANGLES_OT_live_mix_keep_linear(bpy.types.Operator):
+    """Keep the active shape key in Blender's linear mix (small local shapes such as faces and correctives), or mix it
+    live again; applies at the next Enable or Rebuild"""
+    bl_idname = "lengths_angles.live_mix_keep_linear"
+    bl_label = "Keep Linear"
+    bl_description = ("Keep the active shape key in Blender's linear mix (small local shapes such as faces and "
+                      "correctives), or mix it live again; applies at the next Enable or Rebuild")
+    bl_options = {'REGISTER', 'UNDO'}
+
+    linear: BoolProperty(name="Linear", default=True,
+                         description="Keep the key linear (off: mix it live again)")
+
+    def execute(self, context):
+        try:
+            message = live_mix.keep_linear(context.active_object, self.linear)
+        except InputError as exc:
+            self.report({'ERROR'}, error_text(exc))
+            return {'CANCELLED'}
+        self.report({'INFO'}, message)
+        return {'FINISHED'}
+
+
+classes = (LENGTHS_ANGLES_OT_live_mix_enable, LENGTHS_ANGLES_OT_live_mix_disable,
+           LENGTHS_ANGLES_OT_live_mix_keep_linear)
 
 
 def register_properties():

@@ -11,7 +11,7 @@ from . import fit_quality
 from . import operators_fit as fit
 from . import operators_live_mix as live_ops
 from .bake import BAKE_PROP
-from .naming import LIVE_MIX_KEY
+from .naming import LIVE_MIX_KEY, is_own_key
 from .operators import LENGTHS_ANGLES_OT_encode, LENGTHS_ANGLES_OT_integrability_info, LENGTHS_ANGLES_OT_remove_data
 from .operators_calibrate import LENGTHS_ANGLES_OT_calibrate_fit
 from .operators_pins import draw_pins
@@ -199,6 +199,14 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
             row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_disable.bl_idname, text="", icon='X')
         layout.prop(mesh, live_ops.REDUCED_SIZE_PROP, text="Quality (reduced size, 0 = auto)")
         layout.prop(mesh, live_mix.EXACT_RENDERS_PROP)
+        active = context.object.active_shape_key
+        if (mesh.shape_keys is not None and active is not None and active != mesh.shape_keys.reference_key
+                and not is_own_key(active.name)):  # the active key's choice: mixed live or kept linear
+            kept = active.name in live_mix.linear_choice(mesh)
+            row = layout.row(align=True)
+            row.label(text=f"'{active.name}': {'kept linear' if kept else 'mixed live'}")
+            row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_keep_linear.bl_idname,
+                         text="Mix Live" if kept else "Keep Linear").linear = not kept
         if state is None:
             layout.label(text="Blender mixes the keys linearly", icon='INFO')
             return
@@ -217,6 +225,8 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         col.label(text=f"Built in {state['build_seconds']:.2f} s; last mix {1000 * state['mix_seconds']:.1f} ms{exact}")
         if not state["in_range"]:
             col.label(text=state["message"] or "weights outside the mixer's accurate range", icon='ERROR')
+        if state["kept_linear_mixed"]:
+            col.label(text="Rebuild to keep linear: " + ", ".join(state["kept_linear_mixed"]), icon='INFO')
         if state["linear"]:
             col.label(text="Mixed linearly: " + ", ".join(f"{name} ({why})"
                                                           for name, why in state["linear_reasons"].items()),

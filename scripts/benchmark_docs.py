@@ -203,8 +203,9 @@ def _blender_quality(b):
             f"{n} {'frame' if n == 1 else 'frames'} passing through {'itself' if n == 1 else 'themselves'}{where}")
 
 
-def _mixer_table(record):
-    """The table of a shape-mixer record (``bench_mixer``, ``bench_mixer_rigs``): one row per mesh."""
+def _mixer_table(record, peak=False):
+    """The table of a shape-mixer record (``bench_mixer``, ``bench_mixer_rigs``, ``bench_mixer_keys``): one row per
+    mesh; ``peak``: with the build's peak memory growth."""
     rows = []
     for m in record["result"]["meshes"]:
         mix = m["mix"]
@@ -212,9 +213,9 @@ def _mixer_table(record):
                      _g(mix["ms_median_cold_cpu"]), _g(mix["rms_percent_diag_in_01"]["max"]),
                      _g(mix["rms_percent_diag_extrapolated"]["max"]),
                      f"{mix['energy_goal_in_01']['within']} of {mix['energy_goal_in_01']['of']}",
-                     _g(m["mixer_megabytes"])])
+                     _g(m["mixer_megabytes"])] + ([_g(m["peak_rss_growth_megabytes"])] if peak else []))
     head = ["mesh", "vertices", "keys", "build s", "ms per mix", "RMS % of diagonal, weights in [0, 1] (max)",
-            "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB"]
+            "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB"] + (["build peak MB"] if peak else [])
     return table(head, rows)
 
 
@@ -244,6 +245,16 @@ def rig_mixing(store=STORE):
               "one thread, the public defaults (`benchmarks/bench_mixer_rigs.py`). " + machine_line(record))
 
 
+def keys_mixing(store=STORE):
+    """The shape mixer by the number of keys: as :func:`live_mixing`'s table, with the build's peak memory."""
+    record = load("bench_mixer_keys", store)
+    return (_mixer_table(record, peak=True) + "\n\n"
+            + "The CC0 body with 4, 5 and 6 pose keys besides the basis (`MixerOptions.max_keys`, the most a mixer "
+              "takes by default), every slider moving at once; against converged full Gauss-Newton, CPU seconds, "
+              "one thread, the public defaults, one case per process (`benchmarks/bench_mixer_keys.py`). "
+              + machine_line(record))
+
+
 #: the README's blocks: ``<!-- bench:NAME -->``
 README_BLOCKS = {"inbetweens": inbetweens, "real-takes": real_takes, "live-mixing": live_mixing}
 #: docs/benchmarks.md's summary tables (the README's, then more)
@@ -251,6 +262,7 @@ SUMMARY = {"In-betweens: the defaults against Gauss-Newton": inbetweens,
            "Real takes: calibrate and fit with the defaults": real_takes,
            "Live shape-key mixing": live_mixing,
            "Live mixing of rig keys: vertex groups and relative keys": rig_mixing,
+           "Live mixing of more keys": keys_mixing,
            "Core maps": core_maps,
            "Marker fitting on the sample human": marker_fitting}
 

@@ -73,6 +73,7 @@ BENCHMARKS = {
     "bench_markers": Benchmark(),
     "bench_mixer": Benchmark(quick=("bar5k", "body13k", "--references", "2"), long=True),
     "bench_mixer_rigs": Benchmark(quick=("--references", "2")),
+    "bench_mixer_keys": Benchmark(quick=("human13k_k5", "--references", "2"), long=True),
     "bench_path_inbetweens": Benchmark(quick=("human13k", "--no-fast"), long=True),
     "bench_fit_takes": Benchmark(quick=("--takes", "Walk1.c3d", "--frames", "30"), long=True),
     "bench_self_intersection": Benchmark(),

@@ -46,7 +46,9 @@ def inputs():
     extra = X + np.array([0.0, 0.0, 0.1])
     return {"basis": X, "faces": faces, "keys": keys, "grouped": grouped, "group_weights": group_weights,
             "fold": bar_pose(X, 3.0, 0.0), "masked": bar_pose(X, 0.0, 1.2), "on_bend": bar_pose(X, 1.6, 0.0),
-            "ghost": bar_pose(X, -0.6, 0.3), "extra": extra, "on_extra": extra + np.array([0.0, 0.2, 0.0])}
+            "ghost": bar_pose(X, -0.6, 0.3), "extra": extra, "on_extra": extra + np.array([0.0, 0.2, 0.0]),
+            "many": np.array([bar_pose(X, 0.3, 0.0), bar_pose(X, 0.0, 0.3), bar_pose(X, -0.4, 0.2),
+                              bar_pose(X, 0.2, -0.5)])}
 
 
 @pytest.fixture(scope="module")
@@ -586,6 +588,33 @@ def test_vertex_group_and_relative_keys_mix(run, inputs):
     want, _ = rig_expected(a["vg_mixer_npz"], inputs, a["vg_weights"][-1])
     want = want + 0.5 * (f32(inputs["on_extra"]) - f32(inputs["extra"]))
     assert np.abs(a["vg_on_extra"] - want).max() < TOL
+
+
+def test_many_keys_refused_and_kept_linear(run, inputs):
+    """Seven keys to mix: Enable refused in one line naming Keep Linear, nothing changed.  Swell kept linear: the other
+    six mix live (the evaluated mesh = lacore's mix), Swell adds linearly on top; choices made after the build apply
+    at the next Rebuild, which the report and the panel say."""
+    res, a = run["cases"]["many_keys_kept_linear"], run["arrays"]
+    refused = res["too_many"]
+    assert refused["result"] == ["CANCELLED"] and refused["one_line"] and refused["unchanged"], refused
+    assert ("has 7 shape keys to mix and live mixing mixes at most 6: keep 1 of them linear" in refused["message"]
+            and "Keep Linear" in refused["message"]), refused
+    basis = res["basis"]
+    assert basis["result"] == ["CANCELLED"] and basis["one_line"] and basis["unchanged"], basis
+    assert "is the basis" in basis["message"], basis
+    assert res["keep_swell"] == [["FINISHED"], ""], res["keep_swell"]
+    assert res["panel_before"] == ["'Swell': kept linear"], res["panel_before"]
+    assert res["enable"] == ["FINISHED"]
+    names = ["Bend", "Twist", "Both", "Lift", "Push", "Slide"]
+    assert res["keys"] == names and res["linear_reasons"] == {"Swell": "kept linear"}, res
+    keys = np.concatenate([[inputs["basis"]], inputs["keys"], inputs["many"][:3]])
+    want, _ = placed(a["kept_mixer_npz"], keys, a["kept_weights"])
+    assert np.abs(a["kept_mixed"] - want).max() < TOL, np.abs(a["kept_mixed"] - want).max()
+    swell = 0.5 * (f32(inputs["many"][3]) - f32(inputs["basis"]))
+    assert np.abs(a["kept_swell_half"] - (a["kept_mixed"] + swell)).max() < TOL
+    assert res["mix_swell_live"] == [["FINISHED"], ""] and res["keep_bend"] == [["FINISHED"], ""]
+    assert res["kept_linear_mixed"] == ["Bend"] and res["linear_choice"] == ["Bend"], res
+    assert "Rebuild to keep linear: Bend" in res["panel_after"], res["panel_after"]
 
 
 def test_vertex_group_and_relative_keys_stale_and_reopened(run, inputs):

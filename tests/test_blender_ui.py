@@ -53,7 +53,8 @@ def test_key_pickers_texts_and_menu(run):
     assert set(res["descriptions"]) == {"interpolate", "bake_keyframes", "clear_bake", "encode", "remove_data",
                                         "integrability_info", "build_model", "model_pose_to_shape_key",
                                         "bind_markers", "fit_markers", "import_markers", "calibrate_fit",
-                                        "pin_marker", "remove_pin", "live_mix_enable", "live_mix_disable"}
+                                        "pin_marker", "remove_pin", "live_mix_enable", "live_mix_disable",
+                                        "live_mix_keep_linear"}
     assert res["menu_operators"] == ["lengths_angles.interpolate", "lengths_angles.bake_keyframes",
                                      "lengths_angles.clear_bake", "lengths_angles.encode",
                                      "lengths_angles.remove_data"]

@@ -299,7 +299,7 @@ def test_cli_mixer_and_mix(capsys, tmp_path, key_files, bar):
 
 @pytest.mark.parametrize("case", ["one_key", "not_npz", "bad_weights_count", "foreign_file", "missing", "bad_ext",
                                   "nan_weight", "not_in_correspondence", "bad_range", "bad_local", "unshaped_key",
-                                  "overflow_weight"])
+                                  "overflow_weight", "too_many_keys"])
 def test_cli_bad_input(capsys, tmp_path, key_files, case):
     d, paths = key_files
     if case in ("bad_weights_count", "bad_ext", "nan_weight", "overflow_weight"):
@@ -324,6 +324,7 @@ def test_cli_bad_input(capsys, tmp_path, key_files, case):
         "unshaped_key": ("mixer", paths[0], paths[0], "-o", tmp_path / "x.npz"),
         "overflow_weight": ("mix", tmp_path / "m.npz", "--weights", 0.5, 0.5, "--weights", 1e300, 0, "-o",
                             tmp_path / "o.ply"),
+        "too_many_keys": ("mixer", paths[0], *paths[1:] * 4, "-o", tmp_path / "x.npz", "--max-keys", 7),
     }[case]
     before = _listing(tmp_path)
     code, out, err = _run(capsys, *argv)
@@ -331,6 +332,8 @@ def test_cli_bad_input(capsys, tmp_path, key_files, case):
     assert err.count("\n") == 1 and err.startswith(f"lacore {argv[0]}: error: "), err
     assert "Traceback" not in err
     assert _listing(tmp_path) == before
+    if case == "too_many_keys":
+        assert "8 keys to mix besides the basis: a mixer mixes at most 7" in err and "raise --max-keys" in err, err
 
 
 # --------------------------------------------------------------------------- reduced model
@@ -1057,3 +1060,64 @@ def test_cc0_body_arm_halfway_keeps_its_length():
     diag = _diag(keys[0])
     rms = {name: rigid_rms(X, half) / diag for name, X in (("mix", res.vertices), ("linear", linear))}
     assert rms["mix"] < 0.005 and rms["linear"] > 0.013, rms  # measured 0.22 % and 1.34 % of the diagonal
+
+
+def test_candidates_grow_polynomially_with_the_keys():
+    """Up to FULL_CORNERS keys every corner of the box is a candidate; beyond, the two diagonal corners and each key
+    alone at either end: the candidates grow as (K-1)^2 / 2, and 19 keys list theirs and the exploration's half grid
+    (3^19 points, not listed) in well under a second."""
+    import time
+
+    from lacore.shapes.mixing.subspace import FULL_CORNERS, candidate_weights, exploration_weights
+
+    assert FULL_CORNERS == 3 and len(candidate_weights(3, -0.5, 1.5)) == 16
+    for m in (4, 6, 10):
+        cands = np.array(candidate_weights(m, -0.5, 1.5))
+        corners = cands[np.all(np.isin(cands, [-0.5, 0.0, 1.5]), axis=1) & np.any(cands != 0, axis=1)]
+        assert len(corners) == 2 * m + 2 and len(cands) == 2 + m * (m - 1) // 2 + 2 * m + 2 + m
+        assert len({tuple(c) for c in cands}) == len(cands)
+    t = time.perf_counter()
+    cands = candidate_weights(19, -0.5, 1.5)
+    known = [np.zeros(19)] + list(np.eye(19)) + cands
+    pool = exploration_weights(19, known)
+    assert time.perf_counter() - t < 1.0 and len(cands) == 2 + 171 + 40 + 19 and len(pool) == 24
+    assert all(np.all(np.isin(w, [0.0, 0.5, 1.0])) for w in pool)
+    assert not {tuple(w) for w in pool} & {tuple(k) for k in known}
+    assert [w.tolist() for w in pool] == [w.tolist() for w in exploration_weights(19, known)]  # seeded
+
+
+def test_more_keys_than_max_keys_refused_at_once():
+    """More keys than MixerOptions.max_keys (6): one line naming the count, the limit and what to do, before any
+    work; the limit is an option (positive integer)."""
+    import time
+
+    X, F = bar_mesh(n_along=4, n_side=1)
+    keys = np.stack([X] + [bar_pose(X, 0.1 * k, 0.05 * k) for k in range(1, 8)])
+    t = time.perf_counter()
+    with pytest.raises(MixerError) as exc:
+        ShapeMixer.build(keys, F)
+    assert time.perf_counter() - t < 0.5
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith("7 keys to mix besides the basis: a mixer mixes at most 6") and (
+        "linearly" in msg and "MixerOptions.max_keys" in msg), msg
+    for bad in (0, 1.5):
+        with pytest.raises(InputError, match="max_keys"):
+            MixerOptions(max_keys=bad)
+    assert MixerOptions.from_array(MixerOptions(max_keys=9).to_array()).max_keys == 6  # not stored in files
+
+
+def test_six_keys_mix_like_gauss_newton():
+    """Six keys besides the basis (the default most) on a 106-vertex bar: mixes within 3e-5 of the diagonal of the
+    polished projection and 0.2 % of its energy, in and outside [0, 1]^6 (measured 6e-6 and 0.04 %)."""
+    X, F = bar_mesh(n_along=12, n_side=2)
+    keys = np.stack([X, bar_pose(X, 1.2, 0.0), bar_pose(X, 0.0, 1.0), bar_pose(X, 0.5, 0.5), bar_pose(X, 0.3, 0.0),
+                     bar_pose(X, -0.4, 0.2), bar_pose(X, 0.2, -0.5)])
+    mixer = ShapeMixer.build(keys, F)
+    diag = np.linalg.norm(np.ptp(X, axis=0))
+    rng = np.random.default_rng(0)
+    for w in list(rng.uniform(0, 1, (4, 6))) + list(rng.uniform(-0.5, 1.5, (2, 6))):
+        r = mixer.mix(w, warm_start=False)
+        p = mixer.mix(w, warm_start=False, polish=True)
+        assert r.in_range and p.polished
+        assert np.sqrt(np.mean(np.sum((r.vertices - p.vertices) ** 2, axis=1))) < 3e-5 * diag
+        assert mixer.full_energy(w, r.vertices) < 1.002 * mixer.full_energy(w, p.vertices)

@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from ..io.meshes import MESH_FORMATS, save_mesh
-from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_keys, check_masks
+from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_key_count, check_keys, check_masks
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, json_float, load_meshes_in_correspondence,
                      positive_int, print_json)
 from .interpolate import output_paths
@@ -68,6 +68,9 @@ def configure_mixer(parser):
     parser.add_argument("--local-vertices", type=int, default=MixerOptions.local_vertices, metavar="N",
                         help="vertices of the local correction, where the reduced space misses most (default "
                              "%(default)s; 0: none)")
+    parser.add_argument("--max-keys", type=positive_int, default=MixerOptions.max_keys, metavar="N",
+                        help="most keys mixed besides the basis (default %(default)s: the build grows steeply with "
+                             "every key)")
     parser.add_argument("--relative-to", type=int, nargs="+", default=None, metavar="I",
                         help="each non-basis key's relative key, an index of the keys (0: the basis, the default)")
     parser.add_argument("--masks", default=None, metavar="MASKS.npy",
@@ -98,7 +101,8 @@ def run_mixer(args):
     if len(args.keys) < 2:
         raise MixerError(f"a mixer needs at least 2 keys (the basis and one more), got {len(args.keys)}")
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
-                           local_vertices=args.local_vertices)                 # checks --range, --local-vertices
+                           local_vertices=args.local_vertices, max_keys=args.max_keys)  # checks --range and others
+    check_key_count(len(args.keys), options, raise_with="raise --max-keys")
     shapes, topology = load_meshes_in_correspondence(args.keys)
     names = [repr(k) for k in args.keys]
     check_keys(shapes, topology.faces, names=names)                        # names the files, before the build

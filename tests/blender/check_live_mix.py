@@ -1011,6 +1011,47 @@ def bad_input():
     return out
 
 
+def many_keys_kept_linear():
+    """More keys than a mixer takes (Bend, Twist, Both and ``INPUTS["many"]``: 7): Enable refused in one line naming
+    Keep Linear, nothing changed.  Keep Linear on the active key Swell (the panel says so): Enable mixes the other six
+    and Blender adds Swell linearly on top.  Mix Live on Swell and Keep Linear on Bend apply at the next Rebuild (the
+    report and the panel say so); Keep Linear on the basis is refused."""
+    reset()
+    obj = make_bar()
+    names = ["Lift", "Push", "Slide", "Swell"]
+    for name, shape in zip(names, INPUTS["many"], strict=True):
+        obj.shape_key_add(name=name, from_mix=False).points.foreach_set("co", shape.astype(np.float32).ravel())
+    out = {"too_many": refusal(obj, bpy.ops.lengths_angles.live_mix_enable)}
+    kbs = obj.data.shape_keys.key_blocks
+
+    def keep(name, linear=True):
+        obj.active_shape_key_index = kbs.find(name)
+        return try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear, linear=linear)
+    obj.active_shape_key_index = 0
+    out["basis"] = refusal(obj, bpy.ops.lengths_angles.live_mix_keep_linear)
+    out["keep_swell"] = keep("Swell")
+    out["panel_before"] = [t for t in panel_labels(obj) if t and "Swell" in t]
+    out["enable"] = enable(obj)
+    st = status(obj)
+    out["keys"], out["linear_reasons"] = st["keys"], st["linear_reasons"]
+    mixed = [0.4, 0.3, 0.2, 0.0, 0.5, 0.0]
+    set_values(obj, mixed, st["keys"])
+    kbs["Swell"].value = 0.0
+    OUT["kept_mixer_npz"] = stored_mixer(obj)
+    OUT["kept_mixed"] = evaluated(obj)
+    OUT["kept_weights"] = np.array(mixed)
+    kbs["Swell"].value = 0.5
+    OUT["kept_swell_half"] = evaluated(obj)
+    kbs["Swell"].value = 0.0
+    out["mix_swell_live"] = keep("Swell", linear=False)
+    out["keep_bend"] = keep("Bend")
+    st = status(obj)
+    out["kept_linear_mixed"] = st["kept_linear_mixed"]
+    out["panel_after"] = [t for t in panel_labels(obj) if t and ("Rebuild" in t or "Bend" in t)]
+    out["linear_choice"] = sorted(ext("live_mix").linear_choice(obj.data))
+    return out
+
+
 def modal_run_and_cancel():
     """From the UI the mixer is built in a worker process (timer events drive modal()); Esc kills it at once and
     writes nothing."""
@@ -1549,6 +1590,6 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           vertex_groups_and_relative_keys, weight_paint_while_stale, posing_reads_no_weights, weight_paint_shared_mesh,
-           exports, renders,
+           vertex_groups_and_relative_keys, many_keys_kept_linear, weight_paint_while_stale, posing_reads_no_weights,
+           weight_paint_shared_mesh, exports, renders,
            finish])

@@ -96,7 +96,7 @@ from .subspace import (Expansion, FullProblem, build_space, candidate_weights, e
                        orthonormal_basis, reduced_solve, space_indicator)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "key_directions", "edge_masks",
-           "check_masks", "MIN_LENGTH_RATIO",
+           "check_masks", "check_key_count", "MIN_LENGTH_RATIO", "KEYS_ADVICE",
            "FORMAT", "FORMAT_VERSION", "mixer_bytes", "build_mixer_bytes"]
 
 #: Largest automatic reduced size with the Newton vectors' derivatives (:attr:`MixerOptions.newton_derivatives`):
@@ -155,6 +155,10 @@ SCREENING_EDGES = 2000
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
 
+
+#: Why a mixer takes few keys, and what to do with the others (:attr:`MixerOptions.max_keys`).
+KEYS_ADVICE = ("its build grows steeply with every key: mix the keys that bend or twist large parts, and add "
+               "small local ones such as faces and correctives linearly")
 
 #: What to do about a masked or relative key whose shape at weight 1 has no projection (a key relative to an unrelated
 #: key is that key's anti-pose at weight 1).
@@ -283,6 +287,16 @@ class MixerOptions:
         :data:`EXPLORE_DERIVATIVES`, median 0.55), for about 1.1 ms more per mix (1.2-1.3 to 2.2-2.5 ms) and
         0.05 s more build (paired); 300 vertices: 22 of the 24 too, 1.8 ms more.  On the other benchmark meshes
         the 150 hold 11-48 % and the build keeps none.
+    max_keys : int
+        Most keys a build mixes besides the basis; more are refused at once (:class:`MixerError`, one line,
+        :func:`check_key_count`).  Not stored in mixer files.  The Newton candidates grow as ``(K-1)^2 / 2``
+        (:func:`.subspace.candidate_weights`), the space with them and the cubature's training with both: on the CC0
+        body (13k vertices, one pose key per limb or joint, every slider moving at once) 4, 5 and 6 keys build in
+        12, 22 and 44 s CPU (one thread), mix in 5.3, 11 and 16 ms and take 0.66, 1.2 and 2.2 GB more memory to
+        build, each further key about doubling them; the RMS distance to converged Gauss-Newton stays within 0.07 %
+        of the diagonal in ``[0, 1]^(K-1)`` and 1.1 % outside (``benchmarks/bench_mixer_keys.py``).  6 by default: a
+        character's large motions (limbs, torso) mix live, and its small local keys (faces, correctives), whose
+        linear sum is already right, stay Blender's.
 
     Examples
     --------
@@ -310,6 +324,7 @@ class MixerOptions:
     max_indicator: float = 0.01
     bending_weight: float | None = None
     local_vertices: int = 150
+    max_keys: int = 6
 
     def __post_init__(self):
         for name in ("reduced_size", "cubature_points"):
@@ -318,7 +333,7 @@ class MixerOptions:
                 raise InputError(f"{name} must be a positive integer or None, got {v!r}")
         if not (np.isfinite(self.low) and np.isfinite(self.high) and self.low <= 0.0 and self.high >= 1.0):
             raise InputError(f"the accurate range [low, high] must contain 0 and 1, got [{self.low}, {self.high}]")
-        for name in ("max_iterations", "polish_iterations"):
+        for name in ("max_iterations", "polish_iterations", "max_keys"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
@@ -603,6 +618,21 @@ def check_keys(keys, faces, names=None):
     return K, topo
 
 
+def check_key_count(n_keys, options=None, raise_with="raise MixerOptions.max_keys"):
+    """:class:`MixerError` (one line: the count, the limit, :data:`KEYS_ADVICE` and ``raise_with``) when ``n_keys``
+    keys (the basis included) are more than a mixer with ``options`` takes (:attr:`MixerOptions.max_keys`).
+
+    Examples
+    --------
+    >>> check_key_count(7)                      # the basis and 6 keys
+    >>> check_key_count(8, MixerOptions(max_keys=7))
+    """
+    limit = (options or MixerOptions()).max_keys
+    if n_keys - 1 > limit:
+        raise MixerError(f"{n_keys - 1} keys to mix besides the basis: a mixer mixes at most {limit} ({KEYS_ADVICE}, "
+                         f"or {raise_with})")
+
+
 def check_masks(masks, relative_to, n_keys, n_vertices, names=None):
     """Validated masks and relative keys of a mixer's non-basis keys; raises naming the key and what to do.
 
@@ -813,6 +843,8 @@ class ShapeMixer:
         """
         if options is not None and not isinstance(options, MixerOptions):
             raise InputError(f"options must be MixerOptions, got {type(options).__name__}")
+        if hasattr(keys, "__len__"):
+            check_key_count(len(keys), options)
         watch = _Stopwatch()
         report(progress, 0, 4, "lengths and angles of the keys")
         with watch("setup"):
