@@ -75,8 +75,8 @@ from ..lacore.multiresolution import coarsen
 from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import (read_shape_keys, require_mesh_object, require_whole_keys, require_writable_keys, triangulate,
-                          world_to_object)
+from .mesh_access import (read_shape_keys, require_mesh_object, require_nondegenerate_keys, require_whole_keys,
+                          require_writable_keys, triangulate, world_to_object)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
@@ -212,8 +212,11 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
-    return {"names": names, "keys": list(keys), "poses": coords[[names.index(k) for k in keys]],
-            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes,
+    triangulation = triangulate(mesh)
+    poses = coords[[names.index(k) for k in keys]]
+    require_nondegenerate_keys(mesh, triangulation, keys, poses)
+    return {"names": names, "keys": list(keys), "poses": poses,
+            "faces": triangulation.faces, "reference": coords[0], "n_modes": n_modes,
             "coarse": coarse_vertices_for(len(mesh.vertices), coarse_vertices)}
 
 

@@ -270,6 +270,18 @@ def test_bad_input_changes_nothing(run, case, words):
         assert res["seconds"] < 1.0, res
 
 
+def test_build_model_names_a_degenerate_key(run):
+    """A training key with faces of no area (two vertices moved onto one): Build Model said "training mesh 1:
+    degenerate triangles ... faces ..." (the index among the training keys, triangle numbers, nothing to do).  Now
+    it names the shape key, the faces as Blender numbers them and what to do, in one line, and changes nothing."""
+    res = run["cases"]["bad_input"]["build_degenerate_key"]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"], res
+    msg = res["message"]
+    assert "shape key 'flat' has faces of no area" in msg and "training mesh" not in msg, msg
+    assert f"faces {', '.join(map(str, res['faces']))} (Blender face indices)" in msg, (msg, res["faces"])
+    assert "leave the key out (Shape Keys)" in msg and "\n" not in msg.strip(), msg
+
+
 @pytest.mark.parametrize("name", ["build_model", "bind_markers", "fit_markers"])
 def test_runs_show_progress_and_cancel_without_changes(run, name):
     """The one run mechanism (addon/runs.py) for Build / Bind (with ICP) / Fit: modal steps in the worker thread

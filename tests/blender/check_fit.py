@@ -299,6 +299,17 @@ def bad_input():
     dup.data.foreach_set("co", co)
     attempt("build_identical_keys", bpy.ops.lengths_angles.build_model, keys="train00, train01, dup")
     obj.shape_key_remove(dup)
+    # a key with two vertices collapsed onto one: the faces holding both have no area
+    flat = obj.shape_key_add(name="flat", from_mix=False)
+    faces = np.asarray(INPUTS["faces"])
+    a, b = (int(v) for v in faces[7][:2])
+    obj.data.shape_keys.key_blocks["train01"].data.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    co[b] = co[a]
+    flat.data.foreach_set("co", co.ravel())
+    attempt("build_degenerate_key", bpy.ops.lengths_angles.build_model, keys="train00, flat, train02")
+    out["build_degenerate_key"]["faces"] = np.flatnonzero((faces == a).any(1) & (faces == b).any(1)).tolist()
+    obj.shape_key_remove(flat)
     meta = obj.data["lengths_angles_model"].to_dict()
     del obj.data["lengths_angles_model"]
     attempt("no_model", bpy.ops.lengths_angles.fit_markers)
