@@ -1029,6 +1029,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         if obj.data.shape_keys is None:
             obj.shape_key_add(name="Basis", from_mix=False)
         kb = obj.shape_key_add(name=self.name, from_mix=False)
+        kb.value = 0.0  # as in Blender 4.2 (Blender 5 adds keys at 1: the pose on top of the preview's)
         kb.data.foreach_set("co", np.asarray(X, np.float32).ravel())
         obj.data.update()
         return {'FINISHED'}

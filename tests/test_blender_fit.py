@@ -94,6 +94,13 @@ def test_model_from_shape_keys_survives_reload(run, inputs):
     assert np.abs(run["arrays"]["preview"] - expected).max() < 1e-4
 
 
+def test_model_pose_key_starts_at_zero(run):
+    """Model Pose to Shape Key adds a key at value 0, relative to the basis, like the in-betweens: the mesh still
+    shows what it showed (the preview key's pose).  Blender 5 creates keys at 1, so there the new key was added on
+    top of the preview, showing the pose's displacement twice, while in 4.2 it was at 0."""
+    assert run["cases"]["whole_path"]["preview"]["pose_key"] == [0.0, "Basis"]
+
+
 def test_a_far_slider_pose_is_flagged_and_written(run):
     res = run["cases"]["whole_path"]
     model = ShapeModel.load(io.BytesIO(run["arrays"]["model_npz"].tobytes()))

@@ -89,6 +89,8 @@ def whole_path():
     preview_value = obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].value
     obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
     assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
+    pose_key = obj.data.shape_keys.key_blocks["mode1"]
+    pose_key_setup = [pose_key.value, pose_key.relative_key.name]
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["mode1"].data.foreach_get("co", co)
     OUT["mode1"] = co.reshape(-1, 3)
@@ -164,7 +166,7 @@ def whole_path():
     model = ext("addon.operators_fit").read_model(obj)
     np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
     return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3),
-                        "problems": problems},
+                        "problems": problems, "pose_key": pose_key_setup},
             "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
             "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
             "fit_seconds_per_frame": t_fit / T,
