@@ -75,8 +75,8 @@ from ..lacore.multiresolution import coarsen
 from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import (read_shape_keys, require_mesh_object, require_nondegenerate_keys, require_whole_keys,
-                          require_writable_keys, triangulate, world_to_object)
+from .mesh_access import (object_mode, read_shape_keys, require_mesh_object, require_nondegenerate_keys,
+                          require_whole_keys, require_writable_keys, triangulate, world_to_object)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
@@ -1015,6 +1015,13 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
+        if obj is None or obj.type != 'MESH':
+            return self.add_pose_key(obj)
+        with object_mode(obj):  # Edit Mode's edits reach the mesh first, and the new key stays on leaving it
+            return self.add_pose_key(obj)
+
+    def add_pose_key(self, obj):
+        """Add the pose of the sliders as a new key of ``obj`` (at value 0); an ERROR report if it cannot."""
         try:
             model = read_model(obj)
             require_writable_keys(obj.data, "add the model pose as a shape key")

@@ -351,6 +351,24 @@ def bad_input():
     bm.free()
     select_only(obj)
     attempt("mesh_edited", bpy.ops.lengths_angles.fit_markers)
+    # a vertex deleted in Edit Mode, Model Pose to Shape Key there
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    select_only(obj)
+    keys = [kb.name for kb in obj.data.shape_keys.key_blocks]
+    bpy.ops.object.mode_set(mode='EDIT')
+    bm = bmesh.from_edit_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.verts[0]], context='VERTS')
+    bmesh.update_edit_mesh(obj.data)
+    try:
+        res, msg = sorted(bpy.ops.lengths_angles.model_pose_to_shape_key(name="pose")), ""
+    except RuntimeError as exc:
+        res, msg = ["CANCELLED"], str(exc)
+    mode = obj.mode
+    bpy.ops.object.mode_set(mode='OBJECT')
+    out["pose_key_edit_mode_edited"] = {"result": res, "message": msg, "mode": mode,
+                                        "unchanged": [kb.name for kb in obj.data.shape_keys.key_blocks] == keys}
     return out
 
 
