@@ -722,6 +722,16 @@ def _pc2_path(filepath, obj, take):
     return filepath, path
 
 
+def require_frame_range(frame_start, frame_end):
+    """``(frame_start, frame_end)`` as integers; :class:`FitSetupError` saying what to do when End is before
+    Start."""
+    frame_start, frame_end = int(frame_start), int(frame_end)
+    if frame_end < frame_start:
+        raise FitSetupError(f"End {frame_end} is before Start {frame_start}: set End at or after Start, or use "
+                            "Scene Frame Range")
+    return frame_start, frame_end
+
+
 def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     """What a fit reads from Blender (validated): ``dict(model, binding, take, markers (T, M, 3) in the object's
     space, frames, filepath, path, labels, unkeyed)`` (``unkeyed``: the bound markers without keyed positions,
@@ -731,9 +741,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
         require_writable_keys(mesh, "fit to shape keys")
     model = read_model(obj)
     binding, take, labels = read_binding(obj)
-    frame_start, frame_end = int(frame_start), int(frame_end)
-    if frame_end < frame_start:
-        raise FitSetupError(f"empty frame range {frame_start}..{frame_end}")
+    frame_start, frame_end = require_frame_range(frame_start, frame_end)
     if output == 'SHAPE_KEYS' and frame_end - frame_start + 1 > MAX_SHAPE_KEY_FRAMES:
         raise FitSetupError(f"{frame_end - frame_start + 1} frames: shape keys are for clips of at most "
                             f"{MAX_SHAPE_KEY_FRAMES} frames, use the PC2 output")

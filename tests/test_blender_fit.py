@@ -268,6 +268,7 @@ def test_renamed_marker_empty_still_fits(run):
     ("not_bound", "no marker binding"), ("empty_deleted", "were deleted or unparented: bind again"),
     ("take_renamed", "the bound take 'take' is gone (deleted or renamed): name the take empty 'take' again"),
     ("mesh_edited", "edited after"), ("pose_key_edit_mode_edited", "edited after"),
+    ("range_reversed", "End 5 is before Start 10: set End at or after Start, or use Scene Frame Range"),
     ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files"),
     ("build_identical_keys", "shape keys 'train01' and 'dup' are identical")])
 def test_bad_input_changes_nothing(run, case, words):

@@ -291,6 +291,7 @@ def bad_input():
     select_only(obj)
     scene.frame_start, scene.frame_end = 1, T + 5
     attempt("take_too_short", bpy.ops.lengths_angles.fit_markers)
+    attempt("range_reversed", bpy.ops.lengths_angles.fit_markers, use_scene_range=False, frame_start=10, frame_end=5)
     scene.frame_end = T
     t0 = time.perf_counter()
     attempt("unwritable_cache", bpy.ops.lengths_angles.fit_markers, filepath="/proc/fit.pc2")
