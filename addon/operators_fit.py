@@ -474,17 +474,22 @@ def preview_pose(obj):
 
 
 def update_previews():
-    """Timer callback: recompute the previews of the objects whose sliders moved (rate limit)."""
+    """Timer callback: recompute the previews of the objects whose sliders moved (rate limit).  An object in Edit
+    Mode stays pending until it leaves it (leaving Edit Mode writes back the keys as they were on entering it, so a
+    preview written there would be lost); the timer then runs again after :data:`PREVIEW_INTERVAL`."""
     names = sorted(_PENDING_PREVIEWS)
     _PENDING_PREVIEWS.clear()
     for name in names:
         obj = bpy.data.objects.get(name)
         if obj is not None and obj.type == 'MESH' and MODEL_PROP in obj.data:
+            if obj.mode == 'EDIT':
+                _PENDING_PREVIEWS.add(name)
+                continue
             try:
                 preview_pose(obj)
             except InputError as exc:  # e.g. mesh edited since the model: no preview
                 print(f"Lengths & Angles preview of '{name}': {exc}")
-    return None
+    return PREVIEW_INTERVAL if _PENDING_PREVIEWS else None
 
 
 def _mode_weights_changed(obj, _context):

@@ -94,6 +94,16 @@ def test_model_from_shape_keys_survives_reload(run, inputs):
     assert np.abs(run["arrays"]["preview"] - expected).max() < 1e-4
 
 
+def test_slider_moved_in_edit_mode_previews_on_leaving_it(run):
+    """A slider moved in Edit Mode: the preview was written into the key there and undone on leaving Edit Mode (the
+    mesh showed the pose of the slider's previous value).  Now it waits for Object Mode and then shows the pose."""
+    res = run["cases"]["whole_path"]
+    assert res["preview"]["edit_pending"] == ["Body"]
+    model = ShapeModel.load(io.BytesIO(run["arrays"]["model_npz"].tobytes()))
+    expected = model.synthesize(np.eye(model.n_modes)[0] * model.standard_deviations)
+    assert np.abs(run["arrays"]["edit_mode_preview"] - expected).max() < 1e-4
+
+
 def test_model_pose_key_starts_at_zero(run):
     """Model Pose to Shape Key adds a key at value 0, relative to the basis, like the in-betweens: the mesh still
     shows what it showed (the preview key's pose).  Blender 5 creates keys at 1, so there the new key was added on

@@ -110,6 +110,18 @@ def whole_path():
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["far"].data.foreach_get("co", co)
     OUT["far"] = co.reshape(-1, 3)
+    # the slider moved back to 1 in Edit Mode: the preview waits for Object Mode (leaving Edit Mode writes back the
+    # keys as they were on entering it)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='EDIT')
+    obj.lengths_angles_mode_weights[0] = 1.0
+    fit.update_previews()
+    edit_pending = sorted(fit._PENDING_PREVIEWS)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    fit.update_previews()
+    obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
+    OUT["edit_mode_preview"] = co.reshape(-1, 3)
     obj.shape_key_remove(obj.data.shape_keys.key_blocks["far"])
     obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
     obj.lengths_angles_mode_weights[0] = 1.0
@@ -166,7 +178,7 @@ def whole_path():
     model = ext("addon.operators_fit").read_model(obj)
     np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
     return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3),
-                        "problems": problems, "pose_key": pose_key_setup},
+                        "problems": problems, "pose_key": pose_key_setup, "edit_pending": edit_pending},
             "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
             "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
             "fit_seconds_per_frame": t_fit / T,
