@@ -191,6 +191,7 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
     """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes,
     coarse)`` (``coarse``: vertices of the coarse level, 0 for none; :func:`coarse_vertices_for`)."""
     mesh = require_mesh_object(obj)
+    require_writable_keys(mesh, "build the shape model")  # the model is stored with the mesh
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
     names, coords = read_shape_keys(mesh)

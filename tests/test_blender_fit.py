@@ -253,13 +253,16 @@ def test_library_meshes(run):
     """'Body' linked into a shot as a library override, its mesh linked or an override too.  Without the check, Fit
     with the Shape Keys output and Model Pose to Shape Key FINISHED there with keys equal to the basis (the bulk write
     dropped), gone when the shot was saved and opened again (bpy 4.2 and 5.2).  Now both are refused in one line
-    naming the mesh, the library and what to do, and change nothing; the Point Cache output (a modifier of the override
-    object) fits and shows the same fitted shape after the shot is saved and opened again."""
+    naming the mesh, the library and what to do, and change nothing.  Build Shape Model FINISHED there too, and the
+    model was gone when the shot was opened again (stored with a mesh the shot takes from the library): refused the
+    same way.  The Point Cache output (a modifier of the override object) fits and shows the same fitted shape after
+    the shot is saved and opened again."""
     res = run["cases"]["library_meshes"]
     assert res["linked"]["mesh"] == [True, False] and res["override"]["mesh"] == [False, True]
     for kind, lead in (("linked", "is linked from '"), ("override", "is a library override of '")):
         got = res[kind]
-        for what, verb in (("shape_keys", "fit to shape keys"), ("pose_key", "add the model pose as a shape key")):
+        for what, verb in (("shape_keys", "fit to shape keys"), ("pose_key", "add the model pose as a shape key"),
+                           ("build_model", "build the shape model")):
             msg = got[what]
             assert msg.startswith(f"mesh 'Body' {lead}") and "body_library.blend'" in msg, msg
             assert f"{verb} in that file" in msg and "Make Local > Selected Objects and Data" in msg, msg

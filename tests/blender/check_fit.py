@@ -1584,7 +1584,8 @@ def library_meshes():
         got = {"mesh": [obj.data.library is not None, obj.data.override_library is not None]}
         for name, op, kw in (("shape_keys", bpy.ops.lengths_angles.fit_markers,
                               {"output": 'SHAPE_KEYS', "use_scene_range": False, "frame_start": 2, "frame_end": 4}),
-                             ("pose_key", bpy.ops.lengths_angles.model_pose_to_shape_key, {"name": "pose"})):
+                             ("pose_key", bpy.ops.lengths_angles.model_pose_to_shape_key, {"name": "pose"}),
+                             ("build_model", bpy.ops.lengths_angles.build_model, {})):
             before = state(obj)
             try:
                 got[name] = sorted(op(**kw))
