@@ -120,6 +120,7 @@ def whole_path():
     with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
         bpy.ops.object.mode_set(mode='OBJECT')
     fit.update_previews()
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
     OUT["edit_mode_preview"] = co.reshape(-1, 3)
     obj.shape_key_remove(obj.data.shape_keys.key_blocks["far"])
