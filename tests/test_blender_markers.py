@@ -165,7 +165,7 @@ def test_import_from_edit_mode(run):
     """Importing while a mesh is in Edit Mode made the take active and left the mesh in Edit Mode behind it (the
     context in Object Mode, the Edit Mode edits not yet in the mesh); now the mesh leaves Edit Mode first, as with
     Blender's own importers."""
-    res = run["cases"]["import_from_edit_mode"]
+    res = {k: v for k, v in run["cases"]["import_from_edit_mode"].items() if k != "seconds"}
     assert res == {"result": ["FINISHED"], "active": "Walk1", "context_mode": "OBJECT", "modes": ["OBJECT"],
                    "cube_selected": False}, res
 
