@@ -23,10 +23,12 @@ import hashlib
 import numpy as np
 
 from ..lacore.errors import InputError, MeshError
+from ..lacore.geometry.lengths_angles import degenerate_faces
+from ..lacore.geometry.topology import MeshTopology
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
-           "require_whole_keys", "require_writable_keys", "linked_from", "override_from", "write_shape_key",
-           "set_shape_key", "key_names", "require_mesh_object", "key_block_array",
+           "require_whole_keys", "require_nondegenerate_keys", "require_writable_keys", "linked_from", "override_from",
+           "write_shape_key", "set_shape_key", "key_names", "require_mesh_object", "key_block_array",
            "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
 
 
@@ -247,6 +249,21 @@ def require_whole_keys(mesh, names, what):
         raise MeshAccessError(f"{what}: shape key '{name}' {why}, so it shows other than its stored shape; make a "
                               "key of what it shows (set its value to 1, the others to 0, then Shape Keys > New Shape "
                               "from Mix) and use that")
+
+
+def require_nondegenerate_keys(mesh, triangulation, names, coords):
+    """:class:`MeshAccessError` naming the first shape key of ``names`` (rows of ``coords``, vertices ``(V, 3)``
+    each) with faces of no area (:func:`lacore.geometry.lengths_angles.degenerate_faces` of the fan triangles of
+    ``triangulation``), and those faces as Blender numbers them."""
+    topology = MeshTopology.from_faces(triangulation.faces, n_vertices=triangulation.n_vertices,
+                                       allow_unreferenced=True)  # loose vertices: named where they matter
+    for name, X in zip(names, coords, strict=True):
+        bad = degenerate_faces(np.asarray(X, np.float64), topology)
+        if bad.size:
+            polys = np.unique(triangulation.face_polygon[bad])
+            raise MeshAccessError(f"shape key '{name}' has faces of no area (or needle-thin): faces {_fmt(polys)} "
+                                  "(Blender face indices); move their vertices apart in that key, or leave the key "
+                                  "out (Shape Keys)")
 
 
 def linked_from(mesh):

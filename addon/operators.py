@@ -10,7 +10,7 @@ from bpy.props import StringProperty
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
 from . import bake, live_mix, session, storage
-from .mesh_access import object_mode, require_mesh_object
+from .mesh_access import object_mode, require_mesh_object, require_writable_keys
 from .fit_quality import remove_quality
 from .operators_fit import BINDING_PROP, remove_model
 from .operators_calibrate import remove_calibration
@@ -142,7 +142,7 @@ class LENGTHS_ANGLES_OT_remove_data(bpy.types.Operator):
     def execute(self, context):
         obj = context.object
         try:
-            require_mesh_object(obj)
+            require_writable_keys(require_mesh_object(obj), "remove the Lengths & Angles data")
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}

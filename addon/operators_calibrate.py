@@ -54,7 +54,8 @@ from .mesh_access import require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
-                            nonuniform_scale_note, read_model, recorded_settings, require_still, typed)
+                            nonuniform_scale_note, read_model, recorded_settings, require_frame_range,
+                            require_still, typed)
 from .operators_markers import (TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate, unkeyed_markers,
                                 unkeyed_note)
 from .operators_pins import PLACEMENT_PROP, pins_of
@@ -277,6 +278,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             raise FitSetupError(f"'{obj.name}' has no shape model and cannot build one ({exc}): add pose shape "
                                 "keys or run Build Model") from exc
         model = None
+    frame_start, frame_end = require_frame_range(frame_start, frame_end)
     meta = take[TAKE_PROP]
     import_scale = float(meta.get("scale", 0.0))
     first = float(meta["frame_start"])

@@ -75,8 +75,8 @@ from ..lacore.multiresolution import coarsen
 from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import (read_shape_keys, require_mesh_object, require_whole_keys, require_writable_keys, triangulate,
-                          world_to_object)
+from .mesh_access import (object_mode, read_shape_keys, require_mesh_object, require_nondegenerate_keys,
+                          require_whole_keys, require_writable_keys, triangulate, world_to_object)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
@@ -191,6 +191,7 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
     """What building a model of ``obj`` reads (validated): ``dict(names, keys, poses, faces, reference, n_modes,
     coarse)`` (``coarse``: vertices of the coarse level, 0 for none; :func:`coarse_vertices_for`)."""
     mesh = require_mesh_object(obj)
+    require_writable_keys(mesh, "build the shape model")  # the model is stored with the mesh
     if obj.mode == 'EDIT':
         obj.update_from_editmode()
     names, coords = read_shape_keys(mesh)
@@ -212,8 +213,11 @@ def _model_inputs(obj, keys=None, n_modes=None, coarse_vertices=-1):
     n_modes = int(n_modes) if n_modes else min(len(keys) - 1, MAX_MODES)
     if n_modes > len(keys) - 1:
         raise FitSetupError(f"{n_modes} modes from {len(keys)} training keys: at most {len(keys) - 1}")
-    return {"names": names, "keys": list(keys), "poses": coords[[names.index(k) for k in keys]],
-            "faces": triangulate(mesh).faces, "reference": coords[0], "n_modes": n_modes,
+    triangulation = triangulate(mesh)
+    poses = coords[[names.index(k) for k in keys]]
+    require_nondegenerate_keys(mesh, triangulation, keys, poses)
+    return {"names": names, "keys": list(keys), "poses": poses,
+            "faces": triangulation.faces, "reference": coords[0], "n_modes": n_modes,
             "coarse": coarse_vertices_for(len(mesh.vertices), coarse_vertices)}
 
 
@@ -471,17 +475,22 @@ def preview_pose(obj):
 
 
 def update_previews():
-    """Timer callback: recompute the previews of the objects whose sliders moved (rate limit)."""
+    """Timer callback: recompute the previews of the objects whose sliders moved (rate limit).  An object in Edit
+    Mode stays pending until it leaves it (leaving Edit Mode writes back the keys as they were on entering it, so a
+    preview written there would be lost); the timer then runs again after :data:`PREVIEW_INTERVAL`."""
     names = sorted(_PENDING_PREVIEWS)
     _PENDING_PREVIEWS.clear()
     for name in names:
         obj = bpy.data.objects.get(name)
         if obj is not None and obj.type == 'MESH' and MODEL_PROP in obj.data:
+            if obj.mode == 'EDIT':
+                _PENDING_PREVIEWS.add(name)
+                continue
             try:
                 preview_pose(obj)
             except InputError as exc:  # e.g. mesh edited since the model: no preview
                 print(f"Lengths & Angles preview of '{name}': {exc}")
-    return None
+    return PREVIEW_INTERVAL if _PENDING_PREVIEWS else None
 
 
 def _mode_weights_changed(obj, _context):
@@ -719,6 +728,16 @@ def _pc2_path(filepath, obj, take):
     return filepath, path
 
 
+def require_frame_range(frame_start, frame_end):
+    """``(frame_start, frame_end)`` as integers; :class:`FitSetupError` saying what to do when End is before
+    Start."""
+    frame_start, frame_end = int(frame_start), int(frame_end)
+    if frame_end < frame_start:
+        raise FitSetupError(f"End {frame_end} is before Start {frame_start}: set End at or after Start, or use "
+                            "Scene Frame Range")
+    return frame_start, frame_end
+
+
 def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     """What a fit reads from Blender (validated): ``dict(model, binding, take, markers (T, M, 3) in the object's
     space, frames, filepath, path, labels, unkeyed)`` (``unkeyed``: the bound markers without keyed positions,
@@ -728,9 +747,7 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
         require_writable_keys(mesh, "fit to shape keys")
     model = read_model(obj)
     binding, take, labels = read_binding(obj)
-    frame_start, frame_end = int(frame_start), int(frame_end)
-    if frame_end < frame_start:
-        raise FitSetupError(f"empty frame range {frame_start}..{frame_end}")
+    frame_start, frame_end = require_frame_range(frame_start, frame_end)
     if output == 'SHAPE_KEYS' and frame_end - frame_start + 1 > MAX_SHAPE_KEY_FRAMES:
         raise FitSetupError(f"{frame_end - frame_start + 1} frames: shape keys are for clips of at most "
                             f"{MAX_SHAPE_KEY_FRAMES} frames, use the PC2 output")
@@ -1012,6 +1029,13 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
+        if obj is None or obj.type != 'MESH':
+            return self.add_pose_key(obj)
+        with object_mode(obj):  # Edit Mode's edits reach the mesh first, and the new key stays on leaving it
+            return self.add_pose_key(obj)
+
+    def add_pose_key(self, obj):
+        """Add the pose of the sliders as a new key of ``obj`` (at value 0); an ERROR report if it cannot."""
         try:
             model = read_model(obj)
             require_writable_keys(obj.data, "add the model pose as a shape key")
@@ -1026,6 +1050,7 @@ class LENGTHS_ANGLES_OT_model_pose_to_shape_key(bpy.types.Operator):
         if obj.data.shape_keys is None:
             obj.shape_key_add(name="Basis", from_mix=False)
         kb = obj.shape_key_add(name=self.name, from_mix=False)
+        kb.value = 0.0  # as in Blender 4.2 (Blender 5 adds keys at 1: the pose on top of the preview's)
         kb.data.foreach_set("co", np.asarray(X, np.float32).ravel())
         obj.data.update()
         return {'FINISHED'}

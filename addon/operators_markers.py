@@ -482,6 +482,8 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         except InputError as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
+        if context.mode != 'OBJECT' and bpy.ops.object.mode_set.poll():  # as Blender's importers: the active
+            bpy.ops.object.mode_set(mode='OBJECT')  # object leaves Edit (or Pose) Mode before the take becomes active
         for obj in context.view_layer.objects.selected:
             obj.select_set(False)
         for take_obj, _markers in made:

@@ -51,7 +51,7 @@ from bpy.props import BoolProperty
 from ..lacore.errors import InputError
 from ..lacore.parallel import close_workers
 from . import jobs
-from .mesh_access import connectivity_digest, mesh_counts
+from .mesh_access import connectivity_digest, mesh_counts, object_mode
 
 __all__ = ["Run", "ObjectWatch", "RunOperator", "ChangedWhileRunning", "failure_warning", "error_text",
            "shutdown", "object_state", "TIMER_SECONDS", "NOTHING_WRITTEN"]
@@ -237,10 +237,15 @@ class Run:
         return "; ".join(t.rstrip(" .;") for t in texts if t) or None
 
     def finish(self):
-        """Check the watch and write the results; returns the report text."""
+        """Check the watch and write the results (a mesh in Edit Mode in Object Mode, and back: shape keys added or
+        removed in Edit Mode are undone on leaving it); returns the report text."""
         if self.cancelled or not self.finished:
             raise RuntimeError("finish() before the job has finished")
-        return self._write(self.watch.check(), self.job)
+        obj = self.watch.check()
+        if obj.type != 'MESH':
+            return self._write(obj, self.job)
+        with object_mode(obj):
+            return self._write(obj, self.job)
 
 
 _EXECUTOR = []

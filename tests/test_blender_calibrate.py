@@ -172,6 +172,7 @@ def test_a_marker_with_cleared_animation_is_left_out(run):
                            "(Pose Mode: Pose > Animation > Clear Keyframes) and place it once"),
     ("placed_not_over", "Placement is As Placed and the character is not over the markers of 'take' at frame 1 "
                         "(median distance"),
+    ("range_reversed", "End 5 is before Start 10: set End at or after Start, or use Scene Frame Range"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
                        "(0.3, 0.1)"),
     ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),

@@ -94,6 +94,23 @@ def test_model_from_shape_keys_survives_reload(run, inputs):
     assert np.abs(run["arrays"]["preview"] - expected).max() < 1e-4
 
 
+def test_slider_moved_in_edit_mode_previews_on_leaving_it(run):
+    """A slider moved in Edit Mode: the preview was written into the key there and undone on leaving Edit Mode (the
+    mesh showed the pose of the slider's previous value).  Now it waits for Object Mode and then shows the pose."""
+    res = run["cases"]["whole_path"]
+    assert res["preview"]["edit_pending"] == ["Body"]
+    model = ShapeModel.load(io.BytesIO(run["arrays"]["model_npz"].tobytes()))
+    expected = model.synthesize(np.eye(model.n_modes)[0] * model.standard_deviations)
+    assert np.abs(run["arrays"]["edit_mode_preview"] - expected).max() < 1e-4
+
+
+def test_model_pose_key_starts_at_zero(run):
+    """Model Pose to Shape Key adds a key at value 0, relative to the basis, like the in-betweens: the mesh still
+    shows what it showed (the preview key's pose).  Blender 5 creates keys at 1, so there the new key was added on
+    top of the preview, showing the pose's displacement twice, while in 4.2 it was at 0."""
+    assert run["cases"]["whole_path"]["preview"]["pose_key"] == [0.0, "Basis"]
+
+
 def test_a_far_slider_pose_is_flagged_and_written(run):
     res = run["cases"]["whole_path"]
     model = ShapeModel.load(io.BytesIO(run["arrays"]["model_npz"].tobytes()))
@@ -220,6 +237,10 @@ def test_shape_key_output(run):
     assert again["shows_key"] < 1e-5 * again["size"], again
     assert again["evaluated_change"] < 1e-3 * again["size"], again
     # a training key left at 0.4 moves the shown mesh off the fit (measured 2.0 of a 15.5-unit body): the report warns
+    # fitting again in Edit Mode (frames 3-5): the keys removed there came back on leaving it (in Blender 5.2 with
+    # another key's coordinates in a neighbour); now the run writes in Object Mode and returns to Edit Mode
+    assert again["edit_mode"] == {"result": ["FINISHED"], "mode": "EDIT", "others_kept": True,
+                                  "names": ["LA fit 3", "LA fit 4", "LA fit 5"]}, again["edit_mode"]
     assert again["note_off"] is None and again["note_muted"] is None, again
     assert again["on_shown_vs_key"] > 1e-2 * again["size"], again
     assert again["note_on"] == ("the shape keys 'train01' of 'Body' are on (a value other than 0, keyed or driven) "
@@ -232,13 +253,16 @@ def test_library_meshes(run):
     """'Body' linked into a shot as a library override, its mesh linked or an override too.  Without the check, Fit
     with the Shape Keys output and Model Pose to Shape Key FINISHED there with keys equal to the basis (the bulk write
     dropped), gone when the shot was saved and opened again (bpy 4.2 and 5.2).  Now both are refused in one line
-    naming the mesh, the library and what to do, and change nothing; the Point Cache output (a modifier of the override
-    object) fits and shows the same fitted shape after the shot is saved and opened again."""
+    naming the mesh, the library and what to do, and change nothing.  Build Shape Model FINISHED there too, and the
+    model was gone when the shot was opened again (stored with a mesh the shot takes from the library): refused the
+    same way.  The Point Cache output (a modifier of the override object) fits and shows the same fitted shape after
+    the shot is saved and opened again."""
     res = run["cases"]["library_meshes"]
     assert res["linked"]["mesh"] == [True, False] and res["override"]["mesh"] == [False, True]
     for kind, lead in (("linked", "is linked from '"), ("override", "is a library override of '")):
         got = res[kind]
-        for what, verb in (("shape_keys", "fit to shape keys"), ("pose_key", "add the model pose as a shape key")):
+        for what, verb in (("shape_keys", "fit to shape keys"), ("pose_key", "add the model pose as a shape key"),
+                           ("build_model", "build the shape model")):
             msg = got[what]
             assert msg.startswith(f"mesh 'Body' {lead}") and "body_library.blend'" in msg, msg
             assert f"{verb} in that file" in msg and "Make Local > Selected Objects and Data" in msg, msg
@@ -260,14 +284,29 @@ def test_renamed_marker_empty_still_fits(run):
     ("bind_occluded", "only 0 of the 3 markers are visible at frame 3"),
     ("not_bound", "no marker binding"), ("empty_deleted", "were deleted or unparented: bind again"),
     ("take_renamed", "the bound take 'take' is gone (deleted or renamed): name the take empty 'take' again"),
-    ("mesh_edited", "edited after"),
+    ("mesh_edited", "edited after"), ("pose_key_edit_mode_edited", "edited after"),
+    ("range_reversed", "End 5 is before Start 10: set End at or after Start, or use Scene Frame Range"),
     ("unwritable_cache", "Cache File: cannot write /proc/fit.pc2: its folder takes no new files"),
     ("build_identical_keys", "shape keys 'train01' and 'dup' are identical")])
 def test_bad_input_changes_nothing(run, case, words):
     res = run["cases"]["bad_input"][case]
     assert res["result"] == ["CANCELLED"] and words in res["message"] and res["unchanged"], res
+    if case == "pose_key_edit_mode_edited":  # a vertex deleted in Edit Mode: was FINISHED, the pose cut to fit
+        assert res["mode"] == "EDIT", res
     if case == "unwritable_cache":      # refused before fitting (a fit of the take: seconds); measured 0.01 s
         assert res["seconds"] < 1.0, res
+
+
+def test_build_model_names_a_degenerate_key(run):
+    """A training key with faces of no area (two vertices moved onto one): Build Model said "training mesh 1:
+    degenerate triangles ... faces ..." (the index among the training keys, triangle numbers, nothing to do).  Now
+    it names the shape key, the faces as Blender numbers them and what to do, in one line, and changes nothing."""
+    res = run["cases"]["bad_input"]["build_degenerate_key"]
+    assert res["result"] == ["CANCELLED"] and res["unchanged"], res
+    msg = res["message"]
+    assert "shape key 'flat' has faces of no area" in msg and "training mesh" not in msg, msg
+    assert f"faces {', '.join(map(str, res['faces']))} (Blender face indices)" in msg, (msg, res["faces"])
+    assert "leave the key out (Shape Keys)" in msg and "\n" not in msg.strip(), msg
 
 
 @pytest.mark.parametrize("name", ["build_model", "bind_markers", "fit_markers"])

@@ -104,13 +104,16 @@ def test_errors_leave_object_unchanged(run):
 def test_library_meshes_refused(run):
     """A mesh linked from a library, or a library override (the bar linked into a shot as a collection made a
     library override): without the check, In-betweens and Bake FINISHED there, added keys equal to the basis (the bulk
-    write dropped) and the keys were gone when the shot was saved and opened again (bpy 4.2 and 5.2).  Now they and
-    Clear Bake are refused in one line naming the mesh, the library and what to do, and the keys stay as they were."""
+    write dropped) and the keys were gone when the shot was saved and opened again (bpy 4.2 and 5.2).  Now they,
+    Clear Bake and Remove Data (which FINISHED there, reporting the bake, encoding and model removed from a mesh
+    whose data the shot takes from the library) are refused in one line naming the mesh, the library and what to
+    do, and the keys stay as they were."""
     res = run["cases"]["library_meshes"]
     assert res["linked_mesh"] == [True, False] and res["override_mesh"] == [False, True]
     for kind in ("linked", "override"):
         assert res[f"{kind}_keys"] == ["Basis", "Bend180", "SimpleDeform90", "LA bake 002"]  # baked in the library
-        for what, verb in (("interpolate", "make the in-betweens"), ("bake", "bake"), ("clear_bake", "clear the bake")):
+        for what, verb in (("interpolate", "make the in-betweens"), ("bake", "bake"), ("clear_bake", "clear the bake"),
+                           ("remove_data", "remove the Lengths & Angles data")):
             msg = res[f"{kind}_{what}"]
             lead = "is linked from '" if kind == "linked" else "is a library override of '"
             assert msg.startswith(f"mesh 'Bar' {lead}") and msg.count("bar_library.blend'") == 1, msg

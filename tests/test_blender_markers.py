@@ -161,6 +161,15 @@ def test_several_files(run):
     assert res["mid_way_unchanged"]
 
 
+def test_import_from_edit_mode(run):
+    """Importing while a mesh is in Edit Mode made the take active and left the mesh in Edit Mode behind it (the
+    context in Object Mode, the Edit Mode edits not yet in the mesh); now the mesh leaves Edit Mode first, as with
+    Blender's own importers."""
+    res = {k: v for k, v in run["cases"]["import_from_edit_mode"].items() if k != "seconds"}
+    assert res == {"result": ["FINISHED"], "active": "Walk1", "context_mode": "OBJECT", "modes": ["OBJECT"],
+                   "cube_selected": False}, res
+
+
 def test_save_and_reload(run):
     res = run["cases"]["save_and_reload"]
     assert res["markers"] == 30 and res["max_abs_key_error"] < FLOAT32_METRES

@@ -294,6 +294,7 @@ def bad_input():
 
     obj, take = open_scene()
     attempt("outside_take", obj, use_scene_range=False, frame_start=1000, frame_end=1010)
+    attempt("range_reversed", obj, use_scene_range=False, frame_start=10, frame_end=5)
     attempt("radii_reversed", obj, observed_radius=(0.3, 0.1))
     obj.lengths_angles_placement = 'PLACED'       # the character stands at the origin, the performer elsewhere
     attempt("placed_not_over", obj)

@@ -89,6 +89,8 @@ def whole_path():
     preview_value = obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].value
     obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
     assert bpy.ops.lengths_angles.model_pose_to_shape_key(name="mode1") == {"FINISHED"}
+    pose_key = obj.data.shape_keys.key_blocks["mode1"]
+    pose_key_setup = [pose_key.value, pose_key.relative_key.name]
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["mode1"].data.foreach_get("co", co)
     OUT["mode1"] = co.reshape(-1, 3)
@@ -108,6 +110,19 @@ def whole_path():
     co = np.empty(3 * len(obj.data.vertices), np.float32)
     obj.data.shape_keys.key_blocks["far"].data.foreach_get("co", co)
     OUT["far"] = co.reshape(-1, 3)
+    # the slider moved back to 1 in Edit Mode: the preview waits for Object Mode (leaving Edit Mode writes back the
+    # keys as they were on entering it)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='EDIT')
+    obj.lengths_angles_mode_weights[0] = 1.0
+    fit.update_previews()
+    edit_pending = sorted(fit._PENDING_PREVIEWS)
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    fit.update_previews()
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY].data.foreach_get("co", co)
+    OUT["edit_mode_preview"] = co.reshape(-1, 3)
     obj.shape_key_remove(obj.data.shape_keys.key_blocks["far"])
     obj.shape_key_remove(obj.data.shape_keys.key_blocks[fit.PREVIEW_KEY])
     obj.lengths_angles_mode_weights[0] = 1.0
@@ -164,7 +179,7 @@ def whole_path():
     model = ext("addon.operators_fit").read_model(obj)
     np.savez(os.path.join(ARGS.workdir, "blender_fit.npz"), **OUT)
     return {"preview": {"pending": pending, "value": preview_value, "seconds": round(t_preview, 3),
-                        "problems": problems},
+                        "problems": problems, "pose_key": pose_key_setup, "edit_pending": edit_pending},
             "n_keys": n_keys, "n_modes": int(meta["n_modes"]), "model_keys": list(meta["keys"]),
             "model_seconds": round(t_model, 3), "fit_seconds": round(t_fit, 3), "frames": int(T),
             "fit_seconds_per_frame": t_fit / T,
@@ -247,6 +262,30 @@ def shape_key_output():
              "shows_key": float(np.abs(first - key3.reshape(-1, 3)).max()),
              "size": float(np.ptp(first, axis=0).max()), "modifier": "LA Fit" in obj.modifiers,
              "had_modifier": had_modifier}
+    # fitting frames 3..5 again from Edit Mode: the keys of frames 2..4 go and stay gone on leaving it, the other keys
+    # keep their coordinates
+    def key_bytes():
+        out = {}
+        for kb in obj.data.shape_keys.key_blocks:
+            co = np.empty(3 * len(kb.data), np.float32)
+            kb.data.foreach_get("co", co)
+            out[kb.name] = co.tobytes()
+        return out
+    before_edit = key_bytes()
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='EDIT')
+    result = sorted(bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=3,
+                                                       frame_end=5))
+    mode = obj.mode
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj]):
+        bpy.ops.object.mode_set(mode='OBJECT')
+    after_edit = key_bytes()
+    again["edit_mode"] = {"result": result, "mode": mode, "names": list(after_edit)[n_before:],
+                          "others_kept": all(after_edit[n] == before_edit[n] for n in list(before_edit)[:n_before])}
+    assert bpy.ops.lengths_angles.fit_markers(output='SHAPE_KEYS', use_scene_range=False, frame_start=2,
+                                              frame_end=4) == {"FINISHED"}
+    scene.frame_set(2)
+    scene.frame_set(3)
     # a training key left on adds to the fitted keys: the fit's report says so (keys_on_note)
     fit_ops = ext("addon.operators_fit")
     again["note_off"] = fit_ops.keys_on_note(obj)
@@ -289,6 +328,7 @@ def bad_input():
     select_only(obj)
     scene.frame_start, scene.frame_end = 1, T + 5
     attempt("take_too_short", bpy.ops.lengths_angles.fit_markers)
+    attempt("range_reversed", bpy.ops.lengths_angles.fit_markers, use_scene_range=False, frame_start=10, frame_end=5)
     scene.frame_end = T
     t0 = time.perf_counter()
     attempt("unwritable_cache", bpy.ops.lengths_angles.fit_markers, filepath="/proc/fit.pc2")
@@ -299,6 +339,17 @@ def bad_input():
     dup.data.foreach_set("co", co)
     attempt("build_identical_keys", bpy.ops.lengths_angles.build_model, keys="train00, train01, dup")
     obj.shape_key_remove(dup)
+    # a key with two vertices collapsed onto one: the faces holding both have no area
+    flat = obj.shape_key_add(name="flat", from_mix=False)
+    faces = np.asarray(INPUTS["faces"])
+    a, b = (int(v) for v in faces[7][:2])
+    obj.data.shape_keys.key_blocks["train01"].data.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    co[b] = co[a]
+    flat.data.foreach_set("co", co.ravel())
+    attempt("build_degenerate_key", bpy.ops.lengths_angles.build_model, keys="train00, flat, train02")
+    out["build_degenerate_key"]["faces"] = np.flatnonzero((faces == a).any(1) & (faces == b).any(1)).tolist()
+    obj.shape_key_remove(flat)
     meta = obj.data["lengths_angles_model"].to_dict()
     del obj.data["lengths_angles_model"]
     attempt("no_model", bpy.ops.lengths_angles.fit_markers)
@@ -338,6 +389,24 @@ def bad_input():
     bm.free()
     select_only(obj)
     attempt("mesh_edited", bpy.ops.lengths_angles.fit_markers)
+    # a vertex deleted in Edit Mode, Model Pose to Shape Key there
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(ARGS.workdir, "fit.blend"))
+    obj = bpy.data.objects["Body"]
+    select_only(obj)
+    keys = [kb.name for kb in obj.data.shape_keys.key_blocks]
+    bpy.ops.object.mode_set(mode='EDIT')
+    bm = bmesh.from_edit_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.verts[0]], context='VERTS')
+    bmesh.update_edit_mesh(obj.data)
+    try:
+        res, msg = sorted(bpy.ops.lengths_angles.model_pose_to_shape_key(name="pose")), ""
+    except RuntimeError as exc:
+        res, msg = ["CANCELLED"], str(exc)
+    mode = obj.mode
+    bpy.ops.object.mode_set(mode='OBJECT')
+    out["pose_key_edit_mode_edited"] = {"result": res, "message": msg, "mode": mode,
+                                        "unchanged": [kb.name for kb in obj.data.shape_keys.key_blocks] == keys}
     return out
 
 
@@ -1516,7 +1585,8 @@ def library_meshes():
         got = {"mesh": [obj.data.library is not None, obj.data.override_library is not None]}
         for name, op, kw in (("shape_keys", bpy.ops.lengths_angles.fit_markers,
                               {"output": 'SHAPE_KEYS', "use_scene_range": False, "frame_start": 2, "frame_end": 4}),
-                             ("pose_key", bpy.ops.lengths_angles.model_pose_to_shape_key, {"name": "pose"})):
+                             ("pose_key", bpy.ops.lengths_angles.model_pose_to_shape_key, {"name": "pose"}),
+                             ("build_model", bpy.ops.lengths_angles.build_model, {})):
             before = state(obj)
             try:
                 got[name] = sorted(op(**kw))

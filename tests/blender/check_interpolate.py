@@ -630,8 +630,8 @@ def processes_side_by_side():
 def library_meshes():
     """The bar saved in a library and linked into a shot as a library override, its mesh left linked or made an
     override too (where Blender keeps neither added keys nor bulk writes into keys when the shot is saved): In-betweens,
-    Bake and Clear Bake (of a bake made in the library) are refused in one line naming the mesh, the library and Make
-    Local, and change nothing."""
+    Bake, Clear Bake and Remove Data (of a bake made in the library) are refused in one line naming the mesh, the
+    library and Make Local, and change nothing."""
     reset()
     library = os.path.join(ARGS.workdir, "bar_library.blend")
     obj = bar_with_keys()
@@ -642,8 +642,13 @@ def library_meshes():
         with ops_context(obj):
             return bpy.ops.lengths_angles.clear_bake()
 
+    def remove_data(obj):
+        with ops_context(obj):
+            return bpy.ops.lengths_angles.remove_data()
+
     runs = {"interpolate": lambda o: interpolate(o, key_from="Basis", key_to="Bend180", factors="0.5"),
-            "bake": lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), "clear_bake": clear}
+            "bake": lambda o: bake(o, keys="Basis, Bend180", frames="1 9"), "clear_bake": clear,
+            "remove_data": remove_data}
     out = {}
     for mesh_kind in ("linked", "override"):
         reset()

@@ -170,6 +170,21 @@ def real_files():
     return {"files": out}
 
 
+def import_from_edit_mode():
+    """A mesh in Edit Mode (active) when a take is imported: the take becomes the active object in Object Mode."""
+    reset()
+    mesh = bpy.data.meshes.new("Cube")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [], [(0, 1, 2, 3)])
+    cube = bpy.data.objects.new("Cube", mesh)
+    bpy.context.scene.collection.objects.link(cube)
+    bpy.context.view_layer.objects.active = cube
+    cube.select_set(True)
+    bpy.ops.object.mode_set(mode='EDIT')
+    result = sorted(import_markers(os.path.join(MOCAP, "Walk1.c3d")))
+    return {"result": result, "active": bpy.context.view_layer.objects.active.name, "context_mode": bpy.context.mode,
+            "modes": sorted({o.mode for o in bpy.context.view_layer.objects}), "cube_selected": cube.select_get()}
+
+
 def not_markers(name):
     """``[[label, reason]]`` of the points the take empty ``name`` records as no skin markers."""
     return [[str(v) for v in pair] for pair in bpy.data.objects[name]["lengths_angles_take"]["not_markers"]]
@@ -517,4 +532,4 @@ def speed():
 
 if __name__ == "__main__":
     run_cases([install_and_enable, real_files, options, read_take_cases, take_time, cleared_markers,
-               errors_create_nothing, several_files, save_and_reload, speed])
+               errors_create_nothing, several_files, save_and_reload, import_from_edit_mode, speed])
