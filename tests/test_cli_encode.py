@@ -153,6 +153,9 @@ def _write(path, text):
     ("nonmanifold.obj", "non-manifold"),
     ("degenerate.obj", "degenerate"),
     ("empty.off", "no faces"),
+    # a point cloud: used to be called truncated ("holds 0 vertices") though it holds its 3 vertices
+    ("points.ply", "has no faces"),
+    ("points_no_face_element.ply", "has no faces"),
     ("notamesh.txt", "unsupported"),
     ("garbage.ply", "not a ply"),
     ("badindex.obj", "outside"),
@@ -167,6 +170,9 @@ def test_bad_meshes_exit_code_2(case, fragment, tmp_path, capsys):
         "nonmanifold.obj": "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 0 1\nf 1 2 3\nf 2 4 3\nf 2 3 5\n",
         "degenerate.obj": "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n",
         "empty.off": "OFF\n0 0 0\n",
+        "points.ply": ply_header.replace("vertex 4", "vertex 3").replace("face 1", "face 0") + "0 0 0\n1 0 0\n1 1 0\n",
+        "points_no_face_element.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                       "property float z\nend_header\n0 0 0\n1 0 0\n1 1 0\n"),
         "notamesh.txt": "hello\n",
         "garbage.ply": "this is not a ply file\n",
         "badindex.obj": "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 7\n",

@@ -78,6 +78,10 @@ def test_fit_writes_poses_and_json(files, capsys):
     ("model", "not a readable"),
     ("take_options", "--frames, --units are for a take (.c3d or .trc): a markers .npz is fitted whole"),
     ("output_is_input", "is the input"),
+    # positions in millimetres for a model in metres: used to be fitted "converged" with a marker RMS 100 times
+    # the bar's size
+    ("millimetres", "times as far apart as the points they are bound to"),
+    ("kilometres", "times as far apart as the points they are bound to"),
 ])
 def test_bad_input_exits_2_without_output(files, capsys, case, message):
     d, model, true, verts, x = files
@@ -107,6 +111,8 @@ def test_bad_input_exits_2_without_output(files, capsys, case, message):
         np.savez(markers, positions=x, vertices=verts)
         model_file = d / "not_a_model.npz"
         model_file.write_bytes(b"garbage")
+    elif case in ("millimetres", "kilometres"):
+        np.savez(markers, positions=x * (1e3 if case == "millimetres" else 1e-3), vertices=verts)
     elif case == "take_options":
         np.savez(markers, positions=x, vertices=verts)
         extra = ["--frames", "0:2", "--units", "mm"]

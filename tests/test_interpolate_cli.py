@@ -230,3 +230,20 @@ def test_bad_input_found_mid_run_removes_the_frames_written(tmp_path, capsys):
                               "--t", 0, 0.5, 1e160, "-o", tmp_path / "o")
     assert code == 2 and "at t = 1e+160" in err and "overflows" in err and err.count("\n") == 1, err
     assert not list(tmp_path.glob("o_*"))
+
+
+def test_bad_input_found_mid_run_keeps_the_frames_it_replaced(tmp_path, capsys):
+    """Frames of an earlier run at the output's names: a run that fails on bad input after writing over two of them
+    used to remove them, losing the earlier frames; now they are put back as they were."""
+    from lacore.io.meshes import load_mesh, save_mesh
+
+    X, F = load_mesh(shared_mesh("sphere/defSphere0.ply"))
+    save_mesh(tmp_path / "big.ply", 1000.0 * X, F)
+    old = {name: f"frame {name} of an earlier run\n" for name in ("o_000.ply", "o_001.ply")}
+    for name, text in old.items():
+        (tmp_path / name).write_text(text)
+    code, out, err = run_main(capsys, "interpolate", shared_mesh("sphere/defSphere0.ply"), tmp_path / "big.ply",
+                              "--t", 0, 0.5, 1e160, "-o", tmp_path / "o")
+    assert code == 2 and "at t = 1e+160" in err, err
+    assert {p.name: p.read_text() for p in tmp_path.glob("o_*")} == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.ply", "o_000.ply", "o_001.ply"]

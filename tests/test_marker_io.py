@@ -276,6 +276,26 @@ def test_trc_round_trip_and_fixture(tmp_path):
         read_markers(bad)
 
 
+def test_a_truncated_trc_is_refused(tmp_path):
+    """A TRC cut short (a copy or an export that stopped) used to be read as a shorter take, its last row's cut
+    number taken for a coordinate and its missing fields for occluded markers; the header's NumFrames tells."""
+    take = synthetic_take(T=12, M=3, rate=60.0, first_frame=1)
+    path = tmp_path / "take.trc"
+    write_trc(path, take, units="mm")
+    data = path.read_bytes()
+    cut = tmp_path / "cut.trc"
+    cut.write_bytes(data[:len(data) * 2 // 3])
+    with pytest.raises(MarkerFileError, match=r"announces 12 frames \(NumFrames\) but the file holds [0-9] data rows"):
+        read_markers(cut)
+    # a header whose NumFrames is not a count is not checked
+    header = data.split(b"\n")[2].split(b"\t")
+    header[2] = b"?"
+    lines = data.split(b"\n")
+    lines[2] = b"\t".join(header)
+    cut.write_bytes(b"\n".join(lines))
+    assert read_markers(cut).n_frames == 12
+
+
 def test_take_validation():
     with pytest.raises(MarkerError, match="shape"):
         MarkerTake(labels=["a"], positions=np.zeros((3, 1, 2)), rate=10)

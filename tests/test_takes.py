@@ -95,3 +95,21 @@ def test_no_rigid_neighbour_means_nothing_to_check():
     rng = np.random.default_rng(2)
     x = rng.standard_normal((50, 5, 3))
     assert inconsistent_samples(MarkerTake(labels=list("abcde"), positions=x, rate=50.0)) == []
+
+
+@needs_data
+def test_which_points_are_computed_does_not_depend_on_where_the_origin_is():
+    """The static trial recorded 100 m from the lab's origin (a large volume, a world frame): its markers hardly
+    move against each other, and the rigidity threshold used to grow with the distance from the origin, so 15 of
+    its 30 markers were dropped as computed points; the take's extent sets it now."""
+    from lacore.markers.io import read_markers
+    from lacore.markers.takes import drop_non_markers
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        take = read_markers(MOCAP / "Static_Pose.c3d")
+    kept = drop_non_markers(take).labels
+    assert len(kept) == 30
+    for offset in ([100.0, 0, 0], [0, -1000.0, 50.0]):
+        moved = dataclasses.replace(take, positions=take.positions + np.array(offset))
+        assert drop_non_markers(moved).labels == kept, offset

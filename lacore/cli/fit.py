@@ -119,9 +119,40 @@ def configure(parser):
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
+#: A markers ``.npz`` whose markers spread more than this factor farther (or less far) than the points they are
+#: bound to on the model's mean shape holds another unit than the model's (1000 for mm against m, 25.4 for mm
+#: against inches); a pose changes the spread far less.
+MARKER_SPREAD_LIMIT = 4.0
+
+
 def load_marker_file(path, model):
-    """Positions ``(T, M, 3)`` and the binding of a markers file (:func:`lacore.markers.io.read_marker_arrays`)."""
-    return read_marker_arrays(path, model.faces, model.topology.n_vertices)
+    """Positions ``(T, M, 3)`` and the binding of a markers file (:func:`lacore.markers.io.read_marker_arrays`),
+    checked to be in the model's unit (:func:`check_marker_spread`)."""
+    positions, binding = read_marker_arrays(path, model.faces, model.topology.n_vertices)
+    check_marker_spread(path, positions, binding, model)
+    return positions, binding
+
+
+def check_marker_spread(path, positions, binding, model):
+    """InputError unless the markers spread about as far as the points they are bound to on the model's mean
+    shape: the median over frames (with 3 or more markers visible) of their RMS distance from their centroid,
+    over the same for the bound points, within ``1 / MARKER_SPREAD_LIMIT .. MARKER_SPREAD_LIMIT``."""
+    corners = np.asarray(model.mean_vertices, float)[binding.corner_vertices(model.faces)]   # (M, 3, 3)
+    on_model = np.einsum("mk,mkd->md", np.asarray(binding.barycentric, float), corners)
+    ratios = []
+    for frame in np.asarray(positions, float):
+        seen = np.isfinite(frame).all(axis=1)
+        if seen.sum() < 3:
+            continue
+        spread = [np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()) for p in (frame[seen], on_model[seen])]
+        if spread[0] > 0 and spread[1] > 0:
+            ratios.append(spread[0] / spread[1])
+    if not ratios:
+        return
+    ratio = float(np.median(ratios))
+    if not 1.0 / MARKER_SPREAD_LIMIT <= ratio <= MARKER_SPREAD_LIMIT:
+        raise InputError(f"{path}: the markers are {ratio:.3g} times as far apart as the points they are bound to "
+                         "on the model: give their positions in the model's unit")
 
 
 def _observed_radius(values):

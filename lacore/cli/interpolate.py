@@ -37,13 +37,16 @@ in the frame of the reference shape (``--reference``, default the first).
 count different from the mesh count, keyframes not strictly increasing,
 negative counts) exits with code 2 and a message.  Every frame is written
 (atomically) as soon as it is projected, so a run that is stopped keeps the
-frames done; bad input found mid-run (exit 2) removes the frames it wrote.  Frames that fail their checks
+frames done; bad input found mid-run (exit 2) removes the frames it wrote and puts back the files they
+replaced.  Frames that fail their checks
 (:mod:`lacore.reconstruction.checks`) are written too, and the exit code is 3 unless ``--allow-failure`` is given.
 
 The subcommand is registered in :mod:`lacore.cli` with :func:`configure` and :func:`run`.
 """
 
 import os
+import shutil
+import tempfile
 import time
 
 import numpy as np
@@ -155,6 +158,26 @@ def _load_shapes(paths):
     return load_meshes_in_correspondence(paths)
 
 
+def _keep_aside(path):
+    """A second name, in the same folder, for the file at ``path`` (a hard link, else a copy), so that it can be
+    put back after a new frame replaced it."""
+    fd, kept = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.lacore-kept.", dir=os.path.dirname(path) or ".")
+    os.close(fd)
+    os.remove(kept)
+    try:
+        os.link(path, kept)
+    except OSError:  # a file system without hard links
+        shutil.copy2(path, kept)
+    return kept
+
+
+def _remove_quietly(path):
+    try:
+        os.remove(path)
+    except OSError:
+        pass
+
+
 def run(args):
     """Run ``lacore interpolate``; returns the exit code (errors are raised for :func:`lacore.cli.main`)."""
     # imported here on purpose: lacore.shapes.interpolation pulls in scipy.interpolate (slow to import), which the other
@@ -187,10 +210,13 @@ def run(args):
 
     t_save = 0.0
     written = []
+    replaced = {}  # output path -> a second name of the file it replaced, until the run ends
 
     def write_frame(i, res):  # stream: every frame is on disk as soon as it is projected
         nonlocal t_save
         t = time.perf_counter()
+        if os.path.isfile(paths[i]) and paths[i] not in replaced:
+            replaced[paths[i]] = _keep_aside(paths[i])
         save_mesh(paths[i], res.vertices, topology.faces)
         written.append(paths[i])
         t_save += time.perf_counter() - t
@@ -207,10 +233,16 @@ def run(args):
                                          method=method, reference=args.reference, warm_start=not args.no_warm_start,
                                          settings=settings, options=options, hybrid=hybrid, on_frame=write_frame,
                                          workers=args.workers)
-    except InputError:          # bad input found mid-run (exit 2): no partial output
+    except InputError:          # bad input found mid-run (exit 2): no partial output, earlier files put back
         for path in written:
-            os.remove(path)
+            if path in replaced:
+                os.replace(replaced.pop(path), path)
+            else:
+                os.remove(path)
         raise
+    finally:
+        for kept in replaced.values():
+            _remove_quietly(kept)
     seconds = time.perf_counter() - start
 
     outputs = []

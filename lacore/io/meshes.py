@@ -204,6 +204,9 @@ def _ply_header_counts(path):
 
 def _load_ply(path):
     counts = _ply_header_counts(path)
+    if not counts.get("face"):
+        raise MeshError(f"{path}: the mesh has no faces (a point cloud: {counts.get('vertex', 0)} vertices): export "
+                        "it with its faces")
     mesh = _trimesh_load(path, ".ply", counts)
     vertices = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.faces)

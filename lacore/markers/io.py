@@ -545,6 +545,10 @@ def _read_trc_text(data, path, units):
         n_rows += 1
     if not n_rows:
         raise MarkerFileError(f"{path}: TRC file without data rows")
+    announced = _trc_frame_count(header.get("numframes"))
+    if announced is not None and n_rows < announced:
+        raise MarkerFileError(f"{path}: the header announces {announced} frames (NumFrames) but the file holds "
+                              f"{n_rows} data rows: it is truncated or damaged (export the take again)")
     try:
         numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
     except ValueError as exc:
@@ -558,6 +562,15 @@ def _read_trc_text(data, path, units):
     positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
     return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
+
+
+def _trc_frame_count(text):
+    """The header's ``NumFrames`` as a non-negative int, or None where it is missing or not a whole number."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return None
+    return int(value) if np.isfinite(value) and value >= 0 and value == np.round(value) else None
 
 
 def _check_writable_take(take, path, kind):

@@ -48,8 +48,9 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
     4. it is one of four labels ``P + O, A, L, P`` (origin and axes of a model's
        segment frame, as biomechanical models export them);
     5. it is rigid to two other points that are rigid to each other, to
-       ``rigid_tolerance`` times the take's size (standard deviation of the
-       distances over the take): a computed point.  Real markers move against
+       ``rigid_tolerance`` times the take's extent (the diagonal of the box its
+       points span; rigidity: the standard deviation of the distances over the
+       take): a computed point.  Real markers move against
        each other by at least their noise (>= 0.03 mm in the shared takes,
        computed points <= 1e-5 mm).  Not applied when it would leave fewer than
        three markers: a take that moves rigidly as a whole (noise-free synthetic
@@ -83,7 +84,10 @@ def drop_non_markers(take, rigid_tolerance=1e-6):
     if len(rest) >= 3:
         x = take.positions[:, rest]
         finite = np.isfinite(x[..., 0])
-        size = float(np.nanmax(np.abs(x))) if finite.any() else 1.0
+        # the take's extent (diagonal of the box its visible points span): independent of the origin and the unit
+        flat = x[finite]
+        size = float(np.linalg.norm(flat.max(axis=0) - flat.min(axis=0))) if finite.any() else 0.0
+        size = size if np.isfinite(size) and size > 0 else 1.0
         rig = np.zeros((len(rest), len(rest)), bool)
         for i in range(len(rest)):
             d = np.linalg.norm(x[:, i:i + 1] - x, axis=2)              # (T, n) NaN where either is occluded
