@@ -247,3 +247,18 @@ def test_bad_input_found_mid_run_keeps_the_frames_it_replaced(tmp_path, capsys):
     assert code == 2 and "at t = 1e+160" in err, err
     assert {p.name: p.read_text() for p in tmp_path.glob("o_*")} == old
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.ply", "o_000.ply", "o_001.ply"]
+
+
+@pytest.mark.parametrize("folder", ["frames/", "existing"])
+def test_output_prefix_naming_a_folder_is_refused(folder, tmp_path, capsys):
+    """``-o frames/`` (or an existing folder) would write ``frames/_000.ply`` (or ``existing_000.ply`` beside it):
+    refused in one line suggesting a prefix in it, nothing written."""
+    (tmp_path / "existing").mkdir()
+    (tmp_path / "frames").mkdir()
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    prefix = str(tmp_path / folder) + ("/" if folder.endswith("/") else "")
+    code, out, err = run_main(capsys, "interpolate", shared_mesh("plate/plate121.ply"),
+                              shared_mesh("plate/plate121_rolledA.ply"), "--t", "0.5", "-o", prefix)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "is a folder: give a file name prefix in it, such as" in err and "frame" in err, err
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

@@ -134,10 +134,16 @@ def output_paths(prefix, n, extension="ply"):
     """``prefix_000.ext ... prefix_{n-1}.ext`` (at least three digits, more if ``n > 1000``); a prefix ending in
     ``.ext`` loses it (``-o walk.ply`` writes ``walk_000.ply``, not ``walk.ply_000.ply``).
 
+    A prefix naming a folder (ending in a separator, or an existing folder) is refused (:class:`CliError`): its
+    files would be named ``_000.ply`` in it, or beside it.
+
     >>> output_paths("walk.ply", 2), output_paths("out/f", 1, "obj")
     (['walk_000.ply', 'walk_001.ply'], ['out/f_000.obj'])
     """
     prefix = str(prefix)
+    if prefix.endswith(("/", os.sep)) or os.path.isdir(prefix):
+        raise CliError(f"-o {prefix} is a folder: give a file name prefix in it, such as "
+                       f"{os.path.join(prefix, 'frame')}")
     if prefix.lower().endswith("." + extension.lower()) and len(prefix) > len(extension) + 1:
         prefix = prefix[:-len(extension) - 1]
     width = max(3, len(str(max(n - 1, 0))))
