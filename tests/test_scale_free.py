@@ -244,3 +244,59 @@ def test_beyond_the_band_a_target_and_its_scaled_copy_give_one_shape(spheres):
     for s in (20.0, 1e4):
         assert rigid_rms(results[s].vertices / s, results[2.0].vertices / 2.0) < 1e-6 * diagonal
         assert results[s].energy == pytest.approx(results[2.0].energy, rel=1e-6)
+
+
+# --------------------------------------------------------------------------- regular grids
+@pytest.fixture(scope="module")
+def grids():
+    """The flat 11 x 11 plate and the long bar: every face of a kind has one shape quality up to round-off."""
+    from lacore.geometry.topology import MeshTopology
+    from lacore.samples.bar import bar_mesh
+    X, topo = load_topology("plate/plate121.ply")
+    Vb, Fb = bar_mesh(400, 10)[:2]
+    return {"plate": (topo, X), "bar": (MeshTopology.from_faces(np.asarray(Fb)), np.asarray(Vb, float))}
+
+
+@pytest.mark.parametrize("name", ["plate", "bar"])
+def test_default_root_face_is_central_in_any_unit(name, grids):
+    """Round-off among equal shape qualities picked the root: plate121 in mm had another root than in m (a corner one
+    once ties were broken by eccentricity alone), and the 32k-face bar at 1e-3 another than at 1."""
+    from lacore.reconstruction.spanning_trees import default_root_faces
+    topo, X = grids[name]
+    root = default_root_faces(topo, vertices=X).tolist()
+    shift = np.array([123.4, -56.7, 8.9])
+    for s in (1e-3, 0.37, 7.3, 1e3):
+        assert default_root_faces(topo, vertices=X * s).tolist() == root, s
+        assert default_root_faces(topo, vertices=X * s + shift).tolist() == root, s
+        assert default_root_faces(topo, z=lengths_and_angles(X * s, topo)).tolist() == root, s
+    lo, hi = X.min(0), X.max(0)
+    off = np.abs(X[topo.faces[root[0]]].mean(0) - 0.5 * (lo + hi)) / np.linalg.norm(hi - lo)
+    along = slice(0, 2) if name == "plate" else slice(0, 1)   # in the plate's plane, along the bar
+    assert off[along].max() < 0.06, off   # measured 0.05 (plate), 0.001 (bar)
+
+
+def test_interpolating_a_regular_plate_is_scale_free():
+    """plate121 (flat, regular) and its rolled copy in mm gave the interpolation in m moved by 11 % of the diagonal."""
+    X0, topo = load_topology("plate/plate121.ply")
+    X1, _ = load_topology("plate/plate121_rolledA.ply")
+    diag = np.linalg.norm(np.ptp(X0, axis=0))
+    ref = interpolate([X0, X1], topo, [0.3, 0.7])
+    for s in (1e-3, 1e3):
+        res = interpolate([X0 * s, X1 * s], topo, [0.3, 0.7])
+        assert res.success
+        assert np.abs(res.vertices / s - ref.vertices).max() < 1e-9 * diag, s
+
+
+def test_mixing_a_regular_plate_is_scale_free():
+    """The shape mixer of plate121 and its two rolled copies in mm mixed the shape of the mixer in m moved by 7-14 %
+    of the size."""
+    from lacore.shapes.mixing import ShapeMixer
+    keys = np.stack([load_topology(f"plate/{n}.ply")[0] for n in ("plate121", "plate121_rolledA", "plate121_rolledB")])
+    faces = load_topology("plate/plate121.ply")[1].faces
+    diag = np.linalg.norm(np.ptp(keys[0], axis=0))
+    ref = ShapeMixer.build(keys, faces)
+    for s in (1e-3, 1e3):
+        mixer = ShapeMixer.build(keys * s, faces)
+        for w in ([0.5, 0.5], [1.3, -0.2]):
+            got, want = mixer.mix(w, warm_start=False), ref.mix(w, warm_start=False)
+            assert np.abs(got.vertices / s - want.vertices).max() < 1e-8 * diag, (s, w)   # measured 9e-12

@@ -373,6 +373,10 @@ def _normalize_roots(topology, root_face, z=None, vertices=None):
 
 
 # --------------------------------------------------------------------------- default root
+ROOT_QUALITY_TIE = 1e-9
+"""Shape qualities (in ``[0, 1]``) closer than this to the best are equal for :func:`default_root_faces`."""
+
+
 def _center_scores(topology):
     """Estimated dual-graph eccentricity of every face (double BFS sweep), ``(F,)`` int64."""
     def compute():
@@ -438,13 +442,36 @@ def default_root_faces(topology, z=None, vertices=None):
     ``4 sqrt(3) a / sum l^2`` among them, measured on ``vertices`` if given, else
     on the lengths of ``z``, else (no geometry) the most central face.  Using the
     reference vertices keeps the root (and thus the rigid placement) stable over
-    a sequence of targets.  Ties go to the more central face, then the lower index.
+    a sequence of targets.  Qualities within :data:`ROOT_QUALITY_TIE` of the
+    component's best are ties: on a regular grid every face has the same quality
+    up to round-off, which would otherwise pick the face and make the placement
+    depend on the unit of length and the CPU.  Ties go to the more central face:
+    smaller estimated eccentricity, then (among several) the smaller sum of dual
+    distances to all faces of the component (the mean depth of a breadth-first
+    tree; on a triangulated square grid a whole diagonal, corners included, has
+    the least eccentricity, and this keeps the root off the corners), then the
+    lower index.
+    Every comparison is between integers or within a tolerance, so the choice is
+    the same in any unit and on any CPU.
 
     Parameters
     ----------
     topology : MeshTopology
     z : (2E,) array_like, optional
     vertices : (V, 3) array_like, optional
+
+    Returns
+    -------
+    (C,) int64
+        One face per connected component, in the order of the component labels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lacore.geometry.topology import MeshTopology
+    >>> topo = MeshTopology.from_faces(np.array([[0, 1, 2], [0, 2, 3]]))
+    >>> default_root_faces(topo).tolist()
+    [0]
     """
     cand, labels, score = _central_candidates(topology)
     f = topology.faces[cand]
@@ -461,9 +488,35 @@ def default_root_faces(topology, z=None, vertices=None):
     else:
         quality = np.zeros(len(cand))
     quality = np.where(np.isfinite(quality), quality, -1.0)
-    idx = np.lexsort((cand, score, -quality, labels))
-    starts = np.searchsorted(labels[idx], np.arange(topology.n_components))
+    n = topology.n_components
+    best = np.full(n, -np.inf)
+    np.maximum.at(best, labels, quality)
+    tied = quality >= best[labels] - ROOT_QUALITY_TIE
+    low = np.full(n, np.iinfo(np.int64).max)
+    np.minimum.at(low, labels[tied], score[tied])
+    top = tied & (score == low[labels])
+    total = np.zeros(len(cand))
+    several = top & (np.bincount(labels[top], minlength=n)[labels] > 1)
+    if several.any():
+        total[several] = _total_distances(topology, cand[several])
+    idx = np.lexsort((cand, total, score, ~tied, labels))
+    starts = np.searchsorted(labels[idx], np.arange(n))
     return cand[idx[starts]].astype(np.int64)
+
+
+def _total_distances(topology, faces):
+    """Sum of the dual distances from each of ``faces`` to all faces of its component, ``(k,)`` float.
+
+    The mean depth of a breadth-first tree rooted there.  Cached per face on the
+    topology (one breadth-first search per face not seen before).
+    """
+    known = topology.cache.get((__name__, "total_distances"), dict)
+    new = np.array(sorted({int(f) for f in faces} - known.keys()), np.int64)
+    G = _dual_csr(topology)
+    for chunk in np.array_split(new, -(-len(new) // 8)) if len(new) else ():
+        d = csgraph.shortest_path(G, unweighted=True, indices=chunk)
+        known.update(zip(chunk.tolist(), np.where(np.isfinite(d), d, 0.0).sum(1).tolist(), strict=True))
+    return np.array([known[int(f)] for f in faces])
 
 
 # --------------------------------------------------------------------------- trees
