@@ -886,8 +886,9 @@ def _structure(obj, basis, nonlinear):
     return groups, relative, masks, np.array([order.index(r) for r in relative], np.int64)
 
 
-def _inputs(obj):
-    """Validated inputs of a mixer of ``obj``: ``(basis, nonlinear, linear, coords (K, V, 3), faces, structure)``
+def _inputs(obj, max_keys=0):
+    """Validated inputs of a mixer of ``obj`` taking at most ``max_keys`` keys besides the basis (0:
+    :attr:`lacore.shapes.MixerOptions.max_keys`): ``(basis, nonlinear, linear, coords (K, V, 3), faces, structure)``
     (:func:`_structure`)."""
     mesh = require_mesh_object(obj)
     _require_local(mesh, "enable live mixing")
@@ -906,11 +907,12 @@ def _inputs(obj):
                if linear else "")
         raise LiveMixError(f"mesh '{mesh.name}' has no shape key to mix besides the basis '{basis}'{why}: add a "
                            "key relative to the basis")
-    limit = MixerOptions().max_keys
+    limit = int(max_keys) or MixerOptions().max_keys
     if len(nonlinear) > limit:
         raise LiveMixError(f"mesh '{mesh.name}' has {len(nonlinear)} shape keys to mix and live mixing mixes at "
                            f"most {limit}: keep {len(nonlinear) - limit} of them linear (small local shapes such as "
-                           "faces and correctives) with Keep Linear under Live Mixing, each selected in the key list")
+                           "faces and correctives) with Keep Linear under Live Mixing, each selected in the key list, "
+                           "or raise Most Keys there (each key about doubles the build's time and memory)")
     names, coords = read_shape_keys(mesh)
     faces = triangulate(mesh).faces
     try:
@@ -929,12 +931,13 @@ def _require_no_user_mix_key(mesh):
                            "rename it (live mixing writes its correction into a key of that name)")
 
 
-def enable_run(obj, reduced_size=0):
+def enable_run(obj, reduced_size=0, max_keys=0):
     """A :class:`.runs.Run` building the mixer of ``obj``'s keys and making the mesh mix live (validated;
-    raises InputError subclasses).  ``reduced_size`` 0: automatic (:class:`MixerOptions`)."""
-    basis, nonlinear, linear, coords, faces, structure = _inputs(obj)
+    raises InputError subclasses).  ``reduced_size`` 0: automatic, ``max_keys`` 0: the default
+    (:class:`MixerOptions`)."""
+    basis, nonlinear, linear, coords, faces, structure = _inputs(obj, max_keys)
     groups, relative, masks, relative_to = structure
-    options = MixerOptions(reduced_size=int(reduced_size) or None)
+    options = MixerOptions(reduced_size=int(reduced_size) or None, max_keys=int(max_keys) or MixerOptions().max_keys)
     extra = {"masks": masks.astype(np.float64), "relative_to": relative_to,
              "names": [f"shape key '{n}'" for n in (basis, *nonlinear)]}
     job = CallJob(lambda progress: ShapeMixer.build(coords, faces, options, progress=progress, **extra), "live mixer",

@@ -6,6 +6,7 @@ Panel and operators act on ``context.object`` (which follows a pinned Properties
 
 import bpy
 
+from ..lacore.shapes import MixerOptions
 from . import live_mix, storage
 from . import fit_quality
 from . import operators_fit as fit
@@ -198,6 +199,7 @@ class LENGTHS_ANGLES_PT_live_mix(_ShapeKeysSubpanel, bpy.types.Panel):
         if state is not None:
             row.operator(live_ops.LENGTHS_ANGLES_OT_live_mix_disable.bl_idname, text="", icon='X')
         layout.prop(mesh, live_ops.REDUCED_SIZE_PROP, text="Quality (reduced size, 0 = auto)")
+        layout.prop(mesh, live_ops.MAX_KEYS_PROP, text=f"Most Keys (0 = {MixerOptions().max_keys})")
         layout.prop(mesh, live_mix.EXACT_RENDERS_PROP)
         active = context.object.active_shape_key
         if (mesh.shape_keys is not None and active is not None and active != mesh.shape_keys.reference_key

@@ -108,6 +108,7 @@ def test_evaluated_mesh_is_lacores_mix(run, inputs):
     assert res["controls"]["operators"] == [["lengths_angles.live_mix_enable", "Rebuild"],
                                             ["lengths_angles.live_mix_disable", ""]], res["controls"]
     assert [p for p, _ in res["controls"]["props"]] == ["lengths_angles_live_mix_reduced_size",
+                                                        "lengths_angles_live_mix_max_keys",
                                                         "lengths_angles_live_mix_exact_renders"], res["controls"]
     assert res["controls_after_disable"]["operators"] == [["lengths_angles.live_mix_enable", "Enable Live Mixing"]]
     for w, shown, linear in zip(a["weights"], a["mixed"], a["linear"], strict=True):
@@ -593,7 +594,7 @@ def test_vertex_group_and_relative_keys_mix(run, inputs):
 def test_many_keys_refused_and_kept_linear(run, inputs):
     """Seven keys to mix: Enable refused in one line naming Keep Linear, nothing changed.  Swell kept linear: the other
     six mix live (the evaluated mesh = lacore's mix), Swell adds linearly on top; choices made after the build apply
-    at the next Rebuild, which the report and the panel say."""
+    at the next Rebuild, which the report and the panel say.  With the mesh's Most Keys at 7 all seven mix live."""
     res, a = run["cases"]["many_keys_kept_linear"], run["arrays"]
     refused = res["too_many"]
     assert refused["result"] == ["CANCELLED"] and refused["one_line"] and refused["unchanged"], refused
@@ -615,6 +616,13 @@ def test_many_keys_refused_and_kept_linear(run, inputs):
     assert res["mix_swell_live"] == [["FINISHED"], ""] and res["keep_bend"] == [["FINISHED"], ""]
     assert res["kept_linear_mixed"] == ["Bend"] and res["linear_choice"] == ["Bend"], res
     assert "Rebuild to keep linear: Bend" in res["panel_after"], res["panel_after"]
+    # Most Keys raised to 7 on the mesh: the refused seven keys mix live at the Rebuild
+    assert "or raise Most Keys there" in refused["message"], refused
+    assert res["panel_most_keys"] == [["lengths_angles_live_mix_max_keys", "Most Keys (0 = 6)"]], res
+    assert res["rebuild_seven"] == ["FINISHED"] and res["seven_keys"] == names + ["Swell"], res
+    keys = np.concatenate([[inputs["basis"]], inputs["keys"], inputs["many"]])
+    want, _ = placed(a["seven_mixer_npz"], keys, a["seven_weights"])
+    assert np.abs(a["seven_mixed"] - want).max() < TOL, np.abs(a["seven_mixed"] - want).max()
 
 
 def test_vertex_group_and_relative_keys_stale_and_reopened(run, inputs):

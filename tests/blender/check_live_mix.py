@@ -1049,6 +1049,17 @@ def many_keys_kept_linear():
     out["kept_linear_mixed"] = st["kept_linear_mixed"]
     out["panel_after"] = [t for t in panel_labels(obj) if t and ("Rebuild" in t or "Bend" in t)]
     out["linear_choice"] = sorted(ext("live_mix").linear_choice(obj.data))
+    keep("Bend", linear=False)                                      # seven keys to mix again
+    obj.data.lengths_angles_live_mix_max_keys = 7
+    out["panel_most_keys"] = [p for p in panel_controls(obj)["props"] if "max_keys" in p[0]]
+    out["rebuild_seven"] = enable(obj)
+    st = status(obj)
+    out["seven_keys"] = st["keys"]
+    seven = [0.4, 0.3, 0.2, 0.0, 0.5, 0.0, 0.3]
+    set_values(obj, seven, st["keys"])
+    OUT["seven_mixer_npz"] = stored_mixer(obj)
+    OUT["seven_mixed"] = evaluated(obj)
+    OUT["seven_weights"] = np.array(seven)
     return out
 
 
