@@ -916,10 +916,10 @@ def _inputs(obj):
     triangulation = triangulate(mesh)
     faces = triangulation.faces
     mixed = [basis, *nonlinear]
+    mixed_coords = coords[[names.index(n) for n in mixed]]
     try:
-        require_nondegenerate_keys(mesh, triangulation, mixed, coords[[names.index(n) for n in mixed]])
-        keys, _ = check_keys(coords[[names.index(n) for n in mixed]], faces,
-                             names=[f"shape key '{n}'" for n in mixed])
+        require_nondegenerate_keys(mesh, triangulation, mixed, mixed_coords)  # Blender's face numbers
+        keys, _ = check_keys(mixed_coords, faces, names=[f"shape key '{n}'" for n in mixed])
     except MeshError as exc:
         raise topology_error(mesh, "mixed live", exc) from None
     return basis, nonlinear, linear, keys, faces, _structure(obj, basis, nonlinear)
