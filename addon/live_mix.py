@@ -107,7 +107,8 @@ from .bake import value_path
 from .compat import animation_channels
 from .jobs import CallJob
 from .mesh_access import (MeshAccessError, key_block_array, linked_from, override_from, read_shape_keys,
-                          require_mesh_object, require_writable_keys, topology_error, triangulate)
+                          require_mesh_object, require_nondegenerate_keys, require_writable_keys, topology_error,
+                          triangulate)
 from .naming import LIVE_MIX_KEY, is_own_key
 from .runs import ObjectWatch, Run
 
@@ -914,10 +915,13 @@ def _inputs(obj, max_keys=0):
                            "faces and correctives) with Keep Linear under Live Mixing, each selected in the key list, "
                            "or raise Most Keys there (each key about doubles the build's time and memory)")
     names, coords = read_shape_keys(mesh)
-    faces = triangulate(mesh).faces
+    triangulation = triangulate(mesh)
+    faces = triangulation.faces
+    mixed = [basis, *nonlinear]
+    mixed_coords = coords[[names.index(n) for n in mixed]]
     try:
-        keys, _ = check_keys(coords[[names.index(n) for n in (basis, *nonlinear)]], faces,
-                             names=[f"shape key '{n}'" for n in (basis, *nonlinear)])
+        require_nondegenerate_keys(mesh, triangulation, mixed, mixed_coords)  # Blender's face numbers
+        keys, _ = check_keys(mixed_coords, faces, names=[f"shape key '{n}'" for n in mixed])
     except MeshError as exc:
         raise topology_error(mesh, "mixed live", exc) from None
     return basis, nonlinear, linear, keys, faces, _structure(obj, basis, nonlinear)

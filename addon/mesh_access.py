@@ -4,6 +4,8 @@
 * :func:`read_shape_keys` / :func:`write_shape_key` / :func:`set_shape_key` move shape-key
   coordinates between Blender and ``(K, V, 3)`` float64 arrays with ``foreach_get``/``foreach_set``;
   :func:`object_mode` makes writes of shape keys stick in Edit Mode.
+* :func:`require_kept` refuses an object or mesh whose custom properties (the add-on's records) would be lost on
+  saving and opening the file again (:func:`not_kept`: linked from a library, or a library override).
 * :func:`require_writable_keys` refuses a mesh whose shape keys a write would not persist in: linked from a library
   (Blender keeps it as the library saved it) or a library override (Blender does not keep keys added to an override
   and drops bulk writes into its keys' coordinates).
@@ -23,11 +25,12 @@ import hashlib
 import numpy as np
 
 from ..lacore.errors import InputError, MeshError
-from ..lacore.geometry.lengths_angles import degenerate_faces
-from ..lacore.geometry.topology import MeshTopology
+from ..lacore.geometry.lengths_angles import check_float_range, degenerate_faces
+from ..lacore.geometry.topology import MeshTopology, check_vertices
 
 __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys", "shows_stored_shape",
            "require_whole_keys", "require_nondegenerate_keys", "require_writable_keys", "linked_from", "override_from",
+           "not_kept", "require_kept",
            "write_shape_key", "set_shape_key", "key_names", "require_mesh_object", "key_block_array",
            "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
 
@@ -251,19 +254,29 @@ def require_whole_keys(mesh, names, what):
                               "from Mix) and use that")
 
 
-def require_nondegenerate_keys(mesh, triangulation, names, coords):
-    """:class:`MeshAccessError` naming the first shape key of ``names`` (rows of ``coords``, vertices ``(V, 3)``
-    each) with faces of no area (:func:`lacore.geometry.lengths_angles.degenerate_faces` of the fan triangles of
-    ``triangulation``), and those faces as Blender numbers them."""
-    topology = MeshTopology.from_faces(triangulation.faces, n_vertices=triangulation.n_vertices,
-                                       allow_unreferenced=True)  # loose vertices: named where they matter
+def require_nondegenerate_keys(mesh, triangulation, names, coords, topology=None):
+    """:class:`MeshAccessError` naming ``mesh``, the first shape key of ``names`` (rows of ``coords``, vertices
+    ``(V, 3)`` each) that lacore cannot measure, and where: NaN or infinite coordinates (by vertex), coordinates float64
+    cannot hold (:func:`lacore.geometry.lengths_angles.check_float_range`) or faces of no area
+    (:func:`lacore.geometry.lengths_angles.degenerate_faces` of the fan triangles of ``triangulation``) named as
+    Blender numbers the faces (the polygons, not the triangles).  ``topology``: the
+    :class:`lacore.geometry.topology.MeshTopology` of ``triangulation.faces`` when the caller has it (else built)."""
+    if topology is None:
+        topology = MeshTopology.from_faces(triangulation.faces, n_vertices=triangulation.n_vertices,
+                                           allow_unreferenced=True)  # loose vertices: named where they matter
     for name, X in zip(names, coords, strict=True):
-        bad = degenerate_faces(np.asarray(X, np.float64), topology)
+        try:
+            X = check_vertices(X, triangulation.n_vertices, name=f"shape key '{name}'")
+            check_float_range(X, topology)
+        except MeshError as exc:
+            raise MeshAccessError(f"mesh '{mesh.name}': {exc}" if str(exc).startswith("shape key") else
+                                  f"mesh '{mesh.name}', shape key '{name}': {exc}") from None
+        bad = degenerate_faces(X, topology)
         if bad.size:
             polys = np.unique(triangulation.face_polygon[bad])
-            raise MeshAccessError(f"shape key '{name}' has faces of no area (or needle-thin): faces {_fmt(polys)} "
-                                  "(Blender face indices); move their vertices apart in that key, or leave the key "
-                                  "out (Shape Keys)")
+            raise MeshAccessError(f"mesh '{mesh.name}': shape key '{name}' has faces of no area (or needle-thin): "
+                                  f"faces {_fmt(polys)} (Blender face indices); move their vertices apart in that "
+                                  "key, or leave the key out (Shape Keys)")
 
 
 def linked_from(mesh):
@@ -275,11 +288,41 @@ def linked_from(mesh):
 
 
 def override_from(mesh):
-    """The file path of the library ``mesh`` is a library override of ("" when it is not one): its keys are the
-    library's, reapplied whenever the file is opened."""
+    """The file path of the library ``mesh`` (or any datablock) is a library override of ("" when it is not one): its
+    keys are the library's, reapplied whenever the file is opened."""
     override = mesh.override_library
     reference = None if override is None else override.reference
     return "" if reference is None or reference.library is None else reference.library.filepath
+
+
+def not_kept(datablock):
+    """Why what the add-on stores as custom properties on ``datablock`` (an object or a mesh) would be lost when the
+    file is saved and opened again ("" when it is kept): Blender saves no change to a datablock linked from a library,
+    and rebuilds a library override from its library when the file is opened (custom properties added to the
+    override, or changed on it, are dropped)."""
+    kind = "object" if datablock.id_type == 'OBJECT' else "mesh"
+    library = linked_from(datablock) if kind == "mesh" else (
+        "" if datablock.library is None else datablock.library.filepath)
+    if library:
+        return f"{kind} '{datablock.name}' is linked from '{library}'"
+    library = override_from(datablock)
+    if library:
+        return (f"{kind} '{datablock.name}' is a library override of '{library}', which Blender takes from that "
+                "file again when the shot is opened")
+    return ""
+
+
+def require_kept(datablocks, what):
+    """:class:`MeshAccessError` when what the add-on would store on one of ``datablocks`` (objects and meshes) would
+    be lost (:func:`not_kept`): names it, its library and what to do; ``what`` (e.g. "pin markers") completes
+    "<what> in that file"."""
+    for datablock in datablocks:
+        why = not_kept(datablock)
+        if why:
+            kind = "object" if datablock.id_type == 'OBJECT' else "mesh"
+            raise MeshAccessError(f"{why}, so what the add-on stores on it here would be lost: {what} in that file, "
+                                  f"or make the {kind} local first (Object > Relations > Make Local > Selected "
+                                  "Objects and Data)")
 
 
 def key_block_array(kb, current):

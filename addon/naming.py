@@ -15,7 +15,8 @@ Shape-key names hold at most 63 bytes (Blender's limit); key names inside an in-
 shortened to fit.
 
 Typed lists (for scripts): factors and frames are numbers separated by spaces, commas or semicolons,
-key names are separated by commas (:func:`parse_factors`, :func:`parse_frames`, :func:`parse_key_list`).
+key names are separated by commas, a name holding a comma in double quotes or matched against the mesh's keys
+(:func:`parse_factors`, :func:`parse_frames`, :func:`parse_key_list`).
 """
 
 import math
@@ -118,18 +119,78 @@ def parse_factors(text):
     return factors
 
 
-def parse_key_list(text):
-    """``"Basis, Bend, Twist"`` -> ``["Basis", "Bend", "Twist"]`` (commas separate; names may hold spaces).
+def _key_items(text):
+    """The comma-separated items of ``text`` as ``(name, quoted, start, end)``: a name in double quotes is taken as
+    written (commas and spaces included; ``""`` inside stands for one ``"``), others are stripped of spaces and span
+    ``text[start:end]``."""
+    items, i, n = [], 0, len(text)
+    while True:
+        while i < n and text[i].isspace():
+            i += 1
+        if i < n and text[i] == '"':
+            name, i = [], i + 1
+            while True:
+                if i >= n:
+                    raise OperatorInputError(f"Keys: a quote is not closed in {text!r} (put each name in a pair "
+                                             "of double quotes)")
+                if text[i] == '"' and text[i + 1:i + 2] == '"':
+                    name.append('"')
+                    i += 2
+                elif text[i] == '"':
+                    i += 1
+                    break
+                else:
+                    name.append(text[i])
+                    i += 1
+            while i < n and text[i].isspace():
+                i += 1
+            if i < n and text[i] != ",":
+                raise OperatorInputError(f"Keys: {text[i:]!r} follows the quoted name \"{''.join(name)}\" in "
+                                         f"{text!r}: separate names by commas")
+            items.append(("".join(name), True, None, None))
+        else:
+            j = text.find(",", i)
+            j = n if j < 0 else j
+            items.append((text[i:j].strip(), False, i, j))
+            i = j
+        if i >= n:
+            return items
+        i += 1  # the comma
+
+
+def parse_key_list(text, names=()):
+    """Shape-key names typed in ``text``, separated by commas (names may hold spaces).
+
+    A name holding a comma is given in double quotes (``""`` inside stands for a ``"``), or as it is when it is one
+    of ``names`` (the mesh's keys): unquoted items joined with their commas are taken as the longest such name
+    (so "Arm, left" is one key where the mesh has a key of that name).
 
     >>> parse_key_list("Basis, Left arm up")
     ['Basis', 'Left arm up']
+    >>> parse_key_list('Basis, "Arm, left", Bend')
+    ['Basis', 'Arm, left', 'Bend']
+    >>> parse_key_list("Basis, Arm, left, Bend", names=["Basis", "Arm, left", "Bend"])
+    ['Basis', 'Arm, left', 'Bend']
     """
-    names = [s.strip() for s in text.split(",")]
-    if not any(names):
+    items = _key_items(text)
+    if all(not quoted and not name for name, quoted, _, _ in items):
         raise OperatorInputError("Keys: no shape-key names given (separate them by commas)")
-    if not all(names):
-        raise OperatorInputError(f"Keys: empty name in {text!r} (separate names by single commas)")
-    return names
+    known = set(names)
+    out, i = [], 0
+    while i < len(items):
+        name, quoted, start, _ = items[i]
+        if not name:
+            raise OperatorInputError(f"Keys: empty name in {text!r} (separate names by single commas)")
+        last = i
+        if not quoted:
+            for j in range(len(items) - 1, i, -1):  # the longest run of unquoted items naming a key
+                if not any(items[k][1] for k in range(i, j + 1)) and text[start:items[j][3]].strip() in known:
+                    last = j
+                    break
+            name = text[start:items[last][3]].strip()
+        out.append(name)
+        i = last + 1
+    return out
 
 
 def parse_frames(text):

@@ -10,7 +10,7 @@ from bpy.props import StringProperty
 from ..lacore.errors import InputError, MeshError
 from ..lacore.integrability import check_integrability
 from . import bake, live_mix, session, storage
-from .mesh_access import object_mode, require_mesh_object, require_writable_keys
+from .mesh_access import object_mode, require_kept, require_mesh_object, require_writable_keys
 from .fit_quality import remove_quality
 from .operators_fit import BINDING_PROP, remove_model
 from .operators_calibrate import remove_calibration
@@ -103,6 +103,7 @@ class LENGTHS_ANGLES_OT_encode(bpy.types.Operator):
         obj = context.object
         start = time.perf_counter()
         try:
+            require_kept([require_mesh_object(obj)], "encode the shape keys")  # the encoding is stored on the mesh
             result = encode_object(obj)  # computes everything; nothing is written yet
         except InputError as exc:  # MeshAccessError, MeshError, LengthsAnglesError; anything else is a bug
             self.report({'ERROR'}, str(exc))

@@ -50,7 +50,7 @@ from ..lacore.markers.io import MarkerTake
 from .compat import BLEND_RELATIVE_PATH
 from .fit_quality import FIT_PROP, write_quality
 from .jobs import CallJob
-from .mesh_access import require_mesh_object, triangulate, world_to_object
+from .mesh_access import require_kept, require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
                             draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
@@ -268,6 +268,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
     if auto_prior is False and prior_weight is None and options.prior_weight == "auto":
         raise FitSetupError("give a prior weight (or use the automatic one)")
     mesh = require_mesh_object(obj)
+    require_kept([obj, mesh], "calibrate and fit")  # the binding, the calibration and the fit's quality
     built = None
     if MODEL_PROP in mesh:
         model = read_model(obj)

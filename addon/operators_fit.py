@@ -75,14 +75,15 @@ from ..lacore.multiresolution import coarsen
 from . import storage
 from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_channels
 from .jobs import CallJob
-from .mesh_access import (object_mode, read_shape_keys, require_mesh_object, require_nondegenerate_keys,
-                          require_whole_keys, require_writable_keys, triangulate, world_to_object)
+from .mesh_access import (key_names, not_kept, object_mode, read_shape_keys, require_kept, require_mesh_object,
+                          require_nondegenerate_keys, require_whole_keys, require_writable_keys, triangulate,
+                          world_to_object)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
 from .operators_markers import (MARKER_PROP, TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate,
                                 unkeyed_markers, unkeyed_note)
-from .fit_quality import write_quality
+from .fit_quality import RMS_PROP, write_quality
 from .runs import ObjectWatch, Run, RunOperator, object_state
 
 __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "ALIGN_ITERATIONS",
@@ -607,6 +608,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
     is in metres (:func:`metres_per_unit`).
     """
     require_mesh_object(obj)
+    require_kept([obj], "bind the markers")  # the binding is stored on the object
     model = read_model(obj)
     all_labels = [lb for lb, _ in marker_objects(take)]
     labels = all_labels if labels is None else [lb for lb in all_labels if lb in labels]
@@ -743,6 +745,8 @@ def fit_inputs(context, obj, frame_start, frame_end, output='PC2', filepath=""):
     space, frames, filepath, path, labels, unkeyed)`` (``unkeyed``: the bound markers without keyed positions,
     NaN in ``markers``)."""
     mesh = require_mesh_object(obj)
+    if obj.library is not None:  # neither the modifier, nor the keys, nor the fit's quality would be kept
+        require_kept([obj], "fit to the markers")
     if output == 'SHAPE_KEYS':
         require_writable_keys(mesh, "fit to shape keys")
     model = read_model(obj)
@@ -809,6 +813,10 @@ def fit_run(context, obj, frame_start, frame_end, output='PC2', prior_weight=Non
         if inputs["unkeyed"]:
             job.notes.append(unkeyed_note(inputs["unkeyed"]))
         job.notes.extend(quality["notes"])
+        lost = not_kept(obj)  # a library override: the fit's output is kept, its quality record is not
+        if lost:
+            job.notes.append(f"the fit's quality shown in the panel, and the '{RMS_PROP}' property its curve keys, "
+                             f"are not kept when the shot is opened again: {lost}")
         return f"{text}; {quality['text']}"
     take_name = inputs["take"].name
     extras = {f"The shape model of '{obj.name}'": _prop_state(obj.name, MODEL_PROP, on_mesh=True),
@@ -1014,7 +1022,9 @@ class LENGTHS_ANGLES_OT_build_model(_Interactive, RunOperator, bpy.types.Operato
 
     def execute(self, context):
         def make(context):
-            keys = parse_key_list(self.keys) if self.keys.strip() else None
+            obj = context.active_object
+            keys = (parse_key_list(self.keys, key_names(obj.data) if obj is not None and obj.type == 'MESH'
+                                   else ()) if self.keys.strip() else None)
             return model_run(context.active_object, keys, self.n_modes or None, self.coarse_vertices)
         return self.start_run(context, make)
 

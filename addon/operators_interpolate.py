@@ -464,7 +464,8 @@ class LENGTHS_ANGLES_OT_bake_keyframes(RunOperator, bpy.types.Operator):
         """``(keys, frames)`` of this bake: typed keys, else the picked keys (in key-list order); typed frames,
         else from Start Frame every Frames Between Keys."""
         if self.keys.strip():
-            names = parse_key_list(self.keys)
+            names = parse_key_list(self.keys, mesh_access.key_names(obj.data)
+                                    if obj is not None and obj.type == 'MESH' else ())
         else:
             names = [n for n in (mesh_access.key_names(obj.data) if obj is not None and obj.type == 'MESH' else [])
                      if n in self.key_set]

@@ -119,14 +119,27 @@ def _clip_name(name):
     return data.decode("utf-8", errors="ignore")
 
 
+def require_frame_range_start(frame_start, set_frame_range):
+    """:class:`InputError` (one line, what to do) for a take keyed from a negative ``frame_start`` when the scene's
+    frame range is to be set to it: Blender's scene frame range starts at frame 0 at the earliest (keys and the
+    current frame may be negative)."""
+    if set_frame_range and frame_start < 0:
+        raise InputError(f"Start Frame {frame_start:g} is before frame 0, and a scene's frame range cannot start "
+                         f"before 0: turn off Set Frame Range to key the take from frame {frame_start:g} (Blender "
+                         "shows negative frames with Preferences > Animation > Allow Negative Frames), or use a "
+                         "Start Frame of 0 or more")
+
+
 def import_take(context, take, name, *, scale=1.0, axis_forward='Y', axis_up='Z', frame_start=1,
                 rate_mode='SCENE', set_frame_range=True, marker_size=0.02):
     """Create the take empty and the animated marker empties for ``take`` (a lacore MarkerTake).
 
     Returns ``(take_object, marker_objects)``.  On any error everything created
     so far is removed before the exception propagates; the scene settings are
-    changed only after all objects exist.
+    changed only after all objects exist.  A negative ``frame_start`` keys the samples at negative frames;
+    with ``set_frame_range`` it is refused (:func:`require_frame_range_start`).
     """
+    require_frame_range_start(frame_start, set_frame_range)
     scene = context.scene
     collection = context.collection or scene.collection
     file_rate, file_frames = take.rate, take.n_frames
@@ -391,6 +404,7 @@ def import_takes(context, takes, names, set_frame_range=True, **options):
 
     Returns ``[(take_object, marker_objects)]``.
     """
+    require_frame_range_start(options.get("frame_start", 1), set_frame_range)
     made = []
     try:
         for take, name in zip(takes, names, strict=True):
@@ -430,7 +444,9 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
     scale: FloatProperty(name="Scale", description="Multiply the positions (in metres) by this factor (default: "
                          "metres in the scene's unit scale, 1 / Unit Scale)",
                          default=1.0, min=1e-6, max=1e6, soft_min=1e-3, soft_max=1e3)
-    frame_start: IntProperty(name="Start Frame", description="Frame of the take's first sample", default=1)
+    frame_start: IntProperty(name="Start Frame", default=1,
+                             description="Frame of the take's first sample (negative: only without Set Frame Range, "
+                                         "a scene's frame range starts at 0 at the earliest)")
     rate_mode: EnumProperty(
         name="Frame Rate", description="How the take's samples map to the scene's frames",
         items=[('SCENE', "Set Scene Rate", "Set the scene's frame rate to the take's: one sample per frame"),
@@ -470,6 +486,7 @@ class LENGTHS_ANGLES_OT_import_markers(bpy.types.Operator, ImportHelper):
         try:
             if self.axis_forward[-1] == self.axis_up[-1]:
                 raise InputError(f"Forward ({self.axis_forward}) and Up ({self.axis_up}) must be different axes")
+            require_frame_range_start(self.frame_start, self.set_frame_range)  # before reading the files
             takes = [read_markers(p) for p in paths]  # every file read before anything is created
             rates = sorted({t.rate for t in takes})
             if self.rate_mode == 'SCENE' and len(rates) > 1:

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .mesh_access import require_mesh_object
+from .mesh_access import MeshAccessError, require_kept, require_mesh_object
 from .operators_markers import MARKER_PROP
 
 __all__ = ["PINS_PROP", "PLACEMENT_PROP", "PLACEMENT_ITEMS", "pins_of", "selected_vertex", "classes",
@@ -98,11 +98,12 @@ class LENGTHS_ANGLES_OT_pin_marker(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         try:
+            require_kept([obj], "pin the markers")  # the pins are stored on the object
             label = _marker_label(context, self.label.strip())
             vertex = selected_vertex(obj) if self.vertex < 0 else int(self.vertex)
             if vertex >= len(obj.data.vertices):
                 raise PinError(f"'{obj.name}' has {len(obj.data.vertices)} vertices, no vertex {vertex}")
-        except PinError as exc:
+        except (PinError, MeshAccessError) as exc:
             self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
         pins = pins_of(obj)
@@ -126,6 +127,11 @@ class LENGTHS_ANGLES_OT_remove_pin(bpy.types.Operator):
         pins = pins_of(obj) if obj is not None else {}
         if self.label not in pins:
             self.report({'ERROR'}, f"'{obj.name if obj else None}' has no pin for marker '{self.label}'")
+            return {'CANCELLED'}
+        try:
+            require_kept([obj], "remove the pin")
+        except MeshAccessError as exc:
+            self.report({'ERROR'}, str(exc))
             return {'CANCELLED'}
         del pins[self.label]
         if pins:

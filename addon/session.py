@@ -67,7 +67,9 @@ def topology_hash(faces, edges, n_vertices):
 
 @dataclass
 class MeshData:
-    """A mesh object's shape keys, read once: ``coords`` (K, V, 3) float64 in key-list order."""
+    """A mesh object's shape keys, read once: ``coords`` (K, V, 3) float64 in key-list order; ``triangulation``
+    (:class:`.mesh_access.Triangulation`) the fan triangles ``topology`` is made of (None for shapes given as arrays),
+    so that errors name Blender's faces."""
 
     mesh: object
     names: list
@@ -75,6 +77,7 @@ class MeshData:
     topology: MeshTopology
     topology_hash: str
     key_hashes: list
+    triangulation: object = None
 
     def index(self, name):
         return self.names.index(name)
@@ -112,7 +115,7 @@ def read_mesh(obj, what="processed"):
         STATS["topology_hit"] += 1
         _lru_put(_TOPOLOGIES, thash, topology, _MAX_TOPOLOGIES)
     return MeshData(mesh=mesh, names=names, coords=coords, topology=topology, topology_hash=thash,
-                    key_hashes=[coords_hash(X) for X in coords])
+                    key_hashes=[coords_hash(X) for X in coords], triangulation=tri)
 
 
 def key_z(data, name):
@@ -120,7 +123,8 @@ def key_z(data, name):
 
     Order of look-up: this session's cache, the encoding stored in the mesh (if it was made from
     these very coordinates and this connectivity), else computed (and checked: no NaN, no
-    degenerate triangle).
+    degenerate triangle; for a mesh, :func:`.mesh_access.require_nondegenerate_keys` names the mesh, the key and
+    Blender's faces).
     """
     k = data.index(name)
     key = (data.topology_hash, data.key_hashes[k])
@@ -135,11 +139,15 @@ def key_z(data, name):
         STATS["z_stored"] += 1
     else:
         STATS["z_miss"] += 1
-        X = check_vertices(data.coords[k], data.topology.n_vertices, name=f"Shape key '{name}'")
-        try:
-            check_nondegenerate(X, data.topology)
-        except MeshError as exc:
-            raise MeshError(f"Shape key '{name}': {exc}") from exc
+        if data.triangulation is not None:
+            X = data.coords[k]
+            mesh_access.require_nondegenerate_keys(data.mesh, data.triangulation, [name], [X], data.topology)
+        else:
+            X = check_vertices(data.coords[k], data.topology.n_vertices, name=f"Shape key '{name}'")
+            try:
+                check_nondegenerate(X, data.topology)
+            except MeshError as exc:
+                raise MeshError(f"Shape key '{name}': {exc}") from exc
         z = lengths_and_angles(X, data.topology)
     z = np.array(z, np.float64)
     z.setflags(write=False)
