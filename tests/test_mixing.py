@@ -711,10 +711,10 @@ def test_reduced_solve_hands_its_linearization_to_the_newton_step(long_bar):
 
 def test_cubature_gradient_rows(monkeypatch, long_bar):
     """The cubature's fit also matches the whole gradient at every sample's weights (relative to the energy there):
-    the cubature's minimizers have the energy of the exact ones in the space to 1e-5 at weights in [0, 1]^2, 25-100
+    the cubature's minimizers have the energy of the exact ones in the space to 1e-5 at weights in [0, 1]^2, 15-100
     times closer than without those rows.  Measured median relative excess with and without, by the face the
-    reconstruction fixes (six equally central faces of this bar): 4.4e-6 and 1.6e-4 with the default one (241),
-    3.0e-7 to 1.9e-6 with the others (709: 1.7e-6 and 4.4e-5)."""
+    reconstruction fixes (central faces of this bar): 5.5e-7 and 8.4e-6 with the default one (240); 3.0e-7 to 4.4e-6
+    with six others (241: 4.4e-6 and 1.6e-4; 709: 1.7e-6 and 4.4e-5)."""
     import lacore.shapes.mixing.cubature as cubature
 
     keys, F, mixer = long_bar
@@ -733,7 +733,7 @@ def test_cubature_gradient_rows(monkeypatch, long_bar):
     with_rows = excess(mixer)
     monkeypatch.setattr(cubature, "GRADIENT_ROWS_WEIGHT", 0.0)
     without = excess(ShapeMixer.build(keys, F))
-    assert -1e-9 < with_rows < 1.5e-5 and with_rows < 0.1 * without
+    assert -1e-9 < with_rows < 1.5e-5 and with_rows < 0.2 * without
 
 
 def test_cubature_energy_norm(long_bar, tmp_path):

@@ -445,14 +445,14 @@ def default_root_faces(topology, z=None, vertices=None):
     a sequence of targets.  Qualities within :data:`ROOT_QUALITY_TIE` of the
     component's best are ties: on a regular grid every face has the same quality
     up to round-off, which would otherwise pick the face and make the placement
-    depend on the unit of length and the CPU.  Ties go to the more central face:
-    smaller estimated eccentricity, then (among several) the smaller sum of dual
-    distances to all faces of the component (the mean depth of a breadth-first
-    tree; on a triangulated square grid a whole diagonal, corners included, has
-    the least eccentricity, and this keeps the root off the corners), then the
-    lower index.
-    Every comparison is between integers or within a tolerance, so the choice is
-    the same in any unit and on any CPU.
+    depend on the unit of length and the CPU.  Ties go to the more central face
+    in the dual graph: the smaller sum of dual distances to all faces of the
+    component (the mean depth of a breadth-first tree from there; one search per
+    tied face, cached), then the smaller estimated eccentricity, then the lower
+    index.  The estimate alone does not rank a grid: on a triangulated square
+    grid a whole diagonal, corners included, has the least eccentricity.  Every
+    comparison is between integers or within a tolerance, so the choice is the
+    same in any unit and on any CPU.
 
     Parameters
     ----------
@@ -492,14 +492,11 @@ def default_root_faces(topology, z=None, vertices=None):
     best = np.full(n, -np.inf)
     np.maximum.at(best, labels, quality)
     tied = quality >= best[labels] - ROOT_QUALITY_TIE
-    low = np.full(n, np.iinfo(np.int64).max)
-    np.minimum.at(low, labels[tied], score[tied])
-    top = tied & (score == low[labels])
     total = np.zeros(len(cand))
-    several = top & (np.bincount(labels[top], minlength=n)[labels] > 1)
+    several = tied & (np.bincount(labels[tied], minlength=n)[labels] > 1)
     if several.any():
         total[several] = _total_distances(topology, cand[several])
-    idx = np.lexsort((cand, total, score, ~tied, labels))
+    idx = np.lexsort((cand, score, total, ~tied, labels))
     starts = np.searchsorted(labels[idx], np.arange(n))
     return cand[idx[starts]].astype(np.int64)
 
