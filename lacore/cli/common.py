@@ -14,7 +14,8 @@ from ..io.meshes import load_mesh
 from ..geometry.topology import MeshTopology
 
 __all__ = ["CliError", "EXIT_OK", "EXIT_USAGE", "EXIT_FAILED_CHECKS", "EXIT_INTERRUPTED", "print_json", "json_float",
-           "nonnegative_int", "positive_int", "frame_count", "MAX_FRAMES", "add_allow_failure", "exit_code", "finish",
+           "nonnegative_int", "positive_int", "frame_count", "MAX_FRAMES", "MAX_WEIGHT", "check_number",
+           "weight", "add_allow_failure", "exit_code", "finish",
            "error_message", "check_outputs", "load_meshes_in_correspondence", "mesh_topology", "checked_vertices"]
 
 EXIT_OK = 0
@@ -28,6 +29,32 @@ EXIT_INTERRUPTED = 130
 
 #: Most output frames one command writes (``--frames``): more are a typing error, not a request.
 MAX_FRAMES = 100_000
+
+#: Largest weight an option takes (``--prior-weight``, ``--temporal-weight``, ``--penetration-weight``,
+#: ``--bending-weight``): weights are relative to a term of weight 1 whose defaults are 1e-3 to 10, so a million
+#: already leaves the other terms no say, and far larger ones overflow the solvers (1e308 did).
+MAX_WEIGHT = 1e6
+
+
+def check_number(option, value, low, high, low_open=False):
+    """``value`` as a float if it is finite and within ``[low, high]`` (``(low, high]`` with ``low_open``);
+    else :class:`CliError` naming ``option`` and the range, e.g. ``--prior-weight must be a number in (0, 1e+06],
+    got 1e+308``."""
+    v = float(value)
+    if not (np.isfinite(v) and (v > low if low_open else v >= low) and v <= high):
+        raise CliError(f"{option} must be a number in {'(' if low_open else '['}{low:g}, {high:g}], got {v:g}")
+    return v
+
+
+def weight(text):
+    """argparse type of weights that may be 0 (``--bending-weight``): a number in ``[0, MAX_WEIGHT]``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (np.isfinite(value) and 0 <= value <= MAX_WEIGHT):
+        raise argparse.ArgumentTypeError(f"must be a number in [0, {MAX_WEIGHT:g}], got {value:g}")
+    return value
 
 
 def _int_at_least(low, what, high=None):

@@ -58,7 +58,7 @@ from ..markers.io import COMMON_UNITS, UNIT_SCALES, read_marker_arrays
 from ..markers.takes import read_take
 from ..models.shape_model import ShapeModel
 from ..result import json_value
-from .common import add_allow_failure, check_outputs, finish, print_json
+from .common import MAX_WEIGHT, add_allow_failure, check_number, check_outputs, finish, print_json
 
 __all__ = ["register", "configure", "run", "HELP", "load_marker_file"]
 
@@ -78,10 +78,8 @@ def _prior_weight(text):
     try:
         v = float(text)
     except ValueError:
-        raise InputError(f"--prior-weight must be a number > 0 or auto, got {text!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise InputError(f"--prior-weight must be a finite number > 0, got {v}")
-    return v
+        raise InputError(f"--prior-weight must be a number in (0, {MAX_WEIGHT:g}] or auto, got {text!r}") from None
+    return check_number("--prior-weight", v, 0.0, MAX_WEIGHT, low_open=True)
 
 
 def configure(parser):
@@ -204,12 +202,8 @@ def run(args):
         raise InputError(f"the output file must end in .npz, got {args.output}")
     check_outputs([args.output], inputs=[args.model, args.markers, args.static])
     gamma = _prior_weight(args.prior_weight)
-    v = args.temporal_weight
-    if not np.isfinite(v) or v < 0:
-        raise InputError(f"--temporal-weight must be a finite number >= 0, got {v}")
-    mu = args.penetration_weight
-    if not np.isfinite(mu) or mu < 0:
-        raise InputError(f"--penetration-weight must be a finite number >= 0, got {mu}")
+    v = args.temporal_weight = check_number("--temporal-weight", args.temporal_weight, 0.0, MAX_WEIGHT)
+    mu = args.penetration_weight = check_number("--penetration-weight", args.penetration_weight, 0.0, MAX_WEIGHT)
     args.observed_radius = _observed_radius(args.observed_radius)
     model = ShapeModel.load(args.model)
     if str(args.markers).lower().endswith(".npz"):

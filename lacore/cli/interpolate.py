@@ -58,7 +58,7 @@ from ..io.meshes import MESH_FORMATS, save_mesh
 from ..reconstruction import METHODS, GaussNewtonOptions, ReconstructionSettings
 from ..reconstruction.settings import DEFAULT_PROJECTION, PROJECTION_PRESETS, SOLVERS, WEIGHTS, projection_preset
 from .common import (CliError, add_allow_failure, check_outputs, finish, frame_count, json_float,
-                     load_meshes_in_correspondence, nonnegative_int, positive_int, print_json)
+                     load_meshes_in_correspondence, nonnegative_int, positive_int, print_json, weight)
 
 __all__ = ["HELP", "configure", "run", "output_format", "output_paths", "frame_times"]
 
@@ -94,7 +94,7 @@ def configure(parser):
                              f"only) (default {DEFAULT_PROJECTION.name})")
     parser.add_argument("--reference", type=int, default=0, metavar="I",
                         help="index of the mesh giving the energy weights and the output frame (default 0)")
-    parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
+    parser.add_argument("--bending-weight", type=weight, default=settings.bending_weight, metavar="ETA",
                         help=f"bending weight eta of W_q (default {settings.bending_weight:g})")
     parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
                         help="weights of W_q: (3.20) (default), (3.21) or 1")

@@ -37,8 +37,8 @@ import numpy as np
 
 from ..io.meshes import MESH_FORMATS, save_mesh
 from ..shapes.mixing import MixerError, MixerOptions, ShapeMixer, check_key_count, check_keys, check_masks
-from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, json_float, load_meshes_in_correspondence,
-                     positive_int, print_json)
+from .common import (EXIT_OK, add_allow_failure, check_number, check_outputs, finish, json_float,
+                     load_meshes_in_correspondence, positive_int, print_json)
 from .interpolate import output_paths
 
 __all__ = ["register", "configure_mixer", "run_mixer", "configure_mix", "run_mix", "mix_output_paths", "read_masks",
@@ -46,6 +46,9 @@ __all__ = ["register", "configure_mixer", "run_mixer", "configure_mix", "run_mix
 
 MIXER_HELP = "build a shape mixer (nonlinear blends of shape keys in lengths and angles) from meshes"
 MIX_HELP = "mix shape keys with a mixer built by `lacore mixer`: one mesh per --weights group"
+#: Largest ``|LOW|``, ``|HIGH|`` of ``--range``: weights of a thousand times a key are far beyond any mix (the
+#: default range is -0.5 1.5), and ranges near float64's limit made the mixer's sample shapes overflow.
+MAX_MIX_RANGE = 1e3
 
 
 def register(register_subcommand):
@@ -100,6 +103,8 @@ def run_mixer(args):
     check_outputs([args.output], inputs=args.keys)
     if len(args.keys) < 2:
         raise MixerError(f"a mixer needs at least 2 keys (the basis and one more), got {len(args.keys)}")
+    for value in args.range:
+        check_number("--range", value, -MAX_MIX_RANGE, MAX_MIX_RANGE)
     options = MixerOptions(reduced_size=args.reduced_size, low=args.range[0], high=args.range[1],
                            local_vertices=args.local_vertices, max_keys=args.max_keys)  # checks --range and others
     check_key_count(len(args.keys), options, raise_with="raise --max-keys")

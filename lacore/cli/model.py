@@ -40,7 +40,7 @@ from ..io.meshes import MESH_FORMATS, save_mesh
 from ..models.settings import DEFAULT_TANGENT, MODEL_SETTINGS, PROJECTION_METRICS, TANGENTS, ShapeModelError
 from ..models.shape_model import ShapeModel
 from .common import (EXIT_OK, add_allow_failure, check_outputs, finish, frame_count, load_meshes_in_correspondence,
-                     positive_int, print_json)
+                     positive_int, print_json, weight)
 from .interpolate import output_format, output_paths
 
 __all__ = ["register", "configure_model", "run_model", "configure_sweep", "run_sweep", "MODEL_HELP", "SWEEP_HELP"]
@@ -69,7 +69,7 @@ def configure_model(parser):
     parser.add_argument("--projection-metric", choices=PROJECTION_METRICS, default=PROJECTION_METRICS[0],
                         help="orthogonality of the tangent projection: Euclidean as in the thesis or g; "
                              "default %(default)s")
-    parser.add_argument("--bending-weight", type=float, default=MODEL_SETTINGS.bending_weight, metavar="ETA",
+    parser.add_argument("--bending-weight", type=weight, default=MODEL_SETTINGS.bending_weight, metavar="ETA",
                         help="bending weight eta of the quadratic energy W_q (default %(default)s)")
     parser.add_argument("--localize", action="store_true",
                         help="rotate the modes toward locality (g-varimax, same subspace; beyond the thesis)")

@@ -41,7 +41,7 @@ from ..reconstruction import (METHODS, GaussNewtonOptions, HybridOptions, Recons
                               reconstruction_errors)
 from ..reconstruction.settings import ENERGIES, FRAME_KINDS, HYBRID_STARTS, SOLVERS, WEIGHTS
 from .common import (CliError, add_allow_failure, check_outputs, checked_vertices, finish, json_float, mesh_topology,
-                     nonnegative_int, print_json)
+                     nonnegative_int, print_json, weight)
 
 __all__ = ["HELP", "configure", "run", "load_target", "combine_targets"]
 
@@ -63,7 +63,7 @@ def configure(parser):
                              "hybrid: least-squares (or tree) start + Gauss-Newton smoothing")
     parser.add_argument("--energy", choices=ENERGIES, default=settings.energy,
                         help=f"energy W[z*, Z(X)] minimized and reported (default {settings.energy} W_q)")
-    parser.add_argument("--bending-weight", type=float, default=settings.bending_weight, metavar="ETA",
+    parser.add_argument("--bending-weight", type=weight, default=settings.bending_weight, metavar="ETA",
                         help=f"bending weight eta (default {settings.bending_weight:g})")
     parser.add_argument("--energy-weights", choices=WEIGHTS, default=settings.weights,
                         help="weights of W_q: (3.20) (default), (3.21) or 1")

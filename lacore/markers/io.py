@@ -15,19 +15,28 @@ C3D (https://www.c3d.org)
     processor formats (Intel, DEC/VAX, SGI/MIPS) and both storages (16-bit
     integers times ``POINT:SCALE``, 32-bit floats when ``POINT:SCALE < 0``)
     are handled.  A sample is invalid (``NaN``) when its residual word is
-    negative (the C3D convention) or a coordinate is not finite.  Entries that
+    negative (the C3D convention) or a coordinate is NaN (Vicon writes NaN
+    with residual 0 for points it could not compute).  An infinite
+    coordinate is not something exporters write: the file is refused as
+    damaged, naming the marker and the frame.  Entries that
     are model outputs rather than markers (their labels listed in
     ``POINT:ANGLES``, ``FORCES``, ``MOMENTS``, ``POWERS``, ``SCALARS``, see
     :data:`MODEL_OUTPUT_GROUPS`) are skipped.
 TRC (OpenSim / Motion Analysis ``PathFileType 4``)
-    Tab-separated text; empty fields are occluded samples.
+    Tab-separated text; empty fields (or ``NaN``) are occluded samples.  An
+    infinite coordinate (``inf``, or a number beyond float64's range such as
+    ``1e999``) is refused as damage, naming the marker and the frame.  A file
+    cut short is refused: fewer data rows than the header's ``NumFrames``, or
+    a last row that lacks the final line break *and* some of its columns (a
+    complete row without the final line break is read: its last number may
+    be cut, which no reader can tell).
 
 Labels are made unique and non-empty (C3D files do repeat labels): a blank
 label becomes ``"POINT<n>"`` (``n`` the 1-based entry in the file) and the
 ``k``-th repeat of a label gets ``"#k"`` appended (``"RKNE"``, ``"RKNE#2"``).
 
 Every problem with a file raises :class:`MarkerFileError` (an
-:class:`~lacore.errors.InputError`) naming the file and what is wrong.
+:class:`~lacore.errors.InputError`) naming the file, what is wrong and what to do.
 """
 
 import io
@@ -62,6 +71,9 @@ UNIT_SCALES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "um": 1e-
 COMMON_UNITS = ("mm", "cm", "dm", "m", "in", "ft")
 
 _C3D_MAGIC = 0x50
+#: What a C3D reader error tells the user to do when the file itself is damaged.
+_C3D_AGAIN = "export the take again from the capture software"
+_TRC_AGAIN = "export the take again"
 _PROCESSORS = {84: "Intel", 85: "DEC", 86: "SGI/MIPS"}
 
 
@@ -250,7 +262,8 @@ def read_markers(path, units=None):
     if data.lstrip()[:12].lower() == b"pathfiletype":
         return _read_trc_text(data, str(path), units)
     raise MarkerFileError(f"{path}: neither a C3D file (byte 2 is {data[1] if len(data) > 1 else 'missing'}, "
-                          f"expected {_C3D_MAGIC}) nor a TRC file (no 'PathFileType' header)")
+                          f"expected {_C3D_MAGIC}) nor a TRC file (no 'PathFileType' header): choose a .c3d or .trc "
+                          "marker file, or export the take again in one of these formats")
 
 
 # ----------------------------------------------------------------------------- C3D
@@ -275,23 +288,27 @@ def _c3d_reader(data, path):
     """The ``c3d.Reader`` of the header and parameter section, with clear errors for non-C3D input."""
     c3d = _import_c3d()
     if len(data) < 512:
-        raise MarkerFileError(f"{path}: not a C3D file or truncated: {len(data)} bytes, a C3D header alone is 512")
+        raise MarkerFileError(f"{path}: not a C3D file or truncated: {len(data)} bytes, a C3D header alone is 512; "
+                              f"copy the whole file again or {_C3D_AGAIN}")
     if data[1] != _C3D_MAGIC:
-        raise MarkerFileError(f"{path}: not a C3D file (byte 2 is {data[1]}, expected {_C3D_MAGIC})")
+        raise MarkerFileError(f"{path}: not a C3D file (byte 2 is {data[1]}, expected {_C3D_MAGIC}): choose a .c3d "
+                              f"file, or {_C3D_AGAIN}")
     param_block = data[0]
     proc_at = (param_block - 1) * 512 + 3
     if param_block < 2 or proc_at >= len(data):
         raise MarkerFileError(f"{path}: truncated or malformed C3D file: the parameter section (block {param_block}) "
-                              f"is beyond the end of the file ({len(data)} bytes)")
+                              f"is not inside the file ({len(data)} bytes): copy the whole file again or "
+                              f"{_C3D_AGAIN}")
     if data[proc_at] not in _PROCESSORS:
         raise MarkerFileError(f"{path}: malformed C3D file: unknown processor type {data[proc_at]} "
-                              "(expected 84 Intel, 85 DEC or 86 SGI/MIPS)")
+                              f"(expected 84 Intel, 85 DEC or 86 SGI/MIPS): {_C3D_AGAIN}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return c3d.Reader(io.BytesIO(data))
     except Exception as exc:  # the package raises assorted errors on malformed parameter sections
-        raise MarkerFileError(f"{path}: malformed C3D parameter section ({type(exc).__name__}: {exc})") from None
+        raise MarkerFileError(f"{path}: malformed C3D parameter section ({type(exc).__name__}: {exc}): "
+                              f"{_C3D_AGAIN}") from None
 
 
 def _c3d_strings(reader, name):
@@ -324,22 +341,29 @@ def _read_c3d_bytes(data, path, units):
         unit_param = reader.get("POINT:UNITS")
         file_units = unit_param.string_value.strip().strip("\x00").strip() if unit_param is not None else ""
     except Exception as exc:
-        raise MarkerFileError(f"{path}: malformed C3D parameters ({type(exc).__name__}: {exc})") from None
+        raise MarkerFileError(f"{path}: malformed C3D parameters ({type(exc).__name__}: {exc}): "
+                              f"{_C3D_AGAIN}") from None
     # checked here, not left to the c3d package: it checks some of these with assert, which python -O skips
     if not np.isfinite(rate) or rate <= 0:
-        raise MarkerFileError(f"{path}: invalid point rate {rate!r} Hz")
+        raise MarkerFileError(f"{path}: invalid point rate {rate!r} Hz (POINT:RATE must be a positive number): "
+                              f"{_C3D_AGAIN}")
     if not np.isfinite(scale) or scale == 0:
-        raise MarkerFileError(f"{path}: invalid POINT:SCALE {scale!r}")
+        raise MarkerFileError(f"{path}: invalid POINT:SCALE {scale!r} (a finite non-zero number; negative for float "
+                              f"storage): {_C3D_AGAIN}")
     if used < 1:
-        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is {used})")
+        raise MarkerFileError(f"{path}: the file has no 3-D points (POINT:USED is {used}): export the take again "
+                              "with its markers (trajectories), not only analog or force data")
     if analog_used < 0 or (analog_used and not (np.isfinite(analog_rate) and analog_rate >= 0)):
         raise MarkerFileError(f"{path}: invalid analog channels: ANALOG:USED {analog_used}, ANALOG:RATE "
-                              f"{analog_rate!r} Hz (a damaged file: the rate must be a finite number >= 0)")
+                              f"{analog_rate!r} Hz (a damaged file: the rate must be a finite number >= 0): "
+                              f"{_C3D_AGAIN}")
     n_frames = last - first + 1
     if n_frames < 1:
-        raise MarkerFileError(f"{path}: no frames (first frame {first}, last {last})")
+        raise MarkerFileError(f"{path}: no frames (first frame {first}, last {last}): export the take again with "
+                              "its frame range")
     if units is None and not file_units:
-        raise MarkerFileError(f"{path}: no POINT:UNITS parameter; pass units= (e.g. 'mm')")
+        raise MarkerFileError(f"{path}: no POINT:UNITS parameter: give the unit (units='mm' in Python, --units mm "
+                              f"in the CLI) or {_C3D_AGAIN}")
     to_metres = unit_scale(units if units is not None else file_units, path)
 
     is_float = scale < 0
@@ -352,7 +376,8 @@ def _read_c3d_bytes(data, path, units):
     if data_block < 2 or len(data) < need:
         complete = max(0, (len(data) - start) // frame_bytes) if frame_bytes else 0
         raise MarkerFileError(f"{path}: truncated C3D file: {n_frames} frames of {used} points need {need} bytes, "
-                              f"the file has {len(data)} (only {min(complete, n_frames)} complete frames)")
+                              f"the file has {len(data)} (only {min(complete, n_frames)} complete frames): copy the "
+                              f"whole file again or {_C3D_AGAIN}")
 
     block = np.frombuffer(data, dtype=np.uint8, count=n_frames * frame_bytes, offset=start)
     raw_bytes = np.ascontiguousarray(block.reshape(n_frames, frame_bytes)[:, :point_bytes])
@@ -373,6 +398,7 @@ def _read_c3d_bytes(data, path, units):
         last_word = words[:, :, 3].astype(np.int64)
         invalid = np.zeros(last_word.shape, bool)
     invalid |= last_word < 0
+    flagged = invalid.copy()  # invalid by the residual word: its coordinates mean nothing
     invalid |= ~np.isfinite(xyz).all(axis=2)
     residuals = (last_word & 0xFF).astype(np.float64) * abs(scale) * to_metres
     positions = xyz * to_metres
@@ -397,8 +423,9 @@ def _read_c3d_bytes(data, path, units):
     keep = np.array([s.strip() not in model_outputs for s in labels], bool)
     if not keep.any():
         raise MarkerFileError(f"{path}: all {used} points are model outputs (POINT:{'/'.join(MODEL_OUTPUT_GROUPS)}),"
-                              " no markers")
+                              " no markers: export the take again with its marker trajectories")
     labels = _unique_labels([s for s, k in zip(labels, keep, strict=True) if k])
+    _refuse_infinite(np.where(flagged[:, keep, None], 0.0, xyz[:, keep]), labels, first, path, _C3D_AGAIN)
     descriptions = [d for d, k in zip(descriptions, keep, strict=True) if k]
     point_groups = {lab: groups[lab.split("#")[0]] for lab in labels if lab.split("#")[0] in groups}
     return MarkerTake(labels=labels, positions=positions[:, keep], rate=rate, first_frame=first,
@@ -530,11 +557,12 @@ def _read_trc_text(data, path, units):
     if len(labels) != n_markers:
         raise MarkerFileError(f"{path}: header says NumMarkers {n_markers} but line 4 names {len(labels)} markers")
     width = 2 + 3 * n_markers
-    fields, n_rows = [], 0
+    fields, n_rows, last_line, last_count = [], 0, "", 0
     for ln in lines[5:]:
         if not ln.strip():
             continue
         row = ln.split("\t")
+        last_line, last_count = ln, len(row)
         if len(row) < width:  # trailing empty fields may be left out
             row += [""] * (width - len(row))
         elif len(row) > width:
@@ -549,6 +577,12 @@ def _read_trc_text(data, path, units):
     if announced is not None and n_rows < announced:
         raise MarkerFileError(f"{path}: the header announces {announced} frames (NumFrames) but the file holds "
                               f"{n_rows} data rows: it is truncated or damaged (export the take again)")
+    if text.endswith(last_line):  # the last row has no line break after it: was the file cut inside it?
+        tail = fields[-3:]
+        if last_count < width or (any(f.strip() for f in tail) and not all(f.strip() for f in tail)):
+            raise MarkerFileError(f"{path}: the last data row (row {n_rows}) ends without a line break and holds "
+                                  f"{min(last_count, width)} of {width} fields or a partial marker: the file is "
+                                  "truncated or damaged (export the take again)")
     try:
         numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
     except ValueError as exc:
@@ -560,8 +594,25 @@ def _read_trc_text(data, path, units):
         raise MarkerFileError(f"{path}: data row 1 has frame number {frames[0]:g}; frame numbers are whole numbers "
                               "(fix the Frame# column)")
     positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
-    return MarkerTake(labels=_unique_labels(labels), positions=positions, rate=rate, first_frame=int(frames[0]),
+    labels = _unique_labels(labels)
+    _refuse_infinite(positions, labels, frames, path, _TRC_AGAIN)
+    return MarkerTake(labels=labels, positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
+
+
+def _refuse_infinite(xyz, labels, frame_numbers, path, what_to_do):
+    """MarkerFileError naming the first marker and frame with an infinite coordinate in ``xyz`` (T, M, 3).
+
+    ``frame_numbers`` is the first frame's number (int) or every frame's (T,) numbers.
+    """
+    bad = np.isinf(xyz).any(axis=2)
+    if not bad.any():
+        return
+    t, m = (int(i[0]) for i in np.nonzero(bad))
+    frame = frame_numbers + t if np.ndim(frame_numbers) == 0 else frame_numbers[t]
+    at = f"frame {int(frame)}" if np.isfinite(frame) and abs(frame) < 2.0 ** 63 else f"data row {t + 1}"
+    raise MarkerFileError(f"{path}: marker {labels[m]!r} has an infinite coordinate at {at} "
+                          f"({int(bad.sum())} such samples): the file is damaged; {what_to_do}")
 
 
 def _trc_frame_count(text):
