@@ -10,7 +10,7 @@ import numbers
 import numpy as np
 
 __all__ = ["InputError", "MeshError", "LengthsAnglesError", "ReconstructionWarning", "format_indices",
-           "check_integer", "as_float_array"]
+           "check_integer", "check_weight", "MAX_WEIGHT", "as_float_array"]
 
 
 class InputError(ValueError):
@@ -117,6 +117,34 @@ def check_integer(value, name, minimum=0):
         kind = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
         raise InputError(f"{name} must be {kind}, got {value!r}")
     return int(value)
+
+
+#: Largest energy weight any setting takes (bending, prior, temporal, penetration ...): the defaults are 1e-3 to 10,
+#: fits and reconstructions change no more above 1e6, and far larger ones make the linear systems unsolvable.
+MAX_WEIGHT = 1e6
+
+
+def check_weight(value, name, positive=False):
+    """``value`` as a float in ``[0, MAX_WEIGHT]`` (``(0, MAX_WEIGHT]`` with ``positive``), or an
+    :class:`InputError` naming ``name`` and the range.
+
+    Examples
+    --------
+    >>> from lacore.errors import InputError, check_weight
+    >>> check_weight(2, "bending_weight")
+    2.0
+    >>> try:
+    ...     check_weight(1e308, "prior_weight", positive=True)
+    ... except InputError as exc:
+    ...     print(exc)
+    prior_weight must be a number in (0, 1e+06], got 1e+308
+    """
+    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    v = float(value) if ok else np.nan
+    if not (np.isfinite(v) and (v > 0 if positive else v >= 0) and v <= MAX_WEIGHT):
+        raise InputError(f"{name} must be a number in {'(' if positive else '['}0, {MAX_WEIGHT:g}], got "
+                         f"{_short_repr(value) if not ok else format(v, 'g')}")
+    return v
 
 
 def as_float_array(value, name, error=InputError):

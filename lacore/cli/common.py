@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from ..errors import InputError, MeshError
+from ..errors import MAX_WEIGHT, InputError, MeshError
 from ..geometry.lengths_angles import check_nondegenerate
 from ..io.atomic import check_writable
 from ..io.meshes import load_mesh
@@ -30,10 +30,6 @@ EXIT_INTERRUPTED = 130
 #: Most output frames one command writes (``--frames``): more are a typing error, not a request.
 MAX_FRAMES = 100_000
 
-#: Largest weight an option takes (``--prior-weight``, ``--temporal-weight``, ``--penetration-weight``,
-#: ``--bending-weight``): weights are relative to a term of weight 1 whose defaults are 1e-3 to 10, so a million
-#: already leaves the other terms no say, and far larger ones overflow the solvers (1e308 did).
-MAX_WEIGHT = 1e6
 
 
 def check_number(option, value, low, high, low_open=False):

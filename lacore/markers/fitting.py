@@ -213,7 +213,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from ..errors import InputError, format_indices
+from ..errors import InputError, check_weight, format_indices
 from ..geometry.lengths_angles import (face_areas, face_normals, lengths_and_angles, lengths_and_angles_jacobian,
                                       wrap_angle)
 from ..geometry.rigid import apply_rigid, rigid_fit
@@ -302,7 +302,8 @@ class FitOptions:
     Attributes
     ----------
     prior_weight : float or "auto"
-        ``gamma`` > 0, scale-free (module docstring).  ``"auto"`` is resolved by
+        ``gamma`` in ``(0, MAX_WEIGHT]`` (:data:`lacore.errors.MAX_WEIGHT`; every weight here is at most that),
+        scale-free (module docstring).  ``"auto"`` is resolved by
         :func:`lacore.markers.fit_take` from held-out markers; :func:`fit_markers` needs a number.
     temporal_weight : float
         ``>= 0``; the vertex temporal term's weight at ``reference_rate`` (0: none).
@@ -383,10 +384,11 @@ class FitOptions:
             if not (allow_auto and g == "auto"):
                 raise InputError(f"prior_weight must be a positive number{' or auto' if allow_auto else ''}, "
                                  f"got {g!r}")
-        elif not (np.isfinite(g) and g > 0):
-            raise InputError(f"prior_weight must be a finite number > 0, got {g!r}")
-        for name in ("temporal_weight", "marker_tolerance", "ftol", "compression_weight", "penetration_weight",
-                     "coefficient_weight"):
+        else:
+            check_weight(g, "prior_weight", positive=True)
+        for name in ("temporal_weight", "compression_weight", "penetration_weight", "coefficient_weight"):
+            check_weight(getattr(self, name), name)
+        for name in ("marker_tolerance", "ftol"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
