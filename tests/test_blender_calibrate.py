@@ -175,8 +175,8 @@ def test_a_marker_with_cleared_animation_is_left_out(run):
     ("range_reversed", "End 5 is before Start 10: set End at or after Start, or use Scene Frame Range"),
     ("radii_reversed", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
                        "(0.3, 0.1)"),
-    ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),
-    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a finite number >= 0, got -0.5"),
+    ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a number in [0, 1e+06], got -1"),
+    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a number in [0, 1e+06], got -0.5"),
     ("pin_cleared", "the marker has no keyed positions (its animation was cleared), so it is left out: remove the "
                     "pin (Pins in the Lengths & Angles: Model and Markers panel) or re-import the take"),
     ("pin_deleted", "the marker's empty was deleted, so it is left out: remove the pin")])

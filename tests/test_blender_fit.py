@@ -435,8 +435,8 @@ def test_fit_settings_reach_lacore_and_are_recorded(run):
     ("radii_equal", "Modes Near Markers Only: observed_radius must be None or two numbers 0 <= r1 < r2, got "
                     "(0.2, 0.2)"),
     ("radius_negative", "Modes Near Markers Only: observed_radius must be"),
-    ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a finite number >= 0, got -1.0"),
-    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a finite number >= 0, got -0.5")])
+    ("penetration_negative", "Non-Penetration Weight: penetration_weight must be a number in [0, 1e+06], got -1"),
+    ("coefficient_negative", "Training Range Weight: coefficient_weight must be a number in [0, 1e+06], got -0.5")])
 def test_bad_fit_settings_one_line_and_unchanged(run, case, words):
     res = run["cases"]["fit_settings"]["bad"][case]
     assert res["result"] == ["CANCELLED"] and res["unchanged"] and res["lines"] == 1, res
