@@ -119,8 +119,10 @@ def check_integer(value, name, minimum=0):
     return int(value)
 
 
-#: Largest energy weight any setting takes (bending, prior, temporal, penetration ...): the defaults are 1e-3 to 10,
-#: fits and reconstructions change no more above 1e6, and far larger ones make the linear systems unsolvable.
+#: Largest scale-free energy weight a setting takes (the marker fit's prior, temporal, penetration ... weights; the
+#: CLI's options): the defaults are 1e-3 to 10, fits change no more above 1e6, and far larger ones make the linear
+#: systems unsolvable.  Weights with a unit (the bending weight of unit-dependent energies, eta s^2 at scale s) have
+#: no such bound.
 MAX_WEIGHT = 1e6
 
 

@@ -520,7 +520,7 @@ def test_more_option_values_are_checked():
     from lacore.samples.bar import bar_family
     X, F = bar_mesh(n_along=12, n_side=2)
     topo = MeshTopology.from_faces(F)
-    with pytest.raises(InputError, match=r"bending_weight must be a number in \[0, 1e\+06\], got 'x'"):
+    with pytest.raises(InputError, match="bending_weight must be finite and >= 0, got 'x'"):
         QuadraticEnergy(topo, reference_vertices=X, bending_weight="x")
     mr = MultiresolutionReconstruction(np.stack([X, bar_pose(X, 0.5, 0.0)]), topo, 20)
     for kw, words in (({"pcg_rtol": -1.0}, r"pcg_rtol must be a number in \(0, 1\)"),

@@ -3,7 +3,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError, LengthsAnglesError, check_weight, format_indices
+from ..errors import InputError, LengthsAnglesError, format_indices
 from ..geometry.lengths_angles import lengths_and_angles, wrap_angle
 from ._common import (DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES, DeformationEnergy, _as_z, _Blocks,
                       _interior_quads, _parse_argument, edge_areas)
@@ -109,7 +109,12 @@ class QuadraticEnergy(DeformationEnergy):
         super().__init__(topology)
         if weights not in WEIGHT_SCHEMES:
             raise InputError(f"unknown weight scheme {weights!r}; use one of {WEIGHT_SCHEMES}")
-        check_weight(bending_weight, "bending_weight")
+        try:
+            valid = np.isfinite(float(bending_weight)) and float(bending_weight) >= 0
+        except (TypeError, ValueError):
+            valid = False
+        if not valid:
+            raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         if reference_vertices is not None and reference_z is not None:
             raise InputError("give reference_vertices or reference_z, not both")
         E = topology.n_edges

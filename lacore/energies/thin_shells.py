@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..errors import InputError, LengthsAnglesError, check_weight, format_indices
+from ..errors import InputError, LengthsAnglesError, format_indices
 from ..geometry.lengths_angles import wrap_angle
 from ..geometry.trigonometry import triangle_area_gradient, triangle_areas, triangle_inequality_margin
 from ._common import (DEFAULT_BENDING_WEIGHT, DeformationEnergy, _Blocks, _interior_quads, _parse_argument,
@@ -189,7 +189,8 @@ class ThinShellsEnergy(DeformationEnergy):
         for name, v in (("mu", mu), ("lam", lam)):
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a positive material constant, got {v!r}")
-        check_weight(bending_weight, "bending_weight")
+        if not (np.isfinite(bending_weight) and bending_weight >= 0):
+            raise InputError(f"bending_weight must be finite and >= 0, got {bending_weight!r}")
         self.bending_weight = float(bending_weight)
         self.mu, self.lam = float(mu), float(lam)
 

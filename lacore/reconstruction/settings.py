@@ -58,7 +58,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..energies import DEFAULT_BENDING_WEIGHT, DEFAULT_WEIGHTS, WEIGHT_SCHEMES
-from ..errors import InputError, MeshError, check_weight
+from ..errors import InputError, MeshError
 from ..linalg.sparse_cholesky import ORDERINGS
 
 __all__ = ["ReconstructionSettings", "GaussNewtonOptions", "HybridOptions", "ReconstructionSetup", "ProjectionPreset",
@@ -94,7 +94,7 @@ class ReconstructionSettings:
     weights : {"frohlich_botsch", "heeren", "uniform"}
         Weights of ``W_q``: (3.20) (default), (3.21) or 1.
     bending_weight : float
-        ``eta`` in (3.19)/(3.25), default ``1e-3``, at most :data:`lacore.errors.MAX_WEIGHT`.
+        ``eta`` in (3.19)/(3.25), default ``1e-3``.
     fixed_face : None or tuple of int
         Face fixing the rigid motion (one per connected component, components
         not given get a central, well-shaped face of the reference mesh); also
@@ -138,7 +138,12 @@ class ReconstructionSettings:
             raise InputError(f"unknown energy {self.energy!r}; use 'quadratic' or 'shells'")
         if self.weights not in WEIGHTS:
             raise InputError(f"unknown weights {self.weights!r}; use 'frohlich_botsch', 'heeren' or 'uniform'")
-        eta = check_weight(self.bending_weight, "bending_weight")
+        try:
+            eta = float(self.bending_weight)
+        except (TypeError, ValueError):
+            eta = np.nan
+        if not (np.isfinite(eta) and eta >= 0):
+            raise InputError(f"bending_weight must be a finite number >= 0, got {self.bending_weight!r}")
         if self.solver is not None and self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; use 'cholmod' or 'scipy'")
         if self.ordering is not None and self.ordering not in ORDERINGS:

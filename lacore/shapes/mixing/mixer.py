@@ -81,7 +81,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.linalg as sl
 
-from ...errors import InputError, LengthsAnglesError, MeshError, check_weight
+from ...errors import InputError, LengthsAnglesError, MeshError
 from ...geometry.lengths_angles import (check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian,
                                        wrap_angle)
 from ...geometry.topology import MeshTopology, check_vertices
@@ -345,8 +345,8 @@ class MixerOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a positive number, got {v!r}")
-        if self.bending_weight is not None:
-            check_weight(self.bending_weight, "bending_weight")
+        if self.bending_weight is not None and not (np.isfinite(self.bending_weight) and self.bending_weight >= 0):
+            raise InputError(f"bending_weight must be a non-negative number, got {self.bending_weight!r}")
 
     @property
     def settings(self):

@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import InputError, check_weight
+from ...errors import InputError
 from ...progress import report
 from ...reconstruction import reconstruct
 from ...reconstruction.settings import GaussNewtonOptions
@@ -136,8 +136,8 @@ class PathOptions:
             v = getattr(self, name)
             if int(v) != v or v < low:
                 raise InputError(f"{name} must be an integer of at least {low}, got {v!r}")
-        if self.bending_weight is not None:
-            check_weight(self.bending_weight, "bending_weight")
+        if self.bending_weight is not None and not (np.isfinite(self.bending_weight) and self.bending_weight >= 0):
+            raise InputError(f"bending_weight must be a non-negative number, got {self.bending_weight!r}")
         if self.tangents not in ("from", "both"):
             raise InputError(f"tangents must be 'from' or 'both', got {self.tangents!r}")
         if self.polish_method not in ("auto", "gn", "fast"):
