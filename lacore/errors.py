@@ -133,7 +133,7 @@ def check_weight(value, name, positive=False):
     Examples
     --------
     >>> from lacore.errors import InputError, check_weight
-    >>> check_weight(2, "bending_weight")
+    >>> check_weight(2, "temporal_weight")
     2.0
     >>> try:
     ...     check_weight(1e308, "prior_weight", positive=True)

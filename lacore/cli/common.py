@@ -31,7 +31,6 @@ EXIT_INTERRUPTED = 130
 MAX_FRAMES = 100_000
 
 
-
 def check_number(option, value, low, high, low_open=False):
     """``value`` as a float if it is finite and within ``[low, high]`` (``(low, high]`` with ``low_open``);
     else :class:`CliError` naming ``option`` and the range, e.g. ``--prior-weight must be a number in (0, 1e+06],
