@@ -32,7 +32,7 @@ __all__ = ["MeshAccessError", "Triangulation", "triangulate", "read_shape_keys",
            "require_whole_keys", "require_nondegenerate_keys", "require_writable_keys", "linked_from", "override_from",
            "not_kept", "require_kept",
            "write_shape_key", "set_shape_key", "key_names", "require_mesh_object", "key_block_array",
-           "world_to_object", "object_mode", "mesh_counts", "connectivity_digest"]
+           "world_to_object", "object_mode", "mesh_counts", "connectivity_digest", "dominant_vertex_groups"]
 
 
 class MeshAccessError(InputError):
@@ -424,3 +424,15 @@ def connectivity_digest(mesh):
 def mesh_counts(mesh):
     """``{"vertices": .., "edges": .., "faces": ..}`` of ``mesh``."""
     return {"vertices": len(mesh.vertices), "edges": len(mesh.edges), "faces": len(mesh.polygons)}
+
+
+def dominant_vertex_groups(obj, vertices):
+    """Name of the vertex group of ``obj`` weighing most on each vertex index of ``vertices`` (``""`` where a vertex
+    is in no group with a positive weight): on a rigged character, the bone region a vertex belongs to."""
+    names = [g.name for g in obj.vertex_groups]
+    out = []
+    for v in vertices:
+        best = max(((g.weight, g.group) for g in obj.data.vertices[int(v)].groups
+                    if g.weight > 0 and g.group < len(names)), default=None)
+        out.append("" if best is None else names[best[1]])
+    return out

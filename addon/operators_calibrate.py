@@ -53,7 +53,7 @@ from .jobs import CallJob
 from .mesh_access import require_kept, require_mesh_object, triangulate, world_to_object
 from .operators_fit import (BINDING_PROP, MODEL_PROP, FitSettings, FitSetupError, _build_model, _model_inputs,
                             _pc2_path, _prop_state, _store_built_model, _take_of, _take_state, _write_fit,
-                            draw_fit_settings, draw_frame_range, fit_settings, metres_per_unit,
+                            draw_fit_settings, draw_frame_range, fit_settings, marker_locations, metres_per_unit,
                             nonuniform_scale_note, read_model, recorded_settings, require_frame_range,
                             require_still, typed)
 from .operators_markers import (TAKE_PROP, UNKEYED_REASON, marker_objects, read_take, take_frame_rate, unkeyed_markers,
@@ -380,7 +380,7 @@ def calibrate_fit_run(context, obj, take, frame_start, frame_end, prior_weight=N
             "take": take_name, "labels": bound, "empties": [empties[lb] for lb in bound],
             "frame": int(frames[0]), "calibrated": True,
             "faces": b.faces.tolist(), "barycentric": b.barycentric.ravel().tolist(), "offsets": b.offsets.tolist(),
-            "n_vertices": len(obj.data.vertices),
+            "n_vertices": len(obj.data.vertices), **marker_locations(obj, m, b),
             "metres_per_unit": unit, "warn_distance": 0.05, "not_bound": not_bound,
             "not_bound_reasons": [left_out.get(lb) or not_marker.get(lb, "left out by the calibration: see its report")
                                   for lb in not_bound],

@@ -27,7 +27,8 @@ Mode sliders
     (:func:`..lacore.markers.binding.bind_markers`, ``align=False`` by default: the
     markers are where the mesh is; *Align* runs ICP first, at most :data:`ALIGN_ITERATIONS`
     iterations, and the report says how many it ran).  Stored on the object in
-    ``obj["lengths_angles_binding"]``; the panel lists each marker with its offset and the
+    ``obj["lengths_angles_binding"]``; the panel lists each marker with a mesh vertex and vertex group
+    (:func:`marker_locations`) and its offset, and the
     operator warns about markers farther than ``warn_distance`` from the surface.
 ``lengths_angles.fit_markers``
     Fits the frame range.  Marker positions are read from the empties' F-curves in
@@ -77,7 +78,7 @@ from .compat import BLEND_RELATIVE_PATH, animation_channels, ensure_animation_ch
 from .jobs import CallJob
 from .mesh_access import (key_names, not_kept, object_mode, read_shape_keys, require_kept, require_mesh_object,
                           require_nondegenerate_keys, require_whole_keys, require_writable_keys, triangulate,
-                          world_to_object)
+                          world_to_object, dominant_vertex_groups)
 from .bake import value_path
 from .motion import animated, moving_transform
 from .naming import FIT_MODIFIER, LIVE_MIX_KEY, PREVIEW_KEY, fit_key_name, is_fit_key, is_own_key, parse_key_list
@@ -88,7 +89,7 @@ from .runs import ObjectWatch, Run, RunOperator, object_state
 
 __all__ = ["MODEL_PROP", "BINDING_PROP", "metres_per_unit", "MAX_MODES", "MAX_SHAPE_KEY_FRAMES", "ALIGN_ITERATIONS",
            "shape_key_deformer", "model_run",
-           "bind_run", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
+           "bind_run", "marker_locations", "fit_run", "fit_inputs", "fit_settings", "recorded_settings", "FitSettings",
            "draw_fit_settings", "draw_frame_range", "typed", "SETTING_LABELS", "store_model", "read_model",
            "migrate_models", "read_binding", "remove_model", "classes"]
 
@@ -276,6 +277,19 @@ def model_mesh_vertices(model, X):
     """The model's vertices of a pose ``X`` of the mesh it was built from (the coarse level's, if any)."""
     fine = getattr(model, "fine_level", None)
     return X if fine is None else X[fine.coarsening.vertex_indices]
+
+
+def marker_locations(obj, model, binding):
+    """Where the markers of ``binding`` (a :class:`..lacore.markers.binding.MarkerBinding` on ``model``'s triangles)
+    sit on the mesh of ``obj``, in the terms Blender shows: ``{"vertices": [...], "regions": [...]}``, for each
+    marker the corner of its triangle of largest barycentric weight as a vertex index of the mesh (also when the
+    model is on a coarse level) and that vertex's dominant vertex group (``""`` if none,
+    :func:`.mesh_access.dominant_vertex_groups`)."""
+    faces = np.asarray(model.faces, np.int64)[np.asarray(binding.faces, np.int64)]
+    corner = faces[np.arange(len(faces)), np.argmax(np.asarray(binding.barycentric), axis=1)]
+    fine = getattr(model, "fine_level", None)
+    vertices = (corner if fine is None else np.asarray(fine.coarsening.vertex_indices)[corner]).tolist()
+    return {"vertices": vertices, "regions": dominant_vertex_groups(obj, vertices)}
 
 
 def model_run(obj, keys=None, n_modes=None, coarse_vertices=-1):
@@ -644,6 +658,7 @@ def bind_run(context, obj, take, labels=None, align=False, warn_distance=0.05):
             "take": take_name, "labels": labels, "empties": [empties[lb] for lb in labels], "frame": frame,
             "faces": binding.faces.tolist(), "barycentric": binding.barycentric.ravel().tolist(),
             "offsets": binding.offsets.tolist(), "n_vertices": len(obj.data.vertices),
+            **marker_locations(obj, model, binding),
             "metres_per_unit": unit, "warn_distance": warn_distance, "not_bound": hidden + unkeyed,
             "not_bound_reasons": [f"occluded at frame {frame}"] * len(hidden) + [UNKEYED_REASON] * len(unkeyed),
         }
@@ -1143,7 +1158,7 @@ classes = (LENGTHS_ANGLES_OT_build_model, LENGTHS_ANGLES_OT_model_pose_to_shape_
 def register_properties():
     bpy.types.Object.lengths_angles_mode_weights = FloatVectorProperty(
         name="Mode Weights", size=MAX_MODES, default=[0.0] * MAX_MODES, soft_min=-3.0, soft_max=3.0,
-        update=_mode_weights_changed,
+        update=_mode_weights_changed, override={'LIBRARY_OVERRIDABLE'},
         description="Shape-model coefficients in standard deviations: dragging previews the pose in the "
                     f"shape key '{PREVIEW_KEY}' (at most every {PREVIEW_INTERVAL} s); Model Pose to Shape Key keeps it")
     if _on_save_pre not in bpy.app.handlers.save_pre:

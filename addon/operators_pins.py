@@ -157,7 +157,7 @@ def draw_pins(layout, obj):
 
 def register_properties():
     setattr(bpy.types.Object, PLACEMENT_PROP, EnumProperty(
-        name="Placement", items=PLACEMENT_ITEMS, default='AUTO',
+        name="Placement", items=PLACEMENT_ITEMS, default='AUTO', override={'LIBRARY_OVERRIDABLE'},
         description="How Calibrate & Fit places the character over the take"))
 
 

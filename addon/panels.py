@@ -146,10 +146,11 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
             box.label(text=f"Take '{binding['take']}' bound at frame {binding['frame']}")
             unit = float(binding.get("metres_per_unit", 1.0))
             warn = float(binding.get("warn_distance", 0.05))
-            for label, face, offset in zip(binding["labels"], binding["faces"], binding["offsets"], strict=True):
+            for label, where, offset in zip(binding["labels"], marker_places(binding), binding["offsets"],
+                                            strict=True):
                 row = box.row()
                 row.label(text=label, icon='ERROR' if abs(offset) * unit > warn else 'CHECKMARK')
-                row.label(text=f"triangle {face}")
+                row.label(text=where)
                 row.label(text=f"{1000 * offset * unit:.1f} mm")
             not_bound = list(binding.get("not_bound", []))
             reasons = list(binding.get("not_bound_reasons", ["occluded"] * len(not_bound)))  # (older bindings)
@@ -157,6 +158,16 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
                 box.row().label(text=f"{label}: not bound ({why})", icon='HIDE_ON')
             layout.operator(fit.LENGTHS_ANGLES_OT_fit_markers.bl_idname, icon='ARMATURE_DATA')
         draw_fit_quality(layout, obj)
+
+
+def marker_places(binding):
+    """Where each bound marker sits, as the Model panel lists it: ``"vertex 812 (LeftForeArm)"`` (a corner of its
+    triangle and that vertex's dominant vertex group, :func:`.operators_fit.marker_locations`), or
+    ``"triangle N"`` for bindings stored without them."""
+    if "vertices" not in binding:
+        return [f"triangle {face}" for face in binding["faces"]]
+    return [f"vertex {v}" + (f" ({region})" if region else "")
+            for v, region in zip(binding["vertices"], binding["regions"], strict=True)]
 
 
 def draw_fit_quality(layout, obj):

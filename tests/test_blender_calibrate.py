@@ -19,6 +19,9 @@ from lacore.markers.io import write_c3d
 CHECK_SCRIPT = REPO / "tests" / "blender" / "check_calibrate.py"
 N_TRAIN, N_FRAMES = 20, 20
 TAKE = "Walk1.c3d"
+#: How much farther than its offset from the surface a bound marker may be from its nearest listed vertex at the bind
+#: frame (mm; measured 21 mm, about an edge of the coarse body).
+NEAREST_VERTEX_MM = 50.0
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +44,7 @@ def run(extension_zip, tmp_path_factory):
     data = run_blender_check(CHECK_SCRIPT, extension_zip, work, timeout=900)
     with np.load(work / "files" / "calibrate.npz") as f:
         data["arrays"] = dict(f)
-    data["faces"] = body.faces
+    data["faces"], data["basis"] = body.faces, body.vertices
     return data
 
 
@@ -79,6 +82,16 @@ def test_calibrate_and_fit_plays_back_the_fit(run):
                                       for lb, why in zip(res["not_bound"], res["not_bound_reasons"], strict=True)]
     assert not any("occluded" in why for why in res["not_bound_reasons"]), res["not_bound_reasons"]
     assert "lengths_angles.calibrate_fit" in " ".join(map(str, res["panel_operators"])) or res["panel_operators"]
+    # each bound marker's place in Blender's terms (before: the model's triangle number): the mesh vertex nearest the
+    # bound point, near the marker at the first frame, and its dominant vertex group ("Faint" weighs 0.2 everywhere)
+    v, regions = np.array(res["bind_vertices"]), res["bind_regions"]
+    assert len(v) == len(res["binding_labels"]) and 0 <= v.min() and v.max() < ev.shape[1]
+    height = run["basis"][v, 1]
+    assert regions == ["Upper" if h >= np.median(run["basis"][:, 1]) else "Lower" for h in height], regions
+    assert res["place_texts"] == [f"vertex {i} ({r})" for i, r in zip(v, regions, strict=True)]
+    near = 100.0 * np.linalg.norm(ev[0, v] - a["markers"][0], axis=1)     # mm, NaN where occluded at frame 1
+    offsets = 100.0 * np.abs(a["bind_offsets"])
+    assert np.nanmax(near - offsets) < NEAREST_VERTEX_MM, (np.nanmax(near - offsets), near, offsets)
 
 
 def test_second_run_reuses_the_stored_calibration(run):
@@ -194,6 +207,8 @@ def test_coarse_model_plays_back_on_the_full_mesh(run):
     assert res["result"] == ["FINISHED"] and res["finite"]
     assert res["evaluated_shape"] == [2, res["mesh_vertices"], 3]
     assert res["binding_faces_max"] < res["coarse_faces"]  # bound on the coarse level
+    # the panel lists the mesh's vertex numbers, not the coarse level's
+    assert set(res["bind_vertices"]) <= set(res["coarse_vertex_indices"]) and max(res["bind_vertices"]) >= 1000
     assert res["marker_rms_mm"] < 25.0, res
 
 

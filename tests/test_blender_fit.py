@@ -158,6 +158,16 @@ def test_pc2_and_mesh_cache_settings(run):
     assert res["reloaded"]["binding"] and res["reloaded"]["modifier"]
 
 
+def test_binding_names_the_nearest_vertex(run, inputs):
+    """Bind Markers lists each marker at the mesh vertex nearest its bound point (the triangle corner of largest
+    barycentric weight), a number Blender shows (before: the model's triangle number); no vertex groups, no region."""
+    a, res = run["arrays"], run["cases"]["whole_path"]
+    corner = inputs["faces"][a["bind_faces"], np.argmax(a["bind_barycentric"], axis=1)]
+    assert np.array_equal(a["bind_vertices"], corner)
+    assert res["bind_regions"] == [""] * len(corner)
+    assert res["bind_places"] == [f"vertex {v}" for v in corner]
+
+
 def test_mesh_cache_matches_lacore_fit_and_true_poses(run, inputs):
     a = run["arrays"]
     model = ShapeModel.load(io.BytesIO(a["model_npz"].tobytes()))

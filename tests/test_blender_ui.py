@@ -46,7 +46,9 @@ def test_session_cache_hits_and_invalidation(run):
 
 def test_key_pickers_texts_and_menu(run):
     res = run["cases"]["key_pickers_and_texts"]
-    assert res["naming_doctests"][0] == 0 and res["naming_doctests"][1] >= 6  # addon/naming.py's examples
+    # every example in the add-on's docstrings ran and passed (addon/naming.py, addon/fit_quality.py, ...)
+    expected = {p.stem: p.read_text(encoding="utf-8").count(">>> ") for p in sorted((REPO / "addon").glob("*.py"))}
+    assert res["addon_doctests"] == {name: [0, n] for name, n in expected.items() if n}, res["addon_doctests"]
     assert res["items"] == [["Basis", 0], ["Bend180", 1], ["SimpleDeform90", 2]]
     assert res["flag_items"] == [["Basis", 1], ["Bend180", 2], ["SimpleDeform90", 4]]
     assert res["default_pair_key"] and res["pair_ref_active"] == ["Basis", "Bend180"]

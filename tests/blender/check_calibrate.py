@@ -95,8 +95,15 @@ def evaluated_frames(obj, frames):
 
 
 def whole_path():
-    """Import -> Calibrate & Fit (synchronous, as from a script) -> frame_set plays the fit."""
+    """Import -> Calibrate & Fit (synchronous, as from a script) -> frame_set plays the fit.  The character has
+    vertex groups "Upper" and "Lower" (weight 1, split at the basis' median height) and "Faint" (weight 0.2 on all):
+    the panel names each bound marker's nearest vertex and its dominant group."""
     obj, take = open_scene()
+    height = INPUTS["basis"][:, 1]
+    upper = height >= np.median(height)
+    obj.vertex_groups.new(name="Faint").add(list(range(len(height))), 0.2, 'REPLACE')
+    obj.vertex_groups.new(name="Lower").add(np.flatnonzero(~upper).tolist(), 1.0, 'REPLACE')
+    obj.vertex_groups.new(name="Upper").add(np.flatnonzero(upper).tolist(), 1.0, 'REPLACE')
     before = state(obj)
     t = time.perf_counter()
     result = bpy.ops.lengths_angles.calibrate_fit()
@@ -133,6 +140,8 @@ def whole_path():
             "not_bound": list(binding["not_bound"]), "metres_per_unit": binding["metres_per_unit"],
             "not_bound_reasons": list(binding["not_bound_reasons"]),
             "not_bound_texts": [t for t in texts if "not bound (" in t],
+            "bind_vertices": list(binding["vertices"]), "bind_regions": list(binding["regions"]),
+            "place_texts": [t for t in texts if t.startswith(("vertex ", "triangle "))],
             "performer_ratio": binding["performer_ratio"], "model_keys": list(meta["keys"]),
             "panel_texts": [t for t in texts if t.startswith(("Fit of", "Prior", "Flagged"))],
             "panel_operators": ops, "keys_unchanged": before["keys"] == state(obj)["keys"]}
@@ -401,7 +410,8 @@ def coarse_model():
             "mode1_moves": float(np.abs(mode1.reshape(-1, 3) - basis).max()), "result": sorted(result),
             "seconds": round(seconds, 2), "evaluated_shape": list(ev.shape), "finite": bool(np.isfinite(ev).all()),
             "marker_rms_mm": q["marker_rms_mm"], "binding_faces_max": max(obj[fit.BINDING_PROP]["faces"]),
-            "coarse_faces": int(len(model.faces))}
+            "coarse_faces": int(len(model.faces)), "bind_vertices": list(obj[fit.BINDING_PROP]["vertices"]),
+            "coarse_vertex_indices": model.fine_level.coarsening.vertex_indices.tolist()}
 
 
 def creature_scene():

@@ -146,6 +146,12 @@ def whole_path():
     OUT["bind_faces"] = np.array(binding["faces"])
     OUT["bind_barycentric"] = np.array(binding["barycentric"]).reshape(-1, 3)
     OUT["bind_offsets"] = np.array(binding["offsets"])
+    OUT["bind_vertices"] = np.array(binding["vertices"])
+    from types import SimpleNamespace
+    calls = draw_panel(bpy.types.LENGTHS_ANGLES_PT_mocap, SimpleNamespace(object=obj))
+    places = [kw.get("text", "") for name, _a, kw in calls if name == "label"
+              and kw.get("text", "").startswith(("vertex ", "triangle "))]
+    bind_regions = list(binding["regions"])
     # fit the scene range (synchronous in background mode), PC2 output
     T = INPUTS["true"].shape[0]
     scene.frame_start, scene.frame_end = 1, T
@@ -185,7 +191,7 @@ def whole_path():
             "fit_seconds_per_frame": t_fit / T,
             "modifier": modifier, "pc2_bytes": os.path.getsize(pc2), "n_vertices": n_vertices,
             "mesh_untouched": bool(np.array_equal(before, after)), "keys_unchanged": keys_unchanged,
-            "quality": quality,
+            "quality": quality, "bind_places": places, "bind_regions": bind_regions,
             "reloaded": {"n_modes": int(model.n_modes), "binding": "lengths_angles_binding" in obj,
                          "modifier": "LA Fit" in obj.modifiers}}
 

@@ -156,10 +156,18 @@ def library_data():
         obj["test_object_prop"] = 1
         obj.data["test_mesh_prop"] = 1
         obj[pins_prop] = {"LFHD": 3}
+        # the add-on's object settings (registered properties): Placement and the first mode slider
+        settings = None
+        if obj.library is None:
+            obj.lengths_angles_placement = 'PLACED'
+            obj.lengths_angles_mode_weights[0] = 1.5
         obj = _reopened(shot)
+        if obj.library is None:
+            settings = [obj.lengths_angles_placement, round(obj.lengths_angles_mode_weights[0], 3)]
         got["kept_after_reopen"] = {"object_prop": "test_object_prop" in obj,
                                     "mesh_prop": "test_mesh_prop" in obj.data,
-                                    "pin_changed": obj.get(pins_prop, {}).to_dict() == {"LFHD": 3}}
+                                    "pin_changed": obj.get(pins_prop, {}).to_dict() == {"LFHD": 3},
+                                    "settings": settings}
         obj = _shot_object(kind, library)
         take = _take()
         bpy.ops.wm.save_as_mainfile(filepath=shot)  # Calibrate & Fit writes its point cache next to it

@@ -5,7 +5,9 @@ renames, remove_data, messages.  Run in a SUBPROCESS by tests/test_blender_ui.py
 usage: BLENDER_USER_RESOURCES=<tmp> python check_ui.py --zip EXT.zip --workdir DIR --result OUT.json
 """
 
+import glob
 import importlib
+import os
 import time
 from types import MethodType, SimpleNamespace
 
@@ -240,8 +242,15 @@ def key_pickers_and_texts():
     labels = [kw.get("text") for name, _, kw in calls if name == "label"]
     import doctest
 
-    naming = doctest.testmod(mod("naming"))  # the examples of the names and typed lists (no bpy, in Blender's Python)
-    return {"naming_doctests": [naming.failed, naming.attempted],
+    # the add-on's docstring examples (names, typed lists, quality texts), run in Blender's Python
+    examples = {}
+    for path in sorted(glob.glob(os.path.join(os.path.dirname(mod("naming").__file__), "*.py"))):
+        name = os.path.basename(path)[:-3]
+        with open(path, encoding="utf-8") as fh:
+            if ">>> " in fh.read():
+                found = doctest.testmod(mod(name))
+                examples[name] = [found.failed, found.attempted]
+    return {"addon_doctests": examples,
             "items": [(i[0], i[4]) for i in items], "flag_items": [(i[0], i[4]) for i in flags],
             "default_pair_key": default_pair_key, "pair_ref_active": list(pair_ref_active),
             "descriptions": descriptions, "menu_operators": menu_ops, "pinned_labels": labels}
