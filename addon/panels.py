@@ -148,10 +148,11 @@ class LENGTHS_ANGLES_PT_mocap(_ShapeKeysSubpanel, bpy.types.Panel):
             warn = float(binding.get("warn_distance", 0.05))
             for label, where, offset in zip(binding["labels"], marker_places(binding), binding["offsets"],
                                             strict=True):
-                row = box.row()
+                row = box.split(factor=0.3)
                 row.label(text=label, icon='ERROR' if abs(offset) * unit > warn else 'CHECKMARK')
-                row.label(text=where)
-                row.label(text=f"{1000 * offset * unit:.1f} mm")
+                rest = row.split(factor=0.7)
+                rest.label(text=where)
+                rest.label(text=f"{1000 * offset * unit:.1f} mm")
             not_bound = list(binding.get("not_bound", []))
             reasons = list(binding.get("not_bound_reasons", ["occluded"] * len(not_bound)))  # (older bindings)
             for label, why in zip(not_bound, reasons, strict=True):

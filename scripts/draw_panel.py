@@ -4,7 +4,7 @@
 Background Blender has no window to screenshot, so this script builds a small scene (a bar with three
 shape keys, encoded, one in-between, a shape model, a four-marker take imported and bound), calls the
 ``draw()`` of the add-on's two panels and of the In-betweens dialog with a layout that records every call
-(``row``, ``column``, ``box``, ``operator``, ``label``, ``prop`` and their arguments), and paints what was
+(``row``, ``column``, ``split``, ``box``, ``operator``, ``label``, ``prop`` and their arguments), and paints what was
 recorded the way Blender's default dark theme would: buttons, sliders, fields, labels.  Operator texts
 come from the operators' registered labels, property values from the scene.  Blender's own Shape Keys
 list above the add-on's panels is drawn from the mesh's keys.  Icons are approximated by font symbols.
@@ -84,6 +84,11 @@ class Layout:
 
     def row(self, align=False, **kw):
         return self._sub("row", align)
+
+    def split(self, factor=0.0, align=False, **kw):
+        child = self._sub("split", align)
+        child.factor = factor
+        return child
 
     def column(self, align=False, **kw):
         return self._sub("column", align)
@@ -202,6 +207,8 @@ def place_children(node, canvas, x, y, w, vertical):
             y += place(child, canvas, x, y, w) + gap
         return y - top - gap
     fixed = [_fixed_width(c) for c in node.children]
+    if node.kind == "split" and getattr(node, "factor", 0.0) > 0 and len(fixed) > 1:
+        fixed[0] = node.factor * (w - gap * (len(fixed) - 1))   # Blender's split: the first column's share
     free = w - sum(f for f in fixed if f) - gap * (len(fixed) - 1)
     n_free = sum(1 for f in fixed if not f) or 1
     height = 0
@@ -366,7 +373,8 @@ def paint(canvas, width, height, path):
 
 # ----------------------------------------------------------------------------- the scene
 def build_scene(tmp):
-    """A bar with Basis, Bend180, Bend90 and Twist90; encoded, one in-between, a shape model, a bound take."""
+    """A bar with Basis, Bend180, Bend90 and Twist90; encoded, one in-between, a shape model, two vertex groups, a
+    bound take."""
     import bpy
     import numpy as np
 
@@ -389,6 +397,9 @@ def build_scene(tmp):
     obj.lengths_angles_mode_weights[1] = -0.3
     # a four-marker take on the bar's surface (metres), bound at frame 1
     X = cases.key_coords(obj, "Basis")
+    # vertex groups, as a rigged arm has them: the panel names each marker's group
+    obj.vertex_groups.new(name="Forearm").add(np.flatnonzero(X[:, 0] < 0).tolist(), 1.0, 'REPLACE')
+    obj.vertex_groups.new(name="UpperArm").add(np.flatnonzero(X[:, 0] >= 0).tolist(), 1.0, 'REPLACE')
     picks = [int(np.argmin(np.linalg.norm(X - p, axis=1)))
              for p in ((-4, 0, 0.5), (-1.3, 0, 0.5), (1.3, 0, 0.5), (4, 0, 0.5))]
     frames = np.repeat(X[picks][None], 5, axis=0) + [0.0, 0.0, 0.01]
