@@ -287,8 +287,7 @@ def marker_locations(obj, model, binding):
     :func:`.mesh_access.dominant_vertex_groups`)."""
     faces = np.asarray(model.faces, np.int64)[np.asarray(binding.faces, np.int64)]
     corner = faces[np.arange(len(faces)), np.argmax(np.asarray(binding.barycentric), axis=1)]
-    fine = getattr(model, "fine_level", None)
-    vertices = (corner if fine is None else np.asarray(fine.coarsening.vertex_indices)[corner]).tolist()
+    vertices = model_mesh_vertices(model, np.arange(len(obj.data.vertices)))[corner].tolist()
     return {"vertices": vertices, "regions": dominant_vertex_groups(obj, vertices)}
 
 

@@ -207,7 +207,7 @@ def place_children(node, canvas, x, y, w, vertical):
             y += place(child, canvas, x, y, w) + gap
         return y - top - gap
     fixed = [_fixed_width(c) for c in node.children]
-    if node.kind == "split" and getattr(node, "factor", 0.0) > 0 and len(fixed) > 1:
+    if node.kind == "split" and node.factor > 0 and len(fixed) > 1:
         fixed[0] = node.factor * (w - gap * (len(fixed) - 1))   # Blender's split: the first column's share
     free = w - sum(f for f in fixed if f) - gap * (len(fixed) - 1)
     n_free = sum(1 for f in fixed if not f) or 1
