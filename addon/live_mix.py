@@ -130,19 +130,63 @@ class LiveMixError(InputError):
 
 
 # ------------------------------------------------------------------------------------------- reading
+def _key_print(kb):
+    """A digest of the key block ``kb``'s coordinates by value (:func:`_digest`): what finds a key kept linear after
+    a rename."""
+    co = np.empty(3 * len(kb.points), np.float32)
+    kb.points.foreach_get("co", co)
+    return _digest(co, np.empty(0, np.int32))
+
+
+def _stored_choice(mesh):
+    """``{name: digest}`` of the keys kept linear as stored on ``mesh`` (digest "" in files that stored names only)."""
+    stored = mesh.get(LINEAR_KEYS_PROP)
+    if stored is None:
+        return {}
+    if hasattr(stored, "keys"):
+        return {str(n): str(d) for n, d in stored.items()}
+    return {str(n): "" for n in stored}
+
+
 def linear_choice(mesh):
-    """The names of the keys of ``mesh`` the artist keeps in Blender's linear mix (:func:`set_linear_choice`)."""
-    names = mesh.get(LINEAR_KEYS_PROP)
-    return set() if names is None else {str(n) for n in names}
+    """The names of the keys of ``mesh`` the artist keeps in Blender's linear mix (:func:`set_linear_choice`).
+
+    A stored name that no key has any more is followed to the key renamed from it: the one key, not chosen under its
+    own name, whose coordinates have the digest stored with the choice (a key both renamed and edited, or one of two
+    equal keys, is not found and mixes live again).  A name that a key still has is that key's, even if the names
+    were swapped."""
+    stored = _stored_choice(mesh)
+    key = mesh.shape_keys
+    if key is None:
+        return set(stored)
+    blocks = key.key_blocks
+    found = {n for n in stored if blocks.get(n) is not None}
+    lost = [d for n, d in stored.items() if n not in found and d]
+    if lost:
+        prints = {kb.name: _key_print(kb) for kb in blocks
+                  if kb.name not in stored and kb != key.reference_key and not is_own_key(kb.name)}
+        for digest in lost:
+            match = [n for n, p in prints.items() if p == digest]
+            if len(match) == 1:
+                found.add(match[0])
+    return found
 
 
 def set_linear_choice(mesh, name, linear=True):
     """Keep the key ``name`` of ``mesh`` in Blender's linear mix (``linear``), or mix it live again.  Applies at the
-    next Enable or Rebuild; a key renamed since is mixed live again."""
+    next Enable or Rebuild.  Stores each chosen key's name and coordinates' digest (:func:`linear_choice` follows a
+    rename by it); a chosen key deleted since is dropped."""
     keep = linear_choice(mesh)
     keep = keep | {name} if linear else keep - {name}
+    _store_choice(mesh, keep)
+
+
+def _store_choice(mesh, names):
+    """Store ``names`` (keys of ``mesh``; others are dropped) as the keys kept linear, each with its digest."""
+    blocks = mesh.shape_keys.key_blocks if mesh.shape_keys is not None else {}
+    keep = {n: _key_print(blocks[n]) for n in sorted(names) if blocks.get(n) is not None}
     if keep:
-        mesh[LINEAR_KEYS_PROP] = sorted(keep)
+        mesh[LINEAR_KEYS_PROP] = keep
     elif LINEAR_KEYS_PROP in mesh:
         del mesh[LINEAR_KEYS_PROP]
 
@@ -954,6 +998,8 @@ def enable_run(obj, reduced_size=0, max_keys=0):
 
     def write(obj, job):
         _require_no_user_mix_key(obj.data)  # (a key given that name during the build)
+        if LINEAR_KEYS_PROP in obj.data:  # the choice under the keys' present names and coordinates
+            _store_choice(obj.data, linear_choice(obj.data))
         seconds = time.perf_counter() - t0
         store_mixer(obj, job.result, basis, nonlinear, linear, seconds, int(reduced_size), groups, relative)
         return (f"live mixing of {len(nonlinear)} key{'s' if len(nonlinear) != 1 else ''} on '{obj.name}' "

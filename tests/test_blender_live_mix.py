@@ -592,6 +592,21 @@ def test_vertex_group_and_relative_keys_mix(run, inputs):
     assert np.abs(a["vg_on_extra"] - want).max() < TOL
 
 
+def test_kept_linear_key_renamed_stays_linear(run):
+    """A key kept linear and renamed is still kept linear (found by its coordinates): in the panel and at Enable,
+    which stores the new name; a file that stored names only keeps them; renamed and edited, or deleted, it is not."""
+    res = run["cases"]["kept_linear_renamed"]
+    assert res["keep"] == [["FINISHED"], ""] and res["keep_again"] == [["FINISHED"], ""], res
+    assert res["choice_renamed"] == ["Puff"], res
+    assert res["panel_renamed"] == ["'Puff': kept linear"], res["panel_renamed"]
+    assert res["enable"] == ["FINISHED"] and res["keys"] == ["Bend", "Twist", "Both"], res
+    assert res["linear_reasons"] == {"Puff": "kept linear"} and res["stored"] == ["Puff"], res
+    assert res["choice_names_only"] == ["Puff"], res
+    assert res["choice_renamed_edited"] == [] and res["choice_edit_undone"] == ["Puff2"], res
+    assert res["choice_deleted"] == [] and res["keep_bend"] == [["FINISHED"], ""], res
+    assert res["stored_after_delete"] == ["Bend"], res
+
+
 def test_many_keys_refused_and_kept_linear(run, inputs):
     """Seven keys to mix: Enable refused in one line naming Keep Linear, nothing changed.  Swell kept linear: the other
     six mix live (the evaluated mesh = lacore's mix), Swell adds linearly on top; choices made after the build apply

@@ -1063,6 +1063,43 @@ def many_keys_kept_linear():
     return out
 
 
+def kept_linear_renamed():
+    """Keep Linear on Swell, then Swell renamed Puff: still kept linear (found by its coordinates), in the panel
+    and at Enable, which stores the new name.  A file that stored names only keeps them.  Renamed and edited, or
+    deleted, it is no longer kept."""
+    reset()
+    obj = make_bar()
+    kbs = obj.data.shape_keys.key_blocks
+    obj.shape_key_add(name="Swell", from_mix=False).points.foreach_set(
+        "co", INPUTS["many"][3].astype(np.float32).ravel())
+    obj.active_shape_key_index = kbs.find("Swell")
+    live_mix = ext("live_mix")
+    out = {"keep": try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear)}
+    kbs["Swell"].name = "Puff"
+    out["choice_renamed"] = sorted(live_mix.linear_choice(obj.data))
+    obj.active_shape_key_index = kbs.find("Puff")
+    out["panel_renamed"] = [t for t in panel_labels(obj) if t and "Puff" in t]
+    out["enable"] = enable(obj)
+    st = status(obj)
+    out["keys"], out["linear_reasons"] = st["keys"], st["linear_reasons"]
+    out["stored"] = sorted(obj.data[live_mix.LINEAR_KEYS_PROP].keys())
+    obj.data[live_mix.LINEAR_KEYS_PROP] = ["Puff"]  # a file that stored names only
+    out["choice_names_only"] = sorted(live_mix.linear_choice(obj.data))
+    out["keep_again"] = try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear)
+    kbs["Puff"].name = "Puff2"
+    x0 = kbs["Puff2"].data[0].co.x
+    kbs["Puff2"].data[0].co.x = x0 + 0.5
+    out["choice_renamed_edited"] = sorted(live_mix.linear_choice(obj.data))
+    kbs["Puff2"].data[0].co.x = x0
+    out["choice_edit_undone"] = sorted(live_mix.linear_choice(obj.data))
+    obj.shape_key_remove(kbs["Puff2"])
+    out["choice_deleted"] = sorted(live_mix.linear_choice(obj.data))
+    obj.active_shape_key_index = kbs.find("Bend")
+    out["keep_bend"] = try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear)
+    out["stored_after_delete"] = sorted(obj.data[live_mix.LINEAR_KEYS_PROP].keys())
+    return out
+
+
 def modal_run_and_cancel():
     """From the UI the mixer is built in a worker process (timer events drive modal()); Esc kills it at once and
     writes nothing."""
@@ -1601,6 +1638,6 @@ run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, r
            mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
            appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
            library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
-           vertex_groups_and_relative_keys, many_keys_kept_linear, weight_paint_while_stale, posing_reads_no_weights,
-           weight_paint_shared_mesh, exports, renders,
+           vertex_groups_and_relative_keys, many_keys_kept_linear, kept_linear_renamed, weight_paint_while_stale,
+           posing_reads_no_weights, weight_paint_shared_mesh, exports, renders,
            finish])
