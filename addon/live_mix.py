@@ -64,10 +64,11 @@ script's edit, leaving Edit Mode: :func:`_edited_meshes`), so sliders, playback 
 While an object showing the mesh is in Weight Paint mode, such updates (every dab of a stroke) are not read: the weights
 are read once the painting pauses for :data:`PAINT_SETTLE` seconds (:func:`settle_painting`, a timer) and when
 the mode is left.  Until then the mesh shows the mix with the weights it was built with, plus Blender's own linear
-change of the painted weights.  An edited
-mesh or key, a renamed or deleted key, an edited weight, a key given another vertex group or relative key makes
-the mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel says so until
-Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
+change of the painted weights.  A renamed key (the basis too) is followed: the next update finds it by the
+coordinates it was built with and the record takes its new name (:meth:`_Live.follow_renames`).  An edited
+mesh or key, a deleted key (or one renamed and edited at once), an edited weight, a key given another vertex group
+or relative key makes the mixer *stale*: the mix key is zeroed (the mesh shows Blender's linear mix) and the panel
+says so until Rebuild; undoing the edit makes it live again.  In Edit Mode nothing is written.
 
 Storage (saved in the .blend, decoded once per session: :func:`live_meshes` after ``load_post``): the
 mixer's ``.npz`` (:meth:`ShapeMixer.save`, masks and relative keys included) is a payload of
@@ -363,6 +364,7 @@ class _Live:
         self.stale = ""  # why the mixer does not fit the mesh now ("" when it does)
         self.error = ""  # a mix that failed (the linear mix is shown)
         self.mix_seconds = 0.0
+        self.renames_tried = None  # the key names when a rename was last looked for and not found
         coords = _key_coords(mesh.shape_keys, [self.basis, *self.names], self.n_vertices) \
             if mesh.shape_keys is not None and len(mesh.vertices) == self.n_vertices else None
         if coords is not None:
@@ -376,6 +378,45 @@ class _Live:
         c = coords.astype(np.float64)
         masks = np.repeat(np.asarray(self.mixer.masks, np.float64), 3, axis=1)
         self.deltas = masks * (c[1:] - c[np.asarray(self.mixer.relative_to, np.int64)])
+
+    def follow_renames(self, mesh):
+        """Follow the mixer's keys to their new names after a rename and store them in the mesh's record; True if a
+        name changed.  A missing basis is the reference key, another missing key the one key, not known under
+        another name, whose coordinates are those it was built with; the relative keys' names follow.  A key both
+        renamed and edited, or one of two equal keys, is not found (then :meth:`check` says it was renamed or
+        deleted).  Needs the keys as built (:attr:`reference`)."""
+        key = mesh.shape_keys
+        if key is None or self.reference is None:
+            return False
+        blocks, ref = key.key_blocks, key.reference_key
+        names = [self.basis, *self.names]
+        missing = [i for i, n in enumerate(names) if blocks.get(n) is None]
+        seen = tuple(kb.name for kb in blocks)
+        if not missing or seen == self.renames_tried:
+            return False
+        self.renames_tried = seen
+        others = [kb for kb in blocks if kb.name not in names and not is_own_key(kb.name)
+                  and len(kb.points) == self.n_vertices]
+        co = np.empty(3 * self.n_vertices, np.float32)
+        new = list(names)
+        for i in missing:
+            found = []
+            for kb in others:
+                if (kb == ref) == (i == 0):
+                    kb.points.foreach_get("co", co)
+                    if np.array_equal(co, self.reference[i]):  # by value: -0.0 equals 0.0
+                        found.append(kb.name)
+            if len(found) == 1 and found[0] not in new:
+                new[i] = found[0]
+        if new == names:
+            return False
+        renamed = dict(zip(names, new, strict=True))
+        self.basis, self.names = new[0], new[1:]
+        self.relative = [renamed.get(r, r) for r in self.relative]
+        meta = mesh[MIXER_PROP]
+        meta["basis"], meta["keys"], meta["relative"] = self.basis, self.names, self.relative
+        self.renames_tried = None
+        return True
 
     def _masks_changed(self, mesh, key):
         """Why the vertex-group weights Blender applies to the mixer's keys differ from the mixer's now ("" if they
@@ -704,6 +745,7 @@ def _update_mesh(mesh, depsgraph, force=False, edited=False):
         return False
     if depsgraph is None or depsgraph.mode != 'RENDER':
         _restore_mix_key(mesh, live)
+        live.follow_renames(mesh)
     key = mesh.shape_keys
     key_eval = key
     if depsgraph is not None and key is not None:
@@ -888,6 +930,7 @@ def _on_undo(*_args):
     for live in list(_LIVE.values()):
         live.last = None
         live.check_masks = True  # (vertex-group weights restored too)
+        live.renames_tried = None  # (keys' coordinates too)
     live_meshes()
 
 

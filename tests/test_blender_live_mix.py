@@ -1,22 +1,20 @@
 """Live nonlinear mixing of the INSTALLED extension in Blender (subprocess: tests/blender/check_live_mix.py).
 
-A box bar with keys Bend, Twist and Both: ``live_mix_enable`` stores a mixer with the mesh, and from then on
-the evaluated mesh is lacore's mix of the keys' values (placed like the in-betweens: the rigid motion onto
-Blender's linear blend) -- for values set by hand, keyframed values through ``frame_set``, a driven value,
-after saving and reopening the .blend, for two objects at once, a duplicate and an object appended from another
-.blend, with keys limited to a vertex group (a ramp of weights) and relative to another key mixed (a key relative
-to itself or to an add-on key, and one added later, linearly on top), a muted key and a negative slider value, in
-Cycles animation and still renders; modifiers after the keys (Displace, Armature, Subdivision Surface) apply to the
-mix.  An edited vertex-group weight, a key's group or relative key changed make the mixer stale, undo live again.
-A renamed or deleted key makes the mixer stale, Edit Mode without an edit does not; an object linked from a library
-is said to be stale and refused, and mixes once made local; a character linked into a shot and made a library
-override, its mesh too, mixes the values keyed in the shot, also reopened, and a driven key (the mesh then
-overridden by Blender) follows its control. ``live_mix_disable`` and undo give back Blender's linear mix bit for
-bit; an edited key or mesh makes the mixer stale (the linear mix, a panel warning); bad input is refused in one line
-and changes nothing; a deleted object's mixer is gone once the saved file is opened again. A key of the user's named
-like the add-on's is refused; the add-on's key renamed (in Edit Mode too) and the file saved reopens with it named
-back, live.
-"""
+A box bar with keys Bend, Twist and Both: ``live_mix_enable`` stores a mixer with the mesh, and from then on the
+evaluated mesh is lacore's mix of the keys' values (placed like the in-betweens: the rigid motion onto Blender's linear
+blend) -- for values set by hand, keyframed values through ``frame_set``, a driven value, after saving and reopening the
+.blend, for two objects at once, a duplicate and an object appended from another .blend, with keys limited to a vertex
+group (a ramp of weights) and relative to another key mixed (a key relative to itself or to an add-on key, and one added
+later, linearly on top), a muted key and a negative slider value, in Cycles animation and still renders; modifiers after
+the keys (Displace, Armature, Subdivision Surface) apply to the mix.  An edited vertex-group weight, a key's group or
+relative key changed make the mixer stale, undo live again. A deleted key makes the mixer stale (a renamed one is
+followed), Edit Mode without an edit does not; an object linked from a library is said to be stale and refused, and
+mixes once made local; a character linked into a shot and made a library override, its mesh too, mixes the values keyed
+in the shot, also reopened, and a driven key (the mesh then overridden by Blender) follows its control.
+``live_mix_disable`` and undo give back Blender's linear mix bit for bit; an edited key or mesh makes the mixer stale
+(the linear mix, a panel warning); bad input is refused in one line and changes nothing; a deleted object's mixer is
+gone once the saved file is opened again. A key of the user's named like the add-on's is refused; the add-on's key
+renamed (in Edit Mode too) and the file saved reopens with it named back, live."""
 
 import io
 
@@ -371,11 +369,17 @@ def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
 
 
 def test_artist_edits_renamed_deleted_and_applied_keys(run):
-    """A renamed or deleted key makes the mixer stale (Blender's linear mix, bit for bit); named back it is live.
-    Apply All Shape Keys keeps the shape shown, and Disable then drops the stored mixer."""
+    """A renamed key (the basis too) is followed: still live, the record takes the new names.  Renamed and edited, or
+    deleted, it makes the mixer stale (Blender's linear mix, bit for bit); named back and the edit undone it is
+    live.  Apply All Shape Keys keeps the shape shown, and Disable then drops the stored mixer."""
     res = run["cases"]["artist_edits"]
-    assert res["renamed_status"] == "shape key 'Twist' was renamed or deleted" and res["renamed_linear_bit_for_bit"]
+    assert res["renamed_status"] == "" and res["renamed_vs_live"] < TOL, res
+    assert res["renamed_record"] == ["Rest", ["Bend", "Twisted", "Both"], ["Rest", "Rest", "Rest"]], res
+    assert res["renamed_status_keys"] == ["Bend", "Twisted", "Both"], res
+    assert res["renamed_edited_status"] == "shape key 'Twisted' was renamed or deleted", res
+    assert res["renamed_edited_linear_bit_for_bit"], res
     assert res["named_back_status"] == "" and res["named_back_vs_live"] < TOL, res
+    assert res["named_back_record"] == ["Basis", ["Bend", "Twist", "Both"]], res
     assert res["deleted_status"] == "shape key 'Twist' was renamed or deleted" and res["deleted_linear_bit_for_bit"]
     assert res["applied"] == ["FINISHED"] and res["applied_vs_shown"] == 0.0, res
     assert res["applied_status"] == ("the shape keys were removed (applied or cleared): Disable drops the stored "
@@ -419,12 +423,13 @@ def test_record_with_a_digest_of_signed_zeros_reopens_live(run):
     assert res["signed_zeros_digest_differs"] and res["signed_zeros_digest_status"] == "", res
 
 
-def test_user_key_named_back_before_an_update(run):
-    """A user key renamed (stale: the mix key zeroed) and named back: until the next update the mesh shows Blender's
-    linear mix, and the panel says so; the update makes it live."""
+def test_user_key_set_back_before_an_update(run):
+    """A user key made relative to another key (stale: the mix key zeroed) and set back: until the next update the
+    mesh shows Blender's linear mix, and the panel says so; the update makes it live."""
     res = run["cases"]["mix_key_name"]
-    assert res["user_renamed"] == "shape key 'Twist' was renamed or deleted", res
-    assert res["named_back_before_update"] == ["shape key 'Twist' was renamed or deleted", 0.0], res
+    stale = "shape key 'Twist' is relative to 'Bend' now, 'Basis' when the mixer was built"
+    assert res["user_renamed"] == stale, res
+    assert res["named_back_before_update"] == [stale, 0.0], res
     assert "Showing Blender's linear mix: Rebuild to mix live again" in res["named_back_panel"], res
     assert res["named_back_after_update"] == "", res
 

@@ -841,15 +841,31 @@ def artist_edits():
     out["subdivided_vertices"] = [len(subdivided), len(mixed)]
     out["mix_vs_linear"] = float(np.abs(mixed - plain_shape).max())
     obj.modifiers.clear()
-    # a key renamed: stale, Blender's linear mix bit for bit; named back: live again
+    # a key renamed: followed, still live, the record takes the name; the basis too; renamed and edited: stale,
+    # Blender's linear mix bit for bit; named back and the edit undone: live again
+    live_mix = ext("live_mix")
     live_shape = evaluated(obj)
     kbs["Twist"].name = "Twisted"
+    kbs["Basis"].name = "Rest"
     shown = evaluated(obj)
     out["renamed_status"] = status(obj)["stale"]
-    out["renamed_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
-    kbs["Twisted"].name = "Twist"
+    out["renamed_vs_live"] = float(np.abs(shown - live_shape).max())
+    record = obj.data[live_mix.MIXER_PROP]
+    out["renamed_record"] = [record["basis"], list(record["keys"]), list(record["relative"])]
+    out["renamed_status_keys"] = status(obj)["keys"]
+    x0 = kbs["Twisted"].data[0].co.x
+    kbs["Twisted"].data[0].co.x = x0 + 0.5
+    kbs["Twisted"].name = "Twirl"
+    shown = evaluated(obj)
+    out["renamed_edited_status"] = status(obj)["stale"]
+    out["renamed_edited_linear_bit_for_bit"] = bool(np.array_equal(shown, mix_key_muted_shape(obj)))
+    kbs["Twirl"].data[0].co.x = x0
+    kbs["Twirl"].name = "Twist"
+    kbs["Rest"].name = "Basis"
     out["named_back_vs_live"] = float(np.abs(evaluated(obj) - live_shape).max())
     out["named_back_status"] = status(obj)["stale"]
+    record = obj.data[live_mix.MIXER_PROP]
+    out["named_back_record"] = [record["basis"], list(record["keys"])]
     obj.shape_key_remove(kbs["Twist"])
     shown = evaluated(obj)
     out["deleted_status"] = status(obj)["stale"]
@@ -931,11 +947,11 @@ def mix_key_name():
     OUT["reopened_mixed"] = evaluated(obj)
     OUT["reopened_values"] = np.array(values(obj))
     out["reopened_status"] = status(obj)["stale"]
-    # a user key renamed (an update: stale) and named back before the next update
-    kbs["Twist"].name = "Twisted"
+    # a user key made relative to another key (an update: stale) and set back before the next update
+    kbs["Twist"].relative_key = kbs["Bend"]
     evaluated(obj)
     out["user_renamed"] = status(obj)["stale"]
-    kbs["Twisted"].name = "Twist"
+    kbs["Twist"].relative_key = kbs["Basis"]
     offset = key_coords(obj, [kbs[-1].name])[0] - key_coords(obj, ["Basis"])[0]  # (the add-on's key, last)
     out["named_back_before_update"] = [status(obj)["stale"], float(np.abs(offset).max())]
     out["named_back_panel"] = panel_labels(obj)
