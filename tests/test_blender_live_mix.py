@@ -403,13 +403,14 @@ def test_user_key_named_like_the_mix_key_is_refused(run):
 
 def test_mix_key_renamed_then_saved_is_found_after_reopening(run, inputs):
     """The add-on's key renamed: saving in Object Mode runs an update, which names it back (measured: no update sees
-    the new name); renamed in Edit Mode, where nothing is updated, it is named back before the file is written.  The
-    file reopens in Edit Mode; back in Object Mode the mesh mixes other values live (the Edit Mode round trip does
-    not make the stored mixer look stale)."""
+    the new name); renamed in Edit Mode, where nothing is updated, it is named back before the file is written, and a
+    user key renamed there is followed into the record.  The file reopens in Edit Mode; back in Object Mode the mesh
+    mixes other values live (the Edit Mode round trip does not make the stored mixer look stale)."""
     res, a = run["cases"]["mix_key_name"], run["arrays"]
     assert res["save_updates"] and set(res["save_updates"]) == {"LA live mix"}, res["save_updates"]
     assert res["renamed_in_edit_mode"] == "Renamed" and res["reopened_mode"] == "EDIT", res
-    assert res["reopened_keys"] == ["Basis", "Bend", "Twist", "Both", "Mine", "LA live mix"], res
+    assert res["reopened_keys"] == ["Basis", "Bend", "Twist", "Both Ways", "Mine", "LA live mix"], res
+    assert res["reopened_renamed"] == ["", ["Bend", "Twist", "Both Ways"]], res
     assert res["reopened_status"] == "", res
     assert np.allclose(a["reopened_values"], [0.2, 0.6, 0.0])
     want, linear = expected(a["name_mixer_npz"], inputs, a["reopened_values"])

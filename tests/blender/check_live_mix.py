@@ -931,6 +931,7 @@ def mix_key_name():
     with ops_context(obj):
         bpy.ops.object.mode_set(mode='EDIT')
     kbs["LA live mix"].name = "Renamed"
+    kbs["Both"].name = "Both Ways"  # a user key renamed in Edit Mode: the save takes its name into the record
     evaluated(obj)
     out["renamed_in_edit_mode"] = kbs[-1].name
     path = os.path.join(ARGS.workdir, "renamed_edit.blend")
@@ -943,6 +944,9 @@ def mix_key_name():
         bpy.ops.object.mode_set(mode='OBJECT')
     kbs = obj.data.shape_keys.key_blocks
     out["reopened_keys"] = [kb.name for kb in kbs]
+    evaluated(obj)
+    out["reopened_renamed"] = [status(obj)["stale"], status(obj)["keys"]]
+    kbs["Both Ways"].name = "Both"
     set_values(obj, (0.2, 0.6, 0.0))
     OUT["reopened_mixed"] = evaluated(obj)
     OUT["reopened_values"] = np.array(values(obj))
