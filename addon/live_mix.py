@@ -470,7 +470,7 @@ class _Live:
             return f"the basis key is '{ref.name}' now, '{self.basis}' when the mixer was built"
         for name in self.names:
             if key.key_blocks.get(name) is None:
-                return f"shape key '{name}' was renamed or deleted"
+                return f"shape key '{name}' was deleted (or renamed and edited at once)"
         for name, rel in zip(self.names, self.relative, strict=True):
             now = key.key_blocks[name].relative_key.name
             if now != rel:
