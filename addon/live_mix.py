@@ -917,13 +917,17 @@ def _on_save(*_args):
     """Name back a mix key renamed and not yet named back by an update (in Edit Mode nothing is updated) before the
     file is written: the correction that finds it under another name is the session's, so in a reopened file only
     its name identifies it.  Likewise the record takes the new names of the user's keys renamed since the last update
-    (:meth:`_Live.follow_renames`: the coordinates that find them are the session's)."""
+    (:meth:`_Live.follow_renames`: the coordinates that find them are the session's), and the keys kept linear are
+    stored with their present names and coordinates (:func:`linear_choice` finds them after a later rename)."""
     with _LOCK:
         for name, live in list(_LIVE.items()):
             mesh = bpy.data.meshes.get(name)
             if mesh is not None and not linked_from(mesh):
                 _name_back(mesh, live)
                 live.follow_renames(mesh)
+    for mesh in bpy.data.meshes:  # the keys kept linear under their present names and coordinates
+        if LINEAR_KEYS_PROP in mesh and not linked_from(mesh) and not override_from(mesh):
+            _store_choice(mesh, linear_choice(mesh))
 
 
 @persistent

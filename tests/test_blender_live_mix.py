@@ -601,7 +601,8 @@ def test_vertex_group_and_relative_keys_mix(run, inputs):
 
 def test_kept_linear_key_renamed_stays_linear(run):
     """A key kept linear and renamed is still kept linear (found by its coordinates): in the panel and at Enable,
-    which stores the new name; a file that stored names only keeps them; renamed and edited, or deleted, it is not."""
+    which stores the new name; a file that stored names only keeps them; renamed and edited, or deleted, it is not;
+    edited, saved (which stores its coordinates) and renamed, it is."""
     res = run["cases"]["kept_linear_renamed"]
     assert res["keep"] == [["FINISHED"], ""] and res["keep_again"] == [["FINISHED"], ""], res
     assert res["choice_renamed"] == ["Puff"], res
@@ -610,6 +611,7 @@ def test_kept_linear_key_renamed_stays_linear(run):
     assert res["linear_reasons"] == {"Puff": "kept linear"} and res["stored"] == ["Puff"], res
     assert res["choice_names_only"] == ["Puff"], res
     assert res["choice_renamed_edited"] == [] and res["choice_edit_undone"] == ["Puff2"], res
+    assert res["keep_puff2"] == [["FINISHED"], ""] and res["choice_edited_saved_renamed"] == ["Puff3"], res
     assert res["choice_deleted"] == [] and res["keep_bend"] == [["FINISHED"], ""], res
     assert res["stored_after_delete"] == ["Bend"], res
 

@@ -1086,7 +1086,7 @@ def many_keys_kept_linear():
 def kept_linear_renamed():
     """Keep Linear on Swell, then Swell renamed Puff: still kept linear (found by its coordinates), in the panel
     and at Enable, which stores the new name.  A file that stored names only keeps them.  Renamed and edited, or
-    deleted, it is no longer kept."""
+    deleted, it is no longer kept; edited, saved (which stores its coordinates) and then renamed, it is."""
     reset()
     obj = make_bar()
     kbs = obj.data.shape_keys.key_blocks
@@ -1112,7 +1112,15 @@ def kept_linear_renamed():
     out["choice_renamed_edited"] = sorted(live_mix.linear_choice(obj.data))
     kbs["Puff2"].data[0].co.x = x0
     out["choice_edit_undone"] = sorted(live_mix.linear_choice(obj.data))
-    obj.shape_key_remove(kbs["Puff2"])
+    obj.active_shape_key_index = kbs.find("Puff2")  # kept under this name, edited, saved, renamed: still kept
+    out["keep_puff2"] = try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear)
+    kbs["Puff2"].data[0].co.x = x0 + 0.5
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(ARGS.workdir, "kept_linear.blend"))
+    obj = bpy.data.objects["Bar"]
+    kbs = obj.data.shape_keys.key_blocks
+    kbs["Puff2"].name = "Puff3"
+    out["choice_edited_saved_renamed"] = sorted(live_mix.linear_choice(obj.data))
+    obj.shape_key_remove(kbs["Puff3"])
     out["choice_deleted"] = sorted(live_mix.linear_choice(obj.data))
     obj.active_shape_key_index = kbs.find("Bend")
     out["keep_bend"] = try_op(obj, bpy.ops.lengths_angles.live_mix_keep_linear)
