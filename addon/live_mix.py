@@ -365,6 +365,7 @@ class _Live:
         self.error = ""  # a mix that failed (the linear mix is shown)
         self.mix_seconds = 0.0
         self.renames_tried = None  # the key names when a rename was last looked for and not found
+        self.unwritten = False  # names followed (:meth:`follow_renames`) and not yet stored in the record
         coords = _key_coords(mesh.shape_keys, [self.basis, *self.names], self.n_vertices) \
             if mesh.shape_keys is not None and len(mesh.vertices) == self.n_vertices else None
         if coords is not None:
@@ -379,12 +380,16 @@ class _Live:
         masks = np.repeat(np.asarray(self.mixer.masks, np.float64), 3, axis=1)
         self.deltas = masks * (c[1:] - c[np.asarray(self.mixer.relative_to, np.int64)])
 
-    def follow_renames(self, mesh):
-        """Follow the mixer's keys to their new names after a rename and store them in the mesh's record; True if a
-        name changed.  A missing basis is the reference key, another missing key the one key, not known under
-        another name, whose coordinates are those it was built with; the relative keys' names follow.  A key both
-        renamed and edited, or one of two equal keys, is not found (then :meth:`check` says it was renamed or
-        deleted).  Needs the keys as built (:attr:`reference`)."""
+    def follow_renames(self, mesh, write=True):
+        """Follow the mixer's keys to their new names after a rename; True if a name changed.  A missing basis is the
+        reference key, another missing key the one key, not known under another name, whose coordinates are those
+        it was built with; the relative keys' names follow.  A key both renamed and edited, or one of two equal
+        keys, is not found (then :meth:`check` says it was deleted).  Needs the keys as built (:attr:`reference`).
+
+        The names are stored in the mesh's record with ``write`` (an update, a save), else at the next call with
+        ``write`` (a panel's or dialog's draw, where nothing may be written)."""
+        if write and self.unwritten:
+            self._write_names(mesh)
         key = mesh.shape_keys
         if key is None or self.reference is None:
             return False
@@ -413,10 +418,16 @@ class _Live:
         renamed = dict(zip(names, new, strict=True))
         self.basis, self.names = new[0], new[1:]
         self.relative = [renamed.get(r, r) for r in self.relative]
+        self.renames_tried, self.unwritten = None, True
+        if write:
+            self._write_names(mesh)
+        return True
+
+    def _write_names(self, mesh):
+        """Store the key names in the mesh's record."""
         meta = mesh[MIXER_PROP]
         meta["basis"], meta["keys"], meta["relative"] = self.basis, self.names, self.relative
-        self.renames_tried = None
-        return True
+        self.unwritten = False
 
     def _masks_changed(self, mesh, key):
         """Why the vertex-group weights Blender applies to the mixer's keys differ from the mixer's now ("" if they
@@ -1140,6 +1151,8 @@ def mixer_for_keys(obj, keys):
     live = _live(mesh)
     if live is None:
         raise LiveMixError(f"the live mixer of '{mesh.name}' cannot be read: Rebuild it")
+    if not linked_from(mesh):
+        live.follow_renames(mesh, write=False)  # (a key renamed since the last update; called in draw too)
     why = live.check(mesh)
     if why:  # (a linked mesh cannot be rebuilt here: ``why`` says to make it local; an override in its library)
         library = override_from(mesh)

@@ -380,6 +380,10 @@ def test_artist_edits_renamed_deleted_and_applied_keys(run):
     assert res["renamed_edited_linear_bit_for_bit"], res
     assert res["named_back_status"] == "" and res["named_back_vs_live"] < TOL, res
     assert res["named_back_record"] == ["Basis", ["Bend", "Twist", "Both"]], res
+    # renamed and a mixer asked for before any update (In-betweens): followed, the record written at the update
+    assert res["renamed_mixer_for_keys"] == [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], res
+    assert res["renamed_record_before_update"] == ["Bend", "Twist", "Both"], res
+    assert res["renamed_record_after_update"] == ["Bent", "Twist", "Both"], res
     assert res["deleted_status"] == "shape key 'Twist' was deleted (or renamed and edited at once)", res
     assert res["deleted_linear_bit_for_bit"], res
     assert res["applied"] == ["FINISHED"] and res["applied_vs_shown"] == 0.0, res

@@ -866,6 +866,19 @@ def artist_edits():
     out["named_back_status"] = status(obj)["stale"]
     record = obj.data[live_mix.MIXER_PROP]
     out["named_back_record"] = [record["basis"], list(record["keys"])]
+    # renamed and at once asked for a mixer (In-betweens from a script, or its dialog's draw): followed, stored at
+    # the next update
+    kbs["Bend"].name = "Bent"
+    try:
+        _, weights, _, _ = live_mix.mixer_for_keys(obj, ["Basis", "Bent"])
+        out["renamed_mixer_for_keys"] = weights.tolist()
+    except Exception as exc:
+        out["renamed_mixer_for_keys"] = f"{type(exc).__name__}: {exc}"
+    out["renamed_record_before_update"] = list(obj.data[live_mix.MIXER_PROP]["keys"])
+    evaluated(obj)
+    out["renamed_record_after_update"] = list(obj.data[live_mix.MIXER_PROP]["keys"])
+    kbs["Bent"].name = "Bend"
+    evaluated(obj)
     obj.shape_key_remove(kbs["Twist"])
     shown = evaluated(obj)
     out["deleted_status"] = status(obj)["stale"]
