@@ -132,11 +132,24 @@ class LiveMixError(InputError):
 
 # ------------------------------------------------------------------------------------------- reading
 def _key_print(kb):
-    """A digest of the key block ``kb``'s coordinates by value (:func:`_digest`): what finds a key kept linear after
-    a rename."""
+    """A digest of the key block ``kb``'s coordinates by value (:func:`_coords_print`)."""
     co = np.empty(3 * len(kb.points), np.float32)
     kb.points.foreach_get("co", co)
-    return _digest(co, np.empty(0, np.int32))
+    return _coords_print(co)
+
+
+def _coords_print(coords):
+    """A digest of one key's ``(3 V,)`` float32 coordinates by value (:func:`_digest`): what finds a key after a
+    rename (:func:`_keys_by_print`)."""
+    return _digest(coords, np.empty(0, np.int32))
+
+
+def _keys_by_print(blocks, prints):
+    """For each digest of ``prints``, the name of the one key block of ``blocks`` whose coordinates have it (None if
+    no key or several do); each block's coordinates are read once."""
+    have = {kb.name: _key_print(kb) for kb in blocks}
+    found = [[n for n, p in have.items() if p == d] for d in prints]
+    return [m[0] if len(m) == 1 else None for m in found]
 
 
 def _stored_choice(mesh):
@@ -164,12 +177,9 @@ def linear_choice(mesh):
     found = {n for n in stored if blocks.get(n) is not None}
     lost = [d for n, d in stored.items() if n not in found and d]
     if lost:
-        prints = {kb.name: _key_print(kb) for kb in blocks
-                  if kb.name not in stored and kb != key.reference_key and not is_own_key(kb.name)}
-        for digest in lost:
-            match = [n for n, p in prints.items() if p == digest]
-            if len(match) == 1:
-                found.add(match[0])
+        others = [kb for kb in blocks
+                  if kb.name not in stored and kb != key.reference_key and not is_own_key(kb.name)]
+        found |= {n for n in _keys_by_print(others, lost) if n is not None}
     return found
 
 
@@ -400,19 +410,15 @@ class _Live:
         if not missing or seen == self.renames_tried:
             return False
         self.renames_tried = seen
-        others = [kb for kb in blocks if kb.name not in names and not is_own_key(kb.name)
-                  and len(kb.points) == self.n_vertices]
-        co = np.empty(3 * self.n_vertices, np.float32)
+        others = [kb for kb in blocks if kb.name not in names and not is_own_key(kb.name)]
         new = list(names)
-        for i in missing:
-            found = []
-            for kb in others:
-                if (kb == ref) == (i == 0):
-                    kb.points.foreach_get("co", co)
-                    if np.array_equal(co, self.reference[i]):  # by value: -0.0 equals 0.0
-                        found.append(kb.name)
-            if len(found) == 1 and found[0] not in new:
-                new[i] = found[0]
+        for wanted, blocks_of in (([i for i in missing if i == 0], [kb for kb in others if kb == ref]),  # the basis
+                                  ([i for i in missing if i > 0], [kb for kb in others if kb != ref])):
+            if wanted:
+                prints = [_coords_print(self.reference[i]) for i in wanted]
+                for i, name in zip(wanted, _keys_by_print(blocks_of, prints), strict=True):
+                    if name is not None and name not in new:
+                        new[i] = name
         if new == names:
             return False
         renamed = dict(zip(names, new, strict=True))
