@@ -211,9 +211,11 @@ def _path_projection(A, B, topo, factors, starts):
     indicator estimates the distance to; its polish computes it), from ``starts``, and the in-betweens' own sizes
     (``A``'s diagonal times :meth:`ShapeMixer.relative_size`)."""
     from lacore.reconstruction.settings import GaussNewtonOptions
+    from lacore.reconstruction.spanning_trees import default_root_faces
     from lacore.shapes.mixing import MixerOptions, ShapeMixer
 
-    mixer = ShapeMixer(np.stack([A, B]), topo.faces, MixerOptions(), _topology=topo)
+    mixer = ShapeMixer(np.stack([A, B]), topo.faces, MixerOptions(), _topology=topo,   # the path's fixed face
+                       _fixed_faces=default_root_faces(topo, vertices=A))
     out = []
     for t, X in zip(factors, starts, strict=True):
         res = reconstruct(mixer.target([t]), topo, A, context=mixer._context,

@@ -275,6 +275,39 @@ def test_default_root_face_is_central_in_any_unit(name, grids):
     assert off[along].max() < 0.06, off   # measured 0.05 (plate), 0.001 (bar)
 
 
+@pytest.mark.parametrize("name", ["plate", "bar", "box"])
+def test_centroid_root_face_is_the_middle_in_any_unit(name, grids):
+    """The mixer's fixed face (centroid_root_faces) is the same face in any unit, placement and order of magnitude,
+    in the middle of regular grids; on a box bar, a closed tube, the default root lies 12 % of its length off."""
+    from lacore.geometry.topology import MeshTopology
+    from lacore.reconstruction.spanning_trees import centroid_root_faces, default_root_faces
+    from lacore.samples.simple_deform import box_bar
+    if name == "box":
+        X, F = box_bar(64, 16)
+        topo = MeshTopology.from_faces(F)
+    else:
+        topo, X = grids[name]
+    root = centroid_root_faces(topo, X).tolist()
+    c, s_ = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    for s in (1e-3, 0.37, 7.3, 1e3):
+        assert centroid_root_faces(topo, X * s).tolist() == root, s
+        assert centroid_root_faces(topo, X @ R.T * s + np.array([123.4, -56.7, 8.9])).tolist() == root, s
+    lo, hi = X.min(0), X.max(0)
+    diag = np.linalg.norm(hi - lo)
+
+    def off(f):
+        return np.abs(X[topo.faces[f]].mean(0) - 0.5 * (lo + hi)) / diag
+
+    along = slice(0, 2) if name == "plate" else slice(0, 1)
+    assert off(root[0])[along].max() < 0.05, off(root[0])     # measured 0.024 (plate), 0.0008 (bar), 0.005 (box)
+    if name == "box":
+        assert off(default_root_faces(topo, vertices=X)[0])[0] > 0.1     # measured 0.117 of the diagonal
+    two = np.concatenate([X, X + [0.0, 0.0, 3.0 * diag]])
+    topo2 = MeshTopology.from_faces(np.concatenate([topo.faces, topo.faces + len(X)]))
+    assert centroid_root_faces(topo2, two).tolist() == [root[0], root[0] + topo.n_faces]
+
+
 def test_interpolating_a_regular_plate_is_scale_free():
     """plate121 (flat, regular) and its rolled copy in mm gave the interpolation in m moved by 11 % of the diagonal."""
     X0, topo = load_topology("plate/plate121.ply")

@@ -66,6 +66,7 @@ __all__ = [
     "preassembled_tree",
     "dual_spanning_tree",
     "default_root_faces",
+    "centroid_root_faces",
     "forest_levels",
     "TREE_KINDS",
     "half_theta",
@@ -376,6 +377,9 @@ def _normalize_roots(topology, root_face, z=None, vertices=None):
 ROOT_QUALITY_TIE = 1e-9
 """Shape qualities (in ``[0, 1]``) closer than this to the best are equal for :func:`default_root_faces`."""
 
+ROOT_DISTANCE_TIE = 1e-9
+"""Distances to the centroid closer than this fraction of the diagonal are equal for :func:`centroid_root_faces`."""
+
 
 def _center_scores(topology):
     """Estimated dual-graph eccentricity of every face (double BFS sweep), ``(F,)`` int64."""
@@ -476,12 +480,7 @@ def default_root_faces(topology, z=None, vertices=None):
     cand, labels, score = _central_candidates(topology)
     f = topology.faces[cand]
     if vertices is not None:
-        P = np.asarray(vertices, float)[f]                       # (k, 3, 3)
-        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-        area2 = np.linalg.norm(np.cross(e1, e2), axis=1)          # twice the area
-        e3 = e2 - e1
-        quality = 2.0 * np.sqrt(3.0) * area2 / np.maximum(np.einsum("ij,ij->i", e1, e1) + np.einsum(
-            "ij,ij->i", e2, e2) + np.einsum("ij,ij->i", e3, e3), np.finfo(float).tiny)
+        quality = _face_quality(np.asarray(vertices, float), f)[0]
     elif z is not None:
         lengths = np.asarray(z, float)[:topology.n_edges]
         quality = _face_quality_from_lengths(lengths[topology.face_edges[cand]])
@@ -499,6 +498,74 @@ def default_root_faces(topology, z=None, vertices=None):
     idx = np.lexsort((cand, score, total, ~tied, labels))
     starts = np.searchsorted(labels[idx], np.arange(n))
     return cand[idx[starts]].astype(np.int64)
+
+
+def centroid_root_faces(topology, vertices):
+    """Root face of every connected component nearest its middle, ``(C,)`` int64.
+
+    Of the faces at least as well shaped as the default root
+    (:func:`default_root_faces`, qualities within :data:`ROOT_QUALITY_TIE`), the
+    one whose centroid is nearest the component's area-weighted centroid: the
+    face that minimizes the area-weighted mean squared distance to the surface,
+    the middle of a regular grid or tube.  (Counted in steps of the dual graph,
+    the most central face of a box-shaped tube lies off its middle, at an edge
+    of the box.)  Distances within :data:`ROOT_DISTANCE_TIE` of the diagonal of
+    the component's vertices are ties, broken by the lower index, so the choice
+    is the same in any unit and on any CPU.  Unlike :func:`default_root_faces`
+    it needs vertices.
+
+    Parameters
+    ----------
+    topology : MeshTopology
+    vertices : (V, 3) array_like
+
+    Returns
+    -------
+    (C,) int64
+        One face per connected component, in the order of the component labels.
+
+    Examples
+    --------
+    >>> from lacore.samples.bar import bar_mesh
+    >>> from lacore.geometry.topology import MeshTopology
+    >>> X, faces = bar_mesh(n_along=40, n_side=3)        # a box tube 4 x 1 x 1 along x
+    >>> f = centroid_root_faces(MeshTopology.from_faces(faces), X)
+    >>> abs(float(X[faces[f[0]], 0].mean() - X[:, 0].mean())) < 0.1
+    True
+    """
+    X = np.asarray(vertices, float)
+    X = X - X.mean(axis=0)                     # sums of small numbers: the same face far from the origin
+    faces = topology.faces
+    n, labels = topology.face_components()
+    root = default_root_faces(topology, vertices=X)
+    quality, area2 = _face_quality(X, faces)
+    quality = np.where(np.isfinite(quality), quality, -1.0)
+    area2 = np.where(np.isfinite(area2), area2, 0.0)
+    C = X[faces].mean(axis=1)                                      # (F, 3) face centroids
+    mass = np.maximum(np.bincount(labels, area2, n), np.finfo(float).tiny)
+    centre = np.stack([np.bincount(labels, area2 * C[:, i], n) for i in range(3)], axis=1) / mass[:, None]
+    d = np.linalg.norm(C - centre[labels], axis=1)
+    d[~(quality >= quality[root][labels] - ROOT_QUALITY_TIE)] = np.inf    # (the root itself stays)
+    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+    np.minimum.at(lo, labels, C)
+    np.maximum.at(hi, labels, C)
+    near = np.full(n, np.inf)
+    np.minimum.at(near, labels, d)
+    tied = np.flatnonzero(d <= near[labels] + ROOT_DISTANCE_TIE * np.linalg.norm(hi - lo, axis=1)[labels])
+    out = np.full(n, topology.n_faces, np.int64)
+    np.minimum.at(out, labels[tied], tied)
+    return out
+
+
+def _face_quality(X, faces):
+    """Shape quality ``4 sqrt(3) a / sum l^2`` and twice the area of ``faces`` ``(k, 3)`` on ``X``, ``(k,)`` each."""
+    P = X[faces]                                                   # (k, 3, 3)
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+    e3 = e2 - e1
+    quality = 2.0 * np.sqrt(3.0) * area2 / np.maximum(np.einsum("ij,ij->i", e1, e1) + np.einsum(
+        "ij,ij->i", e2, e2) + np.einsum("ij,ij->i", e3, e3), np.finfo(float).tiny)
+    return quality, area2
 
 
 def _total_distances(topology, faces):

@@ -1,8 +1,8 @@
 """Shape-mixer files: one ``.npz`` with ``format`` (:data:`FORMAT`), ``format_version`` (:data:`FORMAT_VERSION`) and
 the arrays of :data:`ENTRIES`: the keys, the faces, the options (:meth:`MixerOptions.to_array`), the keys' masks,
-relative keys and shapes at weight 1 (``corners``), and the reduced model (basis, cubature edges and weights,
-expansions, indicator and correction data, the local correction's vertices, build seconds); a file without
-``local_vertices`` mixes without the local correction.
+relative keys and shapes at weight 1 (``corners``), and the reduced model (the faces its coordinates hold still,
+basis, cubature edges and weights, expansions, indicator and correction data, the local correction's vertices,
+build seconds); a file without ``local_vertices`` mixes without the local correction.
 
 This module knows the layout of the file and nothing of the mixer: :meth:`ShapeMixer.save` hands it the arrays,
 :meth:`ShapeMixer.load` checks that the arrays it reads fit together.
@@ -22,11 +22,11 @@ __all__ = ["write_mixer_file", "read_mixer_file", "FORMAT", "FORMAT_VERSION", "R
 #: Value of the ``format`` entry of a saved mixer.
 FORMAT = "lacore.shape_mixer"
 #: Version of the layout :func:`write_mixer_file` writes; :func:`read_mixer_file` reads this one.
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 
 #: Versions :func:`read_mixer_file` reads: version 2 files have no masks, relative keys or corners (their keys are
-#: relative to the basis, unmasked).
-READ_VERSIONS = (2, 3)
+#: relative to the basis, unmasked); version 2 and 3 files do not name their fixed faces.
+READ_VERSIONS = (2, 3, 4)
 
 #: The arrays of a mixer file: ``name: (kind, ndim)`` (kinds as :func:`lacore.io.npz.read_array`'s).
 ENTRIES = {
@@ -36,15 +36,17 @@ ENTRIES = {
     "expansion_first": ("f", 3), "expansion_second": ("f", 4),
     "indicator_weights": ("f", 2), "indicator_values": ("f", 1),
     "correction_weights": ("f", 2), "correction": ("f", 3),
-    "local_vertices": ("i", 1),
+    "local_vertices": ("i", 1), "fixed_faces": ("i", 1),
     "masks": ("f", 2), "relative_to": ("i", 1), "corners": ("f", 3),
     "build_stages": ("U", 1), "build_seconds": ("f", 1),
 }
 
 #: Entries a file may lack, with what stands in for them (None: the mixer's default): files written before the local
 #: correction have no ``local_vertices`` (none), version 2 files no ``masks`` (1), ``relative_to`` (the basis) and
-#: ``corners`` (the keys).
-OPTIONAL_ENTRIES = {"local_vertices": np.zeros(0, np.int64), "masks": None, "relative_to": None, "corners": None}
+#: ``corners`` (the keys), version 2 and 3 files no ``fixed_faces`` (the faces whose 3-2-1 coordinates the basis
+#: vanishes on).
+OPTIONAL_ENTRIES = {"local_vertices": np.zeros(0, np.int64), "masks": None, "relative_to": None, "corners": None,
+                    "fixed_faces": None}
 
 
 def write_mixer_file(path, arrays):

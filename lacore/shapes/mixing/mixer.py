@@ -67,16 +67,23 @@ Weights outside ``[low, high]`` of :class:`MixerOptions` extrapolate; the result
 (``in_range`` False and a message) instead of failing, and so does an indicator above
 ``max_indicator``.
 
+The reduced space lives in the coordinates of a reconstruction context that holds one face per component in the
+3-2-1 position (:mod:`lacore.reconstruction.context`): the face nearest the middle of the basis
+(:func:`~lacore.reconstruction.spanning_trees.centroid_root_faces`), where the space's errors, which grow with the
+distance from the held face, stay smallest.  Each mix is then moved rigidly so that the face
+:func:`~lacore.reconstruction.reconstruct` holds (:func:`~lacore.reconstruction.spanning_trees.default_root_faces`)
+sits where the basis has it: mixes, polished mixes and full reconstructions share one frame.
+
 Files (:meth:`ShapeMixer.save`, :meth:`ShapeMixer.load`): one ``.npz`` with ``format``
-(:data:`FORMAT`), ``format_version`` (:data:`FORMAT_VERSION`), the keys, the faces, the options and
-the reduced model.
+(:data:`FORMAT`), ``format_version`` (:data:`FORMAT_VERSION`), the keys, the faces, the options, the
+faces the space holds still and the reduced model.
 """
 
 import contextlib
 import os
 import tempfile
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import scipy.linalg as sl
@@ -87,7 +94,9 @@ from ...geometry.lengths_angles import (check_nondegenerate, lengths_and_angles,
 from ...geometry.topology import MeshTopology, check_vertices
 from ...progress import report
 from ...reconstruction import ReconstructionContext, reconstruct
+from ...reconstruction.context import triangle_frame
 from ...reconstruction.settings import GaussNewtonOptions, ReconstructionSettings
+from ...reconstruction.spanning_trees import centroid_root_faces, default_root_faces
 from .cubature import fit_cubature
 from .files import FORMAT, FORMAT_VERSION, read_mixer_file, write_mixer_file
 from .local import LocalCorrection, hot_vertices, space_error_density
@@ -750,7 +759,8 @@ class ShapeMixer:
     False
     """
 
-    def __init__(self, keys, faces, options=None, *, masks=None, relative_to=None, _topology=None, _corners=None):
+    def __init__(self, keys, faces, options=None, *, masks=None, relative_to=None, _topology=None, _corners=None,
+                 _fixed_faces=None):
         self.options = MixerOptions() if options is None else options
         if _topology is None:
             keys, _topology = check_keys(keys, faces)
@@ -763,7 +773,12 @@ class ShapeMixer:
         self._derived = (self.relative_to != 0) | np.any(self.masks != 1.0, axis=1)
         em = edge_masks(self.masks, self.topology.edges) if self._derived.any() else None
         # its own context, with the basis' weights for every target (reconstruction.context, "Target scale")
-        ctx = self._context = ReconstructionContext(self.topology, self.keys[0], self.options.settings)
+        # the reduced space's coordinates hold the face nearest the middle (centroid_root_faces); mixes are placed
+        # as reconstruct places its results (_place)
+        fixed = centroid_root_faces(self.topology, self.keys[0]) if _fixed_faces is None else _fixed_faces
+        settings = replace(self.options.settings, fixed_face=np.asarray(fixed, np.int64))
+        ctx = self._context = ReconstructionContext(self.topology, self.keys[0], settings)
+        self._set_placement()
         ctx.follows_target_scale = False
         self.z_keys = np.stack([lengths_and_angles(k, self.topology) for k in self.keys])
         self._directions = key_directions(self.z_keys, E, self.relative_to, em)
@@ -983,6 +998,38 @@ class ShapeMixer:
         self._exp_A = np.array([np.zeros((r, m)) if e.D1 is None else U.T @ e.D1.T for e in exps])
         self._exp_T = np.array([np.zeros((m, m, r)) if e.T is None else np.einsum("abx,xr->abr", e.T, U)
                                 for e in exps])
+
+    def _set_placement(self):
+        """The reference frames of the faces :func:`reconstruct` holds still where they differ from the context's."""
+        own = default_root_faces(self.topology, vertices=self.keys[0])
+        self._place_frames = None
+        if not np.array_equal(own, self._context.fixed_faces):
+            self._place_frames = [(self.faces[f], triangle_frame(self.keys[0], self.faces[f])) for f in own]
+            self._place_comp = None
+            if len(own) > 1:
+                self._place_comp = np.zeros(self.n_vertices, np.int64)
+                self._place_comp[self.faces.ravel()] = np.repeat(self.topology.face_components()[1], 3)
+
+    def _place(self, X):
+        """``X`` ``(V, 3)`` moved rigidly (per component) so that the face :func:`reconstruct` holds still sits where
+        the basis has it (its 3-2-1 position; :mod:`lacore.reconstruction.context`); ``X`` itself where that face
+        is degenerate."""
+        if self._place_frames is None:
+            return X
+        out = X if self._place_comp is None else X.copy()
+        for c, (face, (o_ref, Q_ref)) in enumerate(self._place_frames):
+            try:
+                o, Q = triangle_frame(X, face)
+            except MeshError:
+                continue
+            M = Q.T @ Q_ref
+            if self._place_comp is None:
+                out = X @ M
+                out += o_ref - o @ M
+            else:
+                sel = self._place_comp == c
+                out[sel] = X[sel] @ M + (o_ref - o @ M)
+        return out
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
@@ -1375,8 +1422,9 @@ class ShapeMixer:
                     msg = ""
                 else:
                     msg = (msg + "; " if msg else "") + f"the full projection did not converge ({res.message})"
-        return MixResult(vertices=X, weights=w, energy=float(energy), indicator=indicator, in_range=not msg,
-                         message=msg, seconds=time.perf_counter() - t0, iterations=int(its), polished=polished)
+        return MixResult(vertices=self._place(X), weights=w, energy=float(energy), indicator=indicator,
+                         in_range=not msg, message=msg, seconds=time.perf_counter() - t0, iterations=int(its),
+                         polished=polished)
 
     # ------------------------------------------------------------------ files
     def save(self, path):
@@ -1393,7 +1441,7 @@ class ShapeMixer:
             "indicator_values": np.zeros(0) if self._error_v is None else self._error_v,
             "correction_weights": np.zeros((0, m)) if self._corr_w is None else self._corr_w,
             "correction": np.zeros((0, m + 1, r)) if self._corr is None else self._corr,
-            "local_vertices": self.local_vertices,
+            "local_vertices": self.local_vertices, "fixed_faces": self._context.fixed_faces,
             "build_stages": np.array(list(self.build_seconds), dtype=str),
             "build_seconds": np.array(list(self.build_seconds.values()), float)})
 
@@ -1404,12 +1452,13 @@ class ShapeMixer:
         name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else str(path)
         a = read_mixer_file(path, MixerError)
         try:
-            keys = a["keys"]
+            keys, topology = check_keys(a["keys"], a["faces"])
             corners = keys if a["corners"] is None else a["corners"]
             if corners.shape != keys.shape or not np.all(np.isfinite(corners)):
                 raise MixerError(f"'corners' has shape {corners.shape}, expected {keys.shape}, or is not finite")
+            fixed = a["fixed_faces"] if a["fixed_faces"] is not None else _basis_fixed_faces(a["basis"], topology)
             mixer = cls(keys, a["faces"], MixerOptions.from_array(a["options"]), masks=a["masks"],
-                        relative_to=a["relative_to"], _corners=corners)
+                        relative_to=a["relative_to"], _topology=topology, _corners=corners, _fixed_faces=fixed)
         except InputError as exc:
             raise MixerError(f"{name} is not a valid shape mixer: {exc}") from None
         U, edges, c, hot = a["basis"], a["cubature_edges"], a["cubature_weights"], a["local_vertices"]
@@ -1431,6 +1480,8 @@ class ShapeMixer:
             bad.append("expansion_weights")
         if len(hot) and (hot.min() < 0 or hot.max() >= V or np.any(np.diff(hot) <= 0)):
             bad.append("local_vertices")
+        if np.any(U[mixer._context.fixed_dofs] != 0):       # coordinates of other fixed faces
+            bad.append("fixed_faces")
         if bad or r < 1 or edges.size == 0 or edges.min() < 0 or edges.max() >= mixer.n_edges or np.any(c < 0):
             raise MixerError(f"{name}: the reduced model is damaged ({', '.join(bad) or 'cubature'}); rebuild the "
                              "mixer")
@@ -1446,6 +1497,19 @@ class ShapeMixer:
         mixer._set_local(hot)
         mixer.build_seconds = dict(zip(a["build_stages"].tolist(), a["build_seconds"].tolist(), strict=True))
         return mixer
+
+
+def _basis_fixed_faces(U, topology):
+    """The faces a basis ``U`` ``(3V, r)`` holds still (one per component at most, the lowest index): those whose
+    3-2-1 coordinates (``a.xyz, b.yz, c.z``, :mod:`lacore.reconstruction.context`) are 0 in every vector; None for
+    an array of another shape."""
+    if U.ndim != 2 or U.shape[0] != 3 * topology.n_vertices:
+        return None
+    zero = np.all(U == 0, axis=1).reshape(-1, 3)
+    a, b, c = topology.faces.T
+    hit = np.flatnonzero(zero[a].all(axis=1) & zero[b, 1] & zero[b, 2] & zero[c, 2])
+    labels = topology.face_components()[1][hit]
+    return hit[np.unique(labels, return_index=True)[1]]
 
 
 def mixer_bytes(mixer):

@@ -60,6 +60,7 @@ from ...errors import InputError
 from ...progress import report
 from ...reconstruction import reconstruct
 from ...reconstruction.settings import GaussNewtonOptions
+from ...reconstruction.spanning_trees import default_root_faces
 from .mixer import MixerOptions, ShapeMixer, _Stopwatch
 from .subspace import _extend, newton_vectors, orthonormal_basis, relative_rms
 
@@ -308,7 +309,8 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
     report(progress, 0, total, "lengths and angles of the keys")
     with watch("setup"):
         mixer = ShapeMixer(np.stack([np.asarray(key_from, float), np.asarray(key_to, float)]), topology.faces,
-                           MixerOptions(bending_weight=o.bending_weight), _topology=topology)
+                           MixerOptions(bending_weight=o.bending_weight), _topology=topology,
+                           _fixed_faces=default_root_faces(topology, vertices=key_from))
     P, ctx = mixer._problem, mixer._context
     xk = mixer._key_x
     x0, size = xk[0], ctx.size
