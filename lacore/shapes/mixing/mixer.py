@@ -1025,7 +1025,8 @@ class ShapeMixer:
             M = Q.T @ Q_ref
             if self._place_comp is None:
                 out = X @ M
-                out += o_ref - o @ M
+                for j, tj in enumerate(o_ref - o @ M):      # one column at a time: faster than broadcasting (3,)
+                    out[:, j] += tj
             else:
                 sel = self._place_comp == c
                 out[sel] = X[sel] @ M + (o_ref - o @ M)
