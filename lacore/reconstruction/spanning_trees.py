@@ -503,16 +503,17 @@ def default_root_faces(topology, z=None, vertices=None):
 def centroid_root_faces(topology, vertices):
     """Root face of every connected component nearest its middle, ``(C,)`` int64.
 
-    Of the faces at least as well shaped as the default root
-    (:func:`default_root_faces`, qualities within :data:`ROOT_QUALITY_TIE`), the
-    one whose centroid is nearest the component's area-weighted centroid: the
-    face that minimizes the area-weighted mean squared distance to the surface,
-    the middle of a regular grid or tube.  (Counted in steps of the dual graph,
-    the most central face of a box-shaped tube lies off its middle, at an edge
-    of the box.)  Distances within :data:`ROOT_DISTANCE_TIE` of the diagonal of
-    the component's vertices are ties, broken by the lower index, so the choice
-    is the same in any unit and on any CPU.  Unlike :func:`default_root_faces`
-    it needs vertices.
+    Of the faces as well shaped as the default root (:func:`default_root_faces`,
+    qualities within :data:`ROOT_QUALITY_TIE`), the one whose centroid is nearest
+    the component's area-weighted centroid: among them, the face that minimizes
+    the area-weighted mean squared distance to the surface.  On a regular grid
+    or tube every face ties, and this is its middle (counted in steps of the
+    dual graph, the most central face of a box-shaped tube lies off its middle,
+    at an edge of the box); on an irregular mesh few faces tie (the default root
+    and its mirror image on a symmetric one).  Distances within
+    :data:`ROOT_DISTANCE_TIE` of the diagonal of the component's face centroids
+    are ties, broken by the lower index, so the choice is the same in any unit
+    and on any CPU.  Unlike :func:`default_root_faces` it needs vertices.
 
     Parameters
     ----------
@@ -545,7 +546,7 @@ def centroid_root_faces(topology, vertices):
     mass = np.maximum(np.bincount(labels, area2, n), np.finfo(float).tiny)
     centre = np.stack([np.bincount(labels, area2 * C[:, i], n) for i in range(3)], axis=1) / mass[:, None]
     d = np.linalg.norm(C - centre[labels], axis=1)
-    d[~(quality >= quality[root][labels] - ROOT_QUALITY_TIE)] = np.inf    # (the root itself stays)
+    d[~(np.abs(quality - quality[root][labels]) <= ROOT_QUALITY_TIE)] = np.inf    # (the root itself stays)
     lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
     np.minimum.at(lo, labels, C)
     np.maximum.at(hi, labels, C)

@@ -68,9 +68,10 @@ Weights outside ``[low, high]`` of :class:`MixerOptions` extrapolate; the result
 ``max_indicator``.
 
 The reduced space lives in the coordinates of a reconstruction context that holds one face per component in the
-3-2-1 position (:mod:`lacore.reconstruction.context`): the face nearest the middle of the basis
-(:func:`~lacore.reconstruction.spanning_trees.centroid_root_faces`), where the space's errors, which grow with the
-distance from the held face, stay smallest.  Each mix is then moved rigidly so that the face
+3-2-1 position (:mod:`lacore.reconstruction.context`): of the faces as well shaped as the reconstruction's default
+root, the one nearest the middle of the basis (:func:`~lacore.reconstruction.spanning_trees.centroid_root_faces`;
+on the box bars, whose faces all tie, it mixed closer to Gauss-Newton's energy than the default root at an edge of
+the box, docs/shape-space.md).  Each mix is then moved rigidly so that the face
 :func:`~lacore.reconstruction.reconstruct` holds (:func:`~lacore.reconstruction.spanning_trees.default_root_faces`)
 sits where the basis has it: mixes, polished mixes and full reconstructions share one frame.
 
@@ -773,8 +774,8 @@ class ShapeMixer:
         self._derived = (self.relative_to != 0) | np.any(self.masks != 1.0, axis=1)
         em = edge_masks(self.masks, self.topology.edges) if self._derived.any() else None
         # its own context, with the basis' weights for every target (reconstruction.context, "Target scale")
-        # the reduced space's coordinates hold the face nearest the middle (centroid_root_faces); mixes are placed
-        # as reconstruct places its results (_place)
+        # the reduced space's coordinates hold the tied face nearest the middle (centroid_root_faces); mixes are
+        # placed as reconstruct places its results (_place)
         fixed = centroid_root_faces(self.topology, self.keys[0]) if _fixed_faces is None else _fixed_faces
         settings = replace(self.options.settings, fixed_face=np.asarray(fixed, np.int64))
         ctx = self._context = ReconstructionContext(self.topology, self.keys[0], settings)
