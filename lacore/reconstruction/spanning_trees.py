@@ -377,8 +377,9 @@ def _normalize_roots(topology, root_face, z=None, vertices=None):
 ROOT_QUALITY_TIE = 1e-9
 """Shape qualities (in ``[0, 1]``) closer than this to the best are equal for :func:`default_root_faces`."""
 
-ROOT_DISTANCE_TIE = 1e-9
-"""Distances to the centroid closer than this fraction of the diagonal are equal for :func:`centroid_root_faces`."""
+ROOT_DISTANCE_TIE = 1e-6
+"""Distances to the centroid closer than this fraction of the diagonal are equal for :func:`centroid_root_faces`
+(mesh files often hold 7 significant digits: a symmetric mesh's mirror images are equal to about ``1e-7``)."""
 
 
 def _center_scores(topology):
@@ -512,8 +513,9 @@ def centroid_root_faces(topology, vertices):
     at an edge of the box); on an irregular mesh few faces tie (the default root
     and its mirror image on a symmetric one).  Distances within
     :data:`ROOT_DISTANCE_TIE` of the diagonal of the component's face centroids
-    are ties, broken by the lower index, so the choice is the same in any unit
-    and on any CPU.  Unlike :func:`default_root_faces` it needs vertices.
+    are ties, which go to the default root, else to the lower index, so the
+    choice is the same in any unit and on any CPU.  Unlike
+    :func:`default_root_faces` it needs vertices.
 
     Parameters
     ----------
@@ -555,6 +557,8 @@ def centroid_root_faces(topology, vertices):
     tied = np.flatnonzero(d <= near[labels] + ROOT_DISTANCE_TIE * np.linalg.norm(hi - lo, axis=1)[labels])
     out = np.full(n, topology.n_faces, np.int64)
     np.minimum.at(out, labels[tied], tied)
+    keep = np.isin(root, tied)
+    out[keep] = root[keep]
     return out
 
 
