@@ -212,8 +212,9 @@ class ReconstructionContext:
         self._origins = np.array([o for o, _ in frames])
         self._Qs = np.array([Q for _, Q in frames])
         labels = topology.face_components()[1]
-        self._vertex_component = np.zeros(topology.n_vertices, np.int64)
-        self._vertex_component[topology.faces.ravel()] = np.repeat(labels, 3)
+        #: component label of every vertex ``(V,)`` (a vertex in no face: 0), whose fixed face places it
+        self.vertex_component = np.zeros(topology.n_vertices, np.int64)
+        self.vertex_component[topology.faces.ravel()] = np.repeat(labels, 3)
         self.fixed_dofs = _gauge_dofs(self._face_vertices, self.fix_triangle_shape)
         #: bounding-box diagonal of the reference, in the context's units
         self.size = float(np.linalg.norm(Xi.max(0) - Xi.min(0))) or 1.0
@@ -360,7 +361,7 @@ class ReconstructionContext:
         frames = [triangle_frame(X, f) for f in self._face_vertices]
         origins = np.array([o for o, _ in frames])
         Qs = np.array([Q for _, Q in frames])
-        comp = self._vertex_component
+        comp = self.vertex_component
         Xc = np.einsum("vij,vj->vi", Qs[comp], X - origins[comp])
         a, b, c = self._face_vertices.T
         Xc[a] = 0.0
@@ -370,7 +371,7 @@ class ReconstructionContext:
 
     def from_canonical(self, Xc):
         """Canonical coordinates -> the reference mesh's frame, in the caller's units (see module docstring)."""
-        comp = self._vertex_component
+        comp = self.vertex_component
         return self.external_vertices(np.einsum("vji,vj->vi", self._Qs[comp], Xc) + self._origins[comp])
 
     def align(self, vertices, keep_degenerate=False):

@@ -1001,37 +1001,36 @@ class ShapeMixer:
                                 for e in exps])
 
     def _set_placement(self):
-        """The reference frames of the faces :func:`reconstruct` holds still where they differ from the context's."""
+        """``(face vertices, reference frame, vertex indices)`` per component of the faces :func:`reconstruct` holds
+        still (indices None for one component), or None where they are the context's."""
         own = default_root_faces(self.topology, vertices=self.keys[0])
         self._place_frames = None
         if not np.array_equal(own, self._context.fixed_faces):
-            self._place_frames = [(self.faces[f], triangle_frame(self.keys[0], self.faces[f])) for f in own]
-            self._place_comp = None
-            if len(own) > 1:
-                self._place_comp = np.zeros(self.n_vertices, np.int64)
-                self._place_comp[self.faces.ravel()] = np.repeat(self.topology.face_components()[1], 3)
+            comp = self._context.vertex_component
+            self._place_frames = [(self.faces[f], triangle_frame(self.keys[0], self.faces[f]),
+                                   None if len(own) == 1 else np.flatnonzero(comp == c)) for c, f in enumerate(own)]
 
     def _place(self, X):
         """``X`` ``(V, 3)`` moved rigidly (per component) so that the face :func:`reconstruct` holds still sits where
-        the basis has it (its 3-2-1 position; :mod:`lacore.reconstruction.context`); ``X`` itself where that face
-        is degenerate."""
+        the basis has it (its 3-2-1 position; :mod:`lacore.reconstruction.context`); a component where that face is
+        degenerate stays where it is."""
         if self._place_frames is None:
             return X
-        out = X if self._place_comp is None else X.copy()
-        for c, (face, (o_ref, Q_ref)) in enumerate(self._place_frames):
+        out = None
+        for face, (o_ref, Q_ref), idx in self._place_frames:
             try:
                 o, Q = triangle_frame(X, face)
             except MeshError:
                 continue
             M = Q.T @ Q_ref
-            if self._place_comp is None:
-                out = X @ M
-                for j, tj in enumerate(o_ref - o @ M):      # one column at a time: faster than broadcasting (3,)
-                    out[:, j] += tj
-            else:
-                sel = self._place_comp == c
-                out[sel] = X[sel] @ M + (o_ref - o @ M)
-        return out
+            Y = X @ M if idx is None else X[idx] @ M
+            for j, tj in enumerate(o_ref - o @ M):          # one column at a time: faster than broadcasting (3,)
+                Y[:, j] += tj
+            if idx is None:
+                return Y
+            out = X.copy() if out is None else out
+            out[idx] = Y
+        return X if out is None else out
 
     def _output_basis(self):
         """``X = y0 + B q`` in the caller's frame and units (the context's affine map from canonical coordinates)."""
