@@ -103,7 +103,7 @@ from .files import FORMAT, FORMAT_VERSION, read_mixer_file, write_mixer_file
 from .local import LocalCorrection, hot_vertices, space_error_density
 from .reduced import ReducedEnergy, edge_stencils
 from .subspace import (Expansion, FullProblem, build_space, candidate_weights, exploration_weights, newton_vectors,
-                       orthonormal_basis, reduced_solve, space_indicator)
+                       orthonormal_basis, reduced_normal_equations, reduced_solve, space_indicator)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "key_directions", "edge_masks",
            "check_masks", "check_key_count", "MIN_LENGTH_RATIO", "KEYS_ADVICE",
@@ -1114,9 +1114,7 @@ class ShapeMixer:
                 g[P.fixed] = 0.0
                 gradients.append(g)
             if metrics and i == 0:
-                A = J @ U
-                A *= np.sqrt(P.w)[:, None]
-                H = 2.0 * (A.T @ A)
+                H = 2.0 * reduced_normal_equations(J, U, np.sqrt(P.w))[0]
                 H[np.diag_indices_from(H)] += 1e-12 * np.trace(H) / len(H)
                 inverse_factor = sl.solve_triangular(np.linalg.cholesky(H), np.eye(len(H)), lower=True,
                                                      check_finite=False)
