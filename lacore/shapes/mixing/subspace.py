@@ -455,9 +455,9 @@ def reduced_normal_equations(J, U, scale, rhs=None, rows=NORMAL_EQUATION_ROWS):
     """``A^T A`` ``(r, r)`` and ``A^T rhs`` ``(r,)`` of ``A = diag(scale) J U``, in blocks of ``rows`` rows of ``J``.
 
     ``A`` (``(2E, r)``, 100 MB at 50k vertices and ``r = 44``) is never formed whole: each block's product is
-    small enough to be reused by the allocator, where a fresh whole ``A`` per call touches fresh memory (on the
-    build's virtual machine a page fault cost about as much as the product itself).  The sums are those of the
-    whole product up to rounding.
+    small enough for the allocator to reuse its memory, where a whole ``A`` per call touches fresh memory, whose
+    page faults can cost more than the product (on a virtual machine).  The sums are those of the whole product
+    up to rounding.
 
     Parameters
     ----------
