@@ -272,7 +272,13 @@ def test_trc_round_trip_and_fixture(tmp_path):
     with pytest.raises(MarkerFileError, match="NumMarkers 3 but line 4 names 2"):
         read_markers(bad)
     bad.write_text(text.replace("4.5", "x4.5"))
-    with pytest.raises(MarkerFileError, match="non-numeric"):
+    with pytest.raises(MarkerFileError, match=r"line 8 \(data row 2\): X of marker 'B' is 'x4.5', not a number"):
+        read_markers(bad)
+    bad.write_text(text.replace("3\t0.02", "NaN\t0.02"))
+    with pytest.raises(MarkerFileError, match=r"line 9 \(data row 3\) has no frame number"):
+        read_markers(bad)
+    bad.write_text(text.replace("2\t0.01", "2\t0.0l"))
+    with pytest.raises(MarkerFileError, match=r"line 8 \(data row 2\): Time is '0.0l', not a number"):
         read_markers(bad)
 
 

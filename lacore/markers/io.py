@@ -562,13 +562,14 @@ def _read_trc_text(data, path, units):
         raise MarkerFileError(f"{path}: header says NumMarkers {n_markers} but line 4 names {len(labels)} markers")
     labels = _unique_labels(labels)
     width = 2 + 3 * n_markers
-    fields, n_rows, last = [], 0, None
+    fields, n_rows, last, row_lines = [], 0, None, []
     for number, ln in enumerate(lines[5:], start=6):
         if not ln.strip():
             continue
         n_rows += 1
         row = _trc_row(ln.split("\t"), width, n_markers, path, f"line {number} (data row {n_rows})")
         fields += row
+        row_lines.append(number)
         last = (number, ln, row)
     if not n_rows:
         raise MarkerFileError(f"{path}: TRC file without data rows")
@@ -588,11 +589,13 @@ def _read_trc_text(data, path, units):
                                       "truncated or damaged (export the take again)")
     try:
         numbers = np.array([f.strip() or "nan" for f in fields], dtype=np.float64).reshape(n_rows, width)
-    except ValueError as exc:
-        raise MarkerFileError(f"{path}: non-numeric TRC data ({exc})") from None
+    except ValueError:
+        raise MarkerFileError(_trc_non_numeric(fields, width, labels, row_lines, path)) from None
     frames = numbers[:, 0]
     if np.isnan(frames).any():
-        raise MarkerFileError(f"{path}: data row {int(np.flatnonzero(np.isnan(frames))[0]) + 1} has no frame number")
+        r = int(np.flatnonzero(np.isnan(frames))[0])
+        raise MarkerFileError(f"{path}: line {row_lines[r]} (data row {r + 1}) has no frame number (Frame# is NaN): "
+                              f"the file is damaged; {_TRC_AGAIN}")
     if not (np.isfinite(frames[0]) and abs(frames[0]) < 2.0 ** 31 and frames[0] == np.round(frames[0])):
         raise MarkerFileError(f"{path}: data row 1 has frame number {frames[0]:g}; frame numbers are whole numbers "
                               "(fix the Frame# column)")
@@ -600,6 +603,21 @@ def _read_trc_text(data, path, units):
     _refuse_infinite(positions, labels, frames, path, _TRC_AGAIN)
     return MarkerTake(labels=labels, positions=positions, rate=rate, first_frame=int(frames[0]),
                       units=units if units is not None else file_units, source=path)
+
+
+def _trc_non_numeric(fields, width, labels, row_lines, path):
+    """The one-line error naming the first field of a TRC's data rows that is not a number (``fields``: the rows'
+    ``width`` fields each, concatenated; ``row_lines``: each row's line number)."""
+    for i, f in enumerate(fields):
+        text = f.strip()
+        try:
+            float(text or "nan")
+        except ValueError:
+            r, c = divmod(i, width)
+            column = ("Frame#", "Time")[c] if c < 2 else f"{'XYZ'[(c - 2) % 3]} of marker {labels[(c - 2) // 3]!r}"
+            return (f"{path}: line {row_lines[r]} (data row {r + 1}): {column} is {text[:40]!r}, not a number: the "
+                    f"file is damaged; {_TRC_AGAIN}")
+    return f"{path}: non-numeric TRC data: the file is damaged; {_TRC_AGAIN}"  # pragma: no cover
 
 
 def _trc_row(row, width, n_markers, path, where):
