@@ -804,6 +804,34 @@ def test_local_correction(long_bar, tmp_path):
     assert not len(off.local_vertices)
 
 
+def test_local_step_is_the_full_gauss_newton_step_on_its_vertices(long_bar):
+    """The local correction's step equals the Gauss-Newton step of the whole mesh's ``W_q`` with every coordinate
+    but its free ones held (the Jacobian of all edges, solved densely), and its energy change is the whole energy's."""
+    from lacore.geometry.lengths_angles import lengths_and_angles_jacobian
+    keys, F, mixer = long_bar
+    loc, prob = mixer._local, mixer._problem
+    free = np.setdiff1d((3 * loc.hot[:, None] + np.arange(3)).ravel(), prob.fixed)
+    for w in ([0.5, 0.5], [1.5, -0.5]):
+        w = np.array(w)
+        mixer.mix(w, warm_start=False)
+        q = mixer._last_q
+        x = mixer._key_x[0] + mixer.basis @ q
+        J, z = lengths_and_angles_jacobian(x.reshape(-1, 3), mixer.topology, return_z=True)
+        r = prob._residual(z, w)
+        Jf = J[:, free].toarray()
+        d = -np.linalg.solve(Jf.T @ (prob.w[:, None] * Jf), Jf.T @ (prob.w * r))
+        x1 = x.copy()
+        x1[free] += d
+        want = np.zeros((mixer.n_vertices, 3))
+        want.ravel()[free] = d
+        want = np.einsum("vij,vj->vi", loc._map, want[loc.hot])
+        dX, change = loc.step(q, w)
+        assert change < 0
+        np.testing.assert_allclose(dX, want, rtol=0, atol=1e-9 * np.abs(want).max())
+        e0, e1 = prob.energy(x, w), prob.energy(x1, w)
+        assert abs(change - (e1 - e0)) < 1e-9 * e0
+
+
 def test_a_polish_no_mesh_comes_near_returns_the_flagged_reduced_mix():
     """Keys of different sizes (a sphere, another three times larger, a third): at w = (-0.3, 0.2), inside the
     accurate range, the blend's lengths break the triangle inequality at most faces, so no full projection exists:

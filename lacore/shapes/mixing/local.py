@@ -16,18 +16,19 @@ step where it lowers the energy (the energy change is exact: only the rows the s
 On the CC0 body (13k vertices, keys raising an arm, bending a knee and twisting the torso), where the reduced
 mixes' excess energy over converged Gauss-Newton sits in a few dozen edges of the left armpit, 150 such vertices
 (a patch of about 470) took the benchmark's weights in ``[0, 1]^3`` within 2 % of that energy from 5 to 9 of 10
-(``benchmarks/bench_mixer.py``; 14 to 22 of 24 more random weights) for about 1.1 ms more per mix.  On the bars and the
-MakeHuman body the excess is spread over the mesh (the 150 vertices of the largest density hold 11-48 % of it; a
-trial with 1,000 and 3,000 vertices on the 50k bar recovered 1-10 % of its excess) and the build keeps none.
+(``benchmarks/bench_mixer.py``; 14 to 22 of 24 more random weights) for a step of about 0.65 ms per mix.  On the
+bars and the MakeHuman body the excess is spread over the mesh (the 150 vertices of the largest density hold 11-48 %
+of it; a trial with 1,000 and 3,000 vertices on the 50k bar recovered 1-10 % of its excess) and the build keeps
+none.
 """
 
 import numpy as np
 import scipy.sparse as sp
 
-from ...geometry.lengths_angles import lengths_and_angles, lengths_and_angles_jacobian, wrap_angle
+from ...geometry.lengths_angles import lengths_and_angles_jacobian, wrap_angle
 from ...geometry.topology import MeshTopology
 from ...linalg.sparse_cholesky import SparseCholesky
-from ...reconstruction.assembly import gauss_newton_pattern
+from .reduced import edge_stencils, element_eval
 
 __all__ = ["LocalCorrection", "hot_vertices", "space_error_density", "HOT_SHARE"]
 
@@ -144,9 +145,10 @@ class LocalCorrection:
     Notes
     -----
     The step's system is ``2 J_h^T W J_h`` over the free coordinates of ``hot`` (``J_h`` the rows of the lengths
-    and angles of the edges whose stencil touches them), assembled in the order of
-    :func:`lacore.reconstruction.assembly.gauss_newton_pattern` on a patch: the faces with a corner in ``hot`` or
-    next to it, so every such row has both its faces.  ``O(n)`` per step, independent of the mesh.
+    and angles of the edges whose stencil touches them, on a patch: the faces with a corner in ``hot`` or next to
+    it, so every such row has both its faces).  Only those rows are evaluated: the element gradients of their
+    edges' stencils (:func:`.reduced.element_eval`), gathered pairwise into the lower CSC values of the block
+    (symbolic analysis once).  ``O(n)`` per step, independent of the mesh.
     """
 
     def __init__(self, topology, hot, key_x, basis, problem, fixed_dofs, output_map):
@@ -198,40 +200,59 @@ class LocalCorrection:
         self._dz = np.ascontiguousarray(problem.dz[:, grow])
         self._floor = np.where(self._angle, -np.inf, problem.floor[edge])
         self._w = problem.w[grow]
-        wp = np.zeros(2 * Ep)
-        wp[rows] = self._w
-        pattern = gauss_newton_pattern(tp)
-        # the free coordinates' block of the pattern (lower CSC), in the pattern's order
+        # the rows' stencils (:func:`.reduced.edge_stencils`, the conventions of :func:`.reduced.element_eval`): each
+        # needed edge once; a row reads its value from (l, theta) of those edges at ``_z_of_row``
+        edges, where_edge = np.unique(rows % Ep, return_inverse=True)
+        n_e = len(edges)
+        stencil = edge_stencils(tp)[edges]
+        self._stencil = np.ascontiguousarray((3 * stencil[:, :, None] + np.arange(3)).reshape(n_e, 12).T)  # (12, n_e)
+        self._z_of_row = np.where(self._angle, n_e, 0) + where_edge
+        # free coordinates of every row's stencil entries: a row of an edge's length reads the first 6 entries of the
+        # element gradients (``gl``, flat index k n_e + edge), a row of its angle all 12 (``gt``, after ``gl``)
         n = 3 * len(pv)
         where = np.full(n, -1, np.int64)
         where[free] = np.arange(len(free))
-        r_new, c_new = where[pattern["indices"]], where[pattern["cols"]]
-        self._block = np.flatnonzero((r_new >= 0) & (c_new >= 0))
         m = len(free)
-        block = sp.csc_matrix((np.ones(len(self._block)), (r_new[self._block], c_new[self._block])), shape=(m, m))
+        src, slot_of, row_of = [], [], []
+        for size, offset, sel in ((6, 0, ~self._angle), (12, 6 * n_e, self._angle)):
+            rr = np.flatnonzero(sel)
+            k = np.arange(size)
+            src.append(offset + k[None, :] * n_e + where_edge[rr][:, None])           # (rows, size)
+            slot_of.append(where[self._stencil[k][:, where_edge[rr]].T])              # (rows, size)
+            row_of.append(np.broadcast_to(rr[:, None], (len(rr), size)))
+        # the gradient 2 J^T W r on the free coordinates: entries of free coordinates, scattered by ``bincount``
+        grad_src, grad_slot, grad_row = [], [], []
+        for a, b, c in zip(src, slot_of, row_of, strict=True):
+            ok = b >= 0
+            grad_src.append(a[ok])
+            grad_slot.append(b[ok])
+            grad_row.append(c[ok])
+        self._grad_src, self._grad_slot = np.concatenate(grad_src), np.concatenate(grad_slot)
+        self._grad_row = np.concatenate(grad_row)
+        # the block of 2 J^T W J: every pair (i <= j) of free stencil entries of a row, its weight (doubled when both
+        # entries are one coordinate) and its slot in the lower CSC values of the block
+        pairs = []
+        for a, b, c in zip(src, slot_of, row_of, strict=True):
+            ii, jj = np.triu_indices(a.shape[1])
+            fa, fb = b[:, ii], b[:, jj]
+            keep_pair = (fa >= 0) & (fb >= 0) & (self._w[c[:, 0]] > 0)[:, None]
+            same = (fa == fb) & (ii != jj)[None, :]
+            pairs.append((a[:, ii][keep_pair], a[:, jj][keep_pair], np.minimum(fa, fb)[keep_pair],
+                          np.maximum(fa, fb)[keep_pair],
+                          (2.0 * self._w[c[:, 0]][:, None] * np.where(same, 2.0, 1.0))[keep_pair]))
+        first, second, lo, hi, weight = (np.concatenate(x) for x in zip(*pairs, strict=True))
+        entries = np.unique(hi * m + lo)                                  # column-major, sorted rows: (col lo, row hi)
+        rows_b, cols_b = entries // m, entries % m
+        block = sp.csc_matrix((np.ones(len(entries)), (rows_b, cols_b)), shape=(m, m))
         self._solver = SparseCholesky(block)
-        if not np.array_equal(self._solver.indices, r_new[self._block]):
-            # the solver's lower CSC order is the pattern's (column-major, sorted rows): kept by construction
+        key = cols_b * m + rows_b
+        order = np.argsort(key)
+        if not np.array_equal(self._solver.indices, rows_b[order]):
+            # the solver's lower CSC order is column-major with sorted rows: the order of ``key``
             raise RuntimeError("local correction: pattern order mismatch")  # pragma: no cover
-        # the block of 2 J^T W J from the rows that touch it: every pair (i <= j) of local coordinates of such a row,
-        # both free, as two positions in the Jacobian's CSR values, its weight and its slot in the block's values
-        key = c_new[self._block] * m + r_new[self._block]          # increasing: column-major, sorted rows
-        first, second, weight, slots = [], [], [], []
-        offset = 0
-        kinds = ((6, pattern["len_cols"], np.arange(Ep)), (12, pattern["ang_cols"], Ep + tp.interior_edges))
-        for k, cols, zrow in kinds:
-            count = len(zrow)
-            ii, jj = np.triu_indices(k)
-            fa, fb = where[cols[ii]], where[cols[jj]]
-            p, e = np.nonzero((fa >= 0) & (fb >= 0) & (wp[zrow] > 0)[None, :])
-            a, b = fa[p, e], fb[p, e]
-            slots.append(np.searchsorted(key, np.minimum(a, b) * m + np.maximum(a, b)))
-            first.append(pattern["local_order"][offset + ii[p] * count + e])
-            second.append(pattern["local_order"][offset + jj[p] * count + e])
-            weight.append(2.0 * wp[zrow][e])
-            offset += k * count
-        self._first, self._second = np.concatenate(first), np.concatenate(second)
-        self._pair_weight, self._slots = np.concatenate(weight), np.concatenate(slots)
+        self._slots = np.searchsorted(key[order], lo * m + hi)
+        self._n_values = len(entries)
+        self._first, self._second, self._pair_weight = first, second, weight
         self._map = np.asarray(output_map, float)[hot].reshape(-1, 3, 3)
         self._keep = keep.reshape(-1, 3)
 
@@ -239,11 +260,14 @@ class LocalCorrection:
     def nbytes(self):
         return int(self._U.nbytes + self._dz.nbytes + self._x0.nbytes)
 
-    def _energy(self, z, target):
-        r = z[self._rows] - target
+    def _residuals(self, x, target, gradients):
+        """Weighted-energy residuals of the rows at the patch coordinates ``x`` ``(3 n_patch,)``, and the element
+        gradients ``(18 n_e,)`` (``gl`` then ``gt``, flat) when ``gradients``."""
+        l, th, gl, gt = element_eval(x[self._stencil], gradients)
+        r = np.concatenate([l, th])[self._z_of_row] - target
         a = self._angle
         r[a] = wrap_angle(r[a])
-        return float(np.dot(self._w * r, r)), r
+        return float(np.dot(self._w * r, r)), r, (np.concatenate([gl.ravel(), gt.ravel()]) if gradients else None)
 
     def step(self, q, weights):
         """The correction of the mix ``key_x + U q`` for ``weights``.
@@ -254,22 +278,18 @@ class LocalCorrection:
         target = self._z0 + np.asarray(weights, float) @ self._dz
         np.maximum(target, self._floor, out=target)
         x = self._x0 + self._U @ q
-        X = x.reshape(-1, 3)
-        J, z = lengths_and_angles_jacobian(X, self.topology, return_z=True)
-        e0, r = self._energy(z, target)
-        wr = np.zeros(len(z))
-        wr[self._rows] = self._w * r
-        g = 2.0 * (J.T @ wr)[self._free]
-        jv = J.data
-        values = np.bincount(self._slots, weights=self._pair_weight * jv[self._first] * jv[self._second],
-                             minlength=len(self._block))
+        e0, r, G = self._residuals(x, target, True)
+        g = 2.0 * np.bincount(self._grad_slot, weights=G[self._grad_src] * (self._w * r)[self._grad_row],
+                              minlength=len(self._free))
+        values = np.bincount(self._slots, weights=self._pair_weight * G[self._first] * G[self._second],
+                             minlength=self._n_values)
         self._solver.factorize(values)
         d = -self._solver.solve(g)
         out = np.zeros(3 * len(self.hot))
         for t in (1.0, 0.5):
             x1 = x.copy()
             x1[self._free] += t * d
-            e1, _ = self._energy(lengths_and_angles(x1.reshape(-1, 3), self.topology, check=False), target)
+            e1 = self._residuals(x1, target, False)[0]
             if e1 < e0:
                 out[self._keep.ravel()] = t * d
                 return np.einsum("vij,vj->vi", self._map, out.reshape(-1, 3)), e1 - e0

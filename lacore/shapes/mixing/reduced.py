@@ -109,6 +109,8 @@ class ReducedEnergy:
         self._xb = self._US = None
         self.wl = residual_weights[edges] * self.c
         self.wt = residual_weights[E + edges] * self.c
+        self._w2 = np.stack([self.wl, self.wt], 1).ravel()               # (2n,): wl, wt interleaved
+        self._sqrt_w = np.sqrt(self._w2)
         self.l0, self.t0 = z0[edges], z0[E + edges]
         self.dl, self.dt = dz[:, edges], dz[:, E + edges]
         self.floor = floor[edges]
@@ -156,11 +158,15 @@ class ReducedEnergy:
         """``E``, gradient ``(r,)`` and Gauss-Newton matrix ``(r, r)`` at ``q`` (with ``2 shift . q``, see
         :meth:`energy`)."""
         rl, rt, gl, gt = self._residuals(q, w, True)
-        Gl = np.matmul(gl.T[:, None, :], self._USn[:, :6])[:, 0]          # (n, r): dl/dq
-        Gt = np.matmul(gt.T[:, None, :], self._USn)[:, 0]                 # (n, r): dtheta/dq
+        n = len(rl)
+        g = np.zeros((n, 2, 12))                                          # per edge: dl/dstencil (6), dtheta/dstencil
+        g[:, 0, :6] = gl.T
+        g[:, 1] = gt.T
+        G = np.matmul(g, self._USn).reshape(2 * n, -1)                    # (2n, r): dl/dq, dtheta/dq interleaved
+        A = self._sqrt_w[:, None] * G
         energy = float(self.wl @ (rl * rl) + self.wt @ (rt * rt))
-        grad = 2.0 * (Gl.T @ (self.wl * rl) + Gt.T @ (self.wt * rt))
-        H = 2.0 * (Gl.T @ (self.wl[:, None] * Gl) + Gt.T @ (self.wt[:, None] * Gt))
+        grad = 2.0 * (G.T @ (self._w2 * np.stack([rl, rt], 1).ravel()))
+        H = 2.0 * (A.T @ A)
         if shift is not None:
             energy += 2.0 * float(shift @ q)
             grad = grad + 2.0 * shift
