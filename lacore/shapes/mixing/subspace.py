@@ -120,8 +120,10 @@ class FullProblem:
         C = np.empty((len(r0), 1 + len(self.dz)))
         np.multiply(self.w, r0, out=C[:, 0])
         C[:, 1:] = self.weighted_dz
-        rown = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1])) if J.nnz else np.zeros(J.shape[0])
-        rown[np.diff(J.indptr) == 0] = 0.0
+        rown = np.zeros(J.shape[0])
+        rows = np.diff(J.indptr) > 0          # (the angles of boundary edges have empty rows, the last ones too)
+        if rows.any():
+            rown[rows] = np.sqrt(np.add.reduceat(J.data ** 2, J.indptr[:-1][rows]))
         return J.T @ C, rown, C[:, 0].copy()
 
     def gradient(self, x, wk):
