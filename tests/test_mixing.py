@@ -804,13 +804,35 @@ def test_local_correction(long_bar, tmp_path):
     assert not len(off.local_vertices)
 
 
-def test_local_step_is_the_full_gauss_newton_step_on_its_vertices(long_bar):
+@pytest.fixture(scope="module")
+def rolled_plate():
+    """The 121-vertex plate and its two rolls (an open mesh): a mixer and a local correction on vertices chosen to
+    include the fixed face's (their gauge coordinates stay), boundary vertices and interior ones."""
+    from conftest import shared_mesh
+    from lacore.io.meshes import load_mesh
+    from lacore.shapes.mixing.local import LocalCorrection
+    meshes = [load_mesh(shared_mesh(f"plate/{n}.ply")) for n in ("plate121", "plate121_rolledA", "plate121_rolledB")]
+    keys, F = np.stack([m[0] for m in meshes]), meshes[0][1]
+    mixer = ShapeMixer.build(keys, F)
+    topo, ctx, V = mixer.topology, mixer._context, mixer.n_vertices
+    boundary = np.unique(topo.edges[topo.edge_opposite_vertices[:, 1] < 0])
+    hot = np.unique(np.r_[topo.faces[ctx.fixed_faces[0]], boundary[::4], np.arange(0, V, 9)])
+    zero = ctx.from_canonical(np.zeros((V, 3)))
+    linear = np.stack([ctx.from_canonical(np.tile(e, (V, 1))) - zero for e in np.eye(3)], axis=2)
+    mixer._local = LocalCorrection(topo, hot, mixer._key_x[0], mixer.basis, mixer._problem, ctx.fixed_dofs, linear)
+    return keys, F, mixer
+
+
+@pytest.mark.parametrize("case", ["long_bar", "rolled_plate"])
+def test_local_step_is_the_full_gauss_newton_step_on_its_vertices(case, request):
     """The local correction's step equals the Gauss-Newton step of the whole mesh's ``W_q`` with every coordinate
-    but its free ones held (the Jacobian of all edges, solved densely), and its energy change is the whole energy's."""
+    but its free ones held (the Jacobian of all edges, solved densely), and its energy change is the whole energy's:
+    on the bar's own vertices and on the open plate's with boundary vertices and the fixed face among them."""
     from lacore.geometry.lengths_angles import lengths_and_angles_jacobian
-    keys, F, mixer = long_bar
+    keys, F, mixer = request.getfixturevalue(case)
     loc, prob = mixer._local, mixer._problem
     free = np.setdiff1d((3 * loc.hot[:, None] + np.arange(3)).ravel(), prob.fixed)
+    assert len(free) < 3 * len(loc.hot) or case == "long_bar"           # the plate's gauge coordinates are held
     for w in ([0.5, 0.5], [1.5, -0.5]):
         w = np.array(w)
         mixer.mix(w, warm_start=False)
