@@ -103,7 +103,7 @@ from .files import FORMAT, FORMAT_VERSION, read_mixer_file, write_mixer_file
 from .local import LocalCorrection, hot_vertices, space_error_density
 from .reduced import ReducedEnergy, edge_stencils
 from .subspace import (Expansion, FullProblem, build_space, candidate_weights, exploration_weights, newton_vectors,
-                       orthonormal_basis, reduced_normal_equations, reduced_solve, space_indicator)
+                       orthonormal_basis, reduced_normal_equations, space_indicator)
 
 __all__ = ["ShapeMixer", "MixerOptions", "MixResult", "MixerError", "blend_targets", "key_directions", "edge_masks",
            "check_masks", "check_key_count", "MIN_LENGTH_RATIO", "KEYS_ADVICE",
@@ -161,6 +161,10 @@ EXPLORE_DERIVATIVES = 1
 #: Edges of the sampled reduced energy whose minimizers :func:`.subspace.space_indicator` ranks the exploration
 #: weights by (:meth:`ShapeMixer._screening_energy`).
 SCREENING_EDGES = 2000
+
+#: Most Gauss-Newton iterations of the reduced energy on the screening's sample of edges for a minimizer in the space
+#: (:meth:`ShapeMixer._screening_energy`: the exploration's ranking and the cubature's training points).
+SCREENING_ITERATIONS = 10
 
 #: Floor of the blended lengths, as a fraction of the basis key's length of the same edge.
 MIN_LENGTH_RATIO = 0.01
@@ -912,8 +916,9 @@ class ShapeMixer:
                 pool = exploration_weights(mixer.n_keys - 1, keys_w + all_cands)
                 with watch("newton_vectors"):
                     sampled = mixer._screening_energy()
-                    score, screened = space_indicator(P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in pool],
-                                                      lambda wk, q0, e=sampled: e.solve(wk, q0, 10)[0])
+                    score, screened = space_indicator(
+                        P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in pool],
+                        lambda wk, q0, e=sampled: e.solve(wk, q0, SCREENING_ITERATIONS)[0])
                 order = np.argsort(-score, kind="stable")[:EXPLORE_POINTS]
                 cands = [pool[i] for i in order]
                 starts = {tuple(pool[i]): screened[i] for i in order}
@@ -1053,7 +1058,8 @@ class ShapeMixer:
     def _screening_energy(self):
         """The reduced energy on a seeded random sample of :data:`SCREENING_EDGES` edges, each weighted by the number
         of edges over the sample's size (all edges, weight 1, on smaller meshes): its minimizers stand in for the
-        exact ones in the space where :func:`.subspace.space_indicator` ranks the exploration weights."""
+        exact ones in the space where :func:`.subspace.space_indicator` ranks the exploration weights, and they are
+        the cubature's training points at its added weights (:meth:`_fit_cubature`)."""
         E = self.n_edges
         if E <= SCREENING_EDGES:
             return self._make_energy(None, None)
@@ -1072,7 +1078,7 @@ class ShapeMixer:
         Q = np.concatenate([self._exp_q, np.array([self.predict(wk) for wk in extra])])
         return W, Q
 
-    def _training(self, samples, metrics=False, refine=None, energies=None, energy_weights=None, densities=None):
+    def _training(self, samples, metrics=False, energies=None, energy_weights=None, densities=None):
         """Exact gradient pieces ``(m+1, r)`` at every sample (sparse products with the full Jacobian) and a score per
         edge bounding the size of its pieces; with ``metrics`` also ``C^{-1}`` ``(r, r)``, ``C C^T`` the reduced
         Gauss-Newton matrix ``2 U^T J^T W J U`` at the first sample (the energy norm of
@@ -1081,9 +1087,7 @@ class ShapeMixer:
         the Newton points are not kept for it: holding their terms through the Newton stage cost more there (page
         faults) than the 16 Jacobians saved here (docs/shape-space.md).
 
-        ``refine``: per sample None or the weights ``w``: the sample (in ``samples``, replaced in place) is first
-        moved by one reduced Gauss-Newton step for ``w`` with the full Jacobian (:func:`.subspace.reduced_solve`),
-        whose last Jacobian serves the training.  ``energies``: a list that receives the full energy at every sample
+        ``energies``: a list that receives the full energy at every sample
         for the weights ``energy_weights[i]``; ``densities`` a list that receives at every sample the space's error
         density for those weights (:func:`.local.space_error_density`, the local correction's choice)."""
         P, U, topo = self._problem, self.basis, self.topology
@@ -1097,10 +1101,7 @@ class ShapeMixer:
         inverse_factor = vertex_scale = None
         gradients = []
         for i, q in enumerate(samples):
-            if refine is not None and refine[i] is not None:
-                samples[i], _, _, (J, z) = reduced_solve(P, x0, U, q, refine[i], iterations=1, linearized=True)
-            else:
-                J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
+            J, z = lengths_and_angles_jacobian((x0 + U @ q).reshape(-1, 3), topo, return_z=True)
             if energies is not None:
                 energies.append(P.energy_z(z, energy_weights[i]))
             JtC, rown, c0 = P.training_terms(J, z)
@@ -1141,17 +1142,20 @@ class ShapeMixer:
             self.cubature_residual = 0.0
             return
         W, Q = self._cubature_samples()
-        # the Taylor predictions at the added weights, one reduced Gauss-Newton step (full Jacobian) closer to the
-        # space's minimizers, where the mixes' minimizers lie
+        # the added weights at the space's minimizers, where the mixes' minimizers lie: those of the reduced energy on
+        # the screening's sample of edges, from the Taylor predictions (one reduced Gauss-Newton step with the full
+        # Jacobian instead cost 0.2 s more at 13k vertices and 0.9 s more at 50k, for the same energies or worse:
+        # docs/shape-space.md)
         n_built = len(self._exp_w)
-        refine = [None] * n_built + list(W[n_built:])
-        Q = list(Q)
+        sampled = self._screening_energy()
+        Q = list(Q[:n_built]) + [sampled.solve(wk, qk, SCREENING_ITERATIONS)[0]
+                                 for wk, qk in zip(W[n_built:], Q[n_built:], strict=True)]
         energies, densities = [], []
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(Q, metrics=True, refine=refine, energies=energies,
+            totals, score, metrics = self._training(Q, metrics=True, energies=energies,
                                                     energy_weights=W, densities=densities)
         else:
-            (totals, score), metrics = self._training(Q, refine=refine, energies=energies, energy_weights=W,
+            (totals, score), metrics = self._training(Q, energies=energies, energy_weights=W,
                                                       densities=densities), None
         self._set_local(hot_vertices(densities, self.options.local_vertices))
         Q = np.array(Q)
