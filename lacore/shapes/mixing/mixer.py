@@ -1087,9 +1087,9 @@ class ShapeMixer:
         the Newton points are not kept for it: holding their terms through the Newton stage cost more there (page
         faults) than the 16 Jacobians saved here (docs/shape-space.md).
 
-        ``energies``: a list that receives the full energy at every sample
-        for the weights ``energy_weights[i]``; ``densities`` a list that receives at every sample the space's error
-        density for those weights (:func:`.local.space_error_density`, the local correction's choice)."""
+        ``energies``: a list that receives the full energy at every sample for the weights ``energy_weights[i]``;
+        ``densities`` a list that receives at every sample the space's error density for those weights
+        (:func:`.local.space_error_density`, the local correction's choice)."""
         P, U, topo = self._problem, self.basis, self.topology
         E = self.n_edges
         x0 = self._key_x[0]
@@ -1152,8 +1152,8 @@ class ShapeMixer:
                                  for wk, qk in zip(W[n_built:], Q[n_built:], strict=True)]
         energies, densities = [], []
         if self.options.cubature_energy_norm:
-            totals, score, metrics = self._training(Q, metrics=True, energies=energies,
-                                                    energy_weights=W, densities=densities)
+            totals, score, metrics = self._training(Q, metrics=True, energies=energies, energy_weights=W,
+                                                    densities=densities)
         else:
             (totals, score), metrics = self._training(Q, energies=energies, energy_weights=W,
                                                       densities=densities), None
