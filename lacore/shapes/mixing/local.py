@@ -165,7 +165,7 @@ class LocalCorrection:
         local = np.full(V, -1, np.int64)
         local[pv] = np.arange(len(pv))
         self.vertices = pv
-        self.topology = tp = MeshTopology.from_faces(local[pf], n_vertices=len(pv))
+        tp = MeshTopology.from_faces(local[pf], n_vertices=len(pv))
         Ep = tp.n_edges
         # the patch's edges among the mesh's
         ge = pv[tp.edges]
@@ -192,7 +192,6 @@ class LocalCorrection:
         nz = counts > 0
         hit[nz] = np.add.reduceat(mark[J.indices].astype(np.int64), J.indptr[:-1][nz]) > 0
         rows = np.flatnonzero(hit)
-        self._rows = rows
         self._angle = rows >= Ep
         edge = gedge[rows % Ep]
         grow = np.where(self._angle, topology.n_edges + edge, edge)
