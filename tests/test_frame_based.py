@@ -469,6 +469,27 @@ def test_several_components():
     assert np.all(np.isfinite(Y))
 
 
+def test_distance_sums_are_those_of_one_search_per_source():
+    """The root tie-break's sums of dual distances (64 sources per bit-parallel search) equal one breadth-first
+    search per source, also across chunks of 64, from a repeated source, and with nodes a source cannot reach."""
+    from lacore.reconstruction.spanning_trees import _distance_sums, _dual_csr
+
+    rng = np.random.default_rng(3)
+    A = sp.random(300, 300, density=0.01, random_state=4, format="csr")
+    A = ((A + A.T) != 0).astype(float)
+    A = sp.block_diag([A, sp.csr_matrix((5, 5))], format="csr")             # five isolated nodes
+    sources = np.r_[rng.choice(305, 130, replace=False), 7, 7]
+    d = csgraph.shortest_path(A, unweighted=True, indices=sources)
+    expected = np.where(np.isfinite(d), d, 0.0).sum(axis=1)
+    assert expected.max() > 1000 and (expected == 0).any()
+    assert np.array_equal(_distance_sums(A, sources), expected)
+    topo, _ = deformed_icosphere(2)
+    G = _dual_csr(topo)
+    faces = np.arange(0, topo.n_faces, 3)
+    d = csgraph.shortest_path(G, unweighted=True, indices=faces)
+    assert np.array_equal(_distance_sums(G, faces), d.sum(axis=1))
+
+
 def test_bad_input():
     topo, X, z = mesh("finger/finger1.ply")
     E = topo.n_edges
