@@ -452,8 +452,8 @@ def default_root_faces(topology, z=None, vertices=None):
     up to round-off, which would otherwise pick the face and make the placement
     depend on the unit of length and the CPU.  Ties go to the more central face
     in the dual graph: the smaller sum of dual distances to all faces of the
-    component (the mean depth of a breadth-first tree from there; one search per
-    tied face, cached), then the smaller estimated eccentricity, then the lower
+    component (the mean depth of a breadth-first tree from there; the tied faces
+    searched 64 at a time, cached), then the smaller estimated eccentricity, then the lower
     index.  The estimate alone does not rank a grid: on a triangulated square
     grid a whole diagonal, corners included, has the least eccentricity.  Every
     comparison is between integers or within a tolerance, so the choice is the
@@ -577,7 +577,7 @@ def _total_distances(topology, faces):
     """Sum of the dual distances from each of ``faces`` to all faces of its component, ``(k,)`` float.
 
     The mean depth of a breadth-first tree rooted there.  Cached per face on the
-    topology (one breadth-first search per face not seen before).
+    topology (:func:`_distance_sums` for the faces not seen before).
     """
     known = topology.cache.get((__name__, "total_distances"), dict)
     new = np.array(sorted({int(f) for f in faces} - known.keys()), np.int64)
