@@ -225,33 +225,34 @@ def fit_cubature(make_energy, samples, totals, score, n_points, max_candidates=3
         rest = np.setdiff1d(np.arange(E), top)
         cand = np.sort(np.r_[top, rng.choice(rest, max_candidates - n_top, replace=False)])
     model = make_energy(cand, None) if metric is None else make_energy(cand, None, metric)
-    A = b = None
-    rows, rhs = [], []
-    if weights is not None and energies is not None:
+    gradient_rows = weights is not None and energies is not None
+    if gradient_rows:
         energies = np.asarray(energies, float)
         floor = GRADIENT_ROWS_FLOOR * float(np.median(energies))
+    A = b = None
     for i, (q, tot) in enumerate(zip(samples, totals, strict=True)):
         tot = np.asarray(tot)
         if metric is not None:
             q = np.linalg.solve(metric.T, q)                       # the same point in the basis U M^T
             tot = tot @ metric.T
         P = model.gradient_pieces(q)                              # (m+1, r, n)
-        s = np.sqrt(np.einsum("krn,krn->k", P, P) / P.shape[2])
-        s[s == 0] = 1.0
+        k, r, n = P.shape
         if A is None:
             # single precision: the pieces of all candidates at all samples are the build's largest array (100 MB at
-            # 13k vertices in double); rounding them to 6e-8 is far below the fit's residual (1e-3 to 1e-2)
-            A = np.empty((len(samples), P.shape[0], P.shape[1], P.shape[2]), np.float32)
-            b = np.empty((len(samples), P.shape[0], P.shape[1]))
-        np.divide(P, s[:, None, None], out=A[i], casting="same_kind")
-        b[i] = tot / s[:, None]
-        if weights is not None and energies is not None and energies[i] + floor > 0:
+            # 13k vertices in double); rounding them to 6e-8 is far below the fit's residual (1e-3 to 1e-2).  One
+            # array for the pieces' rows (k r per sample) and the whole gradients' (r per sample): no copy of it
+            S = len(samples)
+            A = np.zeros((S * (k + gradient_rows) * r, n), np.float32)
+            b = np.zeros(len(A))
+        s = np.sqrt(np.einsum("krn,krn->k", P, P) / n)
+        s[s == 0] = 1.0
+        np.divide(P, s[:, None, None], out=A[i * k * r:(i + 1) * k * r].reshape(k, r, n), casting="same_kind")
+        b[i * k * r:(i + 1) * k * r] = (tot / s[:, None]).ravel()
+        if gradient_rows and energies[i] + floor > 0:
             coef = np.r_[1.0, -np.asarray(weights[i], float)] * (GRADIENT_ROWS_WEIGHT / np.sqrt(energies[i] + floor))
-            rows.append(np.einsum("k,krn->rn", coef, P).astype(np.float32))
-            rhs.append(coef @ tot)
-    A, b = A.reshape(-1, A.shape[-1]), b.ravel()
-    if rows:
-        A, b = np.concatenate([A, *rows]), np.concatenate([b, *rhs])
+            at = S * k * r + i * r
+            A[at:at + r] = np.einsum("k,krn->rn", coef, P)
+            b[at:at + r] = coef @ tot
     sel, c, rel = greedy_nnls(A, b, n_points, batch=max(1, n_points // 25))
     order = np.argsort(cand[sel])
     return cand[sel][order], c[order], rel
