@@ -570,7 +570,7 @@ def _extend(U, vectors, rtol=1e-8):
 
 
 def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, derivatives=False, progress=None,
-                   reduced_iterations=2, min_gain=0.0):
+                   reduced_iterations=2, min_gain=0.0, presolve=None):
     """One full Gauss-Newton step from the reduced minimizer at each ``(w, q0)`` of ``starts``: the part of the
     projection the space misses, to first order.
 
@@ -589,7 +589,10 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
     The reduced minimizer needs few iterations (``reduced_iterations`` Gauss-Newton steps in the space,
     :func:`reduced_solve`): the full step from a point ``x`` of the space lands near the projection
     whatever ``x``, so an error of ``x`` within the space changes the step only within the space, to
-    first order, and adds nothing to the space.
+    first order, and adds nothing to the space.  ``presolve(space, w, q0) -> q`` (with ``pcg_iterations = 0``),
+    when given, moves each start first by cheaper iterations in the space as grown so far (the mixer: two
+    Gauss-Newton steps of the reduced energy on a sample of edges), and the ``reduced_iterations`` steps with
+    every edge start from there.
 
     With ``derivatives`` (a bool, or a sequence of one per start; and a factorization per start) the same
     factorization also gives the first derivatives of the projection by the weights at the reduced minimizer
@@ -620,6 +623,8 @@ def newton_vectors(problem, x0, U, starts, size, keys=None, pcg_iterations=0, de
         for i, (wk, q0) in enumerate(starts):
             report(progress, i, len(starts), f"Newton vector {i + 1} of {len(starts)}")
             q0 = np.concatenate([q0, np.zeros(space.shape[1] - U.shape[1])])   # the new columns come last
+            if presolve is not None:
+                q0 = presolve(space, wk, q0)
             _, x, e, (J, z) = reduced_solve(problem, x0, space, q0, wk, iterations=reduced_iterations,
                                             linearized=True)
             solved.append((np.asarray(wk, float), x))
