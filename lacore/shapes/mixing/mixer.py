@@ -44,8 +44,9 @@ s in all on the 2-core AMD EPYC we benchmark on; ``benchmarks/bench_mixer.py``),
 cubature fit (:mod:`.cubature`, 0.7-1.5 s there, 4.6 s on the 50k bar) comes next. At 13k vertices the first
 factorization's pattern, ordering and symbolic analysis take about 0.8-1.2 s more (on the CC0 body CHOLMOD keeps its
 own AMD ordering, whose factor has 5.6 million nonzeros, over the METIS one offered, 6.3 million), and each Newton
-vector's reduced minimizer (two Gauss-Newton steps in the space with the full Jacobian,
-:func:`.subspace.reduced_solve`) about 0.1 s: every point it tries is evaluated with its Jacobian, so its last
+vector's reduced minimizer (:data:`PRESOLVE_ITERATIONS` Gauss-Newton steps on the screening's sample of edges, then
+one in the space with the full Jacobian, :func:`.subspace.reduced_solve`) 0.03-0.08 s: every point the full step
+tries is evaluated with its Jacobian, so its last
 evaluation also serves the factorization and the Newton step there, and ``W^(1/2)`` scales ``J U`` in place (the
 Newton stage of the CC0 body from 4.2 s to 3.3 s CPU, of the MakeHuman body from 2.0 s to 1.7 s, the same vectors to
 the last bit). Scaling the rows of ``J`` before the product instead saved no more (3.9 s to 3.2 s) and changes the
@@ -56,9 +57,9 @@ in ``[-0.5, 1.5]^2`` 0.011 % to 0.023 %, largest energy ratio in ``[0, 1]^2`` 1.
 lost accuracy on the bar and the CC0 body: Newton vectors by preconditioned conjugate gradients
 (:attr:`MixerOptions.newton_pcg_iterations`), derivatives at the basis key only (the CC0 body's median energy ratio
 to Gauss-Newton in ``[0, 1]^3`` from 1.27 to 2.86 for 0.3 s), no Newton vector at the centre of ``[0, 1]^(K-1)``
-(1.27 to 1.64), one reduced step instead of two (the 5k bar's largest error in ``[-0.5, 1.5]^2`` from 0.44 % to 0.56
-%). A mix costs ``O(r^2 n)`` per iteration (``r`` the reduced size, ``n`` the cubature's edges, both independent of
-the mesh size) plus ``O(V r)`` to write the vertices.
+(1.27 to 1.64), one reduced step with the full Jacobian instead of two without the sampled steps before it (the 5k
+bar's largest error in ``[-0.5, 1.5]^2`` from 0.44 % to 0.56 %). A mix costs ``O(r^2 n)`` per iteration (``r`` the
+reduced size, ``n`` the cubature's edges, both independent of the mesh size) plus ``O(V r)`` to write the vertices.
 
 Examples: ``benchmarks/bench_mixer.py`` measures build, time per mix and the distance to converged
 full Gauss-Newton on a bar and two bodies.
@@ -171,7 +172,7 @@ SCREENING_ITERATIONS = 10
 #: ``presolve`` of :func:`.subspace.newton_vectors`).  Against two steps with every edge: the reduced solves before
 #: the Newton vectors took 1.0 s instead of 1.7 s of the 50k bar's build (12 starts), the Newton stage 0.2-0.25 s
 #: less on the 13k bodies; of ``bench_mixer``'s weights within 2 % of the energy of Gauss-Newton the same or more
-#: (50k MakeHuman body, outside ``[0, 1]^2``: 9 of 10 instead of 7), the largest RMS errors within 0.002 % of the
+#: (50k MakeHuman body, outside ``[0, 1]^2``: 9 of 10 instead of 7), the largest RMS errors within 0.004 % of the
 #: diagonal of before, or smaller (CC0 body, outside the box: 0.58 % instead of 0.74 %).  One sampled step lost a
 #: weight within 2 % on the CC0 body (8 of 10 in the box), ten (nearly the sample's minimizer) four (5 of 10).
 PRESOLVE_ITERATIONS = 2
