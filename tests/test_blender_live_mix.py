@@ -368,6 +368,20 @@ def test_artist_edits_mute_ranges_relative_keys_and_modifiers(run, inputs):
     assert res["mix_vs_linear"] > 0.05, res
 
 
+def test_new_shape_from_mix_is_the_shown_mix(run):
+    """Blender's *New Shape from Mix* on a live mesh makes a key of the nonlinear mix shown; the key is added linearly
+    until Rebuild (said in the panel), then mixed live: alone at 1 it shows its own shape."""
+    res, a = run["cases"]["new_shape_from_mix"], run["arrays"]
+    assert res["added"] == ["FINISHED"]
+    assert np.abs(a["from_mix_key"] - a["from_mix_shown"]).max() < 1e-6
+    assert res["unchanged_at_0"] < 1e-6, res
+    assert res["status"] == [["Bend", "Twist", "Both"], [res["name"]], ""], res
+    assert f"Mixed linearly: {res['name']} (added or changed after the build: Rebuild to mix it)" in res["panel"], \
+        res["panel"]
+    assert res["rebuilt_status"] == [["Bend", "Twist", "Both", res["name"]], [], ""], res
+    assert np.abs(a["from_mix_alone"] - a["from_mix_key"]).max() < TOL
+
+
 def test_artist_edits_renamed_deleted_and_applied_keys(run):
     """A renamed key (the basis too) is followed: still live, the record takes the new names.  Renamed and edited, or
     deleted, it makes the mixer stale (Blender's linear mix, bit for bit); named back and the edit undone it is

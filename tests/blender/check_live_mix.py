@@ -894,6 +894,35 @@ def artist_edits():
     return out
 
 
+def new_shape_from_mix():
+    """*New Shape from Mix* on a live mesh: the new key is the shape shown (the nonlinear mix); it is added linearly
+    until Rebuild (the panel says so), and after Rebuild it is mixed live like the others."""
+    reset()
+    obj = make_bar()
+    assert enable(obj) == ["FINISHED"]
+    set_values(obj, (0.5, 0.3, 0.0))
+    shown = evaluated(obj)
+    with ops_context(obj):
+        out = {"added": sorted(bpy.ops.object.shape_key_add(from_mix=True))}
+    new = obj.active_shape_key
+    co = np.empty(3 * len(new.points), np.float32)
+    new.points.foreach_get("co", co)
+    OUT["from_mix_key"] = co.reshape(-1, 3)
+    OUT["from_mix_shown"] = shown
+    new.value = 0.0                                 # (Blender 5 makes new keys at 1)
+    out["unchanged_at_0"] = float(np.abs(evaluated(obj) - shown).max())
+    s = status(obj)
+    out["name"], out["status"] = new.name, [s["keys"], s["linear"], s["stale"]]
+    out["panel"] = panel_labels(obj)
+    assert enable(obj) == ["FINISHED"]              # Rebuild: the new key is mixed live too
+    s = status(obj)
+    out["rebuilt_status"] = [s["keys"], s["linear"], s["stale"]]
+    set_values(obj, (0.0, 0.0, 0.0))
+    new.value = 1.0
+    OUT["from_mix_alone"] = evaluated(obj)
+    return out
+
+
 def mix_key_name():
     """A user key already named 'LA live mix': Enable refused, nothing changed; renamed, Enable mixes and leaves it
     alone.  The add-on's key renamed, then saved (Object Mode: which name the save's updates see), renamed in Edit Mode
@@ -1675,10 +1704,9 @@ def finish():
     np.savez(os.path.join(ARGS.workdir, "live_mix.npz"), **OUT)
 
 
-run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live,
-           mixer_text_deleted, stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo,
-           appended_and_deleted, edit_mode_round_trip, artist_edits, linked_from_library, library_override,
-           library_override_driven, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
+run_cases([install_and_enable, enable_mix_disable, keyframes_drivers_and_save, reload_still_live, mixer_text_deleted,
+           stale_when_edited, out_of_range_and_vertex_groups, several_objects_and_undo, appended_and_deleted,
+           edit_mode_round_trip, artist_edits, linked_from_library, library_override, library_override_driven,
+           new_shape_from_mix, mix_key_name, bad_input, modal_run_and_cancel, inbetweens_and_bake_with_mixer,
            vertex_groups_and_relative_keys, many_keys_kept_linear, kept_linear_renamed, weight_paint_while_stale,
-           posing_reads_no_weights, weight_paint_shared_mesh, exports, renders,
-           finish])
+           posing_reads_no_weights, weight_paint_shared_mesh, exports, renders, finish])
