@@ -594,6 +594,7 @@ def test_space_indicator_ranks_like_the_newton_gain(monkeypatch, bar4):
     exact = mixer._screening_energy()
     assert exact.edges is None or len(exact.edges) == mixer.n_edges
     monkeypatch.setattr(mixer_module, "SCREENING_EDGES", 150)
+    mixer._screening = None                     # the sample is drawn once per mixer: draw it again at 150 edges
     sampled = mixer._screening_energy()
     assert len(np.unique(sampled.edges)) == 150 and np.allclose(sampled.c, mixer.n_edges / 150)
     for w, q in starts[:4]:

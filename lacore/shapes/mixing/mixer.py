@@ -814,6 +814,7 @@ class ShapeMixer:
         self._corners = self.keys.copy() if _corners is None else np.asarray(_corners, float)
         self._key_x = np.stack([ctx.to_canonical(k).ravel() for k in self._corners])
         self._stencils = edge_stencils(self.topology)
+        self._screening = None                              # (edges, weights), :meth:`_screening_sample`
         self._gn = GaussNewtonOptions(max_iterations=self.options.polish_iterations)
         self.diagonal = float(np.linalg.norm(np.ptp(self.keys[0], axis=0))) or 1.0
         self.build_seconds = {}
@@ -1065,21 +1066,27 @@ class ShapeMixer:
             B[:, :, j] = ctx.from_canonical(Ur[:, :, j]) - zero
         self._B = B.reshape(3 * V, r)
 
-    def _make_energy(self, edges, c, metric=None):
-        """The reduced energy on ``edges`` with cubature weights ``c``; with ``metric`` ``M`` on the basis ``U M^T``."""
+    def _make_energy(self, edges, c, metric=None, basis=None):
+        """The reduced energy on ``edges`` with cubature weights ``c`` in the space of ``basis`` (default the mixer's
+        own); with ``metric`` ``M`` on the basis ``U M^T``."""
         P = self._problem
-        U = self.basis if metric is None else self.basis @ metric.T
+        U = self.basis if basis is None else basis
+        if metric is not None:
+            U = U @ metric.T
         return ReducedEnergy(self._stencils, self._key_x[0], U, P.w, P.z0, P.dz, P.floor, edges, c)
 
     def _screening_sample(self):
         """``(edges, weights)`` of the screening: a seeded random sample of :data:`SCREENING_EDGES` edges, each
         weighted by the number of edges over the sample's size (``(None, None)``, all edges at weight 1, on smaller
-        meshes)."""
-        E = self.n_edges
-        if E <= SCREENING_EDGES:
-            return None, None
-        edges = np.sort(np.random.default_rng(0).choice(E, SCREENING_EDGES, replace=False))
-        return edges, np.full(SCREENING_EDGES, E / SCREENING_EDGES)
+        meshes); drawn once per mixer."""
+        if self._screening is None:
+            E = self.n_edges
+            if E <= SCREENING_EDGES:
+                self._screening = None, None
+            else:
+                edges = np.sort(np.random.default_rng(0).choice(E, SCREENING_EDGES, replace=False))
+                self._screening = edges, np.full(SCREENING_EDGES, E / SCREENING_EDGES)
+        return self._screening
 
     def _screening_energy(self):
         """The reduced energy on the screening's sample of edges (:meth:`_screening_sample`): its minimizers stand in
@@ -1090,9 +1097,7 @@ class ShapeMixer:
     def _presolve(self, U, w, q0):
         """``q0`` moved by :data:`PRESOLVE_ITERATIONS` Gauss-Newton steps of the reduced energy of the basis ``U`` (the
         space the Newton vectors have grown so far) on the screening's sample of edges, at the weights ``w``."""
-        P = self._problem
-        energy = ReducedEnergy(self._stencils, self._key_x[0], U, P.w, P.z0, P.dz, P.floor, *self._screening_sample())
-        return energy.solve(w, q0, PRESOLVE_ITERATIONS)[0]
+        return self._make_energy(*self._screening_sample(), basis=U).solve(w, q0, PRESOLVE_ITERATIONS)[0]
 
     def _cubature_samples(self):
         """Training points ``(weights (S, m), q (S, r))``: the points the build solved and Taylor predictions at
