@@ -65,7 +65,7 @@ def space_error_density(gradients, basis, vertex_scale):
     """
     g = np.asarray(gradients, float)
     G = g.reshape(len(g), -1)
-    Gp = G - basis @ (basis.T @ G)
+    Gp = G - basis @ (G.T @ basis).T                  # (G^T U)^T: faster than U^T G in OpenBLAS for a tall G
     d = (Gp.reshape(-1, 3, G.shape[1]) ** 2).sum(axis=1).T / (2.0 * np.maximum(vertex_scale, np.finfo(float).tiny))
     return d[0] if g.ndim == 1 else d
 

@@ -564,7 +564,7 @@ def _extend(U, vectors, rtol=1e-8):
     if not V.shape[1]:
         return U
     for _ in range(2):                                        # twice: orthogonal to U to rounding
-        V -= U @ (U.T @ V)
+        V -= U @ (V.T @ U).T                                # (V^T U)^T: faster than U^T V for few columns
     Q, R = np.linalg.qr(V)
     return np.hstack([U, Q[:, np.abs(np.diag(R)) > rtol]])
 
