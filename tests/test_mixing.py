@@ -619,6 +619,7 @@ def test_screening_solves_stop_at_their_tolerance(bar4):
     steps, converged_steps = [], []
     for w, q in zip(W[n_built:], Q[n_built:], strict=True):
         q1, e1, its = energy.solve(w, q, mixer_module.SCREENING_ITERATIONS, ftol=mixer_module.SCREENING_FTOL)
+        assert np.array_equal(q1, mixer._screened(energy, w, q))             # the build's screening solve
         q2, e2, its2 = energy.solve(w, q, mixer_module.SCREENING_ITERATIONS)
         steps.append(its)
         converged_steps.append(its2)
@@ -877,7 +878,7 @@ def test_local_step_is_the_full_gauss_newton_step_on_its_vertices(case, request)
         assert abs(change - (e1 - e0)) < 1e-9 * e0
         # the chord steps: the same matrix, the gradient where the last step ended
         x2 = x1.copy()
-        for _ in range(2):
+        for k in range(1, 3):
             J2, z2 = lengths_and_angles_jacobian(x2.reshape(-1, 3), mixer.topology, return_z=True)
             d2 = -np.linalg.solve(Jf.T @ (prob.w[:, None] * Jf), J2[:, free].T @ (prob.w * prob._residual(z2, w)))
             x3 = x2.copy()
@@ -888,7 +889,7 @@ def test_local_step_is_the_full_gauss_newton_step_on_its_vertices(case, request)
             want2 = np.zeros((mixer.n_vertices, 3))
             want2.ravel()[free] = x2[free] - x[free]
             want2 = np.einsum("vij,vj->vi", loc._map, want2[loc.hot])
-            dX2, change2 = loc.step(q, w, chord_steps=_ + 1)
+            dX2, change2 = loc.step(q, w, chord_steps=k)
             np.testing.assert_allclose(dX2, want2, rtol=0, atol=1e-9 * np.abs(want2).max())
             assert abs(change2 - (prob.energy(x2, w) - e0)) < 1e-9 * e0 and change2 < change
 

@@ -936,7 +936,7 @@ class ShapeMixer:
                     sampled = mixer._screening_energy()
                     score, screened = space_indicator(
                         P, x0, mixer.basis, [(wc, mixer._start(wc)) for wc in pool],
-                        lambda wk, q0, e=sampled: e.solve(wk, q0, SCREENING_ITERATIONS, ftol=SCREENING_FTOL)[0])
+                        lambda wk, q0, e=sampled: mixer._screened(e, wk, q0))
                 order = np.argsort(-score, kind="stable")[:EXPLORE_POINTS]
                 cands = [pool[i] for i in order]
                 starts = {tuple(pool[i]): screened[i] for i in order}
@@ -1100,6 +1100,12 @@ class ShapeMixer:
         they are the cubature's training points at its added weights (:meth:`_fit_cubature`)."""
         return self._make_energy(*self._screening_sample())
 
+    @staticmethod
+    def _screened(energy, w, q0):
+        """The minimizer ``(r,)`` of a screening energy (:meth:`_screening_energy`) at the weights ``w``, from ``q0``:
+        at most :data:`SCREENING_ITERATIONS` Gauss-Newton steps, stopping at :data:`SCREENING_FTOL`."""
+        return energy.solve(w, q0, SCREENING_ITERATIONS, ftol=SCREENING_FTOL)[0]
+
     def _presolve(self, U, w, q0):
         """``q0`` moved by :data:`PRESOLVE_ITERATIONS` Gauss-Newton steps of the reduced energy of the basis ``U`` (the
         space the Newton vectors have grown so far) on the screening's sample of edges, at the weights ``w``."""
@@ -1187,7 +1193,7 @@ class ShapeMixer:
         # docs/shape-space.md)
         n_built = len(self._exp_w)
         sampled = self._screening_energy()
-        Q = list(Q[:n_built]) + [sampled.solve(wk, qk, SCREENING_ITERATIONS, ftol=SCREENING_FTOL)[0]
+        Q = list(Q[:n_built]) + [self._screened(sampled, wk, qk)
                                  for wk, qk in zip(W[n_built:], Q[n_built:], strict=True)]
         energies, densities = [], []
         if self.options.cubature_energy_norm:
