@@ -22,7 +22,7 @@ MODULES = sorted(m.name for m in pkgutil.walk_packages(lacore.__path__, "lacore.
 MAIN_ENTRY_POINTS = [
     "lacore.io.meshes.load_mesh", "lacore.io.meshes.save_mesh", "lacore.io.point_cache.write_pc2",
     "lacore.io.point_cache.read_pc2", "lacore.io.atomic.atomic_write",
-    "lacore.linalg.sparse_cholesky.SparseCholesky",
+    "lacore.linalg.sparse_cholesky.SparseCholesky", "lacore.linalg.heap.retained_heap",
     "lacore.reconstruction.context.get_context", "lacore.reconstruction.settings.split_options",
     "lacore.shapes.interpolation.project_targets", "lacore.shapes.geodesics.projected_linear_path",
     "lacore.multiresolution.coarsening.coarsen", "lacore.multiresolution.reconstruction.MultiresolutionReconstruction",

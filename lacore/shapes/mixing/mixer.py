@@ -94,6 +94,7 @@ from ...errors import InputError, LengthsAnglesError, MeshError
 from ...geometry.lengths_angles import (check_nondegenerate, lengths_and_angles, lengths_and_angles_jacobian,
                                        wrap_angle)
 from ...geometry.topology import MeshTopology, check_vertices
+from ...linalg.heap import retained_heap
 from ...progress import report
 from ...reconstruction import ReconstructionContext, reconstruct
 from ...reconstruction.context import triangle_frame
@@ -879,6 +880,12 @@ class ShapeMixer:
         >>> bool(rigid_rms(mixer.mix([0.0, 1.0]).vertices, X) > 0.01)   # the twist B - A alone, on the straight bar
         True
         """
+        with retained_heap():  # its factorizations allocate and free the same blocks (lacore.linalg.heap)
+            return cls._build(keys, faces, options, masks=masks, relative_to=relative_to, names=names,
+                              progress=progress)
+
+    @classmethod
+    def _build(cls, keys, faces, options, *, masks, relative_to, names, progress):
         if options is not None and not isinstance(options, MixerOptions):
             raise InputError(f"options must be MixerOptions, got {type(options).__name__}")
         if hasattr(keys, "__len__"):
