@@ -32,7 +32,8 @@ numbers next to nothing; the floor measures the excess on the scale of the keys'
 Prints one JSON object.  Times: wall (``perf_counter``) and CPU (``process_time``); run with
 ``OPENBLAS_NUM_THREADS=1`` for one core.  The build's minor page faults and system seconds
 (``build_minor_page_faults``, ``build_system_seconds``: the fresh memory it touches, costly on a virtual machine)
-and its peak resident memory growth come from ``getrusage``.
+come from ``getrusage``, its peak resident memory growth from :func:`peak_rss_growth`; each mesh is measured in a
+process of its own.
 """
 
 import argparse
@@ -40,6 +41,7 @@ import hashlib
 import json
 import os
 import resource
+import subprocess
 import sys
 import time
 
@@ -151,6 +153,34 @@ def save_references(path, digest, W, n_in, X, E):
     os.replace(tmp, path)
 
 
+def _status_kb(field):
+    """A field of ``/proc/self/status`` in KiB, or None where there is none."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def peak_rss_growth():
+    """A function giving the growth of the peak resident memory since this call, in KiB. On Linux the peak is reset
+    to the present resident memory (``/proc/self/clear_refs``) and read from ``VmHWM``, so that a peak before this
+    call does not hide it; elsewhere it is the growth of the process' peak (``ru_maxrss``)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        rss = _status_kb("VmRSS")
+        if rss is not None and _status_kb("VmHWM") is not None:
+            return lambda: _status_kb("VmHWM") - rss
+    except OSError:
+        pass
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak
+
+
 def rms_percent(A, B, diag):
     Y = rigid_align(A, B)
     return 100.0 * float(np.sqrt(np.mean(np.sum((Y - B) ** 2, axis=1)))) / diag
@@ -182,7 +212,7 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
         save_references(path, digest, W, n_in, *stored)
     Xref, Eref = stored
     usage0 = resource.getrusage(resource.RUSAGE_SELF)
-    rss0 = usage0.ru_maxrss
+    peak_growth = peak_rss_growth()
     c0, t0 = time.process_time(), time.perf_counter()
     mixer = ShapeMixer.build(keys, faces, options, **blend)
     out["build_seconds"] = {k: round(v, 3) for k, v in mixer.build_seconds.items()}
@@ -199,7 +229,7 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     out["edges"] = int(mixer.n_edges)
     out["cubature_fit_residual"] = round(float(getattr(mixer, "cubature_residual", 0.0)), 5)
     out["mixer_megabytes"] = round(mixer.nbytes / 2 ** 20, 1)
-    out["peak_rss_growth_megabytes"] = round((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024, 1)
+    out["peak_rss_growth_megabytes"] = round(peak_growth() / 1024, 1)
     errs, ratios, exacts, inds, flags, its, wall, cpu, checked = [], [], [], [], [], [], [], [], []
     Xref, Eref = np.array(Xref, float), np.array(Eref, float)
     for i, w in enumerate(W):
@@ -272,9 +302,15 @@ def bench_mesh(name, reference_dir=None, repeats=3, options=None, references=Non
     return out
 
 
-def run(argv, meshes, description, benchmark, case=None):
+def run(argv, meshes, description, benchmark, case=None, script=None):
     """Parse ``argv`` (mesh names of ``meshes``, ``--reference``, ``--repeats``, ``--references``), measure each
-    mesh (:func:`bench_mesh`, ``case(name)`` its case when given) and print the JSON object titled ``benchmark``."""
+    mesh (:func:`bench_mesh`, ``case(name)`` its case when given) and print the JSON object titled ``benchmark``.
+
+    With ``script`` (the calling benchmark's file) and more than one mesh, each mesh is measured by ``script`` in a
+    process of its own: the build's time, page faults and peak memory are then those of a fresh process, as in
+    ``lacore mixer`` or Blender's Enable, whatever ran before it.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("meshes", nargs="*", default=list(meshes), help=f"of {', '.join(meshes)}")
     ap.add_argument("--reference", help="folder of the converged full Gauss-Newton mixes <mesh>.npz, computed "
@@ -283,6 +319,12 @@ def run(argv, meshes, description, benchmark, case=None):
     ap.add_argument("--references", type=int, default=None, metavar="N",
                     help="only N weights in [0, 1] and N outside (default 10 + 10)")
     args = ap.parse_args(argv)
+    if script is not None and len(args.meshes) > 1:
+        rest = [a for a in argv if a not in args.meshes]
+        records = [json.loads(subprocess.run([sys.executable, os.path.abspath(script), name, *rest], check=True,
+                                             stdout=subprocess.PIPE, text=True).stdout) for name in args.meshes]
+        print(json.dumps(dict(records[0], meshes=[m for r in records for m in r["meshes"]]), indent=1))
+        return
     results = {"benchmark": benchmark, "machine": machine_info(),
                "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "meshes": []}
     for name in args.meshes:

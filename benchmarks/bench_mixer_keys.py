@@ -15,9 +15,7 @@ Every slider moves at once at the measured weights (:func:`bench_mixer.reference
 usage: python benchmarks/bench_mixer_keys.py [human13k_k5] [human13k_k6] [human13k_k7] [--references N]
 """
 
-import json
 import os
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -49,17 +47,9 @@ def keys_case(name):
 
 
 def main(argv=None):
-    argv = list(sys.argv[1:] if argv is None else argv)
-    cases = [a for a in argv if a in MESHES]
-    if len(cases) != 1:  # one process per case, so that each build's peak memory is its own
-        rest = [a for a in argv if a not in MESHES]
-        records = [json.loads(subprocess.run([sys.executable, os.path.abspath(__file__), c, *rest], check=True,
-                                             stdout=subprocess.PIPE, text=True).stdout) for c in cases or MESHES]
-        print(json.dumps(dict(records[0], meshes=[m for r in records for m in r["meshes"]]), indent=1))
-        return
     run(argv, MESHES, __doc__.split("\n")[0],
         "shape mixer by the number of keys: build, ms per mix, RMS % of the diagonal against converged full "
-        "Gauss-Newton, energy goal, memory", case=keys_case)
+        "Gauss-Newton, energy goal, memory", case=keys_case, script=__file__)
 
 
 if __name__ == "__main__":

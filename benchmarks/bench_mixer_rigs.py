@@ -14,8 +14,8 @@ vertices, :func:`lacore.samples.human.load_human`), with the public defaults:
   arm's (weights in ``[-0.5, 1.5]`` mapped to ``[0, 1]`` first).  A corrective above its key is the key's anti-pose
   plus the bend, where even converged Gauss-Newton folds faces; such weights are not measured.
 
-References are computed once and cached like ``bench_mixer``'s (``--reference DIR``).  Prints one JSON object; run
-with ``OPENBLAS_NUM_THREADS=1`` for one core.
+References are computed once and cached like ``bench_mixer``'s (``--reference DIR``); each case is measured in a
+process of its own.  Prints one JSON object; run with ``OPENBLAS_NUM_THREADS=1`` for one core.
 
 usage: python benchmarks/bench_mixer_rigs.py [human13k_masked] [human13k_relative] [--references N] [--repeats R]
 """
@@ -69,7 +69,7 @@ def rig_case(name):
 def main(argv=None):
     run(argv, MESHES, __doc__.split("\n")[0],
         "shape mixer on rig keys (a vertex group, a relative key): build, ms per mix, RMS % of the diagonal against "
-        "converged full Gauss-Newton, energy goal, memory", case=rig_case)
+        "converged full Gauss-Newton, energy goal, memory", case=rig_case, script=__file__)
 
 
 if __name__ == "__main__":

@@ -203,9 +203,9 @@ def _blender_quality(b):
             f"{n} {'frame' if n == 1 else 'frames'} passing through {'itself' if n == 1 else 'themselves'}{where}")
 
 
-def _mixer_table(record, peak=False):
+def _mixer_table(record):
     """The table of a shape-mixer record (``bench_mixer``, ``bench_mixer_rigs``, ``bench_mixer_keys``): one row per
-    mesh; ``peak``: with the build's peak memory growth."""
+    mesh, with the mixer's size and the build's peak memory growth."""
     rows = []
     for m in record["result"]["meshes"]:
         mix = m["mix"]
@@ -213,9 +213,9 @@ def _mixer_table(record, peak=False):
                      _g(mix["ms_median_cold_cpu"]), _g(mix["rms_percent_diag_in_01"]["max"]),
                      _g(mix["rms_percent_diag_extrapolated"]["max"]),
                      f"{mix['energy_goal_in_01']['within']} of {mix['energy_goal_in_01']['of']}",
-                     _g(m["mixer_megabytes"])] + ([_g(m["peak_rss_growth_megabytes"])] if peak else []))
+                     _g(m["mixer_megabytes"]), _g(m["peak_rss_growth_megabytes"])])
     head = ["mesh", "vertices", "keys", "build s", "ms per mix", "RMS % of diagonal, weights in [0, 1] (max)",
-            "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB"] + (["build peak MB"] if peak else [])
+            "in [-0.5, 1.5] (max)", "energy within 2 %", "mixer MB", "build peak MB"]
     return table(head, rows)
 
 
@@ -223,7 +223,8 @@ def live_mixing(store=STORE):
     """The shape mixer: build, time per mix and distance to full Gauss-Newton; live playback in Blender."""
     record = load("bench_mixer", store)
     out = (_mixer_table(record) + "\n\n"
-           + "Against converged full Gauss-Newton; CPU seconds, one thread, vertices written included. Goals: "
+           + "Against converged full Gauss-Newton; CPU seconds, one thread, vertices written included, one mesh per "
+             "process (a fresh process builds, as `lacore mixer` does). Goals: "
              "<= 15 ms per mix at 50k vertices and <= 4 ms at 13k; RMS <= 0.3 % and <= 1 %; build <= 30 s at 50k "
              "(3 keys) and <= 5 s at 13k. " + machine_line(record))
     try:
@@ -242,13 +243,14 @@ def rig_mixing(store=STORE):
             + "The CC0 body's pose keys with the torso's twist limited to the upper body by a ramp of vertex-group "
               "weights (`human13k_masked`), and the raised arm with a corrective relative to it, weighted at most "
               "as the arm (`human13k_relative`); against converged full Gauss-Newton of the same blend, CPU seconds, "
-              "one thread, the public defaults (`benchmarks/bench_mixer_rigs.py`). " + machine_line(record))
+              "one thread, the public defaults, one case per process (`benchmarks/bench_mixer_rigs.py`). "
+            + machine_line(record))
 
 
 def keys_mixing(store=STORE):
-    """The shape mixer by the number of keys: as :func:`live_mixing`'s table, with the build's peak memory."""
+    """The shape mixer by the number of keys: as :func:`live_mixing`'s table."""
     record = load("bench_mixer_keys", store)
-    return (_mixer_table(record, peak=True) + "\n\n"
+    return (_mixer_table(record) + "\n\n"
             + "The CC0 body with 4, 5 and 6 pose keys besides the basis (`MixerOptions.max_keys`, the most a mixer "
               "takes by default), every slider moving at once; against converged full Gauss-Newton, CPU seconds, "
               "one thread, the public defaults, one case per process (`benchmarks/bench_mixer_keys.py`). "
