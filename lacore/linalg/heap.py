@@ -59,9 +59,9 @@ def retained_heap():
     --------
     >>> import numpy as np
     >>> with retained_heap():
-    ...     total = sum(float(np.ones(1 << 22).sum()) for _ in range(3))  # three 32 MiB blocks, one set of pages
+    ...     total = sum(float(np.ones(1 << 21).sum()) for _ in range(3))  # three 16 MiB blocks, one set of pages
     >>> total
-    12582912.0
+    6291456.0
     """
     libc = heap_control()
     if libc is None:
