@@ -5,7 +5,9 @@ workspace, the values handed to it, the Jacobians and their products (megabytes 
 glibc's default policy, free memory at the top of the heap beyond a threshold goes back to the operating system
 and blocks above another come from ``mmap``, so the next allocation of the same size touches fresh pages: every
 4 KiB page costs a page fault. Without it, a :class:`lacore.ShapeMixer` build of the CC0 body (13k vertices) faults
-about 300,000 times (0.7-1.1 s of system time) and one of the 50k bar about 800,000 times (2-3 s).
+about 300,000 times (0.7-1.1 s of system time) and one of the 50k bar about 800,000 times (2-3 s); ten in-betweens
+of the 50k bar by *Path* about 600,000 times. The mixer's build, Gauss-Newton reconstruction and the in-betweens of
+:func:`lacore.interpolate` run inside :func:`retained_heap`.
 
 :func:`retained_heap` keeps freed memory in the process while it runs (glibc's ``mallopt``: an ``mmap`` threshold
 of :data:`MMAP_THRESHOLD` and a trim threshold of :data:`TRIM_THRESHOLD`), and on leaving returns what is free to

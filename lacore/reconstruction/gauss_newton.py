@@ -140,6 +140,7 @@ import numpy as np
 
 from ..errors import InputError, LengthsAnglesError, MeshError
 from ..geometry.lengths_angles import check_z, wrap_angle
+from ..linalg.heap import retained_heap
 from ..linalg.sparse_cholesky import NotPositiveDefiniteError
 from ..geometry.topology import check_vertices
 from .assembly import gauss_newton_pattern
@@ -630,8 +631,10 @@ def gauss_newton_reconstruction(z_target, topology, reference_vertices=None, *, 
             return None
         return context.to_canonical(X) if np.all(np.isfinite(X)) else None
 
-    out = run_gauss_newton(objective, Xc, context, options, alternative_start=relaxation if start_check else None,
-                           budget=budget, extend_budget=extend_budget)
+    with retained_heap():  # the iterations' factorizations on one heap (lacore.linalg.heap)
+        out = run_gauss_newton(objective, Xc, context, options,
+                               alternative_start=relaxation if start_check else None, budget=budget,
+                               extend_budget=extend_budget)
     vertices = context.from_canonical(out.x)
     timings = dict(out.timings)
     timings["initialization"] = t_init

@@ -51,6 +51,7 @@ from scipy.interpolate import CubicSpline
 from ..errors import InputError, LengthsAnglesError, MeshError, as_float_array
 from ..geometry.lengths_angles import check_z, lengths_and_angles, wrap_angle
 from ..geometry.topology import MeshTopology, check_vertices
+from ..linalg.heap import retained_heap
 from ..reconstruction import reconstruction_errors
 from ..result import SolverResult
 from .projection import SequenceProjection, check_times, projection_options
@@ -507,14 +508,15 @@ def _run(shapes, topology, times, keyframes, smooth, bc_type, reference, referen
     if mixer is not None:
         return _mixer_run(mixer, z_keys, k, times, smooth, bc_type, reference, reference_vertices, progress, on_frame,
                           t_start)
-    if opts is PATH:
-        return _path_run(Xs, topology, z_keys, k, times, smooth, reference, reference_vertices, progress, on_frame,
-                         t_start, path_options)
-    targets = keyframe_targets(z_keys, k, times, smooth, bc_type)
-    X_ref = _reference(Xs, reference, reference_vertices, topology)
-    anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
-    run = SequenceProjection(targets, topology, X_ref, times, anchors, opts, samples=z_keys, workers=workers)
-    return sequence_result(run.run(progress, on_frame), t_start, keyframes=k, smooth=smooth)
+    with retained_heap():  # every frame's factorizations on one heap (lacore.linalg.heap)
+        if opts is PATH:
+            return _path_run(Xs, topology, z_keys, k, times, smooth, reference, reference_vertices, progress,
+                             on_frame, t_start, path_options)
+        targets = keyframe_targets(z_keys, k, times, smooth, bc_type)
+        X_ref = _reference(Xs, reference, reference_vertices, topology)
+        anchors = [(float(kt), X) for kt, X in zip(k, Xs, strict=True) if X is not None]
+        run = SequenceProjection(targets, topology, X_ref, times, anchors, opts, samples=z_keys, workers=workers)
+        return sequence_result(run.run(progress, on_frame), t_start, keyframes=k, smooth=smooth)
 
 
 def _mixer_run(mixer, z_keys, keyframes, times, smooth, bc_type, reference, reference_vertices, progress, on_frame,
