@@ -6,6 +6,7 @@ Every benchmark prints one JSON object whose ``"machine"`` entry comes from
 
 import os
 import platform
+import resource
 import time
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -71,6 +72,34 @@ def cache_dir(name):
     path = os.path.join(root, "lacore-benchmarks", name)
     os.makedirs(path, exist_ok=True)
     return path
+
+
+def _status_kb(field):
+    """A field of ``/proc/self/status`` in KiB, or None where there is none."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def peak_rss_growth():
+    """A function giving the growth of the peak resident memory since this call, in KiB. On Linux the peak is reset
+    to the present resident memory (``/proc/self/clear_refs``) and read from ``VmHWM``, so that a peak before this
+    call does not hide it; elsewhere it is the growth of the process' peak (``ru_maxrss``)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        rss = _status_kb("VmRSS")
+        if rss is not None and _status_kb("VmHWM") is not None:
+            return lambda: _status_kb("VmHWM") - rss
+    except OSError:
+        pass
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak
 
 
 def machine_info(**extra):

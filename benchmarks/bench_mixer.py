@@ -32,8 +32,8 @@ numbers next to nothing; the floor measures the excess on the scale of the keys'
 Prints one JSON object.  Times: wall (``perf_counter``) and CPU (``process_time``); run with
 ``OPENBLAS_NUM_THREADS=1`` for one core.  The build's minor page faults and system seconds
 (``build_minor_page_faults``, ``build_system_seconds``: the fresh memory it touches, costly on a virtual machine)
-come from ``getrusage``, its peak resident memory growth from :func:`peak_rss_growth`; each mesh is measured in a
-process of its own.
+come from ``getrusage``, its peak resident memory growth from :func:`bench_common.peak_rss_growth`; each mesh is
+measured in a process of its own.
 """
 
 import argparse
@@ -53,7 +53,7 @@ for p in (REPO, HERE):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from bench_common import cache_dir, machine_info  # noqa: E402
+from bench_common import cache_dir, machine_info, peak_rss_growth  # noqa: E402
 
 from lacore.geometry.rigid import rigid_align  # noqa: E402
 from lacore.samples.simple_deform import box_bar, simple_deform_bend  # noqa: E402
@@ -151,34 +151,6 @@ def save_references(path, digest, W, n_in, X, E):
     tmp = path + ".tmp.npz"
     np.savez(tmp, weights=W, n_in=n_in, vertices=X, energy=E, digest=digest)
     os.replace(tmp, path)
-
-
-def _status_kb(field):
-    """A field of ``/proc/self/status`` in KiB, or None where there is none."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return None
-
-
-def peak_rss_growth():
-    """A function giving the growth of the peak resident memory since this call, in KiB. On Linux the peak is reset
-    to the present resident memory (``/proc/self/clear_refs``) and read from ``VmHWM``, so that a peak before this
-    call does not hide it; elsewhere it is the growth of the process' peak (``ru_maxrss``)."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        rss = _status_kb("VmRSS")
-        if rss is not None and _status_kb("VmHWM") is not None:
-            return lambda: _status_kb("VmHWM") - rss
-    except OSError:
-        pass
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak
 
 
 def rms_percent(A, B, diag):
