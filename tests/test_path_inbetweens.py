@@ -165,7 +165,7 @@ def test_rolled_plates_are_polished():
     topo = MeshTopology.from_faces(F, n_vertices=len(A))
     factors = [0.25, 0.5, 0.75]
     res = path_inbetweens(A, B, topo, factors)
-    assert res.polished and res.success and res.factorizations == 3      # gave up after two probes
+    assert res.polished and res.success and res.factorizations == 4      # three probes, estimates 10-20 %
     assert "polished by full Gauss-Newton" in res.message                # far off: not by Fast
     assert min(e for _, e in res.estimates) > 0.03
     gn = _gauss_newton(A, B, topo, factors)
