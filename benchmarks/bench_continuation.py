@@ -31,7 +31,10 @@ order, one context), by
   1-5 here, 10-6 in a worker process (which builds its own solver);
 * ``fast_before``: the add-on's Fast before (least-squares start, two steps
   reusing factorizations across frames, nearest warm start ignored);
-* ``one_step``: the secant prediction and one Gauss-Newton step.
+* ``one_step``: the secant prediction and one Gauss-Newton step;
+* ``path``: ``method="path"`` (:func:`lacore.shapes.mixing.path_inbetweens`, the add-on's default on large
+  meshes): a reduced model of the path, polished by the full projection where its error indicator stays above the
+  tolerance (``message`` says which).
 
 Per row: seconds per frame and in total, iterations and numeric factorizations
 per frame, energy excess over ``gauss_newton`` per frame, the largest RMS vertex
@@ -62,8 +65,8 @@ for p in (REPO, HERE):
 from bench_common import machine_info  # noqa: E402
 from bench_multires import cases as multires_cases  # noqa: E402
 
-ROWS = ("gauss_newton", "fast", "cli_default", "fast_no_extension", "fast_geometric_ordering", "fast_2_workers",
-        "one_step", "fast_before", "gauss_newton_before")
+ROWS = ("gauss_newton", "fast", "cli_default", "path", "fast_no_extension", "fast_geometric_ordering",
+        "fast_2_workers", "one_step", "fast_before", "gauss_newton_before")
 
 
 def cases(quick):
@@ -102,6 +105,8 @@ def row_options(name):
     if name == "fast_before":
         return {"method": "hybrid", "hybrid": HybridOptions(start="lsq", smoothing_iterations=2),
                 "options": GaussNewtonOptions(reuse_factorization=True, newton="never"), "warm_start": "nearest"}
+    if name == "path":
+        return {"method": "path"}
     if name == "one_step":
         return {"method": "hybrid", "hybrid": HybridOptions(start="given", smoothing_iterations=1)}
     raise ValueError(name)
@@ -177,6 +182,8 @@ def run_case(S, topo, rows, single=True):
         row = {"total_seconds": total, "seconds": r.seconds.tolist(), "iterations": r.iterations.tolist(),
                "energy": r.energy.tolist(),
                "success": [bool(x) for x in getattr(r, "success_per_frame", [x.success for x in r.reconstructions])]}
+        if name == "path":
+            row.update(success=bool(r.success), message=r.message, indicator=r.indicator.tolist())
         if r.reconstructions:
             row.update(factorizations=[x.factorizations for x in r.reconstructions],
                        newton_steps=[x.newton_steps for x in r.reconstructions])

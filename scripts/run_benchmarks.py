@@ -54,7 +54,7 @@ class Benchmark:
     long: bool = False         # the full run takes many minutes (50k-vertex meshes)
 
 
-_CONTINUATION_ROWS = ("--rows", "gauss_newton", "fast", "cli_default")
+_CONTINUATION_ROWS = ("--rows", "gauss_newton", "fast", "cli_default", "path")
 _CONTINUATION_QUICK = ("--quick", "--rows", "gauss_newton", "fast", "fast_2_workers", "cli_default", "--no-single")
 
 #: every benchmark script, by name (``benchmarks/<name>.py``)
