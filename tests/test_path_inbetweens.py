@@ -271,3 +271,14 @@ def test_fast_polish_projects_the_paths_energy(finger, scale):
     # measured: largest 0.015 % (0.1) and 0.015 % (10); with reconstruct's target-scaled weights, 0.65 % and 0.28 %
     assert rms.max() < 1e-3
     assert np.all(rms <= res.indicator)
+
+
+def test_progress_names_the_polish(bar):
+    """The last progress message before "done" says how many in-betweens are polished, and by what."""
+    X, F, topo = bar
+    seen = []
+    path_inbetweens(X, bar_pose(X, 2.5, 2.0), topo, FACTORS,
+                    PathOptions(tolerance=1e-7, max_newton_vectors=1, polish_method="gn"),
+                    progress=lambda done, total, message: seen.append(message))
+    assert seen[-1] == "done"
+    assert seen[-2] == f"polishing {len(FACTORS)} of {len(FACTORS)} in-betweens by full Gauss-Newton"

@@ -400,10 +400,11 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
     polished, success, message = False, True, ""
     if estimate > o.tolerance:
         if o.polish:
-            report(progress, total - 1, total, "polishing: the path needs full Gauss-Newton")
             polished = True
             over = np.flatnonzero(indicator > o.tolerance)       # the others are within the tolerance as they are
             fast = o.polish_method == "fast" or (o.polish_method == "auto" and estimate <= FAST_POLISH * o.tolerance)
+            report(progress, total - 1, total, f"polishing {len(over)} of {len(T)} in-betweens by "
+                   + ("Fast" if fast else "full Gauss-Newton"))
             with watch("polish"):
                 X[over], energy[over], failed = _polish(mixer, topology, T, X, over, None if fast else "gn",
                                                         o.polish_iterations)
