@@ -34,7 +34,7 @@ order, one context), by
 * ``one_step``: the secant prediction and one Gauss-Newton step;
 * ``path``: ``method="path"`` (:func:`lacore.shapes.mixing.path_inbetweens`, the add-on's default on large
   meshes): a reduced model of the path, polished by the full projection where its error indicator stays above the
-  tolerance (``message`` says which).
+  tolerance (``message`` says which; ``indicator`` per frame; ``success`` is the call's, one flag).
 
 Per row: seconds per frame and in total, iterations and numeric factorizations
 per frame, energy excess over ``gauss_newton`` per frame, the largest RMS vertex

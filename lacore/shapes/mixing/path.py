@@ -403,8 +403,8 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
             polished = True
             over = np.flatnonzero(indicator > o.tolerance)       # the others are within the tolerance as they are
             fast = o.polish_method == "fast" or (o.polish_method == "auto" and estimate <= FAST_POLISH * o.tolerance)
-            report(progress, total - 1, total, f"polishing {len(over)} of {len(T)} in-betweens by "
-                   + ("Fast" if fast else "full Gauss-Newton"))
+            by = "Fast" if fast else "full Gauss-Newton"
+            report(progress, total - 1, total, f"polishing {len(over)} of {len(T)} in-betweens by {by}")
             with watch("polish"):
                 X[over], energy[over], failed = _polish(mixer, topology, T, X, over, None if fast else "gn",
                                                         o.polish_iterations)
@@ -412,8 +412,7 @@ def path_inbetweens(key_from, key_to, topology, factors, options=None, *, progre
                 indicator[over] = 0.0
             success = not failed
             message = (f"error estimate {estimate:.3g} above {o.tolerance:g} after {len(estimates)} Newton vectors: "
-                       f"{len(over)} of {len(T)} polished by "
-                       + ("Fast" if fast else "full Gauss-Newton"))
+                       f"{len(over)} of {len(T)} polished by {by}")
             if failed:
                 message += f"; {len(failed)} did not converge (first {failed[0]})"
         else:
